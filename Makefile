@@ -1,0 +1,31 @@
+# crashnlp: every target creates .venv from nothing when it is missing.
+PY      ?= python3
+VENV    := .venv
+BIN     := $(VENV)/bin
+STAMP   := $(VENV)/.installed
+CLI     := $(BIN)/crashnlp
+
+.PHONY: demo test identify simulate study design bench clean
+
+$(STAMP): pyproject.toml
+	$(PY) -m venv $(VENV)
+	$(BIN)/pip install -q --upgrade pip
+	$(BIN)/pip install -q -e ".[test]"
+	touch $(STAMP)
+
+demo: $(STAMP)
+	$(CLI) identify problems/pickup-56kph.yaml
+
+simulate: $(STAMP)
+	$(CLI) simulate problems/pickup-56kph.yaml
+	$(CLI) simulate problems/pickup-40kph.yaml
+
+identify: $(STAMP)
+	$(CLI) identify problems/pickup-56kph.yaml
+
+test: $(STAMP)
+	$(BIN)/python -m pytest
+
+clean:
+	rm -rf $(VENV) .pytest_cache
+	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.*' -exec rm -rf {} +

@@ -1,0 +1,98 @@
+"""A problem made ready to compute: data loaded, parameters laid out, model built.
+
+This ties the steps together (like PyBaMM's Simulation): problem file ->
+validated problem -> data and symbolic model, shared by simulate, identify,
+design and studies.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from crashnlp.data import TestData, load_test_data
+from crashnlp.errors import InputError
+from crashnlp.model.parameters import ParameterLayout
+from crashnlp.model.pendulum import PendulumModel, build_model
+from crashnlp.problem import Problem, Test, load_problem
+from crashnlp.simulate import Response, simulate
+
+
+@dataclass
+class TestCase:
+    """One test of a problem: its impact speed, horizon, data and parameter overrides."""
+
+    spec: Test
+    speed: float
+    duration: float
+    data: TestData | None
+    overrides: dict[str, float]
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+
+class Case:
+    """Problem + data + parameter layout + symbolic model."""
+
+    def __init__(self, problem: Problem):
+        self.problem = problem
+        loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
+        self._fill_vehicle_mass(loaded)
+        self.tests = [self._test_case(i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
+        self.layout = ParameterLayout.of(problem)
+        self.base = self.layout.values(problem)
+        self.model: PendulumModel = build_model(problem.model, self.layout)
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Case":
+        return cls(load_problem(path))
+
+    @property
+    def name(self) -> str:
+        return self.problem.name
+
+    def _fill_vehicle_mass(self, loaded: list[TestData | None]) -> None:
+        if self.problem.vehicle.mass is not None:
+            return
+        masses = [t.mass for t in self.problem.tests if t.mass] + [d.meta["mass"] for d in loaded if d and "mass" in d.meta]
+        if not masses:
+            raise InputError("vehicle.mass: not given and no data header gives it")
+        self.problem.vehicle.mass = masses[0]
+
+    def _test_case(self, i: int, test: Test, data: TestData | None) -> TestCase:
+        speed = self.problem.speed(test)
+        if speed is None and data is not None:
+            speed = data.meta.get("speed")
+        if speed is None:
+            raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+        if test.duration is not None:
+            duration = test.duration
+        elif data is not None and test.data.window is not None:
+            duration = test.data.window[1]
+        elif data is not None:
+            duration = max(float(ch.time[-1]) for ch in data.channels.values())
+        else:
+            duration = self.problem.simulation.duration
+        overrides = {"vehicle.mass": test.mass} if test.mass is not None else {}
+        return TestCase(test, float(speed), float(duration), data, overrides)
+
+    def test_parameters(self, test: TestCase, p: np.ndarray | None = None) -> np.ndarray:
+        """Full parameter vector of one test: shared values with the test's own overrides."""
+        return self.layout.with_values(self.base if p is None else p, test.overrides)
+
+    def fit_window(self, test: TestCase) -> tuple[float, float]:
+        """Time span the NLP covers for a test: the data window, else [0, duration]."""
+        window = test.spec.data.window if test.spec.data is not None else None
+        return (0.0, window[1]) if window else (0.0, test.duration)
+
+    def simulate(self, p: np.ndarray | None = None, dt: float | None = None) -> dict[str, Response]:
+        """Forward simulation of every test with the separate integrator."""
+        step = dt or self.problem.simulation.dt
+        out = {}
+        for test in self.tests:
+            grid = np.arange(0.0, test.duration + 0.5 * step, step)
+            out[test.name] = simulate(self.model, self.test_parameters(test, p), test.speed, grid, self.problem.simulation)
+        return out

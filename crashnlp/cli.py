@@ -1,0 +1,141 @@
+"""The `crashnlp` command: simulate, identify, design, study, schema.
+
+Bad input exits with status 2 and one line; a solve that fails exits 1 and
+says IPOPT's status; nothing is written for bad input.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from crashnlp.errors import InputError
+
+RESULTS = Path("results")
+
+
+def _out(args, name: str) -> Path:
+    return Path(args.out) if args.out else RESULTS / name
+
+
+def _read_params(path: str) -> dict:
+    p = Path(path)
+    try:
+        params = json.loads(p.read_text())["parameters"]
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except (json.JSONDecodeError, KeyError, TypeError):
+        raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
+    if not isinstance(params, dict):
+        raise InputError(f"{p}: 'parameters' is not a mapping")
+    return params
+
+
+def cmd_simulate(args) -> int:
+    from crashnlp.case import Case
+    from crashnlp.results import write_simulation
+
+    case = Case.load(args.problem)
+    if args.params:
+        params = _read_params(args.params)
+        for path, value in params.items():
+            try:
+                case.base = case.layout.with_values(case.base, {path: value})
+            except (KeyError, ValueError):
+                raise InputError(f"{args.params}: parameters.{path}: not a parameter of {case.name}") from None
+    responses = case.simulate(dt=args.dt)
+    out = _out(args, case.name)
+    summary = write_simulation(case, responses, out)
+    for name, t in summary["tests"].items():
+        m = t["metrics"]
+        print(
+            f"{name}: max crush {m['max_crush_m'] * 1e3:.1f} mm at {m['time_max_crush_s'] * 1e3:.1f} ms, "
+            f"peak decel {m['peak_decel_g']:.1f} g, rebound {m['rebound_velocity_mps']:.2f} m/s, "
+            f"max pitch {m['max_pitch_deg']:.2f} deg"
+        )
+    print(f"wrote {out}/")
+    return 0
+
+
+def _print_solution(summary: dict) -> None:
+    s = summary["solver"]
+    print(
+        f"{summary['name']}: {summary['status']} (IPOPT {s['return_status']}, {s['iterations']} iterations, "
+        f"objective {s['objective']:.6g}, solve {s['wall_s']:.2f} s + build {s['build_s']:.2f} s)"
+    )
+    for path, value in summary["parameters"].items():
+        std = summary["std_errors"].get(path)
+        print(f"  {path} = {np.array2string(np.asarray(value), precision=4)}" + (f"  (std {np.array2string(np.asarray(std), precision=2)})" if std is not None else ""))
+    keys = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg")
+    for name, t in summary["tests"].items():
+        model, data = t["metrics"]["model"], t["metrics"]["data"] or {}
+        print(f"  {name}: " + ", ".join(f"{k} {model[k]:.4g}" + (f" (data {data[k]:.4g})" if data.get(k) is not None else "") for k in keys))
+        if t["fit"]:
+            print("    rmse: " + ", ".join(f"{c} {f['rmse']:.3g} {f['unit']}" for c, f in t["fit"].items()))
+    for c in summary["active_constraints"]:
+        print(f"  active: {c['name']} at {c['points']} points, multiplier {c['multiplier']:.4g}")
+
+
+def cmd_identify(args) -> int:
+    from crashnlp.case import Case
+    from crashnlp.optimize.identify import identify
+    from crashnlp.results import write_solution
+
+    case = Case.load(args.problem)
+    solution = identify(case, verbose=args.verbose)
+    out = _out(args, case.name)
+    summary = write_solution(solution, out)
+    _print_solution(summary)
+    print(f"wrote {out}/")
+    if not solution.ok:
+        print(f"crashnlp: {case.name}: {solution.status}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def cmd_schema(args) -> int:
+    from crashnlp.problem.schema import Problem
+
+    print(json.dumps(Problem.model_json_schema(), indent=2))
+    return 0
+
+
+def parser() -> argparse.ArgumentParser:
+    ap = argparse.ArgumentParser(
+        prog="crashnlp",
+        description="Elastic-pendulum models of frontal rigid-barrier crashes: simulate, identify, design, study.",
+    )
+    sub = ap.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
+    p.add_argument("problem", help="problem YAML file")
+    p.add_argument("--params", help="result.json whose parameters replace the problem's values")
+    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
+    p.set_defaults(func=cmd_simulate)
+
+    p = sub.add_parser("identify", help="fit the estimated parameters to the tests' data by an NLP (IPOPT)")
+    p.add_argument("problem", help="problem YAML file")
+    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("schema", help="print the JSON Schema of problem files")
+    p.set_defaults(func=cmd_schema)
+    return ap
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parser().parse_args(argv)
+    try:
+        return args.func(args)
+    except InputError as exc:
+        print(f"crashnlp: error: {exc}", file=sys.stderr)
+        return 2
+
+
+if __name__ == "__main__":
+    sys.exit(main())

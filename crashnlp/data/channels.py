@@ -1,0 +1,74 @@
+"""Measured channels in SI and the model frame, and the one error type of bad data."""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from crashnlp.errors import InputError
+from crashnlp.problem.schema import CHANNEL_UNITS
+from crashnlp.units import unit_scale
+
+
+class DataError(InputError):
+    """Bad test data: the message is one line naming the file and the channel."""
+
+
+@dataclass
+class Channel:
+    """One signal: time [s], values in SI `unit`, and where it came from (files, curves, codes)."""
+
+    time: np.ndarray
+    values: np.ndarray
+    unit: str
+    source: str
+
+
+@dataclass
+class TestData:
+    """Channels by name ('accel', 'velocity', 'displacement', 'pitch') and header values in SI.
+
+    `meta` may hold 'mass' [kg] and 'speed' [m/s] when the file header gives them.
+    """
+
+    __test__ = False  # not a pytest test class
+
+    channels: dict[str, Channel]
+    meta: dict[str, float] = field(default_factory=dict)
+
+
+def where(path: object, channel: str, detail: str = "") -> str:
+    """The prefix of every data error: file, channel and (optionally) curve, column or code."""
+    extra = f" ({detail})" if detail else ""
+    return f"{path}: channel {channel}{extra}"
+
+
+def si_factor(unit: str, channel: str, at: str) -> float:
+    """Factor from `unit` into the SI unit of `channel`; 'g' on an acceleration is standard gravity."""
+    try:
+        return unit_scale(unit, CHANNEL_UNITS[channel])
+    except Exception:  # pint and UnitError both land here
+        raise DataError(f"{at}: unit {unit!r} does not convert to {CHANNEL_UNITS[channel]}") from None
+
+
+def check_samples(time: np.ndarray, values: np.ndarray, at: str) -> None:
+    """Refuse empty, non-finite or non-increasing samples (they would poison filters and integrals)."""
+    if time.size < 2 or time.shape != values.shape:
+        raise DataError(f"{at}: fewer than two samples")
+    if not np.all(np.isfinite(time)):
+        raise DataError(f"{at}: time has NaN or infinite samples")
+    bad = np.flatnonzero(~np.isfinite(values))
+    if bad.size:
+        raise DataError(f"{at}: NaN or infinite value at t = {time[bad[0]]:g} s")
+    steps = np.diff(time)
+    if np.any(steps <= 0):
+        i = int(np.flatnonzero(steps <= 0)[0])
+        raise DataError(f"{at}: time not increasing at t = {time[i + 1]:g} s")
+
+
+def sample_interval(time: np.ndarray, at: str, rtol: float = 0.01) -> float:
+    """Mean sample interval of a uniformly sampled record; refuse non-uniform sampling."""
+    dt = (time[-1] - time[0]) / (time.size - 1)
+    if np.max(np.abs(np.diff(time) - dt)) > rtol * dt:
+        raise DataError(f"{at}: sampling is not uniform (needed to filter)")
+    return float(dt)

@@ -1,0 +1,156 @@
+"""ISO/TS 13499 (ISO-MME) reader: a test folder or .zip with <test>.mme, Channel/<test>.chn and
+channel files Channel/<test>.001, .002, ...
+
+All three are text files of "Name  :value" lines. The .mme file gives test-object data
+("Velocity test object 1", "Mass test object 1"); the .chn file lists "Name of channel 001 :CODE / text";
+a channel file gives "Unit", "Time of first sample", "Sampling interval", "Number of samples"
+and then the samples, one per line.
+"""
+from __future__ import annotations
+
+import re
+import zipfile
+from pathlib import Path, PurePosixPath
+
+import numpy as np
+
+from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
+from crashnlp.units import to_si
+
+_CHANNEL_LINE = re.compile(r"name of channel\s+(\d+)", re.IGNORECASE)
+
+
+class _Store:
+    """Files of one test (folder or zip) by relative path, looked up case-insensitively."""
+
+    def __init__(self, path: Path):
+        self.path = path
+        self.zipped = path.is_file() and zipfile.is_zipfile(path)
+        self.base = path if path.is_dir() or self.zipped else path.parent
+        if self.zipped:
+            with zipfile.ZipFile(path) as archive:
+                names = [n for n in archive.namelist() if not n.endswith("/")]
+        else:
+            names = [p.relative_to(self.base).as_posix() for p in self.base.rglob("*") if p.is_file()]
+        self.names = {n.lower(): n for n in names}
+
+    def name(self, name: str) -> str | None:
+        """The stored spelling of a relative path, or None."""
+        return self.names.get(name.lower())
+
+    def label(self, name: str) -> str:
+        """How error messages name a stored file."""
+        return f"{self.base}/{name}"
+
+    def text(self, name: str) -> str:
+        if self.zipped:
+            with zipfile.ZipFile(self.path) as archive:
+                return archive.read(name).decode("latin-1")
+        return (self.base / name).read_text(encoding="latin-1")
+
+    def find(self, suffix: str) -> list[str]:
+        return sorted(n for low, n in self.names.items() if low.endswith(suffix))
+
+
+def _pairs(text: str) -> tuple[dict[str, str], list[str]]:
+    """'Name :value' lines (keys lower-cased) up to the first line without a colon, and the rest."""
+    pairs: dict[str, str] = {}
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        if ":" not in line:
+            if line.strip():
+                return pairs, lines[i:]
+            continue
+        key, value = line.split(":", 1)
+        pairs.setdefault(" ".join(key.split()).lower(), value.strip())
+    return pairs, []
+
+
+def _quantity(text: str | None, unit: str) -> float | None:
+    """A header value in SI (plain numbers are SI, as ISO-MME stores them); None for NOVALUE."""
+    if not text or text.upper() == "NOVALUE":
+        return None
+    try:
+        return to_si(text if re.search(r"[A-Za-z]", text) else float(text), unit)
+    except ValueError:
+        return None
+
+
+def read_mme(spec: DataSpec) -> TestData:
+    """Channels chosen by `ChannelSpec.code` (16-character ISO code), values in SI.
+
+    The unit is the channel file's "Unit" unless `ChannelSpec.unit` overrides. Meta: 'speed'
+    and 'mass' of the test object numbered by the first character of the first code (default 1).
+    """
+    path = spec.file
+    store = _Store(path)
+    mme_files = [path.name] if path.suffix.lower() == ".mme" else store.find(".mme")
+    if not mme_files:
+        raise DataError(f"{path}: no .mme file (not an ISO-MME test?)")
+    mme_name = mme_files[0]
+    root = str(PurePosixPath(mme_name).parent)
+    prefix = "" if root == "." else root + "/"
+    chn_files = [n for n in store.find(".chn") if n.lower().startswith(prefix.lower() + "channel/")]
+    if not chn_files:
+        raise DataError(f"{path}: no Channel/*.chn file")
+    chn_name = chn_files[0]
+    listing, _ = _pairs(store.text(chn_name))
+    codes: dict[str, str] = {}
+    for key, value in listing.items():
+        match = _CHANNEL_LINE.fullmatch(key)
+        if match:
+            codes.setdefault(value.split("/")[0].strip().upper(), match.group(1))
+
+    channels = {}
+    obj = None
+    for name, ch in spec.channels.items():
+        if ch.derive is not None:
+            continue
+        if not ch.code:
+            raise DataError(f"{where(path, name)}: no code given (an ISO-MME channel needs `code`)")
+        code = ch.code.strip().upper()
+        if code not in codes:
+            raise DataError(f"{where(store.label(chn_name), name, f'code {code}')}: code not in the channel list")
+        obj = obj or (code[0] if code[0].isdigit() and code[0] != "0" else "1")
+        wanted = f"{chn_name.rsplit('.', 1)[0]}.{codes[code]}"
+        file = store.name(wanted)
+        at = where(store.label(file or wanted), name, f"code {code}")
+        if file is None:
+            raise DataError(f"{at}: channel file missing")
+        channels[name] = _channel(store.text(file), ch.unit, name, at, f"{PurePosixPath(file).name}:{code}")
+
+    header, _ = _pairs(store.text(mme_name))
+    meta = {}
+    speed = _quantity(header.get(f"velocity test object {obj or '1'}"), "m/s")
+    mass = _quantity(header.get(f"mass test object {obj or '1'}"), "kg")
+    if speed:
+        meta["speed"] = speed
+    if mass:
+        meta["mass"] = mass
+    return TestData(channels, meta)
+
+
+def _channel(text: str, unit: str | None, name: str, at: str, source: str) -> Channel:
+    header, rows = _pairs(text)
+    try:
+        t0 = float(header["time of first sample"])
+        dt = float(header["sampling interval"])
+        count = int(float(header["number of samples"]))
+    except KeyError as exc:
+        raise DataError(f"{at}: header lacks {exc.args[0]!r}") from None
+    except ValueError:
+        raise DataError(f"{at}: time of first sample, sampling interval or number of samples is not a number") from None
+    try:
+        values = np.array([float(r) for r in rows if r.strip()])
+    except ValueError as exc:
+        raise DataError(f"{at}: bad sample ({exc})") from None
+    if values.size != count:
+        raise DataError(f"{at}: {values.size} samples but the header says {count}")
+    unit = unit or header.get("unit", "")
+    if not unit or unit.upper() == "NOVALUE":
+        raise DataError(f"{at}: no unit in the channel file (give `unit`)")
+    values = values * si_factor(unit.replace("**", "^"), name, at)
+    time = t0 + dt * np.arange(count)
+    check_samples(time, values, at)
+    return Channel(time, values, CHANNEL_UNITS[name], source)

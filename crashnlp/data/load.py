@@ -1,0 +1,95 @@
+"""Load a test's data as the problem file describes it: read, sign, bias, filter, integrate, window.
+
+A new format is one reader module plus one line in READERS: a reader takes the DataSpec and
+returns the non-derived channels in SI (file sign, unfiltered) and the header meta.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import numpy as np
+
+from crashnlp.data.channels import Channel, DataError, TestData, sample_interval, where
+from crashnlp.data.csv_reader import read_csv
+from crashnlp.data.iso_mme import read_mme
+from crashnlp.data.nhtsa_ev5 import read_ev5
+from crashnlp.data.signal import CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
+from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
+
+Reader = Callable[[DataSpec], TestData]
+READERS: dict[str, Reader] = {
+    "csv": read_csv,
+    "nhtsa-ev5": read_ev5,
+    "iso-mme": read_mme,
+}
+
+
+def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
+    if cfc is None:
+        return channel.values
+    dt = sample_interval(channel.time, at)
+    try:
+        return cfc_filter(channel.values, dt, CFC_CLASSES[cfc])
+    except ValueError as exc:
+        raise DataError(f"{at}: {exc}") from None
+
+
+def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
+    """Channels in SI and the model frame, ready to compare with the model.
+
+    Order: read; multiply by `sign`; remove the mean over `bias_window` from accel; filter each
+    read channel at its CFC; derive channels with `derive: integrate` from the bias-removed
+    accel, filtered at the derived channel's own CFC or else accel's, with v(0) = speed (the
+    header's speed when `speed` is None) and x(0) = 0; cut every channel to `window` last.
+    """
+    reader = READERS.get(spec.format)
+    if reader is None:
+        raise DataError(f"{spec.file}: no reader for format {spec.format!r}")
+    raw = reader(spec)
+    path = spec.file
+    out: dict[str, Channel] = {}
+    accel_unfiltered = None
+    for name, ch in spec.channels.items():
+        if ch.derive is not None:
+            continue
+        c = raw.channels[name]
+        values = c.values * ch.sign
+        if name == "accel" and spec.bias_window is not None:
+            try:
+                values = remove_bias(c.time, values, spec.bias_window)
+            except ValueError as exc:
+                raise DataError(f"{where(path, name)}: {exc}") from None
+        c = Channel(c.time, values, c.unit, c.source)
+        if name == "accel":
+            accel_unfiltered = c
+        out[name] = Channel(c.time, _filtered(c, ch.filter, where(path, name)), c.unit, c.source)
+
+    v0 = speed if speed is not None else raw.meta.get("speed")
+    for name, ch in spec.channels.items():
+        if ch.derive is None:
+            continue
+        at = where(path, name)
+        if name not in ("velocity", "displacement"):
+            raise DataError(f"{at}: only velocity and displacement can be derived by integration")
+        if accel_unfiltered is None:
+            raise DataError(f"{at}: integration needs an accel channel read from the file")
+        if v0 is None:
+            raise DataError(f"{at}: integration needs the impact speed (give the test's speed)")
+        cfc = ch.filter or spec.channels["accel"].filter
+        accel = _filtered(accel_unfiltered, cfc, where(path, "accel"))
+        try:
+            velocity, displacement = integrate(accel_unfiltered.time, accel, v0)
+        except ValueError as exc:
+            raise DataError(f"{at}: {exc}") from None
+        values = velocity if name == "velocity" else displacement
+        source = f"integral of {accel_unfiltered.source}" + (f" at {cfc}" if cfc else "")
+        out[name] = Channel(accel_unfiltered.time, values, CHANNEL_UNITS[name], source)
+
+    if spec.window is not None:
+        for name in out:
+            out[name] = cut(out[name], spec.window)
+            if out[name].time.size < 2:
+                raise DataError(
+                    f"{where(path, name)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples"
+                )
+    return TestData(out, dict(raw.meta))

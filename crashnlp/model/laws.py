@@ -1,0 +1,108 @@
+"""Front-end force laws: piecewise-linear spring and damper characteristics, unloading.
+
+Piecewise-linear functions are written as a sum of hinges, not with
+casadi.interpolant: an interpolant with symbolic values has no derivative with
+respect to those values unless inlined, the hinge form has exact ones. Each hinge
+may be smoothed, max(z, 0) ~ (z + sqrt(z^2 + eps^2)) / 2, which keeps IPOPT
+away from kinks at the breakpoints.
+
+A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
+added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS.
+"""
+from __future__ import annotations
+
+from typing import Callable
+
+import casadi as ca
+
+Expr = ca.SX | ca.MX
+
+
+def hinge(z: Expr, eps: float) -> Expr:
+    """max(z, 0), smoothed over a width eps when eps > 0."""
+    return ca.fmax(z, 0) if eps == 0 else 0.5 * (z + ca.sqrt(z * z + eps * eps))
+
+
+def hinge_integral(z: Expr, eps: float) -> Expr:
+    """Antiderivative of `hinge` in z, zero far left."""
+    if eps == 0:
+        return 0.5 * ca.fmax(z, 0) ** 2
+    r = ca.sqrt(z * z + eps * eps)
+    return 0.25 * (z * z + z * r + eps * eps * ca.log((z + r) / eps))
+
+
+def _pieces(bps, vals):
+    """Slopes of the segments and their changes at interior breakpoints."""
+    n = len(bps)
+    slopes = [(vals[i + 1] - vals[i]) / (bps[i + 1] - bps[i]) for i in range(n - 1)]
+    kinks = [slopes[i] - slopes[i - 1] for i in range(1, n - 1)]
+    return slopes, kinks
+
+
+def piecewise_linear(x: Expr, bps, vals, eps: float) -> Expr:
+    """Interpolant through (bps, vals), extrapolated linearly, exact at bps[0]."""
+    slopes, kinks = _pieces(bps, vals)
+    f = vals[0] + slopes[0] * (x - bps[0])
+    for b, dk in zip(bps[1:-1], kinks):
+        f += dk * (hinge(x - b, eps) - hinge(bps[0] - b, eps))
+    return f
+
+
+def piecewise_linear_integral(x: Expr, bps, vals, eps: float) -> Expr:
+    """Integral of `piecewise_linear` from bps[0] to x."""
+    slopes, kinks = _pieces(bps, vals)
+    dx = x - bps[0]
+    f = vals[0] * dx + 0.5 * slopes[0] * dx * dx
+    for b, dk in zip(bps[1:-1], kinks):
+        f += dk * (hinge_integral(x - b, eps) - hinge_integral(bps[0] - b, eps) - hinge(bps[0] - b, eps) * dx)
+    return f
+
+
+def force_law(x: Expr, bps, vals, eps: float) -> tuple[Expr, Expr]:
+    """F(x) piecewise linear over crush breakpoints; strain energy is its integral."""
+    return piecewise_linear(x, bps, vals, eps), piecewise_linear_integral(x, bps, vals, eps)
+
+
+def secant_law(x: Expr, bps, vals, eps: float) -> tuple[Expr, Expr]:
+    """Paper Eq. (1): F = k(x) x with k piecewise linear (secant stiffness).
+
+    The energy integral int k(s) s ds is exact for eps = 0 and uses the same
+    hinge integrals otherwise (first order in eps).
+    """
+    k = piecewise_linear(x, bps, vals, eps)
+    slopes, kinks = _pieces(bps, vals)
+    k0 = vals[0] - slopes[0] * bps[0]
+    energy = 0.5 * k0 * x * x + slopes[0] * x**3 / 3
+    for b, dk in zip(bps[1:-1], kinks):
+        h = ca.fmax(x - b, 0)
+        energy += dk * (h**3 / 3 + 0.5 * b * h * h - hinge(bps[0] - b, eps) * 0.5 * x * x)
+    return k * x, energy
+
+
+SpringLaw = Callable[[Expr, list, list, float], tuple[Expr, Expr]]
+SPRING_LAWS: dict[str, SpringLaw] = {"force": force_law, "secant": secant_law}
+
+
+def damper_force(rate: Expr, bps, vals, eps: float) -> Expr:
+    """Paper Eq. (2): F = c(|v|) v with c piecewise linear over crush-rate breakpoints."""
+    speed = ca.sqrt(rate * rate + eps * eps) - eps
+    return piecewise_linear(speed, bps, vals, eps) * rate
+
+
+def elastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr) -> tuple[Expr, Expr]:
+    """The paper: unloading retraces the loading curve; the history has no effect."""
+    return load(x), None
+
+
+def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr) -> tuple[Expr, Expr]:
+    """Unload from the largest crush so far along `stiffness` to a permanent set.
+
+    Passing x_max = x gives the loading curve exactly, which is how the NLP marks
+    its loading phase. The stored (recoverable) energy is that of the unloading spring.
+    """
+    force = ca.fmin(load(x), load(x_max) - stiffness * (x_max - x))
+    return force, 0.5 * ca.fmax(force, 0) ** 2 / stiffness
+
+
+UnloadingLaw = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr], tuple[Expr, Expr | None]]
+UNLOADING_LAWS: dict[str, UnloadingLaw] = {"elastic": elastic_unloading, "plastic": plastic_unloading}

@@ -1,0 +1,214 @@
+"""The elastic-pendulum crash model: equations of motion from T, V and D by AD.
+
+Coordinates q = (r, theta): r is the change of the pivot-CG distance (crush is
+-r), theta the angle of the pivot-CG line above the horizontal. The pivot is the
+impact point on the barrier, x points toward the barrier, z up:
+
+    X = -(l0 + r) cos(theta),   Z = (l0 + r) sin(theta)
+
+T, V and the Rayleigh function D are written once; Lagrange's equations
+
+    d/dt dL/dqdot - dL/dq + dD/dqdot = Q
+
+are formed with CasADi jacobians (see model-notes.md for why the paper's printed
+equations are not used). Q holds the front-end contact force along r and an
+optional vertical barrier force at the CG. The suspension carries the static
+load (preload), so the vehicle at rest stays at rest.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force
+from crashnlp.model.parameters import ParameterLayout
+from crashnlp.problem.schema import Model as ModelSpec
+from crashnlp.units import G0
+
+NX = 4  # r, theta, rdot, thetadot
+OUTPUTS = (
+    "displacement",  # CG displacement since impact, toward the barrier (m)
+    "velocity",  # CG velocity toward the barrier (m/s)
+    "accel",  # CG acceleration toward the barrier (m/s^2)
+    "pitch",  # theta - theta0, nose-down positive (rad)
+    "crush",  # l0 - pivot-CG distance (m)
+    "crush_rate",  # (m/s)
+    "barrier_force",  # horizontal force on the barrier (N)
+    "contact_force",  # front-end force along the pivot-CG line (N)
+    "kinetic",  # (J)
+    "potential",  # gravity + suspension + recoverable front-end energy (J)
+    "barrier_power",  # power absorbed from the vehicle by the barrier forces (W)
+    "damper_power",  # power dissipated in the suspension dampers (W)
+)
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What fixes the shape of the symbolic model (not its numbers)."""
+
+    spring_law: str
+    unloading_law: str
+    n_spring: int
+    n_damper: int
+    eps_crush: float
+    eps_rate: float
+
+    @classmethod
+    def of(cls, spec: ModelSpec) -> "Structure":
+        return cls(
+            spec.spring.law,
+            spec.unloading.law,
+            len(spec.spring.crush_breakpoints),
+            0 if spec.damper is None else len(spec.damper.rate_breakpoints),
+            spec.smoothing.crush,
+            spec.smoothing.rate,
+        )
+
+
+class PendulumModel:
+    """Symbolic elastic pendulum; CasADi Functions of (state, parameters, max crush)."""
+
+    def __init__(self, structure: Structure, layout: ParameterLayout):
+        self.structure = structure
+        self.layout = layout
+        self.q = ca.SX.sym("q", 2)
+        self.qd = ca.SX.sym("qd", 2)
+        self.p = ca.SX.sym("p", layout.size)
+        self.x_max = ca.SX.sym("x_max")
+        self._build()
+
+    # ---------------------------------------------------------------- pieces
+    def _par(self, path: str) -> ca.SX:
+        return self.layout.split(self.p)[path]
+
+    def _geometry(self):
+        L, h = self._par("vehicle.cg_to_impact"), self._par("vehicle.cg_above_impact")
+        return ca.sqrt(L * L + h * h), ca.atan2(h, L)
+
+    def _front_end(self, crush, rate, x_max):
+        """Contact force along r (never tensile, zero once separated) and stored energy."""
+        s = self.structure
+        bps = [self._par("model.spring.crush_breakpoints")[i] for i in range(s.n_spring)]
+        vals = [self._par("model.spring.values")[i] for i in range(s.n_spring)]
+        law = SPRING_LAWS[s.spring_law]
+
+        def load(x):
+            return law(x, bps, vals, s.eps_crush)[0]
+
+        stiffness = self._par("model.unloading.stiffness")
+        c = ca.SX.sym("crush")
+        self.loading_curve = ca.Function("loading_curve", [c, self.p], [load(c)], ["crush", "p"], ["force"])
+        spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness)
+        if stored is None:
+            stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
+        force = spring
+        if s.n_damper:
+            dbps = [self._par("model.damper.rate_breakpoints")[i] for i in range(s.n_damper)]
+            dvals = [self._par("model.damper.values")[i] for i in range(s.n_damper)]
+            force = force + damper_force(rate, dbps, dvals, s.eps_rate)
+        contact = ca.if_else(crush >= 0, ca.fmax(force, 0), 0)
+        return contact, ca.if_else(crush >= 0, stored, 0)
+
+    def _build(self):
+        q, qd, p = self.q, self.qd, self.p
+        m, inertia = self._par("vehicle.mass"), self._par("vehicle.pitch_inertia")
+        g = self._par("vehicle.gravity")
+        a_f, a_r = self._par("vehicle.cg_to_front_axle"), self._par("vehicle.cg_to_rear_axle")
+        l0, theta0 = self._geometry()
+        h = self._par("vehicle.cg_above_impact")
+        r, theta = q[0], q[1]
+        rho = l0 + r
+        X, Z = -rho * ca.cos(theta), rho * ca.sin(theta)
+        Xd, Zd = ca.jtimes(X, q, qd), ca.jtimes(Z, q, qd)
+
+        # Suspension: body points at the axles move with Z and the pitch; the
+        # static load is carried as a preload, so rest is an equilibrium.
+        susp = self._par
+        pitch = theta - theta0
+        V = m * g * (Z - h)
+        D = 0
+        for d, share, k, c in (
+            (a_f, a_r, susp("vehicle.suspension.k_front"), susp("vehicle.suspension.c_front")),
+            (-a_r, a_f, susp("vehicle.suspension.k_rear"), susp("vehicle.suspension.c_rear")),
+        ):
+            static = m * g * share / (a_f + a_r)
+            deflection = h - (Z - d * ca.sin(pitch))
+            rate = ca.jtimes(deflection, q, qd)
+            V += 0.5 * k * deflection**2 + static * deflection
+            D += 0.5 * c * rate**2
+        T = 0.5 * m * (Xd**2 + Zd**2) + 0.5 * inertia * qd[1] ** 2
+
+        crush, crush_rate = -r, -qd[0]
+        contact, stored = self._front_end(crush, crush_rate, self.x_max)
+        ratio = self._par("vehicle.vertical_force_ratio")
+        Q = contact * ca.jacobian(rho, q).T + ratio * contact * ca.jacobian(Z, q).T
+
+        Lag = T - V
+        dL_dqd = ca.gradient(Lag, qd)
+        M = ca.jacobian(dL_dqd, qd)
+        rhs = ca.gradient(Lag, q) - ca.jacobian(dL_dqd, q) @ qd - ca.gradient(D, qd) + Q
+        qdd = ca.solve(M, rhs)
+        Xdd = ca.jtimes(Xd, ca.vertcat(q, qd), ca.vertcat(qd, qdd))
+
+        state = ca.vertcat(q, qd)
+        self.energy_terms = {"T": T, "V": V, "D": D, "Q": Q, "M": M}
+        self.qdd = qdd
+        values = {
+            "displacement": X + self._par("vehicle.cg_to_impact"),
+            "velocity": Xd,
+            "accel": Xdd,
+            "pitch": pitch,
+            "crush": crush,
+            "crush_rate": crush_rate,
+            "barrier_force": contact * ca.cos(theta),
+            "contact_force": contact,
+            "kinetic": T,
+            "potential": V + stored,
+            "barrier_power": -ca.dot(Q, qd),
+            "damper_power": 2 * D,
+        }
+        args, names = [state, p, self.x_max], ["x", "p", "x_max"]
+        self.rhs = ca.Function("rhs", args, [ca.vertcat(qd, qdd)], names, ["xdot"])
+        self.outputs = ca.Function("outputs", args, [ca.vertcat(*[values[k] for k in OUTPUTS])], names, ["y"])
+        self.initial_state = self._initial_state(m, inertia, l0, theta0)
+
+    def _initial_state(self, m, inertia, l0, theta0) -> ca.Function:
+        """State just after impact at horizontal speed v0.
+
+        The radial spring takes no impulse, so the radial velocity is the
+        component of v0; the pivot stops the tangential motion impulsively,
+        which conserves the angular momentum about the pivot.
+        """
+        v0 = ca.SX.sym("v0")
+        thetad = m * v0 * l0 * ca.sin(theta0) / (m * l0**2 + inertia)
+        x0 = ca.vertcat(0, theta0, -v0 * ca.cos(theta0), thetad)
+        return ca.Function("x0", [self.p, v0], [x0], ["p", "v0"], ["x0"])
+
+    # ---------------------------------------------------------------- simulation form
+    @cached_property
+    def augmented_rhs(self) -> ca.Function:
+        """ODE for simulation: the state carries the largest crush so far and the
+        energy absorbed by the barrier forces and the suspension dampers."""
+        x = ca.SX.sym("x", NX + 3)
+        state, x_max = x[:NX], x[NX]
+        xdot = self.rhs(state, self.p, x_max)
+        y = self.outputs(state, self.p, x_max)
+        crush, crush_rate = y[OUTPUTS.index("crush")], y[OUTPUTS.index("crush_rate")]
+        # the largest crush grows with the crush while loading; the small band keeps
+        # corrector iterations of implicit integrators from toggling the switch
+        growth = ca.if_else(crush >= x_max - 1e-9, ca.fmax(crush_rate, 0), 0)
+        ode = ca.vertcat(xdot, growth, y[OUTPUTS.index("barrier_power")], y[OUTPUTS.index("damper_power")])
+        return ca.Function("aug_rhs", [x, self.p], [ode], ["x", "p"], ["xdot"])
+
+
+def build_model(spec: ModelSpec, layout: ParameterLayout) -> PendulumModel:
+    """The symbolic model for a problem's model section and parameter layout."""
+    return PendulumModel(Structure.of(spec), layout)
+
+
+def g_units(accel: np.ndarray) -> np.ndarray:
+    """m/s^2 -> g."""
+    return np.asarray(accel) / G0

@@ -1,0 +1,102 @@
+"""A small NLP assembler over CasADi MX: scaled decision variables, named constraints.
+
+Decision variables are stored scaled to order one (x = offset + scale * z), so
+IPOPT sees well-conditioned variables whatever the units.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import casadi as ca
+import numpy as np
+
+SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+
+
+def _fill(value, shape: tuple[int, int]) -> np.ndarray:
+    """A value broadcast to `shape`, flattened column-major as CasADi stores it."""
+    a = np.asarray(value, dtype=float)
+    if a.ndim == 1 and shape[1] == 1 and a.size == shape[0]:
+        a = a[:, None]
+    return np.broadcast_to(a, shape).ravel(order="F")
+
+
+@dataclass
+class Block:
+    name: str
+    shape: tuple[int, int]
+    offset: int
+    scale: np.ndarray
+
+
+@dataclass
+class ConstraintBlock:
+    name: str
+    start: int
+    size: int
+
+
+@dataclass
+class NLPBuilder:
+    """Collects variables, constraints and an objective, then builds nlpsol."""
+
+    z: list[ca.MX] = field(default_factory=list)
+    lbz: list[np.ndarray] = field(default_factory=list)
+    ubz: list[np.ndarray] = field(default_factory=list)
+    z0: list[np.ndarray] = field(default_factory=list)
+    g: list[ca.MX] = field(default_factory=list)
+    lbg: list[np.ndarray] = field(default_factory=list)
+    ubg: list[np.ndarray] = field(default_factory=list)
+    blocks: dict[str, Block] = field(default_factory=dict)
+    constraints: list[ConstraintBlock] = field(default_factory=list)
+    objective: ca.MX = 0
+    _nz: int = 0
+    _ng: int = 0
+
+    def variable(self, name, shape, init, lb=-np.inf, ub=np.inf, scale=1.0) -> ca.MX:
+        """A block of decision variables; returns its unscaled expression."""
+        shape = (shape, 1) if isinstance(shape, int) else shape
+        n = shape[0] * shape[1]
+        full = lambda v: _fill(v, shape)
+        scale = full(scale)
+        raw = ca.MX.sym(name, n)
+        self.z.append(raw)
+        self.lbz.append(full(lb) / scale)
+        self.ubz.append(full(ub) / scale)
+        self.z0.append(full(init) / scale)
+        self.blocks[name] = Block(name, shape, self._nz, scale)
+        self._nz += n
+        return ca.reshape(raw * ca.DM(scale), shape[0], shape[1])
+
+    def constrain(self, name: str, expr, lb=0.0, ub=0.0) -> None:
+        """lb <= expr <= ub elementwise (bounds broadcast)."""
+        expr = ca.vec(expr)
+        n = expr.numel()
+        if n == 0:
+            return
+        self.g.append(expr)
+        self.lbg.append(np.broadcast_to(np.asarray(lb, dtype=float), (n,)).copy())
+        self.ubg.append(np.broadcast_to(np.asarray(ub, dtype=float), (n,)).copy())
+        self.constraints.append(ConstraintBlock(name, self._ng, n))
+        self._ng += n
+
+    def minimize(self, term) -> None:
+        self.objective = self.objective + term
+
+    def problem(self) -> dict:
+        return {"x": ca.vertcat(*self.z), "f": self.objective, "g": ca.vertcat(*self.g) if self.g else ca.MX(0, 1)}
+
+    def bounds(self) -> dict[str, np.ndarray]:
+        cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)
+        return {"lbx": cat(self.lbz), "ubx": cat(self.ubz), "x0": cat(self.z0), "lbg": cat(self.lbg), "ubg": cat(self.ubg)}
+
+    def value(self, name: str, z: np.ndarray) -> np.ndarray:
+        """Unscaled value of a variable block from a solution vector."""
+        b = self.blocks[name]
+        n = b.shape[0] * b.shape[1]
+        return (np.asarray(z).ravel()[b.offset : b.offset + n] * b.scale).reshape(b.shape, order="F")
+
+    def set_initial(self, name: str, value) -> None:
+        b = self.blocks[name]
+        idx = list(self.blocks).index(name)
+        self.z0[idx] = _fill(value, b.shape) / b.scale

@@ -1,0 +1,83 @@
+"""The fit objective: model outputs against measured channels at the nodes.
+
+Each channel's residuals are divided by its scale sigma and weighted by the
+inverse of its sample count, so channels of different units and lengths count
+alike. Default scales are the accuracy a crash engineer asks of a fit.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.data.signal import resample
+from crashnlp.optimize.problem import OptimalControl, Transcript
+from crashnlp.units import G0
+
+DEFAULT_SIGMA = {"accel": 2.0 * G0, "velocity": 0.15, "displacement": 0.005, "pitch": np.radians(1.0)}
+
+
+@dataclass
+class Residual:
+    """Scaled residuals of one channel of one test (len = fitted nodes)."""
+
+    test: str
+    channel: str
+    columns: list[int]  # node indices fitted
+    data: np.ndarray  # SI, at those nodes
+    sigma: float
+    weight: float
+    model: ca.MX  # model output at those nodes (SI)
+
+    @property
+    def scaled(self) -> ca.MX:
+        """(model - data) / sigma * sqrt(weight / n): squares sum to this channel's objective."""
+        return (self.model - ca.DM(self.data).T) * (np.sqrt(self.weight / len(self.columns)) / self.sigma)
+
+
+def channel_residuals(tr: Transcript) -> list[Residual]:
+    """Residuals of every measured channel of a test on the node grid."""
+    spec = tr.test.spec.data
+    if spec is None or tr.test.data is None:
+        return []
+    out = []
+    times = tr.trajectory.node_times
+    for name, ch_spec in spec.channels.items():
+        channel = tr.test.data.channels.get(name)
+        if channel is None or ch_spec.weight == 0:
+            continue
+        cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
+        sigma = ch_spec.sigma if ch_spec.sigma is not None else DEFAULT_SIGMA[name]
+        model = tr.node_output(name)[:, cols.tolist()]
+        out.append(Residual(tr.test.name, name, cols.tolist(), resample(channel, times[cols]), sigma, ch_spec.weight, model))
+    return out
+
+
+def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
+    """Sum of squares (or the paper's L1 form, through slacks) of all residuals, plus smoothing."""
+    objective = ocp.case.problem.objective
+    residuals = [r for tr in ocp.transcripts for r in channel_residuals(tr)]
+    for r in residuals:
+        if objective.loss == "l2":
+            ocp.nlp.minimize(ca.sumsqr(r.scaled))
+        else:
+            scaled = r.scaled * np.sqrt(r.weight / len(r.columns))
+            slack = ocp.nlp.variable(f"{r.test}.{r.channel}.slack", len(r.columns), 1.0, 0.0, np.inf)
+            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack - scaled.T, 0.0, np.inf)
+            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack + scaled.T, 0.0, np.inf)
+            ocp.nlp.minimize(ca.sum1(slack))
+    if objective.regularization > 0:
+        ocp.nlp.minimize(objective.regularization * roughness(ocp))
+    return residuals
+
+
+def roughness(ocp: OptimalControl) -> ca.MX:
+    """Squared second differences of free breakpoint values, relative to their scale."""
+    total = 0
+    for e in ocp.free.entries:
+        n = e.at.stop - e.at.start
+        if e.path.endswith(".values") and n >= 3:
+            v = ocp.theta[e.at] / float(e.scale.max())
+            total += ca.sumsqr(v[2:] - 2 * v[1:-1] + v[:-2])
+    return total

@@ -1,0 +1,120 @@
+"""Run IPOPT on an assembled NLP and say honestly how it went."""
+from __future__ import annotations
+
+import sys
+import time
+from dataclasses import dataclass
+from typing import Callable, TextIO
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.nlp import SUCCESS, NLPBuilder
+from crashnlp.problem.schema import Solver
+
+
+@dataclass
+class SolveResult:
+    z: np.ndarray
+    objective: float
+    lam_g: np.ndarray
+    g: np.ndarray
+    return_status: str
+    iterations: int
+    wall_s: float
+    build_s: float
+
+    @property
+    def converged(self) -> bool:
+        return self.return_status in SUCCESS
+
+
+class Progress(ca.Callback):
+    """IPOPT iteration callback: a short line every `every` iterations."""
+
+    def __init__(self, nx: int, ng: int, lbg: np.ndarray, ubg: np.ndarray, out: TextIO, every: int = 10):
+        ca.Callback.__init__(self)
+        self.nx, self.ng, self.lbg, self.ubg, self.out, self.every = nx, ng, lbg, ubg, out, every
+        self.count = 0
+        self.construct("progress", {})
+
+    def get_n_in(self):
+        return ca.nlpsol_n_out()
+
+    def get_n_out(self):
+        return 1
+
+    def get_name_in(self, i):
+        return ca.nlpsol_out(i)
+
+    def get_name_out(self, i):
+        return "ret"
+
+    def get_sparsity_in(self, i):
+        name = ca.nlpsol_out(i)
+        if name == "f":
+            return ca.Sparsity.scalar()
+        if name in ("x", "lam_x"):
+            return ca.Sparsity.dense(self.nx)
+        if name in ("g", "lam_g"):
+            return ca.Sparsity.dense(self.ng)
+        return ca.Sparsity(0, 0)
+
+    def eval(self, arg):
+        if self.count % self.every == 0:
+            g = np.asarray(arg[ca.nlpsol_out().index("g")]).ravel()
+            viol = float(np.max(np.maximum(self.lbg - g, g - self.ubg), initial=0.0))
+            f = float(arg[ca.nlpsol_out().index("f")])
+            print(f"  iter {self.count:4d}  objective {f:11.5g}  constraint violation {viol:9.2e}", file=self.out)
+        self.count += 1
+        return [0]
+
+
+def ipopt_options(spec: Solver, verbose: bool) -> dict:
+    opts = {"print_level": 5 if verbose else 0, "sb": "yes", "max_iter": 1000, "tol": 1e-8}
+    if spec.hessian == "limited-memory":
+        opts["hessian_approximation"] = "limited-memory"
+    opts.update(spec.ipopt)
+    return opts
+
+
+@dataclass
+class BuiltSolver:
+    """An nlpsol Function with what must live as long as it (the progress callback)."""
+
+    function: ca.Function
+    build_s: float
+    callback: Progress | None = None
+
+
+def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO | None = None) -> BuiltSolver:
+    """nlpsol over the NLP; MX graph with mapped SX interval functions."""
+    t0 = time.perf_counter()
+    opts = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
+    callback = None
+    if progress is not None:
+        b = nlp.bounds()
+        callback = Progress(len(b["x0"]), len(b["lbg"]), b["lbg"], b["ubg"], progress)
+        opts["iteration_callback"] = callback
+    function = ca.nlpsol("crashnlp", "ipopt", nlp.problem(), opts)
+    return BuiltSolver(function, time.perf_counter() - t0, callback)
+
+
+def solve(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO | None = sys.stdout) -> SolveResult:
+    """Solve; the returned status is IPOPT's own."""
+    built = build_solver(nlp, spec, verbose, progress)
+    b = nlp.bounds()
+    t0 = time.perf_counter()
+    sol = built.function(**b)
+    wall = time.perf_counter() - t0
+    stats = built.function.stats()
+    return SolveResult(
+        z=np.asarray(sol["x"]).ravel(),
+        objective=float(sol["f"]),
+        lam_g=np.asarray(sol["lam_g"]).ravel(),
+        g=np.asarray(sol["g"]).ravel(),
+        return_status=str(stats.get("return_status", "unknown")),
+        iterations=int(stats.get("iter_count", 0)),
+        wall_s=wall,
+        build_s=built.build_s,
+    )

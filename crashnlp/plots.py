@@ -1,0 +1,90 @@
+"""Figures: responses over data, force against crush, residuals."""
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from crashnlp.units import G0  # noqa: E402
+
+PANELS = (  # output, label, factor from SI
+    ("displacement", "displacement (mm)", 1e3),
+    ("velocity", "velocity (m/s)", 1.0),
+    ("accel", "acceleration (g)", 1 / G0),
+    ("pitch", "pitch (deg)", 180 / np.pi),
+)
+
+
+def response_figure(path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None) -> None:
+    """Four panels of model curves (t, y SI) with the measured ones behind them."""
+    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
+    for ax, (name, label, f) in zip(axes.flat, PANELS):
+        if data and name in data:
+            t, y = data[name]
+            ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="0.6", lw=1.2, label="data")
+        if name in model:
+            t, y = model[name]
+            ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="C0", lw=1.6, label="model")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    for ax in axes[1]:
+        ax.set_xlabel("time (ms)")
+    axes[0, 0].legend(loc="lower right")
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def force_crush_figure(path: Path, curves: dict[str, tuple], points: tuple | None = None, title: str = "") -> None:
+    """Force against crush: named curves (x m, F N) and optional breakpoint markers."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for i, (label, (x, f)) in enumerate(curves.items()):
+        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, lw=1.6, color=f"C{i}", label=label)
+    if points is not None:
+        ax.plot(np.asarray(points[0]) * 1e3, np.asarray(points[1]) / 1e3, "o", color="C0", ms=4)
+    ax.set_xlabel("crush (mm)")
+    ax.set_ylabel("force (kN)")
+    ax.grid(alpha=0.3)
+    ax.legend()
+    ax.set_title(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None:
+    """Residual (model - data) per fitted channel, in report units."""
+    names = [p for p in PANELS if p[0] in residuals]
+    fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.9 * len(names) + 0.6), sharex=True, squeeze=False)
+    for ax, (name, label, f) in zip(axes[:, 0], names):
+        t, r = residuals[name]
+        ax.plot(np.asarray(t) * 1e3, np.asarray(r) * f, color="C3", lw=1.0)
+        ax.axhline(0, color="0.5", lw=0.8)
+        ax.set_ylabel(label.replace(" (", "\nresidual ("))
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel("time (ms)")
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def xy_figure(path: Path, x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "") -> None:
+    """One panel per series against a swept value (studies)."""
+    fig, axes = plt.subplots(len(series), 1, figsize=(6.5, 2.2 * len(series) + 0.5), sharex=True, squeeze=False)
+    for ax, (label, y) in zip(axes[:, 0], series.items()):
+        ax.plot(x, y, "o-", color="C0")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[-1, 0].set_xlabel(xlabel)
+    fig.suptitle(title)
+    fig.tight_layout()
+    _save(fig, path)
+
+
+def _save(fig, path: Path) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,379 @@
+"""The problem file schema: what a YAML problem may say, validated and converted to SI.
+
+Every quantity field accepts a plain number (SI) or a string with units. Fields
+tagged with `Unit` know their SI unit, which also lets `estimate` and `sweep`
+entries name them by dotted path and give bounds with units.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Any, Literal, get_args
+
+from pydantic import (
+    BaseModel,
+    BeforeValidator,
+    ConfigDict,
+    Field,
+    ValidationInfo,
+    WithJsonSchema,
+    field_validator,
+    model_validator,
+)
+
+from crashnlp.units import to_si
+
+QuantityIn = float | str
+
+
+@dataclass(frozen=True)
+class Unit:
+    """Marks a field as a physical quantity stored in SI `unit`."""
+
+    si: str
+
+
+@dataclass(frozen=True)
+class Structural:
+    """Marks a numeric field that shapes the model and is never a free parameter."""
+
+
+def Q(unit: str):
+    """A float field in SI `unit` that also accepts strings with units."""
+    return Annotated[
+        float,
+        BeforeValidator(lambda v: to_si(v, unit)),
+        WithJsonSchema({"anyOf": [{"type": "number"}, {"type": "string"}], "description": f"SI unit {unit}"}),
+        Unit(unit),
+    ]
+
+
+def QList(unit: str):
+    return Annotated[list[Q(unit)], Unit(unit)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=False)
+
+    def unit_of(self, field: str) -> str | None:
+        """SI unit of a field, or None for a field that is not a quantity."""
+        info = type(self).model_fields.get(field)
+        if info is None:
+            return None
+        if any(isinstance(m, Structural) for m in info.metadata):
+            return None
+        return _find_unit([info.annotation, *info.metadata])
+
+
+def _find_unit(items: list[Any]) -> str | None:
+    """Unit marker in a field's annotation, looking through Optional and Annotated."""
+    for item in items:
+        if isinstance(item, Structural):
+            return None
+        if isinstance(item, Unit):
+            return item.si
+        args = get_args(item)
+        if args:
+            found = _find_unit(list(args) + list(getattr(item, "__metadata__", ())))
+            if found is not None:
+                return found
+    return None
+
+
+def _increasing(values: list[float], what: str) -> list[float]:
+    if len(values) < 2:
+        raise ValueError(f"{what} needs at least two breakpoints")
+    if any(b <= a for a, b in zip(values, values[1:])):
+        raise ValueError(f"{what} must be strictly increasing")
+    return values
+
+
+# --------------------------------------------------------------------------- vehicle
+class Suspension(Strict):
+    k_front: Q("N/m") = 0.0
+    k_rear: Q("N/m") = 0.0
+    c_front: Q("N*s/m") = 0.0
+    c_rear: Q("N*s/m") = 0.0
+
+
+class Vehicle(Strict):
+    mass: Q("kg") | None = Field(None, description="test mass; may come from the data header")
+    speed: Annotated[Q("m/s") | None, Structural()] = Field(None, description="impact speed (a test may override)")
+    pitch_inertia: Q("kg*m^2") = Field(0.0, description="about the CG; 0 is the paper's point mass")
+    cg_to_impact: Q("m") = Field(description="horizontal distance CG to the impact point")
+    cg_above_impact: Q("m") = 0.0
+    cg_to_front_axle: Q("m")
+    cg_to_rear_axle: Q("m")
+    suspension: Suspension = Suspension()
+    vertical_force_ratio: Q("") = Field(
+        0.0, description="vertical barrier force as a fraction of the crush force; > 0 lifts the CG (nose-down)"
+    )
+    gravity: Q("m/s^2") = 9.80665
+
+    @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+    @classmethod
+    def _positive(cls, v):
+        if v is not None and v <= 0:
+            raise ValueError("must be positive")
+        return v
+
+
+# --------------------------------------------------------------------------- model
+SPRING_UNITS = {"force": "N", "secant": "N/m"}
+
+
+class Spring(Strict):
+    law: Literal["force", "secant"] = Field(
+        "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
+    )
+    crush_breakpoints: QList("m")
+    values: list[QuantityIn] = Field(description="forces (law force) or secant stiffnesses (law secant)")
+
+    @field_validator("crush_breakpoints")
+    @classmethod
+    def _bp(cls, v):
+        return _increasing(v, "crush_breakpoints")
+
+    @model_validator(mode="after")
+    def _values(self):
+        self.values = [to_si(v, SPRING_UNITS[self.law]) for v in self.values]
+        if len(self.values) != len(self.crush_breakpoints):
+            raise ValueError(
+                f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}"
+            )
+        return self
+
+    def unit_of(self, field: str) -> str | None:
+        return SPRING_UNITS[self.law] if field == "values" else super().unit_of(field)
+
+
+class Damper(Strict):
+    rate_breakpoints: QList("m/s")
+    values: QList("N*s/m")
+
+    @field_validator("rate_breakpoints")
+    @classmethod
+    def _bp(cls, v):
+        return _increasing(v, "rate_breakpoints")
+
+    @model_validator(mode="after")
+    def _same_length(self):
+        if len(self.values) != len(self.rate_breakpoints):
+            raise ValueError(
+                f"values has {len(self.values)} entries but rate_breakpoints has {len(self.rate_breakpoints)}"
+            )
+        return self
+
+
+class Unloading(Strict):
+    law: Literal["elastic", "plastic"] = "elastic"
+    stiffness: Q("N/m") = Field(3.0e7, description="unloading stiffness of the plastic law")
+
+    @field_validator("stiffness")
+    @classmethod
+    def _positive(cls, v):
+        if v <= 0:
+            raise ValueError("must be positive")
+        return v
+
+
+class Smoothing(Strict):
+    """Width of the smoothed hinges at breakpoints (keeps IPOPT away from kinks); 0 = exact kinks."""
+
+    crush: Annotated[Q("m"), Structural()] = 1e-3
+    rate: Annotated[Q("m/s"), Structural()] = 1e-3
+
+
+class Model(Strict):
+    spring: Spring
+    damper: Damper | None = None
+    unloading: Unloading = Unloading()
+    smoothing: Smoothing = Smoothing()
+
+
+# --------------------------------------------------------------------------- data
+CHANNEL_UNITS = {"accel": "m/s^2", "velocity": "m/s", "displacement": "m", "pitch": "rad"}
+ChannelName = Literal["accel", "velocity", "displacement", "pitch"]
+CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
+
+
+class TimeColumn(Strict):
+    column: str
+    unit: str = "s"
+
+
+class ChannelSpec(Strict):
+    column: str | None = Field(None, description="CSV column")
+    curves: list[int] | None = Field(None, description="NHTSA EV5 curve numbers; several are averaged")
+    code: str | None = Field(None, description="ISO-MME channel code")
+    unit: str | None = Field(None, description="unit of the stored values; EV5 and MME files carry their own")
+    filter: CFC | None = None
+    sign: Literal[1, -1] = Field(1, description="multiplies the stored values into the model frame (x toward the barrier)")
+    derive: Literal["integrate"] | None = Field(None, description="integrate the accel channel from the impact speed")
+    sigma: QuantityIn | None = Field(None, description="scale of the residuals; default per channel")
+    weight: float = Field(1.0, ge=0.0)
+
+
+class DataSpec(Strict):
+    file: Path
+    format: Literal["csv", "nhtsa-ev5", "iso-mme"] = "csv"
+    time: TimeColumn = TimeColumn(column="time_s")
+    window: tuple[Q("s"), Q("s")] | None = None
+    bias_window: tuple[Q("s"), Q("s")] | None = Field(None, description="pre-impact samples whose mean is removed")
+    channels: dict[ChannelName, ChannelSpec]
+
+    @field_validator("file")
+    @classmethod
+    def _exists(cls, v: Path, info: ValidationInfo):
+        base = Path((info.context or {}).get("base_dir", "."))
+        path = v if v.is_absolute() else base / v
+        if not path.exists():
+            raise ValueError(f"file not found: {path}")
+        return path.resolve()
+
+    @field_validator("window", "bias_window")
+    @classmethod
+    def _ordered(cls, v):
+        if v is not None and v[1] <= v[0]:
+            raise ValueError("window end must be after its start")
+        return v
+
+    @model_validator(mode="after")
+    def _sigmas(self):
+        for name, ch in self.channels.items():
+            if ch.sigma is not None:
+                ch.sigma = to_si(ch.sigma, CHANNEL_UNITS[name])
+        return self
+
+
+class Test(Strict):
+    name: str
+    speed: Q("m/s") | None = None
+    mass: Q("kg") | None = None
+    duration: Q("s") | None = None
+    data: DataSpec | None = None
+
+
+# --------------------------------------------------------------------------- identification
+OUTPUT_UNITS = {
+    "displacement": "m",
+    "velocity": "m/s",
+    "accel": "m/s^2",
+    "pitch": "rad",
+    "crush": "m",
+    "barrier_force": "N",
+}
+OutputName = Literal["displacement", "velocity", "accel", "pitch", "crush", "barrier_force"]
+Bound = tuple[QuantityIn | None, QuantityIn | None]
+
+
+class EstimateSpec(Strict):
+    initial: QuantityIn | list[QuantityIn] | None = Field(None, description="default: the value in the problem")
+    bounds: Bound | None = None
+    prior_scale: QuantityIn | None = Field(None, description="scale of the decision variable; default from bounds")
+
+
+class Constraints(Strict):
+    monotone_crush: bool = Field(False, description="crush does not decrease until its maximum")
+    monotone_spring: bool = Field(False, description="spring values non-decreasing")
+    bounds: dict[OutputName, Bound] = Field(default_factory=dict)
+
+    @model_validator(mode="after")
+    def _convert(self):
+        self.bounds = {
+            k: tuple(None if b is None else to_si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
+        }
+        for k, (lo, hi) in self.bounds.items():
+            if lo is not None and hi is not None and lo > hi:
+                raise ValueError(f"bounds.{k}: lower bound above upper bound")
+        return self
+
+
+class Objective(Strict):
+    loss: Literal["l2", "l1"] = "l2"
+    regularization: float = Field(0.0, ge=0.0, description="weight on second differences of breakpoint values")
+
+
+class MultipleShooting(Strict):
+    method: Literal["multiple-shooting"]
+    intervals: int = Field(200, ge=2)
+    substeps: int = Field(1, ge=1)
+
+
+class Collocation(Strict):
+    method: Literal["collocation"]
+    intervals: int = Field(200, ge=2)
+    degree: int = Field(3, ge=1, le=9)
+    scheme: Literal["radau", "legendre"] = "radau"
+
+
+Transcription = Annotated[MultipleShooting | Collocation, Field(discriminator="method")]
+
+
+class Solver(Strict):
+    ipopt: dict[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
+    hessian: Literal["exact", "limited-memory"] = "exact"
+    expand: bool = Field(False, description="expand the NLP to SX: slower to build, faster per iteration")
+
+
+class Simulation(Strict):
+    integrator: Literal["cvodes", "rk"] = "cvodes"
+    substeps: int = Field(4, ge=1, description="rk sub-steps per output step")
+    rtol: float = 1e-8
+    atol: float = 1e-10
+    dt: Q("s") = Field(1e-4, description="output step")
+    duration: Q("s") = Field(0.25, description="when a test gives neither duration nor data")
+
+
+class Design(Strict):
+    minimize: Literal["peak_decel", "olc", "crush"] = "peak_decel"
+    duration: Q("s") = Field(0.2, description="horizon after the vehicle stops, for pitch")
+
+
+class Problem(Strict):
+    name: str
+    kind: Literal["identify", "design"] = "identify"
+    vehicle: Vehicle
+    model: Model
+    tests: list[Test] = Field(min_length=1)
+    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)
+    constraints: Constraints = Constraints()
+    objective: Objective = Objective()
+    transcription: Transcription = Field(default_factory=lambda: MultipleShooting(method="multiple-shooting"))
+    solver: Solver = Solver()
+    simulation: Simulation = Simulation()
+    design: Design | None = None
+    base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
+
+    @model_validator(mode="after")
+    def _check(self):
+        names = [t.name for t in self.tests]
+        if len(set(names)) != len(names):
+            raise ValueError("tests: names must be unique")
+        for path, spec in self.estimate.items():
+            unit = self.unit_at(path)
+            if spec.initial is not None:
+                spec.initial = (
+                    [to_si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else to_si(spec.initial, unit)
+                )
+            if spec.bounds is not None:
+                spec.bounds = tuple(None if b is None else to_si(b, unit) for b in spec.bounds)
+            if spec.prior_scale is not None:
+                spec.prior_scale = to_si(spec.prior_scale, unit)
+        return self
+
+    def speed(self, test: Test) -> float | None:
+        return test.speed if test.speed is not None else self.vehicle.speed
+
+    def unit_at(self, path: str) -> str:
+        """SI unit of a numeric entry named by dotted path ("model.spring.values")."""
+        *parents, leaf = path.split(".")
+        node: Any = self
+        for key in parents:
+            node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+            if node is None:
+                break
+        unit = node.unit_of(leaf) if isinstance(node, Strict) else None
+        if unit is None:
+            raise ValueError(f"estimate.{path}: not a numeric entry of the problem")
+        return unit

@@ -1,0 +1,243 @@
+"""Result files: result.json, response and force-crush tables, figures.
+
+Everything here is SI inside and converted to report units (g, deg, ms) only as
+it is written.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crashnlp import plots
+from crashnlp.case import Case, TestCase
+from crashnlp.data.signal import resample
+from crashnlp.metrics import crash_metrics
+from crashnlp.optimize.identify import Solution, TestSolution
+from crashnlp.rating import iso18571
+from crashnlp.simulate import Response
+from crashnlp.units import G0
+
+REPORT_UNITS = {"accel": ("g", 1 / G0), "velocity": ("m/s", 1.0), "displacement": ("m", 1.0), "pitch": ("deg", 180 / math.pi)}
+# ignored by reproducibility checks: the only entries that change from run to run
+VOLATILE = ("wall_s", "build_s")
+
+
+def clean(value: Any) -> Any:
+    """JSON-safe: numpy to Python, NaN to null, floats to 10 significant digits."""
+    if isinstance(value, dict):
+        return {str(k): clean(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [clean(v) for v in value]
+    if isinstance(value, (np.floating, float)):
+        v = float(value)
+        return None if not math.isfinite(v) else float(f"{v:.10g}")
+    if isinstance(value, np.integer):
+        return int(value)
+    return value
+
+
+def write_json(path: Path, obj: Any) -> None:
+    """Write JSON atomically (a reader never sees half a file)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w") as fh:
+        json.dump(clean(obj), fh, indent=2)
+        fh.write("\n")
+    os.replace(tmp, path)
+
+
+def metrics(t: np.ndarray, accel: np.ndarray, velocity: np.ndarray, displacement: np.ndarray, pitch: np.ndarray | None) -> dict:
+    """The crash metrics result.json reports, in the units their names say."""
+    m = crash_metrics(t, accel, velocity, displacement)
+    out = {
+        "max_crush_m": m.max_crush,
+        "time_max_crush_s": m.t_max_crush,
+        "time_zero_velocity_s": m.t_zero_velocity,
+        "peak_decel_g": m.peak_decel / G0,
+        "rebound_velocity_mps": m.rebound_velocity,
+        "delta_v_mps": m.delta_v,
+        "esw_g": m.esw / G0,
+        "tesw_g": m.tesw / G0,
+        "olc_g": m.olc / G0,
+    }
+    out["max_pitch_deg"] = float(np.degrees(np.max(pitch))) if pitch is not None else None
+    return out
+
+
+def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    if test.data is None:
+        return {}
+    return {name: (ch.time, ch.values) for name, ch in test.data.channels.items()}
+
+
+def data_metrics(test: TestCase) -> dict | None:
+    """Metrics of the measured curves, on the accel channel's time base."""
+    ch = test.data.channels if test.data is not None else {}
+    if not {"accel", "velocity", "displacement"} <= set(ch):
+        return None
+    t = ch["accel"].time
+    t = t[(t >= max(c.time[0] for c in ch.values())) & (t <= min(c.time[-1] for c in ch.values()))]
+    pitch = resample(ch["pitch"], t) if "pitch" in ch else None
+    return metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
+
+
+def response_metrics(r: Response | TestSolution) -> dict:
+    t = r.times if isinstance(r, TestSolution) else r.time
+    y = r.outputs
+    return metrics(t, y["accel"], y["velocity"], y["displacement"], y["pitch"])
+
+
+def _fit(solution: Solution, ts: TestSolution) -> dict:
+    out = {}
+    for r in solution.residuals:
+        if r.test != ts.name:
+            continue
+        times = ts.times[ts.node_columns][r.columns]
+        model = ts.outputs[r.channel][ts.node_columns][r.columns]
+        unit, f = REPORT_UNITS[r.channel]
+        entry = {"rmse": float(np.sqrt(np.mean((model - r.data) ** 2))) * f, "unit": unit, "sigma": r.sigma * f}
+        entry["iso18571"] = iso18571(times, r.data, model) if len(times) >= 10 else None
+        out[r.channel] = entry
+    return out
+
+
+def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: float = 1e-6) -> list[dict]:
+    """Inequality constraints at their bound with a nonzero multiplier.
+
+    The multiplier, summed over the block's points, is what a unit of the bound
+    is worth: d objective / d bound (objective units per SI unit).
+    """
+    res, nlp = solution.result, solution.ocp.nlp
+    lbg, ubg = nlp.bounds()["lbg"], nlp.bounds()["ubg"]
+    out = []
+    for c in nlp.constraints:
+        if c.name.endswith((".initial", ".continuity", ".collocation", ".l1")):
+            continue
+        rows = slice(c.start, c.start + c.size)
+        lam, g, lo, hi = res.lam_g[rows], res.g[rows], lbg[rows], ubg[rows]
+        slack = np.minimum(np.abs(g - lo), np.abs(hi - g))
+        bound = np.where(np.abs(g - lo) < np.abs(hi - g), lo, hi)
+        active = np.flatnonzero((np.abs(lam) > lam_tol) & (slack <= slack_tol * (1 + np.abs(bound))))
+        if active.size:
+            out.append(
+                {
+                    "name": c.name,
+                    "points": int(active.size),
+                    "multiplier": float(np.sum(np.abs(lam[active]))),
+                    "max_multiplier": float(np.max(np.abs(lam[active]))),
+                }
+            )
+    return out
+
+
+def parameter_uncertainty(solution: Solution) -> tuple[dict, dict]:
+    free = solution.ocp.free
+    std, corr = solution.std_errors, solution.correlation
+    if std is None:
+        return {}, {}
+    named = {}
+    for e in free.entries:
+        v = std[e.at]
+        named[e.path] = float(v[0]) if e.where.stop - e.where.start == 1 else v.tolist()
+    return named, {"labels": free.labels(), "matrix": np.round(corr, 6).tolist()}
+
+
+def force_crush_table(case: Case, p: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
+    """The loading curve from zero to just past the largest crush reached."""
+    top = max(reach * 1.05, 1e-3)
+    x = np.linspace(0.0, top, 201)
+    return x, np.asarray(case.model.loading_curve.map(len(x))(x, p)).ravel()
+
+
+def write_table(path: Path, columns: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    names = list(columns)
+    rows = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
+    with path.open("w") as fh:
+        fh.write(",".join(names) + "\n")
+        for row in rows:
+            fh.write(",".join(f"{v:.9g}" for v in row) + "\n")
+
+
+def write_response(path: Path, t: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
+    Response(np.asarray(t), outputs, np.zeros((0, len(t)))).write_csv(path)
+
+
+def solution_summary(solution: Solution) -> dict:
+    """result.json content of an identification or design solve."""
+    case, res = solution.case, solution.result
+    std, corr = parameter_uncertainty(solution)
+    tests = {}
+    for ts, test in zip(solution.tests, case.tests):
+        tests[ts.name] = {
+            "speed_mps": test.speed,
+            "loading_ends_s": ts.split_time,
+            "metrics": {"model": response_metrics(ts), "data": data_metrics(test)},
+            "fit": _fit(solution, ts),
+        }
+    return {
+        "name": case.name,
+        "kind": case.problem.kind,
+        "status": solution.status,
+        "solver": {
+            "name": "ipopt",
+            "return_status": res.return_status if res else None,
+            "iterations": res.iterations if res else 0,
+            "objective": res.objective if res else None,
+            "wall_s": res.wall_s if res else None,
+            "build_s": res.build_s if res else None,
+        },
+        "transcription": case.problem.transcription.model_dump(),
+        "parameters": solution.parameters,
+        "std_errors": std,
+        "correlation": corr,
+        "tests": tests,
+        "active_constraints": active_constraints(solution) if res else [],
+    }
+
+
+def write_solution(solution: Solution, out: Path) -> dict:
+    """result.json, per-test responses and figures, force-crush table and figure."""
+    case = solution.case
+    p = solution.full_parameters()
+    summary = solution_summary(solution)
+    reach = 0.0
+    for ts, test in zip(solution.tests, case.tests):
+        write_response(out / ts.name / "response.csv", ts.times, ts.outputs)
+        model = {k: (ts.times, ts.outputs[k]) for k, _, _ in plots.PANELS}
+        plots.response_figure(out / ts.name / "fit.png", f"{case.name}: {ts.name}", model, data_curves(test))
+        res = {
+            r.channel: (ts.times[ts.node_columns][r.columns], ts.outputs[r.channel][ts.node_columns][r.columns] - r.data)
+            for r in solution.residuals
+            if r.test == ts.name
+        }
+        if res:
+            plots.residual_figure(out / ts.name / "residuals.png", f"{case.name}: {ts.name} residuals", res)
+        reach = max(reach, float(np.max(ts.outputs["crush"])))
+    x, f = force_crush_table(case, p, reach)
+    write_table(out / "force_crush.csv", {"crush_m": x, "spring_force_N": f})
+    bps = p[case.layout.index("model.spring.crush_breakpoints")]
+    inside = bps <= x[-1]
+    values = np.asarray(case.model.loading_curve.map(int(inside.sum()))(bps[inside], p)).ravel()
+    plots.force_crush_figure(out / "force_crush.png", {"loading curve": (x, f)}, (bps[inside], values), case.name)
+    write_json(out / "result.json", summary)
+    return summary
+
+
+def write_simulation(case: Case, responses: dict[str, Response], out: Path) -> dict:
+    """response.csv, a figure and metrics for each simulated test."""
+    summary = {"name": case.name, "tests": {}}
+    for test in case.tests:
+        r = responses[test.name]
+        r.write_csv(out / test.name / "response.csv")
+        model = {k: (r.time, r[k]) for k, _, _ in plots.PANELS}
+        plots.response_figure(out / test.name / "response.png", f"{case.name}: {test.name}", model, data_curves(test))
+        summary["tests"][test.name] = {"speed_mps": test.speed, "metrics": response_metrics(r)}
+    write_json(out / "simulation.json", summary)
+    return summary

@@ -1,0 +1,35 @@
+"""Direct collocation: Lagrange polynomials through Radau or Legendre points."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.model.pendulum import NX
+from crashnlp.transcription.base import Transcription, per_row
+
+
+class Collocation(Transcription):
+    def _interval(self, h: float) -> ca.Function:
+        """Collocation defects and end state of one interval as an SX Function."""
+        d = self.spec.degree
+        tau = ca.collocation_points(d, self.spec.scheme)
+        C, D, _ = ca.collocation_coeff(tau)
+        x0, xc = ca.SX.sym("x0", NX), ca.SX.sym("xc", NX, d)
+        xm, lo, p = ca.SX.sym("xm"), ca.SX.sym("lo"), self.model.p
+        Z = ca.horzcat(x0, xc)
+        slopes = ca.horzcat(*[self.phase_rhs(xc[:, j], p, xm, lo) for j in range(d)])
+        defects = Z @ C - h * slopes
+        return ca.Function("interval", [x0, xc, p, xm, lo], [defects, Z @ D])
+
+    def _add_dynamics(self, nlp, name, X, p, xm, loading, times, scale, guess):
+        n, d = self.intervals, self.spec.degree
+        h = float(times[1] - times[0])
+        tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
+        inner = (times[:-1, None] + h * tau[None, :]).ravel()
+        Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
+        defects, end = self._interval(h).map(n)(X[:, :-1], Xc, ca.repmat(p, 1, n), xm, ca.DM(loading).T)
+        nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
+        nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
+        # interior grid points: collocation points short of the interval end
+        keep = np.flatnonzero(np.tile(tau < 1 - 1e-12, n))
+        return inner[keep], Xc[:, keep.tolist()], keep // d

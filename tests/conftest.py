@@ -1,0 +1,59 @@
+"""Shared builders for test problems (plain dicts, so each test states what it changes)."""
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+
+import pytest
+
+from crashnlp.case import Case
+from crashnlp.problem import problem_from_dict
+
+ROOT = Path(__file__).resolve().parents[1]
+
+BASE = {
+    "name": "unit",
+    "vehicle": {
+        "mass": "2550 kg",
+        "speed": "56 km/h",
+        "pitch_inertia": "4800 kg*m^2",
+        "cg_to_impact": "2.45 m",
+        "cg_above_impact": "0.18 m",
+        "cg_to_front_axle": "1.55 m",
+        "cg_to_rear_axle": "2.10 m",
+        "suspension": {"k_front": "70 kN/m", "k_rear": "60 kN/m", "c_front": "8 kN*s/m", "c_rear": "8 kN*s/m"},
+        "vertical_force_ratio": 0.03,
+    },
+    "model": {
+        "spring": {
+            "law": "force",
+            "crush_breakpoints": [0, 0.05, 0.15, 0.25, 0.4, 0.55, 0.7, 0.85],
+            "values": ["0 kN", "300 kN", "450 kN", "380 kN", "520 kN", "700 kN", "950 kN", "1500 kN"],
+        },
+        "damper": {"rate_breakpoints": [0, 16], "values": ["5 kN*s/m", "5 kN*s/m"]},
+        "unloading": {"law": "plastic", "stiffness": "30 MN/m"},
+    },
+    "tests": [{"name": "t56", "duration": "0.2 s"}],
+}
+
+
+def merge(base: dict, changes: dict) -> dict:
+    """Deep-merge `changes` into a copy of `base`; None deletes a key."""
+    out = copy.deepcopy(base)
+    for key, value in changes.items():
+        if value is None:
+            out.pop(key, None)
+        elif isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = merge(out[key], value)
+        else:
+            out[key] = copy.deepcopy(value)
+    return out
+
+
+def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -> Case:
+    return Case(problem_from_dict(merge(BASE, changes or {}), base_dir))
+
+
+@pytest.fixture
+def base_problem() -> dict:
+    return copy.deepcopy(BASE)

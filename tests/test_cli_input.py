@@ -1,0 +1,68 @@
+"""Bad problem files: one line naming the key, exit status 2, no traceback, nothing written."""
+from __future__ import annotations
+
+import json
+
+import pytest
+import yaml
+
+from conftest import BASE, ROOT, merge
+from crashnlp.cli import main
+
+DATA = {"file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"), "format": "csv",
+        "channels": {"displacement": {"column": "disp_x_m", "unit": "m"}}}
+
+CASES = {
+    "unknown key": ({"vehicle": {"masss": "1 kg"}}, "vehicle.masss: unknown key"),
+    "wrong type": ({"vehicle": {"suspension": "stiff"}}, "vehicle.suspension:"),
+    "wrong unit": ({"vehicle": {"mass": "2550 m"}}, "vehicle.mass:"),
+    "unreadable quantity": ({"vehicle": {"cg_to_impact": "far away"}}, "vehicle.cg_to_impact: cannot read"),
+    "missing file": ({"tests": [{"name": "a", "data": {**DATA, "file": "nowhere.csv"}}]}, "tests.0.data.file: file not found"),
+    "breakpoints not increasing": ({"model": {"spring": {"crush_breakpoints": [0, 0.2, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7]}}},
+                                   "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing"),
+    "length mismatch": ({"model": {"damper": {"rate_breakpoints": [0, 8, 16]}}}, "model.damper: values has 2 entries but rate_breakpoints has 3"),
+    "missing key": ({"vehicle": {"cg_to_impact": None}}, "vehicle.cg_to_impact: missing key"),
+    "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
+    "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),
+    "bound unit": ({"constraints": {"bounds": {"pitch": [None, "12 kg"]}}}, "constraints:"),
+}
+
+
+@pytest.mark.parametrize("name", list(CASES))
+def test_bad_problem_file(name, tmp_path, capsys):
+    changes, expected = CASES[name]
+    path = tmp_path / "bad.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, changes)))
+    out = tmp_path / "out"
+    code = main(["simulate", str(path), "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert expected in err, err
+    assert str(path) in err
+    assert not out.exists()
+
+
+def test_bad_yaml_and_missing_problem(tmp_path, capsys):
+    path = tmp_path / "broken.yaml"
+    path.write_text("name: [unclosed\n")
+    assert main(["simulate", str(path)]) == 2
+    assert "not valid YAML" in capsys.readouterr().err
+    assert main(["identify", str(tmp_path / "none.yaml")]) == 2
+    assert "file not found" in capsys.readouterr().err
+
+
+def test_bad_params_file(tmp_path, capsys):
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(BASE))
+    params = tmp_path / "result.json"
+    params.write_text(json.dumps({"parameters": {"model.spring.colour": 1}}))
+    assert main(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / "o")]) == 2
+    assert "parameters.model.spring.colour" in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
+
+
+def test_schema_lists_the_problem_keys(capsys):
+    assert main(["schema"]) == 0
+    schema = json.loads(capsys.readouterr().out)
+    assert {"vehicle", "model", "tests", "estimate", "constraints", "transcription"} <= set(schema["properties"])

@@ -1,0 +1,65 @@
+"""Crash metrics on pulses with closed-form answers."""
+import numpy as np
+import pytest
+
+from crashnlp.data.signal import integrate
+from crashnlp.metrics import crash_metrics, olc
+from crashnlp.units import G0
+
+
+def half_sine(v0=15.0, T=0.08, rebound_accel=0.0, dt=1e-5, end=0.15):
+    """Half-sine pulse that stops the vehicle exactly at T (A = pi v0 / 2T), then an optional push back."""
+    t = np.arange(-0.005, end, dt)
+    A = np.pi * v0 / (2 * T)
+    a = np.where((t >= 0) & (t <= T), -A * np.sin(np.pi * t / T), 0.0)
+    a = np.where((t > T) & (t <= T + 0.01), -rebound_accel, a)
+    v, x = integrate(t, a, v0)
+    return t, a, v, x, A
+
+
+def test_half_sine_metrics():
+    v0, T = 15.0, 0.08
+    t, a, v, x, A = half_sine(v0, T)
+    m = crash_metrics(t, a, v, x)
+    assert m.v0 == pytest.approx(v0)
+    assert m.t_zero_velocity == pytest.approx(T, abs=1e-4)
+    assert m.max_crush == pytest.approx(v0 * T / 2, rel=1e-4)  # x(T) = v0 T - A T^2 / pi
+    assert m.peak_decel == pytest.approx(A, rel=1e-6)
+    assert m.t_peak_decel == pytest.approx(T / 2, abs=1e-5)
+    assert m.esw == pytest.approx(v0**2 / (2 * v0 * T / 2), rel=1e-3)  # = v0 / T
+    assert m.tesw == pytest.approx(v0 / T, rel=1e-3)
+    assert m.delta_v == pytest.approx(v0, abs=1e-3) and m.rebound_velocity == pytest.approx(0.0, abs=1e-3)
+
+
+def test_rebound_and_delta_v():
+    t, a, v, x, _ = half_sine(rebound_accel=200.0)  # 200 m/s^2 for 10 ms: 2 m/s back
+    m = crash_metrics(t, a, v, x)
+    assert m.rebound_velocity == pytest.approx(2.0, rel=1e-3)
+    assert m.delta_v == pytest.approx(17.0, rel=1e-3)
+    assert m.end_velocity == pytest.approx(-2.0, rel=1e-3)
+
+
+def test_olc_of_a_square_wave_has_a_closed_form():
+    # constant deceleration D: free flight D t1^2 / 2 = 65 mm; then relative travel D t1 t2 / 2 = 300 mm
+    # and OLC = D t2 / (t2 - t1) (vehicle still moving at t2 for v0 = 30 m/s)
+    D, v0 = 20 * G0, 30.0
+    t = np.arange(0, 0.2, 1e-5)
+    v, x = v0 - D * t, v0 * t - D * t**2 / 2
+    t1 = np.sqrt(2 * 0.065 / D)
+    t2 = 2 * 0.300 / (D * t1)
+    assert olc(t, v, x) == pytest.approx(D * t2 / (t2 - t1), rel=1e-4)
+    assert olc(t, v, x) / G0 == pytest.approx(25.5, abs=0.1)
+
+
+def test_olc_not_reached_is_nan():
+    t = np.arange(0, 0.05, 1e-4)
+    assert np.isnan(olc(t, np.full(t.size, 10.0), 10.0 * t))  # vehicle never slows: no relative travel
+
+
+def test_report_units_and_pre_impact_samples_ignored():
+    t, a, v, x, A = half_sine()
+    r = crash_metrics(t, a, v, x).report()
+    assert r["max_crush_mm"] == pytest.approx(600, rel=1e-3)
+    assert r["t_zero_velocity_ms"] == pytest.approx(80, abs=0.1)
+    assert r["peak_decel_g"] == pytest.approx(A / G0)
+    assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "t_max_crush_ms"}

@@ -1,0 +1,163 @@
+"""Physics of the elastic-pendulum model and its forward simulation."""
+from __future__ import annotations
+
+import casadi as ca
+import numpy as np
+import pytest
+import sympy as sp
+
+from conftest import make_case
+
+TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}
+
+
+def test_vehicle_at_rest_stays_at_rest():
+    case = make_case({"vehicle": {"speed": 0}, **TIGHT})
+    r = case.simulate()["t56"]
+    assert r.time[-1] == pytest.approx(0.2)
+    assert np.max(np.abs(r["crush"])) < 1e-9
+    assert np.max(np.abs(r["pitch"])) < 1e-9
+
+
+def test_one_degree_of_freedom_limit():
+    """Linear spring, no damping, CG level with the impact point: a half sine."""
+    m, k, v0 = 1500.0, 8.0e5, 15.0
+    case = make_case(
+        {
+            "vehicle": {"mass": m, "speed": v0, "cg_above_impact": 0, "pitch_inertia": 0, "vertical_force_ratio": 0,
+                        "suspension": {"c_front": 0, "c_rear": 0}},
+            "model": {"spring": {"crush_breakpoints": [0, 1], "values": [0, k]}, "damper": None,
+                      "unloading": {"law": "elastic"}},
+            "simulation": {"rtol": 1e-12, "atol": 1e-12, "dt": 1e-5},
+            "tests": [{"name": "t56", "duration": 0.1}],
+        }
+    )
+    r = case.simulate()["t56"]
+    i = int(np.argmax(r["crush"]))
+    # refine the peak with a parabola through the three samples around it
+    y0, y1, y2 = r["crush"][i - 1 : i + 2]
+    dt = r.time[1] - r.time[0]
+    shift = 0.5 * (y0 - y2) / (y0 - 2 * y1 + y2)
+    peak, t_peak = y1 - 0.25 * (y0 - y2) * shift, r.time[i] + shift * dt
+    assert peak == pytest.approx(v0 * np.sqrt(m / k), rel=1e-3)
+    assert t_peak == pytest.approx(0.5 * np.pi * np.sqrt(m / k), rel=1e-3)
+    assert np.max(np.abs(r["pitch"])) < 1e-12
+
+
+def _energy(r):
+    return r["kinetic"] + r["potential"] + r["dissipated"]
+
+
+def test_energy_conserved_without_dissipation():
+    case = make_case(
+        {
+            "vehicle": {"suspension": {"c_front": 0, "c_rear": 0}, "vertical_force_ratio": 0},
+            "model": {"damper": None, "unloading": {"law": "elastic"}},
+            **TIGHT,
+        }
+    )
+    r = case.simulate()["t56"]
+    total = r["kinetic"] + r["potential"]
+    assert np.max(r["crush"]) > 0.3  # the spring really worked
+    assert np.max(np.abs(total - total[0])) < 1e-6 * total[0]
+    assert np.max(np.abs(r["dissipated"])) < 1e-6 * total[0]
+
+
+@pytest.mark.parametrize("law", ["elastic", "plastic"])
+def test_energy_balance_with_dissipation(law):
+    case = make_case({"model": {"unloading": {"law": law}}, **TIGHT})
+    r = case.simulate()["t56"]
+    total = _energy(r)
+    assert r["dissipated"][-1] > 0.1 * total[0]
+    assert np.max(np.abs(total - total[0])) < 1e-6 * total[0]
+
+
+def test_plastic_unloading_leaves_permanent_set_and_never_pulls():
+    plastic = make_case({"tests": [{"name": "t56", "duration": 0.3}]}).simulate()["t56"]
+    elastic = make_case({"model": {"unloading": {"law": "elastic"}}, "tests": [{"name": "t56", "duration": 0.3}]}).simulate()["t56"]
+    assert np.min(plastic["contact_force"]) >= 0.0
+    assert np.min(elastic["contact_force"]) >= 0.0
+    # contact is lost at the permanent set: close to the largest crush for the
+    # plastic front end, back at zero for the elastic one
+    def crush_at_separation(r):
+        after = np.flatnonzero((r.time > r.time[np.argmax(r["crush"])]) & (r["contact_force"] == 0))
+        assert after.size, "the vehicle never separates"
+        return r["crush"][after[0]]
+
+    peak = np.max(plastic["crush"])
+    permanent = crush_at_separation(plastic)
+    assert 0.9 * peak < permanent < peak
+    assert abs(crush_at_separation(elastic)) < 0.02 * peak
+    # rebound: the elastic spring returns far more energy
+    assert -np.min(plastic["velocity"]) < 0.5 * -np.min(elastic["velocity"])
+
+
+def _sympy_accelerations(v: dict, state, contact: float) -> np.ndarray:
+    """Lagrange's equations derived independently in polar form with sympy."""
+    t = sp.symbols("t")
+    r, th = sp.Function("r")(t), sp.Function("th")(t)
+    m, I, g, h, L = v["mass"], v["pitch_inertia"], v["gravity"], v["cg_above_impact"], v["cg_to_impact"]
+    af, ar = v["cg_to_front_axle"], v["cg_to_rear_axle"]
+    l0, th0 = sp.sqrt(L**2 + h**2), sp.atan2(h, L)
+    rho = l0 + r
+    T = sp.Rational(1, 2) * m * (r.diff(t) ** 2 + rho**2 * th.diff(t) ** 2) + sp.Rational(1, 2) * I * th.diff(t) ** 2
+    V = m * g * (rho * sp.sin(th) - h)
+    D = 0
+    for d, share, k, c in ((af, ar, v["k_front"], v["c_front"]), (-ar, af, v["k_rear"], v["c_rear"])):
+        delta = h - rho * sp.sin(th) + d * sp.sin(th - th0)
+        V += sp.Rational(1, 2) * k * delta**2 + m * g * share / (af + ar) * delta
+        D += sp.Rational(1, 2) * c * delta.diff(t) ** 2
+    Q = {r: contact + v["ratio"] * contact * sp.sin(th), th: v["ratio"] * contact * rho * sp.cos(th)}
+    Lag = T - V
+    eqs = []
+    for q in (r, th):
+        eqs.append(Lag.diff(q.diff(t)).diff(t) - Lag.diff(q) + D.diff(q.diff(t)) - Q[q])
+    rd, thd, rdd, thdd = sp.symbols("rd thd rdd thdd")
+    subs = [(r.diff(t, 2), rdd), (th.diff(t, 2), thdd), (r.diff(t), rd), (th.diff(t), thd)]
+    eqs = [e.subs(subs).subs({r: state[0], th: state[1], rd: state[2], thd: state[3]}) for e in eqs]
+    sol = sp.solve(eqs, [rdd, thdd], dict=True)[0]
+    return np.array([float(sol[rdd]), float(sol[thdd])])
+
+
+def test_equations_match_an_independent_sympy_derivation():
+    case = make_case()
+    model, p = case.model, case.base
+    P = {k: float(np.asarray(x).ravel()[0]) for k, x in case.layout.split(p).items() if np.size(x) == 1}
+    v = {k.split(".")[-1]: val for k, val in P.items()}
+    v["ratio"] = P["vehicle.vertical_force_ratio"]
+    rng = np.random.default_rng(1)
+    theta0 = np.arctan2(v["cg_above_impact"], v["cg_to_impact"])
+    for _ in range(4):
+        x = np.array([-rng.uniform(0, 0.6), theta0 + rng.uniform(-0.1, 0.2), -rng.uniform(0, 15), rng.uniform(-1, 1)])
+        x_max = -x[0] + rng.uniform(0, 0.002)  # loading, or just unloading
+        xdot = np.asarray(model.rhs(x, p, x_max)).ravel()
+        contact = float(np.asarray(model.outputs(x, p, x_max)).ravel()[7])
+        assert contact > 0
+        np.testing.assert_allclose(xdot[2:], _sympy_accelerations(v, x, contact), rtol=1e-9, atol=1e-9)
+
+
+@pytest.mark.parametrize("law", ["force", "secant"])
+def test_breakpoint_derivatives_match_finite_differences(law):
+    """Hinge-form laws differentiate in their values (an inlined interpolant would give zeros)."""
+    case = make_case({"model": {"spring": {"law": law, "values": [1e6 + 1e5 * i for i in range(8)] if law == "secant" else None}}}
+                     if law == "secant" else {})
+    model, p = case.model, case.base
+    where = case.layout.index("model.spring.values")
+    crush = np.linspace(0.01, 0.8, 23)
+    f = model.loading_curve.map(len(crush))
+    psym = ca.SX.sym("p", len(p))
+    jac = ca.Function("J", [psym], [ca.jacobian(f(crush, psym).T, psym)])
+    J = np.asarray(jac(p))[:, where]
+    fd = np.zeros_like(J)
+    for j in range(J.shape[1]):
+        dp = np.zeros_like(p)
+        dp[where.start + j] = 1e-3 * max(abs(p[where.start + j]), 1.0)
+        fd[:, j] = (np.asarray(f(crush, p + dp)).ravel() - np.asarray(f(crush, p - dp)).ravel()) / (2 * dp[where.start + j])
+    assert np.abs(J).max() > 0
+    np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
+
+
+def test_rk_and_cvodes_agree():
+    r1 = make_case().simulate()["t56"]
+    r2 = make_case({"simulation": {"integrator": "rk", "substeps": 4}}).simulate()["t56"]
+    assert np.max(r1["crush"]) == pytest.approx(np.max(r2["crush"]), rel=1e-4)
