@@ -98,8 +98,8 @@ def _fit(solution: Solution, ts: TestSolution) -> dict:
     for r in solution.residuals:
         if r.test != ts.name:
             continue
-        times = ts.times[ts.node_columns][r.columns]
-        model = ts.outputs[r.channel][ts.node_columns][r.columns]
+        times = ts.times[r.columns]
+        model = ts.outputs[r.channel][r.columns]
         unit, f = REPORT_UNITS[r.channel]
         entry = {"rmse": float(np.sqrt(np.mean((model - r.data) ** 2))) * f, "unit": unit, "sigma": r.sigma * f}
         entry["iso18571"] = iso18571(times, r.data, model) if len(times) >= 10 else None
@@ -213,7 +213,7 @@ def write_solution(solution: Solution, out: Path) -> dict:
         model = {k: (ts.times, ts.outputs[k]) for k, _, _ in plots.PANELS}
         plots.response_figure(out / ts.name / "fit.png", f"{case.name}: {ts.name}", model, data_curves(test))
         res = {
-            r.channel: (ts.times[ts.node_columns][r.columns], ts.outputs[r.channel][ts.node_columns][r.columns] - r.data)
+            r.channel: (ts.times[r.columns], ts.outputs[r.channel][r.columns] - r.data)
             for r in solution.residuals
             if r.test == ts.name
         }

@@ -108,7 +108,10 @@ class PendulumModel:
         if s.n_damper:
             dbps = [self._par("model.damper.rate_breakpoints")[i] for i in range(s.n_damper)]
             dvals = [self._par("model.damper.values")[i] for i in range(s.n_damper)]
-            force = force + damper_force(rate, dbps, dvals, s.eps_rate)
+            # the damper engages over the first eps of crush, so the contact force
+            # starts from zero at impact instead of jumping to c * v0
+            engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
+            force = force + engaged * damper_force(rate, dbps, dvals, s.eps_rate)
         contact = ca.if_else(crush >= 0, ca.fmax(force, 0), 0)
         return contact, ca.if_else(crush >= 0, stored, 0)
 

@@ -42,14 +42,14 @@ def channel_residuals(tr: Transcript) -> list[Residual]:
     if spec is None or tr.test.data is None:
         return []
     out = []
-    times = tr.trajectory.node_times
+    times = tr.trajectory.times
     for name, ch_spec in spec.channels.items():
         channel = tr.test.data.channels.get(name)
         if channel is None or ch_spec.weight == 0:
             continue
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = ch_spec.sigma if ch_spec.sigma is not None else DEFAULT_SIGMA[name]
-        model = tr.node_output(name)[:, cols.tolist()]
+        model = tr.output(name)[:, cols.tolist()]
         out.append(Residual(tr.test.name, name, cols.tolist(), resample(channel, times[cols]), sigma, ch_spec.weight, model))
     return out
 

@@ -87,9 +87,9 @@ class FreeParameters:
         return [e.path if e.at.stop - e.at.start == 1 else f"{e.path}[{k}]" for e in self.entries for k in range(e.at.stop - e.at.start)]
 
     def full(self, theta, overrides: dict[str, float] | None = None):
-        """Full parameter vector with theta in place (symbolic MX or numeric)."""
-        if isinstance(theta, ca.MX):
-            p = ca.MX(ca.DM(self.base))
+        """Full parameter vector with theta in place (symbolic SX or MX, or numeric)."""
+        if isinstance(theta, (ca.SX, ca.MX)):
+            p = type(theta)(ca.DM(self.base))
             for e in self.entries:
                 p[e.where] = theta[e.at]
             for path, value in (overrides or {}).items():

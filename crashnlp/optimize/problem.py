@@ -26,16 +26,13 @@ class Transcript:
     test: TestCase
     trajectory: Trajectory
     p: ca.MX
-    outputs: ca.MX  # len(OUTPUTS) x points
+    outputs: ca.MX  # len(OUTPUTS) x nodes
     split: int
     guess: Response
 
     def output(self, name: str) -> ca.MX:
-        """A named output at every grid point (row)."""
+        """A named output at every node (row)."""
         return self.outputs[OUTPUTS.index(name), :]
-
-    def node_output(self, name: str) -> ca.MX:
-        return self.output(name)[:, self.trajectory.node_columns().tolist()]
 
 
 def _interpolator(response: Response):
@@ -81,12 +78,17 @@ class OptimalControl:
         guess = simulate(model, p_test, test.speed, fine, self.case.problem.simulation)
         times = np.linspace(0.0, horizon, self.transcription.intervals + 1)
         split = split_node(test, guess, times)
+        theta_sx = ca.SX.sym("theta", self.free.size)
+        p_sx = self.free.full(theta_sx, test.overrides)
+        self.transcription.bind(theta_sx, p_sx)
         p = self.free.full(self.theta, test.overrides)
         x0 = model.initial_state(p, test.speed)
-        traj = self.transcription.discretize(self.nlp, test.name, p, x0, horizon, split, _interpolator(guess))
-        k = len(traj.point_times)
-        outputs = model.outputs.map(k)(traj.points, ca.repmat(p, 1, k), traj.point_x_max)
-        return Transcript(test, traj, p, outputs, split, guess)
+        traj = self.transcription.discretize(self.nlp, test.name, self.theta, x0, horizon, split, _interpolator(guess))
+        k = len(traj.times)
+        x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
+        outputs = ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)]).map(k, "thread", 2)
+        y = outputs(traj.states, ca.repmat(self.theta, 1, k), traj.x_max)
+        return Transcript(test, traj, p, y, split, guess)
 
     def _constraints(self) -> None:
         spec = self.case.problem.constraints
@@ -98,8 +100,7 @@ class OptimalControl:
                 if hi is not None:
                     self.nlp.constrain(f"{tr.test.name}.bound.{name}.upper", y, -np.inf, hi)
             if spec.monotone_crush:
-                loading = np.flatnonzero(tr.trajectory.point_times <= tr.trajectory.node_times[tr.split])
-                crush = tr.output("crush")[:, loading.tolist()]
+                crush = tr.output("crush")[:, : tr.split + 1]
                 self.nlp.constrain(f"{tr.test.name}.monotone_crush", ca.diff(crush, 1, 1), 0.0, np.inf)
         if spec.monotone_spring:
             values = self.free.full(self.theta)[self.case.layout.index("model.spring.values")]

@@ -71,7 +71,7 @@ class Progress(ca.Callback):
 
 
 def ipopt_options(spec: Solver, verbose: bool) -> dict:
-    opts = {"print_level": 5 if verbose else 0, "sb": "yes", "max_iter": 1000, "tol": 1e-8}
+    opts = {"print_level": 5 if verbose else 0, "sb": "yes", "max_iter": 1000, "tol": 1e-8, "mu_strategy": "adaptive"}
     if spec.hessian == "limited-memory":
         opts["hessian_approximation"] = "limited-memory"
     opts.update(spec.ipopt)

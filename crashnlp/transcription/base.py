@@ -22,18 +22,13 @@ STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01])  # smallest state scales: m, rad
 
 @dataclass
 class Trajectory:
-    """States of one test in the NLP: at the nodes and at every grid point."""
+    """States of one test in the NLP at its grid points (the nodes), where outputs
+    are fitted and constraints enforced, whatever the transcription does inside."""
 
-    node_times: np.ndarray
-    nodes: ca.MX  # NX x (N+1)
-    point_times: np.ndarray
-    points: ca.MX  # NX x K, the nodes included
-    point_x_max: ca.MX  # 1 x K, largest crush so far at each point
+    times: np.ndarray
+    states: ca.MX  # NX x (N+1)
+    x_max: ca.MX  # 1 x (N+1), largest crush so far at each node
     state_block: str
-
-    def node_columns(self) -> np.ndarray:
-        """Indices of the nodes among the points."""
-        return np.searchsorted(self.point_times, self.node_times)
 
 
 def per_row(scale: np.ndarray, cols: int) -> ca.DM:
@@ -47,11 +42,15 @@ class Transcription(ABC):
     def __init__(self, model: PendulumModel, spec):
         self.model = model
         self.spec = spec
+
+    def bind(self, theta: ca.SX, p: ca.SX) -> None:
+        """Specialise the dynamics to one test: fixed parameters become constants
+        (folded into the SX graphs), only theta stays symbolic."""
         x, xm, loading = ca.SX.sym("x", NX), ca.SX.sym("xm"), ca.SX.sym("loading")
-        p = model.p
         effective = loading * (-x[0]) + (1 - loading) * xm
+        self.theta = theta
         self.phase_rhs = ca.Function(
-            "phase_rhs", [x, p, xm, loading], [model.rhs(x, p, effective)], ["x", "p", "xm", "loading"], ["xdot"]
+            "phase_rhs", [x, theta, xm, loading], [self.model.rhs(x, p, effective)], ["x", "theta", "xm", "loading"], ["xdot"]
         )
 
     @property
@@ -62,13 +61,15 @@ class Transcription(ABC):
         self,
         nlp: NLPBuilder,
         name: str,
-        p: ca.MX,
+        theta: ca.MX,
         x0: ca.MX,
         horizon: float,
         split: int,
         guess: Callable[[np.ndarray], np.ndarray],
     ) -> Trajectory:
-        """Variables and constraints of one test on [0, horizon]; loading up to node `split`."""
+        """Variables and constraints of one test on [0, horizon]; loading up to node `split`.
+
+        `theta` is the NLP's parameter vector; call `bind` first."""
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
         scale = np.maximum(np.abs(guess(times)).max(axis=1), STATE_FLOOR)
@@ -76,17 +77,12 @@ class Transcription(ABC):
         nlp.constrain(f"{name}.initial", X[:, 0] - x0)
         loading = (np.arange(n) < split).astype(float)
         x_max = -X[0, split]
-        inner_times, inner_states, inner_interval = self._add_dynamics(
-            nlp, name, X, p, ca.repmat(x_max, 1, n), loading, times, scale, guess
-        )
-        # grid points: the nodes and whatever points inside the intervals the method has
-        point_times = np.concatenate([times, inner_times])
-        point_loading = np.concatenate([np.arange(n + 1) <= split, loading[inner_interval] > 0])
-        order = np.argsort(point_times, kind="stable")
-        points = ca.horzcat(X, inner_states)[:, order.tolist()] if len(inner_times) else X
-        point_x_max = ca.horzcat(*[-points[0, i] if point_loading[k] else x_max for i, k in enumerate(order)])
-        return Trajectory(times, X, point_times[order], points, point_x_max, f"{name}.x")
+        self._add_dynamics(nlp, name, X, theta, ca.repmat(x_max, 1, n), loading, times, scale, guess)
+        # up to the split node the front end loads (largest crush = crush), then x_max holds
+        node_loading = ca.DM((np.arange(n + 1) <= split).astype(float)).T
+        node_x_max = node_loading * (-X[0, :]) + (1 - node_loading) * x_max
+        return Trajectory(times, X, node_x_max, f"{name}.x")
 
     @abstractmethod
-    def _add_dynamics(self, nlp, name, X, p, xm, loading, times, scale, guess):
-        """Dynamics constraints; returns the times, states and interval index of interior grid points."""
+    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
+        """Add the variables inside the intervals and the dynamics constraints."""

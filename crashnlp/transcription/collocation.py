@@ -15,21 +15,19 @@ class Collocation(Transcription):
         tau = ca.collocation_points(d, self.spec.scheme)
         C, D, _ = ca.collocation_coeff(tau)
         x0, xc = ca.SX.sym("x0", NX), ca.SX.sym("xc", NX, d)
-        xm, lo, p = ca.SX.sym("xm"), ca.SX.sym("lo"), self.model.p
+        xm, lo, p = ca.SX.sym("xm"), ca.SX.sym("lo"), self.theta
         Z = ca.horzcat(x0, xc)
         slopes = ca.horzcat(*[self.phase_rhs(xc[:, j], p, xm, lo) for j in range(d)])
         defects = Z @ C - h * slopes
         return ca.Function("interval", [x0, xc, p, xm, lo], [defects, Z @ D])
 
-    def _add_dynamics(self, nlp, name, X, p, xm, loading, times, scale, guess):
+    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
         n, d = self.intervals, self.spec.degree
         h = float(times[1] - times[0])
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
-        defects, end = self._interval(h).map(n)(X[:, :-1], Xc, ca.repmat(p, 1, n), xm, ca.DM(loading).T)
+        interval = self._interval(h).map(n, "thread", 2)
+        defects, end = interval(X[:, :-1], Xc, ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
         nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
-        # interior grid points: collocation points short of the interval end
-        keep = np.flatnonzero(np.tile(tau < 1 - 1e-12, n))
-        return inner[keep], Xc[:, keep.tolist()], keep // d

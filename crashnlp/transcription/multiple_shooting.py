@@ -12,7 +12,7 @@ class MultipleShooting(Transcription):
     def _step(self, h: float) -> ca.Function:
         """One interval of `substeps` RK4 steps as an SX Function (CasADi's sysid pattern)."""
         x, xm, lo = ca.SX.sym("x", NX), ca.SX.sym("xm"), ca.SX.sym("lo")
-        p, f, dt = self.model.p, self.phase_rhs, h / self.spec.substeps
+        p, f, dt = self.theta, self.phase_rhs, h / self.spec.substeps
         xk = x
         for _ in range(self.spec.substeps):
             k1 = f(xk, p, xm, lo)
@@ -22,9 +22,8 @@ class MultipleShooting(Transcription):
             xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         return ca.Function("step", [x, p, xm, lo], [xk])
 
-    def _add_dynamics(self, nlp, name, X, p, xm, loading, times, scale, guess):
+    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
         n = self.intervals
-        step = self._step(float(times[1] - times[0])).map(n)
-        end = step(X[:, :-1], ca.repmat(p, 1, n), xm, ca.DM(loading).T)
+        step = self._step(float(times[1] - times[0])).map(n, "thread", 2)
+        end = step(X[:, :-1], ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
-        return np.zeros(0), ca.MX(NX, 0), np.zeros(0, dtype=int)
