@@ -15,6 +15,7 @@ $(STAMP): pyproject.toml
 
 demo: $(STAMP)
 	$(CLI) identify problems/pickup-56kph.yaml
+	$(CLI) identify problems/nhtsa-10146.yaml
 
 simulate: $(STAMP)
 	$(CLI) simulate problems/pickup-56kph.yaml
@@ -22,6 +23,9 @@ simulate: $(STAMP)
 
 identify: $(STAMP)
 	$(CLI) identify problems/pickup-56kph.yaml
+	$(CLI) identify problems/pickup-joint.yaml
+	$(CLI) identify problems/paper-configuration.yaml
+	$(CLI) identify problems/nhtsa-10146.yaml
 
 test: $(STAMP)
 	$(BIN)/python -m pytest

@@ -225,7 +225,11 @@ def write_solution(solution: Solution, out: Path) -> dict:
     bps = p[case.layout.index("model.spring.crush_breakpoints")]
     inside = bps <= x[-1]
     values = np.asarray(case.model.loading_curve.map(int(inside.sum()))(bps[inside], p)).ravel()
-    plots.force_crush_figure(out / "force_crush.png", {"loading curve": (x, f)}, (bps[inside], values), case.name)
+    curves = {"identified loading curve": (x, f)}
+    known = case.problem.reference.force_crush
+    if known is not None:
+        curves["reference"] = (np.asarray(known.crush), np.asarray(known.force))
+    plots.force_crush_figure(out / "force_crush.png", curves, (bps[inside], values), case.name)
     write_json(out / "result.json", summary)
     return summary
 

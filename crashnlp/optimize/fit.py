@@ -61,12 +61,12 @@ def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
     for r in residuals:
         if objective.loss == "l2":
             ocp.nlp.minimize(ca.sumsqr(r.scaled))
-        else:
-            scaled = r.scaled * np.sqrt(r.weight / len(r.columns))
+        else:  # |e| / sigma through slacks s >= +-e / sigma, mean of s weighted
+            normalised = (r.model - ca.DM(r.data).T).T / r.sigma
             slack = ocp.nlp.variable(f"{r.test}.{r.channel}.slack", len(r.columns), 1.0, 0.0, np.inf)
-            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack - scaled.T, 0.0, np.inf)
-            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack + scaled.T, 0.0, np.inf)
-            ocp.nlp.minimize(ca.sum1(slack))
+            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack - normalised, 0.0, np.inf)
+            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack + normalised, 0.0, np.inf)
+            ocp.nlp.minimize(r.weight / len(r.columns) * ca.sum1(slack))
     if objective.regularization > 0:
         ocp.nlp.minimize(objective.regularization * roughness(ocp))
     return residuals

@@ -330,6 +330,23 @@ class Design(Strict):
     duration: Q("s") = Field(0.2, description="horizon after the vehicle stops, for pitch")
 
 
+class ForceCrush(Strict):
+    crush: QList("m")
+    force: QList("N")
+
+    @model_validator(mode="after")
+    def _same_length(self):
+        if len(self.crush) != len(self.force):
+            raise ValueError("crush and force need the same number of entries")
+        return self
+
+
+class Reference(Strict):
+    """Known curves drawn beside the identified ones (FE load-cell data, or a synthetic truth)."""
+
+    force_crush: ForceCrush | None = None
+
+
 class Problem(Strict):
     name: str
     kind: Literal["identify", "design"] = "identify"
@@ -343,6 +360,7 @@ class Problem(Strict):
     solver: Solver = Solver()
     simulation: Simulation = Simulation()
     design: Design | None = None
+    reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
 
     @model_validator(mode="after")

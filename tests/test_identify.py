@@ -1,0 +1,187 @@
+"""Identification by NLP: recovery of known parameters, honesty, constraints, round trips."""
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+import yaml
+
+from conftest import BASE, merge
+from crashnlp.case import Case
+from crashnlp.cli import main
+from crashnlp.optimize.identify import identify
+from crashnlp.problem import problem_from_dict
+from crashnlp.results import VOLATILE
+
+TRUTH = {"values": [0.0, 380e3, 520e3, 900e3], "ratio": 0.05}
+NOISE = {"accel_g": 0.5, "vel_mps": 0.02, "disp_m": 0.001, "pitch_deg": 0.05}
+MS = {"method": "multiple-shooting", "intervals": 60, "substeps": 2}
+COLLOCATION = {"method": "collocation", "intervals": 60, "degree": 3, "scheme": "radau"}
+
+
+def truth_problem() -> dict:
+    return merge(
+        BASE,
+        {
+            "name": "recovery",
+            "vehicle": {"vertical_force_ratio": TRUTH["ratio"]},
+            "model": {"spring": {"crush_breakpoints": [0, 0.2, 0.4, 0.7], "values": TRUTH["values"]}},
+            "tests": [{"name": "t56", "duration": 0.12}],
+            "simulation": {"dt": 1e-4},
+        },
+    )
+
+
+@pytest.fixture(scope="module")
+def data_file(tmp_path_factory):
+    """Synthetic test: the forward simulator at known values plus white noise."""
+    case = Case(problem_from_dict(truth_problem(), tmp_path_factory.getbasetemp()))
+    r = case.simulate()["t56"]
+    rng = np.random.default_rng(7)
+    columns = {
+        "time_s": r.time,
+        "accel_g": r["accel"] / 9.80665 + NOISE["accel_g"] * rng.standard_normal(r.time.size),
+        "vel_mps": r["velocity"] + NOISE["vel_mps"] * rng.standard_normal(r.time.size),
+        "disp_m": r["displacement"] + NOISE["disp_m"] * rng.standard_normal(r.time.size),
+        "pitch_deg": np.degrees(r["pitch"]) + NOISE["pitch_deg"] * rng.standard_normal(r.time.size),
+    }
+    path = tmp_path_factory.mktemp("data") / "synthetic.csv"
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(columns)
+        w.writerows(zip(*columns.values()))
+    return path
+
+
+def fit_problem(data_file, transcription=MS, **changes) -> dict:
+    problem = merge(
+        truth_problem(),
+        {
+            "model": {"spring": {"values": ["500 kN"] * 4}},
+            "vehicle": {"vertical_force_ratio": 0.0},
+            "tests": [
+                {
+                    "name": "t56",
+                    "data": {
+                        "file": str(data_file),
+                        "window": ["0 s", "0.12 s"],
+                        "channels": {
+                            "accel": {"column": "accel_g", "unit": "g", "sigma": f"{NOISE['accel_g']} g"},
+                            "velocity": {"column": "vel_mps", "unit": "m/s", "sigma": NOISE["vel_mps"]},
+                            "displacement": {"column": "disp_m", "unit": "m", "sigma": NOISE["disp_m"]},
+                            "pitch": {"column": "pitch_deg", "unit": "deg", "sigma": f"{NOISE['pitch_deg']} deg"},
+                        },
+                    },
+                }
+            ],
+            "estimate": {
+                "model.spring.values": {"bounds": ["0 kN", "3 MN"]},
+                "vehicle.vertical_force_ratio": {"bounds": [-0.5, 0.5]},
+            },
+            "constraints": {"monotone_crush": True},
+            "transcription": transcription,
+        },
+    )
+    return merge(problem, changes)
+
+
+def solve(problem: dict, tmp_path=None):
+    return identify(Case(problem_from_dict(problem, tmp_path or ".")), progress=None)
+
+
+@pytest.mark.parametrize("transcription", [MS, COLLOCATION], ids=["multiple-shooting", "collocation"])
+def test_recovers_known_parameters_within_three_standard_errors(data_file, transcription):
+    sol = solve(fit_problem(data_file, transcription))
+    assert sol.ok, sol.status
+    assert sol.result.iterations > 0
+    estimate = np.concatenate([np.atleast_1d(v) for v in sol.parameters.values()])
+    truth = np.array(TRUTH["values"] + [TRUTH["ratio"]])
+    start = np.array([500e3] * 4 + [0.0])
+    std = sol.std_errors
+    reached = slice(1, 5)  # the value at zero crush sits on its bound; the rest are free
+    assert np.all(std[reached] > 0)
+    assert np.all(np.abs(estimate - truth)[reached] <= 3 * std[reached]), (estimate, truth, std)
+    # and the fit moved far from where it started, relative to its uncertainty
+    assert np.all(np.abs(start - truth)[reached] > 10 * std[reached])
+
+
+def test_transcriptions_agree_on_the_objective(data_file):
+    a = solve(fit_problem(data_file, MS))
+    b = solve(fit_problem(data_file, COLLOCATION))
+    assert a.ok and b.ok
+    assert b.result.objective == pytest.approx(a.result.objective, rel=0.01)
+
+
+def test_parameter_that_cannot_move_the_fit_is_reported(data_file):
+    problem = fit_problem(
+        data_file,
+        model={"unloading": {"law": "elastic"}},
+        estimate={"model.unloading.stiffness": {"bounds": ["1 MN/m", "200 MN/m"]}},
+    )
+    sol = solve(problem)
+    assert not sol.ok
+    assert "model.unloading.stiffness" in sol.status and "zero derivative" in sol.status
+    assert sol.result is None  # never handed to IPOPT as if it could converge
+
+
+def test_a_solve_that_never_moves_is_not_success(data_file):
+    sol = solve(fit_problem(data_file, solver={"ipopt": {"max_iter": 0}}))
+    assert not sol.ok
+    assert sol.result.return_status == "Maximum_Iterations_Exceeded"
+    assert sol.status.startswith("solver failed")
+
+
+def test_pitch_bound_below_the_optimum_becomes_active(data_file):
+    free = solve(fit_problem(data_file))
+    pitch_free = np.max(free.tests[0].outputs["pitch"])
+    bound = 0.7 * pitch_free
+    tight = solve(fit_problem(data_file, constraints={"monotone_crush": True, "bounds": {"pitch": [None, float(bound)]}}))
+    assert tight.ok, tight.status
+    pitch = tight.tests[0].outputs["pitch"]
+    assert np.all(pitch <= bound + 1e-7)  # at every grid point
+    crush = tight.tests[0].outputs["crush"]
+    split = np.searchsorted(tight.tests[0].times, tight.tests[0].split_time)
+    assert np.all(np.diff(crush[: split + 1]) >= -1e-8)  # monotone crush, every grid point
+    assert tight.result.objective > free.result.objective
+    from crashnlp.results import active_constraints
+
+    active = {c["name"]: c for c in active_constraints(tight)}
+    assert active["t56.bound.pitch.upper"]["multiplier"] > 0
+    assert "t56.bound.pitch.upper" not in {c["name"] for c in active_constraints(free)}
+
+
+def test_l1_loss_fits_through_slacks(data_file):
+    sol = solve(fit_problem(data_file, objective={"loss": "l1"}))
+    assert sol.ok, sol.status
+    estimate = np.asarray(sol.parameters["model.spring.values"])
+    np.testing.assert_allclose(estimate[1:], TRUTH["values"][1:], rtol=0.1)
+
+
+def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
+    problem = tmp_path / "fit.yaml"
+    problem.write_text(yaml.safe_dump(fit_problem(data_file)))
+    out = tmp_path / "out"
+    assert main(["identify", str(problem), "--out", str(out)]) == 0
+    result = json.loads((out / "result.json").read_text())
+    assert result["status"] == "ok" and result["solver"]["iterations"] > 0
+    for name in ("t56/response.csv", "force_crush.csv", "t56/fit.png", "t56/residuals.png", "force_crush.png"):
+        assert (out / name).exists()
+    fit = result["tests"]["t56"]["fit"]
+    assert set(fit) == {"accel", "velocity", "displacement", "pitch"}
+    assert 0.5 < fit["displacement"]["iso18571"]["overall"] <= 1.0
+    # the separate integrator reproduces the NLP's maximum crush
+    sim = tmp_path / "sim"
+    assert main(["simulate", str(problem), "--params", str(out / "result.json"), "--out", str(sim)]) == 0
+    nlp_crush = max(float(row["crush_m"]) for row in csv.DictReader((out / "t56/response.csv").open()))
+    sim_crush = max(float(row["crush_m"]) for row in csv.DictReader((sim / "t56/response.csv").open()))
+    assert sim_crush == pytest.approx(nlp_crush, rel=0.005)
+    # the same problem gives the same result.json
+    again = tmp_path / "again"
+    assert main(["identify", str(problem), "--out", str(again)]) == 0
+    second = json.loads((again / "result.json").read_text())
+    for r in (result, second):
+        for key in VOLATILE:
+            r["solver"].pop(key)
+    assert result == second
