@@ -79,13 +79,18 @@ def _print_solution(summary: dict) -> None:
         print(f"  active: {c['name']} at {c['points']} points, multiplier {c['multiplier']:.4g}")
 
 
-def cmd_identify(args) -> int:
+def _solve(args, kind: str) -> int:
+    """identify and design: one NLP solve, its result files and a summary."""
     from crashnlp.case import Case
-    from crashnlp.optimize.identify import identify
+    from crashnlp.optimize import solve_case
+    from crashnlp.problem import load_problem
     from crashnlp.results import write_solution
 
-    case = Case.load(args.problem)
-    solution = identify(case, verbose=args.verbose)
+    problem = load_problem(args.problem)
+    if problem.kind != kind:
+        raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
+    case = Case(problem)
+    solution = solve_case(case, verbose=args.verbose)
     out = _out(args, case.name)
     summary = write_solution(solution, out)
     _print_solution(summary)
@@ -94,6 +99,14 @@ def cmd_identify(args) -> int:
         print(f"crashnlp: {case.name}: {solution.status}", file=sys.stderr)
         return 1
     return 0
+
+
+def cmd_identify(args) -> int:
+    return _solve(args, "identify")
+
+
+def cmd_design(args) -> int:
+    return _solve(args, "design")
 
 
 def cmd_schema(args) -> int:
@@ -118,10 +131,16 @@ def parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="fit the estimated parameters to the tests' data by an NLP (IPOPT)")
-    p.add_argument("problem", help="problem YAML file")
+    p.add_argument("problem", help="problem YAML file with data (kind: identify, the default)")
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
     p.set_defaults(func=cmd_identify)
+
+    p = sub.add_parser("design", help="choose spring and damper values for a design goal by an NLP (no data)")
+    p.add_argument("problem", help="problem YAML file with kind: design")
+    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.set_defaults(func=cmd_design)
 
     p = sub.add_parser("schema", help="print the JSON Schema of problem files")
     p.set_defaults(func=cmd_schema)

@@ -55,7 +55,7 @@ def split_node(test: TestCase, guess: Response, times: np.ndarray) -> int:
 class OptimalControl:
     """Variables, dynamics and constraints of all tests of a case."""
 
-    def __init__(self, case: Case, horizons: dict[str, float] | None = None):
+    def __init__(self, case: Case, splits: dict[str, int] | None = None):
         self.case = case
         problem = case.problem
         self.nlp = NLPBuilder()
@@ -66,18 +66,17 @@ class OptimalControl:
         self.transcription = make_transcription(case.model, problem.transcription)
         p0 = self.free.full(self.free.initial)
         self.transcripts = [
-            self._transcribe(test, p0, (horizons or {}).get(test.name) or case.fit_window(test)[1])
-            for test in case.tests
+            self._transcribe(test, p0, case.fit_window(test)[1], (splits or {}).get(test.name)) for test in case.tests
         ]
         self._constraints()
 
-    def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float) -> Transcript:
+    def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float, split: int | None) -> Transcript:
         model = self.case.model
         p_test = self.case.test_parameters(test, p0)
         fine = np.linspace(0.0, horizon, 4 * self.transcription.intervals + 1)
         guess = simulate(model, p_test, test.speed, fine, self.case.problem.simulation)
         times = np.linspace(0.0, horizon, self.transcription.intervals + 1)
-        split = split_node(test, guess, times)
+        split = split_node(test, guess, times) if split is None else split
         theta_sx = ca.SX.sym("theta", self.free.size)
         p_sx = self.free.full(theta_sx, test.overrides)
         self.transcription.bind(theta_sx, p_sx)
@@ -106,10 +105,11 @@ class OptimalControl:
             values = self.free.full(self.theta)[self.case.layout.index("model.spring.values")]
             self.nlp.constrain("monotone_spring", ca.diff(values), 0.0, np.inf)
 
-    def set_guess(self, z: np.ndarray) -> None:
-        """Warm start from a solution vector of a problem of the same shape."""
-        self.nlp.z0 = self._split(np.asarray(z, dtype=float))
-
-    def _split(self, z: np.ndarray) -> list[np.ndarray]:
-        sizes = np.cumsum([len(b) for b in self.nlp.z0])[:-1]
-        return np.split(z, sizes)
+    def set_guess(self, z: np.ndarray) -> bool:
+        """Warm start from a solution vector of an NLP of the same shape; False if it is not."""
+        z = np.asarray(z, dtype=float).ravel()
+        sizes = [len(b) for b in self.nlp.z0]
+        if z.size != sum(sizes):
+            return False
+        self.nlp.z0 = np.split(z, np.cumsum(sizes)[:-1])
+        return True

@@ -1,0 +1,105 @@
+"""Design: choose spring and damper values for a crash pulse, with no data.
+
+The objective is a design goal (peak deceleration, maximum crush, or the
+Occupant Load Criterion) under the problem's constraints, on the same
+transcription as identification. Where loading ends is not known before the
+design is: the NLP is solved with the stop node of the previous solve until it
+no longer moves (a fixed point, usually two or three solves, each warm-started).
+"""
+from __future__ import annotations
+
+import sys
+from typing import Callable, TextIO
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.case import Case
+from crashnlp.errors import InputError
+from crashnlp.optimize.identify import Solution, evaluate, judge
+from crashnlp.optimize.problem import OptimalControl, Transcript
+from crashnlp.optimize.solve import solve
+
+MAX_SPLIT_UPDATES = 5
+OLC_FREE_FLIGHT, OLC_RESTRAINT = 0.065, 0.235  # m (Kübler et al.)
+
+
+def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX], scale: float) -> None:
+    """minimize s subject to rows(test) <= s at every node of every test."""
+    s = ocp.nlp.variable(f"design.{name}", 1, scale, 0.0, np.inf, scale=scale)
+    for tr in ocp.transcripts:
+        ocp.nlp.constrain(f"{tr.test.name}.design.{name}", rows(tr) - s, -np.inf, 0.0)
+    ocp.nlp.minimize(s / scale)
+
+
+def peak_decel(ocp: OptimalControl) -> None:
+    scale = max(t.speed for t in ocp.case.tests) ** 2 / 1.0  # v0^2 / (2 * 0.5 m)
+    _epigraph(ocp, "peak_decel", lambda tr: -tr.output("accel"), scale)
+
+
+def max_crush(ocp: OptimalControl) -> None:
+    _epigraph(ocp, "crush", lambda tr: tr.output("crush"), 0.5)
+
+
+def _interp(t: ca.MX, times: np.ndarray, values: ca.MX) -> ca.MX:
+    """Piecewise-linear interpolation of node values at a symbolic time (hat functions)."""
+    h = float(times[1] - times[0])
+    hats = ca.fmax(0, 1 - ca.fabs(t - ca.DM(times).T) / h)
+    return ca.dot(hats.T, values.T)
+
+
+def olc(ocp: OptimalControl) -> None:
+    """Occupant Load Criterion: the occupant flies free for 65 mm relative to the
+    vehicle, then decelerates uniformly (OLC) over 235 mm to the vehicle's speed.
+    t1, t2 and the deceleration are decision variables of the NLP."""
+    total = 0
+    for tr in ocp.transcripts:
+        times, v0 = tr.trajectory.times, tr.test.speed
+        x, v = tr.output("displacement"), tr.output("velocity")
+        name = tr.test.name
+        guess_t1 = OLC_FREE_FLIGHT / (0.3 * v0)
+        t1 = ocp.nlp.variable(f"{name}.olc.t1", 1, guess_t1, times[1], times[-1], scale=0.01)
+        t2 = ocp.nlp.variable(f"{name}.olc.t2", 1, 3 * guess_t1, times[1], times[-1], scale=0.01)
+        a = ocp.nlp.variable(f"{name}.olc.a", 1, v0**2, 0.0, np.inf, scale=v0**2)
+        dt = t2 - t1
+        ocp.nlp.constrain(f"{name}.olc.free_flight", v0 * t1 - _interp(t1, times, x) - OLC_FREE_FLIGHT)
+        ocp.nlp.constrain(
+            f"{name}.olc.restraint", v0 * t2 - 0.5 * a * dt**2 - _interp(t2, times, x) - OLC_FREE_FLIGHT - OLC_RESTRAINT
+        )
+        ocp.nlp.constrain(f"{name}.olc.matched", v0 - a * dt - _interp(t2, times, v))
+        ocp.nlp.constrain(f"{name}.olc.order", dt, 0.0, np.inf)
+        total += a / v0**2
+    ocp.nlp.minimize(total)
+
+
+DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {"peak_decel": peak_decel, "crush": max_crush, "olc": olc}
+
+
+def _stop_nodes(ocp: OptimalControl, z: np.ndarray) -> dict[str, int]:
+    """First node at the largest crush (to within 1 um) in each test's solution."""
+    return {ts.name: int(np.argmax(ts.outputs["crush"] >= ts.outputs["crush"].max() - 1e-6)) for ts in evaluate(ocp, z)}
+
+
+def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
+    """Solve a design problem; loading ends where the designed vehicle stops."""
+    goal = case.problem.design.minimize if case.problem.design else "peak_decel"
+    splits, z = None, warm
+    for _ in range(MAX_SPLIT_UPDATES):
+        ocp = OptimalControl(case, splits)
+        if ocp.free.size == 0:
+            raise InputError(f"{case.name}: estimate names no design variable")
+        DESIGN_OBJECTIVES[goal](ocp)
+        if z is not None:
+            ocp.set_guess(z)
+        result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
+        z = result.z
+        stops = _stop_nodes(ocp, z)
+        current = {tr.test.name: tr.split for tr in ocp.transcripts}
+        if not result.converged or all(abs(stops[k] - current[k]) <= 1 for k in stops):
+            break
+        splits = stops
+    theta = np.clip(ocp.nlp.value("theta", z).ravel(), ocp.free.lower, ocp.free.upper)
+    status = judge(result, ocp.free.initial, theta, ocp.free.scale)
+    if status == "ok" and any(abs(stops[k] - current[k]) > 1 for k in stops):
+        status = "loading end did not settle: the stop node kept moving"
+    return Solution(case, ocp, result, status, theta, evaluate(ocp, z))

@@ -1,0 +1,91 @@
+"""Where the cases of a wave run: a local process pool or a dask.distributed cluster.
+
+Both offer `map_wave(fn, items)`, yielding `(position, result)` as cases finish;
+an exception the task raised (or a worker that died) comes back as the result,
+so one broken case never stops the study. `fn` must be a top-level function of
+plain, picklable data.
+"""
+from __future__ import annotations
+
+import multiprocessing
+import os
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures.process import BrokenProcessPool
+from typing import Any, Callable, Iterator, Protocol
+
+from crashnlp.errors import InputError
+
+EXECUTORS = ("local", "dask")
+
+
+class Executor(Protocol):
+    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]: ...
+
+    def close(self) -> None: ...
+
+
+def default_workers() -> int:
+    """Cores this process may use."""
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
+
+class LocalExecutor:
+    """A process pool; spawned workers, since a forked CasADi/IPOPT state is not safe."""
+
+    def __init__(self, workers: int | None = None):
+        self.workers = workers or default_workers()
+        self.pool = self._new_pool()
+
+    def _new_pool(self) -> ProcessPoolExecutor:
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=multiprocessing.get_context("spawn"))
+
+    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
+        try:
+            futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
+        except BrokenProcessPool:  # a worker died in an earlier wave: start afresh
+            self.pool.shutdown(cancel_futures=True)
+            self.pool = self._new_pool()
+            futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
+        for future in as_completed(futures):
+            exc = future.exception()
+            yield futures[future], exc if exc is not None else future.result()
+
+    def close(self) -> None:
+        self.pool.shutdown(cancel_futures=True)
+
+
+class DaskExecutor:
+    """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
+
+    def __init__(self, workers: int | None = None, address: str | None = None):
+        from distributed import Client, LocalCluster
+
+        self.cluster = None
+        if address is None:
+            self.cluster = LocalCluster(
+                n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None
+            )
+        self.client = Client(address or self.cluster)
+
+    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
+        from distributed import as_completed as dask_completed
+
+        futures = self.client.map(fn, items, pure=False)
+        where = {f.key: i for i, f in enumerate(futures)}
+        for future in dask_completed(futures):
+            exc = future.exception()
+            yield where[future.key], exc if exc is not None else future.result()
+
+    def close(self) -> None:
+        self.client.close()
+        if self.cluster is not None:
+            self.cluster.close()
+
+
+def make_executor(kind: str = "local", workers: int | None = None, address: str | None = None) -> Executor:
+    """The executor a study asked for."""
+    if kind == "dask":
+        return DaskExecutor(workers, address)
+    if address is not None:
+        raise InputError("--address needs --executor dask")
+    return LocalExecutor(workers)

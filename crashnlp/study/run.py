@@ -1,0 +1,282 @@
+"""Run a study: solve every case wave by wave, store each as it finishes, write the table and figures.
+
+Layout of the output folder:
+  cases/<id>.json   the case's table row and a fingerprint of what it computed
+  cases/<id>.npy    its solution vector (warm start for the cases planned after it)
+  table.csv         one row per case
+  figures/*.png     objective and metrics against each swept entry
+A case whose json exists with a matching fingerprint is never solved again, so
+running a study again into the same folder resumes it.
+"""
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from crashnlp import plots
+from crashnlp.errors import InputError
+from crashnlp.study.executors import default_workers, make_executor
+from crashnlp.study.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
+from crashnlp.study.spec import Study, SweepEntry, load_study
+from crashnlp.results import clean, write_json
+
+RESULTS = Path("results")
+METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")
+PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
+
+
+# --------------------------------------------------------------------------- worker side
+def solve_job(job: dict[str, Any]) -> dict[str, Any]:
+    """Solve one case from plain data (runs in a worker process; builds the Case there).
+
+    Returns {"record": table columns of the outcome, "z": solution vector or None};
+    bad input and any exception become a record with that status.
+    """
+    from crashnlp.case import Case
+    from crashnlp.optimize import solve_case
+    from crashnlp.problem import problem_from_dict
+
+    try:
+        problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
+        solution = solve_case(Case(problem), progress=None, warm=job["warm"])
+    except InputError as exc:
+        return {"record": {"status": f"input error: {_one_line(exc)}"}, "z": None}
+    except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
+        return {"record": {"status": f"error: {type(exc).__name__}: {_one_line(exc)}"}, "z": None}
+    return {"record": solution_record(solution, job["constraints"]), "z": solution.result.z if solution.result else None}
+
+
+def _one_line(exc: BaseException) -> str:
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def solution_record(solution, constraints: list[str]) -> dict[str, Any]:
+    """Status, solver figures, metrics, parameters and the multipliers of the swept constraints."""
+    from crashnlp.results import solution_summary
+
+    res = solution.result
+    summary = solution_summary(solution)
+    record: dict[str, Any] = {
+        "status": solution.status,
+        "objective": res.objective if res else None,
+        "iterations": res.iterations if res else 0,
+        "wall_s": res.wall_s if res else None,
+    }
+    for name, test in summary["tests"].items():
+        record.update({f"{name}.{k}": test["metrics"]["model"][k] for k in METRICS})
+    for path, value in summary["parameters"].items():
+        if isinstance(value, list):
+            record.update({f"{path}[{i}]": v for i, v in enumerate(value)})
+        else:
+            record[path] = value
+    if res is not None:
+        record.update(swept_multipliers(solution, summary["active_constraints"], constraints))
+    return record
+
+
+def swept_multipliers(solution, active: list[dict], swept: list[str]) -> dict[str, float]:
+    """multiplier.<constraint> for every NLP constraint a swept entry sets (0 when inactive)."""
+    tests = [t.name for t in solution.case.tests]
+    worth = {c["name"]: c["multiplier"] for c in active}
+    out = {}
+    for c in solution.ocp.nlp.constraints:
+        local = next((c.name[len(t) + 1 :] for t in tests if c.name.startswith(t + ".")), c.name)
+        if any(local == s or local.startswith(s + ".") for s in swept):
+            out[f"multiplier.{c.name}"] = worth.get(c.name, 0.0)
+    return out
+
+
+def constraint_names(study: Study) -> list[str]:
+    """NLP constraint names (without the test prefix) that the swept entries set."""
+    names = []
+    for e in study.entries:
+        if e.keys[0] == "constraints" and len(e.keys) > 1:
+            parts = ["bound" if k == "bounds" else str(k) for k in e.keys[1:]]
+            names.append(".".join(parts))
+    return names
+
+
+# --------------------------------------------------------------------------- storage
+class CaseStore:
+    """cases/<id>.json (row + fingerprint) and cases/<id>.npy, each written atomically."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def row(self, case: str, key: str) -> dict | None:
+        """The stored row of a finished case, if it was computed from the same inputs."""
+        path = self.folder / f"{case}.json"
+        try:
+            stored = json.loads(path.read_text())
+        except (FileNotFoundError, json.JSONDecodeError):
+            return None
+        return stored["row"] if stored.get("key") == key else None
+
+    def vector(self, case: str) -> np.ndarray | None:
+        path = self.folder / f"{case}.npy"
+        return np.load(path) if path.is_file() else None
+
+    def save(self, case: str, key: str, row: dict, z: np.ndarray | None) -> None:
+        """Vector first, then the json that marks the case finished."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        npy = self.folder / f"{case}.npy"
+        if z is not None:
+            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+            with os.fdopen(fd, "wb") as fh:
+                np.save(fh, np.asarray(z, dtype=float))
+            os.replace(tmp, npy)
+        else:
+            npy.unlink(missing_ok=True)
+        write_json(self.folder / f"{case}.json", {"key": key, "row": row})
+
+
+# --------------------------------------------------------------------------- the study
+def run_study(
+    path: str | Path,
+    out: str | Path | None = None,
+    executor: str = "local",
+    workers: int | None = None,
+    address: str | None = None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Solve every case not yet finished in `out`, then write table.csv and figures; return the rows."""
+    study = load_study(path)
+    out = Path(out) if out is not None else RESULTS / study.name
+    cases = plan_cases(study)
+    raws = {c.number: _case_problem(study, c) for c in cases}
+    keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
+    store = CaseStore(out / "cases")
+    rows = {c.number: row for c in cases if (row := store.row(c.id, keys[c.number])) is not None}
+    todo = [[c for c in wave if c.number not in rows] for wave in waves(cases)]
+    bar = tqdm(total=len(cases), initial=len(rows), desc=study.name, unit="case", file=sys.stderr, disable=not progress)
+    _postfix(bar, rows, len(cases))
+    if any(todo):
+        size = min(workers or default_workers(), max(len(w) for w in todo))
+        pool = make_executor(executor, size, address)
+        try:
+            for wave in filter(None, todo):
+                jobs = [_job(study, c, raws[c.number], store) for c in wave]
+                for i, outcome in pool.map_wave(solve_job, jobs):
+                    case = wave[i]
+                    row, z = _row(study, case, jobs[i], outcome)
+                    if not isinstance(outcome, BaseException):  # a lost worker is retried on the next run
+                        store.save(case.id, keys[case.number], row, z)
+                    rows[case.number] = clean(row)
+                    _postfix(bar, rows, len(cases))
+                    bar.update()
+        finally:
+            pool.close()
+    bar.close()
+    table = [rows[c.number] for c in cases]
+    write_table(out / "table.csv", table)
+    write_figures(out / "figures", study, cases, table)
+    return table
+
+
+def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
+    try:
+        return case_problem(study, case)
+    except InputError as exc:
+        raise InputError(f"{study.source}: sweep.{exc}") from None
+
+
+def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore) -> dict[str, Any]:
+    warm = store.vector(case_id(case.parent)) if case.parent is not None else None
+    return {
+        "id": case.id,
+        "raw": raw,
+        "base_dir": str(study.base_dir),
+        "warm": warm,
+        "warm_from": case.parent if warm is not None else None,
+        "constraints": constraint_names(study),
+    }
+
+
+def _row(study: Study, case: PlannedCase, job: dict, outcome: Any) -> tuple[dict, np.ndarray | None]:
+    """The table row of a finished case; a task that raised (a worker died) is a failed row."""
+    if isinstance(outcome, BaseException):
+        outcome = {"record": {"status": f"error: {type(outcome).__name__}: {_one_line(outcome)}"}, "z": None}
+    row: dict[str, Any] = {"case": case.id}
+    row.update({e.path: show(v) for e, v in zip(study.entries, case.values)})
+    row.update({f"{e.path}_si": e.si(v) for e, v in zip(study.entries, case.values)})
+    row["warm_start"] = case_id(job["warm_from"]) if job["warm_from"] is not None else ""
+    row.update(outcome["record"])
+    return row, outcome["z"]
+
+
+def _postfix(bar: tqdm, rows: dict, total: int) -> None:
+    failed = sum(1 for r in rows.values() if r["status"] != "ok")
+    bar.set_postfix(ok=len(rows) - failed, failed=failed, left=total - len(rows), refresh=False)
+
+
+def show(value: Any) -> str:
+    """A swept value as the user wrote it, in YAML flow style ([null, 4 deg])."""
+    if value is None:
+        return "null"
+    if isinstance(value, bool):
+        return str(value).lower()
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(show(v) for v in value) + "]"
+    if isinstance(value, dict):
+        return "{" + ", ".join(f"{k}: {show(v)}" for k, v in value.items()) + "}"
+    return str(value)
+
+
+# --------------------------------------------------------------------------- table and figures
+def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
+    """table.csv: the union of the rows' columns, in first-seen order; missing cells empty."""
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    with os.fdopen(fd, "w", newline="") as fh:
+        writer = csv.DictWriter(fh, columns, restval="")
+        writer.writeheader()
+        writer.writerows([{k: "" if v is None else v for k, v in r.items()} for r in rows])
+    os.replace(tmp, path)
+
+
+def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict]) -> None:
+    """Objective, metrics and swept multipliers of the solved cases against each swept entry.
+
+    With several swept entries in a grid, one figure per combination of the others.
+    """
+    solved = [(c, r) for c, r in zip(cases, rows) if r["status"] == "ok"]
+    if not solved:
+        return
+    names = ["objective"] + [
+        k for k in dict.fromkeys(k for _, r in solved for k in r) if k.endswith(PLOTTED) or k.startswith("multiplier.")
+    ]
+    for i, entry in enumerate(study.entries):
+        groups: dict[tuple, list] = {}
+        for c, r in solved:
+            others = tuple(show(v) for j, v in enumerate(c.values) if j != i)
+            groups.setdefault(others, []).append((c, r))
+        for k, (others, members) in enumerate(groups.items()):
+            suffix = f"-{k}" if len(groups) > 1 else ""
+            where = ", ".join(f"{e.path} = {v}" for e, v in zip([e for j, e in enumerate(study.entries) if j != i], others))
+            _figure(folder / f"{entry.path}{suffix}.png", entry, i, members, names, f"{study.name} {where}".strip())
+
+
+def _figure(path: Path, entry: SweepEntry, i: int, members: list, names: list[str], title: str) -> None:
+    x = np.array([entry.si(c.values[i]) for c, _ in members])
+    xlabel = f"{entry.path} ({entry.unit})" if entry.unit else entry.path
+    if np.all(np.isnan(x)):
+        x = np.array([float(c.index[0] if len(c.index) == 1 else c.index[i]) for c, _ in members])
+        xlabel = f"{entry.path} (value number)"
+    order = np.argsort(x, kind="stable")
+    series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
+    plots.xy_figure(path, x[order], series, xlabel, title)
+
+
+def _number(value: Any) -> float:
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan

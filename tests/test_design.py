@@ -1,0 +1,67 @@
+"""Crash-pulse design: constraints at every grid point, and the square-wave limit."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from conftest import make_case
+from crashnlp.optimize import solve_case
+
+V0, CRUSH_SPACE = 15.0, 0.5
+
+
+def design_case(n_breakpoints: int, extra: dict | None = None):
+    """A level pendulum (no pitch lever) so horizontal motion is the crush: 1-D physics."""
+    bps = np.linspace(0.0, 1.2 * CRUSH_SPACE, n_breakpoints).round(4).tolist()
+    changes = {
+        "name": "design",
+        "kind": "design",
+        "design": {"minimize": "peak_decel"},
+        "vehicle": {"speed": V0, "cg_above_impact": 0, "vertical_force_ratio": 0},
+        "model": {"spring": {"crush_breakpoints": bps, "values": ["300 kN"] * n_breakpoints}, "damper": None},
+        "tests": [{"name": "t", "duration": 0.1}],
+        "estimate": {"model.spring.values": {"bounds": ["0 kN", "3 MN"]}},
+        "constraints": {"monotone_crush": True, "bounds": {"crush": [None, CRUSH_SPACE]}},
+        "transcription": {"method": "multiple-shooting", "intervals": 60, "substeps": 2},
+    }
+    from conftest import merge
+
+    return make_case(merge(changes, extra or {}))
+
+
+@pytest.fixture(scope="module")
+def fine():
+    case = design_case(13)
+    return case, solve_case(case, progress=None)
+
+
+def test_design_meets_every_constraint_at_every_grid_point(fine):
+    case, sol = fine
+    assert sol.ok, sol.status
+    ts = sol.tests[0]
+    assert np.all(ts.outputs["crush"] <= CRUSH_SPACE + 1e-7)
+    split = int(np.searchsorted(ts.times, ts.split_time))
+    assert np.all(np.diff(ts.outputs["crush"][: split + 1]) >= -1e-8)
+    values = np.asarray(sol.parameters["model.spring.values"])
+    assert np.all((values >= 0) & (values <= 3e6))
+    assert np.all(ts.outputs["contact_force"] >= 0)
+
+
+def test_peak_deceleration_against_the_square_wave_bound(fine):
+    case, sol = fine
+    square_wave = V0**2 / (2 * CRUSH_SPACE)
+    peak = -np.min(sol.tests[0].outputs["accel"])
+    assert peak >= square_wave * (1 - 1e-6)  # no pulse beats the square wave
+    assert peak <= 1.10 * square_wave  # enough breakpoints come within 10 %
+    # and it is a real optimum: well below the peak of the initial flat spring
+    start = case.simulate()["t"]
+    assert peak < 0.9 * -np.min(start["accel"]) or np.max(start["crush"]) > CRUSH_SPACE
+
+
+def test_pitch_bound_holds_in_design():
+    case = design_case(7, {"vehicle": {"cg_above_impact": 0.18, "vertical_force_ratio": 0.1},
+                           "constraints": {"bounds": {"pitch": [None, "3 deg"]}}})
+    sol = solve_case(case, progress=None)
+    assert sol.ok, sol.status
+    assert np.max(sol.tests[0].outputs["pitch"]) <= np.radians(3) + 1e-7  # 3.3 deg without the bound
+    assert np.max(sol.tests[0].outputs["crush"]) <= CRUSH_SPACE + 1e-7
