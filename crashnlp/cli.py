@@ -60,6 +60,21 @@ def cmd_simulate(args) -> int:
     return 0
 
 
+METRIC_ROWS = (  # result.json key, label, factor
+    ("max_crush_m", "max dynamic crush (mm)", 1e3),
+    ("time_max_crush_s", "time of max crush (ms)", 1e3),
+    ("time_zero_velocity_s", "time of zero velocity (ms)", 1e3),
+    ("peak_decel_g", "peak deceleration (g)", 1.0),
+    ("rebound_velocity_mps", "rebound velocity (m/s)", 1.0),
+    ("olc_g", "OLC (g)", 1.0),
+    ("max_pitch_deg", "max pitch (deg)", 1.0),
+)
+
+
+def _cell(value, factor: float) -> str:
+    return "-" if value is None else f"{value * factor:.4g}"
+
+
 def _print_solution(summary: dict) -> None:
     s = summary["solver"]
     print(
@@ -68,13 +83,18 @@ def _print_solution(summary: dict) -> None:
     )
     for path, value in summary["parameters"].items():
         std = summary["std_errors"].get(path)
-        print(f"  {path} = {np.array2string(np.asarray(value), precision=4)}" + (f"  (std {np.array2string(np.asarray(std), precision=2)})" if std is not None else ""))
-    keys = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg")
+        text = np.array2string(np.asarray(value), precision=4, max_line_width=200)
+        if std is not None:
+            text += f"  (std {np.array2string(np.asarray(std), precision=2, max_line_width=200)})"
+        print(f"  {path} = {text}")
     for name, t in summary["tests"].items():
-        model, data = t["metrics"]["model"], t["metrics"]["data"] or {}
-        print(f"  {name}: " + ", ".join(f"{k} {model[k]:.4g}" + (f" (data {data[k]:.4g})" if data.get(k) is not None else "") for k in keys))
+        model, data = t["metrics"]["model"], t["metrics"]["data"]
+        print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
+        for key, label, f in METRIC_ROWS:
+            print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
         if t["fit"]:
-            print("    rmse: " + ", ".join(f"{c} {f['rmse']:.3g} {f['unit']}" for c, f in t["fit"].items()))
+            print("    rmse      " + ", ".join(f"{c} {v['rmse']:.3g} {v['unit']}" for c, v in t["fit"].items()))
+            print("    ISO 18571 " + ", ".join(f"{c} {v['iso18571']['overall']:.3f}" for c, v in t["fit"].items() if v["iso18571"]))
     for c in summary["active_constraints"]:
         print(f"  active: {c['name']} at {c['points']} points, multiplier {c['multiplier']:.4g}")
 

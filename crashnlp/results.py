@@ -20,7 +20,7 @@ from crashnlp.data.signal import resample
 from crashnlp.metrics import crash_metrics
 from crashnlp.optimize.identify import Solution, TestSolution
 from crashnlp.rating import iso18571
-from crashnlp.simulate import Response
+from crashnlp.simulate import Response, write_response_csv
 from crashnlp.units import G0
 
 REPORT_UNITS = {"accel": ("g", 1 / G0), "velocity": ("m/s", 1.0), "displacement": ("m", 1.0), "pitch": ("deg", 180 / math.pi)}
@@ -165,10 +165,6 @@ def write_table(path: Path, columns: dict[str, np.ndarray]) -> None:
             fh.write(",".join(f"{v:.9g}" for v in row) + "\n")
 
 
-def write_response(path: Path, t: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
-    Response(np.asarray(t), outputs, np.zeros((0, len(t)))).write_csv(path)
-
-
 def solution_summary(solution: Solution) -> dict:
     """result.json content of an identification or design solve."""
     case, res = solution.case, solution.result
@@ -209,7 +205,7 @@ def write_solution(solution: Solution, out: Path) -> dict:
     summary = solution_summary(solution)
     reach = 0.0
     for ts, test in zip(solution.tests, case.tests):
-        write_response(out / ts.name / "response.csv", ts.times, ts.outputs)
+        write_response_csv(out / ts.name / "response.csv", ts.times, ts.outputs)
         model = {k: (ts.times, ts.outputs[k]) for k, _, _ in plots.PANELS}
         plots.response_figure(out / ts.name / "fit.png", f"{case.name}: {ts.name}", model, data_curves(test))
         res = {

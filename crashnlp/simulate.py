@@ -35,13 +35,19 @@ class Response:
         return self.time if name == "time" else self.outputs[name]
 
     def write_csv(self, path: Path) -> None:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        with path.open("w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(RESPONSE_COLUMNS)
-            cols = [self[name] * f for name, f in RESPONSE_COLUMNS.values()]
-            for row in zip(*cols):
-                w.writerow([f"{v:.9g}" for v in row])
+        write_response_csv(path, self.time, self.outputs)
+
+
+def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
+    """response.csv: the columns simulate and identify both write, in report units."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    series = {"time": np.asarray(time), **outputs}
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(RESPONSE_COLUMNS)
+        cols = [series[name] * f for name, f in RESPONSE_COLUMNS.values()]
+        for row in zip(*cols):
+            w.writerow([f"{v:.9g}" for v in row])
 
 
 def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> ca.Function:

@@ -21,12 +21,10 @@ from dataclasses import dataclass
 from functools import cached_property
 
 import casadi as ca
-import numpy as np
 
 from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.problem.schema import Model as ModelSpec
-from crashnlp.units import G0
 
 NX = 4  # r, theta, rdot, thetadot
 OUTPUTS = (
@@ -210,8 +208,3 @@ class PendulumModel:
 def build_model(spec: ModelSpec, layout: ParameterLayout) -> PendulumModel:
     """The symbolic model for a problem's model section and parameter layout."""
     return PendulumModel(Structure.of(spec), layout)
-
-
-def g_units(accel: np.ndarray) -> np.ndarray:
-    """m/s^2 -> g."""
-    return np.asarray(accel) / G0

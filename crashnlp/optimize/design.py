@@ -16,12 +16,12 @@ import numpy as np
 
 from crashnlp.case import Case
 from crashnlp.errors import InputError
+from crashnlp.metrics import OLC_FREE, OLC_RESTRAINED
 from crashnlp.optimize.identify import Solution, evaluate, judge
 from crashnlp.optimize.problem import OptimalControl, Transcript
 from crashnlp.optimize.solve import solve
 
 MAX_SPLIT_UPDATES = 5
-OLC_FREE_FLIGHT, OLC_RESTRAINT = 0.065, 0.235  # m (Kübler et al.)
 
 
 def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX], scale: float) -> None:
@@ -57,14 +57,14 @@ def olc(ocp: OptimalControl) -> None:
         times, v0 = tr.trajectory.times, tr.test.speed
         x, v = tr.output("displacement"), tr.output("velocity")
         name = tr.test.name
-        guess_t1 = OLC_FREE_FLIGHT / (0.3 * v0)
+        guess_t1 = OLC_FREE / (0.3 * v0)
         t1 = ocp.nlp.variable(f"{name}.olc.t1", 1, guess_t1, times[1], times[-1], scale=0.01)
         t2 = ocp.nlp.variable(f"{name}.olc.t2", 1, 3 * guess_t1, times[1], times[-1], scale=0.01)
         a = ocp.nlp.variable(f"{name}.olc.a", 1, v0**2, 0.0, np.inf, scale=v0**2)
         dt = t2 - t1
-        ocp.nlp.constrain(f"{name}.olc.free_flight", v0 * t1 - _interp(t1, times, x) - OLC_FREE_FLIGHT)
+        ocp.nlp.constrain(f"{name}.olc.free_flight", v0 * t1 - _interp(t1, times, x) - OLC_FREE)
         ocp.nlp.constrain(
-            f"{name}.olc.restraint", v0 * t2 - 0.5 * a * dt**2 - _interp(t2, times, x) - OLC_FREE_FLIGHT - OLC_RESTRAINT
+            f"{name}.olc.restraint", v0 * t2 - 0.5 * a * dt**2 - _interp(t2, times, x) - OLC_FREE - OLC_RESTRAINED
         )
         ocp.nlp.constrain(f"{name}.olc.matched", v0 - a * dt - _interp(t2, times, v))
         ocp.nlp.constrain(f"{name}.olc.order", dt, 0.0, np.inf)
