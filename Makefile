@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test identify simulate study design bench clean
+.PHONY: demo test identify simulate study design bench readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -27,9 +27,22 @@ identify: $(STAMP)
 	$(CLI) identify problems/paper-configuration.yaml
 	$(CLI) identify problems/nhtsa-10146.yaml
 
+design: $(STAMP)
+	$(CLI) design problems/design-crush-space.yaml
+
+study: $(STAMP)
+	$(CLI) study problems/studies/pitch-bound.yaml
+	$(CLI) study problems/studies/crush-space.yaml
+
+bench: $(STAMP)
+	$(BIN)/python bench/run.py
+
+readme-figures: demo identify study
+	$(BIN)/python scripts/readme_figures.py
+
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
 clean:
 	rm -rf $(VENV) .pytest_cache
-	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.*' -exec rm -rf {} +
+	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.md' ! -name 'bench.json' ! -name 'bench-scaling.png' -exec rm -rf {} +

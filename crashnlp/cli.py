@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.errors import InputError
+from crashnlp.study.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
 
@@ -161,6 +162,8 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
     p.set_defaults(func=cmd_design)
+
+    add_study_parser(sub)
 
     p = sub.add_parser("schema", help="print the JSON Schema of problem files")
     p.set_defaults(func=cmd_schema)

@@ -17,6 +17,7 @@ from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulate import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
+from crashnlp.runtime import mapped
 
 
 @dataclass
@@ -85,7 +86,7 @@ class OptimalControl:
         traj = self.transcription.discretize(self.nlp, test.name, self.theta, x0, horizon, split, _interpolator(guess))
         k = len(traj.times)
         x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
-        outputs = ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)]).map(k, "thread", 2)
+        outputs = mapped(ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)]), k)
         y = outputs(traj.states, ca.repmat(self.theta, 1, k), traj.x_max)
         return Transcript(test, traj, p, y, split, guess)
 

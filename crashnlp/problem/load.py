@@ -20,7 +20,7 @@ def _loc(loc: tuple) -> str:
     return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
 
 
-def _first_error(exc: ValidationError) -> str:
+def first_error(exc: ValidationError) -> str:
     err = exc.errors()[0]
     msg = err["msg"].removeprefix("Value error, ")
     loc = _loc(err["loc"])
@@ -38,7 +38,7 @@ def problem_from_dict(raw: dict[str, Any], base_dir: Path, source: str = "proble
     try:
         problem = Problem.model_validate(copy.deepcopy(raw), context={"base_dir": base_dir})
     except ValidationError as exc:
-        raise ProblemError(f"{source}: {_first_error(exc)}") from None
+        raise ProblemError(f"{source}: {first_error(exc)}") from None
     problem.base_dir = base_dir
     return problem
 

@@ -44,7 +44,10 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     from crashnlp.case import Case
     from crashnlp.optimize import solve_case
     from crashnlp.problem import problem_from_dict
+    from crashnlp.runtime import THREADS_ENV
 
+    if job["threads"] is not None:
+        os.environ[THREADS_ENV] = str(job["threads"])
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
         solution = solve_case(Case(problem), progress=None, warm=job["warm"])
@@ -62,25 +65,26 @@ def _one_line(exc: BaseException) -> str:
 
 def solution_record(solution, constraints: list[str]) -> dict[str, Any]:
     """Status, solver figures, metrics, parameters and the multipliers of the swept constraints."""
-    from crashnlp.results import solution_summary
+    from crashnlp.results import active_constraints, response_metrics
 
     res = solution.result
-    summary = solution_summary(solution)
     record: dict[str, Any] = {
         "status": solution.status,
         "objective": res.objective if res else None,
         "iterations": res.iterations if res else 0,
         "wall_s": res.wall_s if res else None,
     }
-    for name, test in summary["tests"].items():
-        record.update({f"{name}.{k}": test["metrics"]["model"][k] for k in METRICS})
-    for path, value in summary["parameters"].items():
-        if isinstance(value, list):
-            record.update({f"{path}[{i}]": v for i, v in enumerate(value)})
+    for test in solution.tests:
+        metrics = response_metrics(test)
+        record.update({f"{test.name}.{k}": metrics[k] for k in METRICS})
+    for path, value in solution.parameters.items():
+        values = np.ravel(value)
+        if np.ndim(value):
+            record.update({f"{path}[{i}]": float(v) for i, v in enumerate(values)})
         else:
-            record[path] = value
+            record[path] = float(values[0])
     if res is not None:
-        record.update(swept_multipliers(solution, summary["active_constraints"], constraints))
+        record.update(swept_multipliers(solution, active_constraints(solution), constraints))
     return record
 
 
@@ -165,7 +169,8 @@ def run_study(
         pool = make_executor(executor, size, address)
         try:
             for wave in filter(None, todo):
-                jobs = [_job(study, c, raws[c.number], store) for c in wave]
+                threads = 1 if size > 1 else None  # parallel cases, serial maps inside each
+                jobs = [_job(study, c, raws[c.number], store, threads) for c in wave]
                 for i, outcome in pool.map_wave(solve_job, jobs):
                     case = wave[i]
                     row, z = _row(study, case, jobs[i], outcome)
@@ -190,9 +195,10 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
         raise InputError(f"{study.source}: sweep.{exc}") from None
 
 
-def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore) -> dict[str, Any]:
+def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
     warm = store.vector(case_id(case.parent)) if case.parent is not None else None
     return {
+        "threads": threads,
         "id": case.id,
         "raw": raw,
         "base_dir": str(study.base_dir),
@@ -248,7 +254,7 @@ def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
 def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict]) -> None:
     """Objective, metrics and swept multipliers of the solved cases against each swept entry.
 
-    With several swept entries in a grid, one figure per combination of the others.
+    With several varied entries in a grid, one figure per combination of the others.
     """
     solved = [(c, r) for c, r in zip(cases, rows) if r["status"] == "ok"]
     if not solved:
@@ -257,6 +263,8 @@ def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: li
         k for k in dict.fromkeys(k for _, r in solved for k in r) if k.endswith(PLOTTED) or k.startswith("multiplier.")
     ]
     for i, entry in enumerate(study.entries):
+        if len(entry.values) < 2:
+            continue
         groups: dict[tuple, list] = {}
         for c, r in solved:
             others = tuple(show(v) for j, v in enumerate(c.values) if j != i)

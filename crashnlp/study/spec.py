@@ -16,7 +16,7 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from crashnlp.errors import InputError
-from crashnlp.problem.load import ProblemError, _first_error, problem_from_dict, read_yaml
+from crashnlp.problem.load import ProblemError, first_error, problem_from_dict, read_yaml
 from crashnlp.problem.schema import OUTPUT_UNITS, Problem
 from crashnlp.units import to_si
 
@@ -84,12 +84,12 @@ def load_study(path: str | Path) -> Study:
     try:
         spec = StudySpec.model_validate(raw)
     except ValidationError as exc:
-        raise InputError(f"{path}: {_first_error(exc)}") from None
+        raise InputError(f"{path}: {first_error(exc)}") from None
     problem_path = spec.problem if spec.problem.is_absolute() else path.resolve().parent / spec.problem
     if not problem_path.is_file():
         raise InputError(f"{path}: problem: file not found: {problem_path}")
-    base = read_yaml(problem_path)
     try:
+        base = read_yaml(problem_path)
         problem = problem_from_dict(base, problem_path.parent, source=str(problem_path))
     except ProblemError as exc:
         raise InputError(f"{path}: problem: {exc}") from None

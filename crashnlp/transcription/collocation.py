@@ -6,6 +6,7 @@ import numpy as np
 
 from crashnlp.model.pendulum import NX
 from crashnlp.transcription.base import Transcription, per_row
+from crashnlp.runtime import mapped
 
 
 class Collocation(Transcription):
@@ -27,7 +28,7 @@ class Collocation(Transcription):
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
-        interval = self._interval(h).map(n, "thread", 2)
+        interval = mapped(self._interval(h), n)
         defects, end = interval(X[:, :-1], Xc, ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
         nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

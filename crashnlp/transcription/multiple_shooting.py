@@ -6,6 +6,7 @@ import numpy as np
 
 from crashnlp.model.pendulum import NX
 from crashnlp.transcription.base import Transcription, per_row
+from crashnlp.runtime import mapped
 
 
 class MultipleShooting(Transcription):
@@ -24,6 +25,6 @@ class MultipleShooting(Transcription):
 
     def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
         n = self.intervals
-        step = self._step(float(times[1] - times[0])).map(n, "thread", 2)
+        step = mapped(self._step(float(times[1] - times[0])), n)
         end = step(X[:, :-1], ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

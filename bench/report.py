@@ -1,0 +1,110 @@
+"""Results of the benchmarks: all numbers to JSON, the tables and targets to Markdown."""
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+
+def _met(ok: bool | None) -> str:
+    return "n/a" if ok is None else ("met" if ok else "**missed**")
+
+
+def targets(results: dict) -> list[tuple[str, str, bool | None]]:
+    """(target, measured, met) for every target of the issue; None when the section did not run."""
+    rows = []
+    ident = results.get("identification")
+    for method, r in (ident or {}).get("crashnlp", {}).items():
+        q, b = ident["ratios"][method], ident["baseline"]
+        rows.append((f"identification {method}: >= 50x faster than the baseline", f"{q['speedup']:.1f}x", q["speedup"] >= 50))
+        rows.append((f"identification {method}: objective <= baseline's", f"{r['objective']:.5g} vs {b['objective']:.5g}",
+                     r["objective"] <= b["objective"]))
+        rows.append((f"identification {method}: < 1 s wall", f"{r['wall_s']:.2f} s ({r['ipopt_s']:.2f} s IPOPT)", r["wall_s"] < 1.0))
+    sim = results.get("simulation")
+    if sim:
+        s, b = sim["single"], sim["batch"]
+        rows.append(("forward simulation >= 20x faster than solve_ivp", f"{s['speedup']:.1f}x ({s['speedup_call_only']:.1f}x integrator call only)",
+                     s["speedup"] >= 20))
+        best = min(b["serial"]["wall_s"], b["thread2"]["wall_s"])
+        rows.append((f"{b['n']} batched simulations < 1 s", f"{best:.2f} s", best < 1.0 if b["n"] >= 1000 else None))
+    st = results.get("studies")
+    if st:
+        ok = None if "skipped" in st else st["speedup_2_workers"] >= 1.8
+        rows.append(("study: 2 workers >= 1.8x faster than 1", st.get("skipped") or f"{st['speedup_2_workers']:.2f}x", ok))
+    sc = results.get("scaling")
+    for method, s in (sc or {}).get("slopes", {}).items():
+        rows.append((f"scaling {method}: time no faster than linear in intervals (slope <= 1)",
+                     f"slope {s['wall_s']:.2f} ({s['ipopt_s']:.2f} IPOPT only)", s["wall_s"] <= 1.0))
+    return rows
+
+
+def _table(head: list[str], rows: list[list]) -> list[str]:
+    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head), *("| " + " | ".join(str(c) for c in r) + " |" for r in rows)]
+
+
+def identification_md(r: dict) -> list[str]:
+    b = r["baseline"]
+    rows = [[m, c["status"], f"{c['wall_s']:.2f}", f"{c['ipopt_s']:.2f}", f"{c['iterations']} it", f"{c['objective']:.5g}",
+             f"{r['ratios'][m]['speedup']:.1f}x"] for m, c in r["crashnlp"].items()]
+    rows.append(["scipy baseline", "converged" if b["converged"] else f"not converged ({b['message']})", f"{b['wall_s']:.1f}", "",
+                 f"{b['iterations']} it, {b['simulations']} simulations", f"{b['objective']:.5g}", "1x"])
+    channels = list(b["rmse"])
+    rmse = [[m, *(f"{c['rmse'][k]['rmse']:.4g} {c['rmse'][k]['unit']}" for k in channels)] for m, c in {**r["crashnlp"], "scipy baseline": b}.items()]
+    return [f"## Identification ({r['problem']}, {next(iter(r['crashnlp'].values()))['intervals']} intervals)", "",
+            "Objective: every final parameter set judged by one CVODES forward simulation at the node times.", "",
+            *_table(["method", "status", "wall (s)", "IPOPT (s)", "work", "objective", "speed-up"], rows), "",
+            "RMSE per channel (same evaluator):", "", *_table(["method", *channels], rmse), ""]
+
+
+def simulation_md(r: dict) -> list[str]:
+    s, b = r["single"], r["batch"]
+    rows = [["crashnlp simulate (builds the integrator)", f"{1e3 * s['crashnlp_s']:.1f}", ""],
+            ["crashnlp integrator call only", f"{1e3 * s['crashnlp_call_only_s']:.1f}", ""]]
+    rows += [[f"solve_ivp {m}", f"{1e3 * v['wall_s']:.1f}", f"{v['max_crush_diff_mm']:.1e} mm, {v['max_accel_diff_g']:.1e} g"] for m, v in s["scipy"].items()]
+    checks = [[c["member"], f"{c['max_diff_vs_alone']:.1e}", f"{c['max_crush_diff_vs_cvodes_mm']:.3g}", f"{c['max_accel_diff_vs_cvodes_g']:.3g}"] for c in b["checks"]]
+    return ["## Forward simulation", "",
+            f"One 56 km/h simulation, {s['grid_points']} output points, rtol {s['rtol']:g}, atol {s['atol']:g} (best of repeats):", "",
+            *_table(["method", "wall (ms)", "max difference to crashnlp"], rows), "",
+            f"Speed-up against the fastest solve_ivp ({s['scipy_best']}): {s['speedup']:.1f}x end-to-end, {s['speedup_call_only']:.1f}x integrator call only.", "",
+            f"Batch of {b['n']} ({b['integrator']}, dt {b['dt']:g} s, {b['steps']} steps; compile {b['compile_s']:.2f} s once):", "",
+            *_table(["map", "wall (s)", "per simulation (ms)"], [[m, f"{b[m]['wall_s']:.2f}", f"{b[m]['per_simulation_ms']:.2f}"] for m in ("serial", "thread2")]), "",
+            *_table(["member", "max abs(batch - alone)", "crush vs CVODES (mm)", "accel vs CVODES (g)"], checks), ""]
+
+
+def studies_md(r: dict) -> list[str]:
+    if "skipped" in r:
+        return ["## Studies", "", r["skipped"], ""]
+    rows = [[x["workers"], f"{x['wall_s']:.1f}", x["exit"], x["cases"], x["summary"]] for x in r["runs"]]
+    return ["## Studies", "", f"`crashnlp study` on {r['study']}:", "", *_table(["workers", "wall (s)", "exit", "cases", "summary"], rows), "",
+            f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x", ""]
+
+
+def scaling_md(r: dict) -> list[str]:
+    fmt = lambda x: [x["method"], x["intervals"], x["tests"], f"{x['wall_s']:.2f}", f"{x['ipopt_s']:.2f}", x["iterations"],
+                     x["status"] + (" (capped)" if x["capped"] else "")]
+    head = ["method", "intervals", "tests", "wall (s)", "IPOPT (s)", "iterations", "status"]
+    slopes = [[m, f"{s['wall_s']:.2f}", f"{s['ipopt_s']:.2f}"] for m, s in r["slopes"].items()]
+    return ["## Scaling", "", f"IPOPT capped at {r['max_iter']} iterations. Figure: `{r['figure']}`.", "",
+            *_table(head, [fmt(x) for x in r["intervals"]]), "", *_table(head, [fmt(x) for x in r["tests"]]), "",
+            "Log-log slope of time against intervals:", "", *_table(["method", "end-to-end", "IPOPT only"], slopes), ""]
+
+
+SECTIONS = {"identification": identification_md, "simulation": simulation_md, "studies": studies_md, "scaling": scaling_md}
+
+
+def markdown(results: dict) -> str:
+    m = results.get("machine", {})
+    lines = ["# crashnlp benchmarks", "",
+             f"Machine: {m.get('cpus')} CPUs, load average at start {m.get('load_average')} (other jobs share it), "
+             f"CasADi {m.get('casadi')}, SciPy {m.get('scipy')}.{' QUICK smoke run: reduced sizes.' if results.get('quick') else ''}", "",
+             "## Targets", "", *_table(["target", "measured", "result"], [[t, v, _met(ok)] for t, v, ok in targets(results)]), ""]
+    for name, fn in SECTIONS.items():
+        if name in results:
+            lines += fn(results[name])
+    return "\n".join(lines)
+
+
+def write(results: dict, json_path: Path, md_path: Path) -> None:
+    """All numbers to `json_path`, the summary to `md_path`."""
+    json_path.parent.mkdir(parents=True, exist_ok=True)
+    json_path.write_text(json.dumps(results, indent=2, default=float))
+    md_path.write_text(markdown(results))

@@ -1,0 +1,45 @@
+"""Run the crashnlp benchmarks: `python bench/run.py [--only SECTION] [--quick]`.
+
+Sections run one after another (never two heavy ones at once). Results go to
+results/bench.json and results/bench.md (results/bench-quick.* with --quick);
+with --only, the other sections' earlier results in the JSON are kept.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import identification, report, scaling, simulation, studies  # noqa: E402
+from bench.common import RESULTS, machine  # noqa: E402
+
+SECTIONS = {"identification": identification, "simulation": simulation, "studies": studies, "scaling": scaling}
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", choices=SECTIONS, help="run one section")
+    ap.add_argument("--quick", action="store_true", help="short smoke run with smaller sizes")
+    args = ap.parse_args(argv)
+    stem = "bench-quick" if args.quick else "bench"
+    json_path, md_path = RESULTS / f"{stem}.json", RESULTS / f"{stem}.md"
+    results = json.loads(json_path.read_text()) if args.only and json_path.exists() else {}
+    results.update(machine=machine(), quick=args.quick)
+    for name, module in SECTIONS.items():
+        if args.only and name != args.only:
+            continue
+        print(f"[{name}]", flush=True)
+        t0 = time.perf_counter()
+        results[name] = module.run(quick=args.quick)
+        print(f"[{name}] {time.perf_counter() - t0:.0f} s", flush=True)
+    report.write(results, json_path, md_path)
+    print(f"wrote {json_path} and {md_path}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,60 @@
+"""Studies: `crashnlp study` on the shipped pitch-bound study with 1 and with 2 workers.
+
+Each run goes into a fresh temporary output folder (a study resumes from its
+folder, so reusing one would time nothing). Skipped, with a note, when the
+installed crashnlp has no `study` command yet.
+"""
+from __future__ import annotations
+
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.common import PROBLEMS, ROOT
+
+CLI = Path(sys.executable).with_name("crashnlp")
+STUDY = PROBLEMS / "studies" / "pitch-bound.yaml"
+QUICK_STUDY = """\
+name: pitch-bound-quick
+problem: {problem}
+sweep:
+  constraints.bounds.pitch: [[null, 6 deg], [null, 10 deg]]
+mode: grid
+"""
+
+
+def available() -> bool:
+    """Whether `crashnlp study` exists."""
+    return subprocess.run([str(CLI), "study", "--help"], capture_output=True, cwd=ROOT).returncode == 0
+
+
+def run_once(study: Path, workers: int) -> dict:
+    """Wall time and outcome of one study run into a fresh folder."""
+    with tempfile.TemporaryDirectory(prefix="bench-study-") as out:
+        cmd = [str(CLI), "study", str(study), "--workers", str(workers), "--out", out, "--no-progress"]
+        t0 = time.perf_counter()
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        wall = time.perf_counter() - t0
+        cases = sum(1 for _ in (Path(out) / "table.csv").open()) - 1 if (Path(out) / "table.csv").exists() else 0
+    return {"workers": workers, "wall_s": wall, "exit": proc.returncode, "cases": cases,
+            "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0]}
+
+
+def run(quick: bool = False) -> dict:
+    """1 and 2 workers on the pitch-bound study (a 2-case version of it with --quick)."""
+    if not available():
+        note = "skipped: `crashnlp study` is not available in this installation yet"
+        print(f"  {note}")
+        return {"skipped": note}
+    with tempfile.TemporaryDirectory(prefix="bench-study-spec-") as tmp:
+        study = STUDY
+        if quick:
+            study = Path(tmp) / "quick.yaml"
+            study.write_text(QUICK_STUDY.format(problem=PROBLEMS / "pickup-56kph.yaml"))
+        runs = [run_once(study, w) for w in (1, 2)]
+    for r in runs:
+        print(f"  {r['workers']} worker(s): {r['wall_s']:.1f} s, exit {r['exit']}, {r['cases']} cases: {r['summary']}")
+    return {"study": STUDY.name if not quick else "pitch-bound (2 cases)", "runs": runs,
+            "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"]}
