@@ -10,6 +10,7 @@ import numpy as np
 
 from crashnlp.model.pendulum import NX, OUTPUTS, PendulumModel
 from crashnlp.problem.schema import Simulation
+from crashnlp.runtime import mapped
 from crashnlp.units import G0
 
 RESPONSE_COLUMNS = {  # csv column: (output, factor from SI)
@@ -51,14 +52,56 @@ def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarr
 
 
 def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> ca.Function:
-    """A CasADi integrator from grid[0] over the output grid."""
-    x = ca.SX.sym("x", NX + 3)
-    dae = {"x": x, "p": model.p, "ode": model.augmented_rhs(x, model.p)}
-    if options.integrator == "cvodes":
-        opts = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000}
-    else:
-        opts = {"number_of_finite_elements": options.substeps}
-    return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
+    """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options."""
+    key = (options.integrator, options.substeps, options.rtol, options.atol, len(grid), float(grid[0]), float(grid[-1]))
+    cache = model.__dict__.setdefault("_integrators", {})
+    if key not in cache:
+        x = ca.SX.sym("x", NX + 3)
+        dae = {"x": x, "p": model.p, "ode": model.augmented_rhs(x, model.p)}
+        if options.integrator == "cvodes":
+            opts = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000}
+        else:
+            opts = {"number_of_finite_elements": options.substeps}
+        cache[key] = ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
+    return cache[key]
+
+
+JIT = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}}
+
+
+def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
+    """n simulations at once, one parameter set each: (X0 7 x n, P np x n) -> outputs.
+
+    Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
+    the named outputs at every step, all mapped over the parameter sets, as a
+    what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
+    columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles the
+    step and the outputs to C (needs a C compiler; about a second, once)."""
+    opts = JIT if jit else {}
+    x, p = ca.SX.sym("x", NX + 3), model.p
+    f = model.augmented_rhs
+    k1 = f(x, p)
+    k2 = f(x + dt / 2 * k1, p)
+    k3 = f(x + dt / 2 * k2, p)
+    k4 = f(x + dt * k3, p)
+    step = ca.Function("rk4", [x, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], opts)
+    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p, x[NX])], opts)
+    x0, pm = ca.MX.sym("x0", NX + 3), ca.MX.sym("p", model.layout.size)
+    states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
+    y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
+    return mapped(ca.Function("trajectory", [x0, pm], [y]), n)
+
+
+def simulate_batch(
+    model: PendulumModel, P: np.ndarray, speed: float, duration: float, dt: float, jit: bool = False
+) -> dict[str, np.ndarray]:
+    """Simulate every column of P (full parameter vectors) by fixed-step RK4 of step dt.
+
+    Returns "time" and each named output as an array of shape (simulations, times)."""
+    n, steps = P.shape[1], int(round(duration / dt))
+    X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((3, n))])
+    y = np.asarray(batch_simulator(model, steps, dt, n, jit)(X0, P)).reshape(len(OUTPUTS), n, steps + 1)
+    return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
 
 
 def simulate(
@@ -71,18 +114,25 @@ def simulate(
     return response_from_states(model, p, grid, states)
 
 
+def _cached(model: PendulumModel, key: tuple, build):
+    """A Function built once per model and key (simulations repeat with the same shapes)."""
+    cache = model.__dict__.setdefault("_functions", {})
+    if key not in cache:
+        cache[key] = build()
+    return cache[key]
+
+
 def response_from_states(model: PendulumModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
     """Outputs on a grid from states (rows r, theta, rdot, thetadot, x_max[, W_barrier, W_damper])."""
     n = states.shape[1]
-    y = np.asarray(model.outputs.map(n)(states[:NX], ca.repmat(p, 1, n), states[NX]))
+    outputs_map = _cached(model, ("outputs", n), lambda: model.outputs.map(n))
+    y = np.asarray(outputs_map(states[:NX], ca.repmat(p, 1, n), states[NX]))
     outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
     if states.shape[0] > NX + 1:
+        potential_map = _cached(
+            model, ("V", n), lambda: ca.Function("V", [model.q, model.p], [model.energy_terms["V"]]).map(n)
+        )
+        gravity_and_suspension = np.asarray(potential_map(states[:2], ca.repmat(p, 1, n))).ravel()
         outputs["absorbed"] = states[NX + 1] + states[NX + 2]
-        outputs["dissipated"] = outputs["absorbed"] - (outputs["potential"] - _suspension_and_gravity(model, p, states))
+        outputs["dissipated"] = outputs["absorbed"] - (outputs["potential"] - gravity_and_suspension)
     return Response(np.asarray(grid, dtype=float), outputs, states)
-
-
-def _suspension_and_gravity(model: PendulumModel, p: np.ndarray, states: np.ndarray) -> np.ndarray:
-    """Potential energy without the front end's recoverable part."""
-    f = ca.Function("V", [model.q, model.p], [model.energy_terms["V"]])
-    return np.asarray(f.map(states.shape[1])(states[:2], ca.repmat(p, 1, states.shape[1]))).ravel()

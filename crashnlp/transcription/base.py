@@ -45,13 +45,14 @@ class Transcription(ABC):
 
     def bind(self, theta: ca.SX, p: ca.SX) -> None:
         """Specialise the dynamics to one test: fixed parameters become constants
-        (folded into the SX graphs), only theta stays symbolic."""
-        x, xm, loading = ca.SX.sym("x", NX), ca.SX.sym("xm"), ca.SX.sym("loading")
-        effective = loading * (-x[0]) + (1 - loading) * xm
+        (folded into the SX graphs), only theta stays symbolic. One right-hand
+        side per phase: while loading the largest crush is the crush itself."""
+        x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
         self.theta = theta
-        self.phase_rhs = ca.Function(
-            "phase_rhs", [x, theta, xm, loading], [self.model.rhs(x, p, effective)], ["x", "theta", "xm", "loading"], ["xdot"]
-        )
+        self.rhs = {
+            "loading": ca.Function("rhs_loading", [x, theta, xm], [ca.cse(self.model.rhs(x, p, -x[0]))]),
+            "unloading": ca.Function("rhs_unloading", [x, theta, xm], [self.model.rhs(x, p, xm)]),
+        }
 
     @property
     def intervals(self) -> int:
@@ -75,14 +76,18 @@ class Transcription(ABC):
         scale = np.maximum(np.abs(guess(times)).max(axis=1), STATE_FLOOR)
         X = nlp.variable(f"{name}.x", (NX, n + 1), guess(times), scale=scale[:, None])
         nlp.constrain(f"{name}.initial", X[:, 0] - x0)
-        loading = (np.arange(n) < split).astype(float)
         x_max = -X[0, split]
-        self._add_dynamics(nlp, name, X, theta, ca.repmat(x_max, 1, n), loading, times, scale, guess)
+        for phase, (a, b) in (("loading", (0, split)), ("unloading", (split, n))):
+            if b > a:
+                segment = X[:, a : b + 1]
+                self._add_dynamics(nlp, f"{name}.{phase}", segment, theta, x_max, times[a : b + 1], scale, guess, self.rhs[phase])
         # up to the split node the front end loads (largest crush = crush), then x_max holds
         node_loading = ca.DM((np.arange(n + 1) <= split).astype(float)).T
         node_x_max = node_loading * (-X[0, :]) + (1 - node_loading) * x_max
         return Trajectory(times, X, node_x_max, f"{name}.x")
 
     @abstractmethod
-    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
-        """Add the variables inside the intervals and the dynamics constraints."""
+    def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
+        """Variables inside the intervals of one phase and its dynamics constraints.
+
+        X holds the phase's nodes (columns), rhs(x, theta, x_max) its dynamics."""

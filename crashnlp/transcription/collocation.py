@@ -10,25 +10,24 @@ from crashnlp.runtime import mapped
 
 
 class Collocation(Transcription):
-    def _interval(self, h: float) -> ca.Function:
+    def _interval(self, h: float, rhs: ca.Function) -> ca.Function:
         """Collocation defects and end state of one interval as an SX Function."""
         d = self.spec.degree
         tau = ca.collocation_points(d, self.spec.scheme)
         C, D, _ = ca.collocation_coeff(tau)
         x0, xc = ca.SX.sym("x0", NX), ca.SX.sym("xc", NX, d)
-        xm, lo, p = ca.SX.sym("xm"), ca.SX.sym("lo"), self.theta
+        xm, p = ca.SX.sym("xm"), self.theta
         Z = ca.horzcat(x0, xc)
-        slopes = ca.horzcat(*[self.phase_rhs(xc[:, j], p, xm, lo) for j in range(d)])
-        defects = Z @ C - h * slopes
-        return ca.Function("interval", [x0, xc, p, xm, lo], [defects, Z @ D])
+        slopes = ca.horzcat(*[rhs(xc[:, j], p, xm) for j in range(d)])
+        return ca.Function("interval", [x0, xc, p, xm], [Z @ C - h * slopes, Z @ D])
 
-    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
-        n, d = self.intervals, self.spec.degree
+    def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
+        n, d = X.shape[1] - 1, self.spec.degree
         h = float(times[1] - times[0])
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
-        interval = mapped(self._interval(h), n)
-        defects, end = interval(X[:, :-1], Xc, ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
+        interval = mapped(self._interval(h, rhs), n)
+        defects, end = interval(X[:, :-1], Xc, ca.repmat(theta, 1, n), ca.repmat(x_max, 1, n))
         nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

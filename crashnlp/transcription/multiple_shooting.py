@@ -10,21 +10,21 @@ from crashnlp.runtime import mapped
 
 
 class MultipleShooting(Transcription):
-    def _step(self, h: float) -> ca.Function:
+    def _step(self, h: float, rhs: ca.Function) -> ca.Function:
         """One interval of `substeps` RK4 steps as an SX Function (CasADi's sysid pattern)."""
-        x, xm, lo = ca.SX.sym("x", NX), ca.SX.sym("xm"), ca.SX.sym("lo")
-        p, f, dt = self.theta, self.phase_rhs, h / self.spec.substeps
+        x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
+        p, dt = self.theta, h / self.spec.substeps
         xk = x
         for _ in range(self.spec.substeps):
-            k1 = f(xk, p, xm, lo)
-            k2 = f(xk + dt / 2 * k1, p, xm, lo)
-            k3 = f(xk + dt / 2 * k2, p, xm, lo)
-            k4 = f(xk + dt * k3, p, xm, lo)
+            k1 = rhs(xk, p, xm)
+            k2 = rhs(xk + dt / 2 * k1, p, xm)
+            k3 = rhs(xk + dt / 2 * k2, p, xm)
+            k4 = rhs(xk + dt * k3, p, xm)
             xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-        return ca.Function("step", [x, p, xm, lo], [xk])
+        return ca.Function("step", [x, p, xm], [xk])
 
-    def _add_dynamics(self, nlp, name, X, theta, xm, loading, times, scale, guess):
-        n = self.intervals
-        step = mapped(self._step(float(times[1] - times[0])), n)
-        end = step(X[:, :-1], ca.repmat(theta, 1, n), xm, ca.DM(loading).T)
+    def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
+        n = X.shape[1] - 1
+        step = mapped(self._step(float(times[1] - times[0]), rhs), n)
+        end = step(X[:, :-1], ca.repmat(theta, 1, n), ca.repmat(x_max, 1, n))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
