@@ -72,6 +72,13 @@ METRIC_ROWS = (  # result.json key, label, factor
 )
 
 
+def _numbers(value, digits: int) -> str:
+    """A number or list of numbers to `digits` significant digits."""
+    values = np.atleast_1d(np.asarray(value, dtype=float))
+    text = " ".join(f"{v:.{digits}g}" for v in values)
+    return text if values.size == 1 and np.ndim(value) == 0 else f"[{text}]"
+
+
 def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
@@ -84,9 +91,9 @@ def _print_solution(summary: dict) -> None:
     )
     for path, value in summary["parameters"].items():
         std = summary["std_errors"].get(path)
-        text = np.array2string(np.asarray(value), precision=4, max_line_width=200)
+        text = _numbers(value, 5)
         if std is not None:
-            text += f"  (std {np.array2string(np.asarray(std), precision=2, max_line_width=200)})"
+            text += f"  (std {_numbers(std, 2)})"
         print(f"  {path} = {text}")
     for name, t in summary["tests"].items():
         model, data = t["metrics"]["model"], t["metrics"]["data"]
