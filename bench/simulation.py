@@ -11,13 +11,12 @@ Build and compile time are recorded apart: they are paid once per model.
 """
 from __future__ import annotations
 
-import casadi as ca
 import numpy as np
 
 from bench.baseline import shoot
 from bench.common import PICKUP_56, load_case, timed
 from crashnlp.case import Case
-from crashnlp.model.pendulum import NX, OUTPUTS
+from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.simulate import batch_simulator, integrator, simulate, simulate_batch
 from crashnlp.units import G0
 

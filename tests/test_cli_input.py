@@ -5,8 +5,8 @@ import json
 
 import pytest
 import yaml
-
 from conftest import BASE, ROOT, merge
+
 from crashnlp.cli import main
 
 DATA = {"file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"), "format": "csv",

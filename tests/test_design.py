@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import make_case
+
 from crashnlp.optimize import solve_case
 
 V0, CRUSH_SPACE = 15.0, 0.5

@@ -7,8 +7,8 @@ import json
 import numpy as np
 import pytest
 import yaml
-
 from conftest import BASE, merge
+
 from crashnlp.case import Case
 from crashnlp.cli import main
 from crashnlp.optimize.identify import identify

@@ -5,8 +5,8 @@ import casadi as ca
 import numpy as np
 import pytest
 import sympy as sp
-
 from conftest import make_case
+
 from crashnlp.simulate import simulate_batch
 
 TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-
 from conftest import ROOT
+
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem.schema import Collocation

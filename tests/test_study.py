@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-
 from conftest import BASE, ROOT, merge
+
 from crashnlp.case import Case
 from crashnlp.cli import parser
 from crashnlp.errors import InputError

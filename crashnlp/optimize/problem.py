@@ -15,9 +15,9 @@ from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
+from crashnlp.runtime import mapped
 from crashnlp.simulate import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
-from crashnlp.runtime import mapped
 
 
 @dataclass
@@ -26,10 +26,8 @@ class Transcript:
 
     test: TestCase
     trajectory: Trajectory
-    p: ca.MX
     outputs: ca.MX  # len(OUTPUTS) x nodes
     split: int
-    guess: Response
 
     def output(self, name: str) -> ca.MX:
         """A named output at every node (row)."""
@@ -88,7 +86,7 @@ class OptimalControl:
         x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
         outputs = mapped(ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)]), k)
         y = outputs(traj.states, ca.repmat(self.theta, 1, k), traj.x_max)
-        return Transcript(test, traj, p, y, split, guess)
+        return Transcript(test, traj, y, split)
 
     def _constraints(self) -> None:
         spec = self.case.problem.constraints

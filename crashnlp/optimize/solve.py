@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass
-from typing import Callable, TextIO
+from typing import TextIO
 
 import casadi as ca
 import numpy as np

@@ -24,10 +24,10 @@ from tqdm import tqdm
 
 from crashnlp import plots
 from crashnlp.errors import InputError
+from crashnlp.results import clean, write_json
 from crashnlp.study.executors import default_workers, make_executor
 from crashnlp.study.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
 from crashnlp.study.spec import Study, SweepEntry, load_study
-from crashnlp.results import clean, write_json
 
 RESULTS = Path("results")
 METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")

@@ -28,7 +28,6 @@ class Trajectory:
     times: np.ndarray
     states: ca.MX  # NX x (N+1)
     x_max: ca.MX  # 1 x (N+1), largest crush so far at each node
-    state_block: str
 
 
 def per_row(scale: np.ndarray, cols: int) -> ca.DM:
@@ -84,7 +83,7 @@ class Transcription(ABC):
         # up to the split node the front end loads (largest crush = crush), then x_max holds
         node_loading = ca.DM((np.arange(n + 1) <= split).astype(float)).T
         node_x_max = node_loading * (-X[0, :]) + (1 - node_loading) * x_max
-        return Trajectory(times, X, node_x_max, f"{name}.x")
+        return Trajectory(times, X, node_x_max)
 
     @abstractmethod
     def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):

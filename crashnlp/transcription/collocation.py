@@ -5,8 +5,8 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.model.pendulum import NX
-from crashnlp.transcription.base import Transcription, per_row
 from crashnlp.runtime import mapped
+from crashnlp.transcription.base import Transcription, per_row
 
 
 class Collocation(Transcription):

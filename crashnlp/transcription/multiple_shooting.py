@@ -2,11 +2,10 @@
 from __future__ import annotations
 
 import casadi as ca
-import numpy as np
 
 from crashnlp.model.pendulum import NX
-from crashnlp.transcription.base import Transcription, per_row
 from crashnlp.runtime import mapped
+from crashnlp.transcription.base import Transcription, per_row
 
 
 class MultipleShooting(Transcription):
