@@ -38,6 +38,7 @@ OUTPUTS = (
     "contact_force",  # front-end force along the pivot-CG line (N)
     "kinetic",  # (J)
     "potential",  # gravity + suspension + recoverable front-end energy (J)
+    "front_energy",  # recoverable (elastic) energy stored in the front end (J)
     "barrier_power",  # power absorbed from the vehicle by the barrier forces (W)
     "damper_power",  # power dissipated in the suspension dampers (W)
 )
@@ -155,8 +156,6 @@ class PendulumModel:
         Xdd = ca.jtimes(Xd, ca.vertcat(q, qd), ca.vertcat(qd, qdd))
 
         state = ca.vertcat(q, qd)
-        self.energy_terms = {"T": T, "V": V, "D": D, "Q": Q, "M": M}
-        self.qdd = qdd
         values = {
             "displacement": X + self._par("vehicle.cg_to_impact"),
             "velocity": Xd,
@@ -168,6 +167,7 @@ class PendulumModel:
             "contact_force": contact,
             "kinetic": T,
             "potential": V + stored,
+            "front_energy": stored,
             "barrier_power": -ca.dot(Q, qd),
             "damper_power": 2 * D,
         }
