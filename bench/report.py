@@ -29,7 +29,9 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
     st = results.get("studies")
     if st:
         ok = None if "skipped" in st else st["speedup_2_workers"] >= 1.8
-        rows.append(("study: 2 workers >= 1.8x faster than 1", st.get("skipped") or f"{st['speedup_2_workers']:.2f}x", ok))
+        measured = st.get("skipped") or (f"{st['speedup_2_workers']:.2f}x (serial maps in both runs: "
+                                          f"{st['speedup_2_workers_serial_maps']:.2f}x)")
+        rows.append(("study: 2 workers >= 1.8x faster than 1", measured, ok))
     sc = results.get("scaling")
     for method, s in (sc or {}).get("slopes", {}).items():
         rows.append((f"scaling {method}: time no faster than linear in intervals (slope <= 1)",
@@ -74,9 +76,11 @@ def simulation_md(r: dict) -> list[str]:
 def studies_md(r: dict) -> list[str]:
     if "skipped" in r:
         return ["## Studies", "", r["skipped"], ""]
-    rows = [[x["workers"], f"{x['wall_s']:.1f}", x["exit"], x["cases"], x["summary"]] for x in r["runs"]]
-    return ["## Studies", "", f"`crashnlp study` on {r['study']}:", "", *_table(["workers", "wall (s)", "exit", "cases", "summary"], rows), "",
-            f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x", ""]
+    rows = [[x["workers"], "serial" if x["serial_maps"] else "threaded", f"{x['wall_s']:.1f}", x["exit"], x["cases"]] for x in r["runs"]]
+    return ["## Studies", "", f"`crashnlp study` on {r['study']}:", "",
+            *_table(["workers", "maps in a solve", "wall (s)", "exit", "cases"], rows), "",
+            f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x as shipped (one worker's solve uses both cores through "
+            f"threaded maps); {r['speedup_2_workers_serial_maps']:.2f}x with serial maps in both runs.", ""]
 
 
 def scaling_md(r: dict) -> list[str]:

@@ -6,6 +6,7 @@ installed crashnlp has no `study` command yet.
 """
 from __future__ import annotations
 
+import os
 import subprocess
 import sys
 import tempfile
@@ -13,6 +14,7 @@ import time
 from pathlib import Path
 
 from bench.common import PROBLEMS, ROOT
+from crashnlp.runtime import THREADS_ENV
 
 CLI = Path(sys.executable).with_name("crashnlp")
 STUDY = PROBLEMS / "studies" / "pitch-bound.yaml"
@@ -30,15 +32,19 @@ def available() -> bool:
     return subprocess.run([str(CLI), "study", "--help"], capture_output=True, cwd=ROOT).returncode == 0
 
 
-def run_once(study: Path, workers: int) -> dict:
-    """Wall time and outcome of one study run into a fresh folder."""
+def run_once(study: Path, workers: int, serial_maps: bool = False) -> dict:
+    """Wall time and outcome of one study run into a fresh folder.
+
+    `serial_maps` sets CRASHNLP_THREADS=1, so that one worker uses one core and
+    the comparison measures the executor rather than the threaded maps."""
+    env = {**os.environ, THREADS_ENV: "1"} if serial_maps else None
     with tempfile.TemporaryDirectory(prefix="bench-study-") as out:
         cmd = [str(CLI), "study", str(study), "--workers", str(workers), "--out", out, "--no-progress"]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT)
+        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
         wall = time.perf_counter() - t0
         cases = sum(1 for _ in (Path(out) / "table.csv").open()) - 1 if (Path(out) / "table.csv").exists() else 0
-    return {"workers": workers, "wall_s": wall, "exit": proc.returncode, "cases": cases,
+    return {"workers": workers, "serial_maps": serial_maps, "wall_s": wall, "exit": proc.returncode, "cases": cases,
             "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0]}
 
 
@@ -54,7 +60,10 @@ def run(quick: bool = False) -> dict:
             study = Path(tmp) / "quick.yaml"
             study.write_text(QUICK_STUDY.format(problem=PROBLEMS / "pickup-56kph.yaml"))
         runs = [run_once(study, w) for w in (1, 2)]
-    for r in runs:
-        print(f"  {r['workers']} worker(s): {r['wall_s']:.1f} s, exit {r['exit']}, {r['cases']} cases: {r['summary']}")
-    return {"study": STUDY.name if not quick else "pitch-bound (2 cases)", "runs": runs,
-            "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"]}
+        serial = [run_once(study, w, serial_maps=True) for w in (1, 2)]
+    for r in runs + serial:
+        maps = "serial maps" if r["serial_maps"] else "default maps"
+        print(f"  {r['workers']} worker(s), {maps}: {r['wall_s']:.1f} s, exit {r['exit']}, {r['cases']} cases: {r['summary']}")
+    return {"study": STUDY.name if not quick else "pitch-bound (2 cases)", "runs": runs + serial,
+            "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"],
+            "speedup_2_workers_serial_maps": serial[0]["wall_s"] / serial[1]["wall_s"]}

@@ -7,7 +7,6 @@ when `t` is sampled otherwise.
 from __future__ import annotations
 
 import numpy as np
-from objective_rating_metrics.rating import ISO18571
 
 ISO_DT = 1e-4  # s, the 10 kHz sampling ISO/TS 18571 assumes
 
@@ -25,6 +24,8 @@ def iso18571(t: np.ndarray, reference: np.ndarray, model: np.ndarray) -> dict[st
     if np.max(np.abs(np.diff(t) - ISO_DT)) > 1e-3 * ISO_DT:
         grid = t[0] + ISO_DT * np.arange(int(np.floor((t[-1] - t[0]) / ISO_DT + 1e-9)) + 1)
         ref, mod, t = np.interp(grid, t, ref), np.interp(grid, t, mod), grid
+    from objective_rating_metrics.rating import ISO18571  # heavy (numba): loaded when a fit is rated
+
     rating = ISO18571(np.column_stack([t, ref]), np.column_stack([t, mod]), dt=ISO_DT)
     return {
         "corridor": float(rating.corridor_rating(ndigits=-1)),

@@ -2,8 +2,17 @@
 
 `run_study` solves the cases in parallel (a local process pool or dask), each
 warm-started from a neighbour fixed in advance, and writes a table and figures.
+Submodules load on first use, so that the command line starts quickly.
 """
-from crashnlp.study.run import run_study
-from crashnlp.study.spec import Study, StudySpec, load_study
+from importlib import import_module
 
-__all__ = ["Study", "StudySpec", "load_study", "run_study"]
+_EXPORTS = {"run_study": "crashnlp.study.run", "Study": "crashnlp.study.spec", "StudySpec": "crashnlp.study.spec",
+            "load_study": "crashnlp.study.spec"}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(import_module(_EXPORTS[name]), name)
+    raise AttributeError(name)
