@@ -33,11 +33,13 @@ def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX
 
 
 def peak_decel(ocp: OptimalControl) -> None:
+    """The largest deceleration over every node of every test."""
     scale = max(t.speed for t in ocp.case.tests) ** 2 / 1.0  # v0^2 / (2 * 0.5 m)
     _epigraph(ocp, "peak_decel", lambda tr: -tr.output("accel"), scale)
 
 
 def max_crush(ocp: OptimalControl) -> None:
+    """The largest crush over every node of every test."""
     _epigraph(ocp, "crush", lambda tr: tr.output("crush"), 0.5)
 
 
