@@ -89,20 +89,28 @@ def damper_force(rate: Expr, bps, vals, eps: float) -> Expr:
     return piecewise_linear(speed, bps, vals, eps) * rate
 
 
-def elastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr) -> tuple[Expr, Expr]:
+def elastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr, eps: float) -> tuple[Expr, Expr]:
     """The paper: unloading retraces the loading curve; the history has no effect."""
     return load(x), None
 
 
-def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr) -> tuple[Expr, Expr]:
+def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffness: Expr, eps: float) -> tuple[Expr, Expr]:
     """Unload from the largest crush so far along `stiffness` to a permanent set.
 
-    Passing x_max = x gives the loading curve exactly, which is how the NLP marks
-    its loading phase. The stored (recoverable) energy is that of the unloading spring.
+    The force is the smaller of the loading curve and the unloading line; the
+    switch between them is smoothed over a tenth of the crush smoothing width
+    (exact at x = x_max, so passing x_max = x gives the loading curve exactly,
+    which is how the NLP marks its loading phase). The stored (recoverable)
+    energy is that of the unloading spring.
     """
-    force = ca.fmin(load(x), load(x_max) - stiffness * (x_max - x))
+    loading, unloading = load(x), load(x_max) - stiffness * (x_max - x)
+    if eps == 0:
+        force = ca.fmin(loading, unloading)
+    else:
+        z, width = loading - unloading, 0.1 * eps * stiffness
+        force = loading - 0.5 * (z + ca.sqrt(z * z + width * width) - width)
     return force, 0.5 * ca.fmax(force, 0) ** 2 / stiffness
 
 
-UnloadingLaw = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr], tuple[Expr, Expr | None]]
+UnloadingLaw = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr, float], tuple[Expr, Expr | None]]
 UNLOADING_LAWS: dict[str, UnloadingLaw] = {"elastic": elastic_unloading, "plastic": plastic_unloading}

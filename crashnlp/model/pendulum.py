@@ -100,7 +100,7 @@ class PendulumModel:
         stiffness = self._par("model.unloading.stiffness")
         c = ca.SX.sym("crush")
         self.loading_curve = ca.Function("loading_curve", [c, self.p], [load(c)], ["crush", "p"], ["force"])
-        spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness)
+        spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness, s.eps_crush)
         if stored is None:
             stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
         force = spring

@@ -42,13 +42,19 @@ def _interpolator(response: Response):
 
 
 def split_node(test: TestCase, guess: Response, times: np.ndarray) -> int:
-    """Node where loading ends: the data's first velocity zero, else the guess's largest crush."""
+    """Node where loading ends: the last node before the data's first velocity zero, else
+    before the guess's largest crush.
+
+    The last node before, not the nearest: after the split the front end may still
+    load (the unloading law follows the loading curve above the largest crush),
+    while before it the crush may not decrease, which would force a model that
+    stops a little earlier than the data to keep crushing."""
     velocity = test.data.channels.get("velocity") if test.data is not None else None
     if velocity is not None and np.any(velocity.values < 0):
         t_stop = float(velocity.time[np.argmax(velocity.values < 0)])
     else:
         t_stop = float(guess.time[np.argmax(guess["crush"])])
-    return int(np.clip(np.argmin(np.abs(times - t_stop)), 1, len(times) - 1))
+    return int(np.clip(np.searchsorted(times, t_stop, side="right") - 1, 1, len(times) - 1))
 
 
 class OptimalControl:

@@ -53,6 +53,13 @@ class Transcription(ABC):
             "unloading": ca.Function("rhs_unloading", [x, theta, xm], [self.model.rhs(x, p, xm)]),
         }
 
+    def _peak_crush(self, x: ca.MX, theta: ca.MX) -> ca.MX:
+        """Largest crush, extrapolated from the split node (the last node before the stop):
+        crush + v^2 / (2 a) with the node's crush rate v and crush deceleration a."""
+        rate = ca.fmax(-x[2], 0)
+        decel = ca.fmax(self.rhs["loading"](x, theta, 0)[2], 1.0)  # r'' > 0 while the crush slows
+        return -x[0] + rate**2 / (2 * decel)
+
     @property
     def intervals(self) -> int:
         return self.spec.intervals
@@ -75,7 +82,7 @@ class Transcription(ABC):
         scale = np.maximum(np.abs(guess(times)).max(axis=1), STATE_FLOOR)
         X = nlp.variable(f"{name}.x", (NX, n + 1), guess(times), scale=scale[:, None])
         nlp.constrain(f"{name}.initial", X[:, 0] - x0)
-        x_max = -X[0, split]
+        x_max = self._peak_crush(X[:, split], theta)
         for phase, (a, b) in (("loading", (0, split)), ("unloading", (split, n))):
             if b > a:
                 segment = X[:, a : b + 1]
