@@ -53,7 +53,7 @@ def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarr
 
 def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> ca.Function:
     """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options."""
-    key = (options.integrator, options.substeps, options.rtol, options.atol, len(grid), float(grid[0]), float(grid[-1]))
+    key = (options.integrator, options.substeps, options.rtol, options.atol, np.asarray(grid, dtype=float).tobytes())
     cache = model.__dict__.setdefault("_integrators", {})
     if key not in cache:
         x = ca.SX.sym("x", NX + 3)

@@ -8,7 +8,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any
 
-import casadi as ca
 import numpy as np
 from pydantic import BaseModel
 
@@ -71,6 +70,3 @@ class ParameterLayout:
             out[self.index(path)] = np.asarray(value, dtype=float)
         return out
 
-
-def symbol(layout: ParameterLayout, name: str = "p") -> ca.SX:
-    return ca.SX.sym(name, layout.size)

@@ -77,11 +77,12 @@ class PendulumModel:
         self.qd = ca.SX.sym("qd", 2)
         self.p = ca.SX.sym("p", layout.size)
         self.x_max = ca.SX.sym("x_max")
+        self._parameters = layout.split(self.p)
         self._build()
 
     # ---------------------------------------------------------------- pieces
     def _par(self, path: str) -> ca.SX:
-        return self.layout.split(self.p)[path]
+        return self._parameters[path]
 
     def _geometry(self):
         L, h = self._par("vehicle.cg_to_impact"), self._par("vehicle.cg_above_impact")

@@ -327,7 +327,6 @@ class Simulation(Strict):
 
 class Design(Strict):
     minimize: Literal["peak_decel", "olc", "crush"] = "peak_decel"
-    duration: Q("s") = Field(0.2, description="horizon after the vehicle stops, for pitch")
 
 
 class ForceCrush(Strict):

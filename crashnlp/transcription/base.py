@@ -79,8 +79,9 @@ class Transcription(ABC):
         `theta` is the NLP's parameter vector; call `bind` first."""
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
-        scale = np.maximum(np.abs(guess(times)).max(axis=1), STATE_FLOOR)
-        X = nlp.variable(f"{name}.x", (NX, n + 1), guess(times), scale=scale[:, None])
+        initial = guess(times)
+        scale = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
+        X = nlp.variable(f"{name}.x", (NX, n + 1), initial, scale=scale[:, None])
         nlp.constrain(f"{name}.initial", X[:, 0] - x0)
         x_max = self._peak_crush(X[:, split], theta)
         for phase, (a, b) in (("loading", (0, split)), ("unloading", (split, n))):
