@@ -1,7 +1,9 @@
 """A small NLP assembler over CasADi MX: scaled decision variables, named constraints.
 
 Decision variables are stored scaled to order one (x = offset + scale * z), so
-IPOPT sees well-conditioned variables whatever the units.
+IPOPT sees well-conditioned variables whatever the units. Interval functions
+enter through `mapped`, least-squares terms through `least_squares`, so that
+the derivatives can exploit both (crashnlp.derivatives).
 """
 from __future__ import annotations
 
@@ -9,6 +11,9 @@ from dataclasses import dataclass, field
 
 import casadi as ca
 import numpy as np
+
+from crashnlp.derivatives import Derivatives, MappedBlock
+from crashnlp.runtime import mapped
 
 SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
 
@@ -49,7 +54,9 @@ class NLPBuilder:
     ubg: list[np.ndarray] = field(default_factory=list)
     blocks: dict[str, Block] = field(default_factory=dict)
     constraints: list[ConstraintBlock] = field(default_factory=list)
-    objective: ca.MX = 0
+    mapped_blocks: list[MappedBlock] = field(default_factory=list)
+    squares: list[ca.MX] = field(default_factory=list)  # least-squares residuals
+    rest: ca.MX = field(default_factory=lambda: ca.MX(0))  # the other objective terms
     _nz: int = 0
     _ng: int = 0
 
@@ -80,11 +87,37 @@ class NLPBuilder:
         self.constraints.append(ConstraintBlock(name, self._ng, n))
         self._ng += n
 
+    def mapped(self, fn: ca.Function, n: int, *inputs) -> list[ca.MX]:
+        """fn (an SX Function of one column) over n columns; inputs of one column's size are repeated."""
+        full = [x if x.size2() == n * fn.size2_in(i) else ca.repmat(x, 1, n) for i, x in enumerate(map(ca.MX, inputs))]
+        outputs = mapped(fn, n).call(full)
+        self.mapped_blocks.append(MappedBlock(fn, n, full, outputs))
+        return outputs
+
     def minimize(self, term) -> None:
-        self.objective = self.objective + term
+        self.rest = self.rest + term
+
+    def least_squares(self, residuals: ca.MX) -> None:
+        """Minimize the sum of squares of `residuals` (kept apart for the Gauss-Newton Hessian)."""
+        self.squares.append(ca.vec(residuals))
+
+    @property
+    def residuals(self) -> ca.MX:
+        return ca.vertcat(*self.squares) if self.squares else ca.MX(0, 1)
+
+    @property
+    def objective(self) -> ca.MX:
+        return ca.sumsqr(self.residuals) + self.rest
+
+    @property
+    def decision(self) -> ca.MX:
+        return ca.vertcat(*self.z)
 
     def problem(self) -> dict:
-        return {"x": ca.vertcat(*self.z), "f": self.objective, "g": ca.vertcat(*self.g) if self.g else ca.MX(0, 1)}
+        return {"x": self.decision, "f": self.objective, "g": ca.vertcat(*self.g) if self.g else ca.MX(0, 1)}
+
+    def derivatives(self) -> Derivatives:
+        return Derivatives(self.decision, self.mapped_blocks)
 
     def bounds(self) -> dict[str, np.ndarray]:
         cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)

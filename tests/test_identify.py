@@ -185,3 +185,56 @@ def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
         for key in VOLATILE:
             r["solver"].pop(key)
     assert result == second
+
+
+def _nlp_at_random_point(problem: dict, seed: int = 3):
+    """A built NLP and a decision vector near its initial guess."""
+    from crashnlp.optimize.fit import add_fit_objective
+    from crashnlp.optimize.problem import OptimalControl
+
+    ocp = OptimalControl(Case(problem_from_dict(problem, ".")))
+    add_fit_objective(ocp)
+    z0 = ocp.nlp.bounds()["x0"]
+    z = z0 * (1 + 0.05 * np.random.default_rng(seed).standard_normal(z0.size))
+    return ocp.nlp, z
+
+
+@pytest.mark.parametrize("transcription", [MS, COLLOCATION], ids=["multiple-shooting", "collocation"])
+def test_structured_constraint_jacobian_equals_casadis_own(data_file, transcription):
+    import casadi as ca
+
+    problem = fit_problem(data_file, {**transcription, "intervals": 12}, constraints={"monotone_crush": True, "bounds": {"pitch": [None, 0.05]}})
+    nlp, z = _nlp_at_random_point(problem)
+    p = nlp.problem()
+    g, J = nlp.derivatives().jac_g(p["g"])(z, [])
+    reference = ca.Function("ref", [p["x"]], [ca.jacobian(p["g"], p["x"])])(z)
+    assert np.allclose(np.asarray(g).ravel(), np.asarray(ca.Function("g", [p["x"]], [p["g"]])(z)).ravel())
+    assert np.max(np.abs(J.full() - reference.full())) <= 1e-9 * max(1.0, np.abs(reference.full()).max())
+    # and the structured pattern holds every nonzero CasADi finds
+    assert set(zip(*reference.sparsity().get_triplet())) <= set(zip(*J.sparsity().get_triplet()))
+
+
+def test_gauss_newton_hessian_is_two_jt_j_plus_the_regularisation(data_file):
+    import casadi as ca
+
+    problem = fit_problem(data_file, {**MS, "intervals": 12}, objective={"regularization": 0.3})
+    nlp, z = _nlp_at_random_point(problem)
+    p = nlp.problem()
+    ng = p["g"].numel()
+    H = nlp.derivatives().gauss_newton(nlp.residuals, nlp.rest, ng)(z, [], 0.7, np.ones(ng)).full()
+    Jr = ca.Function("J", [p["x"]], [ca.jacobian(nlp.residuals, p["x"])])(z).full()
+    Hq = ca.Function("H", [p["x"]], [ca.hessian(nlp.rest, p["x"])[0]])(z).full()
+    expected = np.triu(0.7 * (2 * Jr.T @ Jr + Hq))
+    assert np.abs(Hq).max() > 0  # the regularisation is really in
+    assert np.max(np.abs(H - expected)) <= 1e-9 * np.abs(expected).max()
+
+
+def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
+    # without monotone crush: its inequalities make the problem non-convex, and the two
+    # Hessians can then stop at different KKT points (see the README)
+    free = {"monotone_crush": False}
+    gn = solve(fit_problem(data_file, solver={"hessian": "gauss-newton"}, constraints=free))
+    exact = solve(fit_problem(data_file, solver={"hessian": "exact"}, constraints=free))
+    assert gn.ok and exact.ok
+    assert gn.result.objective == pytest.approx(exact.result.objective, rel=1e-9)
+    assert np.allclose(gn.theta, exact.theta, rtol=1e-6)

@@ -60,7 +60,7 @@ def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
     residuals = [r for tr in ocp.transcripts for r in channel_residuals(tr)]
     for r in residuals:
         if objective.loss == "l2":
-            ocp.nlp.minimize(ca.sumsqr(r.scaled))
+            ocp.nlp.least_squares(r.scaled)
         else:  # |e| / sigma through slacks s >= +-e / sigma, mean of s weighted
             normalised = (r.model - ca.DM(r.data).T).T / r.sigma
             slack = ocp.nlp.variable(f"{r.test}.{r.channel}.slack", len(r.columns), 1.0, 0.0, np.inf)

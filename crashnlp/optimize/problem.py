@@ -15,7 +15,6 @@ from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
-from crashnlp.runtime import mapped
 from crashnlp.simulate import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
 
@@ -90,8 +89,8 @@ class OptimalControl:
         traj = self.transcription.discretize(self.nlp, test.name, self.theta, x0, horizon, split, _interpolator(guess))
         k = len(traj.times)
         x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
-        outputs = mapped(ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)]), k)
-        y = outputs(traj.states, ca.repmat(self.theta, 1, k), traj.x_max)
+        outputs = ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)])
+        (y,) = self.nlp.mapped(outputs, k, traj.states, self.theta, traj.x_max)
         return Transcript(test, traj, y, split)
 
     def _constraints(self) -> None:

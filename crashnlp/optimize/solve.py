@@ -9,6 +9,7 @@ from typing import TextIO
 import casadi as ca
 import numpy as np
 
+from crashnlp.errors import InputError
 from crashnlp.nlp import SUCCESS, NLPBuilder
 from crashnlp.problem.schema import Solver
 
@@ -78,6 +79,27 @@ def ipopt_options(spec: Solver, verbose: bool) -> dict:
     return opts
 
 
+def hessian_kind(nlp: NLPBuilder, spec: Solver) -> str:
+    """The Hessian IPOPT gets: `auto` is Gauss-Newton when the objective is a least-squares fit."""
+    if spec.hessian == "auto":
+        return "gauss-newton" if nlp.squares else "exact"
+    if spec.hessian == "gauss-newton" and not nlp.squares:
+        raise InputError("solver.hessian: gauss-newton needs a least-squares objective (objective.loss l2 with data)")
+    return spec.hessian
+
+
+def derivative_options(nlp: NLPBuilder, spec: Solver) -> dict:
+    """Structure-exploiting constraint Jacobian, and the Gauss-Newton Hessian where chosen."""
+    if spec.expand:  # an SX graph is differentiated well by CasADi itself
+        return {}
+    d = nlp.derivatives()
+    problem = nlp.problem()
+    opts = {"jac_g": d.jac_g(problem["g"])}
+    if hessian_kind(nlp, spec) == "gauss-newton":
+        opts["hess_lag"] = d.gauss_newton(nlp.residuals, nlp.rest, problem["g"].numel())
+    return opts
+
+
 @dataclass
 class BuiltSolver:
     """An nlpsol Function with what must live as long as it (the progress callback)."""
@@ -91,6 +113,7 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress:
     """nlpsol over the NLP; MX graph with mapped SX interval functions."""
     t0 = time.perf_counter()
     opts = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
+    opts.update(derivative_options(nlp, spec))
     callback = None
     if progress is not None:
         b = nlp.bounds()

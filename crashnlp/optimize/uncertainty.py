@@ -52,10 +52,10 @@ class SensitivityEvaluator:
 
     def __init__(self, ocp: OptimalControl, residuals: list[Residual]):
         nlp = ocp.nlp
-        z = ca.vertcat(*nlp.z)
+        d = nlp.derivatives()
         dyn = [g for g, c in zip(nlp.g, nlp.constraints) if c.name.endswith(DYNAMICS)]
         R = ca.vertcat(*[ca.vec(r.model - ca.DM(r.data).T) for r in residuals])
-        self.f = ca.Function("sens", [z], [ca.jacobian(ca.vertcat(*dyn), z), ca.jacobian(R, z), R])
+        self.f = ca.Function("sens", [d.z], [d.jacobian(ca.vertcat(*dyn)), d.jacobian(R), R])
         theta = nlp.blocks["theta"]
         self.theta = np.arange(theta.offset, theta.offset + theta.shape[0])
         self.theta_scale = theta.scale

@@ -312,7 +312,9 @@ Transcription = Annotated[MultipleShooting | Collocation, Field(discriminator="m
 
 class Solver(Strict):
     ipopt: dict[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
-    hessian: Literal["exact", "limited-memory"] = "exact"
+    hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
+        "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
+    )
     expand: bool = Field(False, description="expand the NLP to SX: slower to build, faster per iteration")
 
 

@@ -5,7 +5,6 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.model.pendulum import NX
-from crashnlp.runtime import mapped
 from crashnlp.transcription.base import Transcription, per_row
 
 
@@ -27,7 +26,6 @@ class Collocation(Transcription):
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
-        interval = mapped(self._interval(h, rhs), n)
-        defects, end = interval(X[:, :-1], Xc, ca.repmat(theta, 1, n), ca.repmat(x_max, 1, n))
+        defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta, x_max)
         nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

@@ -4,7 +4,6 @@ from __future__ import annotations
 import casadi as ca
 
 from crashnlp.model.pendulum import NX
-from crashnlp.runtime import mapped
 from crashnlp.transcription.base import Transcription, per_row
 
 
@@ -24,6 +23,5 @@ class MultipleShooting(Transcription):
 
     def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
         n = X.shape[1] - 1
-        step = mapped(self._step(float(times[1] - times[0]), rhs), n)
-        end = step(X[:, :-1], ca.repmat(theta, 1, n), ca.repmat(x_max, 1, n))
+        (end,) = nlp.mapped(self._step(float(times[1] - times[0]), rhs), n, X[:, :-1], theta, x_max)
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
