@@ -2,8 +2,8 @@
 
 Same model (crashnlp's CasADi augmented RHS, evaluated numerically: 4 states,
 the largest crush so far and two absorbed energies, as the forward simulator
-uses), same data, window, free parameters, initial values, bounds and residual
-definition as the NLP. What differs is the method: a trust-region reflective
+uses; the outputs by crashnlp's own compiled evaluation), same data, window,
+free parameters, initial values, bounds and residual definition as the NLP. What differs is the method: a trust-region reflective
 least-squares solve with a finite-difference Jacobian, one forward simulation
 per residual evaluation. The NLP's monotone-crush constraint has no counterpart
 here (it is inactive at the NLP's solution).
@@ -19,7 +19,7 @@ from scipy.optimize import least_squares
 
 from bench.common import Target, node_times, residual_vector
 from crashnlp.case import Case
-from crashnlp.model.pendulum import NX, OUTPUTS
+from crashnlp.simulate import response_from_states
 from crashnlp.optimize.parameters import FreeParameters
 
 METHOD, RTOL, ATOL, MAX_STEP = "LSODA", 1e-6, 1e-8, 1e-3
@@ -56,9 +56,7 @@ def shoot(case: Case, p: np.ndarray, test_index: int, times: np.ndarray, method:
     )
     if not sol.success:
         raise RuntimeError(f"solve_ivp: {sol.message}")
-    n = sol.y.shape[1]
-    y = np.asarray(model.outputs.map(n)(sol.y[:NX], np.tile(pt[:, None], (1, n)), sol.y[NX]))
-    return {name: y[i] for i, name in enumerate(OUTPUTS)}
+    return response_from_states(model, pt, sol.t, sol.y).outputs  # crashnlp's own (compiled) outputs
 
 
 class SingleShooting:

@@ -7,7 +7,7 @@ tolerances and output grid; the fastest of a few solve_ivp methods is the baseli
 Batch: crashnlp's batch simulator (fixed-step RK4 of the simulation ODE,
 mapaccum over the steps, mapped over parameter sets with spring values scaled by
 random factors in [0.8, 1.2]), in CasADi's virtual machine and compiled to C.
-Build and compile time are recorded apart: they are paid once per model.
+The first call (build, and compile or load the cached library) is recorded apart.
 """
 from __future__ import annotations
 
@@ -16,8 +16,7 @@ import numpy as np
 from bench.baseline import shoot
 from bench.common import PICKUP_56, load_case, timed
 from crashnlp.case import Case
-from crashnlp.model.pendulum import OUTPUTS
-from crashnlp.simulate import batch_simulator, integrator, simulate, simulate_batch
+from crashnlp.simulate import integrator, simulate, simulate_batch
 from crashnlp.units import G0
 
 SCIPY_METHODS = ("LSODA", "RK45", "DOP853")
@@ -59,18 +58,20 @@ def parameter_sets(case: Case, n: int, seed: int = 0) -> np.ndarray:
 
 
 def batch(case: Case, n: int, members: tuple[int, ...]) -> dict:
-    """n simulations through crashnlp's batch simulator (RK4 mapaccum, mapped over parameter sets)."""
+    """n simulations through crashnlp's batch simulator (RK4 mapaccum, mapped over parameter sets).
+
+    The first call builds (and, compiled, compiles once per machine or loads the
+    cached library); the run time is the best of three calls after it."""
     test = case.tests[0]
     steps = int(round(test.duration / BATCH_DT))
     P = parameter_sets(case, n)
-    X0 = np.vstack([np.asarray(case.model.initial_state.map(n)(P, test.speed)), np.zeros((3, n))])
-    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulate.batch_simulator)"}
-    for mode, jit in (("vm", False), ("jit", True)):
-        build_s, f = timed(lambda: batch_simulator(case.model, steps, BATCH_DT, n, jit))
-        wall, y = timed(lambda: np.asarray(f(X0, P)))
-        out[mode] = {"build_s": build_s, "wall_s": wall, "per_simulation_ms": 1e3 * wall / n}
-    crush = y[OUTPUTS.index("crush")].reshape(n, steps + 1)
-    out["checks"] = [check_member(case, crush, P, k) for k in members if k < n]
+    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulate.simulate_batch)"}
+    for mode, jit in (("vm", False), ("compiled", True)):
+        run = lambda: simulate_batch(case.model, P, test.speed, test.duration, BATCH_DT, jit)
+        first_s, _ = timed(run)
+        wall, y = timed(run, 3)
+        out[mode] = {"first_call_s": first_s, "wall_s": wall, "per_simulation_ms": 1e3 * wall / n}
+    out["checks"] = [check_member(case, y["crush"], P, k) for k in members if k < n]
     return out
 
 
@@ -94,9 +95,9 @@ def run(quick: bool = False) -> dict:
     s, b = out["single"], out["batch"]
     print(f"  single: crashnlp {s['crashnlp_s'] * 1e3:.1f} ms ({s['crashnlp_call_only_s'] * 1e3:.1f} ms call only), "
           f"solve_ivp {s['scipy_best']} {s['scipy'][s['scipy_best']]['wall_s'] * 1e3:.1f} ms: {s['speedup']:.1f}x")
-    for mode in ("vm", "jit"):
+    for mode in ("vm", "compiled"):
         m = b[mode]
-        print(f"  batch of {b['n']} ({mode}): build {m['build_s']:.2f} s once, run {m['wall_s']:.2f} s ({m['per_simulation_ms']:.2f} ms per simulation)")
+        print(f"  batch of {b['n']} ({mode}): first call {m['first_call_s']:.2f} s, then {m['wall_s']:.2f} s ({m['per_simulation_ms']:.2f} ms per simulation)")
     for c in b["checks"]:
         print(f"    member {c['member']}: vs alone {c['max_diff_vs_alone']:.1e}, vs CVODES crush {c['max_crush_diff_vs_cvodes_mm']:.3f} mm")
     return out

@@ -8,6 +8,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from crashnlp.compiled import Evaluator, compiled
 from crashnlp.model.pendulum import NX, OUTPUTS, PendulumModel
 from crashnlp.problem.schema import Simulation
 from crashnlp.runtime import mapped
@@ -51,13 +52,20 @@ def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarr
             w.writerow([f"{v:.9g}" for v in row])
 
 
+def _key(grid: np.ndarray, options: Simulation) -> tuple:
+    return (options.integrator, options.substeps, options.rtol, options.atol, np.asarray(grid, dtype=float).tobytes())
+
+
 def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> ca.Function:
-    """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options."""
-    key = (options.integrator, options.substeps, options.rtol, options.atol, np.asarray(grid, dtype=float).tobytes())
+    """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options.
+
+    Its right-hand side is the model's, compiled (crashnlp.compiled)."""
+    key = _key(grid, options)
     cache = model.__dict__.setdefault("_integrators", {})
     if key not in cache:
-        x = ca.SX.sym("x", NX + 3)
-        dae = {"x": x, "p": model.p, "ode": model.augmented_rhs(x, model.p)}
+        rhs = _cached(model, ("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
+        x, p = ca.MX.sym("x", NX + 3), ca.MX.sym("p", model.layout.size)
+        dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
             opts = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
@@ -68,30 +76,27 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
     return cache[key]
 
 
-JIT = {"jit": True, "compiler": "shell", "jit_options": {"flags": ["-O2"], "verbose": False}}
-
-
 def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
     """n simulations at once, one parameter set each: (X0 7 x n, P np x n) -> outputs.
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
     the named outputs at every step, all mapped over the parameter sets, as a
     what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
-    columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles the
-    step and the outputs to C (needs a C compiler; about a second, once)."""
-    opts = JIT if jit else {}
+    columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
+    simulation to C (crashnlp.compiled: about a second, once per machine)."""
     x, p = ca.SX.sym("x", NX + 3), model.p
     f = model.augmented_rhs
     k1 = f(x, p)
     k2 = f(x + dt / 2 * k1, p)
     k3 = f(x + dt / 2 * k2, p)
     k4 = f(x + dt * k3, p)
-    step = ca.Function("rk4", [x, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)], opts)
-    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p, x[NX])], opts)
+    step = ca.Function("rk4", [x, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p, x[NX])])
     x0, pm = ca.MX.sym("x0", NX + 3), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
     y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
-    return mapped(ca.Function("trajectory", [x0, pm], [y]), n)
+    one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
+    return mapped(compiled(one) if jit else one, n)
 
 
 def simulate_batch(
@@ -102,7 +107,9 @@ def simulate_batch(
     Returns "time" and each named output as an array of shape (simulations, times)."""
     n, steps = P.shape[1], int(round(duration / dt))
     X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((3, n))])
-    y = np.asarray(batch_simulator(model, steps, dt, n, jit)(X0, P)).reshape(len(OUTPUTS), n, steps + 1)
+    batch = _cached(model, ("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
+    (y,) = batch(x0=X0, p=P)
+    y = y.reshape(len(OUTPUTS), n, steps + 1)
     return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
 
 
@@ -111,7 +118,9 @@ def simulate(
 ) -> Response:
     """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
     x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), [0.0, 0.0, 0.0]])
-    xf = np.asarray(integrator(model, grid, options)(x0=x0, p=p)["xf"])
+    (xf,) = _cached(model, ("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
+        x0=x0, p=p
+    )
     states = np.column_stack([x0, xf])
     return response_from_states(model, p, grid, states)
 
@@ -124,11 +133,21 @@ def _cached(model: PendulumModel, key: tuple, build):
     return cache[key]
 
 
+def _outputs_on_grid(model: PendulumModel, n: int) -> Evaluator:
+    """The compiled outputs at n points of one simulation (the parameters shared)."""
+
+    def build() -> Evaluator:
+        outputs = _cached(model, ("outputs",), lambda: compiled(model.outputs))
+        x, p, xm = ca.MX.sym("x", NX, n), ca.MX.sym("p", model.layout.size), ca.MX.sym("xm", 1, n)
+        y = outputs.map(n)(x, ca.repmat(p, 1, n), xm)  # serial: threads cost more than they save here
+        return Evaluator(ca.Function("outputs_on_grid", [x, p, xm], [y], ["x", "p", "xm"], ["y"]))
+
+    return _cached(model, ("outputs", n), build)
+
+
 def response_from_states(model: PendulumModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
     """Outputs on a grid from states (rows r, theta, rdot, thetadot, x_max[, W_barrier, W_damper])."""
-    n = states.shape[1]
-    outputs_map = _cached(model, ("outputs", n), lambda: model.outputs.map(n))
-    y = np.asarray(outputs_map(states[:NX], ca.repmat(p, 1, n), states[NX]))
+    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[:NX], p=p, xm=states[NX])
     outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
     if states.shape[0] > NX + 1:  # absorbed work minus what the front end still stores
         outputs["absorbed"] = states[NX + 1] + states[NX + 2]

@@ -236,5 +236,5 @@ def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
     gn = solve(fit_problem(data_file, solver={"hessian": "gauss-newton"}, constraints=free))
     exact = solve(fit_problem(data_file, solver={"hessian": "exact"}, constraints=free))
     assert gn.ok and exact.ok
-    assert gn.result.objective == pytest.approx(exact.result.objective, rel=1e-9)
-    assert np.allclose(gn.theta, exact.theta, rtol=1e-6)
+    assert gn.result.objective == pytest.approx(exact.result.objective, rel=1e-7)  # IPOPT tol 1e-8
+    assert np.allclose(gn.theta, exact.theta, rtol=1e-4)

@@ -17,7 +17,7 @@ import scipy.sparse.linalg as spla
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.problem import OptimalControl
 
-DYNAMICS = (".initial", ".continuity", ".collocation")
+DYNAMICS = (".initial", ".impact", ".continuity", ".collocation")
 
 
 @dataclass
