@@ -77,10 +77,15 @@ def studies_md(r: dict) -> list[str]:
     if "skipped" in r:
         return ["## Studies", "", r["skipped"], ""]
     rows = [[x["workers"], "serial" if x["serial_maps"] else "threaded", f"{x['wall_s']:.1f}", x["exit"], x["cases"]] for x in r["runs"]]
+    s = next(x for x in r["runs"] if x["serial_maps"] and x["workers"] == 1)
+    bound = (f"The solves themselves (IPOPT) take {s['solves_s']:.2f} s in all, and the longest warm-start chain "
+             f"{s['longest_chain_s']:.2f} s of it: a case starts after the case it warm-starts from, so two workers can be at most "
+             f"{s['two_worker_bound']:.2f}x faster on this study, whatever the executor; the rest of the wall time is "
+             "starting processes, building each case and writing the table and figures.") if "two_worker_bound" in s else ""
     return ["## Studies", "", f"`crashnlp study` on {r['study']}:", "",
             *_table(["workers", "maps in a solve", "wall (s)", "exit", "cases"], rows), "",
             f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x as shipped (one worker's solve uses both cores through "
-            f"threaded maps); {r['speedup_2_workers_serial_maps']:.2f}x with serial maps in both runs.", ""]
+            f"threaded maps); {r['speedup_2_workers_serial_maps']:.2f}x with serial maps in both runs.", "", bound, ""]
 
 
 def scaling_md(r: dict) -> list[str]:

@@ -6,6 +6,7 @@ installed crashnlp has no `study` command yet.
 """
 from __future__ import annotations
 
+import csv
 import os
 import subprocess
 import sys
@@ -43,9 +44,25 @@ def run_once(study: Path, workers: int, serial_maps: bool = False) -> dict:
         t0 = time.perf_counter()
         proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, env=env)
         wall = time.perf_counter() - t0
-        cases = sum(1 for _ in (Path(out) / "table.csv").open()) - 1 if (Path(out) / "table.csv").exists() else 0
-    return {"workers": workers, "serial_maps": serial_maps, "wall_s": wall, "exit": proc.returncode, "cases": cases,
-            "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0]}
+        table = Path(out) / "table.csv"
+        rows = list(csv.DictReader(table.open())) if table.exists() else []
+    return {"workers": workers, "serial_maps": serial_maps, "wall_s": wall, "exit": proc.returncode, "cases": len(rows),
+            "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0], **plan_bound(rows)}
+
+
+def plan_bound(rows: list[dict]) -> dict:
+    """The solves' total time and the longest warm-start chain through them (IPOPT times).
+
+    A case starts only after the case it warm-starts from, so no executor can finish the
+    solves in less than the longest chain: total / max(chain, total / 2) bounds the
+    speed-up of two workers whatever they cost to run."""
+    if not rows:
+        return {}
+    wall = {r["case"]: float(r["wall_s"] or 0.0) for r in rows}
+    parent = {r["case"]: r["warm_start"] or None for r in rows}
+    chain = lambda c: wall[c] + (chain(parent[c]) if parent[c] else 0.0)
+    total, longest = sum(wall.values()), max(chain(c) for c in wall)
+    return {"solves_s": total, "longest_chain_s": longest, "two_worker_bound": total / max(longest, total / 2)}
 
 
 def run(quick: bool = False) -> dict:
@@ -64,6 +81,9 @@ def run(quick: bool = False) -> dict:
     for r in runs + serial:
         maps = "serial maps" if r["serial_maps"] else "default maps"
         print(f"  {r['workers']} worker(s), {maps}: {r['wall_s']:.1f} s, exit {r['exit']}, {r['cases']} cases: {r['summary']}")
+    if "two_worker_bound" in serial[0]:
+        s = serial[0]
+        print(f"  solves {s['solves_s']:.2f} s, longest warm-start chain {s['longest_chain_s']:.2f} s: 2 workers at most {s['two_worker_bound']:.2f}x faster")
     return {"study": STUDY.name if not quick else "pitch-bound (2 cases)", "runs": runs + serial,
             "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"],
             "speedup_2_workers_serial_maps": serial[0]["wall_s"] / serial[1]["wall_s"]}

@@ -20,6 +20,7 @@ import casadi as ca
 import numpy as np
 
 CACHE_ENV = "CRASHNLP_CACHE"
+SWITCH_ENV = "CRASHNLP_COMPILE"  # "0" evaluates in CasADi's virtual machine instead
 FLAGS = ("-O2", "-fPIC", "-shared")
 _loaded: dict[str, ca.Function] = {}
 
@@ -29,7 +30,9 @@ def cache_dir() -> Path:
 
 
 def compiler() -> str | None:
-    """The C compiler on PATH (CC, else cc or gcc), or None."""
+    """The C compiler on PATH (CC, else cc or gcc), or None (also when CRASHNLP_COMPILE=0)."""
+    if os.environ.get(SWITCH_ENV) == "0":
+        return None
     for name in (os.environ.get("CC"), "cc", "gcc"):
         if name and shutil.which(name):
             return name
@@ -52,9 +55,12 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
     key = hashlib.sha256("\0".join([source, cc, *FLAGS]).encode()).hexdigest()[:20]
     if key not in _loaded:
         library = cache_dir() / f"{fn.name()}-{key}.so"
-        if not library.exists():
-            _build(cc, source, library)
-        _loaded[key] = ca.external(fn.name(), str(library))
+        try:
+            if not library.exists():
+                _build(cc, source, library)
+            _loaded[key] = ca.external(fn.name(), str(library))
+        except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
+            return fn
     return _loaded[key]
 
 

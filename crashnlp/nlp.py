@@ -117,7 +117,12 @@ class NLPBuilder:
         return {"x": self.decision, "f": self.objective, "g": ca.vertcat(*self.g) if self.g else ca.MX(0, 1)}
 
     def derivatives(self) -> Derivatives:
-        return Derivatives(self.decision, self.mapped_blocks)
+        """Structured derivatives of this NLP, built once for its current blocks."""
+        cached = getattr(self, "_derivatives", None)
+        if cached is None or cached[0] != len(self.mapped_blocks):
+            cached = (len(self.mapped_blocks), Derivatives(self.decision, self.mapped_blocks))
+            self._derivatives = cached
+        return cached[1]
 
     def bounds(self) -> dict[str, np.ndarray]:
         cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)

@@ -5,18 +5,15 @@ it is written.
 """
 from __future__ import annotations
 
-import json
 import math
-import os
-import tempfile
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from crashnlp import plots
 from crashnlp.case import Case, TestCase
 from crashnlp.data.signal import resample
+from crashnlp.jsonfile import write_json
 from crashnlp.metrics import crash_metrics
 from crashnlp.optimize.identify import Solution, TestSolution
 from crashnlp.rating import iso18571
@@ -26,30 +23,6 @@ from crashnlp.units import G0
 REPORT_UNITS = {"accel": ("g", 1 / G0), "velocity": ("m/s", 1.0), "displacement": ("m", 1.0), "pitch": ("deg", 180 / math.pi)}
 # ignored by reproducibility checks: the only entries that change from run to run
 VOLATILE = ("wall_s", "build_s")
-
-
-def clean(value: Any) -> Any:
-    """JSON-safe: numpy to Python, NaN to null, floats to 10 significant digits."""
-    if isinstance(value, dict):
-        return {str(k): clean(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple, np.ndarray)):
-        return [clean(v) for v in value]
-    if isinstance(value, (np.floating, float)):
-        v = float(value)
-        return None if not math.isfinite(v) else float(f"{v:.10g}")
-    if isinstance(value, np.integer):
-        return int(value)
-    return value
-
-
-def write_json(path: Path, obj: Any) -> None:
-    """Write JSON atomically (a reader never sees half a file)."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    with os.fdopen(fd, "w") as fh:
-        json.dump(clean(obj), fh, indent=2)
-        fh.write("\n")
-    os.replace(tmp, path)
 
 
 def metrics(t: np.ndarray, accel: np.ndarray, velocity: np.ndarray, displacement: np.ndarray, pitch: np.ndarray | None) -> dict:

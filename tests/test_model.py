@@ -177,3 +177,26 @@ def test_batch_simulation_matches_single_simulations():
         single = case.simulate(dt=2.5e-4)["t56"]
         np.testing.assert_allclose(batch["crush"][k], single["crush"], atol=2e-4)
     assert np.max(batch["crush"][2]) < np.max(batch["crush"][0]) < np.max(batch["crush"][1])
+
+
+def test_compiled_evaluation_equals_the_virtual_machine(monkeypatch, tmp_path):
+    """Simulation and batches give the same numbers compiled to C or in CasADi's VM."""
+    from crashnlp import compiled
+    from crashnlp.compiled import CACHE_ENV, SWITCH_ENV, compiler
+
+    if compiler() is None:
+        pytest.skip("no C compiler: crashnlp evaluates in the VM anyway")
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path))
+    monkeypatch.setattr(compiled, "_loaded", {})  # nothing loaded earlier in this process
+    compiled_run = make_case().simulate()["t56"]
+    assert list(tmp_path.glob("*.so"))  # really compiled, into the chosen cache
+    monkeypatch.setenv(SWITCH_ENV, "0")
+    vm_run = make_case().simulate()["t56"]
+    for name in ("crush", "accel", "pitch", "front_energy"):
+        np.testing.assert_allclose(compiled_run[name], vm_run[name], rtol=1e-10, atol=1e-12)
+    case = make_case()
+    P = np.tile(case.base[:, None], (1, 2))
+    vm_batch = simulate_batch(case.model, P, case.tests[0].speed, 0.1, 5e-4, jit=True)
+    monkeypatch.delenv(SWITCH_ENV)
+    c_batch = simulate_batch(make_case().model, P, case.tests[0].speed, 0.1, 5e-4, jit=True)
+    np.testing.assert_allclose(c_batch["accel"], vm_batch["accel"], rtol=1e-10, atol=1e-9)

@@ -2,7 +2,6 @@
 from __future__ import annotations
 
 import numpy as np
-from scipy.signal import lfilter, lfilter_zi
 
 from crashnlp.data.channels import Channel, DataError
 
@@ -36,6 +35,8 @@ def cfc_filter(values: np.ndarray, dt: float, cfc: float | str, pad: float = 0.0
     (odd reflection: keeps value and slope, as J211-1 suggests to avoid start-up transients);
     the recursion starts in steady state on the padded end value.
     """
+    from scipy.signal import lfilter, lfilter_zi  # scipy.signal takes a second to import: only when filtering
+
     cfc = CFC_CLASSES[cfc] if isinstance(cfc, str) else float(cfc)
     b, a = cfc_coefficients(cfc, dt)
     x = np.asarray(values, dtype=float)

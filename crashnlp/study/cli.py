@@ -57,6 +57,10 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
     from crashnlp.errors import InputError
+    from crashnlp.study.executors import start_early
+
+    if args.executor == "local":
+        start_early()
     from crashnlp.study.run import RESULTS, run_study
     from crashnlp.study.spec import load_study
 

@@ -30,7 +30,7 @@ def default_workers() -> int:
 
 
 # imported once by the fork server, so each worker starts in milliseconds, not seconds
-PRELOAD = ["crashnlp.study.run", "crashnlp.case", "crashnlp.optimize", "crashnlp.results"]
+PRELOAD = ["crashnlp.study.run", "crashnlp.case", "crashnlp.optimize", "crashnlp.results", "scipy.signal"]
 
 
 def _context() -> multiprocessing.context.BaseContext:
@@ -41,6 +41,15 @@ def _context() -> multiprocessing.context.BaseContext:
     context = multiprocessing.get_context("forkserver")
     context.set_forkserver_preload(PRELOAD)
     return context
+
+
+def start_early() -> None:
+    """Start the fork server now, so that it preloads crashnlp while this process reads the
+    study and plans its cases (both cores busy instead of one waiting for the other)."""
+    if _context().get_start_method() == "forkserver":
+        from multiprocessing import forkserver
+
+        forkserver.ensure_running()
 
 
 class LocalExecutor:

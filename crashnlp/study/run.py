@@ -22,9 +22,8 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from crashnlp import plots
 from crashnlp.errors import InputError
-from crashnlp.results import clean, write_json
+from crashnlp.jsonfile import clean, write_json
 from crashnlp.study.executors import default_workers, make_executor
 from crashnlp.study.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
 from crashnlp.study.spec import Study, SweepEntry, load_study
@@ -283,6 +282,8 @@ def _figure(path: Path, entry: SweepEntry, i: int, members: list, names: list[st
         xlabel = f"{entry.path} (value number)"
     order = np.argsort(x, kind="stable")
     series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
+    from crashnlp import plots  # matplotlib: only once the figures are drawn
+
     plots.xy_figure(path, x[order], series, xlabel, title)
 
 

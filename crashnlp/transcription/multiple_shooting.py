@@ -1,7 +1,6 @@
 """Multiple shooting: a state at every node, M RK4 sub-steps per interval, mapped."""
 from __future__ import annotations
 
-import casadi as ca
 
 from crashnlp.transcription.base import Transcription, per_row, rk4
 
