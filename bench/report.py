@@ -34,8 +34,10 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
         rows.append(("study: 2 workers >= 1.8x faster than 1", measured, ok))
     sc = results.get("scaling")
     for method, s in (sc or {}).get("slopes", {}).items():
+        detail = (f"; {s['ipopt_per_iteration']:.2f} per IPOPT iteration, steepest step {s['steepest_step']:.2f}"
+                  if "steepest_step" in s else "")
         rows.append((f"scaling {method}: time no faster than linear in intervals (slope <= 1)",
-                     f"slope {s['wall_s']:.2f} ({s['ipopt_s']:.2f} IPOPT only)", s["wall_s"] <= 1.0))
+                     f"slope {s['wall_s']:.2f} ({s['ipopt_s']:.2f} IPOPT only{detail})", s["wall_s"] <= 1.0))
     return rows
 
 
@@ -92,21 +94,85 @@ def scaling_md(r: dict) -> list[str]:
     fmt = lambda x: [x["method"], x["intervals"], x["tests"], f"{x['wall_s']:.2f}", f"{x['ipopt_s']:.2f}", x["iterations"],
                      x["status"] + (" (capped)" if x["capped"] else "")]
     head = ["method", "intervals", "tests", "wall (s)", "IPOPT (s)", "iterations", "status"]
-    slopes = [[m, f"{s['wall_s']:.2f}", f"{s['ipopt_s']:.2f}"] for m, s in r["slopes"].items()]
+    slopes = [[m, f"{s['wall_s']:.2f}", f"{s['ipopt_s']:.2f}", f"{s.get('ipopt_per_iteration', float('nan')):.2f}",
+               f"{s.get('steepest_step', float('nan')):.2f}"] for m, s in r["slopes"].items()]
     return ["## Scaling", "", f"IPOPT capped at {r['max_iter']} iterations. Figure: `{r['figure']}`.", "",
             *_table(head, [fmt(x) for x in r["intervals"]]), "", *_table(head, [fmt(x) for x in r["tests"]]), "",
-            "Log-log slope of time against intervals:", "", *_table(["method", "end-to-end", "IPOPT only"], slopes), ""]
+            "Log-log slope of time against intervals, over the converged solves:", "",
+            *_table(["method", "end-to-end", "IPOPT only", "IPOPT per iteration", "steepest step (end-to-end)"], slopes), ""]
+
+
+def _batch_best(b: dict) -> float:
+    """Fastest batch run (the compiled mode was called "jit" before)."""
+    return min(v["wall_s"] for k, v in b.items() if k in ("vm", "jit", "compiled"))
+
+
+def _scaling_wall(r: dict, method: str, intervals: int) -> str:
+    row = next((x for x in r["intervals"] if x["method"] == method and x["intervals"] == intervals), None)
+    return f"{row['wall_s']:.2f} s ({row['iterations']} it)" if row else ""
+
+
+def comparison(before: dict, after: dict) -> list[list[str]]:
+    """[what, before, after] for the headline numbers of two benchmark runs."""
+    rows = []
+    for method in after.get("identification", {}).get("crashnlp", {}):
+        b, a = before["identification"]["crashnlp"][method], after["identification"]["crashnlp"][method]
+        rb, ra = before["identification"]["ratios"][method], after["identification"]["ratios"][method]
+        rows.append([f"identify pickup-56kph, {method}", f"{b['wall_s']:.2f} s ({b['ipopt_s']:.2f} s IPOPT, {b['iterations']} it)",
+                     f"{a['wall_s']:.2f} s ({a['ipopt_s']:.2f} s IPOPT, {a['iterations']} it)"])
+        rows.append([f"  against the scipy baseline ({method})", f"{rb['speedup']:.1f}x, objective {rb['objective_ratio']:.4f} of its",
+                     f"{ra['speedup']:.1f}x, objective {ra['objective_ratio']:.4f} of its"])
+    if "simulation" in after:
+        sb, sa = before["simulation"], after["simulation"]
+        rows.append(["one simulation, states and outputs", f"{1e3 * sb['single']['crashnlp_s']:.1f} ms ({sb['single']['speedup']:.1f}x)",
+                     f"{1e3 * sa['single']['crashnlp_s']:.1f} ms ({sa['single']['speedup']:.1f}x)"])
+        rows.append([f"{sa['batch']['n']} batched simulations", f"{_batch_best(sb['batch']):.2f} s", f"{_batch_best(sa['batch']):.2f} s"])
+    if "studies" in after and "runs" in after["studies"]:
+        for serial in (False, True):
+            pick = lambda r, w: next(x["wall_s"] for x in r["studies"]["runs"] if x["workers"] == w and x["serial_maps"] == serial)
+            label = "serial maps" if serial else "as shipped"
+            rows.append([f"pitch-bound study, 1 / 2 workers ({label})", f"{pick(before, 1):.1f} s / {pick(before, 2):.1f} s",
+                         f"{pick(after, 1):.1f} s / {pick(after, 2):.1f} s"])
+    if "scaling" in after:
+        for method in ("multiple-shooting", "collocation"):
+            rows.append([f"identify at 800 intervals, {method}", _scaling_wall(before["scaling"], method, 800),
+                         _scaling_wall(after["scaling"], method, 800)])
+    return rows
+
+
+CHANGES = [
+    "Structure-exploiting derivatives (`crashnlp/derivatives.py`): each interval function's Jacobian derived once, "
+    "symbolically, mapped over the intervals and chained through the outer expressions, instead of CasADi colouring the whole graph; "
+    "the constraint Jacobian costs a sixth as much and building IPOPT's functions 0.05 s instead of 0.4 s (2 s for collocation).",
+    "Gauss-Newton Hessian 2 J^T J for least-squares fits (`solver.hessian: auto`), from the same Jacobians: "
+    "the exact Hessian was two thirds of IPOPT's time; same iterations, same optimum.",
+    "The model's loading end: the peak crush extrapolated from the split node with the signed crush rate, and the first interval "
+    "integrated by 8 RK4 steps (the front end engages within 1 mm of crush). The NLP optimum now matches the simulated model, "
+    "and its objective is below the baseline's instead of 0.4 % above.",
+    "Model functions compiled to C once per machine (`crashnlp/compiled.py`, cached under ~/.cache/crashnlp) and evaluated on numpy "
+    "buffers without conversions (CasADi's FunctionBuffer): the simulation's right-hand side, outputs and the batch.",
+    "Study: the fork server starts before the main process imports anything heavy, and the main process no longer imports "
+    "scipy.signal or matplotlib until it needs them.",
+]
+
+
+def before_after_md(before: dict, after: dict) -> list[str]:
+    return ["## Before and after this round of fixes", "",
+            f"Before: `results/bench-before.json`, the same benchmarks on the code as it stood. What changed:", "",
+            *(f"- {c}" for c in CHANGES), "", *_table(["what", "before", "after"], comparison(before, after)), ""]
 
 
 SECTIONS = {"identification": identification_md, "simulation": simulation_md, "studies": studies_md, "scaling": scaling_md}
 
 
-def markdown(results: dict) -> str:
+def markdown(results: dict, before: dict | None = None) -> str:
     m = results.get("machine", {})
     lines = ["# crashnlp benchmarks", "",
              f"Machine: {m.get('cpus')} CPUs, load average at start {m.get('load_average')} (other jobs share it), "
              f"CasADi {m.get('casadi')}, SciPy {m.get('scipy')}.{' QUICK smoke run: reduced sizes.' if results.get('quick') else ''}", "",
              "## Targets", "", *_table(["target", "measured", "result"], [[t, v, _met(ok)] for t, v, ok in targets(results)]), ""]
+    if before and not results.get("quick"):
+        lines += before_after_md(before, results)
     for name, fn in SECTIONS.items():
         if name in results:
             lines += fn(results[name])
@@ -114,7 +180,8 @@ def markdown(results: dict) -> str:
 
 
 def write(results: dict, json_path: Path, md_path: Path) -> None:
-    """All numbers to `json_path`, the summary to `md_path`."""
+    """All numbers to `json_path`, the summary to `md_path` (compared with `bench-before.json` beside it, if there)."""
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(results, indent=2, default=float))
-    md_path.write_text(markdown(results))
+    before = json_path.with_name("bench-before.json")
+    md_path.write_text(markdown(results, json.loads(before.read_text()) if before.exists() else None))

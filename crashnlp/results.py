@@ -18,6 +18,7 @@ from crashnlp.metrics import crash_metrics
 from crashnlp.optimize.identify import Solution, TestSolution
 from crashnlp.rating import iso18571
 from crashnlp.simulate import Response, write_response_csv
+from crashnlp.transcription.base import DYNAMICS
 from crashnlp.units import G0
 
 REPORT_UNITS = {"accel": ("g", 1 / G0), "velocity": ("m/s", 1.0), "displacement": ("m", 1.0), "pitch": ("deg", 180 / math.pi)}
@@ -90,7 +91,7 @@ def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: flo
     lbg, ubg = nlp.bounds()["lbg"], nlp.bounds()["ubg"]
     out = []
     for c in nlp.constraints:
-        if c.name.endswith((".initial", ".continuity", ".collocation", ".l1")):
+        if c.name.endswith((*DYNAMICS, ".l1")):
             continue
         rows = slice(c.start, c.start + c.size)
         lam, g, lo, hi = res.lam_g[rows], res.g[rows], lbg[rows], ubg[rows]

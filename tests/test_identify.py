@@ -149,6 +149,7 @@ def test_pitch_bound_below_the_optimum_becomes_active(data_file):
 
     active = {c["name"]: c for c in active_constraints(tight)}
     assert active["t56.bound.pitch.upper"]["multiplier"] > 0
+    assert not [n for n in active if "bound" not in n and "monotone" not in n]  # no dynamics reported as a bound
     assert "t56.bound.pitch.upper" not in {c["name"] for c in active_constraints(free)}
 
 

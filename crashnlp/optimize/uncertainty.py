@@ -16,8 +16,8 @@ import scipy.sparse.linalg as spla
 
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.problem import OptimalControl
+from crashnlp.transcription.base import DYNAMICS
 
-DYNAMICS = (".initial", ".impact", ".continuity", ".collocation")
 
 
 @dataclass

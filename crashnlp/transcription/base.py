@@ -19,6 +19,7 @@ from crashnlp.nlp import NLPBuilder
 
 STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01])  # smallest state scales: m, rad, m/s, rad/s
 IMPACT_SUBSTEPS = 8  # RK4 steps across the first interval, where the front end engages
+DYNAMICS = (".initial", ".impact", ".continuity", ".collocation")  # name endings of the dynamics constraints
 
 
 def rk4(rhs: ca.Function, theta: ca.SX, h: float, substeps: int) -> ca.Function:
