@@ -33,6 +33,7 @@ def run_crashnlp(method: str, intervals: int | None) -> dict:
         "ipopt_s": r.wall_s,
         "build_s": r.build_s,
         "iterations": r.iterations,
+        "profile": r.profile,
         "nlp_objective": r.objective,
         "target_mismatch": check_targets(targets, solution.residuals),
         "parameters": solution.parameters,

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import TextIO
 
 import casadi as ca
@@ -24,6 +24,7 @@ class SolveResult:
     iterations: int
     wall_s: float
     build_s: float
+    profile: dict[str, tuple[int, float]] = field(default_factory=dict)  # IPOPT's functions: calls, seconds
 
     @property
     def converged(self) -> bool:
@@ -140,4 +141,6 @@ def solve(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO
         iterations=int(stats.get("iter_count", 0)),
         wall_s=wall,
         build_s=built.build_s,
+        profile={k[len("t_wall_"):]: (int(stats.get("n_call_" + k[len("t_wall_"):], 0)), float(v))
+                 for k, v in stats.items() if k.startswith("t_wall_nlp_")},
     )

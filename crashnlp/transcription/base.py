@@ -18,7 +18,7 @@ from crashnlp.model.pendulum import NX, PendulumModel
 from crashnlp.nlp import NLPBuilder
 
 STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01])  # smallest state scales: m, rad, m/s, rad/s
-IMPACT_SUBSTEPS = 8  # RK4 steps across the first interval, where the front end engages
+IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
 DYNAMICS = (".initial", ".impact", ".continuity", ".collocation")  # name endings of the dynamics constraints
 
 
@@ -68,14 +68,15 @@ class Transcription(ABC):
             "unloading": ca.Function("rhs_unloading", [x, theta, xm], [self.model.rhs(x, p, xm)]),
         }
 
-    def _peak_crush(self, x: ca.MX, theta: ca.MX) -> ca.MX:
-        """Largest crush, from the split node (the last node before the data stop): the vertex
+    def _peak_crush(self, x: ca.MX, theta: ca.MX, h: float) -> ca.MX:
+        """Largest crush, from the split node (the last node before the stop): the vertex
         crush + v^2 / (2 a) of the crush parabola through the node, with its crush rate v and
-        crush deceleration a. v may have either sign: a model that stops a little before the
-        split node peaked just behind it, and the stiff unloading line is very sensitive
-        to where it starts."""
-        rate = -x[2]
+        crush deceleration a. v may be negative: a model that stopped a little before the
+        split node peaked just behind it (the stiff unloading line is very sensitive to where
+        it starts), but at most one interval behind (v >= -a h), which keeps the peak near
+        the node while a design moves its stop."""
         decel = ca.fmax(self.rhs["loading"](x, theta, 0)[2], 1.0)  # r'' > 0 while the crush slows
+        rate = ca.fmax(-x[2], -decel * h)
         return -x[0] + rate**2 / (2 * decel)
 
     @property
@@ -101,7 +102,7 @@ class Transcription(ABC):
         scale = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
         X = nlp.variable(f"{name}.x", (NX, n + 1), initial, scale=scale[:, None])
         nlp.constrain(f"{name}.initial", X[:, 0] - x0)
-        x_max = self._peak_crush(X[:, split], theta)
+        x_max = self._peak_crush(X[:, split], theta, float(times[1] - times[0]))
         self._impact(nlp, name, X, theta, times, scale)
         for phase, (a, b) in (("loading", (1, split)), ("unloading", (split, n))):
             if b > a:
