@@ -48,6 +48,9 @@ def slopes(rows: list[dict]) -> dict:
     """Slopes over the converged solves (a capped solve's time says nothing of the method):
     end-to-end, IPOPT, IPOPT per iteration, and the steepest step between neighbours."""
     ok = [dict(r, per_iteration=r["ipopt_s"] / max(r["iterations"], 1)) for r in rows if r["status"] == "ok"]
+    if len(ok) < 2:
+        nan = float("nan")
+        return {"wall_s": nan, "ipopt_s": nan, "ipopt_per_iteration": nan, "steepest_step": nan, "converged_runs": len(ok)}
     steps = [np.log(b["wall_s"] / a["wall_s"]) / np.log(b["intervals"] / a["intervals"]) for a, b in zip(ok, ok[1:])]
     return {"wall_s": slope(ok, "wall_s"), "ipopt_s": slope(ok, "ipopt_s"),
             "ipopt_per_iteration": slope(ok, "per_iteration"), "steepest_step": float(max(steps)), "converged_runs": len(ok)}
