@@ -65,16 +65,22 @@ def figure(out: dict, path) -> None:
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(10, 4))
     for method in TRANSCRIPTIONS:
-        rows = [r for r in out["intervals"] if r["method"] == method]
+        rows = [r for r in out["intervals"] if r["method"] == method and r["status"] == "ok"]
         n = [r["intervals"] for r in rows]
-        a.loglog(n, [r["wall_s"] for r in rows], "o-", label=f"{method} (slope {out['slopes'][method]['wall_s']:.2f})")
-        a.loglog(n, [r["ipopt_s"] for r in rows], "x--", label=f"{method}, IPOPT only")
+        line = a.loglog(n, [r["wall_s"] for r in rows], "o-", label=f"{method} (slope {out['slopes'][method]['wall_s']:.2f})")[0]
+        a.loglog(n, [r["ipopt_s"] for r in rows], "x--", color=line.get_color(), label=f"{method}, IPOPT only")
+        failed = [r for r in out["intervals"] if r["method"] == method and r["status"] != "ok"]
+        if failed:
+            a.loglog([r["intervals"] for r in failed], [r["wall_s"] for r in failed], "o", mfc="none", color=line.get_color(),
+                     label=f"{method}, not converged")
         rows = [r for r in out["tests"] if r["method"] == method]
         b.plot([r["tests"] for r in rows], [r["wall_s"] for r in rows], "o-", label=method)
     n = np.array(out["intervals_grid"], dtype=float)
     ref = out["intervals"][0]["wall_s"] * n / n[0]
     a.loglog(n, ref, ":", color="grey", label="linear")
     a.set(xlabel="intervals", ylabel="identification time (s)", title="pickup-56kph, 1 test")
+    a.set_xticks(out["intervals_grid"], [str(k) for k in out["intervals_grid"]])
+    a.minorticks_off()
     b.set(xlabel="tests", ylabel="identification time (s)", title=f"{out['tests_intervals']} intervals per test")
     for ax in (a, b):
         ax.grid(True, which="both", alpha=0.3)
