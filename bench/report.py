@@ -160,6 +160,8 @@ CHANGES = [
     "buffers without conversions (CasADi's FunctionBuffer): the simulation's right-hand side, outputs and the batch.",
     "Study: the fork server starts before the main process imports anything heavy, and the main process no longer imports "
     "scipy.signal or matplotlib until it needs them.",
+    "IPOPT's MUMPS orders by approximate minimum fill (`mumps_pivot_order: 2`) instead of its automatic choice: collocation at "
+    "800 intervals 12 iterations instead of 38, a quarter of the time per factorization.",
 ]
 
 
