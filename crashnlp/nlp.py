@@ -57,6 +57,7 @@ class NLPBuilder:
     mapped_blocks: list[MappedBlock] = field(default_factory=list)
     squares: list[ca.MX] = field(default_factory=list)  # least-squares residuals
     rest: ca.MX = field(default_factory=lambda: ca.MX(0))  # the other objective terms
+    _derivatives: tuple[int, Derivatives] | None = field(default=None, init=False, repr=False)
     _nz: int = 0
     _ng: int = 0
 
@@ -118,11 +119,9 @@ class NLPBuilder:
 
     def derivatives(self) -> Derivatives:
         """Structured derivatives of this NLP, built once for its current blocks."""
-        cached = getattr(self, "_derivatives", None)
-        if cached is None or cached[0] != len(self.mapped_blocks):
-            cached = (len(self.mapped_blocks), Derivatives(self.decision, self.mapped_blocks))
-            self._derivatives = cached
-        return cached[1]
+        if self._derivatives is None or self._derivatives[0] != len(self.mapped_blocks):
+            self._derivatives = (len(self.mapped_blocks), Derivatives(self.decision, self.mapped_blocks))
+        return self._derivatives[1]
 
     def bounds(self) -> dict[str, np.ndarray]:
         cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0)

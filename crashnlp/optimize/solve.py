@@ -95,8 +95,6 @@ def hessian_kind(nlp: NLPBuilder, spec: Solver) -> str:
 
 def derivative_options(nlp: NLPBuilder, spec: Solver) -> dict:
     """Structure-exploiting constraint Jacobian, and the Gauss-Newton Hessian where chosen."""
-    if spec.expand:  # an SX graph is differentiated well by CasADi itself
-        return {}
     d = nlp.derivatives()
     problem = nlp.problem()
     opts = {"jac_g": d.jac_g(problem["g"])}

@@ -315,7 +315,7 @@ class Solver(Strict):
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
-    expand: bool = Field(False, description="expand the NLP to SX: slower to build, faster per iteration")
+    expand: bool = Field(False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)")
 
 
 class Simulation(Strict):
