@@ -60,9 +60,8 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
     """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options.
 
     Its right-hand side is the model's, compiled (crashnlp.compiled)."""
-    key = _key(grid, options)
-    cache = model.__dict__.setdefault("_integrators", {})
-    if key not in cache:
+
+    def build() -> ca.Function:
         rhs = _cached(model, ("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
         x, p = ca.MX.sym("x", NX + 3), ca.MX.sym("p", model.layout.size)
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
@@ -72,8 +71,9 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
                     "linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
         else:
             opts = {"number_of_finite_elements": options.substeps}
-        cache[key] = ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
-    return cache[key]
+        return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
+
+    return _cached(model, ("integrator", _key(grid, options)), build)
 
 
 def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:

@@ -93,10 +93,9 @@ def hessian_kind(nlp: NLPBuilder, spec: Solver) -> str:
     return spec.hessian
 
 
-def derivative_options(nlp: NLPBuilder, spec: Solver) -> dict:
+def derivative_options(nlp: NLPBuilder, problem: dict, spec: Solver) -> dict:
     """Structure-exploiting constraint Jacobian, and the Gauss-Newton Hessian where chosen."""
     d = nlp.derivatives()
-    problem = nlp.problem()
     opts = {"jac_g": d.jac_g(problem["g"])}
     if hessian_kind(nlp, spec) == "gauss-newton":
         opts["hess_lag"] = d.gauss_newton(nlp.residuals, nlp.rest, problem["g"].numel())
@@ -115,14 +114,15 @@ class BuiltSolver:
 def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO | None = None) -> BuiltSolver:
     """nlpsol over the NLP; MX graph with mapped SX interval functions."""
     t0 = time.perf_counter()
+    problem = nlp.problem()
     opts = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
-    opts.update(derivative_options(nlp, spec))
+    opts.update(derivative_options(nlp, problem, spec))
     callback = None
     if progress is not None:
         b = nlp.bounds()
         callback = Progress(len(b["x0"]), len(b["lbg"]), b["lbg"], b["ubg"], progress)
         opts["iteration_callback"] = callback
-    function = ca.nlpsol("crashnlp", "ipopt", nlp.problem(), opts)
+    function = ca.nlpsol("crashnlp", "ipopt", problem, opts)
     return BuiltSolver(function, time.perf_counter() - t0, callback)
 
 
