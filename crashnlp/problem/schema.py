@@ -105,8 +105,9 @@ class Vehicle(Strict):
     cg_to_front_axle: Q("m")
     cg_to_rear_axle: Q("m")
     suspension: Suspension = Suspension()
-    vertical_force_ratio: Q("") = Field(
-        0.0, description="vertical barrier force as a fraction of the crush force; > 0 lifts the CG (nose-down)"
+    crush_offset: Q("m") = Field(
+        0.0,
+        description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
     gravity: Q("m/s^2") = 9.80665
 
