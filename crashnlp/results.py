@@ -139,6 +139,7 @@ def parameter_uncertainty(solution: Solution) -> dict:
         "std_errors": _named(solution, cov.std),
         "correlation": {"labels": labels.tolist(), "matrix": np.round(cov.correlation, 6).tolist()},
         "not_identified": labels[~cov.identified].tolist(),
+        "profiles": solution.profiles,
         "covariance": {"method": "sandwich, Newey-West over the nodes of each test", "lags": cov.bandwidth},
         **out,
     }

@@ -14,6 +14,7 @@ from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import Residual, add_fit_objective
 from crashnlp.optimize.problem import OptimalControl
 from crashnlp.optimize.solve import SolveResult, solve
+from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
 from crashnlp.optimize.verify import Verification, verify
 
@@ -49,6 +50,7 @@ class Solution:
     residuals: list[Residual] = field(default_factory=list)
     covariance: Covariance | None = None
     verification: Verification | None = None
+    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
 
     @property
     def ok(self) -> bool:
@@ -126,4 +128,6 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = finish(case, ocp, result, theta0, residuals)
     solution.covariance = SensitivityEvaluator(ocp, residuals)(result.z).covariance()
+    if case.problem.uncertainty.profile and result.converged:
+        solution.profiles = profiles(solution)
     return solution

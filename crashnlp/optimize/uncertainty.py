@@ -40,6 +40,7 @@ NULL_SHARE = 1e-3  # a parameter with this share of a null direction is not iden
 @dataclass
 class Covariance:
     matrix: np.ndarray  # SI, inf on the rows/columns of parameters not identified
+    hessian_inverse: np.ndarray  # (J^T W J)^+, SI: the curvature of the objective the profiles see
     identified: np.ndarray  # bool per parameter
     bandwidth: dict[str, int]  # Newey-West lags used per test
 
@@ -105,7 +106,7 @@ class Sensitivity:
         cov = H_inv @ M @ H_inv
         cov[~identified, :] = np.inf
         cov[:, ~identified] = np.inf
-        return Covariance(cov, identified, bandwidth)
+        return Covariance(cov, H_inv, identified, bandwidth)
 
     def _scores(self, weights: np.ndarray) -> dict[str, np.ndarray]:
         """Per test, the score of every node: sum over channels of w e J_row (nodes x params)."""

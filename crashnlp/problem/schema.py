@@ -319,6 +319,15 @@ class Solver(Strict):
     expand: bool = Field(False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)")
 
 
+class Uncertainty(Strict):
+    """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
+
+    profile: list[str] = Field(default_factory=list, description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]")
+    points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
+    executor: Literal["local", "dask"] = Field("local", description="where the profiles run in parallel (the study executors)")
+    workers: int | None = Field(None, ge=1)
+
+
 class Simulation(Strict):
     integrator: Literal["cvodes", "rk"] = "cvodes"
     substeps: int = Field(4, ge=1, description="rk sub-steps per output step")
@@ -361,6 +370,7 @@ class Problem(Strict):
     transcription: Transcription = Field(default_factory=lambda: MultipleShooting(method="multiple-shooting"))
     solver: Solver = Solver()
     simulation: Simulation = Simulation()
+    uncertainty: Uncertainty = Uncertainty()
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
