@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.errors import InputError
-from crashnlp.study.cli import add_parser as add_study_parser
+from crashnlp.outputs import OUTPUT
+from crashnlp.studies.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
 
@@ -37,16 +38,17 @@ def _read_params(path: str) -> dict:
 
 def cmd_simulate(args) -> int:
     from crashnlp.case import Case
+    from crashnlp.problem import load_problem
     from crashnlp.results import write_simulation
 
-    case = Case.load(args.problem)
+    problem = load_problem(args.problem)
     if args.params:
         params = _read_params(args.params)
-        for path, value in params.items():
-            try:
-                case.base = case.layout.with_values(case.base, {path: value})
-            except (KeyError, ValueError):
-                raise InputError(f"{args.params}: parameters.{path}: not a parameter of {case.name}") from None
+        try:
+            problem = problem.with_values(params)
+        except KeyError as exc:
+            raise InputError(f"{args.params}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
+    case = Case(problem)
     responses = case.simulate(dt=args.dt)
     out = _out(args, case.name)
     summary = write_simulation(case, responses, out)
@@ -83,48 +85,49 @@ def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
 
-def _print_solution(summary: dict) -> None:
-    s = summary["solver"]
-    print(
-        f"{summary['name']}: {summary['status']} (IPOPT {s['return_status']}, {s['iterations']} iterations, "
-        f"objective {s['objective']:.6g}, solve {s['wall_s']:.2f} s + build {s['build_s']:.2f} s)"
-    )
-    for path, value in summary["parameters"].items():
-        std = summary["std_errors"].get(path)
+def _print_solution(result) -> None:
+    """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
+    s = result.solver
+    timing = f"solve {s.wall_s:.2f} s + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
+    objective = f"{s.objective:.6g}" if s.objective is not None else "-"
+    print(f"{result.name}: {result.status} (IPOPT {s.return_status}, {s.iterations} iterations, objective {objective}, {timing})")
+    for path, value in result.parameters.items():
+        std = result.std_errors.get(path)
         text = _numbers(value, 5)
         if std is not None:
-            text += f"  (std {_numbers(std, 2)})"
+            text += f"  (std {_numbers(np.array(std, dtype=float), 2)})"
         print(f"  {path} = {text}")
-    for name, t in summary["tests"].items():
-        model, data = t["metrics"]["model"], t["metrics"]["data"]
+    if result.not_identified:
+        print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    for name, t in result.tests.items():
+        model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
         for key, label, f in METRIC_ROWS:
             print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
-        if t["fit"]:
-            print("    rmse      " + ", ".join(f"{c} {v['rmse']:.3g} {v['unit']}" for c, v in t["fit"].items()))
-            print("    ISO 18571 " + ", ".join(f"{c} {v['iso18571']['overall']:.3f}" for c, v in t["fit"].items() if v["iso18571"]))
-    for c in summary["active_constraints"]:
-        print(f"  active: {c['name']} at {c['points']} points, multiplier {c['multiplier']:.4g}")
+        if t.fit:
+            print("    rmse      " + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items()))
+            print("    ISO 18571 " + ", ".join(f"{c} {f.iso18571['overall']:.3f}" for c, f in t.fit.items() if f.iso18571))
+        if t.energy:
+            print(f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ")
+    for c in result.active_constraints:
+        print(f"  active: {c.name} at {c.points} points, multiplier {c.multiplier:.4g}")
 
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary."""
-    from crashnlp.case import Case
-    from crashnlp.optimize import solve_case
+    from crashnlp.api import solve
     from crashnlp.problem import load_problem
-    from crashnlp.results import write_solution
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
-    case = Case(problem)
-    solution = solve_case(case, verbose=args.verbose)
-    out = _out(args, case.name)
-    summary = write_solution(solution, out)
-    _print_solution(summary)
+    result = solve(problem, verbose=args.verbose, progress=sys.stdout)
+    out = _out(args, result.name)
+    result.save(out)
+    _print_solution(result)
     print(f"wrote {out}/")
-    if not solution.ok:
-        print(f"crashnlp: {case.name}: {solution.status}", file=sys.stderr)
+    if not result.ok:
+        print(f"crashnlp: {result.name}: {result.status}", file=sys.stderr)
         return 1
     return 0
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from crashnlp.study.executors import EXECUTORS
+from crashnlp.studies.executors import EXECUTORS
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)
@@ -57,12 +57,12 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
     from crashnlp.errors import InputError
-    from crashnlp.study.executors import start_early
+    from crashnlp.studies.executors import start_early
 
     if args.executor == "local":
         start_early()
-    from crashnlp.study.run import RESULTS, run_study
-    from crashnlp.study.spec import load_study
+    from crashnlp.studies.run import RESULTS, run_study
+    from crashnlp.studies.spec import load_study
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers: must be at least 1")
