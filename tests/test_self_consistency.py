@@ -11,7 +11,7 @@ import csv
 
 import numpy as np
 import pytest
-from conftest import BASE, merge
+from builders import BASE, merge
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
