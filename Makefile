@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test identify simulate study design bench readme-figures clean
+.PHONY: demo test lint identify simulate study design bench readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -42,6 +42,11 @@ readme-figures: demo identify study
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check crashnlp tests bench examples
+	$(BIN)/ruff format --check crashnlp tests bench examples
+	$(BIN)/mypy
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -4,6 +4,7 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -67,7 +68,7 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
-            opts = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
+            opts: dict[str, Any] = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
                     "linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
         else:
             opts = {"number_of_finite_elements": options.substeps}
