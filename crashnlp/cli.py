@@ -99,6 +99,9 @@ def _print_solution(result) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    if result.at_bound:
+        pulls = ", ".join(f"{label} ({pull:.2g} std)" for label, pull in result.at_bound.items())
+        print(f"  at a bound (how far past it the data pull): {pulls}")
     for name, t in result.tests.items():
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
