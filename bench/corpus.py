@@ -58,11 +58,11 @@ class Vehicle:
     seed: int
 
 
-def random_vehicle(index: int, seed: int) -> Vehicle:
-    """One random vehicle: 900-3200 kg, 32-64 km/h, geometry and load curve to match."""
+def random_vehicle(index: int, seed: int, mass: float | None = None, speed: float | None = None) -> Vehicle:
+    """One random vehicle: 900-3200 kg, 32-64 km/h (or the mass and speed given), geometry and load curve to match."""
     rng = np.random.default_rng([seed, index])
-    mass = rng.uniform(900.0, 3200.0)
-    speed = rng.uniform(32.0, 64.0) / 3.6
+    mass = rng.uniform(900.0, 3200.0) if mass is None else mass
+    speed = rng.uniform(32.0, 64.0) / 3.6 if speed is None else speed
     size = (mass - 900.0) / 2300.0
     wheelbase = 2.35 + 1.1 * size + rng.uniform(-0.1, 0.1)
     front = rng.uniform(0.38, 0.5) * wheelbase
