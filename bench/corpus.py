@@ -17,7 +17,7 @@ structural ringing (two decaying sines) and white noise, velocity, displacement 
 from __future__ import annotations
 
 import csv
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -178,8 +178,3 @@ def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
         w = csv.writer(fh)
         w.writerow(columns)
         w.writerows(zip(*(np.round(c, 7) for c in columns.values())))
-
-
-def describe(v: Vehicle) -> dict:
-    """The vehicle as plain numbers (JSON)."""
-    return asdict(v)

@@ -28,7 +28,6 @@ import numpy as np
 import yaml
 
 from crashnlp.autoinit import PITCH_LEVER
-from crashnlp.data.channels import DataError
 from crashnlp.data.load import load_test_data
 from crashnlp.errors import InputError
 from crashnlp.metrics import STOPPED, zero_crossing
@@ -89,9 +88,11 @@ ACCEL_PLACES = (("REAR SEAT", "rear seat crossmember"), ("CG", "vehicle CG"), ("
 
 
 def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
-    """Primary longitudinal accelerometers of vehicle 1 at the rear seat (else CG, floor, sill)."""
+    """Primary longitudinal accelerometers of vehicle 1 at the rear seat (else CG, floor, sill), not the engine's."""
+    from crashnlp.data.nhtsa_ev5 import NO_DATA
+
     usable = [c for c in curves.values() if c.vehicle == 1 and c.sensor == "AC" and c.axis.startswith("X")
-              and c.primary and c.status not in ("NO", "CF") and "ENGINE" not in c.comment.upper()]
+              and c.primary and c.status not in NO_DATA and "ENGINE" not in c.comment.upper()]
     for key, place in ACCEL_PLACES:
         chosen = [c for c in usable if key in c.comment.upper() or key in c.location.upper()]
         if chosen:
@@ -192,7 +193,7 @@ def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
         first = path.read_text(errors="replace").splitlines()[0]
     except (OSError, IndexError):
         raise InputError(f"{path}: cannot read a header line") from None
-    header = [h.strip() for h in re.split(r"[,;\t]", first)]
+    header = [h.strip() for h in first.split(max(",;\t", key=first.count))]  # as crashnlp.data.csv_reader
     time = _column(header, "time", columns.get("time"))
     if time is None:
         raise InputError(f"{path}: no time column (give --column time=NAME:UNIT)")
@@ -240,12 +241,12 @@ def _data_spec(draft: Draft, path: Path) -> DataSpec:
 
 
 def _timing(draft: Draft, path: Path, speed: float) -> None:
-    """Bias window (pre-impact record), and a fit window of twice the stop time."""
+    """Bias window (at least 10 ms of pre-impact record), and a fit window of twice the stop time."""
     spec = _data_spec(draft, path)
     data = load_test_data(spec, speed)
     start = max(c.time[0] for c in data.channels.values())
     end = min(c.time[-1] for c in data.channels.values())
-    if start <= -0.01 and "accel" in data.channels and "column" not in draft.data["channels"]["accel"]:
+    if start <= -0.01 and "accel" in data.channels:
         draft.data["bias_window"] = [max(start, -BIAS_SPAN), 0.0]
         data = load_test_data(_data_spec(draft, path), speed)
     v = data.channels["velocity"]
@@ -288,7 +289,7 @@ def fill_geometry(draft: Draft) -> dict[str, tuple[float, str]]:
 
 def _resolve(draft: Draft, options: Options, path: Path) -> None:
     """Mass and speed from the options, else the header, else (speed) the velocity channel."""
-    for key, value, unit in (("mass", options.mass, "kg"), ("speed", options.speed, "m/s")):
+    for key, value in (("mass", options.mass), ("speed", options.speed)):
         if value is not None:
             draft.vehicle[key] = (value, "given (--" + key + ")")
     if "speed" not in draft.vehicle and "column" in draft.data["channels"].get("velocity", {}):
@@ -299,8 +300,8 @@ def _resolve(draft: Draft, options: Options, path: Path) -> None:
             raise InputError(f"{path}: no {key} in the data; give --{key}")
 
 
-def draft_for(path: Path, options: Options) -> tuple[Draft, str, dict]:
-    """The draft of a data set: format, channels, vehicle values and comments; plus the suspension."""
+def draft_for(path: Path, options: Options) -> tuple[Draft, dict]:
+    """The draft of a data set (format, channels, vehicle values and comments) and its suspension."""
     fmt = options.format or guess_format(path)
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
@@ -313,7 +314,7 @@ def draft_for(path: Path, options: Options) -> tuple[Draft, str, dict]:
     _resolve(draft, options, path)
     _timing(draft, path, draft.vehicle["speed"][0])
     suspension = fill_geometry(draft)
-    return draft, fmt, suspension
+    return draft, suspension
 
 
 # ------------------------------------------------------------------ the problem file
@@ -404,7 +405,7 @@ def init_problem(data: Path, out: Path, options: Options) -> Problem:
     data = Path(data)
     if not data.exists():
         raise InputError(f"{data}: file not found")
-    draft, _, suspension = draft_for(data, options)
+    draft, suspension = draft_for(data, options)
     out_dir = Path(out).resolve().parent
     problem = Case(problem_from_dict(problem_dict(draft, suspension, data), out_dir, source=str(data))).problem
     text = render(draft, problem, os.path.relpath(data.resolve(), out_dir))
