@@ -112,3 +112,16 @@ def test_repaired_start_reaches_the_measured_crush():
     start = case.layout.with_values(case.base, repaired_start(case))
     reached = np.max(case.simulate(start)["56kph"]["crush"])
     assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
+
+
+def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_case):
+    """Without displacement or velocity channels the crush is the acceleration integrated twice from the impact speed."""
+    raw = pickup(model={"spring": {"crush_breakpoints": None, "values": None}}, estimate=None)
+    channels = raw["tests"][0]["data"]["channels"]
+    for name in ("velocity", "displacement", "pitch"):
+        del channels[name]
+    accel_only = Case(problem_from_dict(raw, PICKUP.parent))
+    (measured,) = case_pulses(pickup_case)
+    (integrated,) = case_pulses(accel_only)
+    assert integrated.max_crush == pytest.approx(measured.max_crush, rel=0.01)
+    assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_crush, rel=0.01)
