@@ -38,7 +38,7 @@ from crashnlp.errors import InputError
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem, Vehicle
 
 if TYPE_CHECKING:
-    from crashnlp.case import Case
+    from crashnlp.case import Case, TestCase
 
 DEFAULT_COUNT = 8
 REACH = 1.1
@@ -204,7 +204,7 @@ def repaired_start(case: "Case") -> dict[str, Any]:
     """Spring values at the case's own breakpoints and unloading stiffness from its data.
 
     For a start whose spring stops the model short of the measured crush (parameters with a
-    zero derivative): `case.layout.with_values(case.base, repaired_start(case))`.
+    zero derivative): `case.layout.with_values(case.base, repaired_start(case))`, or `repair_start`.
     """
     pulses = case_pulses(case)
     spring, damper = case.problem.model.spring, case.problem.model.damper
@@ -214,12 +214,31 @@ def repaired_start(case: "Case") -> dict[str, Any]:
     }
 
 
+def repair_start(case: "Case", reach: float = 0.9) -> str | None:
+    """Replace a start whose simulated crush falls short of `reach` times the measured crush of
+    some test by `repaired_start`; return the one line that says so, or None when it reaches.
+
+    Such a start leaves the breakpoints past its own crush with a zero derivative. Changes
+    `case.base` in place (an `estimate` entry's own `initial` still wins over it)."""
+    simulated = case.simulate()
+    for test in case.tests:
+        measured = measured_pulse(case, test)
+        model = float(np.max(simulated[test.name]["crush"]))
+        if measured is not None and model < reach * measured.max_crush:
+            case.base = case.layout.with_values(case.base, repaired_start(case))
+            return (f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
+                    f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
+                    "measured force-crush curve")
+    return None
+
+
+def measured_pulse(case: "Case", test: "TestCase") -> Pulse | None:
+    """The measured pulse of one test of a case; None without accel or velocity data."""
+    if test.data is None:
+        return None
+    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", case.problem.vehicle.mass))
+
+
 def case_pulses(case: "Case") -> list[Pulse]:
     """The measured pulse of every test of a case that has accel or velocity data."""
-    out = []
-    for test in case.tests:
-        mass = test.overrides.get("vehicle.mass", case.problem.vehicle.mass)
-        p = pulse(test.data, test.speed, mass) if test.data is not None else None
-        if p is not None:
-            out.append(p)
-    return out
+    return [p for test in case.tests if (p := measured_pulse(case, test)) is not None]

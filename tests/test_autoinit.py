@@ -13,6 +13,7 @@ from crashnlp.autoinit import (
     breakpoints,
     case_pulses,
     complete,
+    repair_start,
     repaired_start,
     spring_values,
     unloading_stiffness,
@@ -105,13 +106,16 @@ def test_complete_keeps_what_the_problem_gives(pickup_case):
 
 
 def test_repaired_start_reaches_the_measured_crush():
-    """The pickup's 500 kN start at its own breakpoints, repaired from the data, crushes as far as the data."""
+    """A stiff start at the pickup's own breakpoints, repaired from the data, crushes as far as the data."""
     raw = pickup(model={"spring": {"values": ["1500 kN"] * 7}})  # stops far short of the measured 0.593 m
     case = Case(problem_from_dict(raw, PICKUP.parent))
     short = np.max(case.simulate()["56kph"]["crush"])
     start = case.layout.with_values(case.base, repaired_start(case))
     reached = np.max(case.simulate(start)["56kph"]["crush"])
     assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
+    note = repair_start(case)
+    assert note.startswith(f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm")
+    assert np.array_equal(case.base, start) and repair_start(case) is None  # repaired once, then it reaches
 
 
 def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_case):
