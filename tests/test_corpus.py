@@ -47,9 +47,9 @@ def test_issue_case_pickup_problem_on_a_compact(tmp_path):
         c_front=4.5e3, c_rear=4e3)
     _, truth = write_test(compact, tmp_path)
     raw = read_yaml(ROOT / "problems" / "pickup-56kph.yaml")
-    raw["vehicle"].update(mass="1350 kg", speed="48 km/h", pitch_inertia="1900 kg*m^2", cg_to_impact="1.95 m",
-                          cg_above_impact="0.12 m", cg_to_front_axle="1.05 m", cg_to_rear_axle="1.55 m",
-                          suspension={"k_front": "45 kN/m", "k_rear": "38 kN/m", "c_front": "4.5 kN*s/m", "c_rear": "4 kN*s/m"})
+    raw["vehicle"] = {"mass": "1350 kg", "speed": "48 km/h", "pitch_inertia": "1900 kg*m^2", "cg_to_impact": "1.95 m",
+                      "cg_above_impact": "0.12 m", "cg_to_front_axle": "1.05 m", "cg_to_rear_axle": "1.55 m",
+                      "suspension": {"k_front": "45 kN/m", "k_rear": "38 kN/m", "c_front": "4.5 kN*s/m", "c_rear": "4 kN*s/m"}}
     raw["tests"] = [{"name": "t1", "speed": "48 km/h", "data": {**raw["tests"][0]["data"], "file": f"{compact.name}.csv"}}]
     raw.pop("reference")
     path = tmp_path / "pickup-on-compact.yaml"
