@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.data.channels import TestData
-from crashnlp.data.signal import cumtrapz
+from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem, Vehicle
 
@@ -81,14 +81,17 @@ class Pulse:
 
 
 def pulse(data: TestData, speed: float, mass: float) -> Pulse | None:
-    """The crash pulse of one test's data; None without accel or velocity."""
+    """The crash pulse of one test's data from impact on; None without accel or velocity.
+
+    Velocity without a velocity channel is the acceleration integrated from the impact speed at
+    t = 0; crush without a displacement channel is the velocity integrated, zero at t = 0."""
     ch = data.channels
     base = ch.get("accel") or ch.get("velocity")
     if base is None:
         return None
     t = base.time
     at = lambda name: np.interp(t, ch[name].time, ch[name].values)  # noqa: E731
-    v = at("velocity") if "velocity" in ch else speed + cumtrapz(t, at("accel"))
+    v = at("velocity") if "velocity" in ch else integrate(t, at("accel"), speed, max(0.0, t[0]))[0]
     a = at("accel") if "accel" in ch else np.gradient(v, t)
     x = at("displacement") if "displacement" in ch else cumtrapz(t, v)
     after = t >= 0.0
