@@ -206,6 +206,8 @@ def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
         channels["accel"]["filter"] = "CFC60"
     draft = Draft(path.stem, {"time": {"column": time[0], "unit": time[1]}, "channels": channels})
     draft.comments = {ch: f"column {name!r} in {unit}" for ch, (name, unit) in found.items()}
+    if "pitch" in draft.comments:
+        draft.comments["pitch"] += ", taken as nose-down positive"
     for ch in ("velocity", "displacement"):
         if ch not in channels and "accel" in channels:
             channels[ch] = {"derive": "integrate"}
@@ -252,10 +254,13 @@ def _timing(draft: Draft, path: Path, speed: float) -> None:
     v = data.channels["velocity"]
     after = v.time >= 0.0
     stop = zero_crossing(v.time[after], v.values[after], STOPPED * speed)
-    wanted = WINDOW_MIN if math.isnan(stop) else max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)
-    draft.data["window"] = [0.0, round(min(end, wanted), 4)]
-    draft.notes.append(f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms "
-                       f"({'about twice the stop time ' + format(stop * 1e3, '.1f') + ' ms' if not math.isnan(stop) else 'the record'}).")
+    if math.isnan(stop):
+        draft.data["window"] = [0.0, float(end)]
+        draft.notes.append("Fit window: the whole record after impact (the vehicle does not stop in it).")
+        return
+    draft.data["window"] = [0.0, round(min(end, max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)), 4)]
+    draft.notes.append(f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, "
+                       f"{stop * 1e3:.1f} ms).")
 
 
 def vehicle_class(mass: float) -> tuple[float, str, float, float, float]:
