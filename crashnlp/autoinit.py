@@ -20,8 +20,8 @@ The given problem is never changed. What is filled, and how:
   largest crush comes back as the rebound, m v_r^2 / 2, so k = F^2 / (m v_r^2), F the
   measured force at the largest crush and v_r the rebound velocity, within UNLOADING_BOUNDS;
   without a measured rebound the nominal 30 MN/m.
-- `estimate` omitted (identification): the spring values within [0, 3 times the largest
-  initial value, at least 1 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
+- `estimate` omitted (identification): the spring values within [0, 5 times the largest
+  initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
   and where a test has a pitch channel the CG height above the impact point, the pitch
   inertia and the pitch lever within the physical bounds of PITCH_BOUNDS.
 """
@@ -45,7 +45,7 @@ REACH = 1.1
 DAMPING_PER_MASS = 2.0  # 1/s: nominal damper per kg of vehicle
 NOMINAL_UNLOADING = 3.0e7  # N/m
 UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
-SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 3.0, 1.0e6  # upper bound of spring forces: 3 x the start, >= 1 MN
+SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
 
 # The pitch lever: the first of these the vehicle schema has. `vehicle.crush_offset` (m) is the
 # offset of the crush force's line of action from the pivot-CG line, positive nose-down; the
