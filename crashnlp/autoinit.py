@@ -226,7 +226,7 @@ def repair_start(case: "Case", reach: float = 0.9) -> str | None:
     simulated = case.simulate()
     for test in case.tests:
         measured = measured_pulse(case, test)
-        model = float(np.max(simulated[test.name]["crush"]))
+        model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
         if measured is not None and model < reach * measured.max_crush:
             case.base = case.layout.with_values(case.base, repaired_start(case))
             return (f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "

@@ -96,7 +96,7 @@ def _print_solution(result) -> None:
         std = result.std_errors.get(path)
         text = _numbers(value, 5)
         if std is not None:
-            text += f"  (std {_numbers(np.array(std, dtype=float), 2)})"
+            text += f"  (std {_numbers(std, 2)})"
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")

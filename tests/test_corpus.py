@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 import yaml
-from conftest import ROOT
+from builders import ROOT
 
 from bench.corpus import random_vehicle
 from bench.robustness import SEED, judge, write_test
@@ -35,11 +35,7 @@ def test_minimal_problem_identifies_a_corpus_vehicle(index, tmp_path):
 # The issue's failing case: the shipped pickup problem (its breakpoints to 0.7 m, 500 kN initial
 # values) re-pointed at a 1350 kg compact at 48 km/h. The flat 500 kN spring stops the initial
 # simulation near 0.25 m, short of the measured crush, so the breakpoints past it have a zero
-# derivative at the start: identify refused it ("not identifiable ... zero derivative") before
-# main's f2a7507, and IPOPT runs to its iteration limit from that start after it. It passes once
-# identify repairs such a start (crashnlp.autoinit.repair_start: checked, it then meets every
-# target); strict, so the mark must go when that lands.
-@pytest.mark.xfail(strict=True, reason="issue 11 part 2: identify does not yet repair a start that falls short of the data")
+# derivative at the start. identify repairs such a start from the data (and says so).
 def test_issue_case_pickup_problem_on_a_compact(tmp_path):
     compact = dataclasses.replace(
         random_vehicle(0, SEED, mass=1350.0, speed=48 / 3.6), pitch_inertia=1900.0, cg_to_impact=1.95,

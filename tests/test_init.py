@@ -6,7 +6,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from conftest import ROOT
+from builders import ROOT
 from test_readers import CODE_X, _mme_set
 
 from bench.corpus import random_vehicle, simulate, write_csv
@@ -86,8 +86,10 @@ def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
 
 
 def test_print_solution_shows_a_solve_that_never_ran(capsys):
-    summary = {"name": "x", "status": "not identifiable", "parameters": {"model.spring.values": [1.0, None]},
-               "std_errors": {}, "tests": {}, "active_constraints": [],
-               "solver": {"return_status": None, "iterations": 0, "objective": None, "wall_s": None, "build_s": None}}
-    _print_solution(summary)
-    assert "objective -, solve - s + build - s" in capsys.readouterr().out
+    from crashnlp.result import Result, SolverStats
+
+    result = Result("x", "identify", "solver failed: Invalid_Number_Detected", SolverStats(None, 0, None, None, None), {},
+                    {"model.spring.values": [1.0, None]}, {}, {}, (), {}, (), {})
+    _print_solution(result)
+    out = capsys.readouterr().out
+    assert "(IPOPT -, 0 iterations, objective -, not solved)" in out and "[1 nan]" in out

@@ -47,6 +47,7 @@ def result_of(solution: Solution) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
+        notes=tuple(solution.notes),
     )
 
 
