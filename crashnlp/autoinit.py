@@ -47,11 +47,11 @@ NOMINAL_UNLOADING = 3.0e7  # N/m
 UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
 SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
 
-# The pitch lever: the first of these the vehicle schema has. `vehicle.crush_offset` (m) is the
-# offset of the crush force's line of action from the pivot-CG line, positive nose-down; the
-# older `vehicle.vertical_force_ratio` is the vertical barrier force over the crush force.
-PITCH_LEVERS = {"vehicle.crush_offset": (-0.3, 0.5), "vehicle.vertical_force_ratio": (-0.5, 0.5)}
-PITCH_LEVER = next(path for path in PITCH_LEVERS if path.split(".")[1] in Vehicle.model_fields)
+# The pitch lever: the offset of the crush force's line of action from the pivot-CG line (m),
+# positive nose-down. Its bounds are those of an effective lever: the pendulum's body pitches
+# with the pivot-CG line, so it needs a larger lever than the rails' height below the CG.
+PITCH_LEVER = "vehicle.crush_offset"
+PITCH_LEVER_BOUNDS = (-0.5, 1.0)  # m
 # CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
 # gyration in pitch (0.9 m for a city car to 1.8 m for a long van; sqrt(I / m)).
 CG_ABOVE_IMPACT_BOUNDS = (-0.1, 0.5)  # m
@@ -171,7 +171,7 @@ def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, Estimat
         lo, hi = PITCH_GYRATION_BOUNDS
         out["vehicle.cg_above_impact"] = EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS)
         out["vehicle.pitch_inertia"] = EstimateSpec(bounds=(mass * lo**2, mass * hi**2))
-        out[PITCH_LEVER] = EstimateSpec(bounds=PITCH_LEVERS[PITCH_LEVER])
+        out[PITCH_LEVER] = EstimateSpec(bounds=PITCH_LEVER_BOUNDS)
     return out
 
 
