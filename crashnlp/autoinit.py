@@ -217,17 +217,20 @@ def repaired_start(case: "Case") -> dict[str, Any]:
     }
 
 
-def repair_start(case: "Case", reach: float = 0.9) -> str | None:
-    """Replace a start whose simulated crush falls short of `reach` times the measured crush of
-    some test by `repaired_start`; return the one line that says so, or None when it reaches.
+def repair_start(case: "Case") -> str | None:
+    """Replace a start that leaves spring values with a zero derivative although the data reach
+    them by `repaired_start`; return the one line that says so, or None when the start serves.
 
-    Such a start leaves the breakpoints past its own crush with a zero derivative. Changes
-    `case.base` in place (an `estimate` entry's own `initial` still wins over it)."""
+    A breakpoint value moves the force from the breakpoint before it on, so it has a zero
+    derivative when the start's crush stops short of that breakpoint; the data reach it when
+    their crush goes past it. Changes `case.base` in place (an `estimate` entry's own
+    `initial` still wins over it)."""
     simulated = case.simulate()
+    breakpoints = case.base[case.layout.index("model.spring.crush_breakpoints")][:-1]
     for test in case.tests:
         measured = measured_pulse(case, test)
         model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
-        if measured is not None and model < reach * measured.max_crush:
+        if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
             case.base = case.layout.with_values(case.base, repaired_start(case))
             return (f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
                     f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "

@@ -118,6 +118,14 @@ def test_repaired_start_reaches_the_measured_crush():
     assert np.array_equal(case.base, start) and repair_start(case) is None  # repaired once, then it reaches
 
 
+def test_a_start_that_moves_every_value_is_left_alone():
+    """500 kN everywhere stops the pickup at about 0.56 m, past every breakpoint but the last,
+    whose value moves the force from 0.55 m on: no value has a zero derivative, nothing to repair."""
+    case = Case(problem_from_dict(pickup(), PICKUP.parent))
+    base = case.base.copy()
+    assert repair_start(case) is None and np.array_equal(case.base, base)
+
+
 def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_case):
     """Without displacement or velocity channels the crush is the acceleration integrated twice from the impact speed."""
     raw = pickup(model={"spring": {"crush_breakpoints": None, "values": None}}, estimate=None)
