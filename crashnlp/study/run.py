@@ -15,7 +15,6 @@ import json
 import math
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import Any
 
@@ -23,6 +22,7 @@ import numpy as np
 from tqdm import tqdm
 
 from crashnlp.errors import InputError
+from crashnlp.files import atomic_temp
 from crashnlp.jsonfile import clean, write_json
 from crashnlp.study.executors import default_workers, make_executor
 from crashnlp.study.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
@@ -134,7 +134,7 @@ class CaseStore:
         self.folder.mkdir(parents=True, exist_ok=True)
         npy = self.folder / f"{case}.npy"
         if z is not None:
-            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+            fd, tmp = atomic_temp(self.folder)
             with os.fdopen(fd, "wb") as fh:
                 np.save(fh, np.asarray(z, dtype=float))
             os.replace(tmp, npy)
@@ -242,7 +242,7 @@ def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
     """table.csv: the union of the rows' columns, in first-seen order; missing cells empty."""
     columns = list(dict.fromkeys(k for r in rows for k in r))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    fd, tmp = atomic_temp(path.parent)
     with os.fdopen(fd, "w", newline="") as fh:
         writer = csv.DictWriter(fh, columns, restval="")
         writer.writeheader()
