@@ -18,7 +18,8 @@ class RunError(RuntimeError):
 class Interrupted(BaseException):
     """The run was stopped by a signal; `code` is the exit status (128 + signal number)."""
 
-    def __init__(self, signame: str, code: int):
+    def __init__(self, signame: str, code: int, detail: str = ""):
         super().__init__(signame)
         self.signame = signame
         self.code = code
+        self.detail = detail  # appended to the line the user sees, e.g. "; run again to resume"

@@ -6,6 +6,7 @@ entries name them by dotted path and give bounds with units.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
@@ -24,6 +25,29 @@ from pydantic import (
 from crashnlp.units import to_si
 
 QuantityIn = float | str
+LARGEST = 1e12  # no quantity of this model comes near it in SI; beyond it is a typo or an attack
+
+
+def si(value: Any, unit: str) -> float:
+    """`to_si`, refusing values the model cannot integrate: NaN, infinite or absurdly large."""
+    v = to_si(value, unit)
+    if not math.isfinite(v):
+        raise ValueError(f"{value!r} is not a finite number")
+    if abs(v) > LARGEST:
+        raise ValueError(f"{value!r} is beyond any physical value here (|value| <= {LARGEST:g} in SI)")
+    return v
+
+
+def _positive(v: float | None) -> float | None:
+    if v is not None and v <= 0:
+        raise ValueError("must be positive")
+    return v
+
+
+def _not_negative(v: float | None) -> float | None:
+    if v is not None and v < 0:
+        raise ValueError("must not be negative")
+    return v
 
 
 @dataclass(frozen=True)
@@ -42,7 +66,7 @@ def Q(unit: str):
     """A float field in SI `unit` that also accepts strings with units."""
     return Annotated[
         float,
-        BeforeValidator(lambda v: to_si(v, unit)),
+        BeforeValidator(lambda v: si(v, unit)),
         WithJsonSchema({"anyOf": [{"type": "number"}, {"type": "string"}], "description": f"SI unit {unit}"}),
         Unit(unit),
     ]
@@ -53,7 +77,7 @@ def QList(unit: str):
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=False)
+    model_config = ConfigDict(extra="forbid", frozen=False, allow_inf_nan=False)
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
@@ -95,6 +119,8 @@ class Suspension(Strict):
     c_front: Q("N*s/m") = 0.0
     c_rear: Q("N*s/m") = 0.0
 
+    _not_negative = field_validator("k_front", "k_rear", "c_front", "c_rear")(lambda v: _not_negative(v))
+
 
 class Vehicle(Strict):
     mass: Q("kg") | None = Field(None, description="test mass; may come from the data header")
@@ -110,12 +136,15 @@ class Vehicle(Strict):
     )
     gravity: Q("m/s^2") = 9.80665
 
-    @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+    @field_validator("mass", "speed", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
     @classmethod
     def _positive(cls, v):
-        if v is not None and v <= 0:
-            raise ValueError("must be positive")
-        return v
+        return _positive(v)
+
+    @field_validator("pitch_inertia")
+    @classmethod
+    def _not_negative(cls, v):
+        return _not_negative(v)
 
 
 # --------------------------------------------------------------------------- model
@@ -136,7 +165,7 @@ class Spring(Strict):
 
     @model_validator(mode="after")
     def _values(self):
-        self.values = [to_si(v, SPRING_UNITS[self.law]) for v in self.values]
+        self.values = [si(v, SPRING_UNITS[self.law]) for v in self.values]
         if len(self.values) != len(self.crush_breakpoints):
             raise ValueError(
                 f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}"
@@ -182,6 +211,8 @@ class Smoothing(Strict):
 
     crush: Annotated[Q("m"), Structural()] = 1e-3
     rate: Annotated[Q("m/s"), Structural()] = 1e-3
+
+    _not_negative = field_validator("crush", "rate")(lambda v: _not_negative(v))
 
 
 class Model(Strict):
@@ -242,7 +273,7 @@ class DataSpec(Strict):
     def _sigmas(self):
         for name, ch in self.channels.items():
             if ch.sigma is not None:
-                ch.sigma = to_si(ch.sigma, CHANNEL_UNITS[name])
+                ch.sigma = _positive(si(ch.sigma, CHANNEL_UNITS[name]))
         return self
 
 
@@ -252,6 +283,8 @@ class Test(Strict):
     mass: Q("kg") | None = None
     duration: Q("s") | None = None
     data: DataSpec | None = None
+
+    _positive = field_validator("speed", "mass", "duration")(lambda v: _positive(v))
 
 
 # --------------------------------------------------------------------------- identification
@@ -281,7 +314,7 @@ class Constraints(Strict):
     @model_validator(mode="after")
     def _convert(self):
         self.bounds = {
-            k: tuple(None if b is None else to_si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
+            k: tuple(None if b is None else si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
         }
         for k, (lo, hi) in self.bounds.items():
             if lo is not None and hi is not None and lo > hi:
@@ -321,10 +354,12 @@ class Solver(Strict):
 class Simulation(Strict):
     integrator: Literal["cvodes", "rk"] = "cvodes"
     substeps: int = Field(4, ge=1, description="rk sub-steps per output step")
-    rtol: float = 1e-8
-    atol: float = 1e-10
+    rtol: float = Field(1e-8, gt=0.0, lt=1.0)
+    atol: float = Field(1e-10, gt=0.0, lt=1.0)
     dt: Q("s") = Field(1e-4, description="output step")
     duration: Q("s") = Field(0.25, description="when a test gives neither duration nor data")
+
+    _positive = field_validator("dt", "duration")(lambda v: _positive(v))
 
 
 class Design(Strict):
@@ -371,15 +406,43 @@ class Problem(Strict):
             raise ValueError("tests: names must be unique")
         for path, spec in self.estimate.items():
             unit = self.unit_at(path)
-            if spec.initial is not None:
-                spec.initial = (
-                    [to_si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else to_si(spec.initial, unit)
-                )
-            if spec.bounds is not None:
-                spec.bounds = tuple(None if b is None else to_si(b, unit) for b in spec.bounds)
-            if spec.prior_scale is not None:
-                spec.prior_scale = to_si(spec.prior_scale, unit)
+            try:
+                if spec.initial is not None:
+                    spec.initial = (
+                        [si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else si(spec.initial, unit)
+                    )
+                if spec.bounds is not None:
+                    spec.bounds = tuple(None if b is None else si(b, unit) for b in spec.bounds)
+                if spec.prior_scale is not None:
+                    spec.prior_scale = si(spec.prior_scale, unit)
+            except ValueError as exc:
+                raise ValueError(f"estimate.{path}: {exc}") from None
+            self._initial_within_bounds(path, spec)
         return self
+
+    def _initial_within_bounds(self, path: str, spec: "EstimateSpec") -> None:
+        """Refuse an initial value (given, or the problem's own) outside the entry's estimate bounds."""
+        if spec.bounds is None:
+            return
+        lo, hi = (-math.inf if spec.bounds[0] is None else spec.bounds[0]), (math.inf if spec.bounds[1] is None else spec.bounds[1])
+        if lo > hi:
+            raise ValueError(f"estimate.{path}.bounds: lower bound above upper bound")
+        given = spec.initial is not None
+        value = spec.initial if given else self.value_at(path)
+        values = value if isinstance(value, list) else [value]
+        outside = [v for v in values if isinstance(v, (int, float)) and not lo <= v <= hi]
+        if outside:
+            where = "initial" if given else f"the problem's value of {path}"
+            raise ValueError(
+                f"estimate.{path}: {where} {outside[0]:g} is outside the bounds [{lo:g}, {hi:g}] (SI)"
+            )
+
+    def value_at(self, path: str) -> Any:
+        """The value of an entry named by dotted path, or None when the problem has none there."""
+        node: Any = self
+        for key in path.split("."):
+            node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+        return node
 
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed
