@@ -19,6 +19,35 @@ from crashnlp.problem import Problem, Test, load_problem
 from crashnlp.simulate import Response, simulate
 
 
+SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
+
+
+def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a test speed the data contradict: the header's speed, or a measured velocity at impact.
+
+    A plain number is m/s, so `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs
+    into the iteration limit without ever saying why.
+    """
+    where = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+    header = data.meta.get("speed")
+    if header and abs(speed - header) > SPEED_TOLERANCE * header:
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the data header of test {test.name} says {header:g} m/s "
+            f"(more than 5 % apart; a plain number is m/s)"
+        )
+    spec = test.data.channels.get("velocity") if test.data is not None else None
+    velocity = data.channels.get("velocity")
+    if velocity is None or spec is None or spec.derive is not None:
+        return
+    t0 = min(max(0.0, float(velocity.time[0])), float(velocity.time[-1]))
+    start = float(np.interp(t0, velocity.time, velocity.values))
+    if abs(start - speed) > SPEED_TOLERANCE * abs(speed):
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s "
+            f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
+        )
+
+
 @dataclass
 class TestCase:
     """One test of a problem: its impact speed, horizon, data and parameter overrides."""
@@ -68,6 +97,8 @@ class Case:
             speed = data.meta.get("speed")
         if speed is None:
             raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+        if data is not None:
+            check_speed(i, float(speed), test, data)
         if test.duration is not None:
             duration = test.duration
         elif data is not None and test.data.window is not None:
