@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test identify simulate study design bench readme-figures clean
+.PHONY: demo test fuzz identify simulate study design bench readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -42,6 +42,11 @@ readme-figures: demo identify study
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# the fuzz test of tests/test_fuzz.py with more mutations (make test runs a short one)
+FUZZ_RUNS ?= 2000
+fuzz: $(STAMP)
+	CRASHNLP_FUZZ_RUNS=$(FUZZ_RUNS) $(BIN)/python -m pytest tests/test_fuzz.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache
