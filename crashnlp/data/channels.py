@@ -74,8 +74,8 @@ def sample_interval(time: np.ndarray, at: str, rtol: float = 0.01) -> float:
     return float(dt)
 
 
-SAMPLE_INTERVALS = (1e-7, 5e-3)  # s: 10 MHz to 200 Hz; crash data are sampled at about 10 kHz
-RECORD_SPANS = (5e-3, 100.0)  # s: a crash lasts about 0.1 s
+SAMPLE_INTERVALS = (5e-7, 5e-3)  # s: 2 MHz to 200 Hz; crash data are sampled at about 10 kHz
+RECORD_SPANS = (1e-3, 100.0)  # s: a crash lasts about 0.1 s
 
 
 def check_sampling(time: np.ndarray, at: str) -> None:
