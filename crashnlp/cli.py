@@ -187,7 +187,7 @@ def _solve(args, kind: str) -> int:
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
-    solution = solve_case(case, verbose=args.verbose)
+    solution = solve_case(case, verbose=args.verbose, progress=sys.stdout)  # the stdout of now, not of import time
     summary = write_solution(solution, out)
     _print_solution(summary)
     print(f"wrote {out}/")
