@@ -101,10 +101,15 @@ def _check_dt(dt: float | None, duration: float) -> None:
 def cmd_simulate(args) -> int:
     from crashnlp.results import write_simulation
 
-    if args.dt is not None and not (math.isfinite(args.dt) and args.dt > 0):
-        _check_dt(args.dt, 0.0)
+    _check_dt(args.dt, 0.0)
     case = _load_case(args.problem)
-    _check_dt(args.dt, max(t.duration for t in case.tests))
+    longest = max(t.duration for t in case.tests)
+    _check_dt(args.dt, longest)
+    if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
+        raise InputError(
+            f"{args.problem}: simulation.dt {case.problem.simulation.dt:g} s: more than {MAX_STEPS:,} "
+            f"output steps over {longest:g} s (tests' duration)"
+        )
     if args.params:
         _apply_params(case, args.params)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"

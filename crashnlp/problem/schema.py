@@ -327,15 +327,18 @@ class Objective(Strict):
     regularization: float = Field(0.0, ge=0.0, description="weight on second differences of breakpoint values")
 
 
+MAX_INTERVALS = 10_000  # beyond this the NLP does not fit in memory, let alone solve
+
+
 class MultipleShooting(Strict):
     method: Literal["multiple-shooting"]
-    intervals: int = Field(200, ge=2)
-    substeps: int = Field(1, ge=1)
+    intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
+    substeps: int = Field(1, ge=1, le=100)
 
 
 class Collocation(Strict):
     method: Literal["collocation"]
-    intervals: int = Field(200, ge=2)
+    intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
     degree: int = Field(3, ge=1, le=9)
     scheme: Literal["radau", "legendre"] = "radau"
 
@@ -353,7 +356,7 @@ class Solver(Strict):
 
 class Simulation(Strict):
     integrator: Literal["cvodes", "rk"] = "cvodes"
-    substeps: int = Field(4, ge=1, description="rk sub-steps per output step")
+    substeps: int = Field(4, ge=1, le=1000, description="rk sub-steps per output step")
     rtol: float = Field(1e-8, gt=0.0, lt=1.0)
     atol: float = Field(1e-10, gt=0.0, lt=1.0)
     dt: Q("s") = Field(1e-4, description="output step")
