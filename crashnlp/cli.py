@@ -16,6 +16,7 @@ import signal
 import sys
 import threading
 import traceback
+import warnings
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -325,7 +326,9 @@ def main(argv: list[str] | None = None) -> int:
     argv = [a for a in argv if a != "--debug"]
     _received.clear()
     try:
-        with _signals():
+        with _signals(), warnings.catch_warnings():
+            if not debug:  # a library's warning is not the one line the user gets
+                warnings.simplefilter("ignore")
             args = parser().parse_args(argv)
             return args.func(args)
     except SystemExit as exc:  # --help and --version
