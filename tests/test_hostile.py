@@ -307,3 +307,20 @@ def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
     assert rerun.returncode == 0, rerun.stderr
     table = (out / "table.csv").read_text().splitlines()
     assert len(table) == 5 and all(",ok," in row for row in table[1:])
+
+
+def test_a_yaml_bomb_is_refused(tmp_path, capsys):
+    levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    for k in range(1, 10):
+        levels.append(f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 12) + "]")
+    refused(tmp_path, capsys, "\n".join(levels) + "\n", "more than 100 aliases")
+
+
+def test_a_study_refuses_data_that_contradict_a_case(tmp_path, capsys):
+    raw = pickup({"vehicle": {"speed": 56}, "tests": [{**pickup()["tests"][0], "speed": 56}]})
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"name": "s", "problem": "p.yaml", "sweep": {"constraints.bounds.pitch": [[None, "4 deg"]]}}))
+    code, _, err = run(["study", str(study), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "case-000" in err and "speed and data disagree" in err
+    assert not (tmp_path / "out").exists()

@@ -56,8 +56,23 @@ def problem_from_dict(raw: dict[str, Any], base_dir: Path, source: str = "proble
     return problem
 
 
+MAX_ALIASES = 100  # YAML aliases in one file: a few share channel lists; thousands are a "billion laughs"
+
+
 class UniqueKeyLoader(yaml.SafeLoader):
-    """YAML's safe loader, refusing a mapping that gives a key twice (YAML would keep the last)."""
+    """YAML's safe loader, refusing a mapping that gives a key twice (YAML would keep the last)
+    and a file of more than MAX_ALIASES aliases (nested aliases expand exponentially)."""
+
+    aliases = 0
+
+    def compose_node(self, parent, index):
+        if self.check_event(yaml.events.AliasEvent):
+            self.aliases += 1
+            if self.aliases > MAX_ALIASES:
+                raise yaml.composer.ComposerError(
+                    None, None, f"more than {MAX_ALIASES} aliases", self.peek_event().start_mark
+                )
+        return super().compose_node(parent, index)
 
     def construct_mapping(self, node, deep=False):
         if isinstance(node, yaml.MappingNode):
@@ -95,7 +110,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or ""
-        why = f": {problem}" if problem.startswith("duplicate key") else ""
+        why = f": {problem}" if problem.startswith(("duplicate key", "more than")) else ""
         raise ProblemError(f"{path}:{where} not valid YAML{why}") from None
     except RecursionError:
         raise ProblemError(f"{path}: not valid YAML (nested too deeply)") from None

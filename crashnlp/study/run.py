@@ -187,8 +187,9 @@ def run_study(
     out = Path(out) if out is not None else RESULTS / study.name
     cases = plan_cases(study)
     raws = {c.number: _case_problem(study, c) for c in cases}
+    checked: set[str] = set()
     for c in cases:
-        _validate(study, c, raws[c.number])
+        _validate(study, c, raws[c.number], checked)
     if check:
         return []
     keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
@@ -231,17 +232,37 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
         raise InputError(f"{study.source}: sweep.{exc}") from None
 
 
-def _validate(study: Study, case: PlannedCase, raw: dict) -> None:
-    """Refuse a case whose problem is not valid, naming the study file, the case and its values."""
+def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
+    """Refuse a case whose problem is not valid, or whose data contradict it, naming the study file,
+    the case and its values. Data are read once per distinct set of tests (`checked`)."""
     from crashnlp.problem import problem_from_dict
     from crashnlp.problem.load import check_fit_keys
 
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
     try:
-        check_fit_keys(problem_from_dict(raw, study.base_dir, source="problem"), "problem")
+        problem = problem_from_dict(raw, study.base_dir, source="problem")
+        check_fit_keys(problem, "problem")
+        tests = json.dumps([raw.get("tests"), raw.get("vehicle", {}).get("speed")], sort_keys=True, default=str)
+        if tests not in checked:
+            _check_data(problem)
+            checked.add(tests)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
+
+
+def _check_data(problem) -> None:
+    """Read every test's data and refuse a speed they contradict (what Case does, without the model)."""
+    from crashnlp.case import check_speed
+    from crashnlp.data import load_test_data
+
+    for i, test in enumerate(problem.tests):
+        if test.data is None:
+            continue
+        data = load_test_data(test.data, problem.speed(test))
+        speed = problem.speed(test) or data.meta.get("speed")
+        if speed:
+            check_speed(i, float(speed), test, data)
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
