@@ -66,6 +66,8 @@ def _load_case(path: str, problem=None):
 
 def _apply_params(case, source: str) -> None:
     """Replace the case's values by those of a result.json, entry by entry, refusing what does not fit."""
+    from crashnlp.problem.schema import LARGEST
+
     for path, value in _read_params(source).items():
         try:
             where = case.layout.index(path)
@@ -81,8 +83,8 @@ def _apply_params(case, source: str) -> None:
                 f"{source}: parameters.{path}: {array.size} values, but {case.name} has {size} "
                 f"(length mismatch: the result comes from another problem)"
             )
-        if not np.all(np.isfinite(array)):
-            raise InputError(f"{source}: parameters.{path}: not finite")
+        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
+            raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
         case.base = case.layout.with_values(case.base, {path: array if size > 1 else array[0]})
 
 
