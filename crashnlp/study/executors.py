@@ -11,6 +11,8 @@ import logging
 import multiprocessing
 import os
 import signal
+import threading
+from contextlib import contextmanager
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
 from typing import Any, Callable, Iterator, Protocol
@@ -96,6 +98,19 @@ class LocalExecutor:
             process.join(timeout=5)
 
 
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while processes are started (they keep it ignored), in the main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
 class DaskExecutor:
     """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
 
@@ -105,10 +120,11 @@ class DaskExecutor:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
-            self.cluster = LocalCluster(
-                n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None,
-                silence_logs=logging.CRITICAL,
-            )
+            with _sigint_ignored():  # the worker processes inherit it: Ctrl-C is the main process's to handle
+                self.cluster = LocalCluster(
+                    n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=logging.CRITICAL,
+                )
             self.client = Client(self.cluster)
             return
         try:
