@@ -136,12 +136,12 @@ class Vehicle(Strict):
     )
     gravity: Q("m/s^2") = 9.80665
 
-    @field_validator("mass", "speed", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
+    @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
     @classmethod
     def _positive(cls, v):
         return _positive(v)
 
-    @field_validator("pitch_inertia")
+    @field_validator("speed", "pitch_inertia")  # a speed of 0: a vehicle at rest
     @classmethod
     def _not_negative(cls, v):
         return _not_negative(v)
@@ -284,7 +284,8 @@ class Test(Strict):
     duration: Q("s") | None = None
     data: DataSpec | None = None
 
-    _positive = field_validator("speed", "mass", "duration")(lambda v: _positive(v))
+    _positive = field_validator("mass", "duration")(lambda v: _positive(v))
+    _not_negative = field_validator("speed")(lambda v: _not_negative(v))
 
 
 # --------------------------------------------------------------------------- identification
