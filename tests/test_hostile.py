@@ -324,3 +324,8 @@ def test_a_study_refuses_data_that_contradict_a_case(tmp_path, capsys):
     code, _, err = run(["study", str(study), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
     assert code == 2 and err.count("\n") == 1 and "case-000" in err and "speed and data disagree" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path, capsys):
+    refused(tmp_path, capsys, pickup({"vehicle": {"mass": "1e-9 kg"}}), "vehicle.mass: 1e-09 kg is no vehicle's mass")
+    refused(tmp_path, capsys, pickup({"vehicle": {"speed": "2000 km/h"}}), "vehicle.speed: ")

@@ -50,6 +50,23 @@ def _not_negative(v: float | None) -> float | None:
     return v
 
 
+MASSES = (1.0, 1e6)  # kg: from a scale model to a loaded truck; outside is a unit mistake
+MAX_SPEED = 150.0  # m/s (540 km/h): no crash test comes near it
+
+
+def _mass(v: float | None) -> float | None:
+    if v is not None and not MASSES[0] <= v <= MASSES[1]:
+        raise ValueError(f"{v:g} kg is no vehicle's mass ({MASSES[0]:g} kg to {MASSES[1]:g} kg)")
+    return v
+
+
+def _speed(v: float | None) -> float | None:
+    _not_negative(v)
+    if v is not None and v > MAX_SPEED:
+        raise ValueError(f"{v:g} m/s is faster than any crash test (at most {MAX_SPEED:g} m/s)")
+    return v
+
+
 @dataclass(frozen=True)
 class Unit:
     """Marks a field as a physical quantity stored in SI `unit`."""
@@ -141,10 +158,13 @@ class Vehicle(Strict):
     def _positive(cls, v):
         return _positive(v)
 
-    @field_validator("speed", "pitch_inertia")  # a speed of 0: a vehicle at rest
+    @field_validator("pitch_inertia")
     @classmethod
     def _not_negative(cls, v):
         return _not_negative(v)
+
+    _check_mass = field_validator("mass")(lambda v: _mass(v))
+    _check_speed = field_validator("speed")(lambda v: _speed(v))  # 0: a vehicle at rest
 
 
 # --------------------------------------------------------------------------- model
@@ -284,8 +304,9 @@ class Test(Strict):
     duration: Q("s") | None = None
     data: DataSpec | None = None
 
-    _positive = field_validator("mass", "duration")(lambda v: _positive(v))
-    _not_negative = field_validator("speed")(lambda v: _not_negative(v))
+    _positive = field_validator("duration")(lambda v: _positive(v))
+    _check_mass = field_validator("mass")(lambda v: _mass(_positive(v)))
+    _check_speed = field_validator("speed")(lambda v: _speed(v))
 
 
 # --------------------------------------------------------------------------- identification
