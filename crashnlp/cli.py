@@ -9,6 +9,7 @@ SIGINT and SIGTERM exit 130 and 143 with one line. No traceback unless
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import re
@@ -17,7 +18,7 @@ import sys
 import threading
 import traceback
 import warnings
-from contextlib import contextmanager
+from contextlib import contextmanager, redirect_stderr
 from pathlib import Path
 from typing import Iterator
 
@@ -120,7 +121,8 @@ def cmd_simulate(args) -> int:
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
-    responses = case.simulate(dt=args.dt)
+    with _computing(args):
+        responses = case.simulate(dt=args.dt)
     summary = write_simulation(case, responses, out)
     for name, t in summary["tests"].items():
         m = t["metrics"]
@@ -195,7 +197,8 @@ def _solve(args, kind: str) -> int:
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
-    solution = solve_case(case, verbose=args.verbose, progress=sys.stdout)  # the stdout of now, not of import time
+    with _computing(args):
+        solution = solve_case(case, verbose=args.verbose, progress=sys.stdout)  # the stdout of now, not of import time
     summary = write_solution(solution, out)
     _print_solution(summary)
     print(f"wrote {out}/")
@@ -297,6 +300,20 @@ def _signals() -> Iterator[None]:
             signal.signal(s, h)
 
 
+@contextmanager
+def _computing(args) -> Iterator[None]:
+    """Around a solve or a simulation: CasADi's warnings (it writes them to sys.stderr) stay off the
+    one line unless --debug, and a signal that CasADi caught and turned into a failed solve still
+    ends the run as interrupted, before anything is written."""
+    if getattr(args, "debug", False):
+        yield
+    else:
+        with redirect_stderr(io.StringIO()):
+            yield
+    if _received:
+        raise _received[0]
+
+
 def describe(exc: BaseException) -> str:
     """One line for a failure the input did not cause."""
     if isinstance(exc, RunError):
@@ -332,6 +349,7 @@ def main(argv: list[str] | None = None) -> int:
             if not debug:  # a library's warning is not the one line the user gets
                 warnings.simplefilter("ignore")
             args = parser().parse_args(argv)
+            args.debug = debug
             return args.func(args)
     except SystemExit as exc:  # --help and --version
         return exc.code if isinstance(exc.code, int) else 0

@@ -10,7 +10,9 @@ running a study again into the same folder resumes it.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import math
 import os
@@ -49,7 +51,8 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
         os.environ[THREADS_ENV] = str(job["threads"])
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
-        solution = solve_case(Case(problem), progress=None, warm=job["warm"])
+        with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
+            solution = solve_case(Case(problem), progress=None, warm=job["warm"])
     except InputError as exc:
         return {"record": {"status": f"input error: {_one_line(exc)}"}, "z": None}
     except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
