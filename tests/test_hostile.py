@@ -329,3 +329,17 @@ def test_a_study_refuses_data_that_contradict_a_case(tmp_path, capsys):
 def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path, capsys):
     refused(tmp_path, capsys, pickup({"vehicle": {"mass": "1e-9 kg"}}), "vehicle.mass: 1e-09 kg is no vehicle's mass")
     refused(tmp_path, capsys, pickup({"vehicle": {"speed": "2000 km/h"}}), "vehicle.speed: ")
+
+
+def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys):
+    import threading
+
+    out = tmp_path / "out"
+    timer = threading.Timer(2.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        code, _, err = run(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(out)], capsys)
+    finally:
+        timer.cancel()
+    assert code == 130 and err == "crashnlp: interrupted (SIGINT)\n", err
+    assert not out.exists()
