@@ -343,3 +343,11 @@ def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_
         timer.cancel()
     assert code == 130 and err == "crashnlp: interrupted (SIGINT)\n", err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("name", ["../escape", "a/b", "..", "", "x\x00"])
+def test_a_name_that_would_leave_the_results_folder_is_refused(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    refused(tmp_path, capsys, merge(BASE, {"name": name}), "name: ", command="simulate")
+    refused(tmp_path, capsys, merge(BASE, {"tests": [{"name": name, "duration": 0.1}]}), "tests.0.name: ", command="simulate")
+    assert not (tmp_path / "results").exists() and not (tmp_path.parent / "escape").exists()

@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -48,6 +49,18 @@ def _not_negative(v: float | None) -> float | None:
     if v is not None and v < 0:
         raise ValueError("must not be negative")
     return v
+
+
+def folder_name(v: str) -> str:
+    """A name that becomes a folder of the results: one path segment, printable, at most 100 characters."""
+    if not v or v.strip() != v or v in (".", "..") or len(v) > 100:
+        raise ValueError("must be 1 to 100 characters, without surrounding spaces, and not . or ..")
+    if any(c in v for c in "/\\") or not v.isprintable():
+        raise ValueError("must not contain / or \\ or control characters (it names a results folder)")
+    return v
+
+
+FolderName = Annotated[str, AfterValidator(folder_name)]
 
 
 MASSES = (1.0, 1e6)  # kg: from a scale model to a loaded truck; outside is a unit mistake
@@ -298,7 +311,7 @@ class DataSpec(Strict):
 
 
 class Test(Strict):
-    name: str
+    name: FolderName
     speed: Q("m/s") | None = None
     mass: Q("kg") | None = None
     duration: Q("s") | None = None
@@ -409,7 +422,7 @@ class Reference(Strict):
 
 
 class Problem(Strict):
-    name: str
+    name: FolderName
     kind: Literal["identify", "design"] = "identify"
     vehicle: Vehicle
     model: Model
