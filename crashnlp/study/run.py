@@ -259,13 +259,17 @@ def _check_data(problem) -> None:
     from crashnlp.case import check_speed
     from crashnlp.data import load_test_data
 
+    masses = [problem.vehicle.mass] + [t.mass for t in problem.tests]
     for i, test in enumerate(problem.tests):
-        if test.data is None:
-            continue
-        data = load_test_data(test.data, problem.speed(test))
-        speed = problem.speed(test) or data.meta.get("speed")
-        if speed:
+        data = load_test_data(test.data, problem.speed(test)) if test.data is not None else None
+        speed = problem.speed(test) or (data.meta.get("speed") if data is not None else None)
+        if speed is None:
+            raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+        if data is not None:
             check_speed(i, float(speed), test, data)
+            masses.append(data.meta.get("mass"))
+    if not any(masses):
+        raise InputError("vehicle.mass: not given and no data header gives it")
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
