@@ -43,10 +43,11 @@ readme-figures: demo identify study
 test: $(STAMP)
 	$(BIN)/python -m pytest
 
-# the fuzz test of tests/test_fuzz.py with more mutations (make test runs a short one)
+# the fuzz test of tests/test_fuzz.py with more mutations (make test runs 30 s of it); FUZZ_SEED=n for others
 FUZZ_RUNS ?= 2000
+FUZZ_SEED ?= 14
 fuzz: $(STAMP)
-	CRASHNLP_FUZZ_RUNS=$(FUZZ_RUNS) $(BIN)/python -m pytest tests/test_fuzz.py
+	CRASHNLP_FUZZ_RUNS=$(FUZZ_RUNS) CRASHNLP_FUZZ_SEED=$(FUZZ_SEED) CRASHNLP_FUZZ_SECONDS=3600 $(BIN)/python -m pytest -s tests/test_fuzz.py
 
 clean:
 	rm -rf $(VENV) .pytest_cache
