@@ -16,6 +16,7 @@ from crashnlp.data.signal import resample
 from crashnlp.jsonfile import write_json
 from crashnlp.metrics import crash_metrics
 from crashnlp.optimize.identify import Solution, TestSolution
+from crashnlp.optimize.verify import TOLERANCE
 from crashnlp.rating import iso18571
 from crashnlp.simulate import Response, write_response_csv
 from crashnlp.transcription.base import DYNAMICS
@@ -129,16 +130,49 @@ def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: flo
     return out
 
 
-def parameter_uncertainty(solution: Solution) -> tuple[dict, dict]:
-    free = solution.ocp.free
-    std, corr = solution.std_errors, solution.correlation
-    if std is None:
-        return {}, {}
-    named = {}
-    for e in free.entries:
-        v = std[e.at]
-        named[e.path] = float(v[0]) if e.where.stop - e.where.start == 1 else v.tolist()
-    return named, {"labels": free.labels(), "matrix": np.round(corr, 6).tolist()}
+def _forward_check(solution: Solution, test: str) -> dict | None:
+    """Largest difference between the forward simulation of the optimum and the NLP."""
+    v = solution.verification
+    if v is None:
+        return None
+    return {"max_abs_error": v.mismatch[test], "worst_relative": v.worst(test), "tolerance_relative": TOLERANCE}
+
+
+def _named(solution: Solution, values: np.ndarray) -> dict:
+    """Per-entry values of theta by parameter path (a number or a list); inf as None."""
+    out = {}
+    for e in solution.ocp.free.entries:
+        v = [None if not np.isfinite(x) else float(x) for x in values[e.at]]
+        out[e.path] = v[0] if e.where.stop - e.where.start == 1 else v
+    return out
+
+
+def parameter_uncertainty(solution: Solution) -> dict:
+    """Standard errors (None: not identified), correlation, what is not identified or at a bound."""
+    free, cov = solution.ocp.free, solution.covariance
+    labels = np.asarray(free.labels())
+    out = {"at_bound": labels[solution.at_bound()].tolist()}
+    if cov is None:
+        return {"std_errors": {}, "correlation": {}, "not_identified": [], **out}
+    return {
+        "std_errors": _named(solution, cov.std),
+        "correlation": {"labels": labels.tolist(), "matrix": np.round(cov.correlation, 6).tolist()},
+        "not_identified": labels[~cov.identified].tolist(),
+        "profiles": solution.profiles,
+        "covariance": {"method": "sandwich, Newey-West over the nodes of each test", "lags": cov.bandwidth},
+        **out,
+    }
+
+
+def _bound_constraints(solution: Solution) -> list[dict]:
+    """Parameters at a bound, as active constraints (their multiplier is IPOPT's lam_x)."""
+    if solution.result is None:
+        return []
+    theta = solution.ocp.nlp.blocks["theta"]
+    lam = np.asarray(solution.result.lam_x).ravel()[theta.offset : theta.offset + theta.shape[0]] / theta.scale.ravel()
+    labels = solution.ocp.free.labels()
+    return [{"name": f"bound.{labels[i]}", "points": 1, "multiplier": float(abs(lam[i])), "max_multiplier": float(abs(lam[i]))}
+            for i in np.flatnonzero(solution.at_bound())]
 
 
 def force_crush_table(case: Case, p: np.ndarray, reach: float) -> tuple[np.ndarray, np.ndarray]:
@@ -161,12 +195,14 @@ def write_table(path: Path, columns: dict[str, np.ndarray]) -> None:
 def solution_summary(solution: Solution) -> dict:
     """result.json content of an identification or design solve."""
     case, res = solution.case, solution.result
-    std, corr = parameter_uncertainty(solution)
+    uncertainty = parameter_uncertainty(solution)
     tests = {}
     for ts, test in zip(solution.tests, case.tests):
         tests[ts.name] = {
             "speed_mps": test.speed,
-            "loading_ends_s": ts.split_time,
+            "loading_ends_s": ts.loading_end,
+            "forward_check": _forward_check(solution, ts.name),
+            "energy": solution.verification.energy[ts.name] if solution.verification else None,
             "metrics": {"model": response_metrics(ts), "data": data_metrics(test)},
             "fit": _fit(solution, ts),
         }
@@ -184,10 +220,9 @@ def solution_summary(solution: Solution) -> dict:
         },
         "transcription": case.problem.transcription.model_dump(),
         "parameters": solution.parameters,
-        "std_errors": std,
-        "correlation": corr,
+        **uncertainty,
         "tests": tests,
-        "active_constraints": active_constraints(solution) if res else [],
+        "active_constraints": (active_constraints(solution) if res else []) + _bound_constraints(solution),
     }
 
 

@@ -9,7 +9,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.compiled import Evaluator, compiled
-from crashnlp.model.pendulum import NX, OUTPUTS, PendulumModel
+from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
 from crashnlp.problem.schema import Simulation
 from crashnlp.runtime import mapped
 from crashnlp.units import G0
@@ -31,7 +31,7 @@ class Response:
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
-    states: np.ndarray  # rows r, theta, rdot, thetadot, x_max[, absorbed energies]
+    states: np.ndarray  # rows: the model's STATES[, the ABSORBED works]
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.time if name == "time" else self.outputs[name]
@@ -63,7 +63,7 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
 
     def build() -> ca.Function:
         rhs = _cached(model, ("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
-        x, p = ca.MX.sym("x", NX + 3), ca.MX.sym("p", model.layout.size)
+        x, p = ca.MX.sym("x", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
@@ -78,22 +78,22 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
 
 
 def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
-    """n simulations at once, one parameter set each: (X0 7 x n, P np x n) -> outputs.
+    """n simulations at once, one parameter set each: (X0 augmented x n, P np x n) -> outputs.
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
     the named outputs at every step, all mapped over the parameter sets, as a
     what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
     columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
     simulation to C (crashnlp.compiled: about a second, once per machine)."""
-    x, p = ca.SX.sym("x", NX + 3), model.p
+    x, p = ca.SX.sym("x", NX + len(ABSORBED)), model.p
     f = model.augmented_rhs
     k1 = f(x, p)
     k2 = f(x + dt / 2 * k1, p)
     k3 = f(x + dt / 2 * k2, p)
     k4 = f(x + dt * k3, p)
     step = ca.Function("rk4", [x, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
-    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p, x[NX])])
-    x0, pm = ca.MX.sym("x0", NX + 3), ca.MX.sym("p", model.layout.size)
+    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p)])
+    x0, pm = ca.MX.sym("x0", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
     y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
     one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
@@ -107,7 +107,7 @@ def simulate_batch(
 
     Returns "time" and each named output as an array of shape (simulations, times)."""
     n, steps = P.shape[1], int(round(duration / dt))
-    X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((3, n))])
+    X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
     batch = _cached(model, ("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
     (y,) = batch(x0=X0, p=P)
     y = y.reshape(len(OUTPUTS), n, steps + 1)
@@ -118,7 +118,7 @@ def simulate(
     model: PendulumModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation
 ) -> Response:
     """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
-    x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), [0.0, 0.0, 0.0]])
+    x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), np.zeros(len(ABSORBED))])
     (xf,) = _cached(model, ("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
         x0=x0, p=p
     )
@@ -139,18 +139,21 @@ def _outputs_on_grid(model: PendulumModel, n: int) -> Evaluator:
 
     def build() -> Evaluator:
         outputs = _cached(model, ("outputs",), lambda: compiled(model.outputs))
-        x, p, xm = ca.MX.sym("x", NX, n), ca.MX.sym("p", model.layout.size), ca.MX.sym("xm", 1, n)
-        y = outputs.map(n)(x, ca.repmat(p, 1, n), xm)  # serial: threads cost more than they save here
-        return Evaluator(ca.Function("outputs_on_grid", [x, p, xm], [y], ["x", "p", "xm"], ["y"]))
+        x, p = ca.MX.sym("x", NX, n), ca.MX.sym("p", model.layout.size)
+        y = outputs.map(n)(x, ca.repmat(p, 1, n))  # serial: threads cost more than they save here
+        return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
 
     return _cached(model, ("outputs", n), build)
 
 
 def response_from_states(model: PendulumModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
-    """Outputs on a grid from states (rows r, theta, rdot, thetadot, x_max[, W_barrier, W_damper])."""
-    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[:NX], p=p, xm=states[NX])
+    """Outputs on a grid from states (rows: the model's STATES[, the ABSORBED works])."""
+    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[:NX], p=p)
     outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
-    if states.shape[0] > NX + 1:  # absorbed work minus what the front end still stores
-        outputs["absorbed"] = states[NX + 1] + states[NX + 2]
+    if states.shape[0] > NX:  # the works, and what was absorbed less what the front end still stores
+        work = dict(zip(ABSORBED, states[NX:]))
+        outputs["front_work"], outputs["front_damper_work"] = work["barrier_power"], work["front_damper_power"]
+        outputs["suspension_work"] = work["damper_power"]
+        outputs["absorbed"] = outputs["front_work"] + outputs["suspension_work"]
         outputs["dissipated"] = outputs["absorbed"] - outputs["front_energy"]
     return Response(np.asarray(grid, dtype=float), outputs, states)

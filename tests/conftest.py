@@ -4,6 +4,7 @@ from __future__ import annotations
 import copy
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from crashnlp.case import Case
@@ -22,7 +23,7 @@ BASE = {
         "cg_to_front_axle": "1.55 m",
         "cg_to_rear_axle": "2.10 m",
         "suspension": {"k_front": "70 kN/m", "k_rear": "60 kN/m", "c_front": "8 kN*s/m", "c_rear": "8 kN*s/m"},
-        "vertical_force_ratio": 0.03,
+        "crush_offset": "0.1 m",
     },
     "model": {
         "spring": {
@@ -57,3 +58,11 @@ def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -
 @pytest.fixture
 def base_problem() -> dict:
     return copy.deepcopy(BASE)
+
+
+def assert_monotone_crush(ts) -> None:
+    """At every grid point: the crush rises to its largest value, then only falls while in contact."""
+    crush, peak = ts.outputs["crush"], int(np.argmax(ts.outputs["crush"]))
+    assert np.all(np.diff(crush[: peak + 1]) >= -1e-5)
+    contact = ts.outputs["contact_force"][peak:] > 0
+    assert np.all(np.diff(crush[peak:])[contact[1:]] <= 1e-5)

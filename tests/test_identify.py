@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from conftest import BASE, merge
+from conftest import BASE, merge, assert_monotone_crush
 
 from crashnlp.case import Case
 from crashnlp.cli import main
@@ -15,7 +15,7 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.results import VOLATILE
 
-TRUTH = {"values": [0.0, 380e3, 520e3, 900e3], "ratio": 0.05}
+TRUTH = {"values": [0.0, 380e3, 520e3, 900e3], "offset": 0.2}
 NOISE = {"accel_g": 0.5, "vel_mps": 0.02, "disp_m": 0.001, "pitch_deg": 0.05}
 MS = {"method": "multiple-shooting", "intervals": 60, "substeps": 2}
 COLLOCATION = {"method": "collocation", "intervals": 60, "degree": 3, "scheme": "radau"}
@@ -26,7 +26,7 @@ def truth_problem() -> dict:
         BASE,
         {
             "name": "recovery",
-            "vehicle": {"vertical_force_ratio": TRUTH["ratio"]},
+            "vehicle": {"crush_offset": TRUTH["offset"]},
             "model": {"spring": {"crush_breakpoints": [0, 0.2, 0.4, 0.7], "values": TRUTH["values"]}},
             "tests": [{"name": "t56", "duration": 0.12}],
             "simulation": {"dt": 1e-4},
@@ -60,7 +60,7 @@ def fit_problem(data_file, transcription=MS, **changes) -> dict:
         truth_problem(),
         {
             "model": {"spring": {"values": ["500 kN"] * 4}},
-            "vehicle": {"vertical_force_ratio": 0.0},
+            "vehicle": {"crush_offset": 0.1},
             "tests": [
                 {
                     "name": "t56",
@@ -78,7 +78,7 @@ def fit_problem(data_file, transcription=MS, **changes) -> dict:
             ],
             "estimate": {
                 "model.spring.values": {"bounds": ["0 kN", "3 MN"]},
-                "vehicle.vertical_force_ratio": {"bounds": [-0.5, 0.5]},
+                "vehicle.crush_offset": {"bounds": [-0.3, 0.5]},
             },
             "constraints": {"monotone_crush": True},
             "transcription": transcription,
@@ -97,7 +97,7 @@ def test_recovers_known_parameters_within_three_standard_errors(data_file, trans
     assert sol.ok, sol.status
     assert sol.result.iterations > 0
     estimate = np.concatenate([np.atleast_1d(v) for v in sol.parameters.values()])
-    truth = np.array(TRUTH["values"] + [TRUTH["ratio"]])
+    truth = np.array(TRUTH["values"] + [TRUTH["offset"]])
     start = np.array([500e3] * 4 + [0.0])
     std = sol.std_errors
     reached = slice(1, 5)  # the value at zero crush sits on its bound; the rest are free
@@ -120,10 +120,12 @@ def test_parameter_that_cannot_move_the_fit_is_reported(data_file):
         model={"unloading": {"law": "elastic"}},
         estimate={"model.unloading.stiffness": {"bounds": ["1 MN/m", "200 MN/m"]}},
     )
-    sol = solve(problem)
-    assert not sol.ok
-    assert "model.unloading.stiffness" in sol.status and "zero derivative" in sol.status
-    assert sol.result is None  # never handed to IPOPT as if it could converge
+    sol = solve(problem)  # solved all the same: judged at the solution, not refused at the start
+    assert sol.result is not None and sol.result.iterations > 0
+    labels = sol.ocp.free.labels()
+    dead = labels.index("model.unloading.stiffness")
+    assert not sol.covariance.identified[dead] and np.isinf(sol.std_errors[dead])
+    assert np.all(np.isfinite(np.delete(sol.std_errors, dead)))  # the rest keep their errors
 
 
 def test_a_solve_that_never_moves_is_not_success(data_file):
@@ -141,9 +143,7 @@ def test_pitch_bound_below_the_optimum_becomes_active(data_file):
     assert tight.ok, tight.status
     pitch = tight.tests[0].outputs["pitch"]
     assert np.all(pitch <= bound + 1e-7)  # at every grid point
-    crush = tight.tests[0].outputs["crush"]
-    split = np.searchsorted(tight.tests[0].times, tight.tests[0].split_time)
-    assert np.all(np.diff(crush[: split + 1]) >= -1e-8)  # monotone crush, every grid point
+    assert_monotone_crush(tight.tests[0])
     assert tight.result.objective > free.result.objective
     from crashnlp.results import active_constraints
 

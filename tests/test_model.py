@@ -7,6 +7,7 @@ import pytest
 import sympy as sp
 from conftest import make_case
 
+from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.simulate import simulate_batch
 
 TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}
@@ -25,7 +26,7 @@ def test_one_degree_of_freedom_limit():
     m, k, v0 = 1500.0, 8.0e5, 15.0
     case = make_case(
         {
-            "vehicle": {"mass": m, "speed": v0, "cg_above_impact": 0, "pitch_inertia": 0, "vertical_force_ratio": 0,
+            "vehicle": {"mass": m, "speed": v0, "cg_above_impact": 0, "pitch_inertia": 0, "crush_offset": 0,
                         "suspension": {"c_front": 0, "c_rear": 0}},
             "model": {"spring": {"crush_breakpoints": [0, 1], "values": [0, k]}, "damper": None,
                       "unloading": {"law": "elastic"}},
@@ -52,7 +53,7 @@ def _energy(r):
 def test_energy_conserved_without_dissipation():
     case = make_case(
         {
-            "vehicle": {"suspension": {"c_front": 0, "c_rear": 0}, "vertical_force_ratio": 0},
+            "vehicle": {"suspension": {"c_front": 0, "c_rear": 0}, "crush_offset": 0},
             "model": {"damper": None, "unloading": {"law": "elastic"}},
             **TIGHT,
         }
@@ -108,7 +109,8 @@ def _sympy_accelerations(v: dict, state, contact: float) -> np.ndarray:
         delta = h - rho * sp.sin(th) + d * sp.sin(th - th0)
         V += sp.Rational(1, 2) * k * delta**2 + m * g * share / (af + ar) * delta
         D += sp.Rational(1, 2) * c * delta.diff(t) ** 2
-    Q = {r: contact + v["ratio"] * contact * sp.sin(th), th: v["ratio"] * contact * rho * sp.cos(th)}
+    # the front end's force acts along its crush c = -r - e (th - th0): Q = -F dc/dq
+    Q = {r: contact, th: v["offset"] * contact}
     Lag = T - V
     eqs = []
     for q in (r, th):
@@ -125,16 +127,17 @@ def test_equations_match_an_independent_sympy_derivation():
     model, p = case.model, case.base
     P = {k: float(np.asarray(x).ravel()[0]) for k, x in case.layout.split(p).items() if np.size(x) == 1}
     v = {k.split(".")[-1]: val for k, val in P.items()}
-    v["ratio"] = P["vehicle.vertical_force_ratio"]
+    v["offset"] = P["vehicle.crush_offset"]
     rng = np.random.default_rng(1)
     theta0 = np.arctan2(v["cg_above_impact"], v["cg_to_impact"])
     for _ in range(4):
-        x = np.array([-rng.uniform(0, 0.6), theta0 + rng.uniform(-0.1, 0.2), -rng.uniform(0, 15), rng.uniform(-1, 1)])
-        x_max = -x[0] + rng.uniform(0, 0.002)  # loading, or just unloading
-        xdot = np.asarray(model.rhs(x, p, x_max)).ravel()
-        contact = float(np.asarray(model.outputs(x, p, x_max)).ravel()[7])
+        x = np.array([-rng.uniform(0.05, 0.6), theta0 + rng.uniform(-0.1, 0.2), -rng.uniform(0, 15), rng.uniform(-1, 1), 0])
+        crush = float(np.asarray(model.outputs(x, p)).ravel()[OUTPUTS.index("crush")])
+        x[4] = crush + rng.uniform(0, 0.002)  # largest crush so far: loading, or just unloading
+        xdot = np.asarray(model.rhs(x, p)).ravel()
+        contact = float(np.asarray(model.outputs(x, p)).ravel()[OUTPUTS.index("contact_force")])
         assert contact > 0
-        np.testing.assert_allclose(xdot[2:], _sympy_accelerations(v, x, contact), rtol=1e-9, atol=1e-9)
+        np.testing.assert_allclose(xdot[2:4], _sympy_accelerations(v, x, contact), rtol=1e-9, atol=1e-9)
 
 
 @pytest.mark.parametrize("law", ["force", "secant"])

@@ -25,7 +25,7 @@ def truth() -> dict:
         BASE,
         {
             "name": "small",
-            "vehicle": {"vertical_force_ratio": 0.05},
+            "vehicle": {"crush_offset": 0.15},
             "model": {"spring": {"crush_breakpoints": [0, 0.2, 0.4, 0.7], "values": [0.0, 380e3, 520e3, 900e3]}},
             "tests": [{"name": "t56", "duration": 0.12}],
             "simulation": {"dt": 2e-4},
@@ -58,9 +58,9 @@ def small(tmp_path_factory) -> Path:
         truth(),
         {
             "model": {"spring": {"values": ["500 kN"] * 4}},
-            "vehicle": {"vertical_force_ratio": 0.0},
+            "vehicle": {"crush_offset": 0.1},
             "tests": [{"name": "t56", "data": {"file": "data.csv", "window": ["0 s", "0.12 s"], "channels": channels}}],
-            "estimate": {"model.spring.values": {"bounds": ["0 kN", "3 MN"]}, "vehicle.vertical_force_ratio": {"bounds": [-0.5, 0.5]}},
+            "estimate": {"model.spring.values": {"bounds": ["0 kN", "3 MN"]}, "vehicle.crush_offset": {"bounds": [-0.3, 0.5]}},
             "transcription": {"method": "multiple-shooting", "intervals": 40, "substeps": 2},
         },
     )

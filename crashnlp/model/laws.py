@@ -98,10 +98,9 @@ def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffn
     """Unload from the largest crush so far along `stiffness` to a permanent set.
 
     The force is the smaller of the loading curve and the unloading line; the
-    switch between them is smoothed over a tenth of the crush smoothing width
-    (exact at x = x_max, so passing x_max = x gives the loading curve exactly,
-    which is how the NLP marks its loading phase). The stored (recoverable)
-    energy is that of the unloading spring.
+    switch between them is smoothed over a tenth of the crush smoothing width.
+    x_max is the model's history state, so the switch is the model's own event.
+    The stored (recoverable) energy is that of the unloading spring.
     """
     loading, unloading = load(x), load(x_max) - stiffness * (x_max - x)
     if eps == 0:

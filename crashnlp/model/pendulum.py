@@ -1,8 +1,8 @@
 """The elastic-pendulum crash model: equations of motion from T, V and D by AD.
 
-Coordinates q = (r, theta): r is the change of the pivot-CG distance (crush is
--r), theta the angle of the pivot-CG line above the horizontal. The pivot is the
-impact point on the barrier, x points toward the barrier, z up:
+Coordinates q = (r, theta): r is the change of the pivot-CG distance, theta the
+angle of the pivot-CG line above the horizontal. The pivot is the impact point
+on the barrier, x points toward the barrier, z up:
 
     X = -(l0 + r) cos(theta),   Z = (l0 + r) sin(theta)
 
@@ -10,10 +10,18 @@ T, V and the Rayleigh function D are written once; Lagrange's equations
 
     d/dt dL/dqdot - dL/dq + dD/dqdot = Q
 
-are formed with CasADi jacobians (see model-notes.md for why the paper's printed
-equations are not used). Q holds the front-end contact force along r and an
-optional vertical barrier force at the CG. The suspension carries the static
-load (preload), so the vehicle at rest stays at rest.
+are formed with CasADi jacobians (docs/model.md says why the paper's printed
+equations are not used). The suspension carries the static load (preload), so
+the vehicle at rest stays at rest.
+
+The front end is one element between the barrier and the body. Its crush is
+the shortening along its line of action, which runs at `crush_offset` e from
+the pivot-CG line: c = -r - e (theta - theta0). Its force F >= 0 enters as
+the generalised force Q = -F dc/dq, so the pitch moment e F is paid for by
+crush: the vehicle loses exactly the power F dc/dt the element absorbs, and the
+barrier itself does no work. The element's history is the fifth state, the
+largest crush so far, integrated alike by the simulator and the NLP, so the
+switch from loading to unloading is the model's own event.
 """
 from __future__ import annotations
 
@@ -22,11 +30,14 @@ from functools import cached_property
 
 import casadi as ca
 
-from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force
+from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.problem.schema import Model as ModelSpec
 
-NX = 4  # r, theta, rdot, thetadot
+STATES = ("r", "theta", "rdot", "thetadot", "x_max")  # x_max: largest crush so far (m)
+NX = len(STATES)
+ABSORBED = ("barrier_power", "front_damper_power", "damper_power")  # integrated by the simulator
+HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush this far below it
 OUTPUTS = (
     "displacement",  # CG displacement since impact, toward the barrier (m)
     "velocity",  # CG velocity toward the barrier (m/s)
@@ -39,7 +50,8 @@ OUTPUTS = (
     "kinetic",  # (J)
     "potential",  # gravity + suspension + recoverable front-end energy (J)
     "front_energy",  # recoverable (elastic) energy stored in the front end (J)
-    "barrier_power",  # power absorbed from the vehicle by the barrier forces (W)
+    "barrier_power",  # power the front end absorbs from the vehicle, F dc/dt (W)
+    "front_damper_power",  # part of it taken by the front-end damper (W)
     "damper_power",  # power dissipated in the suspension dampers (W)
 )
 
@@ -68,15 +80,14 @@ class Structure:
 
 
 class PendulumModel:
-    """Symbolic elastic pendulum; CasADi Functions of (state, parameters, max crush)."""
+    """Symbolic elastic pendulum; CasADi Functions of (state, parameters)."""
 
     def __init__(self, structure: Structure, layout: ParameterLayout):
         self.structure = structure
         self.layout = layout
-        self.q = ca.SX.sym("q", 2)
-        self.qd = ca.SX.sym("qd", 2)
+        self.x = ca.SX.sym("x", NX)
+        self.q, self.qd = self.x[:2], self.x[2:4]
         self.p = ca.SX.sym("p", layout.size)
-        self.x_max = ca.SX.sym("x_max")
         self._parameters = layout.split(self.p)
         self._build()
 
@@ -89,7 +100,7 @@ class PendulumModel:
         return ca.sqrt(L * L + h * h), ca.atan2(h, L)
 
     def _front_end(self, crush, rate, x_max):
-        """Contact force along r (never tensile, zero once separated) and stored energy."""
+        """Contact force (never tensile, zero once separated), its damper part, and stored energy."""
         s = self.structure
         bps = [self._par("model.spring.crush_breakpoints")[i] for i in range(s.n_spring)]
         vals = [self._par("model.spring.values")[i] for i in range(s.n_spring)]
@@ -104,16 +115,23 @@ class PendulumModel:
         spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness, s.eps_crush)
         if stored is None:
             stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
-        force = spring
+        force, damper = spring, 0
         if s.n_damper:
             dbps = [self._par("model.damper.rate_breakpoints")[i] for i in range(s.n_damper)]
             dvals = [self._par("model.damper.values")[i] for i in range(s.n_damper)]
             # the damper engages over the first eps of crush, so the contact force
             # starts from zero at impact instead of jumping to c * v0
             engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
-            force = force + engaged * damper_force(rate, dbps, dvals, s.eps_rate)
-        contact = ca.if_else(crush >= 0, ca.fmax(force, 0), 0)
-        return contact, ca.if_else(crush >= 0, stored, 0)
+            damper = engaged * damper_force(rate, dbps, dvals, s.eps_rate)
+        contact = ca.if_else(crush >= 0, ca.fmax(force + damper, 0), 0)
+        return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
+
+    def _history_rate(self, crush, rate, x_max):
+        """d x_max / dt: the crush rate while loading (a smoothed max(rate, 0)), zero while
+        unloading; a reloading crush moves x_max again within HISTORY_GATE of it. No feedback
+        acts while the crush follows x_max, so the state adds no stiffness to the ODE."""
+        gap = (x_max - crush) / HISTORY_GATE
+        return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
 
     def _build(self):
         q, qd, p = self.q, self.qd, self.p
@@ -144,10 +162,11 @@ class PendulumModel:
             D += 0.5 * c * rate**2
         T = 0.5 * m * (Xd**2 + Zd**2) + 0.5 * inertia * qd[1] ** 2
 
-        crush, crush_rate = -r, -qd[0]
-        contact, stored = self._front_end(crush, crush_rate, self.x_max)
-        ratio = self._par("vehicle.vertical_force_ratio")
-        Q = contact * ca.jacobian(rho, q).T + ratio * contact * ca.jacobian(Z, q).T
+        crush = -r - self._par("vehicle.crush_offset") * pitch
+        crush_rate = ca.jtimes(crush, q, qd)
+        x_max = self.x[NX - 1]
+        contact, front_damper, stored = self._front_end(crush, crush_rate, x_max)
+        Q = -contact * ca.jacobian(crush, q).T
 
         Lag = T - V
         dL_dqd = ca.gradient(Lag, qd)
@@ -156,7 +175,6 @@ class PendulumModel:
         qdd = ca.solve(M, rhs)
         Xdd = ca.jtimes(Xd, ca.vertcat(q, qd), ca.vertcat(qd, qdd))
 
-        state = ca.vertcat(q, qd)
         values = {
             "displacement": X + self._par("vehicle.cg_to_impact"),
             "velocity": Xd,
@@ -164,16 +182,18 @@ class PendulumModel:
             "pitch": pitch,
             "crush": crush,
             "crush_rate": crush_rate,
-            "barrier_force": contact * ca.cos(theta),
+            "barrier_force": contact * ca.cos(theta),  # the line of action is parallel to pivot-CG
             "contact_force": contact,
             "kinetic": T,
             "potential": V + stored,
             "front_energy": stored,
             "barrier_power": -ca.dot(Q, qd),
+            "front_damper_power": front_damper * crush_rate,
             "damper_power": 2 * D,
         }
-        args, names = [state, p, self.x_max], ["x", "p", "x_max"]
-        self.rhs = ca.Function("rhs", args, [ca.vertcat(qd, qdd)], names, ["xdot"])
+        xdot = ca.vertcat(qd, qdd, self._history_rate(crush, crush_rate, x_max))
+        args, names = [self.x, p], ["x", "p"]
+        self.rhs = ca.Function("rhs", args, [xdot], names, ["xdot"])
         self.outputs = ca.Function("outputs", args, [ca.vertcat(*[values[k] for k in OUTPUTS])], names, ["y"])
         self.initial_state = self._initial_state(m, inertia, l0, theta0)
 
@@ -186,23 +206,19 @@ class PendulumModel:
         """
         v0 = ca.SX.sym("v0")
         thetad = m * v0 * l0 * ca.sin(theta0) / (m * l0**2 + inertia)
-        x0 = ca.vertcat(0, theta0, -v0 * ca.cos(theta0), thetad)
+        x0 = ca.vertcat(0, theta0, -v0 * ca.cos(theta0), thetad, 0)
         return ca.Function("x0", [self.p, v0], [x0], ["p", "v0"], ["x0"])
 
     # ---------------------------------------------------------------- simulation form
     @cached_property
     def augmented_rhs(self) -> ca.Function:
-        """ODE for simulation: the state carries the largest crush so far and the
-        energy absorbed by the barrier forces and the suspension dampers."""
-        x = ca.SX.sym("x", NX + 3)
-        state, x_max = x[:NX], x[NX]
-        xdot = self.rhs(state, self.p, x_max)
-        y = self.outputs(state, self.p, x_max)
-        crush, crush_rate = y[OUTPUTS.index("crush")], y[OUTPUTS.index("crush_rate")]
-        # the largest crush grows with the crush while loading; the small band keeps
-        # corrector iterations of implicit integrators from toggling the switch
-        growth = ca.if_else(crush >= x_max - 1e-9, ca.fmax(crush_rate, 0), 0)
-        ode = ca.vertcat(xdot, growth, y[OUTPUTS.index("barrier_power")], y[OUTPUTS.index("damper_power")])
+        """ODE for simulation: the state followed by the work absorbed by the front end,
+        by its damper, and by the suspension dampers (the energy audit's integrals)."""
+        x = ca.SX.sym("x", NX + len(ABSORBED))
+        state = x[:NX]
+        y = self.outputs(state, self.p)
+        work = [y[OUTPUTS.index(name)] for name in ABSORBED]
+        ode = ca.vertcat(self.rhs(state, self.p), *work)
         return ca.Function("aug_rhs", [x, self.p], [ode], ["x", "p"], ["xdot"])
 
 

@@ -17,11 +17,9 @@ import numpy as np
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.metrics import OLC_FREE, OLC_RESTRAINED
-from crashnlp.optimize.identify import Solution, evaluate, judge
+from crashnlp.optimize.identify import Solution, finish
 from crashnlp.optimize.problem import OptimalControl, Transcript
 from crashnlp.optimize.solve import solve
-
-MAX_SPLIT_UPDATES = 5
 
 
 def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX], scale: float) -> None:
@@ -77,31 +75,14 @@ def olc(ocp: OptimalControl) -> None:
 DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {"peak_decel": peak_decel, "crush": max_crush, "olc": olc}
 
 
-def _stop_nodes(ocp: OptimalControl, z: np.ndarray) -> dict[str, int]:
-    """First node at the largest crush (to within 1 um) in each test's solution."""
-    return {ts.name: int(np.argmax(ts.outputs["crush"] >= ts.outputs["crush"].max() - 1e-6)) for ts in evaluate(ocp, z)}
-
-
 def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
-    """Solve a design problem; loading ends where the designed vehicle stops."""
+    """Solve a design problem."""
     goal = case.problem.design.minimize if case.problem.design else "peak_decel"
-    splits, z = None, warm
-    for _ in range(MAX_SPLIT_UPDATES):
-        ocp = OptimalControl(case, splits)
-        if ocp.free.size == 0:
-            raise InputError(f"{case.name}: estimate names no design variable")
-        DESIGN_OBJECTIVES[goal](ocp)
-        if z is not None:
-            ocp.set_guess(z)
-        result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
-        z = result.z
-        stops = _stop_nodes(ocp, z)
-        current = {tr.test.name: tr.split for tr in ocp.transcripts}
-        if not result.converged or all(abs(stops[k] - current[k]) <= 1 for k in stops):
-            break
-        splits = stops
-    theta = np.clip(ocp.nlp.value("theta", z).ravel(), ocp.free.lower, ocp.free.upper)
-    status = judge(result, ocp.free.initial, theta, ocp.free.scale)
-    if status == "ok" and any(abs(stops[k] - current[k]) > 1 for k in stops):
-        status = "loading end did not settle: the stop node kept moving"
-    return Solution(case, ocp, result, status, theta, evaluate(ocp, z))
+    ocp = OptimalControl(case)
+    if ocp.free.size == 0:
+        raise InputError(f"{case.name}: estimate names no design variable")
+    DESIGN_OBJECTIVES[goal](ocp)
+    if warm is not None:
+        ocp.set_guess(warm)
+    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
+    return finish(case, ocp, result, ocp.free.initial, [])

@@ -14,7 +14,9 @@ from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import Residual, add_fit_objective
 from crashnlp.optimize.problem import OptimalControl
 from crashnlp.optimize.solve import SolveResult, solve
-from crashnlp.optimize.uncertainty import SensitivityEvaluator
+from crashnlp.optimize.profile import profiles
+from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
+from crashnlp.optimize.verify import Verification, verify
 
 
 @dataclass
@@ -24,7 +26,15 @@ class TestSolution:
     name: str
     times: np.ndarray
     outputs: dict[str, np.ndarray]
-    split_time: float
+
+    @property
+    def loading_end(self) -> float:
+        """The model's own end of loading: where its crush rate first turns negative (s)."""
+        rate = self.outputs["crush_rate"]
+        k = int(np.argmax(rate < 0)) if np.any(rate < 0) else 0
+        if k == 0:
+            return float("nan")
+        return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.times[k - 1 : k + 1]))
 
 
 @dataclass
@@ -38,8 +48,9 @@ class Solution:
     theta: np.ndarray
     tests: list[TestSolution]
     residuals: list[Residual] = field(default_factory=list)
-    std_errors: np.ndarray | None = None
-    correlation: np.ndarray | None = None
+    covariance: Covariance | None = None
+    verification: Verification | None = None
+    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
 
     @property
     def ok(self) -> bool:
@@ -48,6 +59,19 @@ class Solution:
     @property
     def parameters(self) -> dict:
         return self.ocp.free.named(self.theta)
+
+    @property
+    def std_errors(self) -> np.ndarray | None:
+        return None if self.covariance is None else self.covariance.std
+
+    @property
+    def correlation(self) -> np.ndarray | None:
+        return None if self.covariance is None else self.covariance.correlation
+
+    def at_bound(self, rtol: float = 1e-6) -> np.ndarray:
+        """Free parameters at one of their bounds (bool per entry of theta)."""
+        free, tol = self.ocp.free, rtol * self.ocp.free.scale
+        return (np.abs(self.theta - free.lower) <= tol) | (np.abs(self.theta - free.upper) <= tol)
 
     def full_parameters(self) -> np.ndarray:
         return self.ocp.free.full(self.theta)
@@ -73,9 +97,21 @@ def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[TestSolution]:
     out = []
     for tr, y in zip(ocp.transcripts, values):
         y = np.asarray(y)
-        traj = tr.trajectory
-        out.append(TestSolution(tr.test.name, traj.times, {k: y[i] for i, k in enumerate(OUTPUTS)}, float(traj.times[tr.split])))
+        out.append(TestSolution(tr.test.name, tr.trajectory.times, {k: y[i] for i, k in enumerate(OUTPUTS)}))
     return out
+
+
+def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndarray, residuals: list[Residual]) -> Solution:
+    """The solution of a finished solve: judged, and checked by forward simulation."""
+    # IPOPT relaxes bounds by a hair (bound_relax_factor); report values inside them
+    theta = np.clip(ocp.nlp.value("theta", result.z).ravel(), ocp.free.lower, ocp.free.upper)
+    status = judge(result, theta0, theta, ocp.free.scale)
+    tests = evaluate(ocp, result.z)
+    solution = Solution(case, ocp, result, status, theta, tests, residuals)
+    solution.verification = verify(case, ocp.free.full(theta), tests)
+    if solution.ok and solution.verification.problem:
+        solution.status = solution.verification.problem
+    return solution
 
 
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
@@ -88,22 +124,10 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         raise InputError(f"{case.name}: no test has data to fit")
     if warm is not None:
         ocp.set_guess(warm)
-    z0 = ocp.nlp.bounds()["x0"]
-    sensitivity = SensitivityEvaluator(ocp, residuals)
-    theta0 = ocp.nlp.value("theta", z0).ravel()
-    dead = sensitivity(z0).dead()
-    if dead.any():
-        names = ", ".join(np.asarray(ocp.free.labels())[dead])
-        status = f"not identifiable: {names} cannot change the fit (zero derivative)"
-        return Solution(case, ocp, None, status, theta0, evaluate(ocp, z0), residuals)
+    theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
-    # IPOPT relaxes bounds by a hair (bound_relax_factor); report values inside them
-    theta = np.clip(ocp.nlp.value("theta", result.z).ravel(), ocp.free.lower, ocp.free.upper)
-    status = judge(result, theta0, theta, ocp.free.scale)
-    solution = Solution(case, ocp, result, status, theta, evaluate(ocp, result.z), residuals)
-    cov = sensitivity(result.z).covariance()
-    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    solution.std_errors = std
-    with np.errstate(invalid="ignore", divide="ignore"):
-        solution.correlation = np.nan_to_num(cov / np.outer(std, std))
+    solution = finish(case, ocp, result, theta0, residuals)
+    solution.covariance = SensitivityEvaluator(ocp, residuals)(result.z).covariance()
+    if case.problem.uncertainty.profile and result.converged:
+        solution.profiles = profiles(solution)
     return solution

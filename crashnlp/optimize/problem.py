@@ -12,11 +12,14 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.case import Case, TestCase
-from crashnlp.model.pendulum import NX, OUTPUTS
+from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulate import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
+
+
+MONOTONE_TOLERANCE = 1e-6  # m: reloading allowed between two nodes by monotone_crush
 
 
 @dataclass
@@ -26,11 +29,14 @@ class Transcript:
     test: TestCase
     trajectory: Trajectory
     outputs: ca.MX  # len(OUTPUTS) x nodes
-    split: int
 
     def output(self, name: str) -> ca.MX:
         """A named output at every node (row)."""
         return self.outputs[OUTPUTS.index(name), :]
+
+    def state(self, name: str) -> ca.MX:
+        """A named state at every node (row)."""
+        return self.trajectory.states[STATES.index(name), :]
 
 
 def _interpolator(response: Response):
@@ -40,26 +46,10 @@ def _interpolator(response: Response):
     return guess
 
 
-def split_node(test: TestCase, guess: Response, times: np.ndarray) -> int:
-    """Node where loading ends: the last node before the data's first velocity zero, else
-    before the guess's largest crush.
-
-    The last node before, not the nearest: after the split the front end may still
-    load (the unloading law follows the loading curve above the largest crush),
-    while before it the crush may not decrease, which would force a model that
-    stops a little earlier than the data to keep crushing."""
-    velocity = test.data.channels.get("velocity") if test.data is not None else None
-    if velocity is not None and np.any(velocity.values < 0):
-        t_stop = float(velocity.time[np.argmax(velocity.values < 0)])
-    else:
-        t_stop = float(guess.time[np.argmax(guess["crush"])])
-    return int(np.clip(np.searchsorted(times, t_stop, side="right") - 1, 1, len(times) - 1))
-
-
 class OptimalControl:
     """Variables, dynamics and constraints of all tests of a case."""
 
-    def __init__(self, case: Case, splits: dict[str, int] | None = None):
+    def __init__(self, case: Case):
         self.case = case
         problem = case.problem
         self.nlp = NLPBuilder()
@@ -69,29 +59,24 @@ class OptimalControl:
         )
         self.transcription = make_transcription(case.model, problem.transcription)
         p0 = self.free.full(self.free.initial)
-        self.transcripts = [
-            self._transcribe(test, p0, case.fit_window(test)[1], (splits or {}).get(test.name)) for test in case.tests
-        ]
+        self.transcripts = [self._transcribe(test, p0, case.fit_window(test)[1]) for test in case.tests]
         self._constraints()
 
-    def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float, split: int | None) -> Transcript:
+    def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float) -> Transcript:
         model = self.case.model
         p_test = self.case.test_parameters(test, p0)
         fine = np.linspace(0.0, horizon, 4 * self.transcription.intervals + 1)
         guess = simulate(model, p_test, test.speed, fine, self.case.problem.simulation)
-        times = np.linspace(0.0, horizon, self.transcription.intervals + 1)
-        split = split_node(test, guess, times) if split is None else split
         theta_sx = ca.SX.sym("theta", self.free.size)
         p_sx = self.free.full(theta_sx, test.overrides)
-        self.transcription.bind(theta_sx, p_sx)
+        rhs = self.transcription.dynamics(theta_sx, p_sx)
         p = self.free.full(self.theta, test.overrides)
         x0 = model.initial_state(p, test.speed)
-        traj = self.transcription.discretize(self.nlp, test.name, self.theta, x0, horizon, split, _interpolator(guess))
-        k = len(traj.times)
-        x, xm = ca.SX.sym("x", NX), ca.SX.sym("xm")
-        outputs = ca.Function("outputs", [x, theta_sx, xm], [model.outputs(x, p_sx, xm)])
-        (y,) = self.nlp.mapped(outputs, k, traj.states, self.theta, traj.x_max)
-        return Transcript(test, traj, y, split)
+        traj = self.transcription.discretize(self.nlp, test.name, rhs, self.theta, x0, horizon, _interpolator(guess))
+        x = ca.SX.sym("x", NX)
+        outputs = ca.Function("outputs", [x, theta_sx], [model.outputs(x, p_sx)])
+        (y,) = self.nlp.mapped(outputs, len(traj.times), traj.states, self.theta)
+        return Transcript(test, traj, y)
 
     def _constraints(self) -> None:
         spec = self.case.problem.constraints
@@ -103,11 +88,18 @@ class OptimalControl:
                 if hi is not None:
                     self.nlp.constrain(f"{tr.test.name}.bound.{name}.upper", y, -np.inf, hi)
             if spec.monotone_crush:
-                crush = tr.output("crush")[:, : tr.split + 1]
-                self.nlp.constrain(f"{tr.test.name}.monotone_crush", ca.diff(crush, 1, 1), 0.0, np.inf)
+                self.nlp.constrain(f"{tr.test.name}.monotone_crush", self._unloaded_depth_growth(tr), -MONOTONE_TOLERANCE, np.inf)
         if spec.monotone_spring:
             values = self.free.full(self.theta)[self.case.layout.index("model.spring.values")]
             self.nlp.constrain("monotone_spring", ca.diff(values), 0.0, np.inf)
+
+    @staticmethod
+    def _unloaded_depth_growth(tr: Transcript) -> ca.MX:
+        """Growth of the depth unloaded below the largest crush, x_max - crush, from node to
+        node (m). Bounded below by -MONOTONE_TOLERANCE: once the front end has begun to
+        unload it does not load again, and while it loads the depth stays ~0 (the crush
+        is its own largest value). The switch stays the model's own; no node is fixed."""
+        return ca.diff(tr.state("x_max") - tr.output("crush"), 1, 1)
 
     def set_guess(self, z: np.ndarray) -> bool:
         """Warm start from a solution vector of an NLP of the same shape; False if it is not."""

@@ -19,6 +19,7 @@ class SolveResult:
     z: np.ndarray
     objective: float
     lam_g: np.ndarray
+    lam_x: np.ndarray
     g: np.ndarray
     return_status: str
     iterations: int
@@ -138,6 +139,7 @@ def solve(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO
         z=np.asarray(sol["x"]).ravel(),
         objective=float(sol["f"]),
         lam_g=np.asarray(sol["lam_g"]).ravel(),
+        lam_x=np.asarray(sol["lam_x"]).ravel(),
         g=np.asarray(sol["g"]).ravel(),
         return_status=str(stats.get("return_status", "unknown")),
         iterations=int(stats.get("iter_count", 0)),

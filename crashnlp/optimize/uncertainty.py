@@ -1,10 +1,25 @@
-"""Sensitivity of the fit to the parameters, and Gauss-Newton standard errors.
+"""Sensitivity of the fit to the parameters, and their standard errors.
 
 The states of a transcription are tied to the parameters by the dynamics
 constraints G(theta, X) = 0, so dX/dtheta = -G_X^-1 G_theta; the residual
 sensitivity is then dR/dtheta = R_theta + R_X dX/dtheta. This serves every
-transcription alike, and the same Jacobian tells before a solve whether some
-parameter cannot move the fit at all.
+transcription alike.
+
+The covariance is a sandwich, H^-1 M H^-1, built to mean what it says:
+- H = J^T W J, the Gauss-Newton Hessian of the weighted fit, is inverted by an
+  SVD of the weighted Jacobian with equilibrated columns, never by forming
+  J^T J in SI units (whose condition number squares that of J); directions
+  whose singular value is below RANK_RTOL of the largest are not identified,
+  and every parameter with a share in them gets an infinite std.
+- M is the long-run covariance of the score, sum_t s_t with s_t the weighted
+  residual times the Jacobian row of all channels at node t: residuals of a
+  filtered accelerometer or an integrated channel are autocorrelated, and
+  velocity and displacement integrated from the same accelerometer carry the
+  same noise, so neither a per-channel noise level nor a sample count is
+  right. M is the Newey-West (Bartlett) estimate over the nodes of each test,
+  with the bandwidth of Andrews (1991) from the score's lag-1
+  autocorrelation; tests are independent. This is the standard HAC estimator
+  of econometrics; it needs no assumption on the noise levels.
 """
 from __future__ import annotations
 
@@ -18,6 +33,50 @@ from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.problem import OptimalControl
 from crashnlp.transcription.base import DYNAMICS
 
+RANK_RTOL = 1e-7  # singular values below this fraction of the largest are not identified
+NULL_SHARE = 1e-3  # a parameter with this share of a null direction is not identified
+
+
+@dataclass
+class Covariance:
+    matrix: np.ndarray  # SI, inf on the rows/columns of parameters not identified
+    hessian_inverse: np.ndarray  # (J^T W J)^+, SI: the curvature of the objective the profiles see
+    identified: np.ndarray  # bool per parameter
+    bandwidth: dict[str, int]  # Newey-West lags used per test
+
+    @property
+    def std(self) -> np.ndarray:
+        return np.where(self.identified, np.sqrt(np.maximum(np.diag(self.matrix), 0.0)), np.inf)
+
+    @property
+    def correlation(self) -> np.ndarray:
+        std = np.where(self.identified, self.std, np.nan)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = self.matrix / np.outer(std, std)
+        return np.nan_to_num(corr, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def bartlett_bandwidth(scores: np.ndarray) -> int:
+    """Andrews' (1991) AR(1) plug-in bandwidth for the Bartlett kernel (nodes x params)."""
+    n = scores.shape[0]
+    a, b = scores[1:], scores[:-1]
+    denom = np.sum(b * b, axis=0)
+    used = denom > 0
+    if n < 4 or not used.any():
+        return 0
+    rho = np.clip(np.sum(a * b, axis=0)[used] / denom[used], -0.97, 0.97)
+    sigma4 = np.sum(b * b, axis=0)[used] ** 2
+    alpha = np.sum(4 * rho**2 * sigma4 / (1 - rho) ** 6 / (1 + rho) ** 2) / np.sum(sigma4 / (1 - rho) ** 4)
+    return int(min(np.ceil(1.1447 * (alpha * n) ** (1 / 3)), n // 2))
+
+
+def long_run_covariance(scores: np.ndarray, lags: int) -> np.ndarray:
+    """Newey-West estimate of the covariance of sum_t s_t (scores: nodes x params)."""
+    M = scores.T @ scores
+    for lag in range(1, lags + 1):
+        gamma = scores[lag:].T @ scores[:-lag]
+        M += (1 - lag / (lags + 1)) * (gamma + gamma.T)
+    return M
 
 
 @dataclass
@@ -25,26 +84,44 @@ class Sensitivity:
     jacobian: np.ndarray  # d residual (SI) / d theta (SI), rows by channel
     raw: np.ndarray  # residuals (SI)
     rows: list[slice]  # rows of each channel
+    residuals: list[Residual]
 
-    def dead(self, rtol: float = 1e-10) -> np.ndarray:
-        """Parameters whose column is zero: they cannot change the fit."""
-        norms = np.zeros(self.jacobian.shape[1])
-        for rows in self.rows:  # per channel, relative to the channel's own scale
-            block = self.jacobian[rows]
-            scale = max(np.abs(block).max(), 1e-300)
-            norms = np.maximum(norms, np.abs(block).max(axis=0) / scale)
-        return norms <= rtol
+    def covariance(self) -> Covariance:
+        """Sandwich covariance of the parameters (see the module's docstring)."""
+        n = self.jacobian.shape[1]
+        weights = np.concatenate([np.full(r.stop - r.start, res.weight / (len(res.columns) * res.sigma**2))
+                                  for r, res in zip(self.rows, self.residuals)])
+        Jw = self.jacobian * np.sqrt(weights)[:, None]
+        d = np.linalg.norm(Jw, axis=0)
+        d = np.where(d > 0, d, 1.0)
+        U, s, Vt = np.linalg.svd(Jw / d, full_matrices=False)
+        keep = s > RANK_RTOL * (s[0] if s.size and s[0] > 0 else 1.0)
+        null = Vt[~keep]
+        identified = np.ones(n, bool) if not null.size else np.max(np.abs(null), axis=0) < NULL_SHARE
+        H_inv = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(d, d)  # pseudo-inverse of J^T W J
+        M, bandwidth = np.zeros((n, n)), {}
+        for test, scores in self._scores(weights).items():
+            bandwidth[test] = bartlett_bandwidth(scores)
+            M += long_run_covariance(scores, bandwidth[test])
+        cov = H_inv @ M @ H_inv
+        cov[~identified, :] = np.inf
+        cov[:, ~identified] = np.inf
+        return Covariance(cov, H_inv, identified, bandwidth)
 
-    def covariance(self) -> np.ndarray:
-        """Gauss-Newton covariance with each channel's noise level estimated from its residuals."""
-        J, e = [], []
-        for rows in self.rows:
-            s = np.sqrt(np.mean(self.raw[rows] ** 2)) or 1.0
-            J.append(self.jacobian[rows] / s)
-            e.append(self.raw[rows] / s)
-        J, e = np.vstack(J), np.concatenate(e)
-        dof = max(len(e) - J.shape[1], 1)
-        return np.linalg.pinv(J.T @ J) * float(e @ e) / dof
+    def _scores(self, weights: np.ndarray) -> dict[str, np.ndarray]:
+        """Per test, the score of every node: sum over channels of w e J_row (nodes x params)."""
+        out: dict[str, np.ndarray] = {}
+        g = self.jacobian * (weights * self.raw)[:, None]
+        for rows, res in zip(self.rows, self.residuals):
+            nodes = np.asarray(res.columns)
+            current = out.get(res.test)
+            size = max(nodes.max() + 1, 0 if current is None else current.shape[0])
+            grown = np.zeros((size, g.shape[1]))
+            if current is not None:
+                grown[: current.shape[0]] = current
+            np.add.at(grown, nodes, g[rows])
+            out[res.test] = grown
+        return out
 
 
 class SensitivityEvaluator:
@@ -65,6 +142,7 @@ class SensitivityEvaluator:
         sizes = [len(r.columns) for r in residuals]
         ends = np.cumsum(sizes)
         self.rows = [slice(e - n, e) for e, n in zip(ends, sizes)]
+        self.residuals = residuals
 
     def __call__(self, z: np.ndarray) -> Sensitivity:
         G, Rz, R = self.f(z)
@@ -72,4 +150,4 @@ class SensitivityEvaluator:
         dx = -spla.spsolve(G[:, self.states].tocsc(), G[:, self.theta].toarray())
         dx = dx.reshape(len(self.states), len(self.theta))
         J = Rz[:, self.theta].toarray() + Rz[:, self.states] @ dx
-        return Sensitivity(np.asarray(J) / self.theta_scale, np.asarray(R).ravel(), self.rows)
+        return Sensitivity(np.asarray(J) / self.theta_scale, np.asarray(R).ravel(), self.rows, self.residuals)

@@ -161,8 +161,9 @@ class Vehicle(Strict):
     cg_to_front_axle: Q("m")
     cg_to_rear_axle: Q("m")
     suspension: Suspension = Suspension()
-    vertical_force_ratio: Q("") = Field(
-        0.0, description="vertical barrier force as a fraction of the crush force; > 0 lifts the CG (nose-down)"
+    crush_offset: Q("m") = Field(
+        0.0,
+        description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
     gravity: Q("m/s^2") = 9.80665
 
@@ -389,6 +390,15 @@ class Solver(Strict):
     expand: bool = Field(False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)")
 
 
+class Uncertainty(Strict):
+    """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
+
+    profile: list[str] = Field(default_factory=list, description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]")
+    points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
+    executor: Literal["local", "dask"] = Field("local", description="where the profiles run in parallel (the study executors)")
+    workers: int | None = Field(None, ge=1)
+
+
 class Simulation(Strict):
     integrator: Literal["cvodes", "rk"] = "cvodes"
     substeps: int = Field(4, ge=1, le=1000, description="rk sub-steps per output step")
@@ -433,6 +443,7 @@ class Problem(Strict):
     transcription: Transcription = Field(default_factory=lambda: MultipleShooting(method="multiple-shooting"))
     solver: Solver = Solver()
     simulation: Simulation = Simulation()
+    uncertainty: Uncertainty = Uncertainty()
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)

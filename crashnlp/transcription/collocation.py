@@ -15,17 +15,17 @@ class Collocation(Transcription):
         tau = ca.collocation_points(d, self.spec.scheme)
         C, D, _ = ca.collocation_coeff(tau)
         x0, xc = ca.SX.sym("x0", NX), ca.SX.sym("xc", NX, d)
-        xm, p = ca.SX.sym("xm"), self.theta
+        p = rhs.sx_in(1)
         Z = ca.horzcat(x0, xc)
-        slopes = ca.horzcat(*[rhs(xc[:, j], p, xm) for j in range(d)])
-        return ca.Function("interval", [x0, xc, p, xm], [Z @ C - h * slopes, Z @ D])
+        slopes = ca.horzcat(*[rhs(xc[:, j], p) for j in range(d)])
+        return ca.Function("interval", [x0, xc, p], [Z @ C - h * slopes, Z @ D])
 
-    def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
+    def _add_dynamics(self, nlp, name, X, theta, times, scale, guess, rhs):
         n, d = X.shape[1] - 1, self.spec.degree
         h = float(times[1] - times[0])
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
-        defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta, x_max)
+        defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta)
         nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

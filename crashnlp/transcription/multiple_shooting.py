@@ -1,13 +1,12 @@
 """Multiple shooting: a state at every node, M RK4 sub-steps per interval, mapped."""
 from __future__ import annotations
 
-
 from crashnlp.transcription.base import Transcription, per_row, rk4
 
 
 class MultipleShooting(Transcription):
-    def _add_dynamics(self, nlp, name, X, theta, x_max, times, scale, guess, rhs):
+    def _add_dynamics(self, nlp, name, X, theta, times, scale, guess, rhs):
         n = X.shape[1] - 1
-        step = rk4(rhs, self.theta, float(times[1] - times[0]), self.spec.substeps)
-        (end,) = nlp.mapped(step, n, X[:, :-1], theta, x_max)
+        step = rk4(rhs, rhs.sx_in(1), float(times[1] - times[0]), self.spec.substeps)
+        (end,) = nlp.mapped(step, n, X[:, :-1], theta)
         nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))

@@ -1,0 +1,121 @@
+"""Profile-likelihood intervals: fix one parameter at a time, re-optimise the rest.
+
+For each chosen parameter the NLP is solved again with that entry held at
+values stepping away from the optimum, 0.75 standard errors apart, each solve
+warm-started from the previous one (one IPOPT solver per chain: only its
+bounds change). The two sides of every parameter are independent chains and
+run in parallel on the study executors.
+
+Threshold: near the optimum the objective f = sum w e^2 rises along a profile
+as delta^2 / [H^-1]_ii (H = J^T W J). The interval ends where the rise reaches
+1.96^2 var_i / [H^-1]_ii, with var_i the sandwich variance, so that in the
+quadratic limit the profile interval is the sandwich interval, and away from
+it the profile follows the model's nonlinearity and the bounds (a side that
+never reaches the threshold within the profiled range or a bound is open:
+None).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from crashnlp.case import Case
+from crashnlp.errors import InputError
+from crashnlp.problem.schema import Problem
+
+Z95 = 1.96
+STEP = 0.75  # standard errors between profile points
+
+
+@dataclass(frozen=True)
+class Chain:
+    """One side of one parameter's profile: plain data, so it can travel to a worker."""
+
+    problem: Problem
+    z: np.ndarray  # the optimum's decision vector
+    index: int  # entry of theta
+    values: tuple[float, ...]  # SI, stepping away from the optimum
+
+
+def walk(chain: Chain) -> list[tuple[float, float, str]]:
+    """(value, objective, IPOPT status) along a chain, each solve warm-started from the last."""
+    from crashnlp.optimize.fit import add_fit_objective
+    from crashnlp.optimize.problem import OptimalControl
+    from crashnlp.optimize.solve import build_solver
+
+    ocp = OptimalControl(Case(chain.problem))
+    add_fit_objective(ocp)
+    built = build_solver(ocp.nlp, chain.problem.solver)
+    bounds = ocp.nlp.bounds()
+    block = ocp.nlp.blocks["theta"]
+    k, scale = block.offset + chain.index, float(block.scale.ravel()[chain.index])
+    z, out = chain.z, []
+    for value in chain.values:
+        lbx, ubx = bounds["lbx"].copy(), bounds["ubx"].copy()
+        lbx[k] = ubx[k] = value / scale
+        z = z.copy()
+        z[k] = value / scale
+        sol = built.function(x0=z, lbx=lbx, ubx=ubx, lbg=bounds["lbg"], ubg=bounds["ubg"])
+        status = str(built.function.stats().get("return_status"))
+        z = np.asarray(sol["x"]).ravel()
+        out.append((value, float(sol["f"]), status))
+    return out
+
+
+def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], threshold: float) -> float | None:
+    """Where the profile's rise first reaches the threshold (linear in the signed root), or None."""
+    previous_value, previous_root = theta, 0.0
+    for value, f, _ in points:
+        root = np.sqrt(max(f - f0, 0.0))
+        if root >= np.sqrt(threshold):
+            w = (np.sqrt(threshold) - previous_root) / (root - previous_root)
+            return float(previous_value + w * (value - previous_value))
+        previous_value, previous_root = value, root
+    return None
+
+
+def profiles(solution, executor=None) -> dict[str, dict]:
+    """Profile intervals of the parameters the problem's `uncertainty.profile` names."""
+    from crashnlp.study.executors import make_executor
+
+    spec = solution.case.problem.uncertainty
+    if not spec.profile or solution.covariance is None or solution.result is None:
+        return {}
+    labels = solution.ocp.free.labels()
+    free = solution.ocp.free
+    chains, keys = [], []
+    for label in spec.profile:
+        if label not in labels:
+            raise InputError(f"uncertainty.profile: {label} is not an estimated entry ({', '.join(labels)})")
+        i = labels.index(label)
+        std, h = solution.covariance.std[i], solution.covariance.hessian_inverse[i, i]
+        if not np.isfinite(std) or h <= 0:
+            continue
+        for side in (-1, 1):
+            steps = solution.theta[i] + side * STEP * std * np.arange(1, spec.points + 1)
+            steps = steps[(steps >= free.lower[i]) & (steps <= free.upper[i])]
+            if steps.size:
+                chains.append(Chain(solution.case.problem, solution.result.z, i, tuple(float(v) for v in steps)))
+                keys.append((label, side))
+    runner = executor or make_executor(spec.executor, spec.workers)
+    try:
+        walked = {keys[i]: result for i, result in runner.map_wave(walk, chains)}
+    finally:
+        if executor is None:
+            runner.close()
+    out = {}
+    for label in spec.profile:
+        i = labels.index(label)
+        std, h = solution.covariance.std[i], solution.covariance.hessian_inverse[i, i]
+        threshold = Z95**2 * std**2 / h if np.isfinite(std) and h > 0 else np.inf
+        entry = {"estimate": float(solution.theta[i]), "threshold": float(threshold), "lower": None, "upper": None, "points": []}
+        for side, key in ((-1, "lower"), (1, "upper")):
+            points = walked.get((label, side), [])
+            if isinstance(points, BaseException):
+                raise points
+            entry[key] = _crossing(solution.theta[i], solution.result.objective, points, threshold)
+            entry["points"] += [[v, f] for v, f, _ in points]
+        entry["points"].sort()
+        out[label] = entry
+    return out

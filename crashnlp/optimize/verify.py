@@ -1,0 +1,69 @@
+"""Every optimum checked by the forward simulator, with the energy audit it gives.
+
+The NLP integrates the model by its transcription; the separate CVODES
+integrator simulates the same model at the optimum. Where the two disagree by
+more than a tenth of a channel's fit scale somewhere, the NLP's trajectory is
+not the model's, and the solve is not `ok`. Where the data stop (velocity
+crosses zero) but the model does not within the window, the fit misses the
+test's defining event and is not `ok` either.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from crashnlp.case import Case
+from crashnlp.energy import energy_audit
+from crashnlp.optimize.fit import DEFAULT_SIGMA
+from crashnlp.simulate import simulate
+
+CHECKED = ("displacement", "velocity", "pitch", "crush")  # states; the acceleration jumps at separation
+SCALE = {**DEFAULT_SIGMA, "crush": DEFAULT_SIGMA["displacement"]}
+TOLERANCE = 0.1  # of a channel's scale
+ENERGY_TOLERANCE = 5e-3  # of the impact energy
+
+
+@dataclass
+class Verification:
+    mismatch: dict[str, dict[str, float]]  # test -> output -> max |simulated - NLP| (SI)
+    energy: dict[str, dict[str, float]]  # test -> energy audit (J)
+    problem: str | None  # why the solve is not ok, if it is not
+
+    def worst(self, test: str) -> float:
+        """Largest mismatch of a test relative to the channel scales."""
+        return max(v / SCALE[k] for k, v in self.mismatch[test].items())
+
+
+def _stops(test, outputs: dict[str, np.ndarray]) -> str | None:
+    """Why the model misses the data's stop, if it does."""
+    velocity = test.data.channels.get("velocity") if test.data is not None else None
+    if velocity is None or not np.any(velocity.values <= 0):
+        return None
+    if not np.any(outputs["velocity"] <= 0):
+        t = float(velocity.time[np.argmax(velocity.values <= 0)])
+        return f"{test.name}: the model does not stop within the window (the data stop at {t * 1e3:.1f} ms)"
+    return None
+
+
+def verify(case: Case, p: np.ndarray, tests) -> Verification:
+    """Forward-simulate every test at parameters p on its NLP grid and compare."""
+    mismatch, energy, problems = {}, {}, []
+    for ts, test in zip(tests, case.tests):
+        pt = case.test_parameters(test, p)
+        sim = simulate(case.model, pt, test.speed, ts.times, case.problem.simulation)
+        mismatch[ts.name] = {k: float(np.max(np.abs(sim[k] - ts.outputs[k]))) for k in CHECKED}
+        mass = float(pt[case.layout.index("vehicle.mass")][0])
+        energy[ts.name] = energy_audit(sim, mass, test.speed)
+        if not np.all(np.isfinite(sim["velocity"])):
+            problems.append(f"{ts.name}: the forward simulation failed")
+            continue
+        worst = max(mismatch[ts.name], key=lambda k: mismatch[ts.name][k] / SCALE[k])
+        if mismatch[ts.name][worst] > TOLERANCE * SCALE[worst]:
+            problems.append(f"{ts.name}: the forward simulation departs from the NLP ({worst} by {mismatch[ts.name][worst]:.3g} SI)")
+        if abs(energy[ts.name]["balance_error_relative"]) > ENERGY_TOLERANCE:
+            problems.append(f"{ts.name}: the energy balance misses by {energy[ts.name]['balance_error_relative']:.2%}")
+        stop = _stops(test, ts.outputs)
+        if stop:
+            problems.append(stop)
+    return Verification(mismatch, energy, "; ".join(problems) or None)
