@@ -215,7 +215,9 @@ def _options(rng: random.Random, command: str, folder: Path, steps: list[str]) -
         if rng.random() < 0.3:
             opts += ["--executor", rng.choice(["local", "dask", "bogus"])]
         if rng.random() < 0.2:
-            opts += ["--address", rng.choice(["tcp://127.0.0.1:1", "foo", "", "tcp://[::1"])]
+            opts += ["--address", rng.choice(["foo", "", "tcp://[::1", "tcp://127.0.0.1:1"])]
+            if opts[-1] == "tcp://127.0.0.1:1":
+                opts += ["--timeout", "0.2"]  # unreachable: fails (exit 1) within the timeout
         if rng.random() < 0.2:
             opts += ["--timeout", rng.choice(["0", "-1", "nan", "5", "1e9"])]
         opts += ["--no-progress"]
@@ -249,6 +251,10 @@ def make_run(i: int, base: Path) -> Run:
             raw["transcription"] = {"method": "multiple-shooting", "intervals": 20}
             steps.append("full run, max_iter 2, 20 intervals")
         target.write_text(yaml.safe_dump(raw, allow_unicode=rng.random() < 0.5))
+    if study and rng.random() < 0.3:  # the study's base problem too
+        base = problems / rng.choice(PROBLEMS).name
+        steps.append(f"base {base.name}:")
+        base.write_text(yaml.safe_dump(mutate_tree(yaml.safe_load(base.read_text()), rng, steps)))
     if study:
         command = "study"
     else:

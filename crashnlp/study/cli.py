@@ -88,6 +88,10 @@ def cmd_study(args) -> int:
         exc.detail = f"; finished cases are kept in {out}/cases: run the study again to resume"
         raise
     if check:
+        if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
+            from crashnlp.study.executors import make_executor
+
+            make_executor("dask", None, args.address, args.timeout).close()
         print(f"{args.study}: ok (would write {out}/)")
         return 0
     failed = [r for r in rows if r["status"] != "ok"]
