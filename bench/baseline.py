@@ -19,7 +19,7 @@ from scipy.optimize import least_squares
 
 from bench.common import Target, node_times, residual_vector
 from crashnlp.case import Case
-from crashnlp.simulate import response_from_states
+from crashnlp.simulation import response_from_states
 from crashnlp.optimize.parameters import FreeParameters
 
 METHOD, RTOL, ATOL, MAX_STEP = "LSODA", 1e-6, 1e-8, 1e-3

@@ -23,7 +23,7 @@ from crashnlp.data.signal import resample
 from crashnlp.optimize.fit import DEFAULT_SIGMA
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import Collocation, MultipleShooting, Problem
-from crashnlp.simulate import simulate
+from crashnlp.simulation import simulate
 from crashnlp.units import G0
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,7 +16,7 @@ import numpy as np
 from bench.baseline import shoot
 from bench.common import PICKUP_56, load_case, timed
 from crashnlp.case import Case
-from crashnlp.simulate import integrator, simulate, simulate_batch
+from crashnlp.simulation import integrator, simulate, simulate_batch
 from crashnlp.units import G0
 
 SCIPY_METHODS = ("LSODA", "RK45", "DOP853")
@@ -65,7 +65,7 @@ def batch(case: Case, n: int, members: tuple[int, ...]) -> dict:
     test = case.tests[0]
     steps = int(round(test.duration / BATCH_DT))
     P = parameter_sets(case, n)
-    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulate.simulate_batch)"}
+    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulation.simulate_batch)"}
     for mode, jit in (("vm", False), ("compiled", True)):
         run = lambda: simulate_batch(case.model, P, test.speed, test.duration, BATCH_DT, jit)
         first_s, _ = timed(run)

@@ -1,2 +1,28 @@
-"""crashnlp: elastic-pendulum frontal-crash models, identified and designed by NLP."""
+"""crashnlp: elastic-pendulum frontal-crash models, identified and designed by NLP.
+
+The Python API (crashnlp.api): `load`, `identify`, `design`, `simulate`,
+`study`, and the plain `Result` they return. They are imported on first use,
+so the command line starts without them.
+"""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, Any
+
 __version__ = "0.1.0"
+__all__ = ["Result", "design", "identify", "load", "simulate", "study"]
+
+if TYPE_CHECKING:
+    from crashnlp.api import design, identify, load, simulate, study
+    from crashnlp.result import Result
+
+
+def __getattr__(name: str) -> Any:
+    if name == "Result":
+        from crashnlp.result import Result
+
+        return Result
+    if name in __all__:
+        import crashnlp.api
+
+        return getattr(crashnlp.api, name)
+    raise AttributeError(f"module 'crashnlp' has no attribute {name!r}")

@@ -16,7 +16,7 @@ from crashnlp.errors import InputError
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.problem import Problem, Test, load_problem
-from crashnlp.simulate import Response, simulate
+from crashnlp.simulation import Response, simulate
 
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
@@ -64,12 +64,11 @@ class TestCase:
 
 
 class Case:
-    """Problem + data + parameter layout + symbolic model."""
+    """Problem + data + parameter layout + symbolic model. The problem it is given is not changed."""
 
     def __init__(self, problem: Problem):
-        self.problem = problem
         loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
-        self._fill_vehicle_mass(loaded)
+        self.problem = self._with_vehicle_mass(problem, loaded)
         self.tests = [self._test_case(i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
         self.layout = ParameterLayout.of(problem)
         self.base = self.layout.values(problem)
@@ -83,13 +82,15 @@ class Case:
     def name(self) -> str:
         return self.problem.name
 
-    def _fill_vehicle_mass(self, loaded: list[TestData | None]) -> None:
-        if self.problem.vehicle.mass is not None:
-            return
-        masses = [t.mass for t in self.problem.tests if t.mass] + [d.meta["mass"] for d in loaded if d and "mass" in d.meta]
+    @staticmethod
+    def _with_vehicle_mass(problem: Problem, loaded: list[TestData | None]) -> Problem:
+        """The problem, with the vehicle mass from a test or a data header when it gives none."""
+        if problem.vehicle.mass is not None:
+            return problem
+        masses = [t.mass for t in problem.tests if t.mass] + [d.meta["mass"] for d in loaded if d and "mass" in d.meta]
         if not masses:
             raise InputError("vehicle.mass: not given and no data header gives it")
-        self.problem.vehicle.mass = masses[0]
+        return problem.with_values({"vehicle.mass": masses[0]})
 
     def _test_case(self, i: int, test: Test, data: TestData | None) -> TestCase:
         speed = self.problem.speed(test)

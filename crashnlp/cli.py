@@ -26,7 +26,8 @@ import numpy as np
 
 from crashnlp.errors import InputError, Interrupted, RunError
 from crashnlp.files import check_writable
-from crashnlp.study.cli import add_parser as add_study_parser
+from crashnlp.outputs import OUTPUT
+from crashnlp.studies.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
 
@@ -65,28 +66,35 @@ def _load_case(path: str, problem=None):
         raise InputError(exc if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
 
 
-def _apply_params(case, source: str) -> None:
-    """Replace the case's values by those of a result.json, entry by entry, refusing what does not fit."""
+def _with_params(problem, source: str):
+    """The problem with the values of a result.json, entry by entry refusing what does not fit."""
     from crashnlp.problem.schema import LARGEST
 
-    for path, value in _read_params(source).items():
+    params = _read_params(source)
+    for path, value in params.items():
         try:
-            where = case.layout.index(path)
-        except KeyError:
-            raise InputError(f"{source}: parameters.{path}: not a parameter of {case.name}") from None
+            problem.unit_at(path)
+        except ValueError:
+            raise InputError(f"{source}: parameters.{path}: not a parameter of {problem.name}") from None
         try:
             array = np.atleast_1d(np.asarray(value, dtype=float))
         except (TypeError, ValueError):
             raise InputError(f"{source}: parameters.{path}: not a number or a list of numbers") from None
-        size = where.stop - where.start
+        current = problem.value_at(path)
+        size = len(current) if isinstance(current, list) else 1
         if array.ndim != 1 or array.size != size:
             raise InputError(
-                f"{source}: parameters.{path}: {array.size} values, but {case.name} has {size} "
+                f"{source}: parameters.{path}: {array.size} values, but {problem.name} has {size} "
                 f"(length mismatch: the result comes from another problem)"
             )
         if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
             raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
-        case.base = case.layout.with_values(case.base, {path: array if size > 1 else array[0]})
+    try:
+        return problem.with_values(params)
+    except KeyError as exc:
+        raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
+    except InputError as exc:
+        raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
 
 
 MAX_STEPS = 1_000_000  # output steps a simulation may ask for
@@ -103,10 +111,14 @@ def _check_dt(dt: float | None, duration: float) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from crashnlp.problem import load_problem
     from crashnlp.results import write_simulation
 
     _check_dt(args.dt, 0.0)
-    case = _load_case(args.problem)
+    problem = load_problem(args.problem)
+    if args.params:
+        problem = _with_params(problem, args.params)
+    case = _load_case(args.problem, problem)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
     if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
@@ -114,8 +126,6 @@ def cmd_simulate(args) -> int:
             f"{args.problem}: simulation.dt {case.problem.simulation.dt:g} s: more than {MAX_STEPS:,} "
             f"output steps over {longest:g} s (tests' duration)"
         )
-    if args.params:
-        _apply_params(case, args.params)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_writable(out)
     if getattr(args, "check", False):
@@ -157,53 +167,57 @@ def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
 
-def _print_solution(summary: dict) -> None:
-    s = summary["solver"]
-    print(
-        f"{summary['name']}: {summary['status']} (IPOPT {s['return_status']}, {s['iterations']} iterations, "
-        f"objective {s['objective']:.6g}, solve {s['wall_s']:.2f} s + build {s['build_s']:.2f} s)"
-    )
-    for path, value in summary["parameters"].items():
-        std = summary["std_errors"].get(path)
+def _print_solution(result) -> None:
+    """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
+    s = result.solver
+    timing = f"solve {s.wall_s:.2f} s + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
+    objective = f"{s.objective:.6g}" if s.objective is not None else "-"
+    print(f"{result.name}: {result.status} (IPOPT {s.return_status}, {s.iterations} iterations, objective {objective}, {timing})")
+    for path, value in result.parameters.items():
+        std = result.std_errors.get(path)
         text = _numbers(value, 5)
         if std is not None:
-            text += f"  (std {_numbers(std, 2)})"
+            text += f"  (std {_numbers(np.array(std, dtype=float), 2)})"
         print(f"  {path} = {text}")
-    for name, t in summary["tests"].items():
-        model, data = t["metrics"]["model"], t["metrics"]["data"]
+    if result.not_identified:
+        print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    for name, t in result.tests.items():
+        model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
         for key, label, f in METRIC_ROWS:
             print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
-        if t["fit"]:
-            print("    rmse      " + ", ".join(f"{c} {v['rmse']:.3g} {v['unit']}" for c, v in t["fit"].items()))
-            print("    ISO 18571 " + ", ".join(f"{c} {v['iso18571']['overall']:.3f}" for c, v in t["fit"].items() if v["iso18571"]))
-    for c in summary["active_constraints"]:
-        print(f"  active: {c['name']} at {c['points']} points, multiplier {c['multiplier']:.4g}")
+        if t.fit:
+            print("    rmse      " + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items()))
+            print("    ISO 18571 " + ", ".join(f"{c} {f.iso18571['overall']:.3f}" for c, f in t.fit.items() if f.iso18571))
+        if t.energy:
+            print(f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ")
+    for c in result.active_constraints:
+        print(f"  active: {c.name} at {c.points} points, multiplier {c.multiplier:.4g}")
 
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary."""
     from crashnlp.optimize import solve_case
+    from crashnlp.optimize.outcome import result_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.load import check_fit_keys
-    from crashnlp.results import write_solution
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     check_fit_keys(problem, args.problem)
     out = check_writable(_out(args, problem.name))
-    case = _load_case(args.problem, problem)
+    case = _load_case(args.problem, problem)  # data and model errors name the file, before any solve
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
-    with _computing(args):
-        solution = solve_case(case, verbose=args.verbose, progress=sys.stdout)  # the stdout of now, not of import time
-    summary = write_solution(solution, out)
-    _print_solution(summary)
+    with _computing(args):  # crashnlp.api.solve, on the case already built
+        result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
+    result.save(out)
+    _print_solution(result)
     print(f"wrote {out}/")
-    if not solution.ok:
-        print(f"crashnlp: {case.name}: {solution.status}", file=sys.stderr)
+    if not result.ok:
+        print(f"crashnlp: {result.name}: {result.status}", file=sys.stderr)
         return 1
     return 0
 

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.simulate import Response
+from crashnlp.simulation import Response
 
 
 def energy_audit(response: Response, mass: float, speed: float) -> dict[str, float]:

@@ -34,11 +34,28 @@ class Block:
     scale: np.ndarray
 
 
-@dataclass
+DYNAMICS = "dynamics"  # the kind of the transcription's equality constraints
+NOT_REPORTED = (DYNAMICS, "l1")  # kinds that are part of the formulation, not the user's constraints
+
+
+@dataclass(frozen=True)
 class ConstraintBlock:
-    name: str
+    """A block of constraints, typed: its kind, its test (None when shared) and what it is."""
+
+    kind: str
+    test: str | None
+    detail: str
     start: int
     size: int
+
+    @property
+    def name(self) -> str:
+        return ".".join(part for part in (self.test, self.kind, self.detail) if part)
+
+    @property
+    def local(self) -> str:
+        """The name without the test: what a problem file's constraint entry says."""
+        return ".".join(part for part in (self.kind, self.detail) if part)
 
 
 @dataclass
@@ -76,8 +93,8 @@ class NLPBuilder:
         self._nz += n
         return ca.reshape(raw * ca.DM(scale), shape[0], shape[1])
 
-    def constrain(self, name: str, expr, lb=0.0, ub=0.0) -> None:
-        """lb <= expr <= ub elementwise (bounds broadcast)."""
+    def constrain(self, kind: str, expr, lb=0.0, ub=0.0, test: str | None = None, detail: str = "") -> None:
+        """lb <= expr <= ub elementwise (bounds broadcast), as a block of `kind` for `test`."""
         expr = ca.vec(expr)
         n = expr.numel()
         if n == 0:
@@ -85,7 +102,7 @@ class NLPBuilder:
         self.g.append(expr)
         self.lbg.append(np.broadcast_to(np.asarray(lb, dtype=float), (n,)).copy())
         self.ubg.append(np.broadcast_to(np.asarray(ub, dtype=float), (n,)).copy())
-        self.constraints.append(ConstraintBlock(name, self._ng, n))
+        self.constraints.append(ConstraintBlock(kind, test, detail, self._ng, n))
         self._ng += n
 
     def mapped(self, fn: ca.Function, n: int, *inputs) -> list[ca.MX]:

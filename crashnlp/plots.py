@@ -9,20 +9,16 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from crashnlp.units import G0  # noqa: E402
+from crashnlp.outputs import MEASURABLE, OUTPUT  # noqa: E402
 
-PANELS = (  # output, label, factor from SI
-    ("displacement", "displacement (mm)", 1e3),
-    ("velocity", "velocity (m/s)", 1.0),
-    ("accel", "acceleration (g)", 1 / G0),
-    ("pitch", "pitch (deg)", 180 / np.pi),
-)
+PANELS = MEASURABLE  # the outputs a test measures, each a panel
 
 
 def response_figure(path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None) -> None:
     """Four panels of model curves (t, y SI) with the measured ones behind them."""
     fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
-    for ax, (name, label, f) in zip(axes.flat, PANELS):
+    for ax, name in zip(axes.flat, PANELS):
+        label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
         if data and name in data:
             t, y = data[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="0.6", lw=1.2, label="data")
@@ -57,9 +53,10 @@ def force_crush_figure(path: Path, curves: dict[str, tuple], points: tuple | Non
 
 def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None:
     """Residual (model - data) per fitted channel, in report units."""
-    names = [p for p in PANELS if p[0] in residuals]
+    names = [p for p in PANELS if p in residuals]
     fig, axes = plt.subplots(len(names), 1, figsize=(8, 1.9 * len(names) + 0.6), sharex=True, squeeze=False)
-    for ax, (name, label, f) in zip(axes[:, 0], names):
+    for ax, name in zip(axes[:, 0], names):
+        label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
         t, r = residuals[name]
         ax.plot(np.asarray(t) * 1e3, np.asarray(r) * f, color="C3", lw=1.0)
         ax.axhline(0, color="0.5", lw=0.8)

@@ -17,7 +17,7 @@ from conftest import BASE, ROOT, merge
 
 from crashnlp.cli import main
 from crashnlp.jsonfile import write_json
-from crashnlp.study.run import CaseStore
+from crashnlp.studies.run import CaseStore
 
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
 CLI = [sys.executable, "-m", "crashnlp.cli"]

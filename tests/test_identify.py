@@ -145,12 +145,13 @@ def test_pitch_bound_below_the_optimum_becomes_active(data_file):
     assert np.all(pitch <= bound + 1e-7)  # at every grid point
     assert_monotone_crush(tight.tests[0])
     assert tight.result.objective > free.result.objective
-    from crashnlp.results import active_constraints
+    from crashnlp.optimize.outcome import active_constraints
 
-    active = {c["name"]: c for c in active_constraints(tight)}
-    assert active["t56.bound.pitch.upper"]["multiplier"] > 0
-    assert not [n for n in active if "bound" not in n and "monotone" not in n]  # no dynamics reported as a bound
-    assert "t56.bound.pitch.upper" not in {c["name"] for c in active_constraints(free)}
+    active = {c.name: c for c in active_constraints(tight)}
+    upper = active["t56.bound.pitch.upper"]
+    assert upper.multiplier > 0 and (upper.kind, upper.test) == ("bound", "t56")
+    assert {c.kind for c in active.values()} <= {"bound", "monotone_crush"}  # no dynamics reported as a bound
+    assert "t56.bound.pitch.upper" not in {c.name for c in active_constraints(free)}
 
 
 def test_l1_loss_fits_through_slacks(data_file):

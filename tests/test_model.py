@@ -8,7 +8,7 @@ import sympy as sp
 from conftest import make_case
 
 from crashnlp.model.pendulum import OUTPUTS
-from crashnlp.simulate import simulate_batch
+from crashnlp.simulation import simulate_batch
 
 TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}
 

@@ -13,8 +13,8 @@ from crashnlp.case import Case
 from crashnlp.cli import parser
 from crashnlp.errors import InputError
 from crashnlp.problem import problem_from_dict
-from crashnlp.study import load_study, run_study
-from crashnlp.study.plan import case_indices, plan_cases, warm_start_plan
+from crashnlp.studies import load_study, run_study
+from crashnlp.studies.plan import case_indices, plan_cases, warm_start_plan
 
 PITCH = "constraints.bounds.pitch"
 BOUNDS = [[None, "2 deg"], [None, "2.5 deg"], [None, "3 deg"], [None, "4 deg"]]  # the free fit pitches ~3.2 deg

@@ -32,28 +32,14 @@ import casadi as ca
 
 from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge
 from crashnlp.model.parameters import ParameterLayout
+from crashnlp.outputs import NAMES
 from crashnlp.problem.schema import Model as ModelSpec
 
 STATES = ("r", "theta", "rdot", "thetadot", "x_max")  # x_max: largest crush so far (m)
 NX = len(STATES)
 ABSORBED = ("barrier_power", "front_damper_power", "damper_power")  # integrated by the simulator
 HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush this far below it
-OUTPUTS = (
-    "displacement",  # CG displacement since impact, toward the barrier (m)
-    "velocity",  # CG velocity toward the barrier (m/s)
-    "accel",  # CG acceleration toward the barrier (m/s^2)
-    "pitch",  # theta - theta0, nose-down positive (rad)
-    "crush",  # l0 - pivot-CG distance (m)
-    "crush_rate",  # (m/s)
-    "barrier_force",  # horizontal force on the barrier (N)
-    "contact_force",  # front-end force along the pivot-CG line (N)
-    "kinetic",  # (J)
-    "potential",  # gravity + suspension + recoverable front-end energy (J)
-    "front_energy",  # recoverable (elastic) energy stored in the front end (J)
-    "barrier_power",  # power the front end absorbs from the vehicle, F dc/dt (W)
-    "front_damper_power",  # part of it taken by the front-end damper (W)
-    "damper_power",  # power dissipated in the suspension dampers (W)
-)
+OUTPUTS = NAMES  # the registry's order (crashnlp.outputs)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX
     """minimize s subject to rows(test) <= s at every node of every test."""
     s = ocp.nlp.variable(f"design.{name}", 1, scale, 0.0, np.inf, scale=scale)
     for tr in ocp.transcripts:
-        ocp.nlp.constrain(f"{tr.test.name}.design.{name}", rows(tr) - s, -np.inf, 0.0)
+        ocp.nlp.constrain("design", rows(tr) - s, -np.inf, 0.0, test=tr.test.name, detail=name)
     ocp.nlp.minimize(s / scale)
 
 
@@ -62,12 +62,12 @@ def olc(ocp: OptimalControl) -> None:
         t2 = ocp.nlp.variable(f"{name}.olc.t2", 1, 3 * guess_t1, times[1], times[-1], scale=0.01)
         a = ocp.nlp.variable(f"{name}.olc.a", 1, v0**2, 0.0, np.inf, scale=v0**2)
         dt = t2 - t1
-        ocp.nlp.constrain(f"{name}.olc.free_flight", v0 * t1 - _interp(t1, times, x) - OLC_FREE)
+        ocp.nlp.constrain("olc", v0 * t1 - _interp(t1, times, x) - OLC_FREE, test=name, detail="free_flight")
         ocp.nlp.constrain(
-            f"{name}.olc.restraint", v0 * t2 - 0.5 * a * dt**2 - _interp(t2, times, x) - OLC_FREE - OLC_RESTRAINED
+            "olc", v0 * t2 - 0.5 * a * dt**2 - _interp(t2, times, x) - OLC_FREE - OLC_RESTRAINED, test=name, detail="restraint"
         )
-        ocp.nlp.constrain(f"{name}.olc.matched", v0 - a * dt - _interp(t2, times, v))
-        ocp.nlp.constrain(f"{name}.olc.order", dt, 0.0, np.inf)
+        ocp.nlp.constrain("olc", v0 - a * dt - _interp(t2, times, v), test=name, detail="matched")
+        ocp.nlp.constrain("olc", dt, 0.0, np.inf, test=name, detail="order")
         total += a / v0**2
     ocp.nlp.minimize(total)
 

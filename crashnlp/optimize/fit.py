@@ -64,8 +64,8 @@ def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
         else:  # |e| / sigma through slacks s >= +-e / sigma, mean of s weighted
             normalised = (r.model - ca.DM(r.data).T).T / r.sigma
             slack = ocp.nlp.variable(f"{r.test}.{r.channel}.slack", len(r.columns), 1.0, 0.0, np.inf)
-            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack - normalised, 0.0, np.inf)
-            ocp.nlp.constrain(f"{r.test}.{r.channel}.l1", slack + normalised, 0.0, np.inf)
+            ocp.nlp.constrain("l1", slack - normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.above")
+            ocp.nlp.constrain("l1", slack + normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.below")
             ocp.nlp.minimize(r.weight / len(r.columns) * ca.sum1(slack))
     if objective.regularization > 0:
         ocp.nlp.minimize(objective.regularization * roughness(ocp))

@@ -17,24 +17,7 @@ from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
 from crashnlp.optimize.verify import Verification, verify
-
-
-@dataclass
-class TestSolution:
-    """Numeric outcome for one test: outputs at the NLP's grid points (SI)."""
-
-    name: str
-    times: np.ndarray
-    outputs: dict[str, np.ndarray]
-
-    @property
-    def loading_end(self) -> float:
-        """The model's own end of loading: where its crush rate first turns negative (s)."""
-        rate = self.outputs["crush_rate"]
-        k = int(np.argmax(rate < 0)) if np.any(rate < 0) else 0
-        if k == 0:
-            return float("nan")
-        return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.times[k - 1 : k + 1]))
+from crashnlp.simulation import Response
 
 
 @dataclass
@@ -46,7 +29,7 @@ class Solution:
     result: SolveResult | None
     status: str
     theta: np.ndarray
-    tests: list[TestSolution]
+    tests: list[Response]  # outputs and states at the NLP's grid points
     residuals: list[Residual] = field(default_factory=list)
     covariance: Covariance | None = None
     verification: Verification | None = None
@@ -73,6 +56,18 @@ class Solution:
         free, tol = self.ocp.free, rtol * self.ocp.free.scale
         return (np.abs(self.theta - free.lower) <= tol) | (np.abs(self.theta - free.upper) <= tol)
 
+    def bound_pull(self) -> np.ndarray:
+        """How far past its bound each parameter's unconstrained optimum lies, in standard errors
+        (0 off the bounds): |lam| [H^-1]_ii / 2 / std, from the bound's multiplier and the
+        objective's curvature. Above 1.96 the bound, not the data, decides the value."""
+        if self.result is None or self.covariance is None:
+            return np.zeros(self.theta.size)
+        block = self.ocp.nlp.blocks["theta"]
+        lam = self.result.lam_x[block.offset : block.offset + block.shape[0]] / block.scale.ravel()
+        beyond = np.abs(lam) * np.diag(self.covariance.hessian_inverse) / 2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            return np.where(self.at_bound(), np.nan_to_num(beyond / self.covariance.std), 0.0)
+
     def full_parameters(self) -> np.ndarray:
         return self.ocp.free.full(self.theta)
 
@@ -88,16 +83,15 @@ def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.
     return "ok"
 
 
-def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[TestSolution]:
-    """Outputs of every test at a solution vector."""
+def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[Response]:
+    """Outputs and states of every test at a solution vector."""
     zsym = ca.vertcat(*ocp.nlp.z)
-    f = ca.Function("outs", [zsym], [tr.outputs for tr in ocp.transcripts])
-    values = f(z)
-    values = values if isinstance(values, (list, tuple)) else [values]
+    f = ca.Function("outs", [zsym], [x for tr in ocp.transcripts for x in (tr.outputs, tr.trajectory.states)])
+    values = [np.asarray(v) for v in f.call([z])]
     out = []
-    for tr, y in zip(ocp.transcripts, values):
-        y = np.asarray(y)
-        out.append(TestSolution(tr.test.name, tr.trajectory.times, {k: y[i] for i, k in enumerate(OUTPUTS)}))
+    for k, tr in enumerate(ocp.transcripts):
+        y, states = values[2 * k], values[2 * k + 1]
+        out.append(Response(tr.trajectory.times, {name: y[i] for i, name in enumerate(OUTPUTS)}, states))
     return out
 
 

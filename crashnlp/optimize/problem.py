@@ -15,7 +15,7 @@ from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
-from crashnlp.simulate import Response, simulate
+from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
 
 
@@ -84,11 +84,12 @@ class OptimalControl:
             for name, (lo, hi) in spec.bounds.items():
                 y = tr.output(name)
                 if lo is not None:
-                    self.nlp.constrain(f"{tr.test.name}.bound.{name}.lower", y, lo, np.inf)
+                    self.nlp.constrain("bound", y, lo, np.inf, test=tr.test.name, detail=f"{name}.lower")
                 if hi is not None:
-                    self.nlp.constrain(f"{tr.test.name}.bound.{name}.upper", y, -np.inf, hi)
+                    self.nlp.constrain("bound", y, -np.inf, hi, test=tr.test.name, detail=f"{name}.upper")
             if spec.monotone_crush:
-                self.nlp.constrain(f"{tr.test.name}.monotone_crush", self._unloaded_depth_growth(tr), -MONOTONE_TOLERANCE, np.inf)
+                growth = self._unloaded_depth_growth(tr)
+                self.nlp.constrain("monotone_crush", growth, -MONOTONE_TOLERANCE, np.inf, test=tr.test.name)
         if spec.monotone_spring:
             values = self.free.full(self.theta)[self.case.layout.index("model.spring.values")]
             self.nlp.constrain("monotone_spring", ca.diff(values), 0.0, np.inf)

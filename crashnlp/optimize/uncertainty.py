@@ -31,7 +31,7 @@ import scipy.sparse.linalg as spla
 
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.problem import OptimalControl
-from crashnlp.transcription.base import DYNAMICS
+from crashnlp.nlp import DYNAMICS
 
 RANK_RTOL = 1e-7  # singular values below this fraction of the largest are not identified
 NULL_SHARE = 1e-3  # a parameter with this share of a null direction is not identified
@@ -130,7 +130,7 @@ class SensitivityEvaluator:
     def __init__(self, ocp: OptimalControl, residuals: list[Residual]):
         nlp = ocp.nlp
         d = nlp.derivatives()
-        dyn = [g for g, c in zip(nlp.g, nlp.constraints) if c.name.endswith(DYNAMICS)]
+        dyn = [g for g, c in zip(nlp.g, nlp.constraints) if c.kind == DYNAMICS]
         R = ca.vertcat(*[ca.vec(r.model - ca.DM(r.data).T) for r in residuals])
         self.f = ca.Function("sens", [d.z], [d.jacobian(ca.vertcat(*dyn)), d.jacobian(R), R])
         theta = nlp.blocks["theta"]

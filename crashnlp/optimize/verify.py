@@ -16,7 +16,7 @@ import numpy as np
 from crashnlp.case import Case
 from crashnlp.energy import energy_audit
 from crashnlp.optimize.fit import DEFAULT_SIGMA
-from crashnlp.simulate import simulate
+from crashnlp.simulation import simulate
 
 CHECKED = ("displacement", "velocity", "pitch", "crush")  # states; the acceleration jumps at separation
 SCALE = {**DEFAULT_SIGMA, "crush": DEFAULT_SIGMA["displacement"]}
@@ -51,18 +51,18 @@ def verify(case: Case, p: np.ndarray, tests) -> Verification:
     mismatch, energy, problems = {}, {}, []
     for ts, test in zip(tests, case.tests):
         pt = case.test_parameters(test, p)
-        sim = simulate(case.model, pt, test.speed, ts.times, case.problem.simulation)
-        mismatch[ts.name] = {k: float(np.max(np.abs(sim[k] - ts.outputs[k]))) for k in CHECKED}
+        sim = simulate(case.model, pt, test.speed, ts.time, case.problem.simulation)
+        mismatch[test.name] = {k: float(np.max(np.abs(sim[k] - ts.outputs[k]))) for k in CHECKED}
         mass = float(pt[case.layout.index("vehicle.mass")][0])
-        energy[ts.name] = energy_audit(sim, mass, test.speed)
+        energy[test.name] = energy_audit(sim, mass, test.speed)
         if not np.all(np.isfinite(sim["velocity"])):
-            problems.append(f"{ts.name}: the forward simulation failed")
+            problems.append(f"{test.name}: the forward simulation failed")
             continue
-        worst = max(mismatch[ts.name], key=lambda k: mismatch[ts.name][k] / SCALE[k])
-        if mismatch[ts.name][worst] > TOLERANCE * SCALE[worst]:
-            problems.append(f"{ts.name}: the forward simulation departs from the NLP ({worst} by {mismatch[ts.name][worst]:.3g} SI)")
-        if abs(energy[ts.name]["balance_error_relative"]) > ENERGY_TOLERANCE:
-            problems.append(f"{ts.name}: the energy balance misses by {energy[ts.name]['balance_error_relative']:.2%}")
+        worst = max(mismatch[test.name], key=lambda k: mismatch[test.name][k] / SCALE[k])
+        if mismatch[test.name][worst] > TOLERANCE * SCALE[worst]:
+            problems.append(f"{test.name}: the forward simulation departs from the NLP ({worst} by {mismatch[test.name][worst]:.3g} SI)")
+        if abs(energy[test.name]["balance_error_relative"]) > ENERGY_TOLERANCE:
+            problems.append(f"{test.name}: the energy balance misses by {energy[test.name]['balance_error_relative']:.2%}")
         stop = _stops(test, ts.outputs)
         if stop:
             problems.append(stop)

@@ -23,6 +23,7 @@ from pydantic import (
     model_validator,
 )
 
+from crashnlp.outputs import MEASURABLE, OUTPUT
 from crashnlp.units import to_si
 
 QuantityIn = float | str
@@ -257,7 +258,7 @@ class Model(Strict):
 
 
 # --------------------------------------------------------------------------- data
-CHANNEL_UNITS = {"accel": "m/s^2", "velocity": "m/s", "displacement": "m", "pitch": "rad"}
+CHANNEL_UNITS = {name: OUTPUT[name].unit for name in MEASURABLE}
 ChannelName = Literal["accel", "velocity", "displacement", "pitch"]
 CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
 
@@ -495,6 +496,25 @@ class Problem(Strict):
 
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed
+
+    def with_values(self, values: dict[str, Any]) -> "Problem":
+        """A new validated problem with entries replaced by dotted path ("vehicle.speed": "64 km/h",
+        "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is."""
+        from crashnlp.problem.load import problem_from_dict
+
+        raw = self.model_dump(mode="python", exclude_none=False)
+        for path, value in values.items():
+            *parents, leaf = path.split(".")
+            node: Any = raw
+            try:
+                for key in parents:
+                    node = node[int(key)] if isinstance(node, list) else node[key]
+                if isinstance(node, list) or leaf not in node:
+                    raise KeyError(path)
+            except (KeyError, IndexError, ValueError, TypeError):
+                raise KeyError(path) from None
+            node[leaf] = value
+        return problem_from_dict(raw, self.base_dir, "with_values")
 
     def unit_at(self, path: str) -> str:
         """SI unit of a numeric entry named by dotted path ("model.spring.values")."""

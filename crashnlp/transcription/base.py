@@ -15,11 +15,10 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.model.pendulum import NX, PendulumModel
-from crashnlp.nlp import NLPBuilder
+from crashnlp.nlp import DYNAMICS, NLPBuilder
 
 STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01, 0.01])  # smallest state scales: m, rad, m/s, rad/s, m
 IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
-DYNAMICS = (".initial", ".impact", ".continuity", ".collocation")  # name endings of the dynamics constraints
 
 
 def rk4(rhs: ca.Function, theta: ca.SX, h: float, substeps: int) -> ca.Function:
@@ -82,13 +81,13 @@ class Transcription(ABC):
         initial = guess(times)
         scale = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
         X = nlp.variable(f"{name}.x", (NX, n + 1), initial, scale=scale[:, None])
-        nlp.constrain(f"{name}.initial", X[:, 0] - x0)
+        nlp.constrain(DYNAMICS, X[:, 0] - x0, test=name, detail="initial")
         h = float(times[1] - times[0])
         # the first interval, by fine RK4 steps whatever the transcription: the front end
         # engages over its first millimetre of crush, tens of microseconds at crash speed,
         # which neither one RK4 step nor a collocation polynomial of an interval resolves
         (end,) = nlp.mapped(rk4(rhs, rhs.sx_in(1), h, IMPACT_SUBSTEPS), 1, X[:, 0], theta)
-        nlp.constrain(f"{name}.impact", (end - X[:, 1]) / ca.DM(scale))
+        nlp.constrain(DYNAMICS, (end - X[:, 1]) / ca.DM(scale), test=name, detail="impact")
         if n > 1:
             self._add_dynamics(nlp, name, X[:, 1:], theta, times[1:], scale, guess, rhs)
         return Trajectory(times, X)

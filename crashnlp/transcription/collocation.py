@@ -5,6 +5,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.model.pendulum import NX
+from crashnlp.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
 
@@ -27,5 +28,5 @@ class Collocation(Transcription):
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
         Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
         defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta)
-        nlp.constrain(f"{name}.collocation", defects / per_row(scale, n * d))
-        nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
+        nlp.constrain(DYNAMICS, defects / per_row(scale, n * d), test=name, detail="collocation")
+        nlp.constrain(DYNAMICS, (end - X[:, 1:]) / per_row(scale, n), test=name, detail="continuity")

@@ -1,6 +1,7 @@
 """Multiple shooting: a state at every node, M RK4 sub-steps per interval, mapped."""
 from __future__ import annotations
 
+from crashnlp.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row, rk4
 
 
@@ -9,4 +10,4 @@ class MultipleShooting(Transcription):
         n = X.shape[1] - 1
         step = rk4(rhs, rhs.sx_in(1), float(times[1] - times[0]), self.spec.substeps)
         (end,) = nlp.mapped(step, n, X[:, :-1], theta)
-        nlp.constrain(f"{name}.continuity", (end - X[:, 1:]) / per_row(scale, n))
+        nlp.constrain(DYNAMICS, (end - X[:, 1:]) / per_row(scale, n), test=name, detail="continuity")

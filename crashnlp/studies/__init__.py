@@ -6,8 +6,8 @@ Submodules load on first use, so that the command line starts quickly.
 """
 from importlib import import_module
 
-_EXPORTS = {"run_study": "crashnlp.study.run", "Study": "crashnlp.study.spec", "StudySpec": "crashnlp.study.spec",
-            "load_study": "crashnlp.study.spec"}
+_EXPORTS = {"run_study": "crashnlp.studies.run", "Study": "crashnlp.studies.spec", "StudySpec": "crashnlp.studies.spec",
+            "load_study": "crashnlp.studies.spec"}
 
 __all__ = sorted(_EXPORTS)
 

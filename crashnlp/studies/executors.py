@@ -37,7 +37,7 @@ def default_workers() -> int:
 
 
 # imported once by the fork server, so each worker starts in milliseconds, not seconds
-PRELOAD = ["crashnlp.study.run", "crashnlp.case", "crashnlp.optimize", "crashnlp.results", "scipy.signal"]
+PRELOAD = ["crashnlp.studies.run", "crashnlp.case", "crashnlp.optimize", "crashnlp.results", "scipy.signal"]
 
 
 def _context() -> multiprocessing.context.BaseContext:

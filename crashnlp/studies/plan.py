@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from crashnlp.errors import InputError
-from crashnlp.study.spec import Study, set_path
+from crashnlp.studies.spec import Study, set_path
 
 
 @dataclass(frozen=True)

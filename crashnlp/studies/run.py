@@ -18,7 +18,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from tqdm import tqdm
@@ -26,9 +26,12 @@ from tqdm import tqdm
 from crashnlp.errors import InputError
 from crashnlp.files import atomic_temp
 from crashnlp.jsonfile import clean, write_json
-from crashnlp.study.executors import CONNECT_TIMEOUT, default_workers, make_executor
-from crashnlp.study.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
-from crashnlp.study.spec import Study, SweepEntry, load_study
+from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor
+from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
+from crashnlp.studies.spec import Study, SweepEntry, load_study
+
+if TYPE_CHECKING:
+    from crashnlp.result import Result
 
 RESULTS = Path("results")
 METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")
@@ -42,8 +45,7 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     Returns {"record": table columns of the outcome, "z": solution vector or None};
     bad input and any exception become a record with that status.
     """
-    from crashnlp.case import Case
-    from crashnlp.optimize import solve_case
+    from crashnlp.api import solve
     from crashnlp.problem import problem_from_dict
     from crashnlp.runtime import THREADS_ENV
 
@@ -52,12 +54,12 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
         with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
-            solution = solve_case(Case(problem), progress=None, warm=job["warm"])
+            result = solve(problem, progress=None, warm=job["warm"])
     except InputError as exc:
         return {"record": {"status": f"input error: {_one_line(exc)}"}, "z": None}
     except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
         return {"record": {"status": f"error: {type(exc).__name__}: {_one_line(exc)}"}, "z": None}
-    return {"record": solution_record(solution, job["constraints"]), "z": solution.result.z if solution.result else None}
+    return {"record": result_record(result, job["constraints"]), "z": result.z}
 
 
 def _one_line(exc: BaseException) -> str:
@@ -65,40 +67,35 @@ def _one_line(exc: BaseException) -> str:
     return text.splitlines()[0] if text else type(exc).__name__
 
 
-def solution_record(solution, constraints: list[str]) -> dict[str, Any]:
+def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
     """Status, solver figures, metrics, parameters and the multipliers of the swept constraints."""
-    from crashnlp.results import active_constraints, response_metrics
-
-    res = solution.result
     record: dict[str, Any] = {
-        "status": solution.status,
-        "objective": res.objective if res else None,
-        "iterations": res.iterations if res else 0,
-        "wall_s": res.wall_s if res else None,
+        "status": result.status,
+        "objective": result.solver.objective,
+        "iterations": result.solver.iterations,
+        "wall_s": result.solver.wall_s,
     }
-    for test in solution.tests:
-        metrics = response_metrics(test)
-        record.update({f"{test.name}.{k}": metrics[k] for k in METRICS})
-    for path, value in solution.parameters.items():
+    for name, test in result.tests.items():
+        record.update({f"{name}.{k}": test.metrics[k] for k in METRICS})
+    for path, value in result.parameters.items():
         values = np.ravel(value)
         if np.ndim(value):
             record.update({f"{path}[{i}]": float(v) for i, v in enumerate(values)})
         else:
             record[path] = float(values[0])
-    if res is not None:
-        record.update(swept_multipliers(solution, active_constraints(solution), constraints))
+    if result.z is not None:
+        record.update(swept_multipliers(result, constraints))
     return record
 
 
-def swept_multipliers(solution, active: list[dict], swept: list[str]) -> dict[str, float]:
-    """multiplier.<constraint> for every NLP constraint a swept entry sets (0 when inactive)."""
-    tests = [t.name for t in solution.case.tests]
-    worth = {c["name"]: c["multiplier"] for c in active}
+def swept_multipliers(result: Result, swept: list[str]) -> dict[str, float]:
+    """multiplier.<constraint> for every inequality block a swept entry sets (0 when inactive)."""
+    worth = {c.name: c.multiplier for c in result.active_constraints}
     out = {}
-    for c in solution.ocp.nlp.constraints:
-        local = next((c.name[len(t) + 1 :] for t in tests if c.name.startswith(t + ".")), c.name)
+    for name in result.inequalities:
+        local = next((name[len(t) + 1 :] for t in result.tests if name.startswith(t + ".")), name)
         if any(local == s or local.startswith(s + ".") for s in swept):
-            out[f"multiplier.{c.name}"] = worth.get(c.name, 0.0)
+            out[f"multiplier.{name}"] = worth.get(name, 0.0)
     return out
 
 

@@ -6,7 +6,7 @@ from pathlib import Path
 
 import math
 
-from crashnlp.study.executors import CONNECT_TIMEOUT, EXECUTORS
+from crashnlp.studies.executors import CONNECT_TIMEOUT, EXECUTORS
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)
@@ -64,13 +64,13 @@ def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
     from crashnlp.errors import InputError, Interrupted
     from crashnlp.files import check_writable
-    from crashnlp.study.executors import start_early
+    from crashnlp.studies.executors import start_early
 
     check = getattr(args, "check", False)
     if args.executor == "local" and not check:
         start_early()
-    from crashnlp.study.run import RESULTS, run_study
-    from crashnlp.study.spec import load_study
+    from crashnlp.studies.run import RESULTS, run_study
+    from crashnlp.studies.spec import load_study
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers: must be at least 1")
@@ -89,7 +89,7 @@ def cmd_study(args) -> int:
         raise
     if check:
         if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
-            from crashnlp.study.executors import make_executor
+            from crashnlp.studies.executors import make_executor
 
             make_executor("dask", None, args.address, args.timeout).close()
         print(f"{args.study}: ok (would write {out}/)")

@@ -12,17 +12,8 @@ from crashnlp.compiled import Evaluator, compiled
 from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
 from crashnlp.problem.schema import Simulation
 from crashnlp.runtime import mapped
-from crashnlp.units import G0
+from crashnlp.outputs import COLUMNS
 
-RESPONSE_COLUMNS = {  # csv column: (output, factor from SI)
-    "time_s": ("time", 1.0),
-    "displacement_m": ("displacement", 1.0),
-    "velocity_mps": ("velocity", 1.0),
-    "accel_g": ("accel", 1 / G0),
-    "pitch_deg": ("pitch", 180 / np.pi),
-    "crush_m": ("crush", 1.0),
-    "barrier_force_N": ("barrier_force", 1.0),
-}
 
 
 @dataclass
@@ -36,18 +27,26 @@ class Response:
     def __getitem__(self, name: str) -> np.ndarray:
         return self.time if name == "time" else self.outputs[name]
 
+    @property
+    def loading_end(self) -> float:
+        """The model's own end of loading: where its crush rate first turns negative (s)."""
+        rate = self.outputs["crush_rate"]
+        k = int(np.argmax(rate < 0)) if np.any(rate < 0) else 0
+        if k == 0:
+            return float("nan")
+        return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.time[k - 1 : k + 1]))
+
     def write_csv(self, path: Path) -> None:
         write_response_csv(path, self.time, self.outputs)
 
 
 def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
-    """response.csv: the columns simulate and identify both write, in report units."""
+    """response.csv: time and the registry's written outputs, in report units."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    series = {"time": np.asarray(time), **outputs}
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(RESPONSE_COLUMNS)
-        cols = [series[name] * f for name, f in RESPONSE_COLUMNS.values()]
+        w.writerow(["time_s", *(o.column for o in COLUMNS)])
+        cols = [np.asarray(time), *(outputs[o.name] * o.factor for o in COLUMNS)]
         for row in zip(*cols):
             w.writerow([f"{v:.9g}" for v in row])
 

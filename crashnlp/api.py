@@ -1,0 +1,81 @@
+"""The Python API: problems in, plain results out.
+
+    import crashnlp
+    problem = crashnlp.load("problems/pickup-56kph.yaml")      # validated, immutable
+    result = crashnlp.identify(problem)                         # a crashnlp.Result
+    sims = crashnlp.simulation(problem, params=result.parameters)  # test -> output -> array (SI)
+
+The command line is a thin layer over these functions.
+"""
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, TextIO
+
+import numpy as np
+
+from crashnlp.outputs import OUTPUT
+from crashnlp.problem import Problem, load_problem
+from crashnlp.result import Result
+
+
+def load(path: str | Path) -> Problem:
+    """A problem file, validated (units converted to SI, data files checked)."""
+    return load_problem(path)
+
+
+def _problem(problem: Problem | str | Path) -> Problem:
+    return problem if isinstance(problem, Problem) else load_problem(problem)
+
+
+def solve(
+    problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None, warm: np.ndarray | None = None
+) -> Result:
+    """Identify or design, as the problem's `kind` says; `progress`: a stream for a line every ten
+    IPOPT iterations; `warm`: a Result.z of the same shape."""
+    from crashnlp.case import Case
+    from crashnlp.optimize import solve_case
+    from crashnlp.optimize.outcome import result_of
+
+    return result_of(solve_case(Case(_problem(problem)), verbose=verbose, progress=progress, warm=warm))
+
+
+def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
+    """Fit the problem's estimated parameters to its tests' data."""
+    problem = _problem(problem)
+    if problem.kind != "identify":
+        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.design")
+    return solve(problem, verbose, progress)
+
+
+def design(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
+    """Choose the problem's free parameters for its design goal."""
+    problem = _problem(problem)
+    if problem.kind != "design":
+        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.identify")
+    return solve(problem, verbose, progress)
+
+
+def simulate(
+    problem: Problem | str | Path, params: dict[str, Any] | None = None, dt: float | None = None
+) -> dict[str, dict[str, np.ndarray]]:
+    """Forward simulation of every test: test name -> output key -> array, in SI with the unit in
+    the key ("time_s", "crush_m", "accel_mps2"; crashnlp.outputs lists them).
+
+    `params` (e.g. a Result's `parameters`) replace the problem's values first."""
+    from crashnlp.case import Case
+
+    problem = _problem(problem)
+    if params:
+        problem = problem.with_values(params)
+    responses = Case(problem).simulate(dt=dt)
+    return {name: {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}} for name, r in responses.items()}
+
+
+def study(
+    path: str | Path, executor: str = "local", workers: int | None = None, out: str | Path | None = None
+) -> list[dict[str, Any]]:
+    """Run a study file; its table as rows (also written to its folder, as the command writes it)."""
+    from crashnlp.studies.run import run_study
+
+    return run_study(path, out, executor=executor, workers=workers, progress=False)

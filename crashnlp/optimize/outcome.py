@@ -1,0 +1,134 @@
+"""The one place a solved NLP becomes a plain `Result` (crashnlp.result).
+
+Everything that needs the NLP (multipliers, constraint blocks, the parameter
+layout) is read here, once; nothing downstream touches the optimizer.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from crashnlp.case import Case, TestCase
+from crashnlp.nlp import NOT_REPORTED
+from crashnlp.optimize.identify import Solution
+from crashnlp.optimize.verify import TOLERANCE
+from crashnlp.rating import iso18571
+from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
+from crashnlp.results import data_metrics, response_metrics
+from crashnlp.simulation import Response
+
+COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
+
+
+def result_of(solution: Solution) -> Result:
+    """The plain result of a solve."""
+    case, res = solution.case, solution.result
+    solver = SolverStats(
+        res.return_status if res else None, res.iterations if res else 0, res.objective if res else None,
+        res.wall_s if res else None, res.build_s if res else None,
+    )
+    tests = {test.name: _test(solution, ts, test) for ts, test in zip(solution.tests, case.tests)}
+    labels = solution.ocp.free.labels()
+    cov, pull, at_bound = solution.covariance, solution.bound_pull(), solution.at_bound()
+    return Result(
+        name=case.name,
+        kind=case.problem.kind,
+        status=solution.status,
+        solver=solver,
+        transcription=case.problem.transcription.model_dump(),
+        parameters=solution.parameters,
+        std_errors=_named(solution, cov.std) if cov is not None else {},
+        correlation={"labels": labels, "matrix": np.round(cov.correlation, 6).tolist()} if cov is not None else {},
+        not_identified=tuple(np.asarray(labels)[~cov.identified].tolist()) if cov is not None else (),
+        at_bound={label: round(float(pull[i]), 3) for i, label in enumerate(labels) if at_bound[i]},
+        active_constraints=tuple(active_constraints(solution)) + tuple(_parameter_bounds(solution)),
+        tests=tests,
+        force_crush=_force_crush(case, solution.full_parameters(), tests),
+        profiles=solution.profiles,
+        covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
+        inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
+        z=res.z if res else None,
+    )
+
+
+def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
+    v = solution.verification
+    check = None
+    if v is not None:
+        check = {"max_abs_error": v.mismatch[test.name], "worst_relative": v.worst(test.name), "tolerance_relative": TOLERANCE}
+    data = {name: (ch.time, ch.values) for name, ch in test.data.channels.items()} if test.data is not None else {}
+    return TestResult(
+        test.name, test.speed, ts, data, _fits(solution, ts, test.name), response_metrics(ts), data_metrics(test),
+        ts.loading_end, v.energy[test.name] if v is not None else None, check,
+    )
+
+
+def _fits(solution: Solution, ts: Response, test: str) -> dict[str, ChannelFit]:
+    out = {}
+    for r in solution.residuals:
+        if r.test != test:
+            continue
+        times, model = ts.time[r.columns], ts.outputs[r.channel][r.columns]
+        rating = iso18571(times, r.data, model) if len(times) >= 10 else None
+        rmse = float(np.sqrt(np.mean((model - r.data) ** 2)))
+        out[r.channel] = ChannelFit(r.channel, times, r.data, model, r.sigma, rmse, rating)
+    return out
+
+
+def _named(solution: Solution, values: np.ndarray) -> dict:
+    """Per-entry values of theta by parameter path (a number or a list); inf as None."""
+    out = {}
+    for e in solution.ocp.free.entries:
+        v = [None if not np.isfinite(x) else float(x) for x in values[e.at]]
+        out[e.path] = v[0] if e.where.stop - e.where.start == 1 else v
+    return out
+
+
+def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: float = 1e-6) -> list[ActiveConstraint]:
+    """Inequality blocks with points at their bound and a nonzero multiplier.
+
+    The multiplier, summed over the block's points, is what a unit of the bound
+    is worth: d objective / d bound (objective units per SI unit)."""
+    res, nlp = solution.result, solution.ocp.nlp
+    if res is None:
+        return []
+    bounds = nlp.bounds()
+    out = []
+    for c in nlp.constraints:
+        if c.kind in NOT_REPORTED:
+            continue
+        rows = slice(c.start, c.start + c.size)
+        lam, g, lo, hi = res.lam_g[rows], res.g[rows], bounds["lbg"][rows], bounds["ubg"][rows]
+        slack = np.minimum(np.abs(g - lo), np.abs(hi - g))
+        bound = np.where(np.abs(g - lo) < np.abs(hi - g), lo, hi)
+        active = np.flatnonzero((np.abs(lam) > lam_tol) & (slack <= slack_tol * (1 + np.abs(bound))))
+        if active.size:
+            worth = np.abs(lam[active])
+            out.append(ActiveConstraint(c.kind, c.name, c.test, int(active.size), float(worth.sum()), float(worth.max())))
+    return out
+
+
+def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
+    """Parameters at a bound, as active constraints (their multiplier is IPOPT's lam_x)."""
+    if solution.result is None:
+        return []
+    block = solution.ocp.nlp.blocks["theta"]
+    lam = solution.result.lam_x[block.offset : block.offset + block.shape[0]] / block.scale.ravel()
+    labels = solution.ocp.free.labels()
+    return [
+        ActiveConstraint("parameter_bound", f"bound.{labels[i]}", None, 1, float(abs(lam[i])), float(abs(lam[i])))
+        for i in np.flatnonzero(solution.at_bound())
+    ]
+
+
+def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> ForceCrush:
+    """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
+    reach = max(float(np.max(t.response["crush"])) for t in tests.values())
+    x = np.linspace(0.0, max(reach * 1.05, 1e-3), 201)
+    curve = case.model.loading_curve
+    f = np.asarray(curve.map(len(x))(x, p)).ravel()
+    bps = p[case.layout.index("model.spring.crush_breakpoints")]
+    inside = bps[bps <= x[-1]]
+    values = np.asarray(curve.map(inside.size)(inside, p)).ravel() if inside.size else np.zeros(0)
+    known = case.problem.reference.force_crush
+    reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
+    return ForceCrush(x, f, inside, values, reference)

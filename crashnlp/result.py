@@ -1,0 +1,176 @@
+"""The plain outcome of an identification or a design: frozen dataclasses, no CasADi.
+
+A `Result` is built once, by the optimizer (crashnlp.optimize.outcome), from
+the solved NLP; everything downstream (result files, figures, the console,
+study tables, the Python API) reads it and nothing else. `Result.save(dir)`
+writes what the command line writes; `Result.load(dir)` reads it back.
+"""
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from crashnlp.simulation import Response
+
+
+@dataclass(frozen=True)
+class ChannelFit:
+    """One measured channel against the model at the fitted nodes (SI)."""
+
+    channel: str
+    times: np.ndarray
+    data: np.ndarray
+    model: np.ndarray
+    sigma: float
+    rmse: float
+    iso18571: dict[str, float] | None
+
+
+@dataclass(frozen=True)
+class ActiveConstraint:
+    """An inequality at its bound: its kind, its test (None for shared), where and what it is worth.
+
+    `multiplier` sums |lambda| over the points: d objective / d bound (objective units per SI unit)."""
+
+    kind: str  # "bound", "monotone_crush", "monotone_spring", "design", "parameter_bound", ...
+    name: str
+    test: str | None
+    points: int
+    multiplier: float
+    max_multiplier: float
+
+
+@dataclass(frozen=True)
+class SolverStats:
+    return_status: str | None
+    iterations: int
+    objective: float | None
+    wall_s: float | None
+    build_s: float | None
+
+
+@dataclass(frozen=True)
+class TestResult:
+    """One test: the model's response on the NLP grid, the data, the fit and the audits."""
+
+    name: str
+    speed: float
+    response: Response
+    data: dict[str, tuple[np.ndarray, np.ndarray]]
+    fit: dict[str, ChannelFit]
+    metrics: dict[str, float | None]
+    data_metrics: dict[str, float | None] | None
+    loading_end: float
+    energy: dict[str, float] | None = None
+    forward_check: dict[str, Any] | None = None
+
+
+@dataclass(frozen=True)
+class ForceCrush:
+    """The identified loading curve, its breakpoints, and a reference curve if the problem has one."""
+
+    crush: np.ndarray
+    force: np.ndarray
+    breakpoints: np.ndarray
+    values: np.ndarray
+    reference: tuple[np.ndarray, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class Result:
+    """What a solve produced, judged honestly, in SI."""
+
+    name: str
+    kind: str
+    status: str
+    solver: SolverStats
+    transcription: dict[str, Any]
+    parameters: dict[str, float | list[float]]
+    std_errors: dict[str, float | list[float | None] | None]
+    correlation: dict[str, Any]
+    not_identified: tuple[str, ...]
+    at_bound: dict[str, float]
+    active_constraints: tuple[ActiveConstraint, ...]
+    tests: dict[str, TestResult]
+    force_crush: ForceCrush | None = None
+    profiles: dict[str, dict] = field(default_factory=dict)
+    covariance: dict[str, Any] = field(default_factory=dict)
+    inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not
+    z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_json(self) -> dict[str, Any]:
+        """The content of result.json (SI; metrics in the units their names say)."""
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "status": self.status,
+            "solver": {"name": "ipopt", **vars(self.solver)},
+            "transcription": self.transcription,
+            "parameters": self.parameters,
+            "std_errors": self.std_errors,
+            "correlation": self.correlation,
+            "not_identified": list(self.not_identified),
+            "profiles": self.profiles,
+            "covariance": self.covariance,
+            "at_bound": self.at_bound,
+            "tests": {name: _test_json(t) for name, t in self.tests.items()},
+            "active_constraints": [vars(c) for c in self.active_constraints],
+        }
+
+    def save(self, folder: str | Path, figures: bool = True) -> None:
+        """result.json, responses, force-crush table and figures: what the command line writes."""
+        from crashnlp.results import write_result
+
+        write_result(self, Path(folder), figures=figures)
+
+    @classmethod
+    def load(cls, folder: str | Path) -> "Result":
+        """A Result read back from a folder `save` wrote (responses from response.csv)."""
+        from crashnlp.results import read_response
+
+        folder = Path(folder)
+        raw = json.loads((folder / "result.json").read_text())
+        tests = {}
+        for name, t in raw["tests"].items():
+            response = read_response(folder / name / "response.csv")
+            tests[name] = TestResult(
+                name, t["speed_mps"], response, {}, {}, t["metrics"]["model"], t["metrics"]["data"],
+                _number(t.get("loading_ends_s")), t.get("energy"), t.get("forward_check"),
+            )
+        return cls(
+            raw["name"], raw["kind"], raw["status"],
+            SolverStats(*(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s"))),
+            raw["transcription"], raw["parameters"], raw["std_errors"], raw["correlation"], tuple(raw["not_identified"]),
+            raw["at_bound"], tuple(ActiveConstraint(**c) for c in raw["active_constraints"]), tests,
+            profiles=raw.get("profiles", {}), covariance=raw.get("covariance", {}),
+        )
+
+
+def _number(value: Any) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def _test_json(t: TestResult) -> dict[str, Any]:
+    return {
+        "speed_mps": t.speed,
+        "loading_ends_s": t.loading_end,
+        "forward_check": t.forward_check,
+        "energy": t.energy,
+        "metrics": {"model": t.metrics, "data": t.data_metrics},
+        "fit": {c: _fit_json(f) for c, f in t.fit.items()},
+    }
+
+
+def _fit_json(f: ChannelFit) -> dict[str, Any]:
+    from crashnlp.outputs import OUTPUT
+
+    out = OUTPUT[f.channel]
+    return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}

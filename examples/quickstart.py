@@ -1,0 +1,30 @@
+"""crashnlp from Python: identify the synthetic pickup, look at the result, simulate a
+faster impact with the identified parameters, and run a what-if study.
+
+Run from the repository root: `python examples/quickstart.py` (the test suite runs it).
+"""
+import crashnlp
+
+
+def main() -> None:
+    problem = crashnlp.load("problems/pickup-56kph.yaml")  # validated, immutable
+    result = crashnlp.identify(problem)  # also crashnlp.design(problem)
+
+    print(result.status, result.solver.iterations, "iterations")
+    print("spring values (N):", result.parameters["model.spring.values"])
+    print("their std (N):    ", result.std_errors["model.spring.values"])
+    print("max crush (m):", result.tests["56kph"].metrics["max_crush_m"])
+    print("energy balance error:", result.tests["56kph"].energy["balance_error_relative"])
+    result.save("results/pickup-56kph")  # the files `crashnlp identify` writes
+
+    faster = problem.with_values({"vehicle.speed": "64 km/h"})  # a new problem; `problem` is unchanged
+    sims = crashnlp.simulate(faster, params=result.parameters)
+    print("max crush at 64 km/h (m):", sims["56kph"]["crush_m"].max())  # name -> array, per test
+
+    table = crashnlp.study("problems/studies/pitch-bound.yaml", executor="local")
+    for row in table:
+        print(row["case"], row["status"], row.get("objective"))
+
+
+if __name__ == "__main__":  # studies start worker processes, which import this file
+    main()

@@ -1,0 +1,128 @@
+"""The Python API: plain results equal to the command line's, round trips, immutable problems,
+and fast unit tests of the NLP builder and the transcriptions (no IPOPT)."""
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import casadi as ca
+import numpy as np
+import pytest
+import yaml
+from conftest import BASE, ROOT, merge
+
+import crashnlp
+from crashnlp.cli import main
+from crashnlp.nlp import DYNAMICS, NLPBuilder
+from crashnlp.problem import problem_from_dict
+from crashnlp.results import VOLATILE
+
+SMALL = {"transcription": {"method": "multiple-shooting", "intervals": 40, "substeps": 2}}
+
+
+@pytest.fixture(scope="module")
+def small_problem(tmp_path_factory):
+    """A short fit of the pickup data: two spring values and the crush offset."""
+    folder = tmp_path_factory.mktemp("api")
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw["tests"][0]["data"]["window"] = ["0 s", "0.06 s"]
+    raw["model"]["spring"] = {"law": "force", "crush_breakpoints": [0, 0.25, 0.6], "values": ["0 kN", "400 kN", "500 kN"]}
+    raw["estimate"] = {"model.spring.values": {"bounds": [0, "3 MN"]}, "vehicle.crush_offset": {"bounds": [-0.3, 0.5]}}
+    raw.pop("reference")
+    raw.update(SMALL)
+    path = folder / "small.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
+
+
+def _stable(result: dict) -> dict:
+    for key in VOLATILE:
+        result["solver"].pop(key)
+    return result
+
+
+def test_api_result_equals_the_command_line(small_problem, tmp_path):
+    result = crashnlp.identify(crashnlp.load(small_problem))
+    assert result.ok, result.status
+    result.save(tmp_path / "api")
+    assert main(["identify", str(small_problem), "--out", str(tmp_path / "cli")]) == 0
+    api = _stable(json.loads((tmp_path / "api/result.json").read_text()))
+    cli = _stable(json.loads((tmp_path / "cli/result.json").read_text()))
+    assert api.keys() == cli.keys()
+    for path, value in cli["parameters"].items():
+        np.testing.assert_allclose(api["parameters"][path], value, rtol=1e-6)
+    assert api == cli
+    files = {p.relative_to(tmp_path / "cli") for p in (tmp_path / "cli").rglob("*")}
+    assert files == {p.relative_to(tmp_path / "api") for p in (tmp_path / "api").rglob("*")}
+
+
+def test_result_loads_back_what_it_saved(small_problem, tmp_path):
+    result = crashnlp.identify(small_problem)
+    result.save(tmp_path, figures=False)
+    back = crashnlp.Result.load(tmp_path)
+    assert (back.status, back.not_identified) == (result.status, result.not_identified)
+    for path, value in result.parameters.items():  # result.json keeps 10 significant digits
+        np.testing.assert_allclose(back.parameters[path], value, rtol=1e-9)
+    t, u = back.tests["56kph"], result.tests["56kph"]
+    np.testing.assert_allclose(t.response["crush"], u.response["crush"], rtol=1e-8, atol=1e-12)
+    assert t.energy == pytest.approx(u.energy)
+    assert [c.name for c in back.active_constraints] == [c.name for c in result.active_constraints]
+
+
+def test_with_values_returns_a_new_problem_and_leaves_the_old_one(small_problem):
+    problem = crashnlp.load(small_problem)
+    faster = problem.with_values({"vehicle.speed": "64 km/h"})
+    assert faster.vehicle.speed == pytest.approx(64 / 3.6) and problem.vehicle.speed == pytest.approx(56 / 3.6)
+    with pytest.raises(KeyError):
+        problem.with_values({"vehicle.no_such_thing": 1.0})
+
+
+def test_simulate_returns_named_arrays_in_si(small_problem):
+    sims = crashnlp.simulate(small_problem, dt=1e-3)
+    run = sims["56kph"]
+    assert run["time_s"][0] == 0 and np.all(np.diff(run["time_s"]) > 0)
+    assert run["velocity_mps"][0] == pytest.approx(56 / 3.6, rel=0.01)  # the CG starts at the impact speed
+    assert run["crush_m"].max() > 0.1 and np.all(run["contact_force_N"] >= 0)
+
+
+def test_the_example_runs_as_written():
+    done = subprocess.run([sys.executable, "examples/quickstart.py"], cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "max crush at 64 km/h" in done.stdout
+
+
+# --------------------------------------------------------------------------- fast units, no IPOPT
+def test_nlp_builder_scales_variables_and_types_constraints():
+    nlp = NLPBuilder()
+    x = nlp.variable("x", (2, 3), init=4.0, lb=0.0, ub=8.0, scale=2.0)
+    nlp.constrain("bound", x[0, :], -np.inf, 1.0, test="t1", detail="crush.upper")
+    nlp.constrain(DYNAMICS, x[1, :] - 1, test="t1", detail="continuity")
+    b = nlp.bounds()
+    np.testing.assert_allclose(b["x0"], 2.0)  # stored scaled: 4 / 2
+    np.testing.assert_allclose(b["ubx"], 4.0)
+    (bound, dyn) = nlp.constraints
+    assert (bound.name, bound.local, bound.kind, bound.test, bound.size) == ("t1.bound.crush.upper", "bound.crush.upper", "bound", "t1", 3)
+    assert (dyn.kind, dyn.start) == (DYNAMICS, 3)
+    z = np.arange(6.0)
+    np.testing.assert_allclose(nlp.value("x", z), 2 * z.reshape(2, 3, order="F"))
+
+
+@pytest.mark.parametrize("method, per_interval", [("multiple-shooting", 0), ("collocation", 3)])
+def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_interval):
+    from crashnlp.case import Case
+    from crashnlp.model.pendulum import NX
+    from crashnlp.optimize.problem import OptimalControl
+
+    n = 40
+    spec = {"method": method, "intervals": n, **({"substeps": 1} if method == "multiple-shooting" else {"degree": 3})}
+    ocp = OptimalControl(Case(problem_from_dict(merge(BASE, {"transcription": spec, "estimate": {"vehicle.crush_offset": {}}}), ROOT)))
+    states = ocp.nlp.blocks["t56.x"]
+    assert states.shape == (NX, n + 1)
+    dynamics = sum(c.size for c in ocp.nlp.constraints if c.kind == DYNAMICS)
+    # initial state + impact interval + the other n - 1 intervals (and their collocation points)
+    assert dynamics == NX * (1 + 1 + (n - 1) * (1 + per_interval))
+    # at the initial guess (a forward simulation) the dynamics nearly hold
+    g = ca.Function("g", [ocp.nlp.decision], [ca.vertcat(*ocp.nlp.g)])(ocp.nlp.bounds()["x0"])
+    assert np.max(np.abs(np.asarray(g).ravel()[: dynamics])) < 0.05
