@@ -51,15 +51,19 @@ def _read_params(path: str) -> dict:
     return params
 
 
-def _load_case(path: str, problem=None):
-    """The Case of a problem file; an input error found while building it names the file."""
+def _load_case(path: str, problem=None, check_data: bool = False):
+    """The Case of a problem file (`check_data`: for a fit, data that contradict the problem are
+    refused too); an input error found while building it names the file."""
     from crashnlp.case import Case
     from crashnlp.data.channels import DataError
     from crashnlp.problem import load_problem
 
     problem = problem if problem is not None else load_problem(path)
     try:
-        return Case(problem)
+        case = Case(problem)
+        if check_data:
+            case.check_data()
+        return case
     except DataError:
         raise
     except InputError as exc:
@@ -207,7 +211,7 @@ def _solve(args, kind: str) -> int:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     check_fit_keys(problem, args.problem)
     out = check_writable(_out(args, problem.name))
-    case = _load_case(args.problem, problem)  # data and model errors name the file, before any solve
+    case = _load_case(args.problem, problem, check_data=True)  # errors name the file, before any solve
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
