@@ -14,10 +14,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import identification, report, scaling, simulation, studies  # noqa: E402
+from bench import identification, report, robustness, scaling, simulation, studies  # noqa: E402
 from bench.common import RESULTS, machine  # noqa: E402
 
-SECTIONS = {"identification": identification, "simulation": simulation, "studies": studies, "scaling": scaling}
+SECTIONS = {"identification": identification, "simulation": simulation, "studies": studies, "scaling": scaling,
+            "corpus": robustness}
 
 
 def main(argv: list[str] | None = None) -> int:

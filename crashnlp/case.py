@@ -11,6 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crashnlp.autoinit import case_pulses, complete
 from crashnlp.data import TestData, load_test_data
 from crashnlp.errors import InputError
 from crashnlp.model.parameters import ParameterLayout
@@ -64,13 +65,21 @@ class TestCase:
 
 
 class Case:
-    """Problem + data + parameter layout + symbolic model. The problem it is given is not changed."""
+    """Problem + data + parameter layout + symbolic model.
+
+    What the problem leaves out (vehicle mass, breakpoints, spring values, unloading
+    stiffness, estimate) is filled in from the data (crashnlp.autoinit); `problem` is the
+    completed copy, and the problem it is given is not changed.
+    """
 
     def __init__(self, problem: Problem):
         loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
         self.problem = self._with_vehicle_mass(problem, loaded)
         self.tests = [self._test_case(i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
-        self.layout = ParameterLayout.of(self.problem)  # with the mass a data header gave
+        self.problem = complete(self.problem, case_pulses(self))
+        for test, spec in zip(self.tests, self.problem.tests):
+            test.spec = spec
+        self.layout = ParameterLayout.of(self.problem)
         self.base = self.layout.values(self.problem)
         self.model: PendulumModel = build_model(self.problem.model, self.layout)
 

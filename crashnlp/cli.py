@@ -1,4 +1,4 @@
-"""The `crashnlp` command: simulate, identify, design, study, schema.
+"""The `crashnlp` command: simulate, identify, design, study, init, schema.
 
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
@@ -161,10 +161,11 @@ METRIC_ROWS = (  # result.json key, label, factor
 
 
 def _numbers(value, digits: int) -> str:
-    """A number or list of numbers to `digits` significant digits."""
-    values = np.atleast_1d(np.asarray(value, dtype=float))
+    """A number or list of numbers to `digits` significant digits; None shows as nan."""
+    items = value if isinstance(value, list) else [value]
+    values = np.array([np.nan if v is None else v for v in items], dtype=float)
     text = " ".join(f"{v:.{digits}g}" for v in values)
-    return text if values.size == 1 and np.ndim(value) == 0 else f"[{text}]"
+    return text if not isinstance(value, list) else f"[{text}]"
 
 
 def _cell(value, factor: float) -> str:
@@ -176,15 +177,18 @@ def _print_solution(result) -> None:
     s = result.solver
     timing = f"solve {s.wall_s:.2f} s + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
     objective = f"{s.objective:.6g}" if s.objective is not None else "-"
-    print(f"{result.name}: {result.status} (IPOPT {s.return_status}, {s.iterations} iterations, objective {objective}, {timing})")
+    print(f"{result.name}: {result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, objective {objective}, {timing})")
     for path, value in result.parameters.items():
         std = result.std_errors.get(path)
         text = _numbers(value, 5)
         if std is not None:
-            text += f"  (std {_numbers(np.array(std, dtype=float), 2)})"
+            text += f"  (std {_numbers(std, 2)})"
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    if result.at_bound:
+        pulls = ", ".join(f"{label} ({pull:.2g} std)" for label, pull in result.at_bound.items())
+        print(f"  at a bound (how far past it the data pull): {pulls}")
     for name, t in result.tests.items():
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
@@ -234,6 +238,26 @@ def cmd_design(args) -> int:
     return _solve(args, "design")
 
 
+def cmd_init(args) -> int:
+    from crashnlp.init import Options, init_problem
+    from crashnlp.units import UnitError, to_si
+
+    columns = {}
+    for item in args.column:
+        channel, sep, name = item.partition("=")
+        if not sep or not name:
+            raise InputError(f"--column {item}: expected CHANNEL=NAME[:UNIT]")
+        columns[channel] = name
+    try:
+        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (args.speed, "m/s")))
+    except UnitError as exc:
+        raise InputError(f"--mass/--speed: {exc}") from None
+    problem = init_problem(Path(args.data), Path(args.out), Options(args.format, mass, speed, columns, args.name))
+    print(f"wrote {args.out}: {problem.name}, {len(problem.model.spring.values)} breakpoints to "
+          f"{problem.model.spring.crush_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}")
+    return 0
+
+
 def cmd_schema(args) -> int:
     from crashnlp.problem.schema import Problem
 
@@ -269,6 +293,17 @@ def parser() -> argparse.ArgumentParser:
 
     add_study_parser(sub)
 
+    p = sub.add_parser("init", help="write a complete, commented problem file from one test's data")
+    p.add_argument("data", help="data file: CSV, NHTSA EV5 header (.EV5) or ISO-MME test (.mme, folder or .zip)")
+    p.add_argument("--format", choices=("csv", "nhtsa-ev5", "iso-mme"), help="default: from the file name")
+    p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
+    p.add_argument("--speed", help='impact speed, e.g. "48 km/h" (default: the data header or velocity column)')
+    p.add_argument("--column", action="append", default=[], metavar="CHANNEL=NAME[:UNIT]",
+                   help="CSV column of a channel (time, accel, velocity, displacement, pitch), unit if its name has none")
+    p.add_argument("--name", help="problem name (default: the data file's stem)")
+    p.add_argument("--out", required=True, help="problem YAML file to write")
+    p.set_defaults(func=cmd_init)
+
     p = sub.add_parser("schema", help="print the JSON Schema of problem files")
     p.set_defaults(func=cmd_schema)
     _add_common(ap, sub)
@@ -276,10 +311,10 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _add_common(ap: argparse.ArgumentParser, sub) -> None:
-    """Options every command has: --debug (anywhere on the line) and --check (all but schema)."""
+    """Options every command has: --debug (anywhere on the line) and --check (all but schema and init)."""
     ap.add_argument("--debug", action="store_true", help="show the traceback of a failure (anywhere on the line)")
     for name, p in sub.choices.items():
-        if name != "schema":
+        if name not in ("schema", "init"):
             p.add_argument(
                 "--check", action="store_true",
                 help="check the input and the output folder, then stop: solve nothing, write nothing",

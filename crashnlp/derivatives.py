@@ -19,6 +19,7 @@ which the dynamics multipliers make small near a good fit.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 
@@ -41,7 +42,7 @@ class MappedBlock:
         column = ca.Function(f"{self.fn.name()}_jac", ins, [ca.jacobian(ca.vec(o), w) for o in self.fn.call(ins)])
         per_column = mapped(column, self.n).call(self.inputs)
         stacked = ca.vertcat(*[ca.reshape(x, s.numel(), self.n) for x, s in zip(self.inputs, ins)])
-        dw = ca.jacobian(ca.vec(stacked), z)
+        dw: Any = ca.jacobian(ca.vec(stacked), z)
         dw = ca.evalf(dw) if not ca.depends_on(dw, z) else dw
         eye = ca.DM.eye(self.n)
         return [

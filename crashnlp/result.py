@@ -100,6 +100,7 @@ class Result:
     profiles: dict[str, dict] = field(default_factory=dict)
     covariance: dict[str, Any] = field(default_factory=dict)
     inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not
+    notes: tuple[str, ...] = ()  # what was done to the problem on the way, e.g. a repaired start
     z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
 
     @property
@@ -121,6 +122,7 @@ class Result:
             "profiles": self.profiles,
             "covariance": self.covariance,
             "at_bound": self.at_bound,
+            "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
             "active_constraints": [vars(c) for c in self.active_constraints],
         }
@@ -150,7 +152,7 @@ class Result:
             SolverStats(*(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s"))),
             raw["transcription"], raw["parameters"], raw["std_errors"], raw["correlation"], tuple(raw["not_identified"]),
             raw["at_bound"], tuple(ActiveConstraint(**c) for c in raw["active_constraints"]), tests,
-            profiles=raw.get("profiles", {}), covariance=raw.get("covariance", {}),
+            profiles=raw.get("profiles", {}), covariance=raw.get("covariance", {}), notes=tuple(raw.get("notes", ())),
         )
 
 

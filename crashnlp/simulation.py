@@ -4,11 +4,13 @@ from __future__ import annotations
 import csv
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from crashnlp.compiled import Evaluator, compiled
+from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
 from crashnlp.problem.schema import Simulation
 from crashnlp.runtime import mapped
@@ -61,19 +63,19 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
     Its right-hand side is the model's, compiled (crashnlp.compiled)."""
 
     def build() -> ca.Function:
-        rhs = _cached(model, ("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
+        rhs = model.cached(("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
         x, p = ca.MX.sym("x", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
-            opts = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
+            opts: dict[str, Any] = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
                     "disable_internal_warnings": True,  # a failure reaches the user as one line (cli.describe)
                     "linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
         else:
             opts = {"number_of_finite_elements": options.substeps}
         return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
 
-    return _cached(model, ("integrator", _key(grid, options)), build)
+    return model.cached(("integrator", _key(grid, options)), build)
 
 
 def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
@@ -85,12 +87,7 @@ def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bo
     columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
     simulation to C (crashnlp.compiled: about a second, once per machine)."""
     x, p = ca.SX.sym("x", NX + len(ABSORBED)), model.p
-    f = model.augmented_rhs
-    k1 = f(x, p)
-    k2 = f(x + dt / 2 * k1, p)
-    k3 = f(x + dt / 2 * k2, p)
-    k4 = f(x + dt * k3, p)
-    step = ca.Function("rk4", [x, p], [x + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)])
+    step = rk4(model.augmented_rhs, dt)
     outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p)])
     x0, pm = ca.MX.sym("x0", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
@@ -107,7 +104,7 @@ def simulate_batch(
     Returns "time" and each named output as an array of shape (simulations, times)."""
     n, steps = P.shape[1], int(round(duration / dt))
     X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
-    batch = _cached(model, ("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
+    batch = model.cached(("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
     (y,) = batch(x0=X0, p=P)
     y = y.reshape(len(OUTPUTS), n, steps + 1)
     return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
@@ -118,31 +115,23 @@ def simulate(
 ) -> Response:
     """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
     x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), np.zeros(len(ABSORBED))])
-    (xf,) = _cached(model, ("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
+    (xf,) = model.cached(("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
         x0=x0, p=p
     )
     states = np.column_stack([x0, xf])
     return response_from_states(model, p, grid, states)
 
 
-def _cached(model: PendulumModel, key: tuple, build):
-    """A Function built once per model and key (simulations repeat with the same shapes)."""
-    cache = model.__dict__.setdefault("_functions", {})
-    if key not in cache:
-        cache[key] = build()
-    return cache[key]
-
-
 def _outputs_on_grid(model: PendulumModel, n: int) -> Evaluator:
     """The compiled outputs at n points of one simulation (the parameters shared)."""
 
     def build() -> Evaluator:
-        outputs = _cached(model, ("outputs",), lambda: compiled(model.outputs))
+        outputs = model.cached(("outputs",), lambda: compiled(model.outputs))
         x, p = ca.MX.sym("x", NX, n), ca.MX.sym("p", model.layout.size)
         y = outputs.map(n)(x, ca.repmat(p, 1, n))  # serial: threads cost more than they save here
         return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
 
-    return _cached(model, ("outputs", n), build)
+    return model.cached(("outputs", n), build)
 
 
 def response_from_states(model: PendulumModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:

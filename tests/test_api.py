@@ -10,7 +10,7 @@ import casadi as ca
 import numpy as np
 import pytest
 import yaml
-from conftest import BASE, ROOT, merge
+from builders import BASE, ROOT, merge
 
 import crashnlp
 from crashnlp.cli import main

@@ -5,7 +5,7 @@ import json
 
 import pytest
 import yaml
-from conftest import BASE, ROOT, merge
+from builders import BASE, ROOT, merge
 
 from crashnlp.cli import main
 

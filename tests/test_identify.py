@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from conftest import BASE, merge, assert_monotone_crush
+from builders import BASE, merge, assert_monotone_crush
 
 from crashnlp.case import Case
 from crashnlp.cli import main

@@ -5,7 +5,7 @@ import casadi as ca
 import numpy as np
 import pytest
 import sympy as sp
-from conftest import make_case
+from builders import make_case
 
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.simulation import simulate_batch

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from conftest import ROOT
+from builders import ROOT
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify

@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import BASE, ROOT, merge
+from builders import BASE, ROOT, merge
 
 from crashnlp.case import Case
 from crashnlp.cli import parser

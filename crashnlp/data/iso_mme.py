@@ -77,13 +77,8 @@ def _quantity(text: str | None, unit: str) -> float | None:
         return None
 
 
-def read_mme(spec: DataSpec) -> TestData:
-    """Channels chosen by `ChannelSpec.code` (16-character ISO code), values in SI.
-
-    The unit is the channel file's "Unit" unless `ChannelSpec.unit` overrides. Meta: 'speed'
-    and 'mass' of the test object numbered by the first character of the first code (default 1).
-    """
-    path = spec.file
+def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
+    """The test's files, its .mme and .chn names, and its channel numbers by code."""
     store = _Store(path)
     mme_files = [path.name] if path.suffix.lower() == ".mme" else store.find(".mme")
     if not mme_files:
@@ -101,7 +96,23 @@ def read_mme(spec: DataSpec) -> TestData:
         match = _CHANNEL_LINE.fullmatch(key)
         if match:
             codes.setdefault(value.split("/")[0].strip().upper(), match.group(1))
+    return store, mme_name, chn_name, codes
 
+
+def read_header(path: Path) -> tuple[dict[str, str], list[str]]:
+    """The .mme file's entries (keys lower-cased) and the channel codes of the test."""
+    store, mme_name, _, codes = _open(path)
+    return _pairs(store.text(mme_name))[0], list(codes)
+
+
+def read_mme(spec: DataSpec) -> TestData:
+    """Channels chosen by `ChannelSpec.code` (16-character ISO code), values in SI.
+
+    The unit is the channel file's "Unit" unless `ChannelSpec.unit` overrides. Meta: 'speed'
+    and 'mass' of the test object numbered by the first character of the first code (default 1).
+    """
+    path = spec.file
+    store, mme_name, chn_name, codes = _open(path)
     channels = {}
     obj = None
     for name, ch in spec.channels.items():
@@ -121,7 +132,7 @@ def read_mme(spec: DataSpec) -> TestData:
         channels[name] = _channel(store.text(file), ch.unit, name, at, f"{PurePosixPath(file).name}:{code}")
 
     header, _ = _pairs(store.text(mme_name))
-    meta = {}
+    meta: dict[str, float] = {}
     speed = _quantity(header.get(f"velocity test object {obj or '1'}"), "m/s")
     mass = _quantity(header.get(f"mass test object {obj or '1'}"), "kg")
     if speed:

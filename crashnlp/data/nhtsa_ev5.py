@@ -2,10 +2,11 @@
 
 Header cards used (fields counted from 1, as in the NHTSA Test Reference Guide):
 - TEST: 15 closing speed CLSSPD [km/h], 19 total number of curves TOTCRV.
-- VEHICLE: 1 vehicle number, 11 test mass VEHTWT [kg].
-- INSTRUMENTATION: 1 vehicle number, 2 curve number, 5 sensor location, 6 axis, 7 x units,
+- VEHICLE: 1 vehicle number, 11 test mass VEHTWT [kg], 13 wheelbase [mm], 14 length [mm],
+  16 CG behind the front axle VEHCG [mm].
+- INSTRUMENTATION: 1 vehicle number, 2 curve number, 3 sensor type, 5 sensor location, 6 axis, 7 x units,
   8 y units, 15 first point NFP, 16 last point NLP, 17 sample interval DELT [us],
-  18 data status DASTAT, 19 channel status, 20 comment.
+  18 data status DASTAT, 19 channel status (P primary, R redundant), 20 comment.
 Curve NNN lives next to the header as <stem>.NNN (time [s] TAB value).
 """
 from __future__ import annotations
@@ -39,6 +40,8 @@ class Curve:
     interval: float  # s
     status: str
     comment: str
+    sensor: str = ""  # field 3, e.g. AC (accelerometer)
+    primary: bool = True  # field 19: P primary, R redundant
 
 
 def _cards(path: Path) -> dict[str, list[list[str]]]:
@@ -62,7 +65,7 @@ def _cards(path: Path) -> dict[str, list[list[str]]]:
     return cards
 
 
-def _number(fields: list[str], index: int) -> float | None:
+def card_number(fields: list[str], index: int) -> float | None:
     """Field `index` (counted from 1) as a float, or None when absent or not a number."""
     try:
         return float(fields[index - 1])
@@ -86,10 +89,18 @@ def _curves(path: Path, rows: list[list[str]]) -> dict[int, Curve]:
                 interval=float(row[16]) * 1e-6,
                 status=row[17].upper() if len(row) > 17 else "",
                 comment="|".join(row[19:]),
+                sensor=row[2].upper(),
+                primary=len(row) <= 18 or row[18].upper() != "R",
             )
         except (IndexError, ValueError):
             raise DataError(f"{path}: INSTRUMENTATION line {'|'.join(row)[:40]!r} is malformed") from None
     return curves
+
+
+def read_header(path: Path) -> tuple[dict[str, list[list[str]]], dict[int, Curve]]:
+    """The header's cards (lines split on '|') and its INSTRUMENTATION curves by number."""
+    cards = _cards(path)
+    return cards, _curves(path, cards["INSTRUMENTATION"])
 
 
 def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[np.ndarray, np.ndarray]:
@@ -128,10 +139,9 @@ def read_ev5(spec: DataSpec) -> TestData:
     TEST card, 'mass' [kg] from the VEHICLE card of the vehicle carrying the curves.
     """
     header = spec.file
-    cards = _cards(header)
-    curves = _curves(header, cards["INSTRUMENTATION"])
+    cards, curves = read_header(header)
     meta: dict[str, float] = {}
-    speed = _number(cards["TEST"][0], 15)
+    speed = card_number(cards["TEST"][0], 15)
     if speed is not None and speed > 0:
         meta["speed"] = speed / 3.6
     vehicle = 1
@@ -154,7 +164,7 @@ def read_ev5(spec: DataSpec) -> TestData:
             read.append((file, time, values))
         channels[name] = _average(read, name)
     for row in cards.get("VEHICLE", []):
-        if row and row[0] == str(vehicle) and (mass := _number(row, 11)) and mass > 0:
+        if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass
     return TestData(channels, meta)
 

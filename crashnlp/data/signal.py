@@ -31,24 +31,16 @@ def cfc_coefficients(cfc: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
 def cfc_filter(values: np.ndarray, dt: float, cfc: float | str, pad: float = 0.01) -> np.ndarray:
     """Zero-phase CFC filter of a uniformly sampled signal (sample interval `dt` in s).
 
-    The ends are padded with `pad` seconds of the signal reflected about its end values
-    (odd reflection: keeps value and slope, as J211-1 suggests to avoid start-up transients);
-    the recursion starts in steady state on the padded end value.
+    scipy's filtfilt with the J211-1 coefficients: the ends are padded with `pad` seconds of
+    the signal reflected about its end values (odd reflection: keeps value and slope, as
+    J211-1 suggests to avoid start-up transients), and each pass starts in steady state.
     """
-    from scipy.signal import lfilter, lfilter_zi  # scipy.signal takes a second to import: only when filtering
+    from scipy.signal import filtfilt  # scipy.signal takes a second to import: only when filtering
 
     cfc = CFC_CLASSES[cfc] if isinstance(cfc, str) else float(cfc)
     b, a = cfc_coefficients(cfc, dt)
     x = np.asarray(values, dtype=float)
-    n = min(x.size - 1, max(1, int(round(pad / dt))))
-    head = 2.0 * x[0] - x[n:0:-1]
-    tail = 2.0 * x[-1] - x[-2 : -n - 2 : -1]
-    y = np.concatenate([head, x, tail])
-    zi = lfilter_zi(b, a)
-    y, _ = lfilter(b, a, y, zi=zi * y[0])
-    y = y[::-1]
-    y, _ = lfilter(b, a, y, zi=zi * y[0])
-    return y[::-1][n : n + x.size]
+    return filtfilt(b, a, x, padtype="odd", padlen=min(x.size - 1, max(1, int(round(pad / dt)))))
 
 
 def remove_bias(time: np.ndarray, values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
@@ -61,8 +53,9 @@ def remove_bias(time: np.ndarray, values: np.ndarray, window: tuple[float, float
 
 def cumtrapz(time: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Cumulative trapezoid integral, 0 at the first sample."""
-    steps = 0.5 * (values[1:] + values[:-1]) * np.diff(time)
-    return np.concatenate([[0.0], np.cumsum(steps)])
+    from scipy.integrate import cumulative_trapezoid
+
+    return cumulative_trapezoid(values, time, initial=0.0)
 
 
 def integrate(

@@ -11,11 +11,11 @@ added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS.
 """
 from __future__ import annotations
 
-from typing import Callable
+from typing import Any, Callable
 
 import casadi as ca
 
-Expr = ca.SX | ca.MX
+Expr = Any  # a CasADi SX or MX expression (their stubs do not mix the two in arithmetic)
 
 
 def hinge(z: Expr, eps: float) -> Expr:

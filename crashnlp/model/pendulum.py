@@ -27,6 +27,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from functools import cached_property
+from typing import Any, Callable
 
 import casadi as ca
 
@@ -74,6 +75,7 @@ class PendulumModel:
         self.x = ca.SX.sym("x", NX)
         self.q, self.qd = self.x[:2], self.x[2:4]
         self.p = ca.SX.sym("p", layout.size)
+        self._functions: dict[tuple, Any] = {}
         self._parameters = layout.split(self.p)
         self._build()
 
@@ -194,6 +196,13 @@ class PendulumModel:
         thetad = m * v0 * l0 * ca.sin(theta0) / (m * l0**2 + inertia)
         x0 = ca.vertcat(0, theta0, -v0 * ca.cos(theta0), thetad, 0)
         return ca.Function("x0", [self.p, v0], [x0], ["p", "v0"], ["x0"])
+
+    def cached(self, key: tuple, build: Callable[[], Any]) -> Any:
+        """What `build` makes, built once per model and key: the simulator's integrators and
+        compiled functions, which repeat with the same shapes."""
+        if key not in self._functions:
+            self._functions[key] = build()
+        return self._functions[key]
 
     # ---------------------------------------------------------------- simulation form
     @cached_property

@@ -52,7 +52,7 @@ def olc(ocp: OptimalControl) -> None:
     """Occupant Load Criterion: the occupant flies free for 65 mm relative to the
     vehicle, then decelerates uniformly (OLC) over 235 mm to the vehicle's speed.
     t1, t2 and the deceleration are decision variables of the NLP."""
-    total = 0
+    total: ca.MX = ca.MX(0)
     for tr in ocp.transcripts:
         times, v0 = tr.trajectory.times, tr.test.speed
         x, v = tr.output("displacement"), tr.output("velocity")

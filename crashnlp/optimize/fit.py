@@ -48,7 +48,7 @@ def channel_residuals(tr: Transcript) -> list[Residual]:
         if channel is None or ch_spec.weight == 0:
             continue
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
-        sigma = ch_spec.sigma if ch_spec.sigma is not None else DEFAULT_SIGMA[name]
+        sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
         model = tr.output(name)[:, cols.tolist()]
         out.append(Residual(tr.test.name, name, cols.tolist(), resample(channel, times[cols]), sigma, ch_spec.weight, model))
     return out
@@ -74,7 +74,7 @@ def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
 
 def roughness(ocp: OptimalControl) -> ca.MX:
     """Squared second differences of free breakpoint values, relative to their scale."""
-    total = 0
+    total: ca.MX = ca.MX(0)
     for e in ocp.free.entries:
         n = e.at.stop - e.at.start
         if e.path.endswith(".values") and n >= 3:

@@ -8,6 +8,7 @@ from typing import TextIO
 import casadi as ca
 import numpy as np
 
+from crashnlp.autoinit import repair_start
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
@@ -34,6 +35,7 @@ class Solution:
     covariance: Covariance | None = None
     verification: Verification | None = None
     profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
+    notes: list[str] = field(default_factory=list)  # what was done to the problem on the way (one line each)
 
     @property
     def ok(self) -> bool:
@@ -109,7 +111,11 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
 
 
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
-    """Build and solve the identification NLP of a case."""
+    """Build and solve the identification NLP of a case; a start that falls short of the
+    measured crush is repaired from the data first (crashnlp.autoinit), and says so."""
+    note = repair_start(case) if warm is None else None
+    if note and progress is not None:
+        print(note, file=progress)
     ocp = OptimalControl(case)
     if ocp.free.size == 0:
         raise InputError(f"{case.name}: estimate names no parameter to identify")
@@ -121,6 +127,7 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = finish(case, ocp, result, theta0, residuals)
+    solution.notes = [note] if note else []
     solution.covariance = SensitivityEvaluator(ocp, residuals)(result.z).covariance()
     if case.problem.uncertainty.profile and result.converged:
         solution.profiles = profiles(solution)

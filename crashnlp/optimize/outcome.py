@@ -10,7 +10,6 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
-from crashnlp.optimize.verify import TOLERANCE
 from crashnlp.rating import iso18571
 from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
 from crashnlp.results import data_metrics, response_metrics
@@ -47,6 +46,7 @@ def result_of(solution: Solution) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
+        notes=tuple(solution.notes),
     )
 
 
@@ -54,7 +54,7 @@ def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
     v = solution.verification
     check = None
     if v is not None:
-        check = {"max_abs_error": v.mismatch[test.name], "worst_relative": v.worst(test.name), "tolerance_relative": TOLERANCE}
+        check = {"max_abs_error": v.mismatch[test.name], "allowed": v.allowed[test.name], "worst_relative": v.worst(test.name)}
     data = {name: (ch.time, ch.values) for name, ch in test.data.channels.items()} if test.data is not None else {}
     return TestResult(
         test.name, test.speed, ts, data, _fits(solution, ts, test.name), response_metrics(ts), data_metrics(test),

@@ -59,7 +59,7 @@ class FreeParameters:
     @staticmethod
     def _scale(spec: EstimateSpec, initial, lower, upper) -> np.ndarray:
         if spec.prior_scale is not None:
-            return np.full(initial.shape, abs(spec.prior_scale))
+            return np.full(initial.shape, abs(float(spec.prior_scale)))  # SI once validated
         finite = [np.abs(b) for b in (lower, upper) if np.all(np.isfinite(b))]
         cands = np.max(np.vstack([np.abs(initial), *finite]), axis=0)
         return np.where(cands > 0, np.max(cands) * np.ones_like(cands), 1.0)
@@ -89,16 +89,16 @@ class FreeParameters:
     def full(self, theta, overrides: dict[str, float] | None = None):
         """Full parameter vector with theta in place (symbolic SX or MX, or numeric)."""
         if isinstance(theta, (ca.SX, ca.MX)):
-            p = type(theta)(ca.DM(self.base))
+            symbolic = type(theta)(ca.DM(self.base))
             for e in self.entries:
-                p[e.where] = theta[e.at]
+                symbolic[e.where] = theta[e.at]
             for path, value in (overrides or {}).items():
-                p[self.layout.index(path)] = value
-            return p
-        p = self.base.copy()
+                symbolic[self.layout.index(path)] = value
+            return symbolic
+        numeric = self.base.copy()
         for e in self.entries:
-            p[e.where] = np.asarray(theta)[e.at]
-        return self.layout.with_values(p, overrides or {})
+            numeric[e.where] = np.asarray(theta)[e.at]
+        return self.layout.with_values(numeric, overrides or {})
 
     def named(self, theta: np.ndarray) -> dict[str, float | list[float]]:
         """Estimated values keyed as in `estimate` (SI)."""

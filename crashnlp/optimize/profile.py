@@ -109,13 +109,13 @@ def profiles(solution, executor=None) -> dict[str, dict]:
         i = labels.index(label)
         std, h = solution.covariance.std[i], solution.covariance.hessian_inverse[i, i]
         threshold = Z95**2 * std**2 / h if np.isfinite(std) and h > 0 else np.inf
-        entry = {"estimate": float(solution.theta[i]), "threshold": float(threshold), "lower": None, "upper": None, "points": []}
+        ends: dict[str, float | None] = {}
+        profile: list[list[float]] = []
         for side, key in ((-1, "lower"), (1, "upper")):
             points = walked.get((label, side), [])
             if isinstance(points, BaseException):
                 raise points
-            entry[key] = _crossing(solution.theta[i], solution.result.objective, points, threshold)
-            entry["points"] += [[v, f] for v, f, _ in points]
-        entry["points"].sort()
-        out[label] = entry
+            ends[key] = _crossing(solution.theta[i], solution.result.objective, points, threshold)
+            profile += [[v, f] for v, f, _ in points]
+        out[label] = {"estimate": float(solution.theta[i]), "threshold": float(threshold), **ends, "points": sorted(profile)}
     return out

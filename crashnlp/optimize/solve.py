@@ -4,7 +4,7 @@ from __future__ import annotations
 import sys
 import time
 from dataclasses import dataclass, field
-from typing import TextIO
+from typing import Any, TextIO
 
 import casadi as ca
 import numpy as np
@@ -116,7 +116,7 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress:
     """nlpsol over the NLP; MX graph with mapped SX interval functions."""
     t0 = time.perf_counter()
     problem = nlp.problem()
-    opts = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
+    opts: dict[str, Any] = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
     opts.update(derivative_options(nlp, problem, spec))
     callback = None
     if progress is not None:

@@ -186,20 +186,34 @@ class Vehicle(Strict):
 SPRING_UNITS = {"force": "N", "secant": "N/m"}
 
 
+class BreakpointCount(Strict):
+    """Breakpoints to be placed over the data's crush range (crashnlp.autoinit)."""
+
+    count: int = Field(ge=2, le=30, description="number of breakpoints, 0 included")
+
+
 class Spring(Strict):
     law: Literal["force", "secant"] = Field(
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
     )
-    crush_breakpoints: QList("m")
-    values: list[QuantityIn] = Field(description="forces (law force) or secant stiffnesses (law secant)")
+    crush_breakpoints: QList("m") | BreakpointCount | None = Field(
+        None, description="crush at the breakpoints; omitted or {count: N}: placed over the data's crush range"
+    )
+    values: list[QuantityIn] | None = Field(
+        None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
+    )
 
     @field_validator("crush_breakpoints")
     @classmethod
     def _bp(cls, v):
-        return _increasing(v, "crush_breakpoints")
+        return _increasing(v, "crush_breakpoints") if isinstance(v, list) else v
 
     @model_validator(mode="after")
     def _values(self):
+        if self.values is None:
+            return self
+        if not isinstance(self.crush_breakpoints, list):
+            raise ValueError("values need crush_breakpoints given as a list")
         self.values = [si(v, SPRING_UNITS[self.law]) for v in self.values]
         if len(self.values) != len(self.crush_breakpoints):
             raise ValueError(
@@ -231,12 +245,12 @@ class Damper(Strict):
 
 class Unloading(Strict):
     law: Literal["elastic", "plastic"] = "elastic"
-    stiffness: Q("N/m") = Field(3.0e7, description="unloading stiffness of the plastic law")
+    stiffness: Q("N/m") | None = Field(None, description="unloading stiffness of the plastic law; omitted: from the data's rebound")
 
     @field_validator("stiffness")
     @classmethod
     def _positive(cls, v):
-        if v <= 0:
+        if v is not None and v <= 0:
             raise ValueError("must be positive")
         return v
 
@@ -251,8 +265,8 @@ class Smoothing(Strict):
 
 
 class Model(Strict):
-    spring: Spring
-    damper: Damper | None = None
+    spring: Spring = Spring()
+    damper: Damper | None = Field(None, description="omitted: none, or a nominal one when the spring values come from the data")
     unloading: Unloading = Unloading()
     smoothing: Smoothing = Smoothing()
 

@@ -3,7 +3,7 @@
 The model carries its own history (the largest crush so far is its fifth
 state), so one right-hand side serves the whole horizon: where loading ends is
 the model's own crush-rate zero, found by the NLP, never fixed from the data
-(docs/model.md, numerical notes).
+(docs/model.md, the history state).
 """
 from __future__ import annotations
 
@@ -14,24 +14,12 @@ from typing import Callable
 import casadi as ca
 import numpy as np
 
+from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import NX, PendulumModel
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 
 STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01, 0.01])  # smallest state scales: m, rad, m/s, rad/s, m
 IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
-
-
-def rk4(rhs: ca.Function, theta: ca.SX, h: float, substeps: int) -> ca.Function:
-    """`substeps` RK4 steps over h of rhs(x, theta) as an SX Function (x, theta) -> x(h)."""
-    x = ca.SX.sym("x", NX)
-    dt, xk = h / substeps, x
-    for _ in range(substeps):
-        k1 = rhs(xk, theta)
-        k2 = rhs(xk + dt / 2 * k1, theta)
-        k3 = rhs(xk + dt / 2 * k2, theta)
-        k4 = rhs(xk + dt * k3, theta)
-        xk = xk + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function(f"rk4_{substeps}", [x, theta], [xk])
 
 
 @dataclass
@@ -86,7 +74,7 @@ class Transcription(ABC):
         # the first interval, by fine RK4 steps whatever the transcription: the front end
         # engages over its first millimetre of crush, tens of microseconds at crash speed,
         # which neither one RK4 step nor a collocation polynomial of an interval resolves
-        (end,) = nlp.mapped(rk4(rhs, rhs.sx_in(1), h, IMPACT_SUBSTEPS), 1, X[:, 0], theta)
+        (end,) = nlp.mapped(rk4(rhs, h, IMPACT_SUBSTEPS), 1, X[:, 0], theta)
         nlp.constrain(DYNAMICS, (end - X[:, 1]) / ca.DM(scale), test=name, detail="impact")
         if n > 1:
             self._add_dynamics(nlp, name, X[:, 1:], theta, times[1:], scale, guess, rhs)

@@ -1,11 +1,10 @@
-"""Shared builders for test problems (plain dicts, so each test states what it changes)."""
+"""Shared builders for test problems (plain dicts, so each test states what it changes) and checks."""
 from __future__ import annotations
 
 import copy
 from pathlib import Path
 
 import numpy as np
-import pytest
 
 from crashnlp.case import Case
 from crashnlp.problem import problem_from_dict
@@ -53,11 +52,6 @@ def merge(base: dict, changes: dict) -> dict:
 
 def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -> Case:
     return Case(problem_from_dict(merge(BASE, changes or {}), base_dir))
-
-
-@pytest.fixture
-def base_problem() -> dict:
-    return copy.deepcopy(BASE)
 
 
 def assert_monotone_crush(ts) -> None:

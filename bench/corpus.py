@@ -1,0 +1,180 @@
+"""Random crash tests from a model that is not crashnlp's pendulum (no crashnlp import here).
+
+A planar rigid body (mass m, pitch inertia I about the CG) hits a rigid wall. The front end
+touches it at a body point L ahead of and h below the CG. Its crush d is how far that point
+has passed the wall; the wall pushes back on it horizontally with the contact force F and
+vertically with nu F (nu of either sign), acting at the wall at the point's height, so the
+force's line of action misses the CG and pitches the body. The crush force follows a smooth
+load curve P(d) (a monotone-cubic PchipInterpolator through random knots) plus c_d times the
+crush rate while loading; it unloads along a line of stiffness k_u from the largest crush
+to a permanent set and never pulls. Vertical springs and dampers at the axles carry the
+static load (preloaded, so rest is an equilibrium). Integrated by scipy's solve_ivp (LSODA).
+
+Measured channels, like the synthetic pickup of the shared data: CG acceleration with
+structural ringing (two decaying sines) and white noise, velocity, displacement and pitch
+(nose-down positive) with small noise; ground frame, x toward the wall, 10 kHz.
+"""
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.integrate import solve_ivp
+from scipy.interpolate import PchipInterpolator
+
+G0 = 9.80665
+DT = 1e-4  # s, 10 kHz
+DURATION = 0.2  # s
+BAND = 1e-5  # m: the largest crush is still loading within this of it (integration error)
+NOISE = {"accel_g": 0.8, "vel_mps": 0.01, "disp_m": 5e-4, "pitch_deg": 0.03}
+# knots of the load curve as fractions of the crush the vehicle is made for
+KNOT_FRACTIONS = np.array([0.0, 0.08, 0.2, 0.35, 0.5, 0.65, 0.8, 0.95, 1.15, 1.5])
+
+
+@dataclass(frozen=True)
+class Vehicle:
+    """Everything the generator needs, SI."""
+
+    name: str
+    mass: float
+    speed: float
+    pitch_inertia: float
+    cg_to_impact: float  # L
+    cg_above_impact: float  # h
+    cg_to_front_axle: float
+    cg_to_rear_axle: float
+    k_front: float
+    k_rear: float
+    c_front: float
+    c_rear: float
+    load_crush: tuple[float, ...]  # knots of the load curve, m
+    load_force: tuple[float, ...]  # N
+    crush_damping: float  # N s/m while loading
+    unloading_stiffness: float  # N/m
+    vertical_ratio: float  # nu
+    ringing: tuple[tuple[float, float, float], ...]  # (amplitude g, frequency Hz, decay time s)
+    seed: int
+
+
+def random_vehicle(index: int, seed: int, mass: float | None = None, speed: float | None = None) -> Vehicle:
+    """One random vehicle: 900-3200 kg, 32-64 km/h (or the mass and speed given), geometry and load curve to match."""
+    rng = np.random.default_rng([seed, index])
+    mass = rng.uniform(900.0, 3200.0) if mass is None else mass
+    speed = rng.uniform(32.0, 64.0) / 3.6 if speed is None else speed
+    size = (mass - 900.0) / 2300.0
+    wheelbase = 2.35 + 1.1 * size + rng.uniform(-0.1, 0.1)
+    front = rng.uniform(0.38, 0.5) * wheelbase
+    rear = wheelbase - front
+    crush = speed * rng.uniform(0.034, 0.05)  # crush the structure is made for: stop after 70-100 ms
+    mean_force = 0.5 * mass * speed**2 / crush
+    shape = np.concatenate([[0.0], rng.uniform(0.55, 1.35, 7), [2.0, 4.0]])
+    shape[1] *= rng.uniform(0.6, 1.2)  # bumper beam and crash boxes: a first peak of varied height
+    load_force = mean_force * shape
+    omega = 2 * np.pi * rng.uniform(1.0, 1.5, 2)
+    loads = mass * np.array([rear, front]) / wheelbase
+    k = loads * omega**2
+    zeta = rng.uniform(0.2, 0.35, 2)
+    c = 2 * zeta * np.sqrt(k * loads)
+    ringing = ((rng.uniform(2.0, 6.0), rng.uniform(300.0, 500.0), rng.uniform(0.02, 0.05)),
+               (rng.uniform(1.0, 3.0), rng.uniform(600.0, 900.0), rng.uniform(0.01, 0.03)))
+    return Vehicle(**_plain(dict(
+        name=f"v{index:02d}", mass=mass, speed=speed,
+        pitch_inertia=mass * (rng.uniform(0.38, 0.5) * wheelbase) ** 2,
+        cg_to_impact=front + rng.uniform(0.7, 1.05), cg_above_impact=rng.uniform(0.04, 0.16) + 0.1 * size,
+        cg_to_front_axle=front, cg_to_rear_axle=rear, k_front=k[0], k_rear=k[1], c_front=c[0], c_rear=c[1],
+        load_crush=tuple(KNOT_FRACTIONS * crush), load_force=tuple(load_force),
+        crush_damping=rng.uniform(1.0, 3.0) * mass, unloading_stiffness=rng.uniform(1.5e7, 6e7),
+        vertical_ratio=rng.uniform(-0.02, 0.04), ringing=ringing, seed=seed,
+    )))
+
+
+def _plain(value):
+    """numpy scalars and arrays as Python floats and tuples (YAML and JSON write them)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, (tuple, list, np.ndarray)):
+        return tuple(_plain(v) for v in value)
+    return float(value) if isinstance(value, np.floating) else value
+
+
+def corpus(count: int = 30, seed: int = 2024) -> list[Vehicle]:
+    """`count` random vehicles, the same for the same seed."""
+    return [random_vehicle(i, seed) for i in range(count)]
+
+
+class Body:
+    """The rigid body's equations of motion; state X, Z, phi, Xdot, Zdot, phidot, largest crush."""
+
+    def __init__(self, v: Vehicle):
+        self.v = v
+        self.load = PchipInterpolator(v.load_crush, v.load_force, extrapolate=True)
+
+    def contact(self, X: float, phi: float, Xd: float, phid: float, d_max: float) -> tuple[float, float, float, float]:
+        """Crush, crush rate, contact force and the contact point's height offset from the CG."""
+        v = self.v
+        x_rel = v.cg_to_impact * np.cos(phi) - v.cg_above_impact * np.sin(phi)
+        z_rel = -v.cg_to_impact * np.sin(phi) - v.cg_above_impact * np.cos(phi)
+        d = X + x_rel - v.cg_to_impact
+        rate = Xd + phid * (-v.cg_to_impact * np.sin(phi) - v.cg_above_impact * np.cos(phi))
+        if d <= 0.0:
+            return d, rate, 0.0, z_rel
+        if d >= d_max - BAND and rate > 0.0:
+            force = float(self.load(d)) + v.crush_damping * rate
+        else:
+            force = min(float(self.load(d)), float(self.load(d_max)) - v.unloading_stiffness * (d_max - d))
+        return d, rate, max(force, 0.0), z_rel
+
+    def rhs(self, t: float, s: np.ndarray) -> np.ndarray:
+        v = self.v
+        X, Z, phi, Xd, Zd, phid, d_max = s
+        d, rate, F, z_rel = self.contact(X, phi, Xd, phid, d_max)
+        Fx, Fz = -F, v.vertical_ratio * F
+        r_x = v.cg_to_impact - d  # the force acts at the wall
+        torque = z_rel * Fx - r_x * Fz  # nose-down positive
+        Fz_total = Fz
+        for a, k, c in ((v.cg_to_front_axle, v.k_front, v.c_front), (-v.cg_to_rear_axle, v.k_rear, v.c_rear)):
+            z_axle, zd_axle = Z - a * np.sin(phi), Zd - a * np.cos(phi) * phid
+            f = -k * z_axle - c * zd_axle
+            Fz_total += f
+            torque -= a * np.cos(phi) * f
+        growth = max(rate, 0.0) if d >= d_max - BAND else 0.0
+        return np.array([Xd, Zd, phid, Fx / v.mass, Fz_total / v.mass, torque / v.pitch_inertia, growth])
+
+
+def simulate(v: Vehicle) -> dict[str, np.ndarray]:
+    """Noise-free response at 10 kHz: time, accel, velocity, displacement, pitch, barrier force (SI)."""
+    body = Body(v)
+    t = DT * np.arange(int(round(DURATION / DT)) + 1)
+    sol = solve_ivp(body.rhs, (0.0, DURATION), [0, 0, 0, v.speed, 0, 0, 0], method="LSODA", t_eval=t,
+                    rtol=1e-9, atol=1e-11, max_step=5e-5)
+    if not sol.success:
+        raise RuntimeError(f"{v.name}: {sol.message}")
+    X, Z, phi, Xd, Zd, phid, d_max = sol.y
+    accel = np.array([body.rhs(ti, si)[3] for ti, si in zip(sol.t, sol.y.T)])
+    force = -accel * v.mass
+    return {"time": t, "accel": accel, "velocity": Xd, "displacement": X, "pitch": phi, "barrier_force": force}
+
+
+def measured(v: Vehicle, truth: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """The channels a test would record: ringing and noise on top of the truth (report units)."""
+    rng = np.random.default_rng([v.seed, 99, int(v.name[1:])])
+    t = truth["time"]
+    ring = sum(a * np.sin(2 * np.pi * f * t) * np.exp(-t / tau) for a, f, tau in v.ringing)
+    n = t.size
+    return {
+        "time_s": t,
+        "accel_x_g": truth["accel"] / G0 + ring + NOISE["accel_g"] * rng.standard_normal(n),
+        "vel_x_mps": truth["velocity"] + NOISE["vel_mps"] * rng.standard_normal(n),
+        "disp_x_m": truth["displacement"] + NOISE["disp_m"] * rng.standard_normal(n),
+        "pitch_deg": np.degrees(truth["pitch"]) + NOISE["pitch_deg"] * rng.standard_normal(n),
+    }
+
+
+def write_csv(path: Path, columns: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with path.open("w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(columns)
+        w.writerows(zip(*(np.round(c, 7) for c in columns.values())))

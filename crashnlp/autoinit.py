@@ -1,0 +1,247 @@
+"""Fill in what a problem leaves out, from its tests' data: problem + measured pulses -> new problem.
+
+The given problem is never changed. What is filled, and how:
+
+- Crush from the data: the displacement channel, else the integral of velocity, else the
+  integral of acceleration from the impact speed; samples from impact (t >= 0) on.
+- `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints (default 8),
+  evenly spaced from 0 to REACH = 1.1 times the largest crush of all tests. Even spacing
+  gives every segment of the force-crush curve the same share of the crush range; the
+  10 % beyond the largest crush keeps the identified curve from being extrapolated where
+  a model that crushes a little further than the data would need it.
+- `values` omitted: the measured force-crush curve while loading (impact to largest crush),
+  m |a| minus the damper's force, against the crush, averaged over the crush band nearest
+  each breakpoint (halfway to its neighbours). A band the data do not reach takes the
+  value of the last band they do. Secant stiffnesses are that force over the crush.
+- `model.damper` omitted while the spring values come from the data: a constant
+  c = DAMPING_PER_MASS (2 /s) times the mass up to 1.1 times the highest impact speed
+  (5 kN s/m for a 2550 kg pickup, 3.4 kN s/m for a 1719 kg sedan).
+- `model.unloading.stiffness` omitted: the front end's elastic energy F^2 / (2 k) at the
+  largest crush comes back as the rebound, m v_r^2 / 2, so k = F^2 / (m v_r^2), F the
+  measured force at the largest crush and v_r the rebound velocity, within UNLOADING_BOUNDS;
+  without a measured rebound the nominal 30 MN/m.
+- `estimate` omitted (identification): the spring values within [0, 5 times the largest
+  initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
+  and where a test has a pitch channel the CG height above the impact point, the pitch
+  inertia and the pitch lever within the physical bounds of PITCH_BOUNDS.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from crashnlp.data.channels import TestData
+from crashnlp.data.signal import cumtrapz, integrate
+from crashnlp.errors import InputError
+from crashnlp.problem.schema import Damper, EstimateSpec, Problem, Vehicle
+
+if TYPE_CHECKING:
+    from crashnlp.case import Case, TestCase
+
+DEFAULT_COUNT = 8
+REACH = 1.1
+DAMPING_PER_MASS = 2.0  # 1/s: nominal damper per kg of vehicle
+NOMINAL_UNLOADING = 3.0e7  # N/m
+UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
+SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
+
+# The pitch lever: the offset of the crush force's line of action from the pivot-CG line (m),
+# positive nose-down. Its bounds are those of an effective lever: the pendulum's body pitches
+# with the pivot-CG line, so it needs a larger lever than the rails' height below the CG.
+PITCH_LEVER = "vehicle.crush_offset"
+PITCH_LEVER_BOUNDS = (-0.5, 1.0)  # m
+# CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
+# gyration in pitch (0.9 m for a city car to 1.8 m for a long van; sqrt(I / m)).
+CG_ABOVE_IMPACT_BOUNDS = (-0.1, 0.5)  # m
+PITCH_GYRATION_BOUNDS = (0.9, 1.8)  # m
+
+
+@dataclass(frozen=True)
+class Pulse:
+    """One test's measured crash pulse from impact on (SI, model frame)."""
+
+    time: np.ndarray
+    crush: np.ndarray  # CG travel since impact, m
+    rate: np.ndarray  # crush rate (the velocity toward the barrier), m/s
+    force: np.ndarray  # m |a| while decelerating, N
+    mass: float
+    speed: float
+    has_pitch: bool
+
+    @property
+    def loading(self) -> slice:
+        """Samples from impact to the largest crush."""
+        return slice(0, int(np.argmax(self.crush)) + 1)
+
+    @property
+    def max_crush(self) -> float:
+        return float(np.max(self.crush))
+
+
+def pulse(data: TestData, speed: float, mass: float) -> Pulse | None:
+    """The crash pulse of one test's data from impact on; None without accel or velocity.
+
+    Velocity without a velocity channel is the acceleration integrated from the impact speed at
+    t = 0; crush without a displacement channel is the velocity integrated, zero at t = 0."""
+    ch = data.channels
+    base = ch.get("accel") or ch.get("velocity")
+    if base is None:
+        return None
+    t = base.time
+    at = lambda name: np.interp(t, ch[name].time, ch[name].values)  # noqa: E731
+    v = at("velocity") if "velocity" in ch else integrate(t, at("accel"), speed, max(0.0, t[0]))[0]
+    a = at("accel") if "accel" in ch else np.gradient(v, t)
+    x = at("displacement") if "displacement" in ch else cumtrapz(t, v)
+    after = t >= 0.0
+    x = x - np.interp(0.0, t, x) if t[0] <= 0.0 else x
+    return Pulse(t[after], x[after], v[after], mass * np.maximum(-a[after], 0.0), mass, speed, "pitch" in ch)
+
+
+def breakpoints(pulses: list[Pulse], count: int = DEFAULT_COUNT) -> list[float]:
+    """`count` breakpoints evenly from 0 to REACH times the largest crush of all pulses."""
+    top = REACH * max(p.max_crush for p in pulses)
+    return [float(b) for b in np.linspace(0.0, top, count)]
+
+
+def measured_force(bps: list[float], pulses: list[Pulse], damper: Damper | None = None) -> np.ndarray:
+    """Mean measured spring force while loading over the crush band nearest each breakpoint."""
+    crush = np.concatenate([p.crush[p.loading] for p in pulses])
+    force = np.concatenate([p.force[p.loading] - _damper_force(damper, p.rate[p.loading]) for p in pulses])
+    edges = np.concatenate([[-np.inf], 0.5 * (np.asarray(bps[1:]) + np.asarray(bps[:-1])), [np.inf]])
+    band = np.searchsorted(edges, crush, side="right") - 1
+    values = np.full(len(bps), np.nan)
+    for i in range(len(bps)):
+        if np.any(band == i):
+            values[i] = max(float(np.mean(force[band == i])), 0.0)
+    reached = np.flatnonzero(np.isfinite(values))
+    if reached.size == 0:
+        raise InputError("model.spring.values: the data reach none of the crush breakpoints")
+    return np.interp(np.arange(len(bps)), reached, values[reached])
+
+
+def _damper_force(damper: Damper | None, rate: np.ndarray) -> np.ndarray:
+    if damper is None:
+        return np.zeros_like(rate)
+    return np.interp(np.abs(rate), damper.rate_breakpoints, damper.values) * np.maximum(rate, 0.0)
+
+
+def spring_values(bps: list[float], pulses: list[Pulse], law: str, damper: Damper | None) -> list[float]:
+    """Initial spring values at the breakpoints from the measured force-crush curve."""
+    force = measured_force(bps, pulses, damper)
+    if law == "force":
+        return [float(f) for f in force]
+    x = np.asarray(bps, dtype=float)
+    first = np.flatnonzero(x > 0)[0]
+    secant = force / np.where(x > 0, x, x[first])
+    secant[x <= 0] = secant[first]
+    return [float(k) for k in secant]
+
+
+def nominal_damper(pulses: list[Pulse], mass: float) -> Damper:
+    """Constant damping DAMPING_PER_MASS * mass up to 1.1 times the highest impact speed."""
+    c = DAMPING_PER_MASS * mass
+    return Damper(rate_breakpoints=[0.0, 1.1 * max(p.speed for p in pulses)], values=[c, c])
+
+
+def unloading_stiffness(pulses: list[Pulse]) -> float:
+    """k = F^2 / (m v_r^2) from the force at the largest crush and the rebound, averaged over tests."""
+    estimates = []
+    for p in pulses:
+        peak = p.loading.stop - 1
+        rebound = -float(np.min(p.rate[peak:]))
+        if rebound < 0.02 * p.speed:
+            continue
+        near = np.abs(p.time - p.time[peak]) <= 2e-3
+        force = float(np.mean(p.force[near]))
+        estimates.append(force**2 / (p.mass * rebound**2))
+    return float(np.clip(np.mean(estimates), *UNLOADING_BOUNDS)) if estimates else NOMINAL_UNLOADING
+
+
+def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, EstimateSpec]:
+    """What an identification estimates when the problem does not say (see the module notes)."""
+    spring = problem.model.spring
+    top = max(SPRING_BOUND_FACTOR * max(spring.values), SPRING_BOUND_FLOOR if spring.law == "force" else 0.0)
+    out = {"model.spring.values": EstimateSpec(bounds=(0.0, top))}
+    if problem.model.unloading.law == "plastic":
+        out["model.unloading.stiffness"] = EstimateSpec(bounds=UNLOADING_BOUNDS)
+    if any(p.has_pitch for p in pulses):
+        mass = problem.vehicle.mass
+        lo, hi = PITCH_GYRATION_BOUNDS
+        out["vehicle.cg_above_impact"] = EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS)
+        out["vehicle.pitch_inertia"] = EstimateSpec(bounds=(mass * lo**2, mass * hi**2))
+        out[PITCH_LEVER] = EstimateSpec(bounds=PITCH_LEVER_BOUNDS)
+    return out
+
+
+def _required(pulses: list[Pulse], what: str) -> list[Pulse]:
+    if not pulses:
+        raise InputError(f"{what}: not given, and no test has accel or velocity data to derive it from")
+    return pulses
+
+
+def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
+    """A copy of `problem` with breakpoints, spring values, damper, unloading stiffness and
+    estimate filled in from the pulses where the problem leaves them out."""
+    out = problem.model_copy(deep=True)
+    model = out.model
+    spring = model.spring
+    from_data = spring.values is None
+    if not isinstance(spring.crush_breakpoints, list):
+        count = spring.crush_breakpoints.count if spring.crush_breakpoints is not None else DEFAULT_COUNT
+        spring.crush_breakpoints = breakpoints(_required(pulses, "model.spring.crush_breakpoints"), count)
+    if from_data:
+        measured = _required(pulses, "model.spring.values")
+        if model.damper is None:
+            model.damper = nominal_damper(measured, out.vehicle.mass)
+        spring.values = spring_values(spring.crush_breakpoints, measured, spring.law, model.damper)
+    if model.unloading.stiffness is None:
+        model.unloading.stiffness = unloading_stiffness(pulses)
+    if not out.estimate and out.kind == "identify" and pulses:
+        out.estimate = default_estimate(out, pulses)
+    return out
+
+
+def repaired_start(case: "Case") -> dict[str, Any]:
+    """Spring values at the case's own breakpoints and unloading stiffness from its data.
+
+    For a start whose spring stops the model short of the measured crush (parameters with a
+    zero derivative): `case.layout.with_values(case.base, repaired_start(case))`, or `repair_start`.
+    """
+    pulses = case_pulses(case)
+    spring, damper = case.problem.model.spring, case.problem.model.damper
+    return {
+        "model.spring.values": spring_values(spring.crush_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper),
+        "model.unloading.stiffness": unloading_stiffness(pulses),
+    }
+
+
+def repair_start(case: "Case", reach: float = 0.9) -> str | None:
+    """Replace a start whose simulated crush falls short of `reach` times the measured crush of
+    some test by `repaired_start`; return the one line that says so, or None when it reaches.
+
+    Such a start leaves the breakpoints past its own crush with a zero derivative. Changes
+    `case.base` in place (an `estimate` entry's own `initial` still wins over it)."""
+    simulated = case.simulate()
+    for test in case.tests:
+        measured = measured_pulse(case, test)
+        model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
+        if measured is not None and model < reach * measured.max_crush:
+            case.base = case.layout.with_values(case.base, repaired_start(case))
+            return (f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
+                    f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
+                    "measured force-crush curve")
+    return None
+
+
+def measured_pulse(case: "Case", test: "TestCase") -> Pulse | None:
+    """The measured pulse of one test of a case; None without accel or velocity data."""
+    if test.data is None:
+        return None
+    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", case.problem.vehicle.mass))
+
+
+def case_pulses(case: "Case") -> list[Pulse]:
+    """The measured pulse of every test of a case that has accel or velocity data."""
+    return [p for test in case.tests if (p := measured_pulse(case, test)) is not None]

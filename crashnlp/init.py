@@ -1,0 +1,419 @@
+"""`crashnlp init`: a complete, commented problem file from one test's data.
+
+What the data's header gives (EV5: VEHTWT, closing speed, wheelbase, VEHCG; ISO-MME: mass and
+speed of test object 1) is used and said so; options (--mass, --speed) win over the header.
+Geometry no source gives takes typical values for the mass class (VEHICLE_CLASSES), each
+marked as an estimate:
+
+- impact point: the front bumper, a front overhang ahead of the front axle;
+- CG behind the front axle: CG_SHARE (0.44) of the wheelbase (EV5 VEHCG when given);
+- CG above the impact point: bumper beam about 0.45 m above ground, CG height by class;
+- pitch inertia: m (0.44 wheelbase)^2 (radius of gyration 1.24 m for a 2.8 m wheelbase);
+- suspension: each axle's static load at a ride frequency of 1.2 Hz, damping ratio 0.25.
+
+The breakpoints, spring values, damper, unloading stiffness and estimate are then filled in
+from the data (crashnlp.autoinit) and written out, so the file identifies as it stands and
+every entry can be edited.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from crashnlp.autoinit import PITCH_LEVER
+from crashnlp.data.load import load_test_data
+from crashnlp.errors import InputError
+from crashnlp.metrics import STOPPED, zero_crossing
+from crashnlp.problem import Problem, problem_from_dict
+from crashnlp.problem.schema import DataSpec
+
+FORMATS = ("csv", "nhtsa-ev5", "iso-mme")
+# upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
+VEHICLE_CLASSES = (
+    (1200.0, "city car", 2.45, 0.70, 0.08),
+    (1550.0, "compact car", 2.65, 0.85, 0.10),
+    (1900.0, "mid-size car", 2.80, 0.95, 0.10),
+    (2400.0, "SUV", 2.90, 0.95, 0.15),
+    (math.inf, "pickup or van", 3.40, 1.00, 0.20),
+)
+CG_SHARE = 0.44  # CG behind the front axle, fraction of the wheelbase
+GYRATION_SHARE = 0.44  # pitch radius of gyration, fraction of the wheelbase
+RIDE_FREQUENCY, DAMPING_RATIO = 1.2, 0.25  # Hz, -
+OVERHANG_SHARE = 0.47  # front overhang, fraction of length minus wheelbase (EV5 gives both)
+WINDOW_FACTOR, WINDOW_MIN = 2.0, 0.1  # fit window: twice the stop time, at least 0.1 s
+BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset
+
+
+@dataclass
+class Draft:
+    """What init has found out; every value (SI) with the comment that says where it came from."""
+
+    name: str
+    data: dict
+    vehicle: dict[str, tuple[float, str]] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
+    comments: dict[str, str] = field(default_factory=dict)  # per channel
+
+
+@dataclass
+class Options:
+    """The command line's choices."""
+
+    format: str | None = None
+    mass: float | None = None
+    speed: float | None = None
+    columns: dict[str, str] = field(default_factory=dict)  # channel -> NAME[:UNIT]
+    name: str | None = None
+
+
+def guess_format(path: Path) -> str:
+    """nhtsa-ev5 for .EV5, iso-mme for .mme, a folder or a .zip, csv otherwise."""
+    suffix = path.suffix.lower()
+    if suffix == ".ev5":
+        return "nhtsa-ev5"
+    if suffix in (".mme", ".zip") or path.is_dir():
+        return "iso-mme"
+    return "csv"
+
+
+# ------------------------------------------------------------------ EV5
+ACCEL_PLACES = (("REAR SEAT", "rear seat crossmember"), ("CG", "vehicle CG"), ("FLOOR", "floor"), ("SILL", "sill"))
+
+
+def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
+    """Primary longitudinal accelerometers of vehicle 1 at the rear seat (else CG, floor, sill), not the engine's."""
+    from crashnlp.data.nhtsa_ev5 import NO_DATA
+
+    usable = [c for c in curves.values() if c.vehicle == 1 and c.sensor == "AC" and c.axis.startswith("X")
+              and c.primary and c.status not in NO_DATA and "ENGINE" not in c.comment.upper()]
+    for key, place in ACCEL_PLACES:
+        chosen = [c for c in usable if key in c.comment.upper() or key in c.location.upper()]
+        if chosen:
+            names = "; ".join(f"{c.number:03d} {c.comment}" for c in chosen)
+            return [c.number for c in chosen], f"mean of the primary {place} X accelerometers ({names})"
+    raise InputError("no longitudinal vehicle accelerometer (rear seat, CG, floor or sill) in the INSTRUMENTATION card")
+
+
+def ev5_draft(path: Path) -> Draft:
+    """Mass, speed, wheelbase, CG and overhang from the TEST and VEHICLE cards; the accelerometers."""
+    from crashnlp.data.nhtsa_ev5 import card_number, read_header
+
+    cards, curves = read_header(path)
+    numbers, why = _ev5_accelerometers(curves)
+    draft = Draft(path.stem, {"channels": {"accel": {"curves": numbers, "filter": "CFC60"},
+                                           "velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}})
+    draft.comments = {"accel": why, "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    speed = card_number(cards["TEST"][0], 15)
+    if speed:
+        draft.vehicle["speed"] = (speed / 3.6, "TEST card closing speed")
+    row = next((r for r in cards.get("VEHICLE", []) if r and r[0] == "1"), [])
+    mass, wheelbase, length, cg = (card_number(row, i) for i in (11, 13, 14, 16))
+    if mass:
+        draft.vehicle["mass"] = (mass, "VEHICLE card VEHTWT (test mass)")
+    if wheelbase and cg:
+        draft.vehicle["cg_to_front_axle"] = (cg / 1e3, "VEHCG, CG behind the front axle")
+        draft.vehicle["cg_to_rear_axle"] = ((wheelbase - cg) / 1e3, f"wheelbase {wheelbase:g} mm - VEHCG")
+        if length:
+            overhang = OVERHANG_SHARE * (length - wheelbase) / 1e3
+            draft.vehicle["cg_to_impact"] = (cg / 1e3 + overhang, f"estimate: VEHCG + front overhang {overhang:.3f} m "
+                                             f"({OVERHANG_SHARE} of length {length:g} mm - wheelbase)")
+    return draft
+
+
+# ------------------------------------------------------------------ ISO-MME
+def mme_draft(path: Path) -> Draft:
+    """Mass and speed of test object 1; its vehicle X accelerometers, at the CG if there are any."""
+    from crashnlp.data.iso_mme import read_header
+    from crashnlp.units import to_si
+
+    header, codes = read_header(path)
+    accels = [c for c in codes if len(c) == 16 and c[0] == "1" and c[2:6] == "VEHC" and c[12:15] == "ACX"]
+    if not accels:
+        raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
+    at_cg = [c for c in accels if "CG" in c[6:12]]
+    code = (at_cg or accels)[0]
+    draft = Draft(path.stem, {"channels": {"accel": {"code": code, "filter": "CFC60"},
+                                           "velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}})
+    draft.comments = {"accel": f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}",
+                      "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
+        text = header.get(key, "")
+        try:
+            value = to_si(text if re.search(r"[A-Za-z]", text) else float(text), unit)
+        except ValueError:
+            continue
+        draft.vehicle[entry] = (value, f".mme header '{key}'")
+    return draft
+
+
+# ------------------------------------------------------------------ CSV
+CSV_PATTERNS = {"time": r"^(time|t)($|[^a-z])", "accel": r"acc", "velocity": r"vel|speed",
+                "displacement": r"disp|travel", "pitch": r"pitch"}
+UNIT_WORDS = {"mps2": "m/s^2", "ms2": "m/s^2", "m/s2": "m/s^2", "m/s^2": "m/s^2", "g": "g", "gs": "g", "mps": "m/s",
+              "m/s": "m/s", "kph": "km/h", "kmh": "km/h", "km/h": "km/h", "m": "m", "mm": "mm", "cm": "cm",
+              "s": "s", "ms": "ms", "sec": "s", "deg": "deg", "rad": "rad"}
+CHANNEL_SIGNS = {"accel": "the pulse decelerates", "velocity": "the impact speed is positive",
+                 "displacement": "the crush is positive"}
+
+
+def unit_in_name(name: str) -> str | None:
+    """The unit a column name carries: "[g]", "(km/h)" or a last "_g" / "_mps" part."""
+    bracket = re.search(r"[\[(]([^\])]+)[\])]", name)
+    token = bracket.group(1) if bracket else name.rsplit("_", 1)[-1] if "_" in name else ""
+    return UNIT_WORDS.get(token.strip().lower())
+
+
+def _column(header: list[str], channel: str, given: str | None) -> tuple[str, str] | None:
+    """(column, unit) of a channel: the option NAME[:UNIT], else the first column whose name fits."""
+    if given:
+        name, _, unit = given.partition(":")
+        if name not in header:
+            raise InputError(f"--column {channel}={given}: no column {name!r} (columns: {', '.join(header)})")
+    else:
+        name = next((h for h in header if re.search(CSV_PATTERNS[channel], h.lower())), None)
+        if name is None:
+            return None
+        unit = ""
+    unit = unit or unit_in_name(name)
+    if unit is None:
+        raise InputError(f"column {name!r} ({channel}): no unit in its name; give --column {channel}={name}:UNIT")
+    return name, unit
+
+
+def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
+    """Columns recognised by name (or given), units from the names (or given), signs from the data."""
+    try:
+        first = path.read_text(errors="replace").splitlines()[0]
+    except (OSError, IndexError):
+        raise InputError(f"{path}: cannot read a header line") from None
+    header = [h.strip() for h in first.split(max(",;\t", key=first.count))]  # as crashnlp.data.csv_reader
+    time = _column(header, "time", columns.get("time"))
+    if time is None:
+        raise InputError(f"{path}: no time column (give --column time=NAME:UNIT)")
+    found = {ch: _column(header, ch, columns.get(ch)) for ch in ("accel", "velocity", "displacement", "pitch")}
+    found = {ch: c for ch, c in found.items() if c is not None}
+    if "accel" not in found and "velocity" not in found:
+        raise InputError(f"{path}: no accel or velocity column (give --column accel=NAME:UNIT)")
+    channels = {ch: {"column": name, "unit": unit} for ch, (name, unit) in found.items()}
+    if "accel" in channels:
+        channels["accel"]["filter"] = "CFC60"
+    draft = Draft(path.stem, {"time": {"column": time[0], "unit": time[1]}, "channels": channels})
+    draft.comments = {ch: f"column {name!r} in {unit}" for ch, (name, unit) in found.items()}
+    if "pitch" in draft.comments:
+        draft.comments["pitch"] += ", taken as nose-down positive"
+    for ch in ("velocity", "displacement"):
+        if ch not in channels and "accel" in channels:
+            channels[ch] = {"derive": "integrate"}
+            draft.comments[ch] = "integrated from the accel column"
+    return draft
+
+
+def _direction(name: str, values: np.ndarray) -> float:
+    """> 0 when a channel reads in the model frame: decelerating, impact speed positive, crush positive."""
+    if name == "accel":
+        return -float(np.sum(values))
+    if name == "velocity":
+        return float(values[0])
+    return float(values[np.argmax(np.abs(values))])
+
+
+def _csv_signs(draft: Draft, path: Path) -> None:
+    """Flip channels read in the opposite frame (x toward the barrier)."""
+    data = load_test_data(_data_spec(draft, path), 1.0)
+    for name, ch in data.channels.items():
+        if name in CHANNEL_SIGNS and "column" in draft.data["channels"][name]:
+            if _direction(name, ch.values[ch.time >= 0.0]) < 0:
+                draft.data["channels"][name]["sign"] = -1
+                draft.comments[name] += f", sign flipped so that {CHANNEL_SIGNS[name]}"
+
+
+# ------------------------------------------------------------------ the rest, common to all formats
+def _data_spec(draft: Draft, path: Path) -> DataSpec:
+    try:
+        return DataSpec.model_validate({"file": str(path), **draft.data})
+    except ValueError as exc:
+        raise InputError(f"{path}: {exc}") from None
+
+
+def _timing(draft: Draft, path: Path, speed: float) -> None:
+    """Bias window (at least 10 ms of pre-impact record), and a fit window of twice the stop time."""
+    spec = _data_spec(draft, path)
+    data = load_test_data(spec, speed)
+    start = max(c.time[0] for c in data.channels.values())
+    end = min(c.time[-1] for c in data.channels.values())
+    if start <= -0.01 and "accel" in data.channels:
+        draft.data["bias_window"] = [max(start, -BIAS_SPAN), 0.0]
+        data = load_test_data(_data_spec(draft, path), speed)
+    v = data.channels["velocity"]
+    after = v.time >= 0.0
+    stop = zero_crossing(v.time[after], v.values[after], STOPPED * speed)
+    if math.isnan(stop):
+        draft.data["window"] = [0.0, float(end)]
+        draft.notes.append("Fit window: the whole record after impact (the vehicle does not stop in it).")
+        return
+    draft.data["window"] = [0.0, round(min(end, max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)), 4)]
+    draft.notes.append(f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, "
+                       f"{stop * 1e3:.1f} ms).")
+
+
+def vehicle_class(mass: float) -> tuple[float, str, float, float, float]:
+    """The VEHICLE_CLASSES row of a test mass."""
+    return next(c for c in VEHICLE_CLASSES if mass <= c[0])
+
+
+def fill_geometry(draft: Draft) -> dict[str, tuple[float, str]]:
+    """Typical geometry for the mass class where no source gives it; returns the suspension."""
+    v, mass = draft.vehicle, draft.vehicle["mass"][0]
+    _, kind, wheelbase, overhang, above = vehicle_class(mass)
+    est = f"estimate for a {mass:.0f} kg {kind}"
+    if "cg_to_front_axle" not in v:
+        v["cg_to_front_axle"] = (CG_SHARE * wheelbase, f"{est}: {CG_SHARE} of a {wheelbase} m wheelbase")
+        v["cg_to_rear_axle"] = ((1 - CG_SHARE) * wheelbase, f"{est}: the rest of the wheelbase")
+    front, rear = v["cg_to_front_axle"][0], v["cg_to_rear_axle"][0]
+    wheelbase = front + rear
+    v.setdefault("cg_to_impact", (front + overhang, f"{est}: CG to front axle + a front overhang of {overhang} m"))
+    v.setdefault("cg_above_impact", (above, f"{est}: CG height above a bumper beam about 0.45 m high"))
+    gyration = GYRATION_SHARE * wheelbase
+    v.setdefault("pitch_inertia", (mass * gyration**2, f"{est}: radius of gyration {gyration:.2f} m ({GYRATION_SHARE} x wheelbase)"))
+    omega = 2 * math.pi * RIDE_FREQUENCY
+    loads = {"front": mass * rear / wheelbase, "rear": mass * front / wheelbase}
+    out = {}
+    for axle, load in loads.items():
+        k = load * omega**2
+        out[f"k_{axle}"] = (k, "")
+        out[f"c_{axle}"] = (2 * DAMPING_RATIO * math.sqrt(k * load), "")
+    return out
+
+
+def _resolve(draft: Draft, options: Options, path: Path) -> None:
+    """Mass and speed from the options, else the header, else (speed) the velocity channel."""
+    for key, value in (("mass", options.mass), ("speed", options.speed)):
+        if value is not None:
+            draft.vehicle[key] = (value, "given (--" + key + ")")
+    if "speed" not in draft.vehicle and "column" in draft.data["channels"].get("velocity", {}):
+        v = load_test_data(_data_spec(draft, path), None).channels["velocity"]
+        draft.vehicle["speed"] = (float(np.interp(0.0, v.time, v.values)), "the velocity column at t = 0")
+    for key in ("mass", "speed"):
+        if key not in draft.vehicle:
+            raise InputError(f"{path}: no {key} in the data; give --{key}")
+
+
+def draft_for(path: Path, options: Options) -> tuple[Draft, dict]:
+    """The draft of a data set (format, channels, vehicle values and comments) and its suspension."""
+    fmt = options.format or guess_format(path)
+    if fmt not in FORMATS:
+        raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
+    draft = {"nhtsa-ev5": ev5_draft, "iso-mme": mme_draft}[fmt](path) if fmt != "csv" else csv_draft(path, options.columns)
+    draft.data = {"format": fmt, **draft.data}
+    if options.name:
+        draft.name = options.name
+    if fmt == "csv":
+        _csv_signs(draft, path)
+    _resolve(draft, options, path)
+    _timing(draft, path, draft.vehicle["speed"][0])
+    suspension = fill_geometry(draft)
+    return draft, suspension
+
+
+# ------------------------------------------------------------------ the problem file
+VEHICLE_UNITS = {"mass": ("kg", 1.0, ".0f"), "speed": ("km/h", 3.6, ".2f"), "pitch_inertia": ("kg*m^2", 1.0, ".0f"),
+                 "cg_to_impact": ("m", 1.0, ".3f"), "cg_above_impact": ("m", 1.0, ".3f"),
+                 "cg_to_front_axle": ("m", 1.0, ".3f"), "cg_to_rear_axle": ("m", 1.0, ".3f")}
+ESTIMATE_UNITS = {"model.spring.values": ("kN", 1e-3, ".0f"), "model.unloading.stiffness": ("MN/m", 1e-6, ".0f"),
+                  "vehicle.cg_above_impact": ("m", 1.0, ".2f"), "vehicle.pitch_inertia": ("kg*m^2", 1.0, ".0f"),
+                  "vehicle.crush_offset": ("m", 1.0, ".2f"), "vehicle.vertical_force_ratio": ("", 1.0, ".2f")}
+STEP = 1e-3  # s per transcription interval
+
+
+def _q(value: float, unit: str, scale: float, fmt: str) -> str:
+    return f"{value * scale:{fmt}} {unit}".strip()
+
+
+def _line(indent: int, text: str, comment: str = "") -> str:
+    body = " " * indent + text
+    return f"{body:<43} # {comment}" if comment else body
+
+
+def _flow(values: dict) -> str:
+    return yaml.safe_dump(values, default_flow_style=True, sort_keys=False, width=1000).strip()
+
+
+def problem_dict(draft: Draft, suspension: dict, path: Path) -> dict:
+    """The problem as init writes it before the data fill in the front end (SI numbers)."""
+    window = draft.data["window"][1]
+    return {
+        "name": draft.name,
+        "vehicle": {**{k: v for k, (v, _) in draft.vehicle.items()}, "suspension": {k: v for k, (v, _) in suspension.items()}},
+        "model": {"spring": {"law": "force"}, "unloading": {"law": "plastic"}},
+        "tests": [{"name": draft.name, "data": {"file": str(path.resolve()), **draft.data}}],
+        "constraints": {"monotone_crush": True},
+        "transcription": {"method": "multiple-shooting", "intervals": max(50, round(window / STEP)), "substeps": 1},
+    }
+
+
+def render(draft: Draft, problem: Problem, data_file: str) -> str:
+    """The commented YAML text of a completed problem."""
+    v, m = problem.vehicle, problem.model
+    lines = [f"# Written by `crashnlp init` from {data_file} ({draft.data['format']}).", *(f"# {n}" for n in draft.notes),
+             "# Front end: breakpoints over the data's crush range, values from the measured force-crush curve",
+             "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/autoinit.py).",
+             f"name: {json.dumps(draft.name)}", "vehicle:"]
+    for key, (unit, scale, fmt) in VEHICLE_UNITS.items():
+        lines.append(_line(2, f"{key}: {_q(getattr(v, key), unit, scale, fmt)}", draft.vehicle[key][1]))
+    s = v.suspension
+    susp = {f"k_{a}": _q(getattr(s, f"k_{a}"), "kN/m", 1e-3, ".1f") for a in ("front", "rear")}
+    susp.update({f"c_{a}": _q(getattr(s, f"c_{a}"), "kN*s/m", 1e-3, ".2f") for a in ("front", "rear")})
+    lines.append(_line(2, f"suspension: {_flow(susp)}",
+                       f"estimate: axle loads at {RIDE_FREQUENCY} Hz ride frequency, damping ratio {DAMPING_RATIO}"))
+    bps = [round(b, 4) for b in m.spring.crush_breakpoints]
+    lines += ["model:", "  spring:", "    law: force",
+              _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, a little past the largest crush"),
+              _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.values)}]", "measured force-crush curve"),
+              _line(2, "damper: " + _flow({"rate_breakpoints": [round(b, 2) for b in m.damper.rate_breakpoints],
+                                           "values": [_q(c, "kN*s/m", 1e-3, ".2f") for c in m.damper.values]}), "nominal"),
+              _line(2, f"unloading: {{law: plastic, stiffness: {_q(m.unloading.stiffness, 'MN/m', 1e-6, '.1f')}}}", "from the rebound")]
+    lines += _test_lines(draft, data_file)
+    lines.append("estimate:")
+    for path, spec in problem.estimate.items():
+        unit, scale, fmt = ESTIMATE_UNITS[path]
+        bounds = ", ".join(_q(b, unit, scale, fmt) for b in spec.bounds)
+        lines.append(_line(2, f"{path}: {{bounds: [{bounds}]}}", "pitch lever" if path == PITCH_LEVER else ""))
+    lines += ["constraints:", "  monotone_crush: true", "transcription: " + _flow(problem.transcription.model_dump())]
+    return "\n".join(lines) + "\n"
+
+
+def _test_lines(draft: Draft, data_file: str) -> list[str]:
+    d = draft.data
+    lines = ["tests:", f"  - name: {json.dumps(draft.name)}", "    data:", f"      file: {data_file}", f"      format: {d['format']}"]
+    if "time" in d:
+        lines.append(f"      time: {_flow(d['time'])}")
+    for key in ("bias_window", "window"):
+        if key in d:
+            lines.append(_line(6, f"{key}: [{d[key][0]:g} s, {d[key][1]:g} s]", "pre-impact mean removed" if key == "bias_window" else ""))
+    lines.append("      channels:")
+    for name, ch in d["channels"].items():
+        lines.append(_line(8, f"{name}: {_flow(ch)}", draft.comments.get(name, "")))
+    return lines
+
+
+def init_problem(data: Path, out: Path, options: Options) -> Problem:
+    """Write a complete, commented problem file for the data set `data` to `out`; return its problem."""
+    from crashnlp.case import Case
+
+    data = Path(data)
+    if not data.exists():
+        raise InputError(f"{data}: file not found")
+    draft, suspension = draft_for(data, options)
+    out_dir = Path(out).resolve().parent
+    problem = Case(problem_from_dict(problem_dict(draft, suspension, data), out_dir, source=str(data))).problem
+    text = render(draft, problem, os.path.relpath(data.resolve(), out_dir))
+    written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
+    Path(out).write_text(text)
+    return written

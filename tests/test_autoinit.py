@@ -1,0 +1,131 @@
+"""What a problem leaves out, filled in from the data: breakpoints, spring values, unloading, estimate."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from builders import ROOT, merge
+from scipy.interpolate import PchipInterpolator
+
+from crashnlp.autoinit import (
+    DEFAULT_COUNT,
+    PITCH_LEVER,
+    REACH,
+    breakpoints,
+    case_pulses,
+    complete,
+    repair_start,
+    repaired_start,
+    spring_values,
+    unloading_stiffness,
+)
+from crashnlp.case import Case
+from crashnlp.problem import ProblemError, load_problem, problem_from_dict
+from crashnlp.problem.load import read_yaml
+
+PICKUP = ROOT / "problems" / "pickup-56kph.yaml"
+
+
+def pickup(**changes) -> dict:
+    """The shipped pickup problem as a dict, with `changes` merged in (None deletes)."""
+    return merge(read_yaml(PICKUP), changes)
+
+
+@pytest.fixture(scope="module")
+def pickup_case() -> Case:
+    return Case(load_problem(PICKUP))
+
+
+def test_breakpoints_span_the_measured_crush_evenly(pickup_case):
+    pulses = case_pulses(pickup_case)
+    crush = max(p.max_crush for p in pulses)
+    assert crush == pytest.approx(0.593, abs=0.002)  # the data set's truth
+    bps = breakpoints(pulses)
+    assert len(bps) == DEFAULT_COUNT and bps[0] == 0.0
+    assert bps[-1] == pytest.approx(REACH * crush)
+    assert np.allclose(np.diff(bps), bps[1])
+
+
+def test_spring_values_follow_the_true_load_curve(pickup_case):
+    """m|a| against crush while loading recovers the generator's load curve within 3 % inside the crush range."""
+    pulses = case_pulses(pickup_case)
+    bps = breakpoints(pulses)
+    ref = pickup_case.problem.reference.force_crush
+    truth = PchipInterpolator(ref.crush, ref.force)(bps)
+    values = np.array(spring_values(bps, pulses, "force", pickup_case.problem.model.damper))
+    inside = slice(1, -1)  # 0 and the breakpoint past the largest crush are not measured at a point
+    assert np.allclose(values[inside], truth[inside], rtol=0.03)
+
+
+def test_unloading_stiffness_from_the_rebound_is_of_the_right_order(pickup_case):
+    k = unloading_stiffness(case_pulses(pickup_case))
+    assert 0.5 * 3e7 < k < 2 * 3e7  # the data were made with 30 MN/m
+
+
+def test_minimal_problem_is_completed_without_changing_the_given_one():
+    raw = pickup(model={"spring": {"crush_breakpoints": {"count": 6}, "values": None}, "damper": None,
+                        "unloading": {"stiffness": None}}, estimate=None)
+    given = problem_from_dict(raw, PICKUP.parent)
+    case = Case(given)
+    filled = case.problem
+    assert given.model.spring.values is None and given.estimate == {}  # the given problem stays as it was
+    assert len(filled.model.spring.crush_breakpoints) == 6 == len(filled.model.spring.values)
+    assert filled.model.damper.values == pytest.approx([2.0 * 2550] * 2)  # nominal: 2 /s times the mass
+    assert 1e7 < filled.model.unloading.stiffness < 1e8
+    bounds = {path: spec.bounds for path, spec in filled.estimate.items()}
+    assert set(bounds) == {"model.spring.values", "model.unloading.stiffness", "vehicle.cg_above_impact",
+                           "vehicle.pitch_inertia", PITCH_LEVER}
+    lo, hi = bounds["vehicle.pitch_inertia"]
+    assert lo < 4800 < hi and bounds["vehicle.cg_above_impact"][0] < 0.18 < bounds["vehicle.cg_above_impact"][1]
+    assert bounds["model.spring.values"][1] >= 2 * max(filled.model.spring.values)
+
+
+def test_no_pitch_channel_estimates_the_front_end_only():
+    raw = pickup(model={"spring": {"crush_breakpoints": None, "values": None}}, estimate=None)
+    del raw["tests"][0]["data"]["channels"]["pitch"]
+    filled = Case(problem_from_dict(raw, PICKUP.parent)).problem
+    assert set(filled.estimate) == {"model.spring.values", "model.unloading.stiffness"}
+
+
+def test_values_need_listed_breakpoints():
+    raw = pickup(model={"spring": {"crush_breakpoints": {"count": 7}}})
+    with pytest.raises(ProblemError, match="model.spring: values need crush_breakpoints given as a list"):
+        problem_from_dict(raw, PICKUP.parent)
+
+
+def test_breakpoints_without_data_are_refused():
+    raw = pickup(model={"spring": {"crush_breakpoints": None, "values": None}}, estimate=None)
+    raw["tests"] = [{"name": "t", "duration": 0.1}]
+    with pytest.raises(Exception, match="model.spring.crush_breakpoints: not given, and no test has accel or velocity data"):
+        Case(problem_from_dict(raw, PICKUP.parent))
+
+
+def test_complete_keeps_what_the_problem_gives(pickup_case):
+    """A complete problem comes back equal (the shipped problems do not change)."""
+    problem = load_problem(PICKUP)
+    assert complete(problem, case_pulses(pickup_case)).model_dump() == problem.model_dump()
+
+
+def test_repaired_start_reaches_the_measured_crush():
+    """A stiff start at the pickup's own breakpoints, repaired from the data, crushes as far as the data."""
+    raw = pickup(model={"spring": {"values": ["1500 kN"] * 7}})  # stops far short of the measured 0.593 m
+    case = Case(problem_from_dict(raw, PICKUP.parent))
+    short = np.max(case.simulate()["56kph"]["displacement"])
+    start = case.layout.with_values(case.base, repaired_start(case))
+    reached = np.max(case.simulate(start)["56kph"]["displacement"])
+    assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
+    note = repair_start(case)
+    assert note.startswith(f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm")
+    assert np.array_equal(case.base, start) and repair_start(case) is None  # repaired once, then it reaches
+
+
+def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_case):
+    """Without displacement or velocity channels the crush is the acceleration integrated twice from the impact speed."""
+    raw = pickup(model={"spring": {"crush_breakpoints": None, "values": None}}, estimate=None)
+    channels = raw["tests"][0]["data"]["channels"]
+    for name in ("velocity", "displacement", "pitch"):
+        del channels[name]
+    accel_only = Case(problem_from_dict(raw, PICKUP.parent))
+    (measured,) = case_pulses(pickup_case)
+    (integrated,) = case_pulses(accel_only)
+    assert integrated.max_crush == pytest.approx(measured.max_crush, rel=0.01)
+    assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_crush, rel=0.01)

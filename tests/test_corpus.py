@@ -1,0 +1,54 @@
+"""Vehicles of the robustness corpus (bench/corpus.py: a planar rigid body, not the pendulum),
+identified from minimal problem files: the issue's targets, on a few small NLPs."""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+import yaml
+from builders import ROOT
+
+from bench.corpus import random_vehicle
+from bench.robustness import SEED, judge, write_test
+from crashnlp.problem.load import read_yaml
+
+FAST = {"method": "multiple-shooting", "intervals": 100, "substeps": 1}
+# a 1059 kg city car at 44 km/h, a 1612 kg car at 63 km/h, a 1882 kg car at 50 km/h, a 3069 kg van at 59 km/h
+VEHICLES = (8, 18, 2, 23)
+
+
+def assert_targets(result: dict) -> None:
+    assert result["status"] == "ok"
+    assert abs(result["crush_rel"]) <= 0.02
+    assert abs(result["stop_err_s"]) <= 0.002
+    assert result["force_rating"] >= 0.85
+
+
+@pytest.mark.parametrize("index", VEHICLES)
+def test_minimal_problem_identifies_a_corpus_vehicle(index, tmp_path):
+    v = random_vehicle(index, SEED)
+    path, truth = write_test(v, tmp_path, FAST)
+    assert "estimate" not in yaml.safe_load(path.read_text())  # nothing but the vehicle and its test
+    assert_targets(judge(v, path, truth))
+
+
+# The issue's failing case: the shipped pickup problem (its breakpoints to 0.7 m, 500 kN initial
+# values) re-pointed at a 1350 kg compact at 48 km/h. The flat 500 kN spring stops the initial
+# simulation near 0.25 m, short of the measured crush, so the breakpoints past it have a zero
+# derivative at the start. identify repairs such a start from the data (and says so).
+def test_issue_case_pickup_problem_on_a_compact(tmp_path):
+    compact = dataclasses.replace(
+        random_vehicle(0, SEED, mass=1350.0, speed=48 / 3.6), pitch_inertia=1900.0, cg_to_impact=1.95,
+        cg_above_impact=0.12, cg_to_front_axle=1.05, cg_to_rear_axle=1.55, k_front=45e3, k_rear=38e3,
+        c_front=4.5e3, c_rear=4e3)
+    _, truth = write_test(compact, tmp_path)
+    raw = read_yaml(ROOT / "problems" / "pickup-56kph.yaml")
+    raw["vehicle"] = {"mass": "1350 kg", "speed": "48 km/h", "pitch_inertia": "1900 kg*m^2", "cg_to_impact": "1.95 m",
+                      "cg_above_impact": "0.12 m", "cg_to_front_axle": "1.05 m", "cg_to_rear_axle": "1.55 m",
+                      "suspension": {"k_front": "45 kN/m", "k_rear": "38 kN/m", "c_front": "4.5 kN*s/m", "c_rear": "4 kN*s/m"}}
+    raw["tests"] = [{"name": "t1", "speed": "48 km/h", "data": {**raw["tests"][0]["data"], "file": f"{compact.name}.csv"}}]
+    raw.pop("reference")
+    path = tmp_path / "pickup-on-compact.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    assert raw["model"]["spring"]["values"] == [0, "500 kN", "500 kN", "500 kN", "500 kN", "500 kN", "500 kN"]
+    assert_targets(judge(compact, path, truth))
