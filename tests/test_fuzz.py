@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
-from conftest import ROOT
+from builders import ROOT
 
 from crashnlp.cli import main
 

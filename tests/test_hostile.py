@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from conftest import BASE, ROOT, merge
+from builders import BASE, ROOT, merge
 
 from crashnlp.cli import main
 from crashnlp.jsonfile import write_json
