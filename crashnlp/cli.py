@@ -20,7 +20,7 @@ import traceback
 import warnings
 from contextlib import contextmanager, redirect_stderr
 from pathlib import Path
-from typing import Iterator
+from collections.abc import Iterator
 
 import numpy as np
 

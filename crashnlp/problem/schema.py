@@ -484,11 +484,12 @@ class Problem(Strict):
             self._initial_within_bounds(path, spec)
         return self
 
-    def _initial_within_bounds(self, path: str, spec: "EstimateSpec") -> None:
+    def _initial_within_bounds(self, path: str, spec: EstimateSpec) -> None:
         """Refuse an initial value (given, or the problem's own) outside the entry's estimate bounds."""
         if spec.bounds is None:
             return
-        lo, hi = (-math.inf if spec.bounds[0] is None else spec.bounds[0]), (math.inf if spec.bounds[1] is None else spec.bounds[1])
+        lo = -math.inf if spec.bounds[0] is None else spec.bounds[0]
+        hi = math.inf if spec.bounds[1] is None else spec.bounds[1]
         if lo > hi:
             raise ValueError(f"estimate.{path}.bounds: lower bound above upper bound")
         given = spec.initial is not None

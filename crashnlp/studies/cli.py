@@ -2,9 +2,8 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
-
 import math
+from pathlib import Path
 
 from crashnlp.studies.executors import CONNECT_TIMEOUT, EXECUTORS
 

@@ -12,10 +12,11 @@ import multiprocessing
 import os
 import signal
 import threading
-from contextlib import contextmanager
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterator, Protocol
+from contextlib import contextmanager
+from typing import Any, Protocol
 
 from crashnlp.errors import InputError, RunError
 
@@ -132,7 +133,8 @@ class DaskExecutor:
         except (ValueError, TypeError) as exc:
             raise InputError(f"--address {address}: not a scheduler address ({exc})") from None
         except (OSError, TimeoutError) as exc:
-            raise RunError(f"--address {address}: no dask scheduler answered within {timeout:g} s ({type(exc).__name__})") from None
+            why = type(exc).__name__
+            raise RunError(f"--address {address}: no dask scheduler answered within {timeout:g} s ({why})") from None
 
     def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
         from distributed import as_completed as dask_completed
