@@ -18,9 +18,9 @@ import sys
 import threading
 import traceback
 import warnings
+from collections.abc import Iterator
 from contextlib import contextmanager, redirect_stderr
 from pathlib import Path
-from collections.abc import Iterator
 
 import numpy as np
 
