@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test lint identify simulate study design bench readme-figures clean
+.PHONY: demo test fuzz lint identify simulate study design bench readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -42,6 +42,12 @@ readme-figures: demo identify study
 
 test: $(STAMP)
 	$(BIN)/python -m pytest
+
+# the fuzz test of tests/test_fuzz.py with more mutations (make test runs 30 s of it); FUZZ_SEED=n for others
+FUZZ_RUNS ?= 2000
+FUZZ_SEED ?= 14
+fuzz: $(STAMP)
+	CRASHNLP_FUZZ_RUNS=$(FUZZ_RUNS) CRASHNLP_FUZZ_SEED=$(FUZZ_SEED) CRASHNLP_FUZZ_SECONDS=3600 $(BIN)/python -m pytest -s tests/test_fuzz.py
 
 lint: $(STAMP)
 	$(BIN)/ruff check crashnlp tests bench examples

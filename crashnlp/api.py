@@ -37,7 +37,9 @@ def solve(
     from crashnlp.optimize import solve_case
     from crashnlp.optimize.outcome import result_of
 
-    return result_of(solve_case(Case(_problem(problem)), verbose=verbose, progress=progress, warm=warm))
+    case = Case(_problem(problem))
+    case.check_data()  # a fit to data that contradict the problem's speed is refused, not run
+    return result_of(solve_case(case, verbose=verbose, progress=progress, warm=warm))
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:

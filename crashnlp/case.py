@@ -20,6 +20,35 @@ from crashnlp.problem import Problem, Test, load_problem
 from crashnlp.simulation import Response, simulate
 
 
+SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
+
+
+def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a test speed the data contradict: the header's speed, or a measured velocity at impact.
+
+    A plain number is m/s, so `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs
+    into the iteration limit without ever saying why.
+    """
+    where = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+    header = data.meta.get("speed")
+    if header and abs(speed - header) > SPEED_TOLERANCE * header:
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the data header of test {test.name} says {header:g} m/s "
+            f"(more than 5 % apart; a plain number is m/s)"
+        )
+    spec = test.data.channels.get("velocity") if test.data is not None else None
+    velocity = data.channels.get("velocity")
+    if velocity is None or spec is None or spec.derive is not None:
+        return
+    t0 = min(max(0.0, float(velocity.time[0])), float(velocity.time[-1]))
+    start = float(np.interp(t0, velocity.time, velocity.values))
+    if abs(start - speed) > SPEED_TOLERANCE * abs(speed):
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s "
+            f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
+        )
+
+
 @dataclass
 class TestCase:
     """One test of a problem: its impact speed, horizon, data and parameter overrides."""
@@ -88,6 +117,13 @@ class Case:
             duration = self.problem.simulation.duration
         overrides = {"vehicle.mass": test.mass} if test.mass is not None else {}
         return TestCase(test, float(speed), float(duration), data, overrides)
+
+    def check_data(self) -> None:
+        """Refuse test data that contradict the problem's speed (see check_speed). For fits: a
+        simulation may well ask what a test would do at another speed."""
+        for i, test in enumerate(self.tests):
+            if test.data is not None:
+                check_speed(i, test.speed, test.spec, test.data)
 
     def test_parameters(self, test: TestCase, p: np.ndarray | None = None) -> np.ndarray:
         """Full parameter vector of one test: shared values with the test's own overrides."""

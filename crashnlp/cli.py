@@ -1,18 +1,31 @@
 """The `crashnlp` command: simulate, identify, design, study, init, schema.
 
-Bad input exits with status 2 and one line; a solve that fails exits 1 and
-says IPOPT's status; nothing is written for bad input.
+One error path: bad input (a file, a key, an option) exits 2 with one line
+naming it, and nothing is written; a failure the input did not cause (the
+solver, the integrator, a cluster, the file system) exits 1 with one line;
+SIGINT and SIGTERM exit 130 and 143 with one line. No traceback unless
+`--debug` asks for it.
 """
 from __future__ import annotations
 
 import argparse
+import io
 import json
+import math
+import re
+import signal
 import sys
+import threading
+import traceback
+import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager, redirect_stderr
 from pathlib import Path
 
 import numpy as np
 
-from crashnlp.errors import InputError
+from crashnlp.errors import InputError, Interrupted, RunError
+from crashnlp.files import check_writable
 from crashnlp.outputs import OUTPUT
 from crashnlp.studies.cli import add_parser as add_study_parser
 
@@ -26,31 +39,104 @@ def _out(args, name: str) -> Path:
 def _read_params(path: str) -> dict:
     p = Path(path)
     try:
-        params = json.loads(p.read_text())["parameters"]
+        params = json.loads(p.read_text(encoding="utf-8"))["parameters"]
     except FileNotFoundError:
         raise InputError(f"{p}: file not found") from None
-    except (json.JSONDecodeError, KeyError, TypeError):
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, IndexError):
         raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
     if not isinstance(params, dict):
         raise InputError(f"{p}: 'parameters' is not a mapping")
     return params
 
 
-def cmd_simulate(args) -> int:
+def _load_case(path: str, problem=None, check_data: bool = False):
+    """The Case of a problem file (`check_data`: for a fit, data that contradict the problem are
+    refused too); an input error found while building it names the file."""
     from crashnlp.case import Case
+    from crashnlp.data.channels import DataError
+    from crashnlp.problem import load_problem
+
+    problem = problem if problem is not None else load_problem(path)
+    try:
+        case = Case(problem)
+        if check_data:
+            case.check_data()
+        return case
+    except DataError:
+        raise
+    except InputError as exc:
+        raise InputError(exc if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
+
+
+def _with_params(problem, source: str):
+    """The problem with the values of a result.json, entry by entry refusing what does not fit."""
+    from crashnlp.problem.schema import LARGEST
+
+    params = _read_params(source)
+    for path, value in params.items():
+        try:
+            problem.unit_at(path)
+        except ValueError:
+            raise InputError(f"{source}: parameters.{path}: not a parameter of {problem.name}") from None
+        try:
+            array = np.atleast_1d(np.asarray(value, dtype=float))
+        except (TypeError, ValueError):
+            raise InputError(f"{source}: parameters.{path}: not a number or a list of numbers") from None
+        current = problem.value_at(path)
+        size = len(current) if isinstance(current, list) else 1
+        if array.ndim != 1 or array.size != size:
+            raise InputError(
+                f"{source}: parameters.{path}: {array.size} values, but {problem.name} has {size} "
+                f"(length mismatch: the result comes from another problem)"
+            )
+        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
+            raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
+    try:
+        return problem.with_values(params)
+    except KeyError as exc:
+        raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
+    except InputError as exc:
+        raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
+
+
+MAX_STEPS = 1_000_000  # output steps a simulation may ask for
+
+
+def _check_dt(dt: float | None, duration: float) -> None:
+    """Refuse a --dt that is not a positive number of seconds, or asks for absurdly many steps."""
+    if dt is None:
+        return
+    if not (math.isfinite(dt) and dt > 0):
+        raise InputError(f"--dt {dt:g}: must be a positive number of seconds")
+    if duration / dt > MAX_STEPS:
+        raise InputError(f"--dt {dt:g}: more than {MAX_STEPS:,} output steps over {duration:g} s")
+
+
+def cmd_simulate(args) -> int:
     from crashnlp.problem import load_problem
     from crashnlp.results import write_simulation
 
+    _check_dt(args.dt, 0.0)
     problem = load_problem(args.problem)
     if args.params:
-        params = _read_params(args.params)
-        try:
-            problem = problem.with_values(params)
-        except KeyError as exc:
-            raise InputError(f"{args.params}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
-    case = Case(problem)
-    responses = case.simulate(dt=args.dt)
-    out = _out(args, case.name)
+        problem = _with_params(problem, args.params)
+    case = _load_case(args.problem, problem)
+    longest = max(t.duration for t in case.tests)
+    _check_dt(args.dt, longest)
+    if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
+        raise InputError(
+            f"{args.problem}: simulation.dt {case.problem.simulation.dt:g} s: more than {MAX_STEPS:,} "
+            f"output steps over {longest:g} s (tests' duration)"
+        )
+    out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
+    check_writable(out)
+    if getattr(args, "check", False):
+        print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
+        return 0
+    with _computing(args):
+        responses = case.simulate(dt=args.dt)
     summary = write_simulation(case, responses, out)
     for name, t in summary["tests"].items():
         m = t["metrics"]
@@ -119,14 +205,22 @@ def _print_solution(result) -> None:
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary."""
-    from crashnlp.api import solve
+    from crashnlp.optimize import solve_case
+    from crashnlp.optimize.outcome import result_of
     from crashnlp.problem import load_problem
+    from crashnlp.problem.load import check_fit_keys
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
-    result = solve(problem, verbose=args.verbose, progress=sys.stdout)
-    out = _out(args, result.name)
+    check_fit_keys(problem, args.problem)
+    out = check_writable(_out(args, problem.name))
+    case = _load_case(args.problem, problem, check_data=True)  # errors name the file, before any solve
+    if getattr(args, "check", False):
+        print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
+        return 0
+    with _computing(args):  # crashnlp.api.solve, on the case already built
+        result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
     result.save(out)
     _print_solution(result)
     print(f"wrote {out}/")
@@ -172,7 +266,7 @@ def cmd_schema(args) -> int:
 
 
 def parser() -> argparse.ArgumentParser:
-    ap = argparse.ArgumentParser(
+    ap = Parser(
         prog="crashnlp",
         description="Elastic-pendulum models of frontal rigid-barrier crashes: simulate, identify, design, study.",
     )
@@ -181,7 +275,7 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
     p.add_argument("problem", help="problem YAML file")
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
-    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
     p.set_defaults(func=cmd_simulate)
 
@@ -212,16 +306,116 @@ def parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("schema", help="print the JSON Schema of problem files")
     p.set_defaults(func=cmd_schema)
+    _add_common(ap, sub)
     return ap
 
 
-def main(argv: list[str] | None = None) -> int:
-    args = parser().parse_args(argv)
+def _add_common(ap: argparse.ArgumentParser, sub) -> None:
+    """Options every command has: --debug (anywhere on the line) and --check (all but schema and init)."""
+    ap.add_argument("--debug", action="store_true", help="show the traceback of a failure (anywhere on the line)")
+    for name, p in sub.choices.items():
+        if name not in ("schema", "init"):
+            p.add_argument(
+                "--check", action="store_true",
+                help="check the input and the output folder, then stop: solve nothing, write nothing",
+            )
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, but a usage error is one line (an InputError, exit 2) instead of usage text."""
+
+    def error(self, message: str):
+        raise InputError(message)
+
+
+# --------------------------------------------------------------------------- the one error path
+SIGNALS = {signal.SIGINT: 130, signal.SIGTERM: 143}
+_received: list[Interrupted] = []
+
+
+@contextmanager
+def _signals() -> Iterator[None]:
+    """SIGINT and SIGTERM raise `Interrupted` in the main thread while a command runs."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum, frame):
+        exc = Interrupted(signal.Signals(signum).name, SIGNALS[signum])
+        _received.append(exc)
+        raise exc
+
+    previous = {s: signal.signal(s, handler) for s in SIGNALS}
     try:
-        return args.func(args)
+        yield
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def _computing(args) -> Iterator[None]:
+    """Around a solve or a simulation: CasADi's warnings (it writes them to sys.stderr) stay off the
+    one line unless --debug, and a signal that CasADi caught and turned into a failed solve still
+    ends the run as interrupted, before anything is written."""
+    if getattr(args, "debug", False):
+        yield
+    else:
+        with redirect_stderr(io.StringIO()):
+            yield
+    if _received:
+        raise _received[0]
+
+
+def describe(exc: BaseException) -> str:
+    """One line for a failure the input did not cause."""
+    if isinstance(exc, RunError):
+        return str(exc)
+    if isinstance(exc, OSError):
+        where = f"{exc.filename}: " if exc.filename else ""
+        return f"{where}{exc.strerror or exc}"
+    text = str(exc)
+    code = re.search(r"\b(CV_[A-Z_]+|IDA_[A-Z_]+)\b", text)
+    if code:
+        return f"the integrator failed ({code.group(1)}): the model cannot be integrated with these values"
+    lines = [re.sub(r"^\S+\.[ch]pp:\d+:\s*", "", line).strip() for line in text.splitlines()]
+    lines = [line for line in lines if line]
+    detail = lines[-1] if lines else ""
+    return f"{type(exc).__name__}: {detail[:300]}" if detail else type(exc).__name__
+
+
+def _fail(message: str, code: int, debug: bool) -> int:
+    if debug:
+        traceback.print_exc()
+    print(f"crashnlp: {message}", file=sys.stderr)
+    return code
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run one command; every ending is an exit status and at most one line on stderr."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    argv = [a for a in argv if a != "--debug"]
+    _received.clear()
+    try:
+        with _signals(), warnings.catch_warnings():
+            if not debug:  # a library's warning is not the one line the user gets
+                warnings.simplefilter("ignore")
+            args = parser().parse_args(argv)
+            args.debug = debug
+            return args.func(args)
+    except SystemExit as exc:  # --help and --version
+        return exc.code if isinstance(exc.code, int) else 0
+    except Interrupted as exc:
+        return _fail(f"interrupted ({exc.signame}){exc.detail}", exc.code, debug)
+    except KeyboardInterrupt:
+        return _fail("interrupted (SIGINT)", 130, debug)
     except InputError as exc:
-        print(f"crashnlp: error: {exc}", file=sys.stderr)
-        return 2
+        return _fail(f"error: {' '.join(str(exc).split())}", 2, debug)
+    except Exception as exc:  # noqa: BLE001 - the one place that turns any failure into one line
+        if _received:  # a signal that arrived inside compiled code comes back as another exception
+            return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
+        return _fail(f"error: {describe(exc)}", 1, debug)
 
 
 if __name__ == "__main__":

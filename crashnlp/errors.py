@@ -1,5 +1,25 @@
-"""Errors that are the user's input, not a bug: the CLI prints the message alone and exits 2."""
+"""The errors the command line turns into one line and an exit status.
+
+- `InputError`: the user's input (problem, data, study file, an option): exit 2, nothing written.
+- `RunError`: a failure the user cannot cause (solver, integrator, cluster, the file system): exit 1.
+- `Interrupted`: SIGINT or SIGTERM ended the run: exit 130 or 143.
+"""
+from __future__ import annotations
 
 
 class InputError(ValueError):
     """Bad input (problem file, data file, study file): one line naming where and what."""
+
+
+class RunError(RuntimeError):
+    """A failure that is not the input's (cluster unreachable, a worker lost, a disk full): exit 1."""
+
+
+class Interrupted(BaseException):
+    """The run was stopped by a signal; `code` is the exit status (128 + signal number)."""
+
+    def __init__(self, signame: str, code: int, detail: str = ""):
+        super().__init__(signame)
+        self.signame = signame
+        self.code = code
+        self.detail = detail  # appended to the line the user sees, e.g. "; run again to resume"

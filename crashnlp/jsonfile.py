@@ -4,11 +4,12 @@ from __future__ import annotations
 import json
 import math
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from crashnlp.files import atomic_temp
 
 
 def clean(value: Any) -> Any:
@@ -26,9 +27,9 @@ def clean(value: Any) -> Any:
 
 
 def write_json(path: Path, obj: Any) -> None:
-    """Write JSON atomically (a reader never sees half a file)."""
+    """Write JSON atomically (a reader never sees half a file), mode 0666 less the umask."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    fd, tmp = atomic_temp(path.parent)
     with os.fdopen(fd, "w") as fh:
         json.dump(clean(obj), fh, indent=2)
         fh.write("\n")

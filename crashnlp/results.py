@@ -23,12 +23,31 @@ from crashnlp.units import G0
 VOLATILE = ("wall_s", "build_s")
 
 
-def metrics(t: np.ndarray, accel: np.ndarray, velocity: np.ndarray, displacement: np.ndarray, pitch: np.ndarray | None) -> dict:
-    """The crash metrics result.json reports, in the units their names say."""
+def metrics(
+    t: np.ndarray,
+    accel: np.ndarray,
+    velocity: np.ndarray,
+    displacement: np.ndarray,
+    pitch: np.ndarray | None,
+    crush: np.ndarray | None = None,
+) -> dict:
+    """The crash metrics result.json reports, in the units their names say.
+
+    Max dynamic crush is the largest front-end crush where the crush is known (the model's
+    `crush` output: along the pivot-CG line, what a crush bound limits), else the largest CG
+    displacement (test data, which have no crush channel); `max_displacement_m` is always the
+    latter. The two differ by the pitch: a model pitching nose-down crushes less than it travels.
+    """
     m = crash_metrics(t, accel, velocity, displacement)
+    t_crush, max_crush = m.t_max_crush, m.max_crush
+    if crush is not None:
+        after = np.flatnonzero(np.asarray(t) >= 0.0)
+        i = after[int(np.argmax(np.asarray(crush)[after]))]
+        t_crush, max_crush = float(t[i]), float(crush[i])
     out = {
-        "max_crush_m": m.max_crush,
-        "time_max_crush_s": m.t_max_crush,
+        "max_crush_m": max_crush,
+        "time_max_crush_s": t_crush,
+        "max_displacement_m": m.max_crush,
         "time_zero_velocity_s": m.t_zero_velocity,
         "peak_decel_g": m.peak_decel / G0,
         "rebound_velocity_mps": m.rebound_velocity,
@@ -60,7 +79,7 @@ def data_metrics(test: TestCase) -> dict | None:
 
 def response_metrics(r: Response) -> dict:
     y = r.outputs
-    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"])
+    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
 
 
 def write_table(path: Path, columns: dict[str, np.ndarray]) -> None:

@@ -69,6 +69,7 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
             opts: dict[str, Any] = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
+                    "disable_internal_warnings": True,  # a failure reaches the user as one line (cli.describe)
                     "linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
         else:
             opts = {"number_of_finite_elements": options.substeps}

@@ -174,26 +174,30 @@ def test_a_changed_case_is_solved_again(small, tmp_path):
 
 # --------------------------------------------------------------------------- (4) failures
 def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
-    sweep = {
-        PITCH: [BOUNDS[0], [None, "2 kg"], BOUNDS[2], BOUNDS[3]],
-        "solver.ipopt.max_iter": [1000, 1000, 0, 1000],
-    }
+    sweep = {PITCH: BOUNDS, "solver.ipopt.max_iter": [1000, 1000, 0, 1000]}
     rows = run_study(write_study(small, mode="zip", sweep=sweep), tmp_path / "out", workers=2, progress=False)
     status = [r["status"] for r in rows]
-    assert status[0] == "ok" and status[3] == "ok"
-    assert status[1].startswith("input error: case-001: constraints") and "2 kg" in status[1]
+    assert status[0] == "ok" and status[1] == "ok" and status[3] == "ok"
     assert status[2].startswith("solver failed")
     table = read_table(tmp_path / "out/table.csv")
-    assert len(table) == 4 and table[1]["objective"] == ""
+    assert len(table) == 4 and table[2]["status"].startswith("solver failed")
 
 
-def test_cli_runs_a_study_and_reports_failures(small, tmp_path, capsys):
-    ap = parser()
+def test_a_bad_swept_value_is_refused_before_any_solve(small, tmp_path):
+    sweep = {PITCH: [BOUNDS[0], [None, "2 kg"], BOUNDS[2], BOUNDS[3]]}
+    with pytest.raises(InputError, match=r"small-study.yaml: sweep: case-001 \(constraints.bounds.pitch = \[null, 2 kg\]\)"):
+        run_study(write_study(small, mode="zip", sweep=sweep), tmp_path / "out", workers=2, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
+def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp_path, capsys):
+    from crashnlp.cli import main
+
     study = write_study(small, sweep={PITCH: [BOUNDS[0], [None, "x deg"]]})
-    args = ap.parse_args(["study", str(study), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"])
-    assert args.func(args) == 1
-    out = capsys.readouterr().out
-    assert "1 of 2 cases ok" in out and "case-001: input error" in out
+    code = main(["study", str(study), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "case-001" in err and "x deg" in err
+    assert not (tmp_path / "out").exists()
 
 
 # --------------------------------------------------------------------------- bad study files

@@ -72,3 +72,21 @@ def sample_interval(time: np.ndarray, at: str, rtol: float = 0.01) -> float:
     if np.max(np.abs(np.diff(time) - dt)) > rtol * dt:
         raise DataError(f"{at}: sampling is not uniform (needed to filter)")
     return float(dt)
+
+
+SAMPLE_INTERVALS = (5e-7, 5e-3)  # s: 2 MHz to 200 Hz; crash data are sampled at about 10 kHz
+RECORD_SPANS = (1e-3, 100.0)  # s: a crash lasts about 0.1 s
+
+
+def check_sampling(time: np.ndarray, at: str) -> None:
+    """Refuse a time base no crash record has: usually a wrong time unit (ms read as s, or s as ms)."""
+    dt = float(np.median(np.diff(time)))
+    span = float(time[-1] - time[0])
+    lo, hi = SAMPLE_INTERVALS
+    if not lo <= dt <= hi:
+        raise DataError(
+            f"{at}: sample interval {dt:g} s ({1 / dt:.3g} Hz) is not a crash record's "
+            f"({lo:g} s to {hi:g} s): is the time unit right?"
+        )
+    if not RECORD_SPANS[0] <= span <= RECORD_SPANS[1]:
+        raise DataError(f"{at}: the record lasts {span:g} s, not a crash record's: is the time unit right?")

@@ -9,7 +9,7 @@ from typing import Callable
 
 import numpy as np
 
-from crashnlp.data.channels import Channel, DataError, TestData, sample_interval, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, sample_interval, where
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_ev5 import read_ev5
@@ -53,6 +53,7 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         if ch.derive is not None:
             continue
         c = raw.channels[name]
+        check_sampling(c.time, where(path, name))
         values = c.values * ch.sign
         if name == "accel" and spec.bias_window is not None:
             try:

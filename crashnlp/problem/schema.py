@@ -6,11 +6,13 @@ entries name them by dotted path and give bounds with units.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, get_args
 
 from pydantic import (
+    AfterValidator,
     BaseModel,
     BeforeValidator,
     ConfigDict,
@@ -25,6 +27,58 @@ from crashnlp.outputs import MEASURABLE, OUTPUT
 from crashnlp.units import to_si
 
 QuantityIn = float | str
+LARGEST = 1e12  # no quantity of this model comes near it in SI; beyond it is a typo or an attack
+
+
+def si(value: Any, unit: str) -> float:
+    """`to_si`, refusing values the model cannot integrate: NaN, infinite or absurdly large."""
+    v = to_si(value, unit)
+    if not math.isfinite(v):
+        raise ValueError(f"{value!r} is not a finite number")
+    if abs(v) > LARGEST:
+        raise ValueError(f"{value!r} is beyond any physical value here (|value| <= {LARGEST:g} in SI)")
+    return v
+
+
+def _positive(v: float | None) -> float | None:
+    if v is not None and v <= 0:
+        raise ValueError("must be positive")
+    return v
+
+
+def _not_negative(v: float | None) -> float | None:
+    if v is not None and v < 0:
+        raise ValueError("must not be negative")
+    return v
+
+
+def folder_name(v: str) -> str:
+    """A name that becomes a folder of the results: one path segment, printable, at most 100 characters."""
+    if not v or v.strip() != v or v in (".", "..") or len(v) > 100:
+        raise ValueError("must be 1 to 100 characters, without surrounding spaces, and not . or ..")
+    if any(c in v for c in "/\\") or not v.isprintable():
+        raise ValueError("must not contain / or \\ or control characters (it names a results folder)")
+    return v
+
+
+FolderName = Annotated[str, AfterValidator(folder_name)]
+
+
+MASSES = (1.0, 1e6)  # kg: from a scale model to a loaded truck; outside is a unit mistake
+MAX_SPEED = 150.0  # m/s (540 km/h): no crash test comes near it
+
+
+def _mass(v: float | None) -> float | None:
+    if v is not None and not MASSES[0] <= v <= MASSES[1]:
+        raise ValueError(f"{v:g} kg is no vehicle's mass ({MASSES[0]:g} kg to {MASSES[1]:g} kg)")
+    return v
+
+
+def _speed(v: float | None) -> float | None:
+    _not_negative(v)
+    if v is not None and v > MAX_SPEED:
+        raise ValueError(f"{v:g} m/s is faster than any crash test (at most {MAX_SPEED:g} m/s)")
+    return v
 
 
 @dataclass(frozen=True)
@@ -43,7 +97,7 @@ def Q(unit: str):
     """A float field in SI `unit` that also accepts strings with units."""
     return Annotated[
         float,
-        BeforeValidator(lambda v: to_si(v, unit)),
+        BeforeValidator(lambda v: si(v, unit)),
         WithJsonSchema({"anyOf": [{"type": "number"}, {"type": "string"}], "description": f"SI unit {unit}"}),
         Unit(unit),
     ]
@@ -54,7 +108,7 @@ def QList(unit: str):
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=False)
+    model_config = ConfigDict(extra="forbid", frozen=False, allow_inf_nan=False)
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
@@ -96,6 +150,8 @@ class Suspension(Strict):
     c_front: Q("N*s/m") = 0.0
     c_rear: Q("N*s/m") = 0.0
 
+    _not_negative = field_validator("k_front", "k_rear", "c_front", "c_rear")(lambda v: _not_negative(v))
+
 
 class Vehicle(Strict):
     mass: Q("kg") | None = Field(None, description="test mass; may come from the data header")
@@ -112,12 +168,18 @@ class Vehicle(Strict):
     )
     gravity: Q("m/s^2") = 9.80665
 
-    @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+    @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
     @classmethod
     def _positive(cls, v):
-        if v is not None and v <= 0:
-            raise ValueError("must be positive")
-        return v
+        return _positive(v)
+
+    @field_validator("pitch_inertia")
+    @classmethod
+    def _not_negative(cls, v):
+        return _not_negative(v)
+
+    _check_mass = field_validator("mass")(lambda v: _mass(v))
+    _check_speed = field_validator("speed")(lambda v: _speed(v))  # 0: a vehicle at rest
 
 
 # --------------------------------------------------------------------------- model
@@ -152,7 +214,7 @@ class Spring(Strict):
             return self
         if not isinstance(self.crush_breakpoints, list):
             raise ValueError("values need crush_breakpoints given as a list")
-        self.values = [to_si(v, SPRING_UNITS[self.law]) for v in self.values]
+        self.values = [si(v, SPRING_UNITS[self.law]) for v in self.values]
         if len(self.values) != len(self.crush_breakpoints):
             raise ValueError(
                 f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}"
@@ -198,6 +260,8 @@ class Smoothing(Strict):
 
     crush: Annotated[Q("m"), Structural()] = 1e-3
     rate: Annotated[Q("m/s"), Structural()] = 1e-3
+
+    _not_negative = field_validator("crush", "rate")(lambda v: _not_negative(v))
 
 
 class Model(Strict):
@@ -258,16 +322,20 @@ class DataSpec(Strict):
     def _sigmas(self):
         for name, ch in self.channels.items():
             if ch.sigma is not None:
-                ch.sigma = to_si(ch.sigma, CHANNEL_UNITS[name])
+                ch.sigma = _positive(si(ch.sigma, CHANNEL_UNITS[name]))
         return self
 
 
 class Test(Strict):
-    name: str
+    name: FolderName
     speed: Q("m/s") | None = None
     mass: Q("kg") | None = None
     duration: Q("s") | None = None
     data: DataSpec | None = None
+
+    _positive = field_validator("duration")(lambda v: _positive(v))
+    _check_mass = field_validator("mass")(lambda v: _mass(_positive(v)))
+    _check_speed = field_validator("speed")(lambda v: _speed(v))
 
 
 # --------------------------------------------------------------------------- identification
@@ -297,7 +365,7 @@ class Constraints(Strict):
     @model_validator(mode="after")
     def _convert(self):
         self.bounds = {
-            k: tuple(None if b is None else to_si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
+            k: tuple(None if b is None else si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
         }
         for k, (lo, hi) in self.bounds.items():
             if lo is not None and hi is not None and lo > hi:
@@ -310,15 +378,18 @@ class Objective(Strict):
     regularization: float = Field(0.0, ge=0.0, description="weight on second differences of breakpoint values")
 
 
+MAX_INTERVALS = 10_000  # beyond this the NLP does not fit in memory, let alone solve
+
+
 class MultipleShooting(Strict):
     method: Literal["multiple-shooting"]
-    intervals: int = Field(200, ge=2)
-    substeps: int = Field(1, ge=1)
+    intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
+    substeps: int = Field(1, ge=1, le=100)
 
 
 class Collocation(Strict):
     method: Literal["collocation"]
-    intervals: int = Field(200, ge=2)
+    intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
     degree: int = Field(3, ge=1, le=9)
     scheme: Literal["radau", "legendre"] = "radau"
 
@@ -345,11 +416,13 @@ class Uncertainty(Strict):
 
 class Simulation(Strict):
     integrator: Literal["cvodes", "rk"] = "cvodes"
-    substeps: int = Field(4, ge=1, description="rk sub-steps per output step")
-    rtol: float = 1e-8
-    atol: float = 1e-10
+    substeps: int = Field(4, ge=1, le=1000, description="rk sub-steps per output step")
+    rtol: float = Field(1e-8, gt=0.0, lt=1.0)
+    atol: float = Field(1e-10, gt=0.0, lt=1.0)
     dt: Q("s") = Field(1e-4, description="output step")
     duration: Q("s") = Field(0.25, description="when a test gives neither duration nor data")
+
+    _positive = field_validator("dt", "duration")(lambda v: _positive(v))
 
 
 class Design(Strict):
@@ -374,7 +447,7 @@ class Reference(Strict):
 
 
 class Problem(Strict):
-    name: str
+    name: FolderName
     kind: Literal["identify", "design"] = "identify"
     vehicle: Vehicle
     model: Model
@@ -397,15 +470,44 @@ class Problem(Strict):
             raise ValueError("tests: names must be unique")
         for path, spec in self.estimate.items():
             unit = self.unit_at(path)
-            if spec.initial is not None:
-                spec.initial = (
-                    [to_si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else to_si(spec.initial, unit)
-                )
-            if spec.bounds is not None:
-                spec.bounds = tuple(None if b is None else to_si(b, unit) for b in spec.bounds)
-            if spec.prior_scale is not None:
-                spec.prior_scale = to_si(spec.prior_scale, unit)
+            try:
+                if spec.initial is not None:
+                    spec.initial = (
+                        [si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else si(spec.initial, unit)
+                    )
+                if spec.bounds is not None:
+                    spec.bounds = tuple(None if b is None else si(b, unit) for b in spec.bounds)
+                if spec.prior_scale is not None:
+                    spec.prior_scale = si(spec.prior_scale, unit)
+            except ValueError as exc:
+                raise ValueError(f"estimate.{path}: {exc}") from None
+            self._initial_within_bounds(path, spec)
         return self
+
+    def _initial_within_bounds(self, path: str, spec: EstimateSpec) -> None:
+        """Refuse an initial value (given, or the problem's own) outside the entry's estimate bounds."""
+        if spec.bounds is None:
+            return
+        lo = -math.inf if spec.bounds[0] is None else spec.bounds[0]
+        hi = math.inf if spec.bounds[1] is None else spec.bounds[1]
+        if lo > hi:
+            raise ValueError(f"estimate.{path}.bounds: lower bound above upper bound")
+        given = spec.initial is not None
+        value = spec.initial if given else self.value_at(path)
+        values = value if isinstance(value, list) else [value]
+        outside = [v for v in values if isinstance(v, (int, float)) and not lo <= v <= hi]
+        if outside:
+            where = "initial" if given else f"the problem's value of {path}"
+            raise ValueError(
+                f"estimate.{path}: {where} {outside[0]:g} is outside the bounds [{lo:g}, {hi:g}] (SI)"
+            )
+
+    def value_at(self, path: str) -> Any:
+        """The value of an entry named by dotted path, or None when the problem has none there."""
+        node: Any = self
+        for key in path.split("."):
+            node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+        return node
 
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed

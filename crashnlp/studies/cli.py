@@ -2,9 +2,10 @@
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
-from crashnlp.studies.executors import EXECUTORS
+from crashnlp.studies.executors import CONNECT_TIMEOUT, EXECUTORS
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)
@@ -50,24 +51,48 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, help="worker processes (default: the cores available; ignored with --address)")
     p.add_argument("--address", help="scheduler of a running dask cluster, e.g. tcp://host:8786 (default: start a local one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
+    p.add_argument(
+        "--timeout", type=float, default=CONNECT_TIMEOUT,
+        help=f"seconds a dask scheduler at --address may take to answer (default {CONNECT_TIMEOUT:g})",
+    )
     p.set_defaults(func=cmd_study)
     return p
 
 
 def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
-    from crashnlp.errors import InputError
+    from crashnlp.errors import InputError, Interrupted
+    from crashnlp.files import check_writable
     from crashnlp.studies.executors import start_early
 
-    if args.executor == "local":
+    check = getattr(args, "check", False)
+    if args.executor == "local" and not check:
         start_early()
     from crashnlp.studies.run import RESULTS, run_study
     from crashnlp.studies.spec import load_study
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers: must be at least 1")
-    out = Path(args.out) if args.out else RESULTS / load_study(args.study).name
-    rows = run_study(args.study, out, args.executor, args.workers, args.address, progress=not args.no_progress)
+    if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
+        raise InputError(f"--timeout {args.timeout:g}: must be a number of seconds from 0 to 3600")
+    if args.address is not None and args.executor != "dask":
+        raise InputError("--address needs --executor dask")
+    out = check_writable(Path(args.out) if args.out else RESULTS / load_study(args.study).name)
+    try:
+        rows = run_study(
+            args.study, out, args.executor, args.workers, args.address,
+            progress=not args.no_progress, timeout=args.timeout, check=check,
+        )
+    except Interrupted as exc:
+        exc.detail = f"; finished cases are kept in {out}/cases: run the study again to resume"
+        raise
+    if check:
+        if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
+            from crashnlp.studies.executors import make_executor
+
+            make_executor("dask", None, args.address, args.timeout).close()
+        print(f"{args.study}: ok (would write {out}/)")
+        return 0
     failed = [r for r in rows if r["status"] != "ok"]
     print(f"{len(rows) - len(failed)} of {len(rows)} cases ok; wrote {out}/table.csv and {out}/figures/")
     for r in failed:

@@ -7,21 +7,29 @@ plain, picklable data.
 """
 from __future__ import annotations
 
+import logging
 import multiprocessing
 import os
+import signal
+import threading
+from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from concurrent.futures.process import BrokenProcessPool
-from typing import Any, Callable, Iterator, Protocol
+from contextlib import contextmanager
+from typing import Any, Protocol
 
-from crashnlp.errors import InputError
+from crashnlp.errors import InputError, RunError
 
 EXECUTORS = ("local", "dask")
+CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to answer
 
 
 class Executor(Protocol):
     def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]: ...
 
     def close(self) -> None: ...
+
+    def abort(self) -> None: ...
 
 
 def default_workers() -> int:
@@ -52,6 +60,11 @@ def start_early() -> None:
         forkserver.ensure_running()
 
 
+def _worker_init() -> None:
+    """Workers leave Ctrl-C to the main process, which stops them (a terminal sends SIGINT to all)."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+
 class LocalExecutor:
     """A process pool on this machine."""
 
@@ -60,7 +73,7 @@ class LocalExecutor:
         self.pool = self._new_pool()
 
     def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=_context())
+        return ProcessPoolExecutor(max_workers=self.workers, mp_context=_context(), initializer=_worker_init)
 
     def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
         try:
@@ -76,19 +89,52 @@ class LocalExecutor:
     def close(self) -> None:
         self.pool.shutdown(cancel_futures=True)
 
+    def abort(self) -> None:
+        """Stop at once (a signal): end the workers mid-case instead of waiting for their cases."""
+        processes = list((getattr(self.pool, "_processes", None) or {}).values())
+        for process in processes:
+            process.terminate()
+        self.pool.shutdown(wait=False, cancel_futures=True)
+        for process in processes:
+            process.join(timeout=5)
+
+
+@contextmanager
+def _sigint_ignored() -> Iterator[None]:
+    """SIGINT ignored while processes are started (they keep it ignored), in the main thread only."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
 
 class DaskExecutor:
     """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
 
-    def __init__(self, workers: int | None = None, address: str | None = None):
+    def __init__(self, workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT):
         from distributed import Client, LocalCluster
 
+        logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
-            self.cluster = LocalCluster(
-                n_workers=workers or default_workers(), threads_per_worker=1, processes=True, dashboard_address=None
-            )
-        self.client = Client(address or self.cluster)
+            with _sigint_ignored():  # the worker processes inherit it: Ctrl-C is the main process's to handle
+                self.cluster = LocalCluster(
+                    n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
+                    dashboard_address=None, silence_logs=logging.CRITICAL,
+                )
+            self.client = Client(self.cluster)
+            return
+        try:
+            self.client = Client(address, timeout=timeout)
+        except (ValueError, TypeError) as exc:
+            raise InputError(f"--address {address}: not a scheduler address ({exc})") from None
+        except (OSError, TimeoutError) as exc:
+            why = type(exc).__name__
+            raise RunError(f"--address {address}: no dask scheduler answered within {timeout:g} s ({why})") from None
 
     def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
         from distributed import as_completed as dask_completed
@@ -104,13 +150,23 @@ class DaskExecutor:
         if self.cluster is not None:
             self.cluster.close()
 
+    def abort(self) -> None:
+        """Stop at once (a signal): cancel the cases, end a local cluster's workers."""
+        try:
+            self.client.close(timeout=5)
+        finally:
+            if self.cluster is not None:
+                self.cluster.close(timeout=5)
 
-def make_executor(kind: str = "local", workers: int | None = None, address: str | None = None) -> Executor:
+
+def make_executor(
+    kind: str = "local", workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT
+) -> Executor:
     """The executor a study asked for."""
     if kind not in EXECUTORS:
         raise InputError(f"--executor: {kind!r} is none of {', '.join(EXECUTORS)}")
     if kind == "dask":
-        return DaskExecutor(workers, address)
+        return DaskExecutor(workers, address, timeout)
     if address is not None:
         raise InputError("--address needs --executor dask")
     return LocalExecutor(workers)

@@ -37,15 +37,21 @@ class PlannedCase:
         return case_id(self.number)
 
 
+MAX_CASES = 10_000  # a grid larger than this is a mistake, not a study
+
+
 def case_id(number: int) -> str:
     """File and table name of a case."""
     return f"case-{number:03d}"
 
 
 def case_indices(study: Study) -> list[tuple[int, ...]]:
-    """Grid index of every case, in case order (zip: one index)."""
+    """Grid index of every case, in case order (zip: one index); refuse more than MAX_CASES."""
     if study.mode == "zip":
         return [(i,) for i in range(len(study.entries[0].values))]
+    count = int(np.prod([len(e.values) for e in study.entries], dtype=float))
+    if count > MAX_CASES:
+        raise InputError(f"{study.source}: sweep: {count:g} cases in the grid, more than {MAX_CASES:,}")
     return list(itertools.product(*(range(len(e.values)) for e in study.entries)))
 
 

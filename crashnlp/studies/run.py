@@ -10,12 +10,13 @@ running a study again into the same folder resumes it.
 """
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 import math
 import os
 import sys
-import tempfile
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -23,8 +24,9 @@ import numpy as np
 from tqdm import tqdm
 
 from crashnlp.errors import InputError
+from crashnlp.files import atomic_temp
 from crashnlp.jsonfile import clean, write_json
-from crashnlp.studies.executors import default_workers, make_executor
+from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
 from crashnlp.studies.spec import Study, SweepEntry, load_study
 
@@ -51,7 +53,8 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
         os.environ[THREADS_ENV] = str(job["threads"])
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
-        result = solve(problem, progress=None, warm=job["warm"])
+        with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
+            result = solve(problem, progress=None, warm=job["warm"])
     except InputError as exc:
         return {"record": {"status": f"input error: {_one_line(exc)}"}, "z": None}
     except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
@@ -114,30 +117,53 @@ class CaseStore:
         self.folder = folder
 
     def row(self, case: str, key: str) -> dict | None:
-        """The stored row of a finished case, if it was computed from the same inputs."""
+        """The stored row of a finished case, if it was computed from the same inputs and is whole.
+
+        A json that does not parse, lacks its row or status, or promises a solution vector whose
+        .npy is missing, empty or corrupt marks the case unfinished: it is solved again.
+        """
         path = self.folder / f"{case}.json"
         try:
-            stored = json.loads(path.read_text())
-        except (FileNotFoundError, json.JSONDecodeError):
+            stored = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):  # missing, unreadable, not UTF-8, not JSON
             return None
-        return stored["row"] if stored.get("key") == key else None
+        if not isinstance(stored, dict) or stored.get("key") != key:
+            return None
+        row = stored.get("row")
+        if not isinstance(row, dict) or not isinstance(row.get("status"), str):
+            return None
+        size = stored.get("vector", -1)  # -1: written before sizes were stored; check the file if there
+        if size is None:
+            return row
+        z = self.vector(case)
+        if size == -1:
+            return row if z is not None or not (self.folder / f"{case}.npy").exists() else None
+        return row if z is not None and z.size == size else None
 
     def vector(self, case: str) -> np.ndarray | None:
+        """The stored solution vector, or None if there is none or it is not a whole finite vector."""
         path = self.folder / f"{case}.npy"
-        return np.load(path) if path.is_file() else None
+        try:
+            z = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError):
+            return None
+        if z.ndim != 1 or z.dtype.kind != "f" or not np.all(np.isfinite(z)):
+            return None
+        return z
 
     def save(self, case: str, key: str, row: dict, z: np.ndarray | None) -> None:
         """Vector first, then the json that marks the case finished."""
         self.folder.mkdir(parents=True, exist_ok=True)
         npy = self.folder / f"{case}.npy"
         if z is not None:
-            fd, tmp = tempfile.mkstemp(dir=self.folder, suffix=".tmp")
+            fd, tmp = atomic_temp(self.folder)
             with os.fdopen(fd, "wb") as fh:
                 np.save(fh, np.asarray(z, dtype=float))
             os.replace(tmp, npy)
         else:
             npy.unlink(missing_ok=True)
-        write_json(self.folder / f"{case}.json", {"key": key, "row": row})
+        size = None if z is None else int(np.size(z))
+        write_json(self.folder / f"{case}.json", {"key": key, "row": row, "vector": size})
 
 
 # --------------------------------------------------------------------------- the study
@@ -148,21 +174,33 @@ def run_study(
     workers: int | None = None,
     address: str | None = None,
     progress: bool = True,
+    timeout: float = CONNECT_TIMEOUT,
+    check: bool = False,
 ) -> list[dict[str, Any]]:
-    """Solve every case not yet finished in `out`, then write table.csv and figures; return the rows."""
+    """Solve every case not yet finished in `out`, then write table.csv and figures; return the rows.
+
+    Every case's problem is validated first, so a bad swept value is an InputError before any
+    solve. `check`: stop there (return no rows). A signal stops the workers at once; the cases
+    finished so far stay in `out`/cases, and running again resumes.
+    """
     study = load_study(path)
     out = Path(out) if out is not None else RESULTS / study.name
     cases = plan_cases(study)
     raws = {c.number: _case_problem(study, c) for c in cases}
+    checked: set[str] = set()
+    for c in cases:
+        _validate(study, c, raws[c.number], checked)
+    if check:
+        return []
     keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
     store = CaseStore(out / "cases")
     rows = {c.number: row for c in cases if (row := store.row(c.id, keys[c.number])) is not None}
     todo = [[c for c in wave if c.number not in rows] for wave in waves(cases)]
+    size = min(workers or default_workers(), max(len(w) for w in todo))
+    pool = make_executor(executor, size, address, timeout) if any(todo) else None
     bar = tqdm(total=len(cases), initial=len(rows), desc=study.name, unit="case", file=sys.stderr, disable=not progress)
     _postfix(bar, rows, len(cases))
-    if any(todo):
-        size = min(workers or default_workers(), max(len(w) for w in todo))
-        pool = make_executor(executor, size, address)
+    if pool is not None:
         try:
             for wave in filter(None, todo):
                 threads = 1 if size > 1 else None  # parallel cases, serial maps inside each
@@ -175,8 +213,11 @@ def run_study(
                     rows[case.number] = clean(row)
                     _postfix(bar, rows, len(cases))
                     bar.update()
-        finally:
-            pool.close()
+        except BaseException:
+            bar.close()
+            pool.abort()
+            raise
+        pool.close()
     bar.close()
     table = [rows[c.number] for c in cases]
     write_table(out / "table.csv", table)
@@ -189,6 +230,43 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
         return case_problem(study, case)
     except InputError as exc:
         raise InputError(f"{study.source}: sweep.{exc}") from None
+
+
+def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
+    """Refuse a case whose problem is not valid, or whose data contradict it, naming the study file,
+    the case and its values. Data are read once per distinct set of tests (`checked`)."""
+    from crashnlp.problem import problem_from_dict
+    from crashnlp.problem.load import check_fit_keys
+
+    values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
+    try:
+        problem = problem_from_dict(raw, study.base_dir, source="problem")
+        check_fit_keys(problem, "problem")
+        tests = json.dumps([raw.get("tests"), raw.get("vehicle", {}).get("speed")], sort_keys=True, default=str)
+        if tests not in checked:
+            _check_data(problem)
+            checked.add(tests)
+    except InputError as exc:
+        detail = str(exc).removeprefix("problem: ")
+        raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
+
+
+def _check_data(problem) -> None:
+    """Read every test's data and refuse a speed they contradict (what Case does, without the model)."""
+    from crashnlp.case import check_speed
+    from crashnlp.data import load_test_data
+
+    masses = [problem.vehicle.mass] + [t.mass for t in problem.tests]
+    for i, test in enumerate(problem.tests):
+        data = load_test_data(test.data, problem.speed(test)) if test.data is not None else None
+        speed = problem.speed(test) or (data.meta.get("speed") if data is not None else None)
+        if speed is None:
+            raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+        if data is not None:
+            check_speed(i, float(speed), test, data)
+            masses.append(data.meta.get("mass"))
+    if not any(masses):
+        raise InputError("vehicle.mass: not given and no data header gives it")
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
@@ -239,7 +317,7 @@ def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
     """table.csv: the union of the rows' columns, in first-seen order; missing cells empty."""
     columns = list(dict.fromkeys(k for r in rows for k in r))
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    fd, tmp = atomic_temp(path.parent)
     with os.fdopen(fd, "w", newline="") as fh:
         writer = csv.DictWriter(fh, columns, restval="")
         writer.writeheader()

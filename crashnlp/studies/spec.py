@@ -17,7 +17,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from crashnlp.errors import InputError
 from crashnlp.problem.load import ProblemError, first_error, problem_from_dict, read_yaml
-from crashnlp.problem.schema import OUTPUT_UNITS, Problem
+from crashnlp.problem.schema import OUTPUT_UNITS, FolderName, Problem
 from crashnlp.units import to_si
 
 Key = str | int
@@ -28,7 +28,7 @@ class StudySpec(BaseModel):
 
     model_config = ConfigDict(extra="forbid")
 
-    name: str
+    name: FolderName
     problem: Path = Field(description="base problem file, relative to the study file")
     sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = Field(
         min_length=1, description="dotted path into the problem -> the values it takes"

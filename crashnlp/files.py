@@ -1,0 +1,49 @@
+"""Output folders and files: checked before any work, written atomically with the usual mode."""
+from __future__ import annotations
+
+import os
+import tempfile
+from pathlib import Path
+
+from crashnlp.errors import InputError
+
+
+def umask() -> int:
+    """The process umask (read by setting and restoring it)."""
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+def public_mode(fd: int) -> None:
+    """Give a file made by `tempfile.mkstemp` (mode 0600) the mode `open` would: 0666 less the umask."""
+    os.fchmod(fd, 0o666 & ~umask())
+
+
+def atomic_temp(folder: Path) -> tuple[int, str]:
+    """A temporary file in `folder` with the usual mode, to be renamed over its target (`os.replace`)."""
+    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
+    public_mode(fd)
+    return fd, tmp
+
+
+def check_writable(out: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any work, an output folder that cannot be created or written; create nothing.
+
+    The nearest existing ancestor must be a folder in which a file can be made (a probe file,
+    removed at once), which also catches read-only file systems and running as root.
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise InputError(f"{option} {out}: exists and is not a folder")
+    probe = out
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir():
+        raise InputError(f"{option} {out}: {probe} is not a folder")
+    try:
+        with tempfile.TemporaryFile(dir=probe):
+            pass
+    except OSError as exc:
+        raise InputError(f"{option} {out}: cannot write in {probe} ({exc.strerror or exc})") from None
+    return out

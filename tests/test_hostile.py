@@ -1,0 +1,353 @@
+"""Hostile input and interrupted runs: one line, the right exit status, nothing half-written, no orphans."""
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+from builders import BASE, ROOT, merge
+
+from crashnlp.cli import main
+from crashnlp.jsonfile import write_json
+from crashnlp.studies.run import CaseStore
+
+PICKUP = ROOT / "problems/pickup-56kph.yaml"
+CLI = [sys.executable, "-m", "crashnlp.cli"]
+
+
+def pickup(changes: dict | None = None, drop: tuple[str, ...] = ()) -> dict:
+    """The shipped pickup problem as a dict, data path made absolute, with changes merged in."""
+    raw = yaml.safe_load(PICKUP.read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw = merge(raw, changes or {})
+    for key in drop:
+        node = raw
+        *parents, leaf = key.split(".")
+        for k in parents:
+            node = node[int(k)] if isinstance(node, list) else node[k]
+        del node[leaf]
+    return raw
+
+
+def run(args: list[str], capsys) -> tuple[int, str, str]:
+    code = main(args)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def refused(tmp_path: Path, capsys, raw_or_text, expected: str, command: str = "identify") -> str:
+    """Write a problem, run a command on it: exit 2, one line containing `expected`, nothing written."""
+    path = tmp_path / "p.yaml"
+    if isinstance(raw_or_text, bytes):
+        path.write_bytes(raw_or_text)
+    else:
+        path.write_text(raw_or_text if isinstance(raw_or_text, str) else yaml.safe_dump(raw_or_text))
+    out = tmp_path / "out"
+    code, _, err = run([command, str(path), "--out", str(out)], capsys)
+    assert code == 2, err
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert expected in err, err
+    assert not out.exists()
+    return err
+
+
+# --------------------------------------------------------------------------- values the model cannot integrate
+@pytest.mark.parametrize(
+    "changes, expected",
+    [
+        ({"vehicle": {"mass": ".nan"}}, "vehicle.mass: "),
+        ({"vehicle": {"mass": float("nan")}}, "vehicle.mass: "),
+        ({"vehicle": {"cg_to_impact": float("inf")}}, "vehicle.cg_to_impact: "),
+        ({"vehicle": {"mass": 1e308}}, "vehicle.mass: "),
+        ({"vehicle": {"mass": "1e308 kg"}}, "vehicle.mass: "),
+        ({"vehicle": {"mass": -2550}}, "vehicle.mass: must be positive"),
+        ({"vehicle": {"speed": "-56 km/h"}}, "vehicle.speed: must not be negative"),
+        ({"tests": [{"name": "t", "speed": "-56 km/h"}]}, "tests.0.speed: must not be negative"),
+        ({"tests": [{"name": "t", "duration": "-0.2 s"}]}, "tests.0.duration: must be positive"),
+        ({"simulation": {"dt": 0}}, "simulation.dt: must be positive"),
+        ({"model": {"spring": {"values": ["nan kN"] * 8}}}, "model.spring: "),
+        ({"estimate": {"vehicle.cg_above_impact": {"bounds": [0, "inf m"]}}}, "estimate.vehicle.cg_above_impact: "),
+    ],
+)
+def test_values_the_model_cannot_integrate_are_refused_with_their_key(tmp_path, capsys, changes, expected):
+    refused(tmp_path, capsys, merge(BASE, changes), expected, command="simulate")
+
+
+@pytest.mark.parametrize("dt", ["0", "-1e-4", "nan", "inf", "1e-12"])
+def test_bad_dt_is_refused(tmp_path, capsys, dt):
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump(BASE))
+    code, _, err = run(["simulate", str(path), f"--dt={dt}", "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and err.startswith("crashnlp: error: --dt") and err.count("\n") == 1
+    assert not (tmp_path / "o").exists()
+
+
+def test_initial_value_outside_its_bounds_is_refused(tmp_path, capsys):
+    raw = pickup({"estimate": {"vehicle.cg_above_impact": {"initial": "0.9 m", "bounds": ["0 m", "0.6 m"]}}})
+    refused(tmp_path, capsys, raw, "estimate.vehicle.cg_above_impact: initial 0.9 is outside the bounds")
+    raw = pickup({"vehicle": {"pitch_inertia": "20000 kg*m^2"}})
+    refused(tmp_path, capsys, raw, "estimate.vehicle.pitch_inertia: the problem's value")
+
+
+# --------------------------------------------------------------------------- data that contradict the problem
+def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
+    raw = pickup({"vehicle": {"speed": 56}, "tests": [{**pickup()["tests"][0], "speed": 56}]})
+    err = refused(tmp_path, capsys, raw, "tests.0.speed: 56 m/s, but the velocity data")
+    assert "15.5" in err and "5 %" in err
+
+
+def test_a_header_speed_the_problem_contradicts_is_refused(tmp_path, capsys):
+    raw = yaml.safe_load((ROOT / "problems/nhtsa-10146.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw["tests"][0]["speed"] = 57.09  # km/h meant
+    refused(tmp_path, capsys, raw, "tests.0.speed: 57.09 m/s, but the data header")
+
+
+@pytest.mark.parametrize("unit", ["ms", "h"])
+def test_a_time_unit_that_makes_the_sample_rate_absurd_is_refused(tmp_path, capsys, unit):
+    raw = pickup({"tests": [merge(pickup()["tests"][0], {"data": {"time": {"column": "time_s", "unit": unit}}})]})
+    refused(tmp_path, capsys, raw, "is the time unit right?")
+
+
+def test_identify_refuses_a_duration_its_data_window_overrides(tmp_path, capsys):
+    raw = pickup({"tests": [{**pickup()["tests"][0], "duration": "0.25 s"}]})
+    refused(tmp_path, capsys, raw, "tests.0.duration: 0.25 s would be ignored")
+
+
+# --------------------------------------------------------------------------- files
+def test_a_file_that_is_not_utf8_is_one_line(tmp_path, capsys):
+    refused(tmp_path, capsys, b"name: caf\xe9\nvehicle: {}\n", "not valid UTF-8")
+
+
+def test_duplicate_keys_are_refused(tmp_path, capsys):
+    text = PICKUP.read_text().replace("  mass: 2550 kg\n", "  mass: 2550 kg\n  mass: 1200 kg\n")
+    text = text.replace("file: data/", f"file: {ROOT}/problems/data/")
+    refused(tmp_path, capsys, text, "duplicate key 'mass'")
+
+
+def test_all_missing_and_unknown_keys_are_reported_at_once(tmp_path, capsys):
+    raw = merge(BASE, {"vehicle": {"cg_to_impact": None, "cg_to_front_axle": None, "colour": "red"}, "model": None})
+    err = refused(tmp_path, capsys, raw, "vehicle.cg_to_impact: missing key", command="simulate")
+    for part in ("vehicle.cg_to_front_axle: missing key", "vehicle.colour: unknown key", "model: missing key"):
+        assert part in err
+
+
+def test_params_of_another_problem_name_the_length_mismatch(tmp_path, capsys):
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(BASE))
+    params = tmp_path / "result.json"
+    params.write_text(json.dumps({"parameters": {"model.spring.values": [1e5] * 9}}))
+    code, _, err = run(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / "o")], capsys)
+    assert code == 2 and "parameters.model.spring.values: 9 values, but unit has 8" in err and "length mismatch" in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_an_output_folder_that_cannot_be_written_is_refused_before_solving(tmp_path, capsys):
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(pickup()))
+    for out in (blocker, blocker / "sub"):
+        code, stdout, err = run(["identify", str(problem), "--out", str(out)], capsys)
+        assert code == 2 and err.startswith(f"crashnlp: error: --out {out}") and err.count("\n") == 1
+        assert "iter" not in stdout  # nothing was solved
+
+
+def test_usage_errors_are_one_line(capsys):
+    for argv in (["frob"], [], ["simulate"], ["study", "x.yaml", "--workers", "two"]):
+        code, _, err = run(argv, capsys)
+        assert code == 2 and err.count("\n") == 1 and err.startswith("crashnlp: error:"), (argv, err)
+    assert run(["--help"], capsys)[0] == 0
+
+
+def test_files_are_written_with_the_mode_the_umask_gives(tmp_path):
+    old = os.umask(0o027)
+    try:
+        write_json(tmp_path / "a.json", {"x": 1})
+        CaseStore(tmp_path / "cases").save("case-000", "k", {"status": "ok"}, np.ones(3))
+    finally:
+        os.umask(old)
+    assert (tmp_path / "a.json").stat().st_mode & 0o777 == 0o640
+    for name in ("case-000.json", "case-000.npy"):
+        assert (tmp_path / "cases" / name).stat().st_mode & 0o777 == 0o640
+
+
+def test_simulate_writes_to_a_folder_of_its_own(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": 0.05}]})))
+    code, out, _ = run(["simulate", str(problem)], capsys)
+    assert code == 0 and "wrote results/unit/simulation/" in out
+    assert (tmp_path / "results/unit/simulation/simulation.json").is_file()
+    assert not (tmp_path / "results/unit/t56").exists()
+
+
+def test_the_readme_example_problem_runs_as_written(tmp_path, capsys):
+    text = (ROOT / "README.md").read_text()
+    block = re.search(r"```yaml\n(.*?)```", text, re.S).group(1)
+    (tmp_path / "data").symlink_to(ROOT / "problems/data")
+    path = tmp_path / "example.yaml"
+    path.write_text(block)
+    code, out, err = run(["identify", str(path), "--out", str(tmp_path / "out"), "--check"], capsys)
+    assert code == 0 and "ok (1 tests" in out, err  # all but the solve (15 s with the figures and ratings)
+    assert not (tmp_path / "out").exists()
+
+
+# --------------------------------------------------------------------------- failures the input did not cause
+def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
+    from crashnlp.case import Case
+
+    def fail(self, *a, **k):
+        raise RuntimeError(
+            ".../casadi/core/function.cpp:1458: Error in Function::call for 'sim' [CvodesInterface]\n"
+            ".../cvodes_interface.cpp:300: CVode returned \"CV_FIRST_RHSFUNC_ERR\"."
+        )
+
+    monkeypatch.setattr(Case, "simulate", fail)
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(BASE))
+    code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)
+    assert code == 1 and err.count("\n") == 1 and "CV_FIRST_RHSFUNC_ERR" in err and "Traceback" not in err
+    code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o"), "--debug"], capsys)
+    assert code == 1 and "Traceback" in err
+
+
+def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
+    import crashnlp.results
+
+    def fail(*a, **k):
+        raise OSError(28, "No space left on device", str(tmp_path / "o/simulation.json"))
+
+    monkeypatch.setattr(crashnlp.results, "write_simulation", fail)
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": 0.05}]})))
+    code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)
+    assert code == 1 and err.count("\n") == 1 and "No space left on device" in err
+
+
+def test_an_unreachable_dask_scheduler_fails_in_time(tmp_path):
+    started = time.monotonic()
+    proc = subprocess.run(
+        [*CLI, "study", str(ROOT / "problems/studies/pitch-bound.yaml"), "--executor", "dask",
+         "--address", "tcp://127.0.0.1:1", "--timeout", "2", "--out", str(tmp_path / "o"), "--no-progress"],
+        capture_output=True, text=True, timeout=60, cwd=ROOT,
+    )
+    assert time.monotonic() - started < 20
+    assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr
+    assert "--address tcp://127.0.0.1:1: no dask scheduler answered within 2 s" in proc.stderr
+    assert not (tmp_path / "o").exists()
+
+
+# --------------------------------------------------------------------------- study resume and signals
+def test_corrupt_case_files_are_solved_again(tmp_path):
+    store = CaseStore(tmp_path)
+    store.save("case-000", "k", {"status": "ok"}, np.ones(4))
+    assert store.row("case-000", "k") == {"status": "ok"}
+    (tmp_path / "case-000.npy").write_bytes(b"")
+    assert store.row("case-000", "k") is None
+    store.save("case-000", "k", {"status": "ok"}, np.ones(4))
+    (tmp_path / "case-000.npy").write_bytes((tmp_path / "case-000.npy").read_bytes()[:-8])
+    assert store.row("case-000", "k") is None
+    for text in ("", "[1, 2]", '{"key": "k"}', '{"key": "k", "row": {"status": 3}}', "\xff"):
+        (tmp_path / "case-000.json").write_text(text, encoding="latin-1")
+        assert store.row("case-000", "k") is None
+
+
+def _descendants(pid: int) -> set[int]:
+    """Every process below `pid`, from /proc (Linux)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, pp in parents.items() if pp in frontier} - found
+        found |= frontier
+    return found
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
+def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
+    study = ROOT / "problems/studies/pitch-bound.yaml"
+    out = tmp_path / "study"
+    argv = [*CLI, "study", str(study), "--out", str(out), "--workers", "2", "--no-progress"]
+    proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 30
+    children: set[int] = set()
+    while time.monotonic() < deadline and len(children) < 4:  # tracker, fork server, two workers
+        time.sleep(0.1)
+        children |= _descendants(proc.pid)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=30)
+    assert proc.returncode == 143, err
+    assert err.strip().splitlines()[-1].startswith("crashnlp: interrupted (SIGTERM)") and "Traceback" not in err
+    time.sleep(1.0)
+    assert not [p for p in children if _alive(p)], "processes left behind"
+    rerun = subprocess.run(argv, cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert rerun.returncode == 0, rerun.stderr
+    table = (out / "table.csv").read_text().splitlines()
+    assert len(table) == 5 and all(",ok," in row for row in table[1:])
+
+
+def test_a_yaml_bomb_is_refused(tmp_path, capsys):
+    levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
+    for k in range(1, 10):
+        levels.append(f"a{k}: &a{k} [" + ", ".join([f"*a{k - 1}"] * 12) + "]")
+    refused(tmp_path, capsys, "\n".join(levels) + "\n", "more than 100 aliases")
+
+
+def test_a_study_refuses_data_that_contradict_a_case(tmp_path, capsys):
+    raw = pickup({"vehicle": {"speed": 56}, "tests": [{**pickup()["tests"][0], "speed": 56}]})
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"name": "s", "problem": "p.yaml", "sweep": {"constraints.bounds.pitch": [[None, "4 deg"]]}}))
+    code, _, err = run(["study", str(study), "--out", str(tmp_path / "out"), "--no-progress"], capsys)
+    assert code == 2 and err.count("\n") == 1 and "case-000" in err and "speed and data disagree" in err
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path, capsys):
+    refused(tmp_path, capsys, pickup({"vehicle": {"mass": "1e-9 kg"}}), "vehicle.mass: 1e-09 kg is no vehicle's mass")
+    refused(tmp_path, capsys, pickup({"vehicle": {"speed": "2000 km/h"}}), "vehicle.speed: ")
+
+
+def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys):
+    import threading
+
+    out = tmp_path / "out"
+    timer = threading.Timer(2.0, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        code, _, err = run(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(out)], capsys)
+    finally:
+        timer.cancel()
+    assert code == 130 and err == "crashnlp: interrupted (SIGINT)\n", err
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("name", ["../escape", "a/b", "..", "", "x\x00"])
+def test_a_name_that_would_leave_the_results_folder_is_refused(tmp_path, capsys, monkeypatch, name):
+    monkeypatch.chdir(tmp_path)
+    refused(tmp_path, capsys, merge(BASE, {"name": name}), "name: ", command="simulate")
+    refused(tmp_path, capsys, merge(BASE, {"tests": [{"name": name, "duration": 0.1}]}), "tests.0.name: ", command="simulate")
+    assert not (tmp_path / "results").exists() and not (tmp_path.parent / "escape").exists()
