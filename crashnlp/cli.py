@@ -151,6 +151,7 @@ def cmd_simulate(args) -> int:
 
 METRIC_ROWS = (  # result.json key, label, factor
     ("max_crush_m", "max dynamic crush (mm)", 1e3),
+    ("max_front_end_crush_m", "max front-end crush (mm)", 1e3),
     ("time_max_crush_s", "time of max crush (ms)", 1e3),
     ("time_zero_velocity_s", "time of zero velocity (ms)", 1e3),
     ("peak_decel_g", "peak deceleration (g)", 1.0),

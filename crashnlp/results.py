@@ -33,21 +33,16 @@ def metrics(
 ) -> dict:
     """The crash metrics result.json reports, in the units their names say.
 
-    Max dynamic crush is the largest front-end crush where the crush is known (the model's
-    `crush` output: along the pivot-CG line, what a crush bound limits), else the largest CG
-    displacement (test data, which have no crush channel); `max_displacement_m` is always the
-    latter. The two differ by the pitch: a model pitching nose-down crushes less than it travels.
+    Max dynamic crush is the crash-test quantity, the CG's largest displacement, for data and
+    model alike, so the two compare. A model also reports its largest front-end crush
+    (`max_front_end_crush_m`, the `crush` output along the crush force's line of action: what a
+    crush bound limits); the two differ by the pitch and the geometry.
     """
     m = crash_metrics(t, accel, velocity, displacement)
-    t_crush, max_crush = m.t_max_crush, m.max_crush
-    if crush is not None:
-        after = np.flatnonzero(np.asarray(t) >= 0.0)
-        i = after[int(np.argmax(np.asarray(crush)[after]))]
-        t_crush, max_crush = float(t[i]), float(crush[i])
     out = {
-        "max_crush_m": max_crush,
-        "time_max_crush_s": t_crush,
-        "max_displacement_m": m.max_crush,
+        "max_crush_m": m.max_crush,
+        "time_max_crush_s": m.t_max_crush,
+        "max_front_end_crush_m": float(np.max(crush)) if crush is not None else None,
         "time_zero_velocity_s": m.t_zero_velocity,
         "peak_decel_g": m.peak_decel / G0,
         "rebound_velocity_mps": m.rebound_velocity,
