@@ -14,11 +14,11 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import identification, report, robustness, scaling, simulation, studies  # noqa: E402
+from bench import identification, report, robustness, scaling, self_consistency, simulation, studies  # noqa: E402
 from bench.common import RESULTS, machine  # noqa: E402
 
 SECTIONS = {"identification": identification, "simulation": simulation, "studies": studies, "scaling": scaling,
-            "corpus": robustness}
+            "corpus": robustness, "self_consistency": self_consistency}
 
 
 def main(argv: list[str] | None = None) -> int:

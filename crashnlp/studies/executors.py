@@ -11,6 +11,7 @@ import logging
 import multiprocessing
 import os
 import signal
+import sys
 import threading
 from collections.abc import Callable, Iterator
 from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -65,6 +66,24 @@ def _worker_init() -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
 
 
+@contextmanager
+def _workers_skip_main_script() -> Iterator[None]:
+    """Workers started here do not run the calling script again: multiprocessing re-runs the
+    __main__ file in every new worker (the `if __name__ == "__main__"` idiom), which a script
+    calling crashnlp.study at top level would turn into a study per worker. The workers need
+    only crashnlp's own functions, so the script's path is hidden while they start."""
+    main = sys.modules["__main__"]
+    path, spec = getattr(main, "__file__", None), getattr(main, "__spec__", None)
+    if path is None or spec is not None:
+        yield
+        return
+    del main.__file__
+    try:
+        yield
+    finally:
+        main.__file__ = path
+
+
 class LocalExecutor:
     """A process pool on this machine."""
 
@@ -76,12 +95,13 @@ class LocalExecutor:
         return ProcessPoolExecutor(max_workers=self.workers, mp_context=_context(), initializer=_worker_init)
 
     def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
-        try:
-            futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
-        except BrokenProcessPool:  # a worker died in an earlier wave: start afresh
-            self.pool.shutdown(cancel_futures=True)
-            self.pool = self._new_pool()
-            futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
+        with _workers_skip_main_script():
+            try:
+                futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
+            except BrokenProcessPool:  # a worker died in an earlier wave: start afresh
+                self.pool.shutdown(cancel_futures=True)
+                self.pool = self._new_pool()
+                futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
         for future in as_completed(futures):
             exc = future.exception()
             yield futures[future], exc if exc is not None else future.result()
@@ -121,7 +141,8 @@ class DaskExecutor:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
-            with _sigint_ignored():  # the worker processes inherit it: Ctrl-C is the main process's to handle
+            # the worker processes inherit it: Ctrl-C is the main process's to handle
+            with _sigint_ignored(), _workers_skip_main_script():
                 self.cluster = LocalCluster(
                     n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
                     dashboard_address=None, silence_logs=logging.CRITICAL,
