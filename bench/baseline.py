@@ -8,6 +8,7 @@ least-squares solve with a finite-difference Jacobian, one forward simulation
 per residual evaluation. The NLP's monotone-crush constraint has no counterpart
 here (it is inactive at the NLP's solution).
 """
+
 from __future__ import annotations
 
 import time
@@ -19,8 +20,8 @@ from scipy.optimize import least_squares
 
 from bench.common import Target, node_times, residual_vector
 from crashnlp.case import Case
-from crashnlp.simulation import response_from_states
 from crashnlp.optimize.parameters import FreeParameters
+from crashnlp.simulation import response_from_states
 
 METHOD, RTOL, ATOL, MAX_STEP = "LSODA", 1e-6, 1e-8, 1e-3
 DIFF_STEP = 1e-3  # relative finite-difference step ~ sqrt(rtol): scipy's default (1.5e-8) drowns in integrator error
@@ -43,7 +44,16 @@ class BaselineResult:
         return self.status > 0
 
 
-def shoot(case: Case, p: np.ndarray, test_index: int, times: np.ndarray, method: str = METHOD, rtol: float = RTOL, atol: float = ATOL, max_step: float = MAX_STEP) -> dict[str, np.ndarray]:
+def shoot(
+    case: Case,
+    p: np.ndarray,
+    test_index: int,
+    times: np.ndarray,
+    method: str = METHOD,
+    rtol: float = RTOL,
+    atol: float = ATOL,
+    max_step: float = MAX_STEP,
+) -> dict[str, np.ndarray]:
     """Outputs of one test at `times` by solve_ivp on the augmented RHS (7 states)."""
     test = case.tests[test_index]
     model = case.model
@@ -52,7 +62,13 @@ def shoot(case: Case, p: np.ndarray, test_index: int, times: np.ndarray, method:
     x0 = np.concatenate([np.asarray(model.initial_state(pt, test.speed)).ravel(), np.zeros(3)])
     sol = solve_ivp(
         lambda t, x: np.asarray(rhs(x, pt)).ravel(),
-        (float(times[0]), float(times[-1])), x0, method=method, t_eval=times, rtol=rtol, atol=atol, max_step=max_step,
+        (float(times[0]), float(times[-1])),
+        x0,
+        method=method,
+        t_eval=times,
+        rtol=rtol,
+        atol=atol,
+        max_step=max_step,
     )
     if not sol.success:
         raise RuntimeError(f"solve_ivp: {sol.message}")
@@ -82,9 +98,23 @@ def fit(case: Case, targets: list[Target], max_nfev: int) -> BaselineResult:
     free = fun.free
     t0 = time.perf_counter()
     res = least_squares(
-        fun, free.initial, jac="2-point", diff_step=DIFF_STEP, bounds=(free.lower, free.upper), x_scale="jac", method="trf", max_nfev=max_nfev
+        fun,
+        free.initial,
+        jac="2-point",
+        diff_step=DIFF_STEP,
+        bounds=(free.lower, free.upper),
+        x_scale="jac",
+        method="trf",
+        max_nfev=max_nfev,
     )
     wall = time.perf_counter() - t0
     return BaselineResult(
-        free.named(res.x), free.full(res.x), wall, int(res.njev or 0), fun.simulations, int(res.status), str(res.message), float(2 * res.cost)
+        free.named(res.x),
+        free.full(res.x),
+        wall,
+        int(res.njev or 0),
+        fun.simulations,
+        int(res.status),
+        str(res.message),
+        float(2 * res.cost),
     )

@@ -8,13 +8,14 @@ node times, scored by the identification objective
 
 so that crashnlp's and the scipy baseline's answers are compared on equal terms.
 """
+
 from __future__ import annotations
 
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -46,13 +47,17 @@ def load(path: Path = PICKUP_56, method: str | None = None, intervals: int | Non
     """A fresh problem, optionally with another transcription, interval count or IPOPT iteration cap."""
     problem = load_problem(path)
     if method is not None or intervals is not None:
-        problem.transcription = transcription(method or problem.transcription.method, intervals or problem.transcription.intervals)
+        problem.transcription = transcription(
+            method or problem.transcription.method, intervals or problem.transcription.intervals
+        )
     if max_iter is not None:
         problem.solver.ipopt = {**problem.solver.ipopt, "max_iter": max_iter}
     return problem
 
 
-def load_case(path: Path = PICKUP_56, method: str | None = None, intervals: int | None = None, max_iter: int | None = None) -> Case:
+def load_case(
+    path: Path = PICKUP_56, method: str | None = None, intervals: int | None = None, max_iter: int | None = None
+) -> Case:
     return Case(load(path, method, intervals, max_iter))
 
 
@@ -92,9 +97,7 @@ def fit_targets(case: Case) -> list[Target]:
 
 def residual_vector(targets: list[Target], outputs: list[dict[str, np.ndarray]]) -> np.ndarray:
     """sqrt(weight / n_c) * (model - data) / sigma for every target, stacked."""
-    parts = [
-        (outputs[t.test][t.channel][t.columns] - t.data) * (np.sqrt(t.weight / len(t.columns)) / t.sigma) for t in targets
-    ]
+    parts = [(outputs[t.test][t.channel][t.columns] - t.data) * (np.sqrt(t.weight / len(t.columns)) / t.sigma) for t in targets]
     return np.concatenate(parts)
 
 

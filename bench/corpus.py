@@ -14,6 +14,7 @@ Measured channels, like the synthetic pickup of the shared data: CG acceleration
 structural ringing (two decaying sines) and white noise, velocity, displacement and pitch
 (nose-down positive) with small noise; ground frame, x toward the wall, 10 kHz.
 """
+
 from __future__ import annotations
 
 import csv
@@ -77,17 +78,35 @@ def random_vehicle(index: int, seed: int, mass: float | None = None, speed: floa
     k = loads * omega**2
     zeta = rng.uniform(0.2, 0.35, 2)
     c = 2 * zeta * np.sqrt(k * loads)
-    ringing = ((rng.uniform(2.0, 6.0), rng.uniform(300.0, 500.0), rng.uniform(0.02, 0.05)),
-               (rng.uniform(1.0, 3.0), rng.uniform(600.0, 900.0), rng.uniform(0.01, 0.03)))
-    return Vehicle(**_plain(dict(
-        name=f"v{index:02d}", mass=mass, speed=speed,
-        pitch_inertia=mass * (rng.uniform(0.38, 0.5) * wheelbase) ** 2,
-        cg_to_impact=front + rng.uniform(0.7, 1.05), cg_above_impact=rng.uniform(0.04, 0.16) + 0.1 * size,
-        cg_to_front_axle=front, cg_to_rear_axle=rear, k_front=k[0], k_rear=k[1], c_front=c[0], c_rear=c[1],
-        load_crush=tuple(KNOT_FRACTIONS * crush), load_force=tuple(load_force),
-        crush_damping=rng.uniform(1.0, 3.0) * mass, unloading_stiffness=rng.uniform(1.5e7, 6e7),
-        vertical_ratio=rng.uniform(-0.02, 0.04), ringing=ringing, seed=seed,
-    )))
+    ringing = (
+        (rng.uniform(2.0, 6.0), rng.uniform(300.0, 500.0), rng.uniform(0.02, 0.05)),
+        (rng.uniform(1.0, 3.0), rng.uniform(600.0, 900.0), rng.uniform(0.01, 0.03)),
+    )
+    return Vehicle(
+        **_plain(
+            dict(
+                name=f"v{index:02d}",
+                mass=mass,
+                speed=speed,
+                pitch_inertia=mass * (rng.uniform(0.38, 0.5) * wheelbase) ** 2,
+                cg_to_impact=front + rng.uniform(0.7, 1.05),
+                cg_above_impact=rng.uniform(0.04, 0.16) + 0.1 * size,
+                cg_to_front_axle=front,
+                cg_to_rear_axle=rear,
+                k_front=k[0],
+                k_rear=k[1],
+                c_front=c[0],
+                c_rear=c[1],
+                load_crush=tuple(KNOT_FRACTIONS * crush),
+                load_force=tuple(load_force),
+                crush_damping=rng.uniform(1.0, 3.0) * mass,
+                unloading_stiffness=rng.uniform(1.5e7, 6e7),
+                vertical_ratio=rng.uniform(-0.02, 0.04),
+                ringing=ringing,
+                seed=seed,
+            )
+        )
+    )
 
 
 def _plain(value):
@@ -147,8 +166,9 @@ def simulate(v: Vehicle) -> dict[str, np.ndarray]:
     """Noise-free response at 10 kHz: time, accel, velocity, displacement, pitch, barrier force (SI)."""
     body = Body(v)
     t = DT * np.arange(int(round(DURATION / DT)) + 1)
-    sol = solve_ivp(body.rhs, (0.0, DURATION), [0, 0, 0, v.speed, 0, 0, 0], method="LSODA", t_eval=t,
-                    rtol=1e-9, atol=1e-11, max_step=5e-5)
+    sol = solve_ivp(
+        body.rhs, (0.0, DURATION), [0, 0, 0, v.speed, 0, 0, 0], method="LSODA", t_eval=t, rtol=1e-9, atol=1e-11, max_step=5e-5
+    )
     if not sol.success:
         raise RuntimeError(f"{v.name}: {sol.message}")
     X, Z, phi, Xd, Zd, phid, d_max = sol.y

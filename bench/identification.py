@@ -5,6 +5,7 @@ the covariance for crashnlp; the whole least_squares call for the baseline);
 IPOPT's own solve time is recorded beside. Both final parameter sets are judged
 by the common evaluator of bench.common.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -68,17 +69,26 @@ def run(quick: bool = False) -> dict:
     out = {"problem": PICKUP_56.name, "crashnlp": {}}
     for method in TRANSCRIPTIONS:
         out["crashnlp"][method] = res = run_crashnlp(method, intervals)
-        print(f"  crashnlp {method}: {res['status']}, {res['wall_s']:.2f} s ({res['ipopt_s']:.2f} s IPOPT, "
-              f"{res['iterations']} it), objective {res['objective']:.5g}")
+        print(
+            f"  crashnlp {method}: {res['status']}, {res['wall_s']:.2f} s ({res['ipopt_s']:.2f} s IPOPT, "
+            f"{res['iterations']} it), objective {res['objective']:.5g}"
+        )
     out["baseline"] = b = run_baseline(intervals, 4 if quick else 100)
-    print(f"  baseline: converged {b['converged']} ({b['message']}), {b['wall_s']:.1f} s, {b['iterations']} it, "
-          f"{b['simulations']} simulations, objective {b['objective']:.5g}")
+    print(
+        f"  baseline: converged {b['converged']} ({b['message']}), {b['wall_s']:.1f} s, {b['iterations']} it, "
+        f"{b['simulations']} simulations, objective {b['objective']:.5g}"
+    )
     out["ratios"] = {
-        m: {"speedup": b["wall_s"] / r["wall_s"], "speedup_ipopt_only": b["wall_s"] / r["ipopt_s"],
-            "objective_ratio": r["objective"] / b["objective"]}
+        m: {
+            "speedup": b["wall_s"] / r["wall_s"],
+            "speedup_ipopt_only": b["wall_s"] / r["ipopt_s"],
+            "objective_ratio": r["objective"] / b["objective"],
+        }
         for m, r in out["crashnlp"].items()
     }
     for m, q in out["ratios"].items():
-        print(f"  {m}: {q['speedup']:.1f}x faster end-to-end ({q['speedup_ipopt_only']:.1f}x on IPOPT time), "
-              f"objective ratio {q['objective_ratio']:.4f}")
+        print(
+            f"  {m}: {q['speedup']:.1f}x faster end-to-end ({q['speedup_ipopt_only']:.1f}x on IPOPT time), "
+            f"objective ratio {q['objective_ratio']:.4f}"
+        )
     return out

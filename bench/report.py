@@ -1,4 +1,5 @@
 """Results of the benchmarks: all numbers to JSON, the tables and targets to Markdown."""
+
 from __future__ import annotations
 
 import json
@@ -16,44 +17,83 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
     for method, r in (ident or {}).get("crashnlp", {}).items():
         q, b = ident["ratios"][method], ident["baseline"]
         rows.append((f"identification {method}: >= 50x faster than the baseline", f"{q['speedup']:.1f}x", q["speedup"] >= 50))
-        rows.append((f"identification {method}: objective <= baseline's", f"{r['objective']:.5g} vs {b['objective']:.5g}",
-                     r["objective"] <= b["objective"]))
-        rows.append((f"identification {method}: < 1 s wall", f"{r['wall_s']:.2f} s ({r['ipopt_s']:.2f} s IPOPT)", r["wall_s"] < 1.0))
+        rows.append(
+            (
+                f"identification {method}: objective <= baseline's",
+                f"{r['objective']:.5g} vs {b['objective']:.5g}",
+                r["objective"] <= b["objective"],
+            )
+        )
+        rows.append(
+            (f"identification {method}: < 1 s wall", f"{r['wall_s']:.2f} s ({r['ipopt_s']:.2f} s IPOPT)", r["wall_s"] < 1.0)
+        )
     sim = results.get("simulation")
     if sim:
         s, b = sim["single"], sim["batch"]
-        rows.append(("forward simulation >= 20x faster than solve_ivp", f"{s['speedup']:.1f}x ({s['speedup_call_only']:.1f}x integrator call only)",
-                     s["speedup"] >= 20))
+        rows.append(
+            (
+                "forward simulation >= 20x faster than solve_ivp",
+                f"{s['speedup']:.1f}x ({s['speedup_call_only']:.1f}x integrator call only)",
+                s["speedup"] >= 20,
+            )
+        )
         best = min(b["vm"]["wall_s"], b["compiled"]["wall_s"])
         rows.append((f"{b['n']} batched simulations < 1 s", f"{best:.2f} s", best < 1.0 if b["n"] >= 1000 else None))
     st = results.get("studies")
     if st:
         ok = None if "skipped" in st else st["speedup_2_workers"] >= 1.8
-        measured = st.get("skipped") or (f"{st['speedup_2_workers']:.2f}x (serial maps in both runs: "
-                                          f"{st['speedup_2_workers_serial_maps']:.2f}x)")
+        measured = st.get("skipped") or (
+            f"{st['speedup_2_workers']:.2f}x (serial maps in both runs: {st['speedup_2_workers_serial_maps']:.2f}x)"
+        )
         rows.append(("study: 2 workers >= 1.8x faster than 1", measured, ok))
     sc = results.get("scaling")
     for method, s in (sc or {}).get("slopes", {}).items():
-        detail = (f"; {s['ipopt_per_iteration']:.2f} per IPOPT iteration, steepest step {s['steepest_step']:.2f}"
-                  if "steepest_step" in s else "")
-        rows.append((f"scaling {method}: time no faster than linear in intervals (slope <= 1)",
-                     f"slope {s['wall_s']:.2f} ({s['ipopt_s']:.2f} IPOPT only{detail})", s["wall_s"] <= 1.0))
+        detail = (
+            f"; {s['ipopt_per_iteration']:.2f} per IPOPT iteration, steepest step {s['steepest_step']:.2f}"
+            if "steepest_step" in s
+            else ""
+        )
+        rows.append(
+            (
+                f"scaling {method}: time no faster than linear in intervals (slope <= 1)",
+                f"slope {s['wall_s']:.2f} ({s['ipopt_s']:.2f} IPOPT only{detail})",
+                s["wall_s"] <= 1.0,
+            )
+        )
     co = results.get("corpus")
     if co:
         c, t = co["summary"], co["targets"]
         rows.append(("corpus: every vehicle identified", f"{c['succeeded']} of {c['vehicles']}", c["success_rate"] == 1.0))
-        rows.append((f"corpus: crush within {100 * t['crush_rel']:g} %", f"largest error {100 * c['crush_rel_max']:.2f} %",
-                     c["crush_rel_max"] <= t["crush_rel"]))
-        rows.append((f"corpus: stop time within {1e3 * t['stop_s']:g} ms", f"largest error {1e3 * c['stop_err_max_s']:.2f} ms",
-                     c["stop_err_max_s"] <= t["stop_s"]))
-        rows.append((f"corpus: median barrier-force ISO 18571 >= {t['force_rating_median']}",
-                     f"{c['force_rating_median']:.3f} (lowest {c['force_rating_min']:.3f})",
-                     c["force_rating_median"] >= t["force_rating_median"]))
+        rows.append(
+            (
+                f"corpus: crush within {100 * t['crush_rel']:g} %",
+                f"largest error {100 * c['crush_rel_max']:.2f} %",
+                c["crush_rel_max"] <= t["crush_rel"],
+            )
+        )
+        rows.append(
+            (
+                f"corpus: stop time within {1e3 * t['stop_s']:g} ms",
+                f"largest error {1e3 * c['stop_err_max_s']:.2f} ms",
+                c["stop_err_max_s"] <= t["stop_s"],
+            )
+        )
+        rows.append(
+            (
+                f"corpus: median barrier-force ISO 18571 >= {t['force_rating_median']}",
+                f"{c['force_rating_median']:.3f} (lowest {c['force_rating_min']:.3f})",
+                c["force_rating_median"] >= t["force_rating_median"],
+            )
+        )
     return rows
 
 
 def _table(head: list[str], rows: list[list]) -> list[str]:
-    return ["| " + " | ".join(head) + " |", "|" + "---|" * len(head), *("| " + " | ".join(str(c) for c in r) + " |" for r in rows)]
+    return [
+        "| " + " | ".join(head) + " |",
+        "|" + "---|" * len(head),
+        *("| " + " | ".join(str(c) for c in r) + " |" for r in rows),
+    ]
 
 
 PROFILED = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
@@ -61,83 +101,224 @@ PROFILED = ("nlp_f", "nlp_g", "nlp_grad_f", "nlp_jac_g", "nlp_hess_l")
 
 def identification_md(r: dict) -> list[str]:
     b = r["baseline"]
-    rows = [[m, c["status"], f"{c['wall_s']:.2f}", f"{c['ipopt_s']:.2f}", f"{c['iterations']} it", f"{c['objective']:.5g}",
-             f"{r['ratios'][m]['speedup']:.1f}x"] for m, c in r["crashnlp"].items()]
-    rows.append(["scipy baseline", "converged" if b["converged"] else f"not converged ({b['message']})", f"{b['wall_s']:.1f}", "",
-                 f"{b['iterations']} it, {b['simulations']} simulations", f"{b['objective']:.5g}", "1x"])
+    rows = [
+        [
+            m,
+            c["status"],
+            f"{c['wall_s']:.2f}",
+            f"{c['ipopt_s']:.2f}",
+            f"{c['iterations']} it",
+            f"{c['objective']:.5g}",
+            f"{r['ratios'][m]['speedup']:.1f}x",
+        ]
+        for m, c in r["crashnlp"].items()
+    ]
+    rows.append(
+        [
+            "scipy baseline",
+            "converged" if b["converged"] else f"not converged ({b['message']})",
+            f"{b['wall_s']:.1f}",
+            "",
+            f"{b['iterations']} it, {b['simulations']} simulations",
+            f"{b['objective']:.5g}",
+            "1x",
+        ]
+    )
     channels = list(b["rmse"])
-    rmse = [[m, *(f"{c['rmse'][k]['rmse']:.4g} {c['rmse'][k]['unit']}" for k in channels)] for m, c in {**r["crashnlp"], "scipy baseline": b}.items()]
-    prof = [[m, *(f"{1e3 * c['profile'][f][1] / max(c['profile'][f][0], 1):.2f} ms x {c['profile'][f][0]}" for f in PROFILED),
-              f"{c['ipopt_s'] - sum(c['profile'][f][1] for f in PROFILED):.2f} s"] for m, c in r["crashnlp"].items() if c.get("profile")]
-    profile = ["Inside IPOPT (CasADi's timing statistics): time per call x calls of each function, and what is left for "
-               "IPOPT itself (MUMPS, line search):", "", *_table(["method", *PROFILED, "IPOPT itself"], prof), ""] if prof else []
-    return [f"## Identification ({r['problem']}, {next(iter(r['crashnlp'].values()))['intervals']} intervals)", "",
-            "Objective: every final parameter set judged by one CVODES forward simulation at the node times.", "",
-            *_table(["method", "status", "wall (s)", "IPOPT (s)", "work", "objective", "speed-up"], rows), "",
-            "RMSE per channel (same evaluator):", "", *_table(["method", *channels], rmse), "", *profile]
+    rmse = [
+        [m, *(f"{c['rmse'][k]['rmse']:.4g} {c['rmse'][k]['unit']}" for k in channels)]
+        for m, c in {**r["crashnlp"], "scipy baseline": b}.items()
+    ]
+    prof = [
+        [
+            m,
+            *(f"{1e3 * c['profile'][f][1] / max(c['profile'][f][0], 1):.2f} ms x {c['profile'][f][0]}" for f in PROFILED),
+            f"{c['ipopt_s'] - sum(c['profile'][f][1] for f in PROFILED):.2f} s",
+        ]
+        for m, c in r["crashnlp"].items()
+        if c.get("profile")
+    ]
+    profile = (
+        [
+            "Inside IPOPT (CasADi's timing statistics): time per call x calls of each function, and what is left for "
+            "IPOPT itself (MUMPS, line search):",
+            "",
+            *_table(["method", *PROFILED, "IPOPT itself"], prof),
+            "",
+        ]
+        if prof
+        else []
+    )
+    return [
+        f"## Identification ({r['problem']}, {next(iter(r['crashnlp'].values()))['intervals']} intervals)",
+        "",
+        "Objective: every final parameter set judged by one CVODES forward simulation at the node times.",
+        "",
+        *_table(["method", "status", "wall (s)", "IPOPT (s)", "work", "objective", "speed-up"], rows),
+        "",
+        "RMSE per channel (same evaluator):",
+        "",
+        *_table(["method", *channels], rmse),
+        "",
+        *profile,
+    ]
 
 
 def simulation_md(r: dict) -> list[str]:
     s, b = r["single"], r["batch"]
-    rows = [["crashnlp simulate (states and outputs)", f"{1e3 * s['crashnlp_s']:.1f}", ""],
-            ["crashnlp integrator call only", f"{1e3 * s['crashnlp_call_only_s']:.1f}", ""]]
-    rows += [[f"solve_ivp {m}", f"{1e3 * v['wall_s']:.1f}", f"{v['max_crush_diff_mm']:.1e} mm, {v['max_accel_diff_g']:.1e} g"] for m, v in s["scipy"].items()]
+    rows = [
+        ["crashnlp simulate (states and outputs)", f"{1e3 * s['crashnlp_s']:.1f}", ""],
+        ["crashnlp integrator call only", f"{1e3 * s['crashnlp_call_only_s']:.1f}", ""],
+    ]
+    rows += [
+        [f"solve_ivp {m}", f"{1e3 * v['wall_s']:.1f}", f"{v['max_crush_diff_mm']:.1e} mm, {v['max_accel_diff_g']:.1e} g"]
+        for m, v in s["scipy"].items()
+    ]
     checks = [[c["member"], f"{c['max_diff_vs_alone']:.1e}", f"{c['max_crush_diff_vs_cvodes_mm']:.3g}"] for c in b["checks"]]
-    return ["## Forward simulation", "",
-            f"One 56 km/h simulation, {s['grid_points']} output points, rtol {s['rtol']:g}, atol {s['atol']:g} (best of repeats):", "",
-            *_table(["method", "wall (ms)", "max difference to crashnlp"], rows), "",
-            f"Speed-up against the fastest solve_ivp ({s['scipy_best']}): {s['speedup']:.1f}x end-to-end, {s['speedup_call_only']:.1f}x integrator call only.", "",
-            f"Batch of {b['n']} ({b['integrator']}, dt {b['dt']:g} s, {b['steps']} steps):", "",
-            *_table(["evaluation", "first call (s)", "run (s)", "per simulation (ms)"],
-                    [[m, f"{b[m]['first_call_s']:.2f}", f"{b[m]['wall_s']:.2f}", f"{b[m]['per_simulation_ms']:.2f}"] for m in ("vm", "compiled")]), "",
-            *_table(["member", "max abs(batch - alone)", "crush vs CVODES (mm)"], checks), ""]
+    return [
+        "## Forward simulation",
+        "",
+        f"One 56 km/h simulation, {s['grid_points']} output points, rtol {s['rtol']:g}, atol {s['atol']:g} (best of repeats):",
+        "",
+        *_table(["method", "wall (ms)", "max difference to crashnlp"], rows),
+        "",
+        f"Speed-up against the fastest solve_ivp ({s['scipy_best']}): {s['speedup']:.1f}x end-to-end, {s['speedup_call_only']:.1f}x integrator call only.",
+        "",
+        f"Batch of {b['n']} ({b['integrator']}, dt {b['dt']:g} s, {b['steps']} steps):",
+        "",
+        *_table(
+            ["evaluation", "first call (s)", "run (s)", "per simulation (ms)"],
+            [
+                [m, f"{b[m]['first_call_s']:.2f}", f"{b[m]['wall_s']:.2f}", f"{b[m]['per_simulation_ms']:.2f}"]
+                for m in ("vm", "compiled")
+            ],
+        ),
+        "",
+        *_table(["member", "max abs(batch - alone)", "crush vs CVODES (mm)"], checks),
+        "",
+    ]
 
 
 def studies_md(r: dict) -> list[str]:
     if "skipped" in r:
         return ["## Studies", "", r["skipped"], ""]
-    rows = [[x["workers"], "serial" if x["serial_maps"] else "threaded", f"{x['wall_s']:.1f}", x["exit"], x["cases"]] for x in r["runs"]]
+    rows = [
+        [x["workers"], "serial" if x["serial_maps"] else "threaded", f"{x['wall_s']:.1f}", x["exit"], x["cases"]]
+        for x in r["runs"]
+    ]
     s = next(x for x in r["runs"] if x["serial_maps"] and x["workers"] == 1)
-    bound = (f"The solves themselves (IPOPT) take {s['solves_s']:.2f} s in all, and the longest warm-start chain "
-             f"{s['longest_chain_s']:.2f} s of it: a case starts after the case it warm-starts from, so two workers can be at most "
-             f"{s['two_worker_bound']:.2f}x faster on this study, whatever the executor; the rest of the wall time is "
-             "starting processes, building each case and writing the table and figures.") if "two_worker_bound" in s else ""
-    return ["## Studies", "", f"`crashnlp study` on {r['study']}:", "",
-            *_table(["workers", "maps in a solve", "wall (s)", "exit", "cases"], rows), "",
-            f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x as shipped (one worker's solve uses both cores through "
-            f"threaded maps); {r['speedup_2_workers_serial_maps']:.2f}x with serial maps in both runs.", "", bound, ""]
+    bound = (
+        (
+            f"The solves themselves (IPOPT) take {s['solves_s']:.2f} s in all, and the longest warm-start chain "
+            f"{s['longest_chain_s']:.2f} s of it: a case starts after the case it warm-starts from, so two workers can be at most "
+            f"{s['two_worker_bound']:.2f}x faster on this study, whatever the executor; the rest of the wall time is "
+            "starting processes, building each case and writing the table and figures."
+        )
+        if "two_worker_bound" in s
+        else ""
+    )
+    return [
+        "## Studies",
+        "",
+        f"`crashnlp study` on {r['study']}:",
+        "",
+        *_table(["workers", "maps in a solve", "wall (s)", "exit", "cases"], rows),
+        "",
+        f"Speed-up with 2 workers: {r['speedup_2_workers']:.2f}x as shipped (one worker's solve uses both cores through "
+        f"threaded maps); {r['speedup_2_workers_serial_maps']:.2f}x with serial maps in both runs.",
+        "",
+        bound,
+        "",
+    ]
 
 
 def scaling_md(r: dict) -> list[str]:
-    fmt = lambda x: [x["method"], x["intervals"], x["tests"], f"{x['wall_s']:.2f}", f"{x['ipopt_s']:.2f}", x["iterations"],
-                     x["status"] + (" (capped)" if x["capped"] else "")]
+    fmt = lambda x: [
+        x["method"],
+        x["intervals"],
+        x["tests"],
+        f"{x['wall_s']:.2f}",
+        f"{x['ipopt_s']:.2f}",
+        x["iterations"],
+        x["status"] + (" (capped)" if x["capped"] else ""),
+    ]
     head = ["method", "intervals", "tests", "wall (s)", "IPOPT (s)", "iterations", "status"]
-    slopes = [[m, f"{s['wall_s']:.2f}", f"{s['ipopt_s']:.2f}", f"{s.get('ipopt_per_iteration', float('nan')):.2f}",
-               f"{s.get('steepest_step', float('nan')):.2f}"] for m, s in r["slopes"].items()]
-    return ["## Scaling", "", f"IPOPT capped at {r['max_iter']} iterations. Figure: `{r['figure']}`.", "",
-            *_table(head, [fmt(x) for x in r["intervals"]]), "", *_table(head, [fmt(x) for x in r["tests"]]), "",
-            "Log-log slope of time against intervals, over the converged solves:", "",
-            *_table(["method", "end-to-end", "IPOPT only", "IPOPT per iteration", "steepest step (end-to-end)"], slopes), ""]
+    slopes = [
+        [
+            m,
+            f"{s['wall_s']:.2f}",
+            f"{s['ipopt_s']:.2f}",
+            f"{s.get('ipopt_per_iteration', float('nan')):.2f}",
+            f"{s.get('steepest_step', float('nan')):.2f}",
+        ]
+        for m, s in r["slopes"].items()
+    ]
+    return [
+        "## Scaling",
+        "",
+        f"IPOPT capped at {r['max_iter']} iterations. Figure: `{r['figure']}`.",
+        "",
+        *_table(head, [fmt(x) for x in r["intervals"]]),
+        "",
+        *_table(head, [fmt(x) for x in r["tests"]]),
+        "",
+        "Log-log slope of time against intervals, over the converged solves:",
+        "",
+        *_table(["method", "end-to-end", "IPOPT only", "IPOPT per iteration", "steepest step (end-to-end)"], slopes),
+        "",
+    ]
 
 
 def corpus_md(r: dict) -> list[str]:
     c = r["summary"]
     ok = lambda x: x["status"] == "ok"  # noqa: E731
-    rows = [[x["name"], f"{x['mass_kg']:.0f}", f"{x['speed_kmh']:.1f}", x["status"],
-             f"{x['crush_true_m'] * 1e3:.0f}" if ok(x) else "", f"{100 * x['crush_rel']:+.2f}" if ok(x) else "",
-             f"{x['stop_true_s'] * 1e3:.1f}" if ok(x) else "", f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
-             f"{x['force_rating']:.3f}" if ok(x) else "", x["iterations"], f"{x['wall_s']:.2f}"] for x in r["vehicles"]]
-    return ["## Robustness corpus", "",
-            f"{c['vehicles']} random vehicles from `bench/corpus.py` (a planar rigid body with an eccentric contact force, "
-            f"not the pendulum; seed {r['seed']}), each identified from a minimal problem file (vehicle and test only). "
-            "Judged against the generator's noise-free response; the force rating is ISO/TS 18571 of the barrier force "
-            "from impact to separation.", "",
-            f"Identified {c['succeeded']} of {c['vehicles']}; within 2 % crush and 2 ms stop time: {c['within_targets']}. "
-            f"Crush error median {100 * c['crush_rel_median']:.2f} %, largest {100 * c['crush_rel_max']:.2f} %; stop-time error "
-            f"median {1e3 * c['stop_err_median_s']:.2f} ms, largest {1e3 * c['stop_err_max_s']:.2f} ms; force rating median "
-            f"{c['force_rating_median']:.3f}, lowest {c['force_rating_min']:.3f}; median wall time {c['wall_median_s']:.2f} s.", "",
-            *_table(["vehicle", "mass (kg)", "speed (km/h)", "status", "crush (mm)", "crush error (%)", "stop (ms)",
-                     "stop error (ms)", "force ISO 18571", "iterations", "wall (s)"], rows), ""]
+    rows = [
+        [
+            x["name"],
+            f"{x['mass_kg']:.0f}",
+            f"{x['speed_kmh']:.1f}",
+            x["status"],
+            f"{x['crush_true_m'] * 1e3:.0f}" if ok(x) else "",
+            f"{100 * x['crush_rel']:+.2f}" if ok(x) else "",
+            f"{x['stop_true_s'] * 1e3:.1f}" if ok(x) else "",
+            f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
+            f"{x['force_rating']:.3f}" if ok(x) else "",
+            x["iterations"],
+            f"{x['wall_s']:.2f}",
+        ]
+        for x in r["vehicles"]
+    ]
+    return [
+        "## Robustness corpus",
+        "",
+        f"{c['vehicles']} random vehicles from `bench/corpus.py` (a planar rigid body with an eccentric contact force, "
+        f"not the pendulum; seed {r['seed']}), each identified from a minimal problem file (vehicle and test only). "
+        "Judged against the generator's noise-free response; the force rating is ISO/TS 18571 of the barrier force "
+        "from impact to separation.",
+        "",
+        f"Identified {c['succeeded']} of {c['vehicles']}; within 2 % crush and 2 ms stop time: {c['within_targets']}. "
+        f"Crush error median {100 * c['crush_rel_median']:.2f} %, largest {100 * c['crush_rel_max']:.2f} %; stop-time error "
+        f"median {1e3 * c['stop_err_median_s']:.2f} ms, largest {1e3 * c['stop_err_max_s']:.2f} ms; force rating median "
+        f"{c['force_rating_median']:.3f}, lowest {c['force_rating_min']:.3f}; median wall time {c['wall_median_s']:.2f} s.",
+        "",
+        *_table(
+            [
+                "vehicle",
+                "mass (kg)",
+                "speed (km/h)",
+                "status",
+                "crush (mm)",
+                "crush error (%)",
+                "stop (ms)",
+                "stop error (ms)",
+                "force ISO 18571",
+                "iterations",
+                "wall (s)",
+            ],
+            rows,
+        ),
+        "",
+    ]
 
 
 def _batch_best(b: dict) -> float:
@@ -156,25 +337,54 @@ def comparison(before: dict, after: dict) -> list[list[str]]:
     for method in after.get("identification", {}).get("crashnlp", {}):
         b, a = before["identification"]["crashnlp"][method], after["identification"]["crashnlp"][method]
         rb, ra = before["identification"]["ratios"][method], after["identification"]["ratios"][method]
-        rows.append([f"identify pickup-56kph, {method}", f"{b['wall_s']:.2f} s ({b['ipopt_s']:.2f} s IPOPT, {b['iterations']} it)",
-                     f"{a['wall_s']:.2f} s ({a['ipopt_s']:.2f} s IPOPT, {a['iterations']} it)"])
-        rows.append([f"  against the scipy baseline ({method})", f"{rb['speedup']:.1f}x, objective {rb['objective_ratio']:.4f} of its",
-                     f"{ra['speedup']:.1f}x, objective {ra['objective_ratio']:.4f} of its"])
+        rows.append(
+            [
+                f"identify pickup-56kph, {method}",
+                f"{b['wall_s']:.2f} s ({b['ipopt_s']:.2f} s IPOPT, {b['iterations']} it)",
+                f"{a['wall_s']:.2f} s ({a['ipopt_s']:.2f} s IPOPT, {a['iterations']} it)",
+            ]
+        )
+        rows.append(
+            [
+                f"  against the scipy baseline ({method})",
+                f"{rb['speedup']:.1f}x, objective {rb['objective_ratio']:.4f} of its",
+                f"{ra['speedup']:.1f}x, objective {ra['objective_ratio']:.4f} of its",
+            ]
+        )
     if "simulation" in after:
         sb, sa = before["simulation"], after["simulation"]
-        rows.append(["one simulation, states and outputs", f"{1e3 * sb['single']['crashnlp_s']:.1f} ms ({sb['single']['speedup']:.1f}x)",
-                     f"{1e3 * sa['single']['crashnlp_s']:.1f} ms ({sa['single']['speedup']:.1f}x)"])
-        rows.append([f"{sa['batch']['n']} batched simulations", f"{_batch_best(sb['batch']):.2f} s", f"{_batch_best(sa['batch']):.2f} s"])
+        rows.append(
+            [
+                "one simulation, states and outputs",
+                f"{1e3 * sb['single']['crashnlp_s']:.1f} ms ({sb['single']['speedup']:.1f}x)",
+                f"{1e3 * sa['single']['crashnlp_s']:.1f} ms ({sa['single']['speedup']:.1f}x)",
+            ]
+        )
+        rows.append(
+            [f"{sa['batch']['n']} batched simulations", f"{_batch_best(sb['batch']):.2f} s", f"{_batch_best(sa['batch']):.2f} s"]
+        )
     if "studies" in after and "runs" in after["studies"]:
         for serial in (False, True):
-            pick = lambda r, w: next(x["wall_s"] for x in r["studies"]["runs"] if x["workers"] == w and x["serial_maps"] == serial)
+            pick = lambda r, w, serial=serial: next(
+                x["wall_s"] for x in r["studies"]["runs"] if x["workers"] == w and x["serial_maps"] == serial
+            )
             label = "serial maps" if serial else "as shipped"
-            rows.append([f"pitch-bound study, 1 / 2 workers ({label})", f"{pick(before, 1):.1f} s / {pick(before, 2):.1f} s",
-                         f"{pick(after, 1):.1f} s / {pick(after, 2):.1f} s"])
+            rows.append(
+                [
+                    f"pitch-bound study, 1 / 2 workers ({label})",
+                    f"{pick(before, 1):.1f} s / {pick(before, 2):.1f} s",
+                    f"{pick(after, 1):.1f} s / {pick(after, 2):.1f} s",
+                ]
+            )
     if "scaling" in after:
         for method in ("multiple-shooting", "collocation"):
-            rows.append([f"identify at 800 intervals, {method}", _scaling_wall(before["scaling"], method, 800),
-                         _scaling_wall(after["scaling"], method, 800)])
+            rows.append(
+                [
+                    f"identify at 800 intervals, {method}",
+                    _scaling_wall(before["scaling"], method, 800),
+                    _scaling_wall(after["scaling"], method, 800),
+                ]
+            )
     return rows
 
 
@@ -197,36 +407,69 @@ CHANGES = [
 
 
 def before_after_md(before: dict, after: dict) -> list[str]:
-    return ["## Before and after this round of fixes", "",
-            f"Before: `results/bench-before.json`, the same benchmarks on the code as it stood. What changed:", "",
-            *(f"- {c}" for c in CHANGES), "", *_table(["what", "before", "after"], comparison(before, after)), ""]
+    return [
+        "## Before and after this round of fixes",
+        "",
+        "Before: `results/bench-before.json`, the same benchmarks on the code as it stood. What changed:",
+        "",
+        *(f"- {c}" for c in CHANGES),
+        "",
+        *_table(["what", "before", "after"], comparison(before, after)),
+        "",
+    ]
 
 
 def self_consistency_md(r: dict) -> list[str]:
-    rows = [[label, r[label]["status"], r[label]["iterations"],
-             *(f"{100 * r[label]['relative_errors'][p]:.2f}" for p in r["truth"]), f"{r[label]['forward_check_worst']:.3f}"]
-            for label in ("all channels", "without velocity")]
+    rows = [
+        [
+            label,
+            r[label]["status"],
+            r[label]["iterations"],
+            *(f"{100 * r[label]['relative_errors'][p]:.2f}" for p in r["truth"]),
+            f"{r[label]['forward_check_worst']:.3f}",
+        ]
+        for label in ("all channels", "without velocity")
+    ]
     c = r["coverage"]
-    return ["## Self-consistency of the shipped pickup identification", "",
-            "The shipped pickup fit is the truth; crashnlp's simulator makes data from it at 0.1 ms in the shipped CSV's "
-            "columns, and the shipped problem fits them back (largest error per parameter: spring values relative to "
-            "the largest force, the rest to their truth; the forward check relative to its tolerance).", "",
-            *_table(["data", "status", "iterations", *r["truth"], "forward check"], rows), "",
-            f"{c['replicates']} replicates with white noise (1 g filtered at CFC 60, 0.02 m/s, 1 mm, 0.1 deg): the 95 % "
-            f"intervals cover the truth in {100 * c['coverage_95']:.0f} % of {c['pairs']} (parameter, replicate) pairs, "
-            f"RMS z {c['rms_z']:.2f} (parameters whose truth sits on a bound left out).", ""]
+    return [
+        "## Self-consistency of the shipped pickup identification",
+        "",
+        "The shipped pickup fit is the truth; crashnlp's simulator makes data from it at 0.1 ms in the shipped CSV's "
+        "columns, and the shipped problem fits them back (largest error per parameter: spring values relative to "
+        "the largest force, the rest to their truth; the forward check relative to its tolerance).",
+        "",
+        *_table(["data", "status", "iterations", *r["truth"], "forward check"], rows),
+        "",
+        f"{c['replicates']} replicates with white noise (1 g filtered at CFC 60, 0.02 m/s, 1 mm, 0.1 deg): the 95 % "
+        f"intervals cover the truth in {100 * c['coverage_95']:.0f} % of {c['pairs']} (parameter, replicate) pairs, "
+        f"RMS z {c['rms_z']:.2f} (parameters whose truth sits on a bound left out).",
+        "",
+    ]
 
 
-SECTIONS = {"identification": identification_md, "simulation": simulation_md, "studies": studies_md, "scaling": scaling_md,
-            "corpus": corpus_md, "self_consistency": self_consistency_md}
+SECTIONS = {
+    "identification": identification_md,
+    "simulation": simulation_md,
+    "studies": studies_md,
+    "scaling": scaling_md,
+    "corpus": corpus_md,
+    "self_consistency": self_consistency_md,
+}
 
 
 def markdown(results: dict, before: dict | None = None) -> str:
     m = results.get("machine", {})
-    lines = ["# crashnlp benchmarks", "",
-             f"Machine: {m.get('cpus')} CPUs, load average at start {m.get('load_average')} (other jobs share it), "
-             f"CasADi {m.get('casadi')}, SciPy {m.get('scipy')}.{' QUICK smoke run: reduced sizes.' if results.get('quick') else ''}", "",
-             "## Targets", "", *_table(["target", "measured", "result"], [[t, v, _met(ok)] for t, v, ok in targets(results)]), ""]
+    lines = [
+        "# crashnlp benchmarks",
+        "",
+        f"Machine: {m.get('cpus')} CPUs, load average at start {m.get('load_average')} (other jobs share it), "
+        f"CasADi {m.get('casadi')}, SciPy {m.get('scipy')}.{' QUICK smoke run: reduced sizes.' if results.get('quick') else ''}",
+        "",
+        "## Targets",
+        "",
+        *_table(["target", "measured", "result"], [[t, v, _met(ok)] for t, v, ok in targets(results)]),
+        "",
+    ]
     if before and not results.get("quick"):
         lines += before_after_md(before, results)
     for name, fn in SECTIONS.items():

@@ -6,6 +6,7 @@ The identified model is simulated (CVODES, 10 kHz) and judged against the genera
 noise-free response: maximum crush, time of zero velocity, and the ISO/TS 18571 rating of
 the barrier force over the pulse (impact to the generator's separation from the wall).
 """
+
 from __future__ import annotations
 
 import tempfile
@@ -31,17 +32,35 @@ def minimal_problem(v: Vehicle, csv_name: str, transcription: dict | None = None
     """The issue's minimal problem: the vehicle, its test with data, nothing about the front end."""
     problem = {
         "name": v.name,
-        "vehicle": {"mass": v.mass, "speed": v.speed, "pitch_inertia": v.pitch_inertia, "cg_to_impact": v.cg_to_impact,
-                    "cg_above_impact": v.cg_above_impact, "cg_to_front_axle": v.cg_to_front_axle,
-                    "cg_to_rear_axle": v.cg_to_rear_axle,
-                    "suspension": {"k_front": v.k_front, "k_rear": v.k_rear, "c_front": v.c_front, "c_rear": v.c_rear}},
+        "vehicle": {
+            "mass": v.mass,
+            "speed": v.speed,
+            "pitch_inertia": v.pitch_inertia,
+            "cg_to_impact": v.cg_to_impact,
+            "cg_above_impact": v.cg_above_impact,
+            "cg_to_front_axle": v.cg_to_front_axle,
+            "cg_to_rear_axle": v.cg_to_rear_axle,
+            "suspension": {"k_front": v.k_front, "k_rear": v.k_rear, "c_front": v.c_front, "c_rear": v.c_rear},
+        },
         "model": {"spring": {"law": "force"}, "unloading": {"law": "plastic"}},
-        "tests": [{"name": "t1", "speed": v.speed, "data": {
-            "file": csv_name, "format": "csv", "time": {"column": "time_s", "unit": "s"}, "window": list(WINDOW),
-            "channels": {"accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
-                         "velocity": {"column": "vel_x_mps", "unit": "m/s"},
-                         "displacement": {"column": "disp_x_m", "unit": "m"},
-                         "pitch": {"column": "pitch_deg", "unit": "deg"}}}}],
+        "tests": [
+            {
+                "name": "t1",
+                "speed": v.speed,
+                "data": {
+                    "file": csv_name,
+                    "format": "csv",
+                    "time": {"column": "time_s", "unit": "s"},
+                    "window": list(WINDOW),
+                    "channels": {
+                        "accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
+                        "velocity": {"column": "vel_x_mps", "unit": "m/s"},
+                        "displacement": {"column": "disp_x_m", "unit": "m"},
+                        "pitch": {"column": "pitch_deg", "unit": "deg"},
+                    },
+                },
+            }
+        ],
     }
     if transcription:
         problem["transcription"] = transcription
@@ -69,8 +88,14 @@ def judge(v: Vehicle, problem_path: Path, truth: dict[str, np.ndarray]) -> dict:
     case = Case(load_problem(problem_path))
     solution = identify(case, progress=None)
     wall = time.perf_counter() - t0
-    out = {"name": v.name, "mass_kg": v.mass, "speed_kmh": v.speed * 3.6, "status": solution.status,
-           "iterations": solution.result.iterations if solution.result else 0, "wall_s": wall}
+    out = {
+        "name": v.name,
+        "mass_kg": v.mass,
+        "speed_kmh": v.speed * 3.6,
+        "status": solution.status,
+        "iterations": solution.result.iterations if solution.result else 0,
+        "wall_s": wall,
+    }
     if not solution.ok:
         return out
     response = case.simulate(solution.full_parameters(), dt=1e-4)["t1"]
@@ -80,8 +105,12 @@ def judge(v: Vehicle, problem_path: Path, truth: dict[str, np.ndarray]) -> dict:
     span = truth["time"] <= end
     force_model = np.interp(truth["time"][span], response.time, response["barrier_force"])
     out.update(
-        crush_m=model.max_crush, crush_true_m=real.max_crush, crush_rel=model.max_crush / real.max_crush - 1.0,
-        stop_s=model.t_zero_velocity, stop_true_s=real.t_zero_velocity, stop_err_s=model.t_zero_velocity - real.t_zero_velocity,
+        crush_m=model.max_crush,
+        crush_true_m=real.max_crush,
+        crush_rel=model.max_crush / real.max_crush - 1.0,
+        stop_s=model.t_zero_velocity,
+        stop_true_s=real.t_zero_velocity,
+        stop_err_s=model.t_zero_velocity - real.t_zero_velocity,
         force_rating=iso18571(truth["time"][span], truth["barrier_force"][span], force_model)["overall"],
         pulse_end_s=end,
     )
@@ -101,11 +130,16 @@ def summary(rows: list[dict]) -> dict:
     rating = np.array([r["force_rating"] for r in ok])
     pick = lambda a, f: float(f(a)) if a.size else float("nan")  # noqa: E731
     return {
-        "vehicles": len(rows), "succeeded": len(ok), "success_rate": len(ok) / len(rows),
+        "vehicles": len(rows),
+        "succeeded": len(ok),
+        "success_rate": len(ok) / len(rows),
         "within_targets": sum(within_targets(r) for r in rows),
-        "crush_rel_median": pick(crush, np.median), "crush_rel_max": pick(crush, np.max),
-        "stop_err_median_s": pick(stop, np.median), "stop_err_max_s": pick(stop, np.max),
-        "force_rating_median": pick(rating, np.median), "force_rating_min": pick(rating, np.min),
+        "crush_rel_median": pick(crush, np.median),
+        "crush_rel_max": pick(crush, np.max),
+        "stop_err_median_s": pick(stop, np.median),
+        "stop_err_max_s": pick(stop, np.max),
+        "force_rating_median": pick(rating, np.median),
+        "force_rating_min": pick(rating, np.min),
         "wall_median_s": float(np.median([r["wall_s"] for r in rows])),
     }
 
@@ -119,7 +153,13 @@ def run(quick: bool = False) -> dict:
             path, truth = write_test(v, Path(tmp))
             rows.append(judge(v, path, truth))
             r = rows[-1]
-            print(f"  {v.name} {v.mass:.0f} kg {v.speed * 3.6:.1f} km/h: {r['status']}"
-                  + (f", crush {100 * r['crush_rel']:+.2f} %, stop {1e3 * r['stop_err_s']:+.2f} ms, force {r['force_rating']:.3f}"
-                     if r["status"] == "ok" else ""), flush=True)
+            print(
+                f"  {v.name} {v.mass:.0f} kg {v.speed * 3.6:.1f} km/h: {r['status']}"
+                + (
+                    f", crush {100 * r['crush_rel']:+.2f} %, stop {1e3 * r['stop_err_s']:+.2f} ms, force {r['force_rating']:.3f}"
+                    if r["status"] == "ok"
+                    else ""
+                ),
+                flush=True,
+            )
     return {"seed": SEED, "targets": TARGETS, "summary": summary(rows), "vehicles": rows}

@@ -4,6 +4,7 @@ Sections run one after another (never two heavy ones at once). Results go to
 results/bench.json and results/bench.md (results/bench-quick.* with --quick);
 with --only, the other sections' earlier results in the JSON are kept.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -17,8 +18,14 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 from bench import identification, report, robustness, scaling, self_consistency, simulation, studies  # noqa: E402
 from bench.common import RESULTS, machine  # noqa: E402
 
-SECTIONS = {"identification": identification, "simulation": simulation, "studies": studies, "scaling": scaling,
-            "corpus": robustness, "self_consistency": self_consistency}
+SECTIONS = {
+    "identification": identification,
+    "simulation": simulation,
+    "studies": studies,
+    "scaling": scaling,
+    "corpus": robustness,
+    "self_consistency": self_consistency,
+}
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -5,6 +5,7 @@ a capped solve is recorded with its status. Times are end-to-end identify()
 calls, with IPOPT's own solve time beside. The log-log slope of time against
 intervals over the converged solves says how the cost grows (1 = linear).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -23,7 +24,9 @@ TESTS_INTERVALS, QUICK_TESTS_INTERVALS = 200, 50
 def with_tests(problem: Problem, count: int) -> Problem:
     """pickup-56kph with `count` tests: 56 and 40 km/h, then copies of both under new names."""
     pair = [problem.tests[0], load(PICKUP_40).tests[0]]
-    tests = [pair[i % 2].model_copy(update={"name": f"{pair[i % 2].name}{'' if i < 2 else '-' + str(i // 2)}"}) for i in range(count)]
+    tests = [
+        pair[i % 2].model_copy(update={"name": f"{pair[i % 2].name}{'' if i < 2 else '-' + str(i // 2)}"}) for i in range(count)
+    ]
     problem.tests = tests
     return problem
 
@@ -33,9 +36,17 @@ def measure(method: str, intervals: int, tests: int) -> dict:
     case = Case(with_tests(load(PICKUP_56, method, intervals, MAX_ITER), tests))
     wall, solution = timed(lambda: identify(case, progress=None))
     r = solution.result
-    return {"method": method, "intervals": intervals, "tests": tests, "wall_s": wall, "ipopt_s": r.wall_s,
-            "iterations": r.iterations, "status": solution.status, "ipopt_status": r.return_status,
-            "capped": r.iterations >= MAX_ITER}
+    return {
+        "method": method,
+        "intervals": intervals,
+        "tests": tests,
+        "wall_s": wall,
+        "ipopt_s": r.wall_s,
+        "iterations": r.iterations,
+        "status": solution.status,
+        "ipopt_status": r.return_status,
+        "capped": r.iterations >= MAX_ITER,
+    }
 
 
 def slope(rows: list[dict], key: str) -> float:
@@ -52,8 +63,13 @@ def slopes(rows: list[dict]) -> dict:
         nan = float("nan")
         return {"wall_s": nan, "ipopt_s": nan, "ipopt_per_iteration": nan, "steepest_step": nan, "converged_runs": len(ok)}
     steps = [np.log(b["wall_s"] / a["wall_s"]) / np.log(b["intervals"] / a["intervals"]) for a, b in zip(ok, ok[1:])]
-    return {"wall_s": slope(ok, "wall_s"), "ipopt_s": slope(ok, "ipopt_s"),
-            "ipopt_per_iteration": slope(ok, "per_iteration"), "steepest_step": float(max(steps)), "converged_runs": len(ok)}
+    return {
+        "wall_s": slope(ok, "wall_s"),
+        "ipopt_s": slope(ok, "ipopt_s"),
+        "ipopt_per_iteration": slope(ok, "per_iteration"),
+        "steepest_step": float(max(steps)),
+        "converged_runs": len(ok),
+    }
 
 
 def figure(out: dict, path) -> None:
@@ -71,8 +87,14 @@ def figure(out: dict, path) -> None:
         a.loglog(n, [r["ipopt_s"] for r in rows], "x--", color=line.get_color(), label=f"{method}, IPOPT only")
         failed = [r for r in out["intervals"] if r["method"] == method and r["status"] != "ok"]
         if failed:
-            a.loglog([r["intervals"] for r in failed], [r["wall_s"] for r in failed], "o", mfc="none", color=line.get_color(),
-                     label=f"{method}, not converged")
+            a.loglog(
+                [r["intervals"] for r in failed],
+                [r["wall_s"] for r in failed],
+                "o",
+                mfc="none",
+                color=line.get_color(),
+                label=f"{method}, not converged",
+            )
         rows = [r for r in out["tests"] if r["method"] == method]
         b.plot([r["tests"] for r in rows], [r["wall_s"] for r in rows], "o-", label=method)
     n = np.array(out["intervals_grid"], dtype=float)
@@ -98,14 +120,20 @@ def run(quick: bool = False) -> dict:
     for method in TRANSCRIPTIONS:
         for n in grid:
             out["intervals"].append(row := measure(method, n, 1))
-            print(f"  {method:18s} {n:4d} intervals: {row['wall_s']:6.2f} s ({row['ipopt_s']:.2f} s IPOPT, {row['iterations']} it) {row['status']}")
+            print(
+                f"  {method:18s} {n:4d} intervals: {row['wall_s']:6.2f} s ({row['ipopt_s']:.2f} s IPOPT, {row['iterations']} it) {row['status']}"
+            )
         for k in QUICK_TESTS if quick else TESTS:
             out["tests"].append(row := measure(method, per_test, k))
-            print(f"  {method:18s} {k} tests x {per_test}: {row['wall_s']:6.2f} s ({row['ipopt_s']:.2f} s IPOPT, {row['iterations']} it) {row['status']}")
+            print(
+                f"  {method:18s} {k} tests x {per_test}: {row['wall_s']:6.2f} s ({row['ipopt_s']:.2f} s IPOPT, {row['iterations']} it) {row['status']}"
+            )
     out["slopes"] = {m: slopes([r for r in out["intervals"] if r["method"] == m]) for m in TRANSCRIPTIONS}
     for m, s in out["slopes"].items():
-        print(f"  {m}: log-log slope of time vs intervals {s['wall_s']:.2f} end-to-end, {s['ipopt_s']:.2f} IPOPT only, "
-              f"{s['ipopt_per_iteration']:.2f} per IPOPT iteration; steepest step {s['steepest_step']:.2f}")
+        print(
+            f"  {m}: log-log slope of time vs intervals {s['wall_s']:.2f} end-to-end, {s['ipopt_s']:.2f} IPOPT only, "
+            f"{s['ipopt_per_iteration']:.2f} per IPOPT iteration; steepest step {s['steepest_step']:.2f}"
+        )
     path = RESULTS / ("bench-quick-scaling.png" if quick else "bench-scaling.png")
     figure(out, path)
     out["figure"] = str(path.relative_to(RESULTS.parent))

@@ -6,6 +6,7 @@ those data, fits them back: clean with all channels and with velocity removed,
 then 12 replicates with white noise (1 g, 0.02 m/s, 1 mm, 0.1 deg; the accel
 filtered at CFC 60 as shipped) for the coverage of the 95 % intervals.
 """
+
 from __future__ import annotations
 
 import csv
@@ -29,7 +30,10 @@ def _write(path: Path, case: Case, p: np.ndarray, seed: int | None) -> None:
     r = case.simulate(p, dt=1e-4)[test.name]
     rng = np.random.default_rng(seed)
     columns = {
-        "accel_x_g": r["accel"] / G0, "vel_x_mps": r["velocity"], "disp_x_m": r["displacement"], "pitch_deg": np.degrees(r["pitch"])
+        "accel_x_g": r["accel"] / G0,
+        "vel_x_mps": r["velocity"],
+        "disp_x_m": r["displacement"],
+        "pitch_deg": np.degrees(r["pitch"]),
     }
     if seed is not None:
         columns = {k: v + NOISE[k] * rng.standard_normal(v.size) for k, v in columns.items()}
@@ -68,8 +72,12 @@ def run(quick: bool = False) -> dict:
         _write(clean, case, p, None)
         for label, drop in (("all channels", None), ("without velocity", "velocity")):
             sol = _refit(clean, drop)
-            out[label] = {"status": sol.status, "iterations": sol.result.iterations, "relative_errors": _errors(sol, truth),
-                          "forward_check_worst": sol.verification.worst(case.tests[0].name)}
+            out[label] = {
+                "status": sol.status,
+                "iterations": sol.result.iterations,
+                "relative_errors": _errors(sol, truth),
+                "forward_check_worst": sol.verification.worst(case.tests[0].name),
+            }
         z = []
         for seed in range(4 if quick else 12):
             noisy = Path(tmp) / f"noisy{seed}.csv"
@@ -79,8 +87,13 @@ def run(quick: bool = False) -> dict:
             t = np.concatenate([np.atleast_1d(truth[k]) for k in truth])
             z.extend(((est - t) / sol.std_errors)[~truth_fit.at_bound()])
         z = np.asarray(z)
-    out["coverage"] = {"replicates": 4 if quick else 12, "pairs": int(z.size), "coverage_95": float(np.mean(np.abs(z) <= 1.96)),
-                       "rms_z": float(np.sqrt(np.mean(z**2))), "z": z.round(3).tolist()}
+    out["coverage"] = {
+        "replicates": 4 if quick else 12,
+        "pairs": int(z.size),
+        "coverage_95": float(np.mean(np.abs(z) <= 1.96)),
+        "rms_z": float(np.sqrt(np.mean(z**2))),
+        "z": z.round(3).tolist(),
+    }
     return out
 
 

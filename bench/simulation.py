@@ -9,6 +9,7 @@ mapaccum over the steps, mapped over parameter sets with spring values scaled by
 random factors in [0.8, 1.2]), in CasADi's virtual machine and compiled to C.
 The first call (build, and compile or load the cached library) is recorded apart.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -32,10 +33,16 @@ def single(case: Case, repeats: int) -> dict:
     sim = integrator(case.model, grid, opts)
     x0 = np.concatenate([np.asarray(case.model.initial_state(p, test.speed)).ravel(), np.zeros(3)])
     t_call, _ = timed(lambda: sim(x0=x0, p=p), repeats)
-    out = {"grid_points": len(grid), "rtol": opts.rtol, "atol": opts.atol,
-           "crashnlp_s": t_full, "crashnlp_call_only_s": t_call, "scipy": {}}
+    out = {
+        "grid_points": len(grid),
+        "rtol": opts.rtol,
+        "atol": opts.atol,
+        "crashnlp_s": t_full,
+        "crashnlp_call_only_s": t_call,
+        "scipy": {},
+    }
     for method in SCIPY_METHODS:
-        t, y = timed(lambda: shoot(case, case.base, 0, grid, method, opts.rtol, opts.atol, np.inf), repeats)
+        t, y = timed(lambda method=method: shoot(case, case.base, 0, grid, method, opts.rtol, opts.atol, np.inf), repeats)
         out["scipy"][method] = {
             "wall_s": t,
             "max_crush_diff_mm": 1e3 * float(np.max(np.abs(y["crush"] - ref["crush"]))),
@@ -67,7 +74,7 @@ def batch(case: Case, n: int, members: tuple[int, ...]) -> dict:
     P = parameter_sets(case, n)
     out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulation.simulate_batch)"}
     for mode, jit in (("vm", False), ("compiled", True)):
-        run = lambda: simulate_batch(case.model, P, test.speed, test.duration, BATCH_DT, jit)
+        run = lambda jit=jit: simulate_batch(case.model, P, test.speed, test.duration, BATCH_DT, jit)
         first_s, _ = timed(run)
         wall, y = timed(run, 3)
         out[mode] = {"first_call_s": first_s, "wall_s": wall, "per_simulation_ms": 1e3 * wall / n}
@@ -93,11 +100,17 @@ def run(quick: bool = False) -> dict:
     case = load_case(PICKUP_56)
     out = {"single": single(case, 2 if quick else 5), "batch": batch(case, 20 if quick else 1000, (0, 1, 999))}
     s, b = out["single"], out["batch"]
-    print(f"  single: crashnlp {s['crashnlp_s'] * 1e3:.1f} ms ({s['crashnlp_call_only_s'] * 1e3:.1f} ms call only), "
-          f"solve_ivp {s['scipy_best']} {s['scipy'][s['scipy_best']]['wall_s'] * 1e3:.1f} ms: {s['speedup']:.1f}x")
+    print(
+        f"  single: crashnlp {s['crashnlp_s'] * 1e3:.1f} ms ({s['crashnlp_call_only_s'] * 1e3:.1f} ms call only), "
+        f"solve_ivp {s['scipy_best']} {s['scipy'][s['scipy_best']]['wall_s'] * 1e3:.1f} ms: {s['speedup']:.1f}x"
+    )
     for mode in ("vm", "compiled"):
         m = b[mode]
-        print(f"  batch of {b['n']} ({mode}): first call {m['first_call_s']:.2f} s, then {m['wall_s']:.2f} s ({m['per_simulation_ms']:.2f} ms per simulation)")
+        print(
+            f"  batch of {b['n']} ({mode}): first call {m['first_call_s']:.2f} s, then {m['wall_s']:.2f} s ({m['per_simulation_ms']:.2f} ms per simulation)"
+        )
     for c in b["checks"]:
-        print(f"    member {c['member']}: vs alone {c['max_diff_vs_alone']:.1e}, vs CVODES crush {c['max_crush_diff_vs_cvodes_mm']:.3f} mm")
+        print(
+            f"    member {c['member']}: vs alone {c['max_diff_vs_alone']:.1e}, vs CVODES crush {c['max_crush_diff_vs_cvodes_mm']:.3f} mm"
+        )
     return out

@@ -4,6 +4,7 @@ Each run goes into a fresh temporary output folder (a study resumes from its
 folder, so reusing one would time nothing). Skipped, with a note, when the
 installed crashnlp has no `study` command yet.
 """
+
 from __future__ import annotations
 
 import csv
@@ -46,8 +47,15 @@ def run_once(study: Path, workers: int, serial_maps: bool = False) -> dict:
         wall = time.perf_counter() - t0
         table = Path(out) / "table.csv"
         rows = list(csv.DictReader(table.open())) if table.exists() else []
-    return {"workers": workers, "serial_maps": serial_maps, "wall_s": wall, "exit": proc.returncode, "cases": len(rows),
-            "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0], **plan_bound(rows)}
+    return {
+        "workers": workers,
+        "serial_maps": serial_maps,
+        "wall_s": wall,
+        "exit": proc.returncode,
+        "cases": len(rows),
+        "summary": (proc.stdout.strip().splitlines() or [proc.stderr.strip()[-300:]])[0],
+        **plan_bound(rows),
+    }
 
 
 def plan_bound(rows: list[dict]) -> dict:
@@ -83,7 +91,12 @@ def run(quick: bool = False) -> dict:
         print(f"  {r['workers']} worker(s), {maps}: {r['wall_s']:.1f} s, exit {r['exit']}, {r['cases']} cases: {r['summary']}")
     if "two_worker_bound" in serial[0]:
         s = serial[0]
-        print(f"  solves {s['solves_s']:.2f} s, longest warm-start chain {s['longest_chain_s']:.2f} s: 2 workers at most {s['two_worker_bound']:.2f}x faster")
-    return {"study": STUDY.name if not quick else "pitch-bound (2 cases)", "runs": runs + serial,
-            "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"],
-            "speedup_2_workers_serial_maps": serial[0]["wall_s"] / serial[1]["wall_s"]}
+        print(
+            f"  solves {s['solves_s']:.2f} s, longest warm-start chain {s['longest_chain_s']:.2f} s: 2 workers at most {s['two_worker_bound']:.2f}x faster"
+        )
+    return {
+        "study": STUDY.name if not quick else "pitch-bound (2 cases)",
+        "runs": runs + serial,
+        "speedup_2_workers": runs[0]["wall_s"] / runs[1]["wall_s"],
+        "speedup_2_workers_serial_maps": serial[0]["wall_s"] / serial[1]["wall_s"],
+    }

@@ -4,6 +4,7 @@ The Python API (crashnlp.api): `load`, `identify`, `design`, `simulate`,
 `study`, and the plain `Result` they return. They are imported on first use,
 so the command line starts without them.
 """
+
 from __future__ import annotations
 
 from typing import TYPE_CHECKING, Any

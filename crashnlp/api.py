@@ -7,6 +7,7 @@
 
 The command line is a thin layer over these functions.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
@@ -71,7 +72,10 @@ def simulate(
     if params:
         problem = problem.with_values(params)
     responses = Case(problem).simulate(dt=dt)
-    return {name: {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}} for name, r in responses.items()}
+    return {
+        name: {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}}
+        for name, r in responses.items()
+    }
 
 
 def study(

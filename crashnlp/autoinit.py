@@ -25,6 +25,7 @@ The given problem is never changed. What is filled, and how:
   and where a test has a pitch channel the CG height above the impact point, the pitch
   inertia and the pitch lever within the physical bounds of PITCH_BOUNDS.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -35,7 +36,7 @@ import numpy as np
 from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
-from crashnlp.problem.schema import Damper, EstimateSpec, Problem, Vehicle
+from crashnlp.problem.schema import Damper, EstimateSpec, Problem
 
 if TYPE_CHECKING:
     from crashnlp.case import Case, TestCase
@@ -203,7 +204,7 @@ def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
     return out
 
 
-def repaired_start(case: "Case") -> dict[str, Any]:
+def repaired_start(case: Case) -> dict[str, Any]:
     """Spring values at the case's own breakpoints and unloading stiffness from its data.
 
     For a start whose spring stops the model short of the measured crush (parameters with a
@@ -212,12 +213,14 @@ def repaired_start(case: "Case") -> dict[str, Any]:
     pulses = case_pulses(case)
     spring, damper = case.problem.model.spring, case.problem.model.damper
     return {
-        "model.spring.values": spring_values(spring.crush_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper),
+        "model.spring.values": spring_values(
+            spring.crush_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper
+        ),
         "model.unloading.stiffness": unloading_stiffness(pulses),
     }
 
 
-def repair_start(case: "Case") -> str | None:
+def repair_start(case: Case) -> str | None:
     """Replace a start that leaves spring values with a zero derivative although the data reach
     them by `repaired_start`; return the one line that says so, or None when the start serves.
 
@@ -232,19 +235,21 @@ def repair_start(case: "Case") -> str | None:
         model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
         if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
             case.base = case.layout.with_values(case.base, repaired_start(case))
-            return (f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
-                    f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
-                    "measured force-crush curve")
+            return (
+                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
+                f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
+                "measured force-crush curve"
+            )
     return None
 
 
-def measured_pulse(case: "Case", test: "TestCase") -> Pulse | None:
+def measured_pulse(case: Case, test: TestCase) -> Pulse | None:
     """The measured pulse of one test of a case; None without accel or velocity data."""
     if test.data is None:
         return None
     return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", case.problem.vehicle.mass))
 
 
-def case_pulses(case: "Case") -> list[Pulse]:
+def case_pulses(case: Case) -> list[Pulse]:
     """The measured pulse of every test of a case that has accel or velocity data."""
     return [p for test in case.tests if (p := measured_pulse(case, test)) is not None]

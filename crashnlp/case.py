@@ -4,6 +4,7 @@ This ties the steps together (like PyBaMM's Simulation): problem file ->
 validated problem -> data and symbolic model, shared by simulate, identify,
 design and studies.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -18,7 +19,6 @@ from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.problem import Problem, Test, load_problem
 from crashnlp.simulation import Response, simulate
-
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
 
@@ -84,7 +84,7 @@ class Case:
         self.model: PendulumModel = build_model(self.problem.model, self.layout)
 
     @classmethod
-    def load(cls, path: str | Path) -> "Case":
+    def load(cls, path: str | Path) -> Case:
         return cls(load_problem(path))
 
     @property

@@ -6,6 +6,7 @@ solver, the integrator, a cluster, the file system) exits 1 with one line;
 SIGINT and SIGTERM exit 130 and 143 with one line. No traceback unless
 `--debug` asks for it.
 """
+
 from __future__ import annotations
 
 import argparse
@@ -137,7 +138,7 @@ def cmd_simulate(args) -> int:
         return 0
     with _computing(args):
         responses = case.simulate(dt=args.dt)
-    summary = write_simulation(case, responses, out)
+    summary = write_simulation(case, responses, out, figures=not args.no_figures)
     for name, t in summary["tests"].items():
         m = t["metrics"]
         print(
@@ -178,7 +179,10 @@ def _print_solution(result) -> None:
     s = result.solver
     timing = f"solve {s.wall_s:.2f} s + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
     objective = f"{s.objective:.6g}" if s.objective is not None else "-"
-    print(f"{result.name}: {result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, objective {objective}, {timing})")
+    print(
+        f"{result.name}: {result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, "
+        f"objective {objective}, {timing})"
+    )
     for path, value in result.parameters.items():
         std = result.std_errors.get(path)
         text = _numbers(value, 5)
@@ -196,10 +200,15 @@ def _print_solution(result) -> None:
         for key, label, f in METRIC_ROWS:
             print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
         if t.fit:
-            print("    rmse      " + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items()))
+            print(
+                "    rmse      "
+                + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items())
+            )
             print("    ISO 18571 " + ", ".join(f"{c} {f.iso18571['overall']:.3f}" for c, f in t.fit.items() if f.iso18571))
         if t.energy:
-            print(f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ")
+            print(
+                f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ"
+            )
     for c in result.active_constraints:
         print(f"  active: {c.name} at {c.points} points, multiplier {c.multiplier:.4g}")
 
@@ -222,7 +231,7 @@ def _solve(args, kind: str) -> int:
         return 0
     with _computing(args):  # crashnlp.api.solve, on the case already built
         result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
-    result.save(out)
+    result.save(out, figures=not args.no_figures)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:
@@ -254,8 +263,10 @@ def cmd_init(args) -> int:
     except UnitError as exc:
         raise InputError(f"--mass/--speed: {exc}") from None
     problem = init_problem(Path(args.data), Path(args.out), Options(args.format, mass, speed, columns, args.name))
-    print(f"wrote {args.out}: {problem.name}, {len(problem.model.spring.values)} breakpoints to "
-          f"{problem.model.spring.crush_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}")
+    print(
+        f"wrote {args.out}: {problem.name}, {len(problem.model.spring.values)} breakpoints to "
+        f"{problem.model.spring.crush_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
+    )
     return 0
 
 
@@ -278,18 +289,21 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
+    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("identify", help="fit the estimated parameters to the tests' data by an NLP (IPOPT)")
     p.add_argument("problem", help="problem YAML file with data (kind: identify, the default)")
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("design", help="choose spring and damper values for a design goal by an NLP (no data)")
     p.add_argument("problem", help="problem YAML file with kind: design")
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_design)
 
     add_study_parser(sub)
@@ -299,8 +313,13 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--format", choices=("csv", "nhtsa-ev5", "iso-mme"), help="default: from the file name")
     p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
     p.add_argument("--speed", help='impact speed, e.g. "48 km/h" (default: the data header or velocity column)')
-    p.add_argument("--column", action="append", default=[], metavar="CHANNEL=NAME[:UNIT]",
-                   help="CSV column of a channel (time, accel, velocity, displacement, pitch), unit if its name has none")
+    p.add_argument(
+        "--column",
+        action="append",
+        default=[],
+        metavar="CHANNEL=NAME[:UNIT]",
+        help="CSV column of a channel (time, accel, velocity, displacement, pitch), unit if its name has none",
+    )
     p.add_argument("--name", help="problem name (default: the data file's stem)")
     p.add_argument("--out", required=True, help="problem YAML file to write")
     p.set_defaults(func=cmd_init)
@@ -317,7 +336,8 @@ def _add_common(ap: argparse.ArgumentParser, sub) -> None:
     for name, p in sub.choices.items():
         if name not in ("schema", "init"):
             p.add_argument(
-                "--check", action="store_true",
+                "--check",
+                action="store_true",
                 help="check the input and the output folder, then stop: solve nothing, write nothing",
             )
 

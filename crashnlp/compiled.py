@@ -7,6 +7,7 @@ two, so each library is kept under the cache folder (CRASHNLP_CACHE, default
 function is compiled once per machine, whatever the process. Without a C
 compiler the Function itself is returned, so results never depend on it.
 """
+
 from __future__ import annotations
 
 import hashlib
@@ -92,12 +93,12 @@ class Evaluator:
             if a.size != self.fn.nnz_in(i):
                 raise ValueError(f"{self.fn.name()}: input {name} has {a.size} values, expected {self.fn.nnz_in(i)}")
             held.append(a)
-            self.buffer.set_arg(i, memoryview(a))
+            self.buffer.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]  # the stub asks a size the binding takes from the buffer
         results = []
         for i in self.outputs:
             r = np.empty(self.fn.size_out(i)[::-1])
             results.append(r)
-            self.buffer.set_res(i, memoryview(r.ravel()))
+            self.buffer.set_res(i, memoryview(r.ravel()))  # type: ignore[call-arg, arg-type]  # as set_arg
         self._evaluate()
         if self.buffer.ret() != 0:
             raise RuntimeError(f"{self.fn.name()}: evaluation failed")

@@ -16,6 +16,7 @@ least-squares objective sum |r|^2 + q is 2 J_r^T J_r + hess(q), the Hessian
 nonlinear least-squares solvers use: it drops the constraints' curvature,
 which the dynamics multipliers make small near a good fit.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

@@ -9,6 +9,7 @@ barrier's work on the vehicle is minus what the front end absorbs; a rigid
 barrier supplies no energy, so the front end may give back at most what it
 stores (`front_end_returned_excess` is the largest excess, ~0).
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -36,8 +37,12 @@ def energy_audit(response: Response, mass: float, speed: float) -> dict[str, flo
         "front_end_returned_excess": float(max(0.0, np.max(stored - y["front_work"]))),
     }
     spent = (
-        terms["impact_loss"] + terms["front_end_spring"] + terms["front_end_damper"] + terms["suspension_damping"]
-        + terms["final_kinetic"] + terms["final_potential_change"]
+        terms["impact_loss"]
+        + terms["front_end_spring"]
+        + terms["front_end_damper"]
+        + terms["suspension_damping"]
+        + terms["final_kinetic"]
+        + terms["final_potential_change"]
     )
     terms["balance_error"] = impact - spent
     terms["balance_error_relative"] = terms["balance_error"] / impact

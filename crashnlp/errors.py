@@ -4,6 +4,7 @@
 - `RunError`: a failure the user cannot cause (solver, integrator, cluster, the file system): exit 1.
 - `Interrupted`: SIGINT or SIGTERM ended the run: exit 130 or 143.
 """
+
 from __future__ import annotations
 
 

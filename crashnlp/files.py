@@ -1,4 +1,5 @@
 """Output folders and files: checked before any work, written atomically with the usual mode."""
+
 from __future__ import annotations
 
 import os

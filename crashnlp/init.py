@@ -15,6 +15,7 @@ The breakpoints, spring values, damper, unloading stiffness and estimate are the
 from the data (crashnlp.autoinit) and written out, so the file identifies as it stands and
 every entry can be edited.
 """
+
 from __future__ import annotations
 
 import json
@@ -91,8 +92,16 @@ def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
     """Primary longitudinal accelerometers of vehicle 1 at the rear seat (else CG, floor, sill), not the engine's."""
     from crashnlp.data.nhtsa_ev5 import NO_DATA
 
-    usable = [c for c in curves.values() if c.vehicle == 1 and c.sensor == "AC" and c.axis.startswith("X")
-              and c.primary and c.status not in NO_DATA and "ENGINE" not in c.comment.upper()]
+    usable = [
+        c
+        for c in curves.values()
+        if c.vehicle == 1
+        and c.sensor == "AC"
+        and c.axis.startswith("X")
+        and c.primary
+        and c.status not in NO_DATA
+        and "ENGINE" not in c.comment.upper()
+    ]
     for key, place in ACCEL_PLACES:
         chosen = [c for c in usable if key in c.comment.upper() or key in c.location.upper()]
         if chosen:
@@ -107,8 +116,16 @@ def ev5_draft(path: Path) -> Draft:
 
     cards, curves = read_header(path)
     numbers, why = _ev5_accelerometers(curves)
-    draft = Draft(path.stem, {"channels": {"accel": {"curves": numbers, "filter": "CFC60"},
-                                           "velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}})
+    draft = Draft(
+        path.stem,
+        {
+            "channels": {
+                "accel": {"curves": numbers, "filter": "CFC60"},
+                "velocity": {"derive": "integrate"},
+                "displacement": {"derive": "integrate"},
+            }
+        },
+    )
     draft.comments = {"accel": why, "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
     speed = card_number(cards["TEST"][0], 15)
     if speed:
@@ -122,8 +139,10 @@ def ev5_draft(path: Path) -> Draft:
         draft.vehicle["cg_to_rear_axle"] = ((wheelbase - cg) / 1e3, f"wheelbase {wheelbase:g} mm - VEHCG")
         if length:
             overhang = OVERHANG_SHARE * (length - wheelbase) / 1e3
-            draft.vehicle["cg_to_impact"] = (cg / 1e3 + overhang, f"estimate: VEHCG + front overhang {overhang:.3f} m "
-                                             f"({OVERHANG_SHARE} of length {length:g} mm - wheelbase)")
+            draft.vehicle["cg_to_impact"] = (
+                cg / 1e3 + overhang,
+                f"estimate: VEHCG + front overhang {overhang:.3f} m ({OVERHANG_SHARE} of length {length:g} mm - wheelbase)",
+            )
     return draft
 
 
@@ -139,10 +158,21 @@ def mme_draft(path: Path) -> Draft:
         raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
     at_cg = [c for c in accels if "CG" in c[6:12]]
     code = (at_cg or accels)[0]
-    draft = Draft(path.stem, {"channels": {"accel": {"code": code, "filter": "CFC60"},
-                                           "velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}})
-    draft.comments = {"accel": f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}",
-                      "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    draft = Draft(
+        path.stem,
+        {
+            "channels": {
+                "accel": {"code": code, "filter": "CFC60"},
+                "velocity": {"derive": "integrate"},
+                "displacement": {"derive": "integrate"},
+            }
+        },
+    )
+    draft.comments = {
+        "accel": f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}",
+        "velocity": "integrated from the impact speed",
+        "displacement": "integrated twice",
+    }
     for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
         text = header.get(key, "")
         try:
@@ -154,13 +184,39 @@ def mme_draft(path: Path) -> Draft:
 
 
 # ------------------------------------------------------------------ CSV
-CSV_PATTERNS = {"time": r"^(time|t)($|[^a-z])", "accel": r"acc", "velocity": r"vel|speed",
-                "displacement": r"disp|travel", "pitch": r"pitch"}
-UNIT_WORDS = {"mps2": "m/s^2", "ms2": "m/s^2", "m/s2": "m/s^2", "m/s^2": "m/s^2", "g": "g", "gs": "g", "mps": "m/s",
-              "m/s": "m/s", "kph": "km/h", "kmh": "km/h", "km/h": "km/h", "m": "m", "mm": "mm", "cm": "cm",
-              "s": "s", "ms": "ms", "sec": "s", "deg": "deg", "rad": "rad"}
-CHANNEL_SIGNS = {"accel": "the pulse decelerates", "velocity": "the impact speed is positive",
-                 "displacement": "the crush is positive"}
+CSV_PATTERNS = {
+    "time": r"^(time|t)($|[^a-z])",
+    "accel": r"acc",
+    "velocity": r"vel|speed",
+    "displacement": r"disp|travel",
+    "pitch": r"pitch",
+}
+UNIT_WORDS = {
+    "mps2": "m/s^2",
+    "ms2": "m/s^2",
+    "m/s2": "m/s^2",
+    "m/s^2": "m/s^2",
+    "g": "g",
+    "gs": "g",
+    "mps": "m/s",
+    "m/s": "m/s",
+    "kph": "km/h",
+    "kmh": "km/h",
+    "km/h": "km/h",
+    "m": "m",
+    "mm": "mm",
+    "cm": "cm",
+    "s": "s",
+    "ms": "ms",
+    "sec": "s",
+    "deg": "deg",
+    "rad": "rad",
+}
+CHANNEL_SIGNS = {
+    "accel": "the pulse decelerates",
+    "velocity": "the impact speed is positive",
+    "displacement": "the crush is positive",
+}
 
 
 def unit_in_name(name: str) -> str | None:
@@ -259,8 +315,9 @@ def _timing(draft: Draft, path: Path, speed: float) -> None:
         draft.notes.append("Fit window: the whole record after impact (the vehicle does not stop in it).")
         return
     draft.data["window"] = [0.0, round(min(end, max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)), 4)]
-    draft.notes.append(f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, "
-                       f"{stop * 1e3:.1f} ms).")
+    draft.notes.append(
+        f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, {stop * 1e3:.1f} ms)."
+    )
 
 
 def vehicle_class(mass: float) -> tuple[float, str, float, float, float]:
@@ -281,7 +338,9 @@ def fill_geometry(draft: Draft) -> dict[str, tuple[float, str]]:
     v.setdefault("cg_to_impact", (front + overhang, f"{est}: CG to front axle + a front overhang of {overhang} m"))
     v.setdefault("cg_above_impact", (above, f"{est}: CG height above a bumper beam about 0.45 m high"))
     gyration = GYRATION_SHARE * wheelbase
-    v.setdefault("pitch_inertia", (mass * gyration**2, f"{est}: radius of gyration {gyration:.2f} m ({GYRATION_SHARE} x wheelbase)"))
+    v.setdefault(
+        "pitch_inertia", (mass * gyration**2, f"{est}: radius of gyration {gyration:.2f} m ({GYRATION_SHARE} x wheelbase)")
+    )
     omega = 2 * math.pi * RIDE_FREQUENCY
     loads = {"front": mass * rear / wheelbase, "rear": mass * front / wheelbase}
     out = {}
@@ -323,12 +382,23 @@ def draft_for(path: Path, options: Options) -> tuple[Draft, dict]:
 
 
 # ------------------------------------------------------------------ the problem file
-VEHICLE_UNITS = {"mass": ("kg", 1.0, ".0f"), "speed": ("km/h", 3.6, ".2f"), "pitch_inertia": ("kg*m^2", 1.0, ".0f"),
-                 "cg_to_impact": ("m", 1.0, ".3f"), "cg_above_impact": ("m", 1.0, ".3f"),
-                 "cg_to_front_axle": ("m", 1.0, ".3f"), "cg_to_rear_axle": ("m", 1.0, ".3f")}
-ESTIMATE_UNITS = {"model.spring.values": ("kN", 1e-3, ".0f"), "model.unloading.stiffness": ("MN/m", 1e-6, ".0f"),
-                  "vehicle.cg_above_impact": ("m", 1.0, ".2f"), "vehicle.pitch_inertia": ("kg*m^2", 1.0, ".0f"),
-                  "vehicle.crush_offset": ("m", 1.0, ".2f"), "vehicle.vertical_force_ratio": ("", 1.0, ".2f")}
+VEHICLE_UNITS = {
+    "mass": ("kg", 1.0, ".0f"),
+    "speed": ("km/h", 3.6, ".2f"),
+    "pitch_inertia": ("kg*m^2", 1.0, ".0f"),
+    "cg_to_impact": ("m", 1.0, ".3f"),
+    "cg_above_impact": ("m", 1.0, ".3f"),
+    "cg_to_front_axle": ("m", 1.0, ".3f"),
+    "cg_to_rear_axle": ("m", 1.0, ".3f"),
+}
+ESTIMATE_UNITS = {
+    "model.spring.values": ("kN", 1e-3, ".0f"),
+    "model.unloading.stiffness": ("MN/m", 1e-6, ".0f"),
+    "vehicle.cg_above_impact": ("m", 1.0, ".2f"),
+    "vehicle.pitch_inertia": ("kg*m^2", 1.0, ".0f"),
+    "vehicle.crush_offset": ("m", 1.0, ".2f"),
+    "vehicle.vertical_force_ratio": ("", 1.0, ".2f"),
+}
 STEP = 1e-3  # s per transcription interval
 
 
@@ -361,24 +431,46 @@ def problem_dict(draft: Draft, suspension: dict, path: Path) -> dict:
 def render(draft: Draft, problem: Problem, data_file: str) -> str:
     """The commented YAML text of a completed problem."""
     v, m = problem.vehicle, problem.model
-    lines = [f"# Written by `crashnlp init` from {data_file} ({draft.data['format']}).", *(f"# {n}" for n in draft.notes),
-             "# Front end: breakpoints over the data's crush range, values from the measured force-crush curve",
-             "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/autoinit.py).",
-             f"name: {json.dumps(draft.name)}", "vehicle:"]
+    lines = [
+        f"# Written by `crashnlp init` from {data_file} ({draft.data['format']}).",
+        *(f"# {n}" for n in draft.notes),
+        "# Front end: breakpoints over the data's crush range, values from the measured force-crush curve",
+        "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/autoinit.py).",
+        f"name: {json.dumps(draft.name)}",
+        "vehicle:",
+    ]
     for key, (unit, scale, fmt) in VEHICLE_UNITS.items():
         lines.append(_line(2, f"{key}: {_q(getattr(v, key), unit, scale, fmt)}", draft.vehicle[key][1]))
     s = v.suspension
     susp = {f"k_{a}": _q(getattr(s, f"k_{a}"), "kN/m", 1e-3, ".1f") for a in ("front", "rear")}
     susp.update({f"c_{a}": _q(getattr(s, f"c_{a}"), "kN*s/m", 1e-3, ".2f") for a in ("front", "rear")})
-    lines.append(_line(2, f"suspension: {_flow(susp)}",
-                       f"estimate: axle loads at {RIDE_FREQUENCY} Hz ride frequency, damping ratio {DAMPING_RATIO}"))
+    lines.append(
+        _line(
+            2,
+            f"suspension: {_flow(susp)}",
+            f"estimate: axle loads at {RIDE_FREQUENCY} Hz ride frequency, damping ratio {DAMPING_RATIO}",
+        )
+    )
     bps = [round(b, 4) for b in m.spring.crush_breakpoints]
-    lines += ["model:", "  spring:", "    law: force",
-              _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, a little past the largest crush"),
-              _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.values)}]", "measured force-crush curve"),
-              _line(2, "damper: " + _flow({"rate_breakpoints": [round(b, 2) for b in m.damper.rate_breakpoints],
-                                           "values": [_q(c, "kN*s/m", 1e-3, ".2f") for c in m.damper.values]}), "nominal"),
-              _line(2, f"unloading: {{law: plastic, stiffness: {_q(m.unloading.stiffness, 'MN/m', 1e-6, '.1f')}}}", "from the rebound")]
+    lines += [
+        "model:",
+        "  spring:",
+        "    law: force",
+        _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, a little past the largest crush"),
+        _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.values)}]", "measured force-crush curve"),
+        _line(
+            2,
+            "damper: "
+            + _flow(
+                {
+                    "rate_breakpoints": [round(b, 2) for b in m.damper.rate_breakpoints],
+                    "values": [_q(c, "kN*s/m", 1e-3, ".2f") for c in m.damper.values],
+                }
+            ),
+            "nominal",
+        ),
+        _line(2, f"unloading: {{law: plastic, stiffness: {_q(m.unloading.stiffness, 'MN/m', 1e-6, '.1f')}}}", "from the rebound"),
+    ]
     lines += _test_lines(draft, data_file)
     lines.append("estimate:")
     for path, spec in problem.estimate.items():
@@ -391,12 +483,20 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
 
 def _test_lines(draft: Draft, data_file: str) -> list[str]:
     d = draft.data
-    lines = ["tests:", f"  - name: {json.dumps(draft.name)}", "    data:", f"      file: {data_file}", f"      format: {d['format']}"]
+    lines = [
+        "tests:",
+        f"  - name: {json.dumps(draft.name)}",
+        "    data:",
+        f"      file: {data_file}",
+        f"      format: {d['format']}",
+    ]
     if "time" in d:
         lines.append(f"      time: {_flow(d['time'])}")
     for key in ("bias_window", "window"):
         if key in d:
-            lines.append(_line(6, f"{key}: [{d[key][0]:g} s, {d[key][1]:g} s]", "pre-impact mean removed" if key == "bias_window" else ""))
+            lines.append(
+                _line(6, f"{key}: [{d[key][0]:g} s, {d[key][1]:g} s]", "pre-impact mean removed" if key == "bias_window" else "")
+            )
     lines.append("      channels:")
     for name, ch in d["channels"].items():
         lines.append(_line(8, f"{name}: {_flow(ch)}", draft.comments.get(name, "")))

@@ -1,4 +1,5 @@
 """Fixed-step Runge-Kutta as CasADi Functions, shared by the transcriptions and the batch simulator."""
+
 from __future__ import annotations
 
 import casadi as ca

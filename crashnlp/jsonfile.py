@@ -1,4 +1,5 @@
 """JSON files written atomically, with values cleaned for JSON (light: no model imports)."""
+
 from __future__ import annotations
 
 import json

@@ -17,6 +17,7 @@ output alike. Definitions:
   moves freely at v0 until it has travelled 65 mm relative to the vehicle (t1), then decelerates
   at a constant rate, reaching the vehicle velocity after a further 235 mm (t2); OLC is that rate.
 """
+
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
@@ -49,12 +50,20 @@ class CrashMetrics:
 
     def report(self) -> dict[str, float]:
         """The metrics in report units: mm, ms, m/s, g (keys carry the unit)."""
-        scale = {"v0": ("v0_mps", 1.0), "max_crush": ("max_crush_mm", 1e3),
-                 "t_max_crush": ("t_max_crush_ms", 1e3), "t_zero_velocity": ("t_zero_velocity_ms", 1e3),
-                 "delta_v": ("delta_v_mps", 1.0), "rebound_velocity": ("rebound_velocity_mps", 1.0),
-                 "end_velocity": ("end_velocity_mps", 1.0), "peak_decel": ("peak_decel_g", 1 / G0),
-                 "t_peak_decel": ("t_peak_decel_ms", 1e3), "esw": ("esw_g", 1 / G0),
-                 "tesw": ("tesw_g", 1 / G0), "olc": ("olc_g", 1 / G0)}
+        scale = {
+            "v0": ("v0_mps", 1.0),
+            "max_crush": ("max_crush_mm", 1e3),
+            "t_max_crush": ("t_max_crush_ms", 1e3),
+            "t_zero_velocity": ("t_zero_velocity_ms", 1e3),
+            "delta_v": ("delta_v_mps", 1.0),
+            "rebound_velocity": ("rebound_velocity_mps", 1.0),
+            "end_velocity": ("end_velocity_mps", 1.0),
+            "peak_decel": ("peak_decel_g", 1 / G0),
+            "t_peak_decel": ("t_peak_decel_ms", 1e3),
+            "esw": ("esw_g", 1 / G0),
+            "tesw": ("tesw_g", 1 / G0),
+            "olc": ("olc_g", 1 / G0),
+        }
         return {scale[k][0]: v * scale[k][1] for k, v in asdict(self).items()}
 
 

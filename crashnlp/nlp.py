@@ -5,6 +5,7 @@ IPOPT sees well-conditioned variables whatever the units. Interval functions
 enter through `mapped`, least-squares terms through `least_squares`, so that
 the derivatives can exploit both (crashnlp.derivatives).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass, field

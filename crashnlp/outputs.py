@@ -4,6 +4,7 @@ The symbolic model evaluates its outputs in this order; the simulator, the
 result files, the figures, the console and the problem schema (the channels a
 test can measure) all read their names and units from here.
 """
+
 from __future__ import annotations
 
 import math

@@ -1,4 +1,5 @@
 """Figures: responses over data, force against crush, residuals."""
+
 from __future__ import annotations
 
 from pathlib import Path

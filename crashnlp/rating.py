@@ -9,6 +9,7 @@ seconds in every new process; its compiled functions are cached on disk under th
 cache (numba's own cache, keyed on the source and the machine), so only the first process
 on a machine pays.
 """
+
 from __future__ import annotations
 
 import os

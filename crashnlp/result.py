@@ -5,6 +5,7 @@ the solved NLP; everything downstream (result files, figures, the console,
 study tables, the Python API) reads it and nothing else. `Result.save(dir)`
 writes what the command line writes; `Result.load(dir)` reads it back.
 """
+
 from __future__ import annotations
 
 import json
@@ -134,7 +135,7 @@ class Result:
         write_result(self, Path(folder), figures=figures)
 
     @classmethod
-    def load(cls, folder: str | Path) -> "Result":
+    def load(cls, folder: str | Path) -> Result:
         """A Result read back from a folder `save` wrote (responses from response.csv)."""
         from crashnlp.results import read_response
 
@@ -144,15 +145,33 @@ class Result:
         for name, t in raw["tests"].items():
             response = read_response(folder / name / "response.csv")
             tests[name] = TestResult(
-                name, t["speed_mps"], response, {}, {}, t["metrics"]["model"], t["metrics"]["data"],
-                _number(t.get("loading_ends_s")), t.get("energy"), t.get("forward_check"),
+                name,
+                t["speed_mps"],
+                response,
+                {},
+                {},
+                t["metrics"]["model"],
+                t["metrics"]["data"],
+                _number(t.get("loading_ends_s")),
+                t.get("energy"),
+                t.get("forward_check"),
             )
         return cls(
-            raw["name"], raw["kind"], raw["status"],
+            raw["name"],
+            raw["kind"],
+            raw["status"],
             SolverStats(*(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s"))),
-            raw["transcription"], raw["parameters"], raw["std_errors"], raw["correlation"], tuple(raw["not_identified"]),
-            raw["at_bound"], tuple(ActiveConstraint(**c) for c in raw["active_constraints"]), tests,
-            profiles=raw.get("profiles", {}), covariance=raw.get("covariance", {}), notes=tuple(raw.get("notes", ())),
+            raw["transcription"],
+            raw["parameters"],
+            raw["std_errors"],
+            raw["correlation"],
+            tuple(raw["not_identified"]),
+            raw["at_bound"],
+            tuple(ActiveConstraint(**c) for c in raw["active_constraints"]),
+            tests,
+            profiles=raw.get("profiles", {}),
+            covariance=raw.get("covariance", {}),
+            notes=tuple(raw.get("notes", ())),
         )
 
 

@@ -3,9 +3,11 @@
 Everything here is SI inside and converted to report units (g, deg, ms) only as
 it is written. Figures are drawn after the result files.
 """
+
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -124,7 +126,7 @@ def write_figures(result: Result, out: Path) -> None:
 
 def write_simulation(case: Case, responses: dict[str, Response], out: Path, figures: bool = True) -> dict:
     """response.csv, a figure and metrics for each simulated test."""
-    summary = {"name": case.name, "tests": {}}
+    summary: dict[str, Any] = {"name": case.name, "tests": {}}
     for test in case.tests:
         r = responses[test.name]
         r.write_csv(out / test.name / "response.csv")

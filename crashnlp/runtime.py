@@ -1,4 +1,5 @@
 """Process-wide settings that do not change results, only how they are computed."""
+
 from __future__ import annotations
 
 import os

@@ -1,4 +1,5 @@
 """Forward simulation with a CasADi integrator, separate from any NLP transcription."""
+
 from __future__ import annotations
 
 import csv
@@ -12,10 +13,9 @@ import numpy as np
 from crashnlp.compiled import Evaluator, compiled
 from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
+from crashnlp.outputs import COLUMNS
 from crashnlp.problem.schema import Simulation
 from crashnlp.runtime import mapped
-from crashnlp.outputs import COLUMNS
-
 
 
 @dataclass
@@ -68,9 +68,14 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
-            opts: dict[str, Any] = {"reltol": options.rtol, "abstol": options.atol, "max_num_steps": 100000,
-                    "disable_internal_warnings": True,  # a failure reaches the user as one line (cli.describe)
-                    "linear_multistep_method": "adams", "nonlinear_solver_iteration": "functional"}
+            opts: dict[str, Any] = {
+                "reltol": options.rtol,
+                "abstol": options.atol,
+                "max_num_steps": 100000,
+                "disable_internal_warnings": True,  # a failure reaches the user as one line (cli.describe)
+                "linear_multistep_method": "adams",
+                "nonlinear_solver_iteration": "functional",
+            }
         else:
             opts = {"number_of_finite_elements": options.substeps}
         return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
@@ -110,9 +115,7 @@ def simulate_batch(
     return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
 
 
-def simulate(
-    model: PendulumModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation
-) -> Response:
+def simulate(model: PendulumModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
     """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
     x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), np.zeros(len(ABSORBED))])
     (xf,) = model.cached(("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(

@@ -3,14 +3,16 @@
 Plain numbers are taken as SI. In crash work "g" next to an acceleration means
 standard gravity, not gram, so that one case is resolved by the dimension asked for.
 """
+
 from __future__ import annotations
 
 import re
-from functools import lru_cache
+from functools import cache
+from typing import Any
 
 import pint
 
-ureg = pint.UnitRegistry()
+ureg: pint.UnitRegistry = pint.UnitRegistry()
 G0 = 9.80665  # standard gravity, m/s^2
 
 _G_TOKEN = re.compile(r"(?<![A-Za-z_])g(?![A-Za-z_0-9])")
@@ -20,7 +22,7 @@ class UnitError(ValueError):
     """A quantity that cannot be read or converted."""
 
 
-@lru_cache(maxsize=None)
+@cache
 def _dimensionality(unit: str):
     return ureg.parse_units(unit).dimensionality if unit else ureg.dimensionless.dimensionality
 
@@ -42,7 +44,7 @@ def to_si(value: float | int | str, unit: str) -> float:
     if _dimensionality(unit) == _dimensionality("m/s^2"):
         text = _G_TOKEN.sub("g_0", text)
     try:
-        quantity = ureg.Quantity(text)
+        quantity: Any = ureg.Quantity(text)
     except Exception as exc:  # pint raises several unrelated types
         raise UnitError(f"cannot read {value!r} as a quantity") from exc
     if not isinstance(quantity, ureg.Quantity):

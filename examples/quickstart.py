@@ -3,6 +3,7 @@ faster impact with the identified parameters, and run a what-if study.
 
 Run from the repository root: `python examples/quickstart.py` (the test suite runs it).
 """
+
 import crashnlp
 
 

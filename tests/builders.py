@@ -1,4 +1,5 @@
 """Shared builders for test problems (plain dicts, so each test states what it changes) and checks."""
+
 from __future__ import annotations
 
 import copy

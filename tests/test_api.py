@@ -1,5 +1,6 @@
 """The Python API: plain results equal to the command line's, round trips, immutable problems,
 and fast unit tests of the NLP builder and the transcriptions (no IPOPT)."""
+
 from __future__ import annotations
 
 import json
@@ -103,7 +104,13 @@ def test_nlp_builder_scales_variables_and_types_constraints():
     np.testing.assert_allclose(b["x0"], 2.0)  # stored scaled: 4 / 2
     np.testing.assert_allclose(b["ubx"], 4.0)
     (bound, dyn) = nlp.constraints
-    assert (bound.name, bound.local, bound.kind, bound.test, bound.size) == ("t1.bound.crush.upper", "bound.crush.upper", "bound", "t1", 3)
+    assert (bound.name, bound.local, bound.kind, bound.test, bound.size) == (
+        "t1.bound.crush.upper",
+        "bound.crush.upper",
+        "bound",
+        "t1",
+        3,
+    )
     assert (dyn.kind, dyn.start) == (DYNAMICS, 3)
     z = np.arange(6.0)
     np.testing.assert_allclose(nlp.value("x", z), 2 * z.reshape(2, 3, order="F"))
@@ -117,7 +124,9 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
 
     n = 40
     spec = {"method": method, "intervals": n, **({"substeps": 1} if method == "multiple-shooting" else {"degree": 3})}
-    ocp = OptimalControl(Case(problem_from_dict(merge(BASE, {"transcription": spec, "estimate": {"vehicle.crush_offset": {}}}), ROOT)))
+    ocp = OptimalControl(
+        Case(problem_from_dict(merge(BASE, {"transcription": spec, "estimate": {"vehicle.crush_offset": {}}}), ROOT))
+    )
     states = ocp.nlp.blocks["t56.x"]
     assert states.shape == (NX, n + 1)
     dynamics = sum(c.size for c in ocp.nlp.constraints if c.kind == DYNAMICS)
@@ -125,4 +134,4 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
     assert dynamics == NX * (1 + 1 + (n - 1) * (1 + per_interval))
     # at the initial guess (a forward simulation) the dynamics nearly hold
     g = ca.Function("g", [ocp.nlp.decision], [ca.vertcat(*ocp.nlp.g)])(ocp.nlp.bounds()["x0"])
-    assert np.max(np.abs(np.asarray(g).ravel()[: dynamics])) < 0.05
+    assert np.max(np.abs(np.asarray(g).ravel()[:dynamics])) < 0.05

@@ -1,4 +1,5 @@
 """What a problem leaves out, filled in from the data: breakpoints, spring values, unloading, estimate."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -62,8 +63,10 @@ def test_unloading_stiffness_from_the_rebound_is_of_the_right_order(pickup_case)
 
 
 def test_minimal_problem_is_completed_without_changing_the_given_one():
-    raw = pickup(model={"spring": {"crush_breakpoints": {"count": 6}, "values": None}, "damper": None,
-                        "unloading": {"stiffness": None}}, estimate=None)
+    raw = pickup(
+        model={"spring": {"crush_breakpoints": {"count": 6}, "values": None}, "damper": None, "unloading": {"stiffness": None}},
+        estimate=None,
+    )
     given = problem_from_dict(raw, PICKUP.parent)
     case = Case(given)
     filled = case.problem
@@ -72,8 +75,13 @@ def test_minimal_problem_is_completed_without_changing_the_given_one():
     assert filled.model.damper.values == pytest.approx([2.0 * 2550] * 2)  # nominal: 2 /s times the mass
     assert 1e7 < filled.model.unloading.stiffness < 1e8
     bounds = {path: spec.bounds for path, spec in filled.estimate.items()}
-    assert set(bounds) == {"model.spring.values", "model.unloading.stiffness", "vehicle.cg_above_impact",
-                           "vehicle.pitch_inertia", PITCH_LEVER}
+    assert set(bounds) == {
+        "model.spring.values",
+        "model.unloading.stiffness",
+        "vehicle.cg_above_impact",
+        "vehicle.pitch_inertia",
+        PITCH_LEVER,
+    }
     lo, hi = bounds["vehicle.pitch_inertia"]
     assert lo < 4800 < hi and bounds["vehicle.cg_above_impact"][0] < 0.18 < bounds["vehicle.cg_above_impact"][1]
     assert bounds["model.spring.values"][1] >= 2 * max(filled.model.spring.values)
@@ -114,7 +122,9 @@ def test_repaired_start_reaches_the_measured_crush():
     reached = np.max(case.simulate(start)["56kph"]["displacement"])
     assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
     note = repair_start(case)
-    assert note.startswith(f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm")
+    assert note.startswith(
+        f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm"
+    )
     assert np.array_equal(case.base, start) and repair_start(case) is None  # repaired once, then it reaches
 
 

@@ -1,4 +1,5 @@
 """Bad problem files: one line naming the key, exit status 2, no traceback, nothing written."""
+
 from __future__ import annotations
 
 import json
@@ -9,8 +10,11 @@ from builders import BASE, ROOT, merge
 
 from crashnlp.cli import main
 
-DATA = {"file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"), "format": "csv",
-        "channels": {"displacement": {"column": "disp_x_m", "unit": "m"}}}
+DATA = {
+    "file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"),
+    "format": "csv",
+    "channels": {"displacement": {"column": "disp_x_m", "unit": "m"}},
+}
 
 CASES = {
     "unknown key": ({"vehicle": {"masss": "1 kg"}}, "vehicle.masss: unknown key"),
@@ -18,9 +22,14 @@ CASES = {
     "wrong unit": ({"vehicle": {"mass": "2550 m"}}, "vehicle.mass:"),
     "unreadable quantity": ({"vehicle": {"cg_to_impact": "far away"}}, "vehicle.cg_to_impact: cannot read"),
     "missing file": ({"tests": [{"name": "a", "data": {**DATA, "file": "nowhere.csv"}}]}, "tests.0.data.file: file not found"),
-    "breakpoints not increasing": ({"model": {"spring": {"crush_breakpoints": [0, 0.2, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7]}}},
-                                   "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing"),
-    "length mismatch": ({"model": {"damper": {"rate_breakpoints": [0, 8, 16]}}}, "model.damper: values has 2 entries but rate_breakpoints has 3"),
+    "breakpoints not increasing": (
+        {"model": {"spring": {"crush_breakpoints": [0, 0.2, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7]}}},
+        "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing",
+    ),
+    "length mismatch": (
+        {"model": {"damper": {"rate_breakpoints": [0, 8, 16]}}},
+        "model.damper: values has 2 entries but rate_breakpoints has 3",
+    ),
     "missing key": ({"vehicle": {"cg_to_impact": None}}, "vehicle.cg_to_impact: missing key"),
     "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
     "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),

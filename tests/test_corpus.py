@@ -1,5 +1,6 @@
 """Vehicles of the robustness corpus (bench/corpus.py: a planar rigid body, not the pendulum),
 identified from minimal problem files: the issue's targets, on a few small NLPs."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -38,14 +39,29 @@ def test_minimal_problem_identifies_a_corpus_vehicle(index, tmp_path):
 # derivative at the start. identify repairs such a start from the data (and says so).
 def test_issue_case_pickup_problem_on_a_compact(tmp_path):
     compact = dataclasses.replace(
-        random_vehicle(0, SEED, mass=1350.0, speed=48 / 3.6), pitch_inertia=1900.0, cg_to_impact=1.95,
-        cg_above_impact=0.12, cg_to_front_axle=1.05, cg_to_rear_axle=1.55, k_front=45e3, k_rear=38e3,
-        c_front=4.5e3, c_rear=4e3)
+        random_vehicle(0, SEED, mass=1350.0, speed=48 / 3.6),
+        pitch_inertia=1900.0,
+        cg_to_impact=1.95,
+        cg_above_impact=0.12,
+        cg_to_front_axle=1.05,
+        cg_to_rear_axle=1.55,
+        k_front=45e3,
+        k_rear=38e3,
+        c_front=4.5e3,
+        c_rear=4e3,
+    )
     _, truth = write_test(compact, tmp_path)
     raw = read_yaml(ROOT / "problems" / "pickup-56kph.yaml")
-    raw["vehicle"] = {"mass": "1350 kg", "speed": "48 km/h", "pitch_inertia": "1900 kg*m^2", "cg_to_impact": "1.95 m",
-                      "cg_above_impact": "0.12 m", "cg_to_front_axle": "1.05 m", "cg_to_rear_axle": "1.55 m",
-                      "suspension": {"k_front": "45 kN/m", "k_rear": "38 kN/m", "c_front": "4.5 kN*s/m", "c_rear": "4 kN*s/m"}}
+    raw["vehicle"] = {
+        "mass": "1350 kg",
+        "speed": "48 km/h",
+        "pitch_inertia": "1900 kg*m^2",
+        "cg_to_impact": "1.95 m",
+        "cg_above_impact": "0.12 m",
+        "cg_to_front_axle": "1.05 m",
+        "cg_to_rear_axle": "1.55 m",
+        "suspension": {"k_front": "45 kN/m", "k_rear": "38 kN/m", "c_front": "4.5 kN*s/m", "c_rear": "4 kN*s/m"},
+    }
     raw["tests"] = [{"name": "t1", "speed": "48 km/h", "data": {**raw["tests"][0]["data"], "file": f"{compact.name}.csv"}}]
     raw.pop("reference")
     path = tmp_path / "pickup-on-compact.yaml"

@@ -1,9 +1,10 @@
 """Crash-pulse design: constraints at every grid point, and the square-wave limit."""
+
 from __future__ import annotations
 
 import numpy as np
 import pytest
-from builders import make_case, assert_monotone_crush
+from builders import assert_monotone_crush, make_case
 
 from crashnlp.optimize import solve_case
 
@@ -64,8 +65,9 @@ def test_peak_deceleration_against_the_square_wave_bound(fine):
 
 
 def test_pitch_bound_holds_in_design():
-    case = design_case(7, {"vehicle": {"cg_above_impact": 0.18, "crush_offset": 0.1},
-                           "constraints": {"bounds": {"pitch": [None, "3 deg"]}}})
+    case = design_case(
+        7, {"vehicle": {"cg_above_impact": 0.18, "crush_offset": 0.1}, "constraints": {"bounds": {"pitch": [None, "3 deg"]}}}
+    )
     sol = solve_case(case, progress=None)
     assert sol.ok, sol.status
     assert np.max(sol.tests[0].outputs["pitch"]) <= np.radians(3) + 1e-7  # 3.3 deg without the bound

@@ -9,6 +9,7 @@ CRASHNLP_FUZZ_SECONDS (default 30) bounds the time, CRASHNLP_FUZZ_RUNS (default 
 the time) the number of runs, CRASHNLP_FUZZ_SEED (default 14) the seed; `make fuzz` runs 2000.
 A failure names the run and its mutation; rerun with the same seed to reproduce it.
 """
+
 from __future__ import annotations
 
 import contextlib
@@ -37,13 +38,68 @@ SEED = int(os.environ.get("CRASHNLP_FUZZ_SEED", "14"))
 FULL_RUNS = 0.12  # share of problem runs that solve (with a tiny budget) instead of --check
 
 HOSTILE: list[Any] = [
-    math.nan, math.inf, -math.inf, 1e308, -1e308, 10**30, -1, 0, 1e-300, -1e-9, "", " ", "abc", "56", "-5 km/h",
-    "56 kg", "nan m", "inf s", "1e308 MN", "1e-400 m", "3 furlong", "12 %", "0x10", [], {}, None, True, False,
-    [None], [math.nan], {"x": 1}, list(range(200)), "\x00", "é", "../../etc/passwd", "data", 2**63, -(2**63),
+    math.nan,
+    math.inf,
+    -math.inf,
+    1e308,
+    -1e308,
+    10**30,
+    -1,
+    0,
+    1e-300,
+    -1e-9,
+    "",
+    " ",
+    "abc",
+    "56",
+    "-5 km/h",
+    "56 kg",
+    "nan m",
+    "inf s",
+    "1e308 MN",
+    "1e-400 m",
+    "3 furlong",
+    "12 %",
+    "0x10",
+    [],
+    {},
+    None,
+    True,
+    False,
+    [None],
+    [math.nan],
+    {"x": 1},
+    list(range(200)),
+    "\x00",
+    "é",
+    "../../etc/passwd",
+    "data",
+    2**63,
+    -(2**63),
 ]
 UNITS = ["m", "mm", "s", "ms", "kg", "g", "km/h", "m/s", "deg", "rad", "N", "kN", "MN/m", "N*s/m", "furlong", "%", ""]
-KEYWORDS = ["csv", "nhtsa-ev5", "iso-mme", "force", "secant", "plastic", "elastic", "l1", "l2", "collocation",
-            "multiple-shooting", "design", "identify", "radau", "legendre", "CFC60", "CFC9", "integrate", "zip", "grid"]
+KEYWORDS = [
+    "csv",
+    "nhtsa-ev5",
+    "iso-mme",
+    "force",
+    "secant",
+    "plastic",
+    "elastic",
+    "l1",
+    "l2",
+    "collocation",
+    "multiple-shooting",
+    "design",
+    "identify",
+    "radau",
+    "legendre",
+    "CFC60",
+    "CFC9",
+    "integrate",
+    "zip",
+    "grid",
+]
 
 
 @dataclass
@@ -203,11 +259,20 @@ def _options(rng: random.Random, command: str, folder: Path, steps: list[str]) -
         opts += ["--dt", rng.choice(["0", "-1", "nan", "inf", "1e-9", "abc", "1e-3", "1e300", "-0"])]
     if command == "simulate" and rng.random() < 0.15:
         params = folder / "result.json"
-        params.write_text(rng.choice([
-            "{", "[]", '{"parameters": 3}', '{"parameters": {"model.spring.values": [1, 2]}}',
-            '{"parameters": {"vehicle.mass": "x"}}', '{"parameters": {"vehicle.mass": null}}',
-            '{"parameters": {"vehicle.colour": 1}}', '{"parameters": {"vehicle.mass": 1e308}}',
-        ]))
+        params.write_text(
+            rng.choice(
+                [
+                    "{",
+                    "[]",
+                    '{"parameters": 3}',
+                    '{"parameters": {"model.spring.values": [1, 2]}}',
+                    '{"parameters": {"vehicle.mass": "x"}}',
+                    '{"parameters": {"vehicle.mass": null}}',
+                    '{"parameters": {"vehicle.colour": 1}}',
+                    '{"parameters": {"vehicle.mass": 1e308}}',
+                ]
+            )
+        )
         opts += ["--params", rng.choice([str(params), str(folder / "none.json"), str(folder)])]
     if command == "study":
         if rng.random() < 0.3:

@@ -1,4 +1,5 @@
 """Hostile input and interrupted runs: one line, the right exit status, nothing half-written, no orphans."""
+
 from __future__ import annotations
 
 import json
@@ -208,7 +209,7 @@ def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypa
     def fail(self, *a, **k):
         raise RuntimeError(
             ".../casadi/core/function.cpp:1458: Error in Function::call for 'sim' [CvodesInterface]\n"
-            ".../cvodes_interface.cpp:300: CVode returned \"CV_FIRST_RHSFUNC_ERR\"."
+            '.../cvodes_interface.cpp:300: CVode returned "CV_FIRST_RHSFUNC_ERR".'
         )
 
     monkeypatch.setattr(Case, "simulate", fail)
@@ -236,9 +237,24 @@ def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
 def test_an_unreachable_dask_scheduler_fails_in_time(tmp_path):
     started = time.monotonic()
     proc = subprocess.run(
-        [*CLI, "study", str(ROOT / "problems/studies/pitch-bound.yaml"), "--executor", "dask",
-         "--address", "tcp://127.0.0.1:1", "--timeout", "2", "--out", str(tmp_path / "o"), "--no-progress"],
-        capture_output=True, text=True, timeout=60, cwd=ROOT,
+        [
+            *CLI,
+            "study",
+            str(ROOT / "problems/studies/pitch-bound.yaml"),
+            "--executor",
+            "dask",
+            "--address",
+            "tcp://127.0.0.1:1",
+            "--timeout",
+            "2",
+            "--out",
+            str(tmp_path / "o"),
+            "--no-progress",
+        ],
+        capture_output=True,
+        text=True,
+        timeout=60,
+        cwd=ROOT,
     )
     assert time.monotonic() - started < 20
     assert proc.returncode == 1 and proc.stderr.count("\n") == 1, proc.stderr

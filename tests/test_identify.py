@@ -1,4 +1,5 @@
 """Identification by NLP: recovery of known parameters, honesty, constraints, round trips."""
+
 from __future__ import annotations
 
 import csv
@@ -7,7 +8,7 @@ import json
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, merge, assert_monotone_crush
+from builders import BASE, assert_monotone_crush, merge
 
 from crashnlp.case import Case
 from crashnlp.cli import main
@@ -205,7 +206,9 @@ def _nlp_at_random_point(problem: dict, seed: int = 3):
 def test_structured_constraint_jacobian_equals_casadis_own(data_file, transcription):
     import casadi as ca
 
-    problem = fit_problem(data_file, {**transcription, "intervals": 12}, constraints={"monotone_crush": True, "bounds": {"pitch": [None, 0.05]}})
+    problem = fit_problem(
+        data_file, {**transcription, "intervals": 12}, constraints={"monotone_crush": True, "bounds": {"pitch": [None, 0.05]}}
+    )
     nlp, z = _nlp_at_random_point(problem)
     p = nlp.problem()
     g, J = nlp.derivatives().jac_g(p["g"])(z, [])

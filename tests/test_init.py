@@ -1,4 +1,5 @@
 """`crashnlp init`: problem files from EV5, CSV and ISO-MME data that identify as they stand."""
+
 from __future__ import annotations
 
 import json
@@ -41,8 +42,15 @@ def compact_csv(tmp_path_factory):
     v = random_vehicle(3, seed=11)
     truth = simulate(v)
     path = tmp_path_factory.mktemp("csv") / "compact.csv"
-    write_csv(path, {"Time [ms]": truth["time"] * 1e3, "acc_x_g": -truth["accel"] / 9.80665,
-                     "speed_kph": -truth["velocity"] * 3.6, "disp_mm": -truth["displacement"] * 1e3})
+    write_csv(
+        path,
+        {
+            "Time [ms]": truth["time"] * 1e3,
+            "acc_x_g": -truth["accel"] / 9.80665,
+            "speed_kph": -truth["velocity"] * 3.6,
+            "disp_mm": -truth["displacement"] * 1e3,
+        },
+    )
     return v, truth, path
 
 
@@ -51,7 +59,10 @@ def test_csv_columns_units_and_signs_are_recognised(compact_csv):
     draft = csv_draft(path, {})
     assert draft.data["time"] == {"column": "Time [ms]", "unit": "ms"}
     assert {ch: (c["column"], c["unit"]) for ch, c in draft.data["channels"].items() if "column" in c} == {
-        "accel": ("acc_x_g", "g"), "velocity": ("speed_kph", "km/h"), "displacement": ("disp_mm", "mm")}
+        "accel": ("acc_x_g", "g"),
+        "velocity": ("speed_kph", "km/h"),
+        "displacement": ("disp_mm", "mm"),
+    }
     assert unit_in_name("a_mps2") == "m/s^2" and unit_in_name("accel") is None
 
 
@@ -88,8 +99,20 @@ def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
 def test_print_solution_shows_a_solve_that_never_ran(capsys):
     from crashnlp.result import Result, SolverStats
 
-    result = Result("x", "identify", "solver failed: Invalid_Number_Detected", SolverStats(None, 0, None, None, None), {},
-                    {"model.spring.values": [1.0, None]}, {}, {}, (), {}, (), {})
+    result = Result(
+        "x",
+        "identify",
+        "solver failed: Invalid_Number_Detected",
+        SolverStats(None, 0, None, None, None),
+        {},
+        {"model.spring.values": [1.0, None]},
+        {},
+        {},
+        (),
+        {},
+        (),
+        {},
+    )
     _print_solution(result)
     out = capsys.readouterr().out
     assert "(IPOPT -, 0 iterations, objective -, not solved)" in out and "[1 nan]" in out

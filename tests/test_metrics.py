@@ -1,4 +1,5 @@
 """Crash metrics on pulses with closed-form answers."""
+
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
 """Physics of the elastic-pendulum model and its forward simulation."""
+
 from __future__ import annotations
 
 import casadi as ca
@@ -26,10 +27,15 @@ def test_one_degree_of_freedom_limit():
     m, k, v0 = 1500.0, 8.0e5, 15.0
     case = make_case(
         {
-            "vehicle": {"mass": m, "speed": v0, "cg_above_impact": 0, "pitch_inertia": 0, "crush_offset": 0,
-                        "suspension": {"c_front": 0, "c_rear": 0}},
-            "model": {"spring": {"crush_breakpoints": [0, 1], "values": [0, k]}, "damper": None,
-                      "unloading": {"law": "elastic"}},
+            "vehicle": {
+                "mass": m,
+                "speed": v0,
+                "cg_above_impact": 0,
+                "pitch_inertia": 0,
+                "crush_offset": 0,
+                "suspension": {"c_front": 0, "c_rear": 0},
+            },
+            "model": {"spring": {"crush_breakpoints": [0, 1], "values": [0, k]}, "damper": None, "unloading": {"law": "elastic"}},
             "simulation": {"rtol": 1e-12, "atol": 1e-12, "dt": 1e-5},
             "tests": [{"name": "t56", "duration": 0.1}],
         }
@@ -76,9 +82,12 @@ def test_energy_balance_with_dissipation(law):
 
 def test_plastic_unloading_leaves_permanent_set_and_never_pulls():
     plastic = make_case({"tests": [{"name": "t56", "duration": 0.3}]}).simulate()["t56"]
-    elastic = make_case({"model": {"unloading": {"law": "elastic"}}, "tests": [{"name": "t56", "duration": 0.3}]}).simulate()["t56"]
+    elastic = make_case({"model": {"unloading": {"law": "elastic"}}, "tests": [{"name": "t56", "duration": 0.3}]}).simulate()[
+        "t56"
+    ]
     assert np.min(plastic["contact_force"]) >= 0.0
     assert np.min(elastic["contact_force"]) >= 0.0
+
     # contact is lost at the permanent set: close to the largest crush for the
     # plastic front end, back at zero for the elastic one
     def crush_at_separation(r):
@@ -98,11 +107,11 @@ def _sympy_accelerations(v: dict, state, contact: float) -> np.ndarray:
     """Lagrange's equations derived independently in polar form with sympy."""
     t = sp.symbols("t")
     r, th = sp.Function("r")(t), sp.Function("th")(t)
-    m, I, g, h, L = v["mass"], v["pitch_inertia"], v["gravity"], v["cg_above_impact"], v["cg_to_impact"]
+    m, inertia, g, h, L = v["mass"], v["pitch_inertia"], v["gravity"], v["cg_above_impact"], v["cg_to_impact"]
     af, ar = v["cg_to_front_axle"], v["cg_to_rear_axle"]
     l0, th0 = sp.sqrt(L**2 + h**2), sp.atan2(h, L)
     rho = l0 + r
-    T = sp.Rational(1, 2) * m * (r.diff(t) ** 2 + rho**2 * th.diff(t) ** 2) + sp.Rational(1, 2) * I * th.diff(t) ** 2
+    T = sp.Rational(1, 2) * m * (r.diff(t) ** 2 + rho**2 * th.diff(t) ** 2) + sp.Rational(1, 2) * inertia * th.diff(t) ** 2
     V = m * g * (rho * sp.sin(th) - h)
     D = 0
     for d, share, k, c in ((af, ar, v["k_front"], v["c_front"]), (-ar, af, v["k_rear"], v["c_rear"])):
@@ -143,8 +152,11 @@ def test_equations_match_an_independent_sympy_derivation():
 @pytest.mark.parametrize("law", ["force", "secant"])
 def test_breakpoint_derivatives_match_finite_differences(law):
     """Hinge-form laws differentiate in their values (an inlined interpolant would give zeros)."""
-    case = make_case({"model": {"spring": {"law": law, "values": [1e6 + 1e5 * i for i in range(8)] if law == "secant" else None}}}
-                     if law == "secant" else {})
+    case = make_case(
+        {"model": {"spring": {"law": law, "values": [1e6 + 1e5 * i for i in range(8)] if law == "secant" else None}}}
+        if law == "secant"
+        else {}
+    )
     model, p = case.model, case.base
     where = case.layout.index("model.spring.values")
     crush = np.linspace(0.01, 0.8, 23)

@@ -1,4 +1,5 @@
 """ISO/TS 18571 rating: identical curves rate 1, shifted or scaled curves lower."""
+
 import numpy as np
 import pytest
 

@@ -1,4 +1,5 @@
 """Readers (CSV, NHTSA EV5, ISO-MME) and the load pipeline, including every bad-data error."""
+
 import shutil
 import zipfile
 from pathlib import Path
@@ -21,10 +22,19 @@ def spec(**kw) -> DataSpec:
 
 
 def camry(cfc="CFC60", **kw) -> DataSpec:
-    channels = {"accel": {"curves": [93, 94], "filter": cfc}, "velocity": {"derive": "integrate"},
-                "displacement": {"derive": "integrate"}}
-    return spec(file=kw.pop("file", EV5), format="nhtsa-ev5", bias_window=(-0.05, 0.0),
-                window=(0.0, 0.2), channels=kw.pop("channels", channels), **kw)
+    channels = {
+        "accel": {"curves": [93, 94], "filter": cfc},
+        "velocity": {"derive": "integrate"},
+        "displacement": {"derive": "integrate"},
+    }
+    return spec(
+        file=kw.pop("file", EV5),
+        format="nhtsa-ev5",
+        bias_window=(-0.05, 0.0),
+        window=(0.0, 0.2),
+        channels=kw.pop("channels", channels),
+        **kw,
+    )
 
 
 # ---------------------------------------------------------------- NHTSA EV5, test 10146
@@ -54,8 +64,7 @@ def test_nhtsa_10146_cfc180_peak_and_explicit_speed():
 
 
 def test_nhtsa_integration_uses_its_own_filter():
-    channels = {"accel": {"curves": [93, 94], "filter": "CFC60"},
-                "velocity": {"derive": "integrate", "filter": "CFC180"}}
+    channels = {"accel": {"curves": [93, 94], "filter": "CFC60"}, "velocity": {"derive": "integrate", "filter": "CFC180"}}
     d60 = load_test_data(camry())
     d180 = load_test_data(camry(channels=channels))
     assert "CFC180" in d180.channels["velocity"].source
@@ -74,8 +83,9 @@ def test_nhtsa_invalid_curve_is_cut_to_its_valid_range():
 
 def test_nhtsa_unit_override_and_sign():
     raw = load_test_data(spec(file=EV5, format="nhtsa-ev5", channels={"accel": {"curves": [93]}}))
-    flipped = load_test_data(spec(file=EV5, format="nhtsa-ev5",
-                                  channels={"accel": {"curves": [93], "unit": "m/s^2", "sign": -1}}))
+    flipped = load_test_data(
+        spec(file=EV5, format="nhtsa-ev5", channels={"accel": {"curves": [93], "unit": "m/s^2", "sign": -1}})
+    )
     np.testing.assert_allclose(flipped.channels["accel"].values * G0, -raw.channels["accel"].values)
 
 
@@ -119,12 +129,16 @@ def test_nhtsa_nan_sample(tmp_path):
 
 # ---------------------------------------------------------------- CSV
 def pickup(**kw) -> DataSpec:
-    channels = kw.pop("channels", {"accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
-                                   "velocity": {"column": "vel_x_mps", "unit": "m/s"},
-                                   "displacement": {"column": "disp_x_m"},
-                                   "pitch": {"column": "pitch_deg", "unit": "deg"}})
-    return spec(file=kw.pop("file", PICKUP), format="csv", time={"column": "time_s", "unit": "s"},
-                channels=channels, **kw)
+    channels = kw.pop(
+        "channels",
+        {
+            "accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
+            "velocity": {"column": "vel_x_mps", "unit": "m/s"},
+            "displacement": {"column": "disp_x_m"},
+            "pitch": {"column": "pitch_deg", "unit": "deg"},
+        },
+    )
+    return spec(file=kw.pop("file", PICKUP), format="csv", time={"column": "time_s", "unit": "s"}, channels=channels, **kw)
 
 
 def test_csv_pickup_in_si_and_window():
@@ -142,8 +156,11 @@ def test_csv_pickup_in_si_and_window():
 
 
 def test_csv_integrated_channels_match_the_stored_ones():
-    channels = {"accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
-                "velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}
+    channels = {
+        "accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
+        "velocity": {"derive": "integrate"},
+        "displacement": {"derive": "integrate"},
+    }
     derived = load_test_data(pickup(channels=channels), speed=56 / 3.6)
     stored = load_test_data(pickup())
     for name, tol in (("velocity", 0.1), ("displacement", 0.01)):
@@ -201,9 +218,11 @@ def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600) -> tuple[np.ndarray, np.ndarr
         f"Name of channel 002         :{CODE_P} / Vehicle angular velocity Y\n"
     )
     for number, code, unit, values in (("001", CODE_X, "g", accel_g), ("002", CODE_P, "deg/s", 0 * t)):
-        header = (f"Name of the channel         :{code}\nChannel code                :{code}\n"
-                  f"Unit                        :{unit}\nTime of first sample        :{t0}\n"
-                  f"Sampling interval           :{dt}\nNumber of samples           :{n}\n")
+        header = (
+            f"Name of the channel         :{code}\nChannel code                :{code}\n"
+            f"Unit                        :{unit}\nTime of first sample        :{t0}\n"
+            f"Sampling interval           :{dt}\nNumber of samples           :{n}\n"
+        )
         (root / "Channel" / f"T001.{number}").write_text(header + "\n".join(f"{v:.8e}" for v in values) + "\n")
     return t, accel_g
 
@@ -219,8 +238,9 @@ def _zip(folder: Path, target: Path) -> Path:
 def test_mme_round_trip(tmp_path, as_zip):
     t, accel_g = _mme_set(tmp_path / "T001")
     path = _zip(tmp_path / "T001", tmp_path / "T001.zip") if as_zip else tmp_path / "T001"
-    data = load_test_data(spec(file=path, format="iso-mme", channels={
-        "accel": {"code": CODE_X}, "velocity": {"derive": "integrate"}}))
+    data = load_test_data(
+        spec(file=path, format="iso-mme", channels={"accel": {"code": CODE_X}, "velocity": {"derive": "integrate"}})
+    )
     assert data.meta == {"speed": 15.0, "mass": 1500.0}
     a = data.channels["accel"]
     np.testing.assert_allclose(a.time, t)

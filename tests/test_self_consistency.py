@@ -5,6 +5,7 @@ Data are made by crashnlp's forward simulator at known parameters, with pitch, a
 crush-force offset and a damper; the shipped-size problems are measured in
 bench/ (make bench), these are small ones with the same structure.
 """
+
 from __future__ import annotations
 
 import csv
@@ -23,7 +24,12 @@ TRUTH = {
     "vehicle.cg_above_impact": 0.25,
     "vehicle.pitch_inertia": 4000.0,
 }
-CHANNELS = {"accel": ("accel_g", "g"), "velocity": ("vel_mps", "m/s"), "displacement": ("disp_m", "m"), "pitch": ("pitch_deg", "deg")}
+CHANNELS = {
+    "accel": ("accel_g", "g"),
+    "velocity": ("vel_mps", "m/s"),
+    "displacement": ("disp_m", "m"),
+    "pitch": ("pitch_deg", "deg"),
+}
 WINDOW = 0.12
 MS = {"method": "multiple-shooting", "intervals": 120, "substeps": 2}
 COLLOCATION = {"method": "collocation", "intervals": 120, "degree": 3, "scheme": "radau"}
@@ -34,8 +40,11 @@ def truth_problem() -> dict:
         BASE,
         {
             "name": "self",
-            "vehicle": {"crush_offset": TRUTH["vehicle.crush_offset"], "cg_above_impact": TRUTH["vehicle.cg_above_impact"],
-                        "pitch_inertia": TRUTH["vehicle.pitch_inertia"]},
+            "vehicle": {
+                "crush_offset": TRUTH["vehicle.crush_offset"],
+                "cg_above_impact": TRUTH["vehicle.cg_above_impact"],
+                "pitch_inertia": TRUTH["vehicle.pitch_inertia"],
+            },
             "model": {"spring": {"crush_breakpoints": [0, 0.2, 0.4, 0.7], "values": TRUTH["model.spring.values"]}},
             "tests": [{"name": "t56", "duration": WINDOW}],
             "simulation": {"dt": 1e-4},
@@ -47,7 +56,12 @@ def write_data(path, noise: dict[str, float] | None = None, seed: int = 0) -> No
     """The truth simulated at 0.1 ms, optionally with white noise per channel (report units)."""
     r = Case(problem_from_dict(truth_problem(), path.parent)).simulate()["t56"]
     rng = np.random.default_rng(seed)
-    si = {"accel": r["accel"] / 9.80665, "velocity": r["velocity"], "displacement": r["displacement"], "pitch": np.degrees(r["pitch"])}
+    si = {
+        "accel": r["accel"] / 9.80665,
+        "velocity": r["velocity"],
+        "displacement": r["displacement"],
+        "pitch": np.degrees(r["pitch"]),
+    }
     columns = {"time_s": r.time}
     for name, (column, _) in CHANNELS.items():
         columns[column] = si[name] + (noise or {}).get(name, 0.0) * rng.standard_normal(r.time.size)

@@ -1,4 +1,5 @@
 """The shipped pickup problem: both transcriptions reach the fit the issue asks for and agree."""
+
 from __future__ import annotations
 
 import numpy as np

@@ -1,4 +1,5 @@
 """CFC filters against J211-1 response and an independent scipy design; bias, integration, resampling."""
+
 import numpy as np
 import pytest
 from scipy.signal import butter, filtfilt

@@ -1,4 +1,5 @@
 """Constraint what-if studies: monotone costs, executors agree, resume, failures, bad study files."""
+
 from __future__ import annotations
 
 import csv
@@ -10,7 +11,6 @@ import yaml
 from builders import BASE, ROOT, merge
 
 from crashnlp.case import Case
-from crashnlp.cli import parser
 from crashnlp.errors import InputError
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study

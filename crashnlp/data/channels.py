@@ -1,6 +1,8 @@
 """Measured channels in SI and the model frame, and the one error type of bad data."""
+
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -33,7 +35,7 @@ class TestData:
 
     __test__ = False  # not a pytest test class
 
-    channels: dict[str, Channel]
+    channels: Mapping[str, Channel]
     meta: dict[str, float] = field(default_factory=dict)
 
 

@@ -1,4 +1,5 @@
 """CSV reader: one time column and one column per channel, named in the problem file."""
+
 from __future__ import annotations
 
 import csv

@@ -6,6 +6,7 @@ All three are text files of "Name  :value" lines. The .mme file gives test-objec
 a channel file gives "Unit", "Time of first sample", "Sampling interval", "Number of samples"
 and then the samples, one per line.
 """
+
 from __future__ import annotations
 
 import re

@@ -3,9 +3,10 @@
 A new format is one reader module plus one line in READERS: a reader takes the DataSpec and
 returns the non-derived channels in SI (file sign, unfiltered) and the header meta.
 """
+
 from __future__ import annotations
 
-from typing import Callable
+from collections.abc import Callable
 
 import numpy as np
 
@@ -90,7 +91,5 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         for name in out:
             out[name] = cut(out[name], spec.window)
             if out[name].time.size < 2:
-                raise DataError(
-                    f"{where(path, name)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples"
-                )
+                raise DataError(f"{where(path, name)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples")
     return TestData(out, dict(raw.meta))

@@ -9,6 +9,7 @@ Header cards used (fields counted from 1, as in the NHTSA Test Reference Guide):
   18 data status DASTAT, 19 channel status (P primary, R redundant), 20 comment.
 Curve NNN lives next to the header as <stem>.NNN (time [s] TAB value).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -20,9 +21,25 @@ from crashnlp.data.channels import Channel, DataError, TestData, check_samples, 
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 
 # EV5 unit codes -> pint units
-UNITS = {"G'S": "g", "G": "g", "NWT": "N", "NWM": "N*m", "MM": "mm", "M": "m", "CM": "cm",
-         "DEG": "deg", "RAD": "rad", "DPS": "deg/s", "RPS": "rad/s", "MPS": "m/s", "KPH": "km/h",
-         "M/S": "m/s", "KM/H": "km/h", "SEC": "s", "MS": "ms"}
+UNITS = {
+    "G'S": "g",
+    "G": "g",
+    "NWT": "N",
+    "NWM": "N*m",
+    "MM": "mm",
+    "M": "m",
+    "CM": "cm",
+    "DEG": "deg",
+    "RAD": "rad",
+    "DPS": "deg/s",
+    "RPS": "rad/s",
+    "MPS": "m/s",
+    "KPH": "km/h",
+    "M/S": "m/s",
+    "KM/H": "km/h",
+    "SEC": "s",
+    "MS": "ms",
+}
 NO_DATA = {"NO"}  # data status meaning the channel holds no data (e.g. sensor not installed)
 
 

@@ -1,4 +1,5 @@
 """Signal processing of crash channels: SAE J211-1 / ISO 6487 CFC filters, bias, integration, resampling."""
+
 from __future__ import annotations
 
 import numpy as np
@@ -58,9 +59,7 @@ def cumtrapz(time: np.ndarray, values: np.ndarray) -> np.ndarray:
     return cumulative_trapezoid(values, time, initial=0.0)
 
 
-def integrate(
-    time: np.ndarray, accel: np.ndarray, v0: float, t0: float = 0.0
-) -> tuple[np.ndarray, np.ndarray]:
+def integrate(time: np.ndarray, accel: np.ndarray, v0: float, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     """Velocity and displacement from acceleration by trapezoid rule, with v(t0) = v0 and x(t0) = 0.
 
     Samples before t0 are integrated too (backwards from t0), so a pre-impact record shows

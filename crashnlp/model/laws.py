@@ -9,9 +9,11 @@ away from kinks at the breakpoints.
 A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
 added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS.
 """
+
 from __future__ import annotations
 
-from typing import Any, Callable
+from collections.abc import Callable
+from typing import Any
 
 import casadi as ca
 

@@ -3,6 +3,7 @@
 The symbolic model takes all of them as one input vector, so any entry can be
 estimated, swept or fixed without rebuilding the model's functions.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -34,7 +35,7 @@ class ParameterLayout:
     entries: tuple[tuple[str, int], ...]
 
     @classmethod
-    def of(cls, problem: Problem) -> "ParameterLayout":
+    def of(cls, problem: Problem) -> ParameterLayout:
         return cls(tuple((p, np.size(v)) for root in ROOTS for p, v in _walk(getattr(problem, root), root)))
 
     @property
@@ -69,4 +70,3 @@ class ParameterLayout:
         for path, value in named.items():
             out[self.index(path)] = np.asarray(value, dtype=float)
         return out
-

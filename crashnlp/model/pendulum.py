@@ -23,11 +23,13 @@ barrier itself does no work. The element's history is the fifth state, the
 largest crush so far, integrated alike by the simulator and the NLP, so the
 switch from loading to unloading is the model's own event.
 """
+
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any, Callable
+from typing import Any
 
 import casadi as ca
 
@@ -55,7 +57,7 @@ class Structure:
     eps_rate: float
 
     @classmethod
-    def of(cls, spec: ModelSpec) -> "Structure":
+    def of(cls, spec: ModelSpec) -> Structure:
         return cls(
             spec.spring.law,
             spec.unloading.law,

@@ -1,4 +1,5 @@
 """Optimal control on the crash model: identification (fit to data) and design (no data)."""
+
 from __future__ import annotations
 
 import sys
@@ -10,7 +11,9 @@ from crashnlp.case import Case
 from crashnlp.optimize.identify import Solution, identify
 
 
-def solve_case(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
+def solve_case(
+    case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None
+) -> Solution:
     """Solve a case as its problem's `kind` says (identify or design)."""
     if case.problem.kind == "design":
         from crashnlp.optimize.design import design

@@ -6,10 +6,12 @@ transcription as identification. Where loading ends is not known before the
 design is: the NLP is solved with the stop node of the previous solve until it
 no longer moves (a fixed point, usually two or three solves, each warm-started).
 """
+
 from __future__ import annotations
 
 import sys
-from typing import Callable, TextIO
+from collections.abc import Callable
+from typing import TextIO
 
 import casadi as ca
 import numpy as np

@@ -4,6 +4,7 @@ Each channel's residuals are divided by its scale sigma and weighted by the
 inverse of its sample count, so channels of different units and lengths count
 alike. Default scales are the accuracy a crash engineer asks of a fit.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

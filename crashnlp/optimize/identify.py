@@ -1,4 +1,5 @@
 """Identification: fit the free parameters to the tests' data by one NLP."""
+
 from __future__ import annotations
 
 import sys
@@ -14,8 +15,8 @@ from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import Residual, add_fit_objective
 from crashnlp.optimize.problem import OptimalControl
-from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.profile import profiles
+from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.simulation import Response

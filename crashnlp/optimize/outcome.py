@@ -3,6 +3,7 @@
 Everything that needs the NLP (multipliers, constraint blocks, the parameter
 layout) is read here, once; nothing downstream touches the optimizer.
 """
+
 from __future__ import annotations
 
 import numpy as np
@@ -22,8 +23,11 @@ def result_of(solution: Solution) -> Result:
     """The plain result of a solve."""
     case, res = solution.case, solution.result
     solver = SolverStats(
-        res.return_status if res else None, res.iterations if res else 0, res.objective if res else None,
-        res.wall_s if res else None, res.build_s if res else None,
+        res.return_status if res else None,
+        res.iterations if res else 0,
+        res.objective if res else None,
+        res.wall_s if res else None,
+        res.build_s if res else None,
     )
     tests = {test.name: _test(solution, ts, test) for ts, test in zip(solution.tests, case.tests)}
     labels = solution.ocp.free.labels()
@@ -57,8 +61,16 @@ def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
         check = {"max_abs_error": v.mismatch[test.name], "allowed": v.allowed[test.name], "worst_relative": v.worst(test.name)}
     data = {name: (ch.time, ch.values) for name, ch in test.data.channels.items()} if test.data is not None else {}
     return TestResult(
-        test.name, test.speed, ts, data, _fits(solution, ts, test.name), response_metrics(ts), data_metrics(test),
-        ts.loading_end, v.energy[test.name] if v is not None else None, check,
+        test.name,
+        test.speed,
+        ts,
+        data,
+        _fits(solution, ts, test.name),
+        response_metrics(ts),
+        data_metrics(test),
+        ts.loading_end,
+        v.energy[test.name] if v is not None else None,
+        check,
     )
 
 

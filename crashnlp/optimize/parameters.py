@@ -1,4 +1,5 @@
 """Free parameters: the `estimate` entries of a problem as one scaled vector theta."""
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -43,7 +44,9 @@ class FreeParameters:
                 raise InputError(f"estimate.{path}.bounds: lower bound above upper bound")
             if np.any(initial < lower) or np.any(initial > upper):
                 initial = np.clip(initial, lower, upper)
-            self.entries.append(FreeEntry(path, where, slice(i, i + n), initial, lower, upper, self._scale(spec, initial, lower, upper)))
+            self.entries.append(
+                FreeEntry(path, where, slice(i, i + n), initial, lower, upper, self._scale(spec, initial, lower, upper))
+            )
             i += n
         self.size = i
 
@@ -84,7 +87,11 @@ class FreeParameters:
         return self._cat("scale")
 
     def labels(self) -> list[str]:
-        return [e.path if e.at.stop - e.at.start == 1 else f"{e.path}[{k}]" for e in self.entries for k in range(e.at.stop - e.at.start)]
+        return [
+            e.path if e.at.stop - e.at.start == 1 else f"{e.path}[{k}]"
+            for e in self.entries
+            for k in range(e.at.stop - e.at.start)
+        ]
 
     def full(self, theta, overrides: dict[str, float] | None = None):
         """Full parameter vector with theta in place (symbolic SX or MX, or numeric)."""

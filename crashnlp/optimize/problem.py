@@ -4,6 +4,7 @@ For every test: a trajectory from the chosen transcription, the model outputs
 at every grid point, and the problem's constraints on them. The objective is
 added by the caller (a fit to data, or a design goal).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -17,7 +18,6 @@ from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
-
 
 MONOTONE_TOLERANCE = 1e-6  # m: reloading allowed between two nodes by monotone_crush
 

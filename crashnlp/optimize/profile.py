@@ -14,6 +14,7 @@ it the profile follows the model's nonlinearity and the bounds (a side that
 never reaches the threshold within the profiled range or a bound is open:
 None).
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass

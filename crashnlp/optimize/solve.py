@@ -1,4 +1,5 @@
 """Run IPOPT on an assembled NLP and say honestly how it went."""
+
 from __future__ import annotations
 
 import dataclasses
@@ -78,8 +79,14 @@ def ipopt_options(spec: Solver, verbose: bool) -> dict:
     """IPOPT's options: adaptive barrier, and MUMPS ordering by approximate minimum fill, which on
     the larger crash NLPs (collocation beyond 400 intervals, several tests) halves the iterations
     and the time per factorization against MUMPS's automatic choice; the problem's own options win."""
-    opts = {"print_level": 5 if verbose else 0, "sb": "yes", "max_iter": 1000, "tol": 1e-8, "mu_strategy": "adaptive",
-            "mumps_pivot_order": 2}
+    opts = {
+        "print_level": 5 if verbose else 0,
+        "sb": "yes",
+        "max_iter": 1000,
+        "tol": 1e-8,
+        "mu_strategy": "adaptive",
+        "mumps_pivot_order": 2,
+    }
     if spec.hessian == "limited-memory":
         opts["hessian_approximation"] = "limited-memory"
     opts.update(spec.ipopt)
@@ -148,7 +155,9 @@ def solve(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO
         return first
     second = _solve(nlp, spec.model_copy(update={"hessian": "exact"}), verbose, progress)
     return dataclasses.replace(
-        second, iterations=first.iterations + second.iterations, wall_s=first.wall_s + second.wall_s,
+        second,
+        iterations=first.iterations + second.iterations,
+        wall_s=first.wall_s + second.wall_s,
         build_s=first.build_s + second.build_s,
     )
 
@@ -171,6 +180,9 @@ def _solve(nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None
         iterations=int(stats.get("iter_count", 0)),
         wall_s=wall,
         build_s=built.build_s,
-        profile={k[len("t_wall_"):]: (int(stats.get("n_call_" + k[len("t_wall_"):], 0)), float(v))
-                 for k, v in stats.items() if k.startswith("t_wall_nlp_")},
+        profile={
+            k[len("t_wall_") :]: (int(stats.get("n_call_" + k[len("t_wall_") :], 0)), float(v))
+            for k, v in stats.items()
+            if k.startswith("t_wall_nlp_")
+        },
     )

@@ -21,6 +21,7 @@ The covariance is a sandwich, H^-1 M H^-1, built to mean what it says:
   autocorrelation; tests are independent. This is the standard HAC estimator
   of econometrics; it needs no assumption on the noise levels.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -29,9 +30,9 @@ import casadi as ca
 import numpy as np
 import scipy.sparse.linalg as spla
 
+from crashnlp.nlp import DYNAMICS
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.problem import OptimalControl
-from crashnlp.nlp import DYNAMICS
 
 RANK_RTOL = 1e-7  # singular values below this fraction of the largest are not identified
 NULL_SHARE = 1e-3  # a parameter with this share of a null direction is not identified
@@ -89,8 +90,12 @@ class Sensitivity:
     def covariance(self) -> Covariance:
         """Sandwich covariance of the parameters (see the module's docstring)."""
         n = self.jacobian.shape[1]
-        weights = np.concatenate([np.full(r.stop - r.start, res.weight / (len(res.columns) * res.sigma**2))
-                                  for r, res in zip(self.rows, self.residuals)])
+        weights = np.concatenate(
+            [
+                np.full(r.stop - r.start, res.weight / (len(res.columns) * res.sigma**2))
+                for r, res in zip(self.rows, self.residuals)
+            ]
+        )
         Jw = self.jacobian * np.sqrt(weights)[:, None]
         d = np.linalg.norm(Jw, axis=0)
         d = np.where(d > 0, d, 1.0)

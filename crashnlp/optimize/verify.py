@@ -8,6 +8,7 @@ the solve is not `ok`. Where the data stop (velocity
 crosses zero) but the model does not within the window, the fit misses the
 test's defining event and is not `ok` either.
 """
+
 from __future__ import annotations
 
 from dataclasses import dataclass
@@ -64,7 +65,9 @@ def verify(case: Case, p: np.ndarray, tests) -> Verification:
             continue
         worst = max(mismatch[test.name], key=lambda k: mismatch[test.name][k] / allowed[test.name][k])
         if mismatch[test.name][worst] > allowed[test.name][worst]:
-            problems.append(f"{test.name}: the forward simulation departs from the NLP ({worst} by {mismatch[test.name][worst]:.3g} SI)")
+            problems.append(
+                f"{test.name}: the forward simulation departs from the NLP ({worst} by {mismatch[test.name][worst]:.3g} SI)"
+            )
         if abs(energy[test.name]["balance_error_relative"]) > ENERGY_TOLERANCE:
             problems.append(f"{test.name}: the energy balance misses by {energy[test.name]['balance_error_relative']:.2%}")
         stop = _stops(test, ts.outputs)

@@ -1,4 +1,5 @@
 """Read a YAML problem file into a validated `Problem`; bad input becomes one line."""
+
 from __future__ import annotations
 
 import copy
@@ -20,7 +21,7 @@ def _loc(loc: tuple) -> str:
     return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
 
 
-def _message(err: dict) -> str:
+def _message(err: Any) -> str:
     msg = err["msg"].removeprefix("Value error, ")
     loc = _loc(err["loc"])
     if err["type"] == "extra_forbidden":
@@ -69,9 +70,7 @@ class UniqueKeyLoader(yaml.SafeLoader):
         if self.check_event(yaml.events.AliasEvent):
             self.aliases += 1
             if self.aliases > MAX_ALIASES:
-                raise yaml.composer.ComposerError(
-                    None, None, f"more than {MAX_ALIASES} aliases", self.peek_event().start_mark
-                )
+                raise yaml.composer.ComposerError(None, None, f"more than {MAX_ALIASES} aliases", self.peek_event().start_mark)
         return super().compose_node(parent, index)
 
     def construct_mapping(self, node, deep=False):
@@ -86,9 +85,7 @@ class UniqueKeyLoader(yaml.SafeLoader):
                 except TypeError:  # an unhashable key: the base loader says so
                     break
                 if duplicate:
-                    raise yaml.constructor.ConstructorError(
-                        None, None, f"duplicate key {key!r}", key_node.start_mark
-                    )
+                    raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
                 seen.add(key)
         return super().construct_mapping(node, deep)
 

@@ -4,6 +4,7 @@ Every quantity field accepts a plain number (SI) or a string with units. Fields
 tagged with `Unit` know their SI unit, which also lets `estimate` and `sweep`
 entries name them by dotted path and give bounds with units.
 """
+
 from __future__ import annotations
 
 import math
@@ -216,9 +217,7 @@ class Spring(Strict):
             raise ValueError("values need crush_breakpoints given as a list")
         self.values = [si(v, SPRING_UNITS[self.law]) for v in self.values]
         if len(self.values) != len(self.crush_breakpoints):
-            raise ValueError(
-                f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}"
-            )
+            raise ValueError(f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}")
         return self
 
     def unit_of(self, field: str) -> str | None:
@@ -237,15 +236,15 @@ class Damper(Strict):
     @model_validator(mode="after")
     def _same_length(self):
         if len(self.values) != len(self.rate_breakpoints):
-            raise ValueError(
-                f"values has {len(self.values)} entries but rate_breakpoints has {len(self.rate_breakpoints)}"
-            )
+            raise ValueError(f"values has {len(self.values)} entries but rate_breakpoints has {len(self.rate_breakpoints)}")
         return self
 
 
 class Unloading(Strict):
     law: Literal["elastic", "plastic"] = "elastic"
-    stiffness: Q("N/m") | None = Field(None, description="unloading stiffness of the plastic law; omitted: from the data's rebound")
+    stiffness: Q("N/m") | None = Field(
+        None, description="unloading stiffness of the plastic law; omitted: from the data's rebound"
+    )
 
     @field_validator("stiffness")
     @classmethod
@@ -364,9 +363,7 @@ class Constraints(Strict):
 
     @model_validator(mode="after")
     def _convert(self):
-        self.bounds = {
-            k: tuple(None if b is None else si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()
-        }
+        self.bounds = {k: tuple(None if b is None else si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()}
         for k, (lo, hi) in self.bounds.items():
             if lo is not None and hi is not None and lo > hi:
                 raise ValueError(f"bounds.{k}: lower bound above upper bound")
@@ -402,13 +399,17 @@ class Solver(Strict):
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
-    expand: bool = Field(False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)")
+    expand: bool = Field(
+        False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)"
+    )
 
 
 class Uncertainty(Strict):
     """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
 
-    profile: list[str] = Field(default_factory=list, description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]")
+    profile: list[str] = Field(
+        default_factory=list, description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]"
+    )
     points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
     executor: Literal["local", "dask"] = Field("local", description="where the profiles run in parallel (the study executors)")
     workers: int | None = Field(None, ge=1)
@@ -498,9 +499,7 @@ class Problem(Strict):
         outside = [v for v in values if isinstance(v, (int, float)) and not lo <= v <= hi]
         if outside:
             where = "initial" if given else f"the problem's value of {path}"
-            raise ValueError(
-                f"estimate.{path}: {where} {outside[0]:g} is outside the bounds [{lo:g}, {hi:g}] (SI)"
-            )
+            raise ValueError(f"estimate.{path}: {where} {outside[0]:g} is outside the bounds [{lo:g}, {hi:g}] (SI)")
 
     def value_at(self, path: str) -> Any:
         """The value of an entry named by dotted path, or None when the problem has none there."""
@@ -512,7 +511,7 @@ class Problem(Strict):
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed
 
-    def with_values(self, values: dict[str, Any]) -> "Problem":
+    def with_values(self, values: dict[str, Any]) -> Problem:
         """A new validated problem with entries replaced by dotted path ("vehicle.speed": "64 km/h",
         "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is."""
         from crashnlp.problem.load import problem_from_dict

@@ -4,10 +4,15 @@
 warm-started from a neighbour fixed in advance, and writes a table and figures.
 Submodules load on first use, so that the command line starts quickly.
 """
+
 from importlib import import_module
 
-_EXPORTS = {"run_study": "crashnlp.studies.run", "Study": "crashnlp.studies.spec", "StudySpec": "crashnlp.studies.spec",
-            "load_study": "crashnlp.studies.spec"}
+_EXPORTS = {
+    "run_study": "crashnlp.studies.run",
+    "Study": "crashnlp.studies.spec",
+    "StudySpec": "crashnlp.studies.spec",
+    "load_study": "crashnlp.studies.spec",
+}
 
 __all__ = sorted(_EXPORTS)
 

@@ -1,4 +1,5 @@
 """The `crashnlp study` subcommand."""
+
 from __future__ import annotations
 
 import argparse
@@ -45,14 +46,18 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
     p.add_argument("study", help="study YAML file")
     p.add_argument("--out", help="output folder (default results/<study name>)")
     p.add_argument(
-        "--executor", choices=EXECUTORS, default="local",
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
         help="local: a process pool on this machine (default); dask: a dask.distributed cluster",
     )
     p.add_argument("--workers", type=int, help="worker processes (default: the cores available; ignored with --address)")
     p.add_argument("--address", help="scheduler of a running dask cluster, e.g. tcp://host:8786 (default: start a local one)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.add_argument(
-        "--timeout", type=float, default=CONNECT_TIMEOUT,
+        "--timeout",
+        type=float,
+        default=CONNECT_TIMEOUT,
         help=f"seconds a dask scheduler at --address may take to answer (default {CONNECT_TIMEOUT:g})",
     )
     p.set_defaults(func=cmd_study)
@@ -80,8 +85,14 @@ def cmd_study(args) -> int:
     out = check_writable(Path(args.out) if args.out else RESULTS / load_study(args.study).name)
     try:
         rows = run_study(
-            args.study, out, args.executor, args.workers, args.address,
-            progress=not args.no_progress, timeout=args.timeout, check=check,
+            args.study,
+            out,
+            args.executor,
+            args.workers,
+            args.address,
+            progress=not args.no_progress,
+            timeout=args.timeout,
+            check=check,
         )
     except Interrupted as exc:
         exc.detail = f"; finished cases are kept in {out}/cases: run the study again to resume"

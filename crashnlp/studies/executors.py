@@ -5,6 +5,7 @@ an exception the task raised (or a worker that died) comes back as the result,
 so one broken case never stops the study. `fn` must be a top-level function of
 plain, picklable data.
 """
+
 from __future__ import annotations
 
 import logging
@@ -144,8 +145,11 @@ class DaskExecutor:
             # the worker processes inherit it: Ctrl-C is the main process's to handle
             with _sigint_ignored(), _workers_skip_main_script():
                 self.cluster = LocalCluster(
-                    n_workers=workers or default_workers(), threads_per_worker=1, processes=True,
-                    dashboard_address=None, silence_logs=logging.CRITICAL,
+                    n_workers=workers or default_workers(),
+                    threads_per_worker=1,
+                    processes=True,
+                    dashboard_address=None,
+                    silence_logs=logging.CRITICAL,
                 )
             self.client = Client(self.cluster)
             return

@@ -7,6 +7,7 @@ every case next to (Chebyshev distance 1 in grid-index space) a case of an earli
 wave, and each warm-starts from its nearest such case (Euclidean in index space,
 ties to the lower case number). The cases of a wave run in parallel.
 """
+
 from __future__ import annotations
 
 import copy

@@ -8,6 +8,7 @@ Layout of the output folder:
 A case whose json exists with a matching fingerprint is never solved again, so
 running a study again into the same folder resumes it.
 """
+
 from __future__ import annotations
 
 import contextlib

@@ -5,6 +5,7 @@ A sweep path is a dotted path into the problem file ("constraints.bounds.pitch",
 the problem schema has, so a typo fails at once with one line instead of making
 every case fail.
 """
+
 from __future__ import annotations
 
 import copy
@@ -98,7 +99,13 @@ def load_study(path: str | Path) -> Study:
         lengths = ", ".join(f"{e.path}: {len(e.values)}" for e in entries)
         raise InputError(f"{path}: sweep: zip mode needs lists of the same length ({lengths})")
     return Study(
-        spec.name, path, base, problem_path.parent, str(problem_path), entries, spec.mode,
+        spec.name,
+        path,
+        base,
+        problem_path.parent,
+        str(problem_path),
+        entries,
+        spec.mode,
         tuple(spec.seeds) if spec.seeds is not None else None,
     )
 

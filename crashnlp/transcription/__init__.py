@@ -3,6 +3,7 @@
 Each is a subclass of `Transcription` registered in TRANSCRIPTIONS under the
 `method` name used in problem files.
 """
+
 from crashnlp.transcription.base import Trajectory, Transcription
 from crashnlp.transcription.collocation import Collocation
 from crashnlp.transcription.multiple_shooting import MultipleShooting

@@ -5,11 +5,12 @@ state), so one right-hand side serves the whole horizon: where loading ends is
 the model's own crush-rate zero, found by the NLP, never fixed from the data
 (docs/model.md, the history state).
 """
+
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable
 
 import casadi as ca
 import numpy as np

@@ -1,4 +1,5 @@
 """Direct collocation: Lagrange polynomials through Radau or Legendre points."""
+
 from __future__ import annotations
 
 import casadi as ca

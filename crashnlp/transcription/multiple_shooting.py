@@ -1,8 +1,9 @@
 """Multiple shooting: a state at every node, M RK4 sub-steps per interval, mapped."""
+
 from __future__ import annotations
 
-from crashnlp.nlp import DYNAMICS
 from crashnlp.integrators import rk4
+from crashnlp.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
 
