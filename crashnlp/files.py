@@ -2,9 +2,15 @@
 
 from __future__ import annotations
 
+import csv
 import os
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
 
 from crashnlp.errors import InputError
 
@@ -26,6 +32,31 @@ def atomic_temp(folder: Path) -> tuple[int, str]:
     fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
     public_mode(fd)
     return fd, tmp
+
+
+@contextmanager
+def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
+    """A file written in full or not at all: a temporary file beside `path`, renamed over it
+    when the block ends (a reader never sees half a file), with the usual mode."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = atomic_temp(path.parent)
+    try:
+        newline = None if "b" in mode else ""  # csv writes its own line ends
+        with open(fd, mode, newline=newline) as fh:
+            yield fh
+        os.replace(tmp, path)
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_columns(path: Path, columns: dict[str, np.ndarray]) -> None:
+    """A CSV of numeric columns (header: their names), nine significant digits."""
+    with atomic_open(path) as fh:
+        writer = csv.writer(fh)
+        writer.writerow(columns)
+        for row in zip(*(np.asarray(c, dtype=float) for c in columns.values())):
+            writer.writerow([f"{v:.9g}" for v in row])
 
 
 def check_writable(out: str | Path, option: str = "--out") -> Path:

@@ -4,13 +4,12 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from crashnlp.files import atomic_temp
+from crashnlp.files import atomic_open
 
 
 def clean(value: Any) -> Any:
@@ -29,9 +28,6 @@ def clean(value: Any) -> Any:
 
 def write_json(path: Path, obj: Any) -> None:
     """Write JSON atomically (a reader never sees half a file), mode 0666 less the umask."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = atomic_temp(path.parent)
-    with os.fdopen(fd, "w") as fh:
+    with atomic_open(path) as fh:
         json.dump(clean(obj), fh, indent=2)
         fh.write("\n")
-    os.replace(tmp, path)

@@ -14,6 +14,7 @@ import numpy as np
 from crashnlp import plots
 from crashnlp.case import Case, TestCase
 from crashnlp.data.signal import resample
+from crashnlp.files import write_columns
 from crashnlp.jsonfile import write_json
 from crashnlp.metrics import crash_metrics
 from crashnlp.outputs import COLUMNS
@@ -79,16 +80,6 @@ def response_metrics(r: Response) -> dict:
     return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
 
 
-def write_table(path: Path, columns: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    names = list(columns)
-    rows = np.column_stack([np.asarray(columns[n], dtype=float) for n in names])
-    with path.open("w") as fh:
-        fh.write(",".join(names) + "\n")
-        for row in rows:
-            fh.write(",".join(f"{v:.9g}" for v in row) + "\n")
-
-
 def read_response(path: Path) -> Response:
     """A response.csv back in SI (the registry's written outputs)."""
     table = np.genfromtxt(path, delimiter=",", names=True)
@@ -102,7 +93,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
         write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
     fc = result.force_crush
     if fc is not None:
-        write_table(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
+        write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
     write_json(out / "result.json", result.to_json())
     if figures:
         write_figures(result, out)

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -11,6 +10,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.compiled import Evaluator, compiled
+from crashnlp.files import write_columns
 from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
 from crashnlp.outputs import COLUMNS
@@ -44,13 +44,8 @@ class Response:
 
 def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
     """response.csv: time and the registry's written outputs, in report units."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["time_s", *(o.column for o in COLUMNS)])
-        cols = [np.asarray(time), *(outputs[o.name] * o.factor for o in COLUMNS)]
-        for row in zip(*cols):
-            w.writerow([f"{v:.9g}" for v in row])
+    written = {str(o.column): outputs[o.name] * o.factor for o in COLUMNS}  # COLUMNS: the outputs with a column
+    write_columns(path, {"time_s": np.asarray(time), **written})
 
 
 def _key(grid: np.ndarray, options: Simulation) -> tuple:

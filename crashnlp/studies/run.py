@@ -25,7 +25,7 @@ import numpy as np
 from tqdm import tqdm
 
 from crashnlp.errors import InputError
-from crashnlp.files import atomic_temp
+from crashnlp.files import atomic_open
 from crashnlp.jsonfile import clean, write_json
 from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
@@ -157,10 +157,8 @@ class CaseStore:
         self.folder.mkdir(parents=True, exist_ok=True)
         npy = self.folder / f"{case}.npy"
         if z is not None:
-            fd, tmp = atomic_temp(self.folder)
-            with os.fdopen(fd, "wb") as fh:
+            with atomic_open(npy, "wb") as fh:
                 np.save(fh, np.asarray(z, dtype=float))
-            os.replace(tmp, npy)
         else:
             npy.unlink(missing_ok=True)
         size = None if z is None else int(np.size(z))
@@ -317,13 +315,10 @@ def show(value: Any) -> str:
 def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
     """table.csv: the union of the rows' columns, in first-seen order; missing cells empty."""
     columns = list(dict.fromkeys(k for r in rows for k in r))
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = atomic_temp(path.parent)
-    with os.fdopen(fd, "w", newline="") as fh:
+    with atomic_open(path) as fh:
         writer = csv.DictWriter(fh, columns, restval="")
         writer.writeheader()
         writer.writerows([{k: "" if v is None else v for k, v in r.items()} for r in rows])
-    os.replace(tmp, path)
 
 
 def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict]) -> None:
