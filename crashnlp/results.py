@@ -12,72 +12,16 @@ from typing import Any
 import numpy as np
 
 from crashnlp import plots
-from crashnlp.case import Case, TestCase
-from crashnlp.data.signal import resample
+from crashnlp.case import Case
 from crashnlp.files import write_columns
 from crashnlp.jsonfile import write_json
-from crashnlp.metrics import crash_metrics
 from crashnlp.outputs import COLUMNS
 from crashnlp.result import Result
 from crashnlp.simulation import Response, write_response_csv
-from crashnlp.units import G0
+from crashnlp.summary import data_curves, response_metrics
 
 # ignored by reproducibility checks: the only entries that change from run to run
 VOLATILE = ("wall_s", "build_s")
-
-
-def metrics(
-    t: np.ndarray,
-    accel: np.ndarray,
-    velocity: np.ndarray,
-    displacement: np.ndarray,
-    pitch: np.ndarray | None,
-    crush: np.ndarray | None = None,
-) -> dict:
-    """The crash metrics result.json reports, in the units their names say.
-
-    Max dynamic crush is the crash-test quantity, the CG's largest displacement, for data and
-    model alike, so the two compare. A model also reports its largest front-end crush
-    (`max_front_end_crush_m`, the `crush` output along the crush force's line of action: what a
-    crush bound limits); the two differ by the pitch and the geometry.
-    """
-    m = crash_metrics(t, accel, velocity, displacement)
-    out = {
-        "max_crush_m": m.max_crush,
-        "time_max_crush_s": m.t_max_crush,
-        "max_front_end_crush_m": float(np.max(crush)) if crush is not None else None,
-        "time_zero_velocity_s": m.t_zero_velocity,
-        "peak_decel_g": m.peak_decel / G0,
-        "rebound_velocity_mps": m.rebound_velocity,
-        "delta_v_mps": m.delta_v,
-        "esw_g": m.esw / G0,
-        "tesw_g": m.tesw / G0,
-        "olc_g": m.olc / G0,
-    }
-    out["max_pitch_deg"] = float(np.degrees(np.max(pitch))) if pitch is not None else None
-    return out
-
-
-def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    if test.data is None:
-        return {}
-    return {name: (ch.time, ch.values) for name, ch in test.data.channels.items()}
-
-
-def data_metrics(test: TestCase) -> dict | None:
-    """Metrics of the measured curves, on the accel channel's time base."""
-    ch = test.data.channels if test.data is not None else {}
-    if not {"accel", "velocity", "displacement"} <= set(ch):
-        return None
-    t = ch["accel"].time
-    t = t[(t >= max(c.time[0] for c in ch.values())) & (t <= min(c.time[-1] for c in ch.values()))]
-    pitch = resample(ch["pitch"], t) if "pitch" in ch else None
-    return metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
-
-
-def response_metrics(r: Response) -> dict:
-    y = r.outputs
-    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
 
 
 def read_response(path: Path) -> Response:

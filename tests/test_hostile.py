@@ -18,7 +18,7 @@ from builders import BASE, ROOT, merge
 
 from crashnlp.cli import main
 from crashnlp.jsonfile import write_json
-from crashnlp.studies.run import CaseStore
+from crashnlp.studies.store import CaseStore
 
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
 CLI = [sys.executable, "-m", "crashnlp.cli"]

@@ -13,8 +13,8 @@ from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
 from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
-from crashnlp.results import data_metrics, response_metrics
 from crashnlp.simulation import Response
+from crashnlp.summary import data_metrics, response_metrics
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 

@@ -40,7 +40,14 @@ def default_workers() -> int:
 
 
 # imported once by the fork server, so each worker starts in milliseconds, not seconds
-PRELOAD = ["crashnlp.studies.run", "crashnlp.case", "crashnlp.optimize", "crashnlp.results", "scipy.signal"]
+PRELOAD = [
+    "crashnlp.studies.run",
+    "crashnlp.studies.worker",
+    "crashnlp.case",
+    "crashnlp.optimize",
+    "crashnlp.results",
+    "scipy.signal",
+]
 
 
 def _context() -> multiprocessing.context.BaseContext:

@@ -11,12 +11,7 @@ running a study again into the same folder resumes it.
 
 from __future__ import annotations
 
-import contextlib
-import csv
-import io
 import json
-import math
-import os
 import sys
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -25,79 +20,18 @@ import numpy as np
 from tqdm import tqdm
 
 from crashnlp.errors import InputError
-from crashnlp.files import atomic_open
-from crashnlp.jsonfile import clean, write_json
+from crashnlp.jsonfile import clean
 from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
-from crashnlp.studies.spec import Study, SweepEntry, load_study
+from crashnlp.studies.spec import Study, load_study
+from crashnlp.studies.store import CaseStore
+from crashnlp.studies.table import show, write_figures, write_table
+from crashnlp.studies.worker import one_line, solve_job
 
 if TYPE_CHECKING:
-    from crashnlp.result import Result
+    pass
 
 RESULTS = Path("results")
-METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")
-PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
-
-
-# --------------------------------------------------------------------------- worker side
-def solve_job(job: dict[str, Any]) -> dict[str, Any]:
-    """Solve one case from plain data (runs in a worker process; builds the Case there).
-
-    Returns {"record": table columns of the outcome, "z": solution vector or None};
-    bad input and any exception become a record with that status.
-    """
-    from crashnlp.api import solve
-    from crashnlp.problem import problem_from_dict
-    from crashnlp.runtime import THREADS_ENV
-
-    if job["threads"] is not None:
-        os.environ[THREADS_ENV] = str(job["threads"])
-    try:
-        problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
-        with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
-            result = solve(problem, progress=None, warm=job["warm"])
-    except InputError as exc:
-        return {"record": {"status": f"input error: {_one_line(exc)}"}, "z": None}
-    except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
-        return {"record": {"status": f"error: {type(exc).__name__}: {_one_line(exc)}"}, "z": None}
-    return {"record": result_record(result, job["constraints"]), "z": result.z}
-
-
-def _one_line(exc: BaseException) -> str:
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
-
-
-def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
-    """Status, solver figures, metrics, parameters and the multipliers of the swept constraints."""
-    record: dict[str, Any] = {
-        "status": result.status,
-        "objective": result.solver.objective,
-        "iterations": result.solver.iterations,
-        "wall_s": result.solver.wall_s,
-    }
-    for name, test in result.tests.items():
-        record.update({f"{name}.{k}": test.metrics[k] for k in METRICS})
-    for path, value in result.parameters.items():
-        values = np.ravel(value)
-        if np.ndim(value):
-            record.update({f"{path}[{i}]": float(v) for i, v in enumerate(values)})
-        else:
-            record[path] = float(values[0])
-    if result.z is not None:
-        record.update(swept_multipliers(result, constraints))
-    return record
-
-
-def swept_multipliers(result: Result, swept: list[str]) -> dict[str, float]:
-    """multiplier.<constraint> for every inequality block a swept entry sets (0 when inactive)."""
-    worth = {c.name: c.multiplier for c in result.active_constraints}
-    out = {}
-    for name in result.inequalities:
-        local = next((name[len(t) + 1 :] for t in result.tests if name.startswith(t + ".")), name)
-        if any(local == s or local.startswith(s + ".") for s in swept):
-            out[f"multiplier.{name}"] = worth.get(name, 0.0)
-    return out
 
 
 def constraint_names(study: Study) -> list[str]:
@@ -108,61 +42,6 @@ def constraint_names(study: Study) -> list[str]:
             parts = ["bound" if k == "bounds" else str(k) for k in e.keys[1:]]
             names.append(".".join(parts))
     return names
-
-
-# --------------------------------------------------------------------------- storage
-class CaseStore:
-    """cases/<id>.json (row + fingerprint) and cases/<id>.npy, each written atomically."""
-
-    def __init__(self, folder: Path):
-        self.folder = folder
-
-    def row(self, case: str, key: str) -> dict | None:
-        """The stored row of a finished case, if it was computed from the same inputs and is whole.
-
-        A json that does not parse, lacks its row or status, or promises a solution vector whose
-        .npy is missing, empty or corrupt marks the case unfinished: it is solved again.
-        """
-        path = self.folder / f"{case}.json"
-        try:
-            stored = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):  # missing, unreadable, not UTF-8, not JSON
-            return None
-        if not isinstance(stored, dict) or stored.get("key") != key:
-            return None
-        row = stored.get("row")
-        if not isinstance(row, dict) or not isinstance(row.get("status"), str):
-            return None
-        size = stored.get("vector", -1)  # -1: written before sizes were stored; check the file if there
-        if size is None:
-            return row
-        z = self.vector(case)
-        if size == -1:
-            return row if z is not None or not (self.folder / f"{case}.npy").exists() else None
-        return row if z is not None and z.size == size else None
-
-    def vector(self, case: str) -> np.ndarray | None:
-        """The stored solution vector, or None if there is none or it is not a whole finite vector."""
-        path = self.folder / f"{case}.npy"
-        try:
-            z = np.load(path, allow_pickle=False)
-        except (OSError, ValueError, EOFError):
-            return None
-        if z.ndim != 1 or z.dtype.kind != "f" or not np.all(np.isfinite(z)):
-            return None
-        return z
-
-    def save(self, case: str, key: str, row: dict, z: np.ndarray | None) -> None:
-        """Vector first, then the json that marks the case finished."""
-        self.folder.mkdir(parents=True, exist_ok=True)
-        npy = self.folder / f"{case}.npy"
-        if z is not None:
-            with atomic_open(npy, "wb") as fh:
-                np.save(fh, np.asarray(z, dtype=float))
-        else:
-            npy.unlink(missing_ok=True)
-        size = None if z is None else int(np.size(z))
-        write_json(self.folder / f"{case}.json", {"key": key, "row": row, "vector": size})
 
 
 # --------------------------------------------------------------------------- the study
@@ -284,7 +163,7 @@ def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: 
 def _row(study: Study, case: PlannedCase, job: dict, outcome: Any) -> tuple[dict, np.ndarray | None]:
     """The table row of a finished case; a task that raised (a worker died) is a failed row."""
     if isinstance(outcome, BaseException):
-        outcome = {"record": {"status": f"error: {type(outcome).__name__}: {_one_line(outcome)}"}, "z": None}
+        outcome = {"record": {"status": f"error: {type(outcome).__name__}: {one_line(outcome)}"}, "z": None}
     row: dict[str, Any] = {"case": case.id}
     row.update({e.path: show(v) for e, v in zip(study.entries, case.values)})
     row.update({f"{e.path}_si": e.si(v) for e, v in zip(study.entries, case.values)})
@@ -296,67 +175,3 @@ def _row(study: Study, case: PlannedCase, job: dict, outcome: Any) -> tuple[dict
 def _postfix(bar: tqdm, rows: dict, total: int) -> None:
     failed = sum(1 for r in rows.values() if r["status"] != "ok")
     bar.set_postfix(ok=len(rows) - failed, failed=failed, left=total - len(rows), refresh=False)
-
-
-def show(value: Any) -> str:
-    """A swept value as the user wrote it, in YAML flow style ([null, 4 deg])."""
-    if value is None:
-        return "null"
-    if isinstance(value, bool):
-        return str(value).lower()
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(show(v) for v in value) + "]"
-    if isinstance(value, dict):
-        return "{" + ", ".join(f"{k}: {show(v)}" for k, v in value.items()) + "}"
-    return str(value)
-
-
-# --------------------------------------------------------------------------- table and figures
-def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
-    """table.csv: the union of the rows' columns, in first-seen order; missing cells empty."""
-    columns = list(dict.fromkeys(k for r in rows for k in r))
-    with atomic_open(path) as fh:
-        writer = csv.DictWriter(fh, columns, restval="")
-        writer.writeheader()
-        writer.writerows([{k: "" if v is None else v for k, v in r.items()} for r in rows])
-
-
-def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict]) -> None:
-    """Objective, metrics and swept multipliers of the solved cases against each swept entry.
-
-    With several varied entries in a grid, one figure per combination of the others.
-    """
-    solved = [(c, r) for c, r in zip(cases, rows) if r["status"] == "ok"]
-    if not solved:
-        return
-    names = ["objective"] + [
-        k for k in dict.fromkeys(k for _, r in solved for k in r) if k.endswith(PLOTTED) or k.startswith("multiplier.")
-    ]
-    for i, entry in enumerate(study.entries):
-        if len(entry.values) < 2:
-            continue
-        groups: dict[tuple, list] = {}
-        for c, r in solved:
-            others = tuple(show(v) for j, v in enumerate(c.values) if j != i)
-            groups.setdefault(others, []).append((c, r))
-        for k, (others, members) in enumerate(groups.items()):
-            suffix = f"-{k}" if len(groups) > 1 else ""
-            where = ", ".join(f"{e.path} = {v}" for e, v in zip([e for j, e in enumerate(study.entries) if j != i], others))
-            _figure(folder / f"{entry.path}{suffix}.png", entry, i, members, names, f"{study.name} {where}".strip())
-
-
-def _figure(path: Path, entry: SweepEntry, i: int, members: list, names: list[str], title: str) -> None:
-    x = np.array([entry.si(c.values[i]) for c, _ in members])
-    xlabel = f"{entry.path} ({entry.unit})" if entry.unit else entry.path
-    if np.all(np.isnan(x)):
-        x = np.array([float(c.index[0] if len(c.index) == 1 else c.index[i]) for c, _ in members])
-        xlabel = f"{entry.path} (value number)"
-    order = np.argsort(x, kind="stable")
-    series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
-    from crashnlp import plots  # matplotlib: only once the figures are drawn
-
-    plots.xy_figure(path, x[order], series, xlabel, title)
-
-
-def _number(value: Any) -> float:
-    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan

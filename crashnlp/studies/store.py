@@ -1,0 +1,69 @@
+"""A study folder's finished cases: cases/<id>.json (row + fingerprint) and cases/<id>.npy."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from crashnlp.files import atomic_open
+from crashnlp.jsonfile import write_json
+
+if TYPE_CHECKING:
+    pass
+
+
+class CaseStore:
+    """cases/<id>.json (row + fingerprint) and cases/<id>.npy, each written atomically."""
+
+    def __init__(self, folder: Path):
+        self.folder = folder
+
+    def row(self, case: str, key: str) -> dict | None:
+        """The stored row of a finished case, if it was computed from the same inputs and is whole.
+
+        A json that does not parse, lacks its row or status, or promises a solution vector whose
+        .npy is missing, empty or corrupt marks the case unfinished: it is solved again.
+        """
+        path = self.folder / f"{case}.json"
+        try:
+            stored = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):  # missing, unreadable, not UTF-8, not JSON
+            return None
+        if not isinstance(stored, dict) or stored.get("key") != key:
+            return None
+        row = stored.get("row")
+        if not isinstance(row, dict) or not isinstance(row.get("status"), str):
+            return None
+        size = stored.get("vector", -1)  # -1: written before sizes were stored; check the file if there
+        if size is None:
+            return row
+        z = self.vector(case)
+        if size == -1:
+            return row if z is not None or not (self.folder / f"{case}.npy").exists() else None
+        return row if z is not None and z.size == size else None
+
+    def vector(self, case: str) -> np.ndarray | None:
+        """The stored solution vector, or None if there is none or it is not a whole finite vector."""
+        path = self.folder / f"{case}.npy"
+        try:
+            z = np.load(path, allow_pickle=False)
+        except (OSError, ValueError, EOFError):
+            return None
+        if z.ndim != 1 or z.dtype.kind != "f" or not np.all(np.isfinite(z)):
+            return None
+        return z
+
+    def save(self, case: str, key: str, row: dict, z: np.ndarray | None) -> None:
+        """Vector first, then the json that marks the case finished."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        npy = self.folder / f"{case}.npy"
+        if z is not None:
+            with atomic_open(npy, "wb") as fh:
+                np.save(fh, np.asarray(z, dtype=float))
+        else:
+            npy.unlink(missing_ok=True)
+        size = None if z is None else int(np.size(z))
+        write_json(self.folder / f"{case}.json", {"key": key, "row": row, "vector": size})
