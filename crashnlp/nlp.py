@@ -150,8 +150,3 @@ class NLPBuilder:
         b = self.blocks[name]
         n = b.shape[0] * b.shape[1]
         return (np.asarray(z).ravel()[b.offset : b.offset + n] * b.scale).reshape(b.shape, order="F")
-
-    def set_initial(self, name: str, value) -> None:
-        b = self.blocks[name]
-        idx = list(self.blocks).index(name)
-        self.z0[idx] = _fill(value, b.shape) / b.scale

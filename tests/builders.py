@@ -58,6 +58,6 @@ def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -
 def assert_monotone_crush(ts) -> None:
     """At every grid point: the crush rises to its largest value, then only falls while in contact."""
     crush, peak = ts.outputs["crush"], int(np.argmax(ts.outputs["crush"]))
-    assert np.all(np.diff(crush[: peak + 1]) >= -1e-5)
+    assert np.all(np.diff(crush[: peak + 1]) >= -1e-4)  # MONOTONE_TOLERANCE
     contact = ts.outputs["contact_force"][peak:] > 0
-    assert np.all(np.diff(crush[peak:])[contact[1:]] <= 1e-5)
+    assert np.all(np.diff(crush[peak:])[contact[1:]] <= 1e-4)

@@ -19,7 +19,7 @@ from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
 
-MONOTONE_TOLERANCE = 1e-6  # m: reloading allowed between two nodes by monotone_crush
+MONOTONE_TOLERANCE = 1e-4  # m: reloading allowed between two nodes by monotone_crush
 
 
 @dataclass
