@@ -23,7 +23,7 @@ from crashnlp.case import Case, TestCase
 from crashnlp.data.signal import resample
 from crashnlp.optimize.fit import DEFAULT_SIGMA
 from crashnlp.problem import load_problem
-from crashnlp.problem.schema import Collocation, MultipleShooting, Problem
+from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec, Problem
 from crashnlp.simulation import simulate
 from crashnlp.units import G0
 
@@ -36,11 +36,11 @@ TRANSCRIPTIONS = ("multiple-shooting", "collocation")
 DISPLAY = {"accel": (1 / G0, "g"), "velocity": (1.0, "m/s"), "displacement": (1.0, "m"), "pitch": (180 / np.pi, "deg")}
 
 
-def transcription(method: str, intervals: int) -> MultipleShooting | Collocation:
+def transcription(method: str, intervals: int) -> MultipleShootingSpec | CollocationSpec:
     """Transcription section: multiple shooting (1 RK4 substep) or Radau collocation of degree 3."""
     if method == "multiple-shooting":
-        return MultipleShooting(method=method, intervals=intervals, substeps=1)
-    return Collocation(method=method, intervals=intervals, degree=3, scheme="radau")
+        return MultipleShootingSpec(method=method, intervals=intervals, substeps=1)
+    return CollocationSpec(method=method, intervals=intervals, degree=3, scheme="radau")
 
 
 def load(path: Path = PICKUP_56, method: str | None = None, intervals: int | None = None, max_iter: int | None = None) -> Problem:

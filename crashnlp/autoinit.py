@@ -28,6 +28,7 @@ The given problem is never changed. What is filled, and how:
 
 from __future__ import annotations
 
+import copy
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
@@ -220,27 +221,28 @@ def repaired_start(case: Case) -> dict[str, Any]:
     }
 
 
-def repair_start(case: Case) -> str | None:
-    """Replace a start that leaves spring values with a zero derivative although the data reach
-    them by `repaired_start`; return the one line that says so, or None when the start serves.
+def repair_start(case: Case) -> tuple[Case, str | None]:
+    """A start that leaves spring values with a zero derivative although the data reach them,
+    replaced by `repaired_start`: a copy of the case with the new values, and the one line that
+    says so; the case itself and None when its start serves.
 
     A breakpoint value moves the force from the breakpoint before it on, so it has a zero
     derivative when the start's crush stops short of that breakpoint; the data reach it when
-    their crush goes past it. Changes `case.base` in place (an `estimate` entry's own
-    `initial` still wins over it)."""
+    their crush goes past it (an `estimate` entry's own `initial` still wins over it)."""
     simulated = case.simulate()
     breakpoints = case.base[case.layout.index("model.spring.crush_breakpoints")][:-1]
     for test in case.tests:
         measured = measured_pulse(case, test)
         model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
         if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
-            case.base = case.layout.with_values(case.base, repaired_start(case))
-            return (
+            repaired = copy.copy(case)
+            repaired.base = case.layout.with_values(case.base, repaired_start(case))
+            return repaired, (
                 f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
                 f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
                 "measured force-crush curve"
             )
-    return None
+    return case, None
 
 
 def measured_pulse(case: Case, test: TestCase) -> Pulse | None:

@@ -120,7 +120,7 @@ def test_nlp_builder_scales_variables_and_types_constraints():
 def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_interval):
     from crashnlp.case import Case
     from crashnlp.model.pendulum import NX
-    from crashnlp.optimize.problem import OptimalControl
+    from crashnlp.optimize.ocp import OptimalControl
 
     n = 40
     spec = {"method": method, "intervals": n, **({"substeps": 1} if method == "multiple-shooting" else {"degree": 3})}

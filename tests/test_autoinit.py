@@ -121,19 +121,20 @@ def test_repaired_start_reaches_the_measured_crush():
     start = case.layout.with_values(case.base, repaired_start(case))
     reached = np.max(case.simulate(start)["56kph"]["displacement"])
     assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
-    note = repair_start(case)
+    original = case.base.copy()
+    repaired, note = repair_start(case)
     assert note.startswith(
         f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm"
     )
-    assert np.array_equal(case.base, start) and repair_start(case) is None  # repaired once, then it reaches
+    assert np.array_equal(repaired.base, start) and np.array_equal(case.base, original)  # a copy; the case is kept
+    assert repair_start(repaired) == (repaired, None)  # repaired once, then it reaches
 
 
 def test_a_start_that_moves_every_value_is_left_alone():
     """500 kN everywhere stops the pickup at about 0.56 m, past every breakpoint but the last,
     whose value moves the force from 0.55 m on: no value has a zero derivative, nothing to repair."""
     case = Case(problem_from_dict(pickup(), PICKUP.parent))
-    base = case.base.copy()
-    assert repair_start(case) is None and np.array_equal(case.base, base)
+    assert repair_start(case) == (case, None)
 
 
 def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_case):

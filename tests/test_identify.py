@@ -193,7 +193,7 @@ def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
 def _nlp_at_random_point(problem: dict, seed: int = 3):
     """A built NLP and a decision vector near its initial guess."""
     from crashnlp.optimize.fit import add_fit_objective
-    from crashnlp.optimize.problem import OptimalControl
+    from crashnlp.optimize.ocp import OptimalControl
 
     ocp = OptimalControl(Case(problem_from_dict(problem, ".")))
     add_fit_objective(ocp)

@@ -8,7 +8,7 @@ from builders import ROOT
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
-from crashnlp.problem.schema import Collocation
+from crashnlp.problem import load_problem
 from crashnlp.units import G0
 
 LIMITS = {"displacement": 0.005, "velocity": 0.15, "accel": 2 * G0, "pitch": np.radians(1.0)}
@@ -18,11 +18,12 @@ LIMITS = {"displacement": 0.005, "velocity": 0.15, "accel": 2 * G0, "pitch": np.
 def solutions():
     out = {}
     for method in ("multiple-shooting", "collocation"):
-        case = Case.load(ROOT / "problems/pickup-56kph.yaml")
+        problem = load_problem(ROOT / "problems/pickup-56kph.yaml")
         if method == "collocation":
-            n = case.problem.transcription.intervals
-            case.problem.transcription = Collocation(method="collocation", intervals=n, degree=3, scheme="radau")
-        out[method] = identify(case, progress=None)
+            n = problem.transcription.intervals
+            spec = {"method": "collocation", "intervals": n, "degree": 3, "scheme": "radau"}
+            problem = problem.with_values({"transcription": spec})
+        out[method] = identify(Case(problem), progress=None)
     return out
 
 

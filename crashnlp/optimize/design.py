@@ -20,7 +20,7 @@ from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.metrics import OLC_FREE, OLC_RESTRAINED
 from crashnlp.optimize.identify import Solution, finish
-from crashnlp.optimize.problem import OptimalControl, Transcript
+from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.solve import solve
 
 

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.data.signal import resample
-from crashnlp.optimize.problem import OptimalControl, Transcript
+from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.units import G0
 
 DEFAULT_SIGMA = {"accel": 2.0 * G0, "velocity": 0.15, "displacement": 0.005, "pitch": np.radians(1.0)}

@@ -14,7 +14,7 @@ from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import Residual, add_fit_objective
-from crashnlp.optimize.problem import OptimalControl
+from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
@@ -114,7 +114,7 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
     """Build and solve the identification NLP of a case; a start that falls short of the
     measured crush is repaired from the data first (crashnlp.autoinit), and says so."""
-    note = repair_start(case) if warm is None else None
+    case, note = repair_start(case) if warm is None else (case, None)
     if note and progress is not None:
         print(note, file=progress)
     ocp = OptimalControl(case)

@@ -42,7 +42,7 @@ class Chain:
 def walk(chain: Chain) -> list[tuple[float, float, str]]:
     """(value, objective, IPOPT status) along a chain, each solve warm-started from the last."""
     from crashnlp.optimize.fit import add_fit_objective
-    from crashnlp.optimize.problem import OptimalControl
+    from crashnlp.optimize.ocp import OptimalControl
     from crashnlp.optimize.solve import build_solver
 
     ocp = OptimalControl(Case(chain.problem))

@@ -32,7 +32,7 @@ import scipy.sparse.linalg as spla
 
 from crashnlp.nlp import DYNAMICS
 from crashnlp.optimize.fit import Residual
-from crashnlp.optimize.problem import OptimalControl
+from crashnlp.optimize.ocp import OptimalControl
 
 RANK_RTOL = 1e-7  # singular values below this fraction of the largest are not identified
 NULL_SHARE = 1e-3  # a parameter with this share of a null direction is not identified

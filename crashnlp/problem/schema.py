@@ -378,20 +378,20 @@ class Objective(Strict):
 MAX_INTERVALS = 10_000  # beyond this the NLP does not fit in memory, let alone solve
 
 
-class MultipleShooting(Strict):
+class MultipleShootingSpec(Strict):
     method: Literal["multiple-shooting"]
     intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
     substeps: int = Field(1, ge=1, le=100)
 
 
-class Collocation(Strict):
+class CollocationSpec(Strict):
     method: Literal["collocation"]
     intervals: int = Field(200, ge=2, le=MAX_INTERVALS)
     degree: int = Field(3, ge=1, le=9)
     scheme: Literal["radau", "legendre"] = "radau"
 
 
-Transcription = Annotated[MultipleShooting | Collocation, Field(discriminator="method")]
+TranscriptionSpec = Annotated[MultipleShootingSpec | CollocationSpec, Field(discriminator="method")]
 
 
 class Solver(Strict):
@@ -456,7 +456,7 @@ class Problem(Strict):
     estimate: dict[str, EstimateSpec] = Field(default_factory=dict)
     constraints: Constraints = Constraints()
     objective: Objective = Objective()
-    transcription: Transcription = Field(default_factory=lambda: MultipleShooting(method="multiple-shooting"))
+    transcription: TranscriptionSpec = Field(default_factory=lambda: MultipleShootingSpec(method="multiple-shooting"))
     solver: Solver = Solver()
     simulation: Simulation = Simulation()
     uncertainty: Uncertainty = Uncertainty()
