@@ -447,6 +447,26 @@ def self_consistency_md(r: dict) -> list[str]:
     ]
 
 
+def whole_process_md(r: dict) -> list[str]:
+    labels = {
+        "first_run_fresh_cache": "crashnlp, first run on a fresh cache",
+        "warm": "crashnlp, warm caches",
+        "warm_no_figures": "crashnlp --no-figures, warm caches",
+        "scipy_baseline": "scipy least_squares + solve_ivp fit (same model), as a process",
+    }
+    rows = [[label, f"{r[k]['wall_s']:.2f}", f"{r[k]['peak_rss_mb']:.0f}", r[k]["exit"]] for k, label in labels.items()]
+    return [
+        "## Whole process",
+        "",
+        f"`{r['command']}` as a process (median of {r['repeats']}), what a user waits for:",
+        "",
+        *_table(["run", "wall (s)", "peak RSS (MB)", "exit"], rows),
+        "",
+        f"The scipy fit takes {r['speedup']:.1f}x as long as the crashnlp command ({r['speedup_no_figures']:.1f}x without figures).",
+        "",
+    ]
+
+
 SECTIONS = {
     "identification": identification_md,
     "simulation": simulation_md,
@@ -454,6 +474,7 @@ SECTIONS = {
     "scaling": scaling_md,
     "corpus": corpus_md,
     "self_consistency": self_consistency_md,
+    "whole_process": whole_process_md,
 }
 
 

@@ -15,7 +15,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import identification, report, robustness, scaling, self_consistency, simulation, studies  # noqa: E402
+from bench import identification, report, robustness, scaling, self_consistency, simulation, studies, whole_process  # noqa: E402
 from bench.common import RESULTS, machine  # noqa: E402
 
 SECTIONS = {
@@ -25,6 +25,7 @@ SECTIONS = {
     "scaling": scaling,
     "corpus": robustness,
     "self_consistency": self_consistency,
+    "whole_process": whole_process,
 }
 
 

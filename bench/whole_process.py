@@ -1,0 +1,60 @@
+"""Whole-process times: what a user waits for, not only the solve.
+
+`crashnlp identify problems/pickup-56kph.yaml` as a process: the first run on a fresh
+cache (compiled model functions and numba's DTW built), then the median of warm runs,
+with and without figures, each with its peak resident memory; against the scipy
+baseline fit (bench/baseline.py, the same model) run as a process of its own.
+"""
+
+from __future__ import annotations
+
+import os
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+from bench.common import PICKUP_56, ROOT
+
+CLI = str(Path(sys.executable).with_name("crashnlp"))
+BASELINE = "from bench.identification import run_baseline; run_baseline(None, 100)"
+
+
+def timed_process(command: list[str], env: dict[str, str] | None = None) -> tuple[float, float, int]:
+    """Wall time (s), peak resident memory (MB) and exit status of one process."""
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    _, status, usage = os.wait4(proc.pid, 0)
+    return time.perf_counter() - t0, usage.ru_maxrss / 1024, os.waitstatus_to_exitcode(status)
+
+
+def median_of(command: list[str], repeats: int, env: dict[str, str] | None = None) -> dict:
+    runs = [timed_process(command, env) for _ in range(repeats)]
+    return {
+        "wall_s": statistics.median(r[0] for r in runs),
+        "walls_s": [r[0] for r in runs],
+        "peak_rss_mb": max(r[1] for r in runs),
+        "exit": max(r[2] for r in runs),
+    }
+
+
+def run(quick: bool = False) -> dict:
+    repeats = 1 if quick else 3
+    with tempfile.TemporaryDirectory() as tmp:
+        identify = [CLI, "identify", str(PICKUP_56), "--out", str(Path(tmp) / "out")]
+        fresh_env = {**os.environ, "CRASHNLP_CACHE": str(Path(tmp) / "cache")}
+        fresh_env.pop("NUMBA_CACHE_DIR", None)
+        out = {"command": "crashnlp identify problems/pickup-56kph.yaml", "repeats": repeats}
+        out["first_run_fresh_cache"] = median_of(identify, 1, fresh_env)
+        out["warm"] = median_of(identify, repeats)
+        out["warm_no_figures"] = median_of([*identify, "--no-figures"], repeats)
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        out["scipy_baseline"] = median_of([sys.executable, "-c", BASELINE], repeats, env)
+    out["speedup"] = out["scipy_baseline"]["wall_s"] / out["warm"]["wall_s"]
+    out["speedup_no_figures"] = out["scipy_baseline"]["wall_s"] / out["warm_no_figures"]["wall_s"]
+    for key in ("first_run_fresh_cache", "warm", "warm_no_figures", "scipy_baseline"):
+        r = out[key]
+        print(f"  {key}: {r['wall_s']:.2f} s, peak {r['peak_rss_mb']:.0f} MB, exit {r['exit']}")
+    return out
