@@ -43,8 +43,15 @@ def transcription(method: str, intervals: int) -> MultipleShootingSpec | Colloca
     return CollocationSpec(method=method, intervals=intervals, degree=3, scheme="radau")
 
 
-def load(path: Path = PICKUP_56, method: str | None = None, intervals: int | None = None, max_iter: int | None = None) -> Problem:
-    """A fresh problem, optionally with another transcription, interval count or IPOPT iteration cap."""
+def load(
+    path: Path = PICKUP_56,
+    method: str | None = None,
+    intervals: int | None = None,
+    max_iter: int | None = None,
+    compile: str | None = None,
+) -> Problem:
+    """A fresh problem, optionally with another transcription, interval count, IPOPT iteration cap
+    or NLP compilation (solver.compile)."""
     problem = load_problem(path)
     if method is not None or intervals is not None:
         problem.transcription = transcription(
@@ -52,13 +59,19 @@ def load(path: Path = PICKUP_56, method: str | None = None, intervals: int | Non
         )
     if max_iter is not None:
         problem.solver.ipopt = {**problem.solver.ipopt, "max_iter": max_iter}
+    if compile is not None:
+        problem.solver.compile = compile  # type: ignore[assignment]  # one of the schema's literals
     return problem
 
 
 def load_case(
-    path: Path = PICKUP_56, method: str | None = None, intervals: int | None = None, max_iter: int | None = None
+    path: Path = PICKUP_56,
+    method: str | None = None,
+    intervals: int | None = None,
+    max_iter: int | None = None,
+    compile: str | None = None,
 ) -> Case:
-    return Case(load(path, method, intervals, max_iter))
+    return Case(load(path, method, intervals, max_iter, compile))
 
 
 @dataclass

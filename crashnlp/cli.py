@@ -20,7 +20,7 @@ import threading
 import traceback
 import warnings
 from collections.abc import Iterator
-from contextlib import contextmanager, redirect_stderr
+from contextlib import contextmanager, nullcontext, redirect_stderr
 from pathlib import Path
 
 import numpy as np
@@ -177,7 +177,8 @@ def _cell(value, factor: float) -> str:
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
     s = result.solver
-    timing = f"solve {s.wall_s:.2f} s + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
+    how = " compiled" if s.compiled else ""
+    timing = f"solve {s.wall_s:.2f} s{how} + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
     objective = f"{s.objective:.6g}" if s.objective is not None else "-"
     print(
         f"{result.name}: {result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, "
@@ -215,6 +216,7 @@ def _print_solution(result) -> None:
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary."""
+    from crashnlp.drawing import FigureProcess
     from crashnlp.optimize import solve_case
     from crashnlp.optimize.outcome import result_of
     from crashnlp.problem import load_problem
@@ -229,9 +231,12 @@ def _solve(args, kind: str) -> int:
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return 0
-    with _computing(args):  # crashnlp.api.solve, on the case already built
-        result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
-    result.save(out, figures=not args.no_figures)
+    with FigureProcess() if not args.no_figures else nullcontext() as figures:  # matplotlib loads meanwhile
+        with _computing(args):  # crashnlp.api.solve, on the case already built
+            result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
+        result.save(out, figures=False)
+        if figures is not None:
+            figures.draw(result, out)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:

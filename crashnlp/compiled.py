@@ -20,19 +20,21 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-CACHE_ENV = "CRASHNLP_CACHE"
-SWITCH_ENV = "CRASHNLP_COMPILE"  # "0" evaluates in CasADi's virtual machine instead
+from crashnlp.cache import CACHE_ENV, cache_dir
+
+__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler"]
+
+SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": the model's functions, not the NLPs
 FLAGS = ("-O2", "-fPIC", "-shared")
 _loaded: dict[str, ca.Function] = {}
 
 
-def cache_dir() -> Path:
-    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "crashnlp")
-
-
-def compiler() -> str | None:
-    """The C compiler on PATH (CC, else cc or gcc), or None (also when CRASHNLP_COMPILE=0)."""
-    if os.environ.get(SWITCH_ENV) == "0":
+def compiler(nlp: bool = False) -> str | None:
+    """The C compiler on PATH (CC, else cc or gcc), or None: always with CRASHNLP_COMPILE=0,
+    and for an NLP's functions (`nlp`) with CRASHNLP_COMPILE=model too (the tests: every test
+    NLP has a shape of its own, and a compile costs more than its solve)."""
+    switch = os.environ.get(SWITCH_ENV)
+    if switch == "0" or (nlp and switch == "model"):
         return None
     for name in (os.environ.get("CC"), "cc", "gcc"):
         if name and shutil.which(name):
@@ -58,20 +60,20 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
         library = cache_dir() / f"{fn.name()}-{key}.so"
         try:
             if not library.exists():
-                _build(cc, source, library)
+                build(cc, source, library)
             _loaded[key] = ca.external(fn.name(), str(library))
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
     return _loaded[key]
 
 
-def _build(cc: str, source: str, library: Path) -> None:
+def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:
     """Compile into a temporary file, then move it in place (atomic for concurrent processes)."""
     library.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
         src, out = Path(tmp) / "fn.c", Path(tmp) / "fn.so"
         src.write_text(source)
-        subprocess.run([cc, *FLAGS, str(src), "-o", str(out), "-lm"], check=True, capture_output=True)
+        subprocess.run([cc, *flags, str(src), "-o", str(out), "-lm"], check=True, capture_output=True)
         os.replace(out, library)
 
 

@@ -33,18 +33,25 @@ class MappedBlock:
 
     fn: ca.Function  # SX, one column
     n: int
-    inputs: list[ca.MX]  # each (rows x cols * n), functions of the decision vector only
+    inputs: list[ca.MX]  # each (rows x cols * n), functions of the decision vector and parameters
     outputs: list[ca.MX]  # the mapped call's outputs
+    threads: int | None = None  # as the NLP's own maps
 
     def jacobians(self, z: ca.MX) -> list[ca.MX]:
-        """d vec(output) / dz of every output: per-column Jacobians, block-diagonal, times dW/dz."""
+        """d vec(output) / dz of every output: per-column Jacobians, block-diagonal, times dW/dz.
+
+        Only the column inputs that depend on z are differentiated: the NLP's parameters
+        (the fixed model values beside theta) would only add zero columns to every step."""
         ins = self.fn.sx_in()
         w = ca.vertcat(*[ca.vec(i) for i in ins])
-        column = ca.Function(f"{self.fn.name()}_jac", ins, [ca.jacobian(ca.vec(o), w) for o in self.fn.call(ins)])
-        per_column = mapped(column, self.n).call(self.inputs)
         stacked = ca.vertcat(*[ca.reshape(x, s.numel(), self.n) for x, s in zip(self.inputs, ins)])
         dw: Any = ca.jacobian(ca.vec(stacked), z)
-        dw = ca.evalf(dw) if not ca.depends_on(dw, z) else dw
+        m = w.numel()
+        live = sorted({r % m for r in dw.sparsity().row()})
+        dw = dw[[c * m + r for c in range(self.n) for r in live], :]
+        dw = ca.evalf(dw) if not ca.symvar(dw) else dw
+        column = ca.Function(f"{self.fn.name()}_jac", ins, [ca.jacobian(ca.vec(o), w[live]) for o in self.fn.call(ins)])
+        per_column = mapped(column, self.n, self.threads).call(self.inputs)
         eye = ca.DM.eye(self.n)
         return [
             ca.mtimes(ca.sparsity_cast(J, ca.kron(eye, ca.DM.ones(column.sparsity_out(k))).sparsity()), dw)
@@ -55,8 +62,8 @@ class MappedBlock:
 class Derivatives:
     """Jacobians of NLP expressions through the mapped blocks they contain."""
 
-    def __init__(self, z: ca.MX, blocks: list[MappedBlock]):
-        self.z = z
+    def __init__(self, z: ca.MX, p: ca.MX, blocks: list[MappedBlock]):
+        self.z, self.p = z, p
         self.values = [v for b in blocks for v in b.outputs]
         self.symbols = [ca.MX.sym(f"V{i}", v.sparsity()) for i, v in enumerate(self.values)]
         self._blocks = blocks
@@ -78,14 +85,17 @@ class Derivatives:
 
     def jac_g(self, g: ca.MX) -> ca.Function:
         """The constraint Jacobian in nlpsol's `jac_g` form."""
-        p = ca.MX.sym("p", 0)
-        return ca.Function("jac_g", [self.z, p], [g, self.jacobian(g)], ["x", "p"], ["g", "jac_g_x"])
+        return ca.Function("jac_g", [self.z, self.p], [g, self.jacobian(g)], ["x", "p"], ["g", "jac_g_x"])
 
     def gauss_newton(self, residuals: ca.MX, rest: ca.MX, ng: int) -> ca.Function:
         """nlpsol's `hess_lag` for f = |residuals|^2 + rest: lam_f (2 J^T J + hess(rest))."""
         J = self.jacobian(residuals)
         H = 2 * ca.mtimes(J.T, J) + ca.hessian(rest, self.z)[0]
-        lam_f, lam_g, p = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng), ca.MX.sym("p", 0)
+        lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)
         return ca.Function(
-            "hess_lag", [self.z, p, lam_f, lam_g], [ca.triu(lam_f * H)], ["x", "p", "lam_f", "lam_g"], ["triu_hess_gamma_x_x"]
+            "hess_lag",
+            [self.z, self.p, lam_f, lam_g],
+            [ca.triu(lam_f * H)],
+            ["x", "p", "lam_f", "lam_g"],
+            ["triu_hess_gamma_x_x"],
         )

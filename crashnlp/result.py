@@ -52,6 +52,7 @@ class SolverStats:
     objective: float | None
     wall_s: float | None
     build_s: float | None
+    compiled: bool | None = None  # IPOPT called the compiled NLP functions
 
 
 @dataclass(frozen=True)
@@ -160,7 +161,9 @@ class Result:
             raw["name"],
             raw["kind"],
             raw["status"],
-            SolverStats(*(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s"))),
+            SolverStats(
+                *(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s", "compiled"))
+            ),
             raw["transcription"],
             raw["parameters"],
             raw["std_errors"],

@@ -18,7 +18,8 @@ def map_threads() -> int:
     return max(1, int(value)) if value else max(1, min(os.cpu_count() or 1, 4))
 
 
-def mapped(fn: ca.Function, n: int) -> ca.Function:
-    """`fn` mapped over n columns, threaded when more than one thread is allowed."""
-    threads = map_threads()
+def mapped(fn: ca.Function, n: int, threads: int | None = None) -> ca.Function:
+    """`fn` mapped over n columns, threaded when more than one thread is allowed (`threads`,
+    else map_threads())."""
+    threads = map_threads() if threads is None else threads
     return fn.map(n, "thread", threads) if threads > 1 else fn.map(n)

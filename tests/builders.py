@@ -6,6 +6,7 @@ import copy
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 from crashnlp.case import Case
 from crashnlp.problem import problem_from_dict
@@ -49,6 +50,21 @@ def merge(base: dict, changes: dict) -> dict:
         else:
             out[key] = copy.deepcopy(value)
     return out
+
+
+def small_pickup_problem(folder: Path) -> Path:
+    """A short fit of the shipped pickup data (60 ms, 40 intervals): two spring values and the
+    crush offset, written as a problem file into `folder`."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw["tests"][0]["data"]["window"] = ["0 s", "0.06 s"]
+    raw["model"]["spring"] = {"law": "force", "crush_breakpoints": [0, 0.25, 0.6], "values": ["0 kN", "400 kN", "500 kN"]}
+    raw["estimate"] = {"model.spring.values": {"bounds": [0, "3 MN"]}, "vehicle.crush_offset": {"bounds": [-0.3, 0.5]}}
+    raw.pop("reference")
+    raw["transcription"] = {"method": "multiple-shooting", "intervals": 40, "substeps": 2}
+    path = folder / "small.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    return path
 
 
 def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -> Case:

@@ -10,8 +10,7 @@ import sys
 import casadi as ca
 import numpy as np
 import pytest
-import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, small_pickup_problem
 
 import crashnlp
 from crashnlp.cli import main
@@ -19,23 +18,9 @@ from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.problem import problem_from_dict
 from crashnlp.results import VOLATILE
 
-SMALL = {"transcription": {"method": "multiple-shooting", "intervals": 40, "substeps": 2}}
-
-
 @pytest.fixture(scope="module")
 def small_problem(tmp_path_factory):
-    """A short fit of the pickup data: two spring values and the crush offset."""
-    folder = tmp_path_factory.mktemp("api")
-    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
-    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
-    raw["tests"][0]["data"]["window"] = ["0 s", "0.06 s"]
-    raw["model"]["spring"] = {"law": "force", "crush_breakpoints": [0, 0.25, 0.6], "values": ["0 kN", "400 kN", "500 kN"]}
-    raw["estimate"] = {"model.spring.values": {"bounds": [0, "3 MN"]}, "vehicle.crush_offset": {"bounds": [-0.3, 0.5]}}
-    raw.pop("reference")
-    raw.update(SMALL)
-    path = folder / "small.yaml"
-    path.write_text(yaml.safe_dump(raw))
-    return path
+    return small_pickup_problem(tmp_path_factory.mktemp("api"))
 
 
 def _stable(result: dict) -> dict:
@@ -133,5 +118,5 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
     # initial state + impact interval + the other n - 1 intervals (and their collocation points)
     assert dynamics == NX * (1 + 1 + (n - 1) * (1 + per_interval))
     # at the initial guess (a forward simulation) the dynamics nearly hold
-    g = ca.Function("g", [ocp.nlp.decision], [ca.vertcat(*ocp.nlp.g)])(ocp.nlp.bounds()["x0"])
+    (g,) = ocp.nlp.evaluate([ca.vertcat(*ocp.nlp.g)], ocp.nlp.bounds()["x0"])
     assert np.max(np.abs(np.asarray(g).ravel()[:dynamics])) < 0.05

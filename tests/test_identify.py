@@ -210,10 +210,10 @@ def test_structured_constraint_jacobian_equals_casadis_own(data_file, transcript
         data_file, {**transcription, "intervals": 12}, constraints={"monotone_crush": True, "bounds": {"pitch": [None, 0.05]}}
     )
     nlp, z = _nlp_at_random_point(problem)
-    p = nlp.problem()
-    g, J = nlp.derivatives().jac_g(p["g"])(z, [])
-    reference = ca.Function("ref", [p["x"]], [ca.jacobian(p["g"], p["x"])])(z)
-    assert np.allclose(np.asarray(g).ravel(), np.asarray(ca.Function("g", [p["x"]], [p["g"]])(z)).ravel())
+    p, values = nlp.problem(), nlp.bounds()["p"]
+    g, J = nlp.derivatives().jac_g(p["g"])(z, values)
+    reference = ca.Function("ref", [p["x"], p["p"]], [ca.jacobian(p["g"], p["x"])])(z, values)
+    assert np.allclose(np.asarray(g).ravel(), np.asarray(ca.Function("g", [p["x"], p["p"]], [p["g"]])(z, values)).ravel())
     assert np.max(np.abs(J.full() - reference.full())) <= 1e-9 * max(1.0, np.abs(reference.full()).max())
     # and the structured pattern holds every nonzero CasADi finds
     assert set(zip(*reference.sparsity().get_triplet())) <= set(zip(*J.sparsity().get_triplet()))
@@ -224,11 +224,11 @@ def test_gauss_newton_hessian_is_two_jt_j_plus_the_regularisation(data_file):
 
     problem = fit_problem(data_file, {**MS, "intervals": 12}, objective={"regularization": 0.3})
     nlp, z = _nlp_at_random_point(problem)
-    p = nlp.problem()
+    p, values = nlp.problem(), nlp.bounds()["p"]
     ng = p["g"].numel()
-    H = nlp.derivatives().gauss_newton(nlp.residuals, nlp.rest, ng)(z, [], 0.7, np.ones(ng)).full()
-    Jr = ca.Function("J", [p["x"]], [ca.jacobian(nlp.residuals, p["x"])])(z).full()
-    Hq = ca.Function("H", [p["x"]], [ca.hessian(nlp.rest, p["x"])[0]])(z).full()
+    H = nlp.derivatives().gauss_newton(nlp.residuals, nlp.rest, ng)(z, values, 0.7, np.ones(ng)).full()
+    Jr = ca.Function("J", [p["x"], p["p"]], [ca.jacobian(nlp.residuals, p["x"])])(z, values).full()
+    Hq = ca.Function("H", [p["x"], p["p"]], [ca.hessian(nlp.rest, p["x"])[0]])(z, values).full()
     expected = np.triu(0.7 * (2 * Jr.T @ Jr + Hq))
     assert np.abs(Hq).max() > 0  # the regularisation is really in
     assert np.max(np.abs(H - expected)) <= 1e-9 * np.abs(expected).max()
@@ -242,4 +242,5 @@ def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
     exact = solve(fit_problem(data_file, solver={"hessian": "exact"}, constraints=free))
     assert gn.ok and exact.ok
     assert gn.result.objective == pytest.approx(exact.result.objective, rel=1e-7)  # IPOPT tol 1e-8
-    assert np.allclose(gn.theta, exact.theta, rtol=1e-4)
+    # relative to each parameter's scale: a spring value at its zero bound may sit a few newtons inside it
+    assert np.all(np.abs(gn.theta - exact.theta) <= 1e-4 * np.abs(exact.theta) + 1e-7 * gn.ocp.free.scale)

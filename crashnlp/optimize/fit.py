@@ -13,6 +13,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.data.signal import resample
+from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.units import G0
 
@@ -30,14 +31,20 @@ class Residual:
     sigma: float
     weight: float
     model: ca.MX  # model output at those nodes (SI)
+    measured: ca.MX  # the data as an NLP parameter (row)
 
     @property
-    def scaled(self) -> ca.MX:
-        """(model - data) / sigma * sqrt(weight / n): squares sum to this channel's objective."""
-        return (self.model - ca.DM(self.data).T) * (np.sqrt(self.weight / len(self.columns)) / self.sigma)
+    def error(self) -> ca.MX:
+        """model - data at the fitted nodes (SI, row)."""
+        return self.model - self.measured
+
+    @property
+    def factor(self) -> float:
+        """sqrt(weight / n) / sigma: the scaled residual is error * factor."""
+        return np.sqrt(self.weight / len(self.columns)) / self.sigma
 
 
-def channel_residuals(tr: Transcript) -> list[Residual]:
+def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
     """Residuals of every measured channel of a test on the node grid."""
     spec = tr.test.spec.data
     if spec is None or tr.test.data is None:
@@ -51,19 +58,21 @@ def channel_residuals(tr: Transcript) -> list[Residual]:
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
         model = tr.output(name)[:, cols.tolist()]
-        out.append(Residual(tr.test.name, name, cols.tolist(), resample(channel, times[cols]), sigma, ch_spec.weight, model))
+        data = resample(channel, times[cols])
+        measured = nlp.parameter(f"{tr.test.name}.{name}.data", data[None, :])
+        out.append(Residual(tr.test.name, name, cols.tolist(), data, sigma, ch_spec.weight, model, measured))
     return out
 
 
 def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
     """Sum of squares (or the paper's L1 form, through slacks) of all residuals, plus smoothing."""
     objective = ocp.case.problem.objective
-    residuals = [r for tr in ocp.transcripts for r in channel_residuals(tr)]
+    residuals = [r for tr in ocp.transcripts for r in channel_residuals(ocp.nlp, tr)]
     for r in residuals:
         if objective.loss == "l2":
-            ocp.nlp.least_squares(r.scaled)
+            ocp.nlp.least_squares(r.error * ocp.nlp.parameter(f"{r.test}.{r.channel}.factor", r.factor))
         else:  # |e| / sigma through slacks s >= +-e / sigma, mean of s weighted
-            normalised = (r.model - ca.DM(r.data).T).T / r.sigma
+            normalised = r.error.T / ocp.nlp.parameter(f"{r.test}.{r.channel}.sigma", r.sigma)
             slack = ocp.nlp.variable(f"{r.test}.{r.channel}.slack", len(r.columns), 1.0, 0.0, np.inf)
             ocp.nlp.constrain("l1", slack - normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.above")
             ocp.nlp.constrain("l1", slack + normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.below")

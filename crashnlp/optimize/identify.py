@@ -6,7 +6,6 @@ import sys
 from dataclasses import dataclass, field
 from typing import TextIO
 
-import casadi as ca
 import numpy as np
 
 from crashnlp.autoinit import repair_start
@@ -17,7 +16,7 @@ from crashnlp.optimize.fit import Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.solve import SolveResult, solve
-from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator
+from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.simulation import Response
 
@@ -88,9 +87,9 @@ def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.
 
 def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[Response]:
     """Outputs and states of every test at a solution vector."""
-    zsym = ca.vertcat(*ocp.nlp.z)
-    f = ca.Function("outs", [zsym], [x for tr in ocp.transcripts for x in (tr.outputs, tr.trajectory.states)])
-    values = [np.asarray(v) for v in f.call([z])]
+    values = [
+        np.asarray(v) for v in ocp.nlp.evaluate([x for tr in ocp.transcripts for x in (tr.outputs, tr.trajectory.states)], z)
+    ]
     out = []
     for k, tr in enumerate(ocp.transcripts):
         y, states = values[2 * k], values[2 * k + 1]
@@ -125,6 +124,7 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         raise InputError(f"{case.name}: no test has data to fit")
     if warm is not None:
         ocp.set_guess(warm)
+    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, residuals)  # for the covariance, compiled alike
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = finish(case, ocp, result, theta0, residuals)

@@ -15,6 +15,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
+from crashnlp.optimize.oracle import compilable
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
@@ -52,7 +53,8 @@ class OptimalControl:
     def __init__(self, case: Case):
         self.case = case
         problem = case.problem
-        self.nlp = NLPBuilder()
+        # serial maps where the NLP may be compiled: its library then serves every thread setting
+        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None)
         self.free = FreeParameters(case.layout, case.base, problem.estimate)
         self.theta = self.nlp.variable(
             "theta", self.free.size, self.free.initial, self.free.lower, self.free.upper, self.free.scale
@@ -63,19 +65,25 @@ class OptimalControl:
         self._constraints()
 
     def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float) -> Transcript:
+        """One test's trajectory and outputs. The interval functions take q = [theta; the
+        test's full parameter vector]: the fixed values and the impact speed are NLP
+        parameters, so that a study changing them keeps the NLP's shape."""
         model = self.case.model
-        p_test = self.case.test_parameters(test, p0)
         fine = np.linspace(0.0, horizon, 4 * self.transcription.intervals + 1)
-        guess = simulate(model, p_test, test.speed, fine, self.case.problem.simulation)
-        theta_sx = ca.SX.sym("theta", self.free.size)
-        p_sx = self.free.full(theta_sx, test.overrides)
-        rhs = self.transcription.dynamics(theta_sx, p_sx)
-        p = self.free.full(self.theta, test.overrides)
-        x0 = model.initial_state(p, test.speed)
-        traj = self.transcription.discretize(self.nlp, test.name, rhs, self.theta, x0, horizon, _interpolator(guess))
+        guess = simulate(model, self.case.test_parameters(test, p0), test.speed, fine, self.case.problem.simulation)
+        theta_sx, fixed_sx = ca.SX.sym("theta", self.free.size), ca.SX.sym("fixed", self.free.base.size)
+        q_sx = ca.vertcat(theta_sx, fixed_sx)
+        p_sx = self.free.full(theta_sx, test.overrides, fixed_sx)
+        fixed = self.nlp.parameter(f"{test.name}.parameters", self.case.test_parameters(test))
+        q = ca.vertcat(self.theta, fixed)
+        x0 = model.initial_state(
+            self.free.full(self.theta, test.overrides, fixed), self.nlp.parameter(f"{test.name}.speed", test.speed)
+        )
+        rhs = self.transcription.dynamics(q_sx, p_sx)
+        traj = self.transcription.discretize(self.nlp, test.name, rhs, q, x0, horizon, _interpolator(guess))
         x = ca.SX.sym("x", NX)
-        outputs = ca.Function("outputs", [x, theta_sx], [model.outputs(x, p_sx)])
-        (y,) = self.nlp.mapped(outputs, len(traj.times), traj.states, self.theta)
+        outputs = ca.Function("outputs", [x, q_sx], [model.outputs(x, p_sx)])
+        (y,) = self.nlp.mapped(outputs, len(traj.times), traj.states, q)
         return Transcript(test, traj, y)
 
     def _constraints(self) -> None:
@@ -91,7 +99,8 @@ class OptimalControl:
                 growth = self._unloaded_depth_growth(tr)
                 self.nlp.constrain("monotone_crush", growth, -MONOTONE_TOLERANCE, np.inf, test=tr.test.name)
         if spec.monotone_spring:
-            values = self.free.full(self.theta)[self.case.layout.index("model.spring.values")]
+            shared = self.nlp.parameter("parameters", self.case.base)
+            values = self.free.full(self.theta, fixed=shared)[self.case.layout.index("model.spring.values")]
             self.nlp.constrain("monotone_spring", ca.diff(values), 0.0, np.inf)
 
     @staticmethod

@@ -28,6 +28,7 @@ def result_of(solution: Solution) -> Result:
         res.objective if res else None,
         res.wall_s if res else None,
         res.build_s if res else None,
+        res.compiled if res else None,
     )
     tests = {test.name: _test(solution, ts, test) for ts, test in zip(solution.tests, case.tests)}
     labels = solution.ocp.free.labels()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -93,14 +94,19 @@ class FreeParameters:
             for k in range(e.at.stop - e.at.start)
         ]
 
-    def full(self, theta, overrides: dict[str, float] | None = None):
-        """Full parameter vector with theta in place (symbolic SX or MX, or numeric)."""
+    def full(self, theta, overrides: dict[str, float] | None = None, fixed=None):
+        """Full parameter vector with theta in place (symbolic SX or MX, or numeric).
+
+        Symbolic, the other entries are `fixed` (a symbolic full vector holding the fixed
+        values, overrides included) or, without it, the base values as constants."""
         if isinstance(theta, (ca.SX, ca.MX)):
-            symbolic = type(theta)(ca.DM(self.base))
+            base: Any = type(theta)(ca.DM(self.base)) if fixed is None else fixed
+            symbolic = type(theta)(base)  # a copy: assigning into it leaves `fixed` as it is
             for e in self.entries:
                 symbolic[e.where] = theta[e.at]
             for path, value in (overrides or {}).items():
-                symbolic[self.layout.index(path)] = value
+                where = self.layout.index(path)
+                symbolic[where] = value if fixed is None else base[where]
             return symbolic
         numeric = self.base.copy()
         for e in self.entries:

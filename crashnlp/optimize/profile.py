@@ -57,7 +57,7 @@ def walk(chain: Chain) -> list[tuple[float, float, str]]:
         lbx[k] = ubx[k] = value / scale
         z = z.copy()
         z[k] = value / scale
-        sol = built.function(x0=z, lbx=lbx, ubx=ubx, lbg=bounds["lbg"], ubg=bounds["ubg"])
+        sol = built.function(x0=z, lbx=lbx, ubx=ubx, lbg=bounds["lbg"], ubg=bounds["ubg"], p=bounds["p"])
         status = str(built.function.stats().get("return_status"))
         z = np.asarray(sol["x"]).ravel()
         out.append((value, float(sol["f"]), status))

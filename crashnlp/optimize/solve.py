@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -13,6 +14,7 @@ import numpy as np
 
 from crashnlp.errors import InputError
 from crashnlp.nlp import SUCCESS, NLPBuilder
+from crashnlp.optimize.oracle import SOLVER_OPTIONS, oracle
 from crashnlp.problem.schema import Solver
 
 
@@ -28,6 +30,7 @@ class SolveResult:
     wall_s: float
     build_s: float
     profile: dict[str, tuple[int, float]] = field(default_factory=dict)  # IPOPT's functions: calls, seconds
+    compiled: bool = False  # IPOPT called the compiled NLP functions (crashnlp.optimize.oracle)
 
     @property
     def converged(self) -> bool:
@@ -102,15 +105,6 @@ def hessian_kind(nlp: NLPBuilder, spec: Solver) -> str:
     return spec.hessian
 
 
-def derivative_options(nlp: NLPBuilder, problem: dict, spec: Solver) -> dict:
-    """Structure-exploiting constraint Jacobian, and the Gauss-Newton Hessian where chosen."""
-    d = nlp.derivatives()
-    opts = {"jac_g": d.jac_g(problem["g"])}
-    if hessian_kind(nlp, spec) == "gauss-newton":
-        opts["hess_lag"] = d.gauss_newton(nlp.residuals, nlp.rest, problem["g"].numel())
-    return opts
-
-
 @dataclass
 class BuiltSolver:
     """An nlpsol Function with what must live as long as it (the progress callback)."""
@@ -118,21 +112,28 @@ class BuiltSolver:
     function: ca.Function
     build_s: float
     callback: Progress | None = None
+    compiled: bool = False
+
+
+_solvers: dict[tuple[str, str], ca.Function] = {}  # (NLP key, options) -> nlpsol, reused by every solve of that shape
 
 
 def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress: TextIO | None = None) -> BuiltSolver:
-    """nlpsol over the NLP; MX graph with mapped SX interval functions."""
+    """nlpsol over the NLP's functions (crashnlp.optimize.oracle): compiled when the cache
+    holds them; one solver per NLP shape and options in a process, without a progress
+    callback (study workers and profiles solve many NLPs of one shape)."""
     t0 = time.perf_counter()
-    problem = nlp.problem()
-    opts: dict[str, Any] = {"ipopt": ipopt_options(spec, verbose), "print_time": False, "expand": spec.expand}
-    opts.update(derivative_options(nlp, problem, spec))
-    callback = None
+    o = oracle(nlp, hessian_kind(nlp, spec), spec.compile, spec.expand)
+    opts: dict[str, Any] = {"ipopt": ipopt_options(spec, verbose), "print_time": False, **SOLVER_OPTIONS}
     if progress is not None:
         b = nlp.bounds()
         callback = Progress(len(b["x0"]), len(b["lbg"]), b["lbg"], b["ubg"], progress)
-        opts["iteration_callback"] = callback
-    function = ca.nlpsol("crashnlp", "ipopt", problem, opts)
-    return BuiltSolver(function, time.perf_counter() - t0, callback)
+        function = ca.nlpsol("crashnlp", "ipopt", o.nlp, {**opts, **o.derivatives, "iteration_callback": callback})
+        return BuiltSolver(function, time.perf_counter() - t0, callback, o.compiled)
+    key = (o.key, json.dumps([o.compiled, opts], sort_keys=True, default=str))
+    if key not in _solvers:
+        _solvers[key] = ca.nlpsol("crashnlp", "ipopt", o.nlp, {**opts, **o.derivatives})
+    return BuiltSolver(_solvers[key], time.perf_counter() - t0, None, o.compiled)
 
 
 AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
@@ -180,6 +181,7 @@ def _solve(nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None
         iterations=int(stats.get("iter_count", 0)),
         wall_s=wall,
         build_s=built.build_s,
+        compiled=built.compiled,
         profile={
             k[len("t_wall_") :]: (int(stats.get("n_call_" + k[len("t_wall_") :], 0)), float(v))
             for k, v in stats.items()

@@ -30,7 +30,7 @@ import casadi as ca
 import numpy as np
 import scipy.sparse.linalg as spla
 
-from crashnlp.nlp import DYNAMICS
+from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.ocp import OptimalControl
 
@@ -129,15 +129,22 @@ class Sensitivity:
         return out
 
 
+def sensitivity_function(nlp: NLPBuilder, residuals: list[Residual]) -> ca.Function:
+    """(x, p) -> d dynamics / dz, d residuals / dz, residuals (model - data, SI)."""
+    d = nlp.derivatives()
+    dyn = [g for g, c in zip(nlp.g, nlp.constraints) if c.kind == DYNAMICS]
+    R = ca.vertcat(*[ca.vec(r.error) for r in residuals])
+    return nlp.function("sens", [d.jacobian(ca.vertcat(*dyn)), d.jacobian(R), R])
+
+
 class SensitivityEvaluator:
-    """Built once per NLP; evaluated at any solution vector."""
+    """Built once per NLP; evaluated at any solution vector. The function comes compiled with
+    the solver's (identify registers it as an extra of the NLP) when the solve was compiled."""
 
     def __init__(self, ocp: OptimalControl, residuals: list[Residual]):
         nlp = ocp.nlp
-        d = nlp.derivatives()
-        dyn = [g for g, c in zip(nlp.g, nlp.constraints) if c.kind == DYNAMICS]
-        R = ca.vertcat(*[ca.vec(r.model - ca.DM(r.data).T) for r in residuals])
-        self.f = ca.Function("sens", [d.z], [d.jacobian(ca.vertcat(*dyn)), d.jacobian(R), R])
+        self.f = nlp.functions.get("sens") or sensitivity_function(nlp, residuals)
+        self.p = nlp.bounds()["p"]
         theta = nlp.blocks["theta"]
         self.theta = np.arange(theta.offset, theta.offset + theta.shape[0])
         self.theta_scale = theta.scale
@@ -150,7 +157,7 @@ class SensitivityEvaluator:
         self.residuals = residuals
 
     def __call__(self, z: np.ndarray) -> Sensitivity:
-        G, Rz, R = self.f(z)
+        G, Rz, R = self.f(z, self.p)
         G, Rz = G.sparse().tocsc(), Rz.sparse().tocsc()
         dx = -spla.spsolve(G[:, self.states].tocsc(), G[:, self.theta].toarray())
         dx = dx.reshape(len(self.states), len(self.theta))

@@ -399,8 +399,11 @@ class Solver(Strict):
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
-    expand: bool = Field(
-        False, description="expand the NLP's own functions to SX (the structured Jacobian and Hessian stay as they are)"
+    expand: bool = Field(False, description="expand the NLP's functions to SX when they run in CasADi's virtual machine")
+    compile: Literal["auto", "now", "never"] = Field(
+        "auto",
+        description="the NLP's functions in C, cached per problem shape: auto uses a cached library and else compiles"
+        " one in the background for the next run; now compiles before solving; never stays in CasADi's virtual machine",
     )
 
 

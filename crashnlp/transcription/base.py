@@ -32,9 +32,9 @@ class Trajectory:
     states: ca.MX  # NX x (N+1)
 
 
-def per_row(scale: np.ndarray, cols: int) -> ca.DM:
+def per_row(scale: ca.MX, cols: int) -> ca.MX:
     """A state-scale column repeated over `cols` columns (CasADi does not broadcast)."""
-    return ca.repmat(ca.DM(scale), 1, cols)
+    return ca.repmat(scale, 1, cols)
 
 
 class Transcription(ABC):
@@ -44,11 +44,11 @@ class Transcription(ABC):
         self.model = model
         self.spec = spec
 
-    def dynamics(self, theta: ca.SX, p: ca.SX) -> ca.Function:
-        """The model's right-hand side specialised to one test: fixed parameters become
-        constants (folded into the SX graph), only theta stays symbolic."""
+    def dynamics(self, q: ca.SX, p: ca.SX) -> ca.Function:
+        """The model's right-hand side rhs(x, q), with p the full parameter vector as an
+        expression of the column q (free parameters and the test's fixed values)."""
         x = ca.SX.sym("x", NX)
-        return ca.Function("rhs", [x, theta], [ca.cse(self.model.rhs(x, p))])
+        return ca.Function("rhs", [x, q], [ca.cse(self.model.rhs(x, p))])
 
     @property
     def intervals(self) -> int:
@@ -64,26 +64,30 @@ class Transcription(ABC):
         horizon: float,
         guess: Callable[[np.ndarray], np.ndarray],
     ) -> Trajectory:
-        """Variables and constraints of one test on [0, horizon]; rhs(x, theta) from `dynamics`."""
+        """Variables and constraints of one test on [0, horizon]; rhs(x, theta) from `dynamics`.
+
+        The defects are divided by the state scales (an NLP parameter, from the guess)."""
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
         initial = guess(times)
-        scale = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
-        X = nlp.variable(f"{name}.x", (NX, n + 1), initial, scale=scale[:, None])
+        numeric = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
+        X = nlp.variable(f"{name}.x", (NX, n + 1), initial, scale=numeric[:, None])
+        scale = nlp.parameter(f"{name}.state_scale", numeric)
         nlp.constrain(DYNAMICS, X[:, 0] - x0, test=name, detail="initial")
         h = float(times[1] - times[0])
         # the first interval, by fine RK4 steps whatever the transcription: the front end
         # engages over its first millimetre of crush, tens of microseconds at crash speed,
         # which neither one RK4 step nor a collocation polynomial of an interval resolves
         (end,) = nlp.mapped(rk4(rhs, h, IMPACT_SUBSTEPS), 1, X[:, 0], theta)
-        nlp.constrain(DYNAMICS, (end - X[:, 1]) / ca.DM(scale), test=name, detail="impact")
+        nlp.constrain(DYNAMICS, (end - X[:, 1]) / scale, test=name, detail="impact")
         if n > 1:
-            self._add_dynamics(nlp, name, X[:, 1:], theta, times[1:], scale, guess, rhs)
+            self._add_dynamics(nlp, name, X[:, 1:], theta, times[1:], scale, numeric, guess, rhs)
         return Trajectory(times, X)
 
     @abstractmethod
-    def _add_dynamics(self, nlp, name, X, theta, times, scale, guess, rhs):
+    def _add_dynamics(self, nlp, name, X, theta, times, scale, scale_values, guess, rhs):
         """Variables inside the intervals and their dynamics constraints.
 
         X holds the nodes (columns) from the end of the impact interval, rhs(x, theta)
-        the dynamics."""
+        the dynamics, scale the state scales (a column parameter, for the defects) and
+        scale_values their numbers (for new variables)."""

@@ -22,12 +22,12 @@ class Collocation(Transcription):
         slopes = ca.horzcat(*[rhs(xc[:, j], p) for j in range(d)])
         return ca.Function("interval", [x0, xc, p], [Z @ C - h * slopes, Z @ D])
 
-    def _add_dynamics(self, nlp, name, X, theta, times, scale, guess, rhs):
+    def _add_dynamics(self, nlp, name, X, theta, times, scale, scale_values, guess, rhs):
         n, d = X.shape[1] - 1, self.spec.degree
         h = float(times[1] - times[0])
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
-        Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale[:, None])
+        Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale_values[:, None])
         defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta)
         nlp.constrain(DYNAMICS, defects / per_row(scale, n * d), test=name, detail="collocation")
         nlp.constrain(DYNAMICS, (end - X[:, 1:]) / per_row(scale, n), test=name, detail="continuity")

@@ -8,7 +8,7 @@ from crashnlp.transcription.base import Transcription, per_row
 
 
 class MultipleShooting(Transcription):
-    def _add_dynamics(self, nlp, name, X, theta, times, scale, guess, rhs):
+    def _add_dynamics(self, nlp, name, X, theta, times, scale, scale_values, guess, rhs):
         n = X.shape[1] - 1
         step = rk4(rhs, float(times[1] - times[0]), self.spec.substeps)
         (end,) = nlp.mapped(step, n, X[:, :-1], theta)

@@ -1,0 +1,168 @@
+"""The functions IPOPT calls: built once per NLP shape, then loaded compiled.
+
+IPOPT asks for five things at every iteration: f and g, the gradient of f, the
+constraint Jacobian and the Hessian of the Lagrangian. crashnlp builds them as
+CasADi Functions of (x, p) (crashnlp.derivatives for the structured Jacobian
+and the Gauss-Newton Hessian) and, since every number that changes between runs
+is in p (crashnlp.nlp), they depend on the problem's structure only. So they
+are compiled to C once per structure and machine and kept in the crashnlp cache,
+under a hash of the serialized NLP, the Hessian kind and the compiler:
+
+- `compile: auto` (default): a cached library when there is one; otherwise this
+  solve runs in CasADi's virtual machine and the library is compiled in the
+  background, for the next run or study case of the same shape.
+- `compile: now`: compile before solving and wait (before a large study).
+- `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
+
+The exact Hessian (designs, and fits that Gauss-Newton cannot finish) stays in
+the virtual machine, derived by nlpsol: its C code runs to tens of megabytes.
+
+The virtual machine and the compiled code run the same operations in the same
+order (no -ffast-math, no contraction into FMA), so both give the same bits:
+a run does not change its result.json when its library appears.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
+
+import casadi as ca
+
+from crashnlp import compiled
+from crashnlp.nlp import NLPBuilder
+from crashnlp.problem.schema import Problem
+
+NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
+STALE_S = 900.0  # a background compile older than this is taken for dead
+COMPILED_HESSIANS = ("gauss-newton", "limited-memory")  # the exact Hessian of a design is tens of MB of C: it stays in the VM
+SOLVER_FUNCTIONS = ("nlp", "grad_f", "jac_g", "hess_lag")
+SOLVER_OPTIONS = {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
+_loaded: dict[Path, dict[str, ca.Function]] = {}
+
+
+@dataclass
+class Oracle:
+    """The NLP as nlpsol takes it: (x, p) -> (f, g), and its derivatives as options."""
+
+    nlp: ca.Function
+    derivatives: dict[str, ca.Function]
+    key: str
+    compiled: bool
+
+
+def oracle(nlp: NLPBuilder, hessian: str, mode: str, expand: bool = False) -> Oracle:
+    """The NLP's functions, compiled when `mode` and the machine allow (see the module); all of
+    them, the NLP's extras too, are left in nlp.functions."""
+    functions, built = _shape_functions(nlp, hessian, mode, hessian in COMPILED_HESSIANS)
+    if expand and not built:
+        functions = {name: f.expand() for name, f in functions.items()}
+    nlp.functions = functions
+    solver = {name: f for name, f in functions.items() if name in SOLVER_FUNCTIONS}
+    return Oracle(solver.pop("nlp"), solver, f"{nlp.key()}-{hessian}", built)
+
+
+def compilable(problem: Problem) -> bool:
+    """Whether a problem's NLP may be compiled: its solver section allows (not the exact Hessian,
+    which `auto` means for a design) and a compiler is there."""
+    spec = problem.solver
+    exact = spec.hessian == "exact" or (spec.hessian == "auto" and problem.kind == "design")
+    return spec.compile != "never" and not exact and compiled.compiler(nlp=True) is not None
+
+
+def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str, allowed: bool) -> tuple[dict[str, ca.Function], bool]:
+    """The solver's functions and the NLP's extras: from the library of this NLP shape when the
+    cache holds one (True), else built (False) and compiled behind or now by `mode`."""
+    cc = compiled.compiler(nlp=True) if mode != "never" and allowed else None
+    library = _library(nlp, "-".join([hessian, *sorted(nlp.extras)]), cc) if cc else None
+    if library and (library in _loaded or library.exists()):
+        return _load(library), True
+    functions = {**_functions(nlp, hessian), **{name: make() for name, make in nlp.extras.items()}}
+    if not (cc and library):
+        return functions, False
+    if mode == "now":
+        _write_names(functions, library)
+        compiled.build(cc, _source(functions), library, NLP_FLAGS)
+        return _load(library), True
+    _compile_behind(cc, functions, library)
+    return functions, False
+
+
+def _library(nlp: NLPBuilder, tag: str, cc: str) -> Path:
+    """Where the library of this NLP shape, tag (Hessian and extras), compiler and flags lives."""
+    key = hashlib.sha256("\0".join([nlp.key(), _code(), cc, *NLP_FLAGS]).encode()).hexdigest()[:20]
+    return compiled.cache_dir() / f"nlp-{key}-{tag}.so"
+
+
+@cache
+def _code() -> str:
+    """A hash of the code that builds the compiled functions: a library from other code is not reused."""
+    from crashnlp import derivatives, nlp
+    from crashnlp.optimize import uncertainty
+
+    return hashlib.sha256(
+        b"".join(Path(str(m.__file__)).read_bytes() for m in (derivatives, nlp, uncertainty, sys.modules[__name__]))
+    ).hexdigest()
+
+
+def _write_names(functions: dict[str, ca.Function], library: Path) -> None:
+    """The names of a library's Functions, beside it (written before the library appears)."""
+    library.parent.mkdir(parents=True, exist_ok=True)
+    library.with_suffix(".names").write_text("".join(f"{name}\n" for name in functions))
+
+
+def _functions(nlp: NLPBuilder, hessian: str) -> dict[str, ca.Function]:
+    """nlp, grad_f, jac_g and the Gauss-Newton hess_lag, as MX Functions of (x, p). The exact
+    Hessian is left to nlpsol, which derives it from `nlp`."""
+    problem = nlp.problem()
+    x, p, f, g = (problem[k] for k in ("x", "p", "f", "g"))
+    d = nlp.derivatives()
+    out = {
+        "nlp": nlp.function("nlp", [f, g], ["f", "g"]),
+        "grad_f": nlp.function("grad_f", [f, ca.gradient(f, x)], ["f", "grad_f_x"]),
+        "jac_g": d.jac_g(g),
+    }
+    if hessian == "gauss-newton":
+        out["hess_lag"] = d.gauss_newton(nlp.residuals, nlp.rest, g.numel())
+    return out
+
+
+def _source(functions: dict[str, ca.Function]) -> str:
+    gen = ca.CodeGenerator("nlp.c", {"with_header": False, "casadi_real": "double"})
+    for fn in functions.values():
+        gen.add(fn)
+    return gen.dump()
+
+
+def _load(library: Path) -> dict[str, ca.Function]:
+    """Every Function of a library (once per process)."""
+    if library not in _loaded:
+        names = library.with_suffix(".names").read_text().split()
+        _loaded[library] = {name: ca.external(name, str(library)) for name in names}
+    return dict(_loaded[library])
+
+
+def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
+    """Start compiling the library in a process of its own, which outlives this one; the
+    source file is the lock (one compile per library at a time, a stale one restarted)."""
+    source = library.with_suffix(".c")
+    if source.exists() and time.time() - source.stat().st_mtime < STALE_S:
+        return
+    library.parent.mkdir(parents=True, exist_ok=True)
+    source.write_text(_source(functions))
+    _write_names(functions, library)
+    partial = library.with_suffix(f".{os.getpid()}.tmp")
+    script = f'"$0" "$@" "{source}" -o "{partial}" -lm && mv -f "{partial}" "{library}"; rm -f "{source}" "{partial}"'
+    subprocess.Popen(
+        ["sh", "-c", script, cc, *NLP_FLAGS],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )

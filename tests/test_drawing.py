@@ -1,0 +1,48 @@
+"""Figures drawn by a process forked before the solve: the same files as drawn in place."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+from builders import small_pickup_problem
+
+from crashnlp import api
+from crashnlp.drawing import FigureProcess
+from crashnlp.results import write_figures
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="drawn in place where there is no fork")
+
+
+@pytest.fixture(scope="module")
+def result(tmp_path_factory):
+    return api.identify(small_pickup_problem(tmp_path_factory.mktemp("drawing")))
+
+
+def pngs(folder) -> dict[str, bytes]:
+    return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.png"))}
+
+
+def test_the_figure_process_draws_what_drawing_in_place_draws(result, tmp_path):
+    with FigureProcess() as figures:
+        figures.draw(result, tmp_path / "forked")
+    write_figures(result, tmp_path / "here")
+    drawn = pngs(tmp_path / "forked")
+    assert set(drawn) == {"force_crush.png", "56kph/fit.png", "56kph/residuals.png"}
+    assert drawn == pngs(tmp_path / "here")
+
+
+def test_a_failure_in_the_figure_process_is_reported(result, tmp_path):
+    blocked = tmp_path / "file"
+    blocked.write_text("not a folder")
+    with pytest.raises(RuntimeError, match="were not drawn"), FigureProcess() as figures:
+        figures.draw(result, blocked)
+
+
+def test_leaving_without_drawing_ends_the_process(tmp_path):
+    with FigureProcess() as figures:
+        pid = figures.pid
+    assert pid is not None and figures.pid is None
+    with pytest.raises(ChildProcessError):
+        os.waitpid(pid, os.WNOHANG)
+    assert not list(tmp_path.iterdir())

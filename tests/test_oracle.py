@@ -1,0 +1,92 @@
+"""The compiled NLP: one library per problem shape, the same bits as CasADi's virtual machine.
+
+These tests compile (tests/conftest.py turns NLP compilation off for the others), on the
+shipped pickup problem cut to 16 intervals: too coarse to pass the forward check, which
+is not the point here.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+from builders import ROOT
+
+from crashnlp.case import Case
+from crashnlp.compiled import compiler
+from crashnlp.optimize.identify import identify
+from crashnlp.problem import load_problem
+
+
+def switched_on(monkeypatch: pytest.MonkeyPatch, folder) -> None:
+    """NLP compilation on, into `folder` as the crashnlp cache."""
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    monkeypatch.setenv("CRASHNLP_CACHE", str(folder))
+    monkeypatch.setenv("CRASHNLP_COMPILE", "1")
+
+
+@pytest.fixture(scope="module")
+def shared(tmp_path_factory):
+    """A cache holding the library of the test problem's shape, compiled once (`now`), and
+    the solve that compiled it."""
+    folder = tmp_path_factory.mktemp("cache")
+    with pytest.MonkeyPatch.context() as mp:
+        switched_on(mp, folder)
+        yield folder, identify(pickup("now"), progress=None)
+
+
+@pytest.fixture
+def cache(shared, monkeypatch):
+    switched_on(monkeypatch, shared[0])
+    return shared
+
+
+def pickup(compile: str, **values) -> Case:
+    problem = load_problem(ROOT / "problems" / "pickup-56kph.yaml")
+    return Case(problem.with_values({"transcription.intervals": 16, "solver.compile": compile, **values}))
+
+
+def libraries(folder) -> list[str]:
+    """The compiled libraries (solver and covariance functions) of each NLP shape."""
+    return sorted(p.name for p in folder.glob("nlp-*-gauss-newton*.so"))
+
+
+def test_compiled_solve_gives_the_bits_of_the_virtual_machine(cache):
+    folder, built = cache
+    vm = identify(pickup("never"), progress=None)
+    assert vm.result.converged and built.result.converged and vm.result.iterations > 5
+    assert built.result.compiled and not vm.result.compiled
+    assert len(libraries(folder)) == 1
+    assert np.array_equal(vm.result.z, built.result.z)
+    assert np.array_equal(vm.result.lam_g, built.result.lam_g)
+    assert vm.result.objective == built.result.objective
+
+
+def test_one_library_serves_other_fixed_values(cache):
+    folder, first = cache
+    (library,) = libraries(folder)
+    # a heavier vehicle with stiffer front suspension: other numbers, the same shape, so
+    # the same library (the data, the speed and the scales are parameters just as well)
+    changes = {"vehicle.mass": "2700 kg", "vehicle.suspension.k_front": "90 kN/m"}
+    other = identify(pickup("auto", **changes), progress=None)
+    assert libraries(folder) == [library]
+    assert other.result is not None and other.result.compiled and other.result.converged
+    vm = identify(pickup("never", **changes), progress=None)
+    assert np.array_equal(vm.result.z, other.result.z)
+    assert np.max(np.abs(first.theta - other.theta) / first.ocp.free.scale) > 1e-3  # really another problem
+
+
+def test_auto_solves_now_and_compiles_behind_for_the_next_run(tmp_path, monkeypatch):
+    switched_on(monkeypatch, tmp_path)
+    before = identify(pickup("auto"), progress=None)
+    assert before.result.converged and not before.result.compiled
+    deadline = time.monotonic() + 180
+    while not libraries(tmp_path) and time.monotonic() < deadline:
+        time.sleep(0.5)
+    assert len(libraries(tmp_path)) == 1, "the background compile did not finish"
+    assert not list(tmp_path.glob("nlp-*.c")), "the source (the lock) is left behind"
+    after = identify(pickup("auto"), progress=None)
+    assert after.result.compiled
+    assert np.array_equal(before.result.z, after.result.z)
