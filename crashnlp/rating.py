@@ -1,23 +1,25 @@
 """ISO/TS 18571 objective rating of a model curve against a reference curve.
 
-Uses the `objective-rating-metrics` package (ISO18571 class). ISO/TS 18571 rates signals
-sampled at 10 kHz, so both curves are linearly resampled to a 10 kHz grid over the span of `t`
-when `t` is sampled otherwise.
-
-The package's dynamic time warping (dtwalign) is compiled by numba on first use, several
-seconds in every new process; its compiled functions are cached on disk under the crashnlp
-cache (numba's own cache, keyed on the source and the machine), so only the first process
-on a machine pays.
+The rating of the `objective-rating-metrics` package (class ISO18571 with its defaults,
+unrounded), transcribed to numpy: the package's dynamic time warping (dtwalign) imports numba,
+1.4 s and ~250 MB in every process. tests/test_rating.py holds the two equal. ISO/TS 18571 rates
+signals sampled at 10 kHz, so both curves are linearly resampled to a 10 kHz grid over the span
+of `t` when `t` is sampled otherwise.
 """
 
 from __future__ import annotations
 
-import os
-from functools import cache
-
 import numpy as np
+from numpy.lib.stride_tricks import sliding_window_view
 
 ISO_DT = 1e-4  # s, the 10 kHz sampling ISO/TS 18571 assumes
+MAX_SHIFT = 0.2  # largest time shift tried, and the one that rates phase 0, as a share of the samples
+DTW_BAND = 0.1  # half-width of the warping band, as a share of the samples
+A0, B0, K_Z = 0.05, 0.5, 2.0  # inner and outer corridor half-widths (share of max |reference|), exponent
+EPS_M, K_M, E_S, K_P = 0.5, 1, 2.0, 1  # magnitude and slope errors that rate 0, exponents
+WEIGHTS = {"corridor": 0.4, "phase": 0.2, "magnitude": 0.2, "slope": 0.2}
+CORR_TOL = 1e-8  # the fast correlations' error is below CORR_TOL / 2 ...
+SURE_VARIANCE = 1e-3  # ... when both overlaps vary this much (share of the whole curve's variation)
 
 
 def iso18571(t: np.ndarray, reference: np.ndarray, model: np.ndarray) -> dict[str, float]:
@@ -32,29 +34,213 @@ def iso18571(t: np.ndarray, reference: np.ndarray, model: np.ndarray) -> dict[st
         raise ValueError("t must be increasing")
     if np.max(np.abs(np.diff(t) - ISO_DT)) > 1e-3 * ISO_DT:
         grid = t[0] + ISO_DT * np.arange(int(np.floor((t[-1] - t[0]) / ISO_DT + 1e-9)) + 1)
-        ref, mod, t = np.interp(grid, t, ref), np.interp(grid, t, mod), grid
-    rating = _library()(np.column_stack([t, ref]), np.column_stack([t, mod]), dt=ISO_DT)
-    return {
-        "corridor": float(rating.corridor_rating(ndigits=-1)),
-        "phase": float(rating.phase_rating(ndigits=-1)),
-        "magnitude": float(rating.magnitude_rating(ndigits=-1)),
-        "slope": float(rating.slope_rating(ndigits=-1)),
-        "overall": float(rating.overall_rating(ndigits=-1)),
+        ref, mod = np.interp(grid, t, ref), np.interp(grid, t, mod)
+    return _ratings(ref, mod)
+
+
+def _ratings(ref: np.ndarray, mod: np.ndarray) -> dict[str, float]:
+    """The five ratings of `mod` against `ref`, both at 10 kHz; magnitude and slope on the
+    curves overlapped at the shift that correlates them best."""
+    shift = _best_shift(ref, mod)
+    ref_s, mod_s = _overlap(ref, mod, shift)
+    out = {
+        "corridor": _corridor(ref, mod),
+        "phase": _phase(ref.size, abs(shift)),
+        "magnitude": _magnitude(ref_s, mod_s),
+        "slope": _slope(ref_s, mod_s),
     }
+    out["overall"] = sum(WEIGHTS[k] * out[k] for k in WEIGHTS)
+    return {k: float(v) for k, v in out.items()}
 
 
-@cache
-def _library():
-    """The ISO18571 class, its numba functions cached on disk (numba reads NUMBA_CACHE_DIR once,
-    when it is first imported, which happens here)."""
-    from crashnlp.compiled import cache_dir
+def _corridor(ref: np.ndarray, mod: np.ndarray) -> float:
+    """Mean score of the points: 1 inside the inner corridor, 0 outside the outer, between them
+    falling with the K_Z power of the distance to the outer."""
+    scale = np.max(np.abs(ref))
+    inner, outer = A0 * scale, B0 * scale
+    diff = np.abs(ref - mod)
+    score = ((outer - diff) / (outer - inner)) ** K_Z
+    score[diff < inner] = 1
+    score[diff > outer] = 0
+    return score.sum() / diff.size
 
-    os.environ.setdefault("NUMBA_CACHE_DIR", str(cache_dir() / "numba"))
-    from dtwalign import backtrack, cost, window
-    from objective_rating_metrics.rating import ISO18571
 
-    for module in (backtrack, cost, window):
-        for value in vars(module).values():
-            if hasattr(value, "enable_caching") and hasattr(value, "py_func"):
-                value.enable_caching()
-    return ISO18571
+def _phase(n: int, shift: int) -> float:
+    """1 for no shift, 0 at MAX_SHIFT of the samples, linear (K_P) between."""
+    limit = n * MAX_SHIFT
+    if shift == 0:
+        return 1.0
+    if shift >= limit:
+        return 0.0
+    return ((limit - shift) / limit) ** K_P
+
+
+def _magnitude(ref: np.ndarray, mod: np.ndarray) -> float:
+    """1 - (relative L1 error after dynamic time warping) / EPS_M, at least 0."""
+    i, j = _warping_path(mod, ref, int(np.ceil(DTW_BAND * mod.size)) - 1)
+    ref_w = ref[j]
+    error = np.abs(mod[i] - ref_w).sum() / np.abs(ref_w).sum()
+    if error == 0:
+        return 1.0
+    if error > EPS_M:
+        return 0.0
+    return ((EPS_M - error) / EPS_M) ** K_M
+
+
+def _slope(ref: np.ndarray, mod: np.ndarray) -> float:
+    """1 - (relative L1 error of the smoothed derivatives) / E_S, at least 0."""
+    d_ref, d_mod = _smoothed_derivative(ref), _smoothed_derivative(mod)
+    error = np.abs(d_mod - d_ref).sum() / np.abs(d_ref).sum()
+    if error <= 0:
+        return 1.0
+    if error >= E_S:
+        return 0.0
+    return (E_S - error) / E_S
+
+
+def _smoothed_derivative(v: np.ndarray) -> np.ndarray:
+    """Central differences averaged over 9 points, over 1, 3, 5 and 7 points toward the ends
+    (as the package does it: taken from the first or last points, not centred)."""
+    raw = np.gradient(v, ISO_DT)
+    out = np.zeros_like(raw)
+    for k, width in enumerate((1, 3, 5, 7)):
+        out[k] = 1 / width * np.sum(raw[:width])
+        out[-k - 1] = 1 / width * np.sum(raw[-width:])
+    out[4:-4] = np.convolve(raw, np.ones(9) / 9, mode="valid")
+    return out
+
+
+def _overlap(ref: np.ndarray, mod: np.ndarray, shift: int) -> tuple[np.ndarray, np.ndarray]:
+    """The overlapping parts when `mod` is moved `shift` samples earlier (later if negative)."""
+    if shift > 0:
+        return ref[:-shift], mod[shift:]
+    if shift < 0:
+        return ref[-shift:], mod[:shift]
+    return ref, mod
+
+
+def _best_shift(ref: np.ndarray, mod: np.ndarray) -> int:
+    """The shift of `mod` (samples, > 0 earlier) that correlates best with `ref`, as the package
+    picks it: among equal correlations the smallest shift, earlier before later; 0 when the
+    unshifted correlation is undefined (nan).
+
+    Fast correlations pick the candidates; np.corrcoef, the package's, decides among them, so
+    rounding cannot pick another shift than the package does.
+    """
+    best, best_shift = _corrcoef(ref, mod, 0), 0
+    if np.isnan(best):
+        return 0
+    for shift in _candidate_shifts(ref, mod):
+        value = _corrcoef(ref, mod, shift)
+        if value > best:
+            best, best_shift = value, shift
+    return best_shift
+
+
+def _corrcoef(ref: np.ndarray, mod: np.ndarray, shift: int) -> float:
+    """The package's correlation of the overlap at `shift` (np.corrcoef: nan if one is constant)."""
+    return float(np.corrcoef(*_overlap(ref, mod, shift))[0, 1])
+
+
+def _candidate_shifts(ref: np.ndarray, mod: np.ndarray) -> list[int]:
+    """Shifts 1, -1, 2, -2, ... (the package's order) whose fast correlation is within
+    CORR_TOL of the best, or is uncertain (a near-constant overlap)."""
+    count = int(np.floor(ref.size * MAX_SHIFT) + 1) - 1
+    shifts = np.stack([np.arange(1, count + 1), -np.arange(1, count + 1)], axis=1).ravel()
+    rho, sure = _shifted_correlations(ref, mod, shifts)
+    top = np.max(rho[sure], initial=-np.inf)
+    return shifts[~sure | (rho >= top - CORR_TOL)].tolist()
+
+
+def _shifted_correlations(ref: np.ndarray, mod: np.ndarray, shifts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Correlation coefficient of the overlap at each shift, from running sums, and whether it is
+    accurate to CORR_TOL / 2 (the rounding error is below samples x 1e-16 / SURE_VARIANCE, some
+    1e-10 for a crash; 1e-14 seen)."""
+    n = ref.size
+    a, b = ref - ref.mean(), mod - mod.mean()
+    cross = np.correlate(b, a, mode="full")[n - 1 + shifts]  # sum of a[t] b[t + shift]
+    length = n - np.abs(shifts)
+    a_lo, b_lo = np.maximum(-shifts, 0), np.maximum(shifts, 0)  # first overlapping sample
+    sum_a, var_a = _window_moments(a, a_lo, length)
+    sum_b, var_b = _window_moments(b, b_lo, length)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rho = (cross - sum_a * sum_b / length) / np.sqrt(var_a * var_b)
+    sure = (var_a > SURE_VARIANCE * np.sum(a * a)) & (var_b > SURE_VARIANCE * np.sum(b * b)) & np.isfinite(rho)
+    return rho, sure
+
+
+def _window_moments(v: np.ndarray, start: np.ndarray, length: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Sum and length x variance of v[start:start + length], for each pair."""
+    s1 = np.concatenate([[0.0], np.cumsum(v)])
+    s2 = np.concatenate([[0.0], np.cumsum(v * v)])
+    total = s1[start + length] - s1[start]
+    return total, s2[start + length] - s2[start] - total * total / length
+
+
+def _warping_path(x: np.ndarray, y: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs of the dynamic time warping of equally long x and y that dtwalign finds:
+    squared differences, steps (1, 0), (0, 1), (1, 1) of weight 1, |i - j| <= band."""
+    cost = _cumulative_cost(x, y, band)
+    return _backtrack(cost, x.size, band)
+
+
+def _cumulative_cost(x: np.ndarray, y: np.ndarray, band: int) -> np.ndarray:
+    """Least cost from (0, 0) to each cell of the band, by anti-diagonals: a diagonal needs only
+    the two before it, so each is three numpy operations. Row k + 2 holds diagonal i + j = k,
+    column q + 1 its cell i = (k - band) // 2 + q; cells outside the matrix or band are inf."""
+    n, width = x.size, band + 1
+    cost = np.full((2 * n + 1, width + 2), np.inf)
+    _local_costs(x, y, band, cost[2:, 1:-1])
+    cost[0, 1 - (-band) // 2] = 0.0  # the diagonal step into (0, 0) starts from nothing
+    # Cells (i - 1, j) and (i, j - 1) of a cell of diagonal k are on row k - 1 at its column and
+    # the next when (k - band) is even, else at the column before and its own.
+    odd = (band + 1) % 2  # the first k with (k - band) odd
+    ups, lefts = list(cost[1:-1, 1:-1]), list(cost[1:-1, 2:])
+    ups[odd::2], lefts[odd::2] = list(cost[1:-1, :-2])[odd::2], list(cost[1:-1, 1:-1])[odd::2]
+    low = np.empty(width)
+    for up, left, diag, out in zip(ups, lefts, cost[:-2, 1:-1], cost[2:, 1:-1]):
+        np.minimum(up, left, out=low)
+        np.minimum(low, diag, out=low)
+        np.add(low, out, out=out)
+    return cost
+
+
+def _local_costs(x: np.ndarray, y: np.ndarray, band: int, out: np.ndarray) -> None:
+    """(x[i] - y[j]) ** 2 into `out`, laid out as the cells of _cumulative_cost (inf off the
+    matrix and band). Every other diagonal, the cells' x and y are sliding windows over x and
+    over y reversed (padded with inf and -inf), one step further each: views, not copies."""
+    n, width, pad = x.size, band + 1, band // 2 + 2
+    xs = sliding_window_view(np.concatenate([np.full(pad, np.inf), x, np.full(pad, np.inf)]), width)
+    ys = sliding_window_view(np.concatenate([np.full(pad, -np.inf), y[::-1], np.full(pad, -np.inf)]), width)
+    for k0 in (0, 1):
+        rows = out[k0::2]  # diagonals k = k0 + 2m, whose column 0 is i = first + m
+        first = (k0 - band) // 2 + pad
+        last_y = n - 1 - k0 + first  # y[k - i] sits at ys[last_y - m]
+        np.subtract(xs[first : first + len(rows)], ys[last_y - len(rows) + 1 : last_y + 1][::-1], out=rows)
+        np.square(rows, out=rows)
+    out[(band + 1) % 2 :: 2, 0] = np.inf  # i - j = -(band + 1) where (k - band) is odd
+
+
+def _backtrack(cost: np.ndarray, n: int, band: int) -> tuple[np.ndarray, np.ndarray]:
+    """The path back from (n - 1, n - 1) to (0, 0) through the cheapest of the cells above, left
+    and diagonal, the first of them on ties (dtwalign's order)."""
+
+    def at(i: int, j: int) -> float:
+        return cost.item(i + j + 2, i - (i + j - band) // 2 + 1)
+
+    i = j = n - 1
+    path = [(i, j)]
+    while i > 0 or j > 0:
+        if i == 0 or j == 0:  # on the first row or column the only way back is along it
+            i, j = max(i - 1, 0), max(j - 1, 0)
+        else:
+            up, left, diag = at(i - 1, j), at(i, j - 1), at(i - 1, j - 1)
+            if up <= left and up <= diag:
+                i -= 1
+            elif left <= diag:
+                j -= 1
+            else:
+                i, j = i - 1, j - 1
+        path.append((i, j))
+    steps = np.array(path[::-1])
+    return steps[:, 0], steps[:, 1]
