@@ -18,6 +18,7 @@ from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.problem import problem_from_dict
 from crashnlp.results import VOLATILE
 
+
 @pytest.fixture(scope="module")
 def small_problem(tmp_path_factory):
     return small_pickup_problem(tmp_path_factory.mktemp("api"))

@@ -1,11 +1,14 @@
-"""CFC filters against J211-1 response and an independent scipy design; bias, integration, resampling."""
+"""CFC filters against J211-1 response, scipy's filtfilt and an independent scipy design; bias, integration, resampling."""
+
+from decimal import Decimal, localcontext
 
 import numpy as np
 import pytest
+from scipy.integrate import cumulative_trapezoid
 from scipy.signal import butter, filtfilt
 
 from crashnlp.data import Channel, DataError
-from crashnlp.data.signal import cfc_coefficients, cfc_filter, integrate, remove_bias, resample
+from crashnlp.data.signal import cfc_coefficients, cfc_filter, cumtrapz, integrate, remove_bias, resample
 
 DT = 1e-4  # 10 kHz
 
@@ -39,6 +42,113 @@ def test_cfc_matches_scipy_butterworth_with_prewarped_cutoff(cfc):
     ref = filtfilt(b, a, x, padtype="odd", padlen=100)
     interior = slice(400, -400)
     assert np.max(np.abs(ours[interior] - ref[interior])) < 1e-6 * np.max(np.abs(x))
+
+
+def signal(kind: str, size: int, dt: float) -> np.ndarray:
+    """Test inputs: a noisy random walk, a step, a noisy crash pulse (haversine deceleration, offset)."""
+    rng = np.random.default_rng(size)
+    t = np.arange(size) * dt
+    if kind == "random":
+        return np.cumsum(rng.normal(size=size)) + 5 * rng.normal(size=size)
+    if kind == "step":
+        return np.where(np.arange(size) > size // 3, 100.0, -3.0)
+    pulse = -300 * np.sin(np.pi * t / (size * dt)) ** 2
+    return 2.0 + pulse + 10 * rng.normal(size=size)
+
+
+def scipy_cfc(x: np.ndarray, dt: float, cfc: float, pad: float = 0.01) -> np.ndarray:
+    """The J211-1 biquad through scipy's filtfilt, padded as cfc_filter pads."""
+    b, a = cfc_coefficients(cfc, dt)
+    return filtfilt(b, a, x, padtype="odd", padlen=min(x.size - 1, max(1, round(pad / dt))))
+
+
+def fastest_dt(cfc: float) -> float:
+    """A sample interval near the coarsest J211-1 allows (wd T / 2 at 0.9 pi / 2): poles far from 1."""
+    return 0.9 / (2 * 2.0775 * cfc)
+
+
+@pytest.mark.parametrize("kind", ["random", "step", "pulse"])
+@pytest.mark.parametrize("size", [1, 2, 7, 150, 3000, 20001])  # up to 150: the pad is capped by the length
+@pytest.mark.parametrize("dt", [1e-5, 1e-4, "fastest"])
+@pytest.mark.parametrize("cfc", [60, 180, 600, 1000])
+def test_cfc_filter_equals_scipy_filtfilt(cfc, dt, size, kind):
+    dt = fastest_dt(cfc) if dt == "fastest" else dt
+    x = signal(kind, size, dt)
+    ours = cfc_filter(x, dt, cfc)
+    assert ours.shape == x.shape
+    assert np.max(np.abs(ours - scipy_cfc(x, dt, cfc))) <= 1e-10 * np.max(np.abs(x))
+
+
+def exact_cfc(x: np.ndarray, dt: float, cfc: float, pad: float = 0.01) -> np.ndarray:
+    """The same filter (odd padding, steady start, forward then backward) in 40-digit decimal arithmetic."""
+    b, a = (list(map(Decimal, map(float, c))) for c in cfc_coefficients(cfc, dt))
+    pad_n = min(x.size - 1, max(1, round(pad / dt)))
+    with localcontext() as context:
+        context.prec = 40
+        u = list(map(Decimal, map(float, x)))
+        ext = [2 * u[0] - v for v in u[pad_n:0:-1]] + u + [2 * u[-1] - v for v in u[-2 : -pad_n - 2 : -1]]
+        for _ in range(2):
+            x1 = x2 = ext[0]
+            y1 = y2 = ext[0] * sum(b) / sum(a)
+            out = []
+            for v in ext:
+                y1, y2 = b[0] * v + b[1] * x1 + b[2] * x2 - a[1] * y1 - a[2] * y2, y1
+                x1, x2 = v, x1
+                out.append(y1)
+            ext = out[::-1]
+        return np.array([float(v) for v in ext[pad_n : pad_n + x.size]])
+
+
+def test_poles_near_one_lose_no_digits():
+    # CFC 60 at 1 MHz: poles 6e-4 from 1, a DC gain of 1e6 in the all-pole part; the direct form
+    # (scipy's lfilter) is off by 1e-12 to 1e-10 of the peak here
+    dt, x = 1e-6, signal("pulse", 400, 1e-6)
+    assert np.max(np.abs(cfc_filter(x, dt, 60) - exact_cfc(x, dt, 60))) < 1e-13 * np.max(np.abs(x))
+
+
+def sine_gain(cfc: float, freq: float, dt: float) -> float:
+    """Amplitude ratio of a sine through the filter, by least squares on the record's middle half."""
+    t = np.arange(0, max(0.2, 10 / freq), dt)
+    y = cfc_filter(np.sin(2 * np.pi * freq * t), dt, cfc)
+    mid = slice(t.size // 4, 3 * t.size // 4)
+    basis = np.stack([np.sin(2 * np.pi * freq * t[mid]), np.cos(2 * np.pi * freq * t[mid])], axis=1)
+    return float(np.hypot(*np.linalg.lstsq(basis, y[mid], rcond=None)[0]))
+
+
+def biquad_power(cfc: float, freq: float, dt: float) -> float:
+    """|H(e^jwT)|^2 of one pass: the amplitude ratio of the forward-backward pair."""
+    b, a = cfc_coefficients(cfc, dt)
+    z = np.exp(-2j * np.pi * freq * dt * np.arange(3))
+    return float(abs(b @ z / (a @ z)) ** 2)
+
+
+@pytest.mark.parametrize("cfc", [60, 180, 600, 1000])
+def test_sine_gain_is_the_squared_biquad_response(cfc):
+    dt = 1 / (40 * cfc)
+    for ratio in (0.1, 1.0, 5 / 3, 10.0):
+        assert sine_gain(cfc, ratio * cfc, dt) == pytest.approx(biquad_power(cfc, ratio * cfc, dt), rel=1e-6, abs=1e-9)
+    assert sine_gain(cfc, 0.1 * cfc, dt) == pytest.approx(1.0, abs=1e-4)  # pass band
+    assert sine_gain(cfc, 5 / 3 * cfc, dt) ** 2 == pytest.approx(0.5, rel=0.01)  # -3 dB at 1.667 CFC
+    assert sine_gain(cfc, 10 * cfc, dt) < 1e-3  # 2 + 2 poles: -40 dB/decade and more
+
+
+def test_dc_passes_unchanged_at_every_length():
+    for size in (1, 2, 5, 1000, 30000):
+        # CFC 60 at 100 kHz: the rounded coefficients' DC gain is 1 - 2e-13 per pass (scipy's filtfilt too)
+        np.testing.assert_allclose(cfc_filter(np.full(size, -7.25), 1e-5, 60), -7.25, rtol=1e-11)
+
+
+def test_filter_refuses_an_empty_signal():
+    with pytest.raises(ValueError, match="empty"):
+        cfc_filter(np.zeros(0), DT, 60)
+
+
+def test_cumtrapz_equals_scipy_on_an_uneven_grid():
+    rng = np.random.default_rng(3)
+    t = np.cumsum(rng.uniform(1e-5, 1e-3, size=500))
+    v = rng.normal(size=500)
+    np.testing.assert_allclose(cumtrapz(t, v), cumulative_trapezoid(v, t, initial=0.0), rtol=1e-13, atol=1e-15)
+    assert cumtrapz(t[:1], v[:1]).tolist() == [0.0]
 
 
 def test_filter_keeps_constant_and_ramp_to_the_ends():

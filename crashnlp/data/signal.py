@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from crashnlp.data.channels import Channel, DataError
@@ -29,19 +31,91 @@ def cfc_coefficients(cfc: float, dt: float) -> tuple[np.ndarray, np.ndarray]:
     return np.array([a0, 2.0 * a0, a0]), np.array([1.0, -b1, -b2])
 
 
+def _recurse(inputs: np.ndarray, s: float, a2: float, y: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The all-pole recursion in delta form down the rows of `inputs` (L x columns), all columns at once.
+
+    y[i] = v[i] - a1 y[i-1] - a2 y[i-2] written as d[i] = v[i] - s y[i-1] + a2 d[i-1],
+    y[i] = y[i-1] + d[i] with s = 1 + a1 + a2 and d the step: with poles near 1 (low CFC,
+    high sample rate) the direct form loses digits to cancellation, this form does not.
+    Starts from y[-1] = `y`, d[-1] = `d` (one per column); returns y (L x columns) and the last d.
+    """
+    ys = np.empty(inputs.shape)
+    for i, row in enumerate(inputs):
+        d = row - s * y + a2 * d
+        y = np.add(y, d, out=ys[i])
+    return ys, d
+
+
+def _carried(ends: tuple[np.ndarray, np.ndarray], free_ends: np.ndarray, y_before: float) -> np.ndarray:
+    """The state (y, d) before each block (2 x blocks), carried from the steady state (y_before, 0).
+
+    A block's end state is its forced end state plus its free response to the state before it
+    (`free_ends`: rows y and d at the block's end, columns the response to unit y and unit d).
+    """
+    (yy, yd), (dy, dd) = free_ends.tolist()
+    y, d = y_before, 0.0
+    states = []
+    for y_end, d_end in zip(ends[0].tolist(), ends[1].tolist()):
+        states.append((y, d))
+        y, d = y_end + yy * y + yd * d, d_end + dy * y + dd * d
+    return np.array(states).T
+
+
+def _all_pole(v: np.ndarray, s: float, a2: float, y_before: float) -> np.ndarray:
+    """y[n] = v[n] - a1 y[n-1] - a2 y[n-2] (s = 1 + a1 + a2) from y[-1] = y[-2] = `y_before`: exact, no loop per sample.
+
+    The signal is cut into ~2 sqrt(n) blocks of L ~ sqrt(n) / 2 samples, the columns of an
+    L x blocks array (more blocks than rows: a step down the rows costs more than one from
+    block to block). The recursion runs down the rows for all blocks at once, each block from
+    rest, and for the two free responses to a unit state; the state before each block is then
+    carried block to block, and each block gets its free response to it. ~2.5 sqrt(n) Python
+    steps, and no matrix product (no BLAS threads to stall when the cores are busy).
+    """
+    blocks = max(1, int(2 * np.sqrt(v.size)))
+    length = -(-v.size // blocks)
+    inputs = np.zeros(blocks * length)
+    inputs[: v.size] = v
+    out, d_end = _recurse(inputs.reshape(blocks, length).T, s, a2, np.zeros(blocks), np.zeros(blocks))
+    free, free_d_end = _recurse(np.zeros((length, 2)), s, a2, np.array([1.0, 0.0]), np.array([0.0, 1.0]))
+    states = _carried((out[-1], d_end), np.array([free[-1], free_d_end]), y_before)
+    out += np.outer(free[:, 0], states[0])
+    out += np.outer(free[:, 1], states[1])
+    return out.T.ravel()[: v.size]
+
+
+def _steady_pass(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """One causal pass of the biquad (b, a with a0 = 1) over `x`, started in steady state for x[0]:
+    as if x had always been x[0] before (scipy's lfilter with zi = lfilter_zi(b, a) x[0])."""
+    past = np.concatenate((np.full(2, x[0]), x))
+    v = b[0] * past[2:] + b[1] * past[1:-1] + b[2] * past[:-2]
+    s = math.fsum(a)  # 1 + a1 + a2 rounded once: it is small, the DC gain is sum(b) / s
+    return _all_pole(v, s, a[2], x[0] * b.sum() / s)
+
+
+def _odd_extension(x: np.ndarray, n: int) -> np.ndarray:
+    """`x` with `n` samples added at each end, reflected about the end values (keeps value and slope)."""
+    if n == 0:
+        return x
+    return np.concatenate((2 * x[0] - x[n:0:-1], x, 2 * x[-1] - x[-2 : -n - 2 : -1]))
+
+
 def cfc_filter(values: np.ndarray, dt: float, cfc: float | str, pad: float = 0.01) -> np.ndarray:
     """Zero-phase CFC filter of a uniformly sampled signal (sample interval `dt` in s).
 
-    scipy's filtfilt with the J211-1 coefficients: the ends are padded with `pad` seconds of
-    the signal reflected about its end values (odd reflection: keeps value and slope, as
-    J211-1 suggests to avoid start-up transients), and each pass starts in steady state.
+    The J211-1 biquad run forward then backward, as scipy's filtfilt(padtype="odd") does it: the
+    ends are padded with `pad` seconds of the signal reflected about its end values (odd
+    reflection: keeps value and slope, as J211-1 suggests to avoid start-up transients), and each
+    pass starts in steady state. Pure numpy, so loading data does not import scipy.signal.
     """
-    from scipy.signal import filtfilt  # scipy.signal takes a second to import: only when filtering
-
     cfc = CFC_CLASSES[cfc] if isinstance(cfc, str) else float(cfc)
     b, a = cfc_coefficients(cfc, dt)
     x = np.asarray(values, dtype=float)
-    return filtfilt(b, a, x, padtype="odd", padlen=min(x.size - 1, max(1, int(round(pad / dt)))))
+    if x.size == 0:
+        raise ValueError("cannot filter an empty signal")
+    padlen = min(x.size - 1, max(1, int(round(pad / dt))))
+    forward = _steady_pass(b, a, _odd_extension(x, padlen))
+    both = _steady_pass(b, a, forward[::-1])[::-1]
+    return both[padlen : padlen + x.size]
 
 
 def remove_bias(time: np.ndarray, values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
@@ -54,9 +128,9 @@ def remove_bias(time: np.ndarray, values: np.ndarray, window: tuple[float, float
 
 def cumtrapz(time: np.ndarray, values: np.ndarray) -> np.ndarray:
     """Cumulative trapezoid integral, 0 at the first sample."""
-    from scipy.integrate import cumulative_trapezoid
-
-    return cumulative_trapezoid(values, time, initial=0.0)
+    out = np.zeros(np.shape(values))
+    np.cumsum(np.diff(time) * (values[1:] + values[:-1]) / 2.0, out=out[1:])
+    return out
 
 
 def integrate(time: np.ndarray, accel: np.ndarray, v0: float, t0: float = 0.0) -> tuple[np.ndarray, np.ndarray]:

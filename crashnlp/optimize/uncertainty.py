@@ -28,7 +28,6 @@ from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
-import scipy.sparse.linalg as spla
 
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.fit import Residual
@@ -146,11 +145,11 @@ class SensitivityEvaluator:
         self.f = nlp.functions.get("sens") or sensitivity_function(nlp, residuals)
         self.p = nlp.bounds()["p"]
         theta = nlp.blocks["theta"]
-        self.theta = np.arange(theta.offset, theta.offset + theta.shape[0])
+        self.theta = list(range(theta.offset, theta.offset + theta.shape[0]))  # columns of z
         self.theta_scale = theta.scale
         self.states = np.concatenate(
             [np.arange(b.offset, b.offset + b.shape[0] * b.shape[1]) for n, b in nlp.blocks.items() if n.endswith((".x", ".xc"))]
-        )
+        ).tolist()
         sizes = [len(r.columns) for r in residuals]
         ends = np.cumsum(sizes)
         self.rows = [slice(e - n, e) for e, n in zip(ends, sizes)]
@@ -158,8 +157,6 @@ class SensitivityEvaluator:
 
     def __call__(self, z: np.ndarray) -> Sensitivity:
         G, Rz, R = self.f(z, self.p)
-        G, Rz = G.sparse().tocsc(), Rz.sparse().tocsc()
-        dx = -spla.spsolve(G[:, self.states].tocsc(), G[:, self.theta].toarray())
-        dx = dx.reshape(len(self.states), len(self.theta))
-        J = Rz[:, self.theta].toarray() + Rz[:, self.states] @ dx
-        return Sensitivity(np.asarray(J) / self.theta_scale, np.asarray(R).ravel(), self.rows, self.residuals)
+        dx = -ca.solve(G[:, self.states], ca.densify(G[:, self.theta]), "csparse")  # CasADi's sparse LU: no scipy.sparse
+        J = ca.densify(Rz[:, self.theta]) + ca.mtimes(Rz[:, self.states], dx)
+        return Sensitivity(J.full() / self.theta_scale, R.full().ravel(), self.rows, self.residuals)

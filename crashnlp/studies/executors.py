@@ -46,7 +46,6 @@ PRELOAD = [
     "crashnlp.case",
     "crashnlp.optimize",
     "crashnlp.results",
-    "scipy.signal",
 ]
 
 
