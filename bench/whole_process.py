@@ -3,9 +3,12 @@
 `crashnlp identify problems/pickup-56kph.yaml` as a process: the first run on a fresh
 cache (the model's functions compiled, the NLP solved in CasADi's virtual machine while
 its library compiles in the background), then, once that compile has finished, the
-median of warm runs with and without figures, each with its peak resident memory;
-against the scipy baseline fit (bench/baseline.py, the same model) run as a process of
-its own.
+median of warm runs with and without figures, each with its peak resident memory
+(figures are drawn by a forked process, counted in the peak: the kernel reports the
+largest of a process and its waited-for children); against the scipy baseline fit
+(bench/baseline.py, the same model) run as a process of its own. `crashnlp simulate`,
+and a Python that only imports numpy and CasADi (the floor of any such command),
+beside them.
 """
 
 from __future__ import annotations
@@ -60,13 +63,24 @@ def run(quick: bool = False) -> dict:
         out["first_run_fresh_cache"] = median_of(identify, 1, fresh_env)
         out["background_compile_s"] = wait_for_compiles(Path(tmp) / "cache")
         out["second_run_fresh_cache"] = median_of(identify, 1, fresh_env)
-        out["warm"] = median_of(identify, repeats)
-        out["warm_no_figures"] = median_of([*identify, "--no-figures"], repeats)
+        out["warm"] = median_of(identify, repeats, fresh_env)
+        out["warm_no_figures"] = median_of([*identify, "--no-figures"], repeats, fresh_env)
+        simulate = [CLI, "simulate", str(PICKUP_56), "--out", str(Path(tmp) / "sim")]
+        out["simulate_warm"] = median_of(simulate, repeats, fresh_env)
+        out["python_numpy_casadi"] = median_of([sys.executable, "-c", "import numpy, casadi"], repeats)
         env = {**os.environ, "PYTHONPATH": str(ROOT)}
         out["scipy_baseline"] = median_of([sys.executable, "-c", BASELINE], repeats, env)
     out["speedup"] = out["scipy_baseline"]["wall_s"] / out["warm"]["wall_s"]
     out["speedup_no_figures"] = out["scipy_baseline"]["wall_s"] / out["warm_no_figures"]["wall_s"]
-    for key in ("first_run_fresh_cache", "second_run_fresh_cache", "warm", "warm_no_figures", "scipy_baseline"):
+    for key in (
+        "first_run_fresh_cache",
+        "second_run_fresh_cache",
+        "warm",
+        "warm_no_figures",
+        "simulate_warm",
+        "python_numpy_casadi",
+        "scipy_baseline",
+    ):
         r = out[key]
         print(f"  {key}: {r['wall_s']:.2f} s, peak {r['peak_rss_mb']:.0f} MB, exit {r['exit']}")
     return out

@@ -86,6 +86,7 @@ class NLPBuilder:
     squares: list[ca.MX] = field(default_factory=list)  # least-squares residuals
     rest: ca.MX = field(default_factory=lambda: ca.MX(0))  # the other objective terms
     threads: int | None = None  # for the mapped interval functions (None: runtime.map_threads(); 1 when compiled)
+    symbolic: bool = True  # the numbers given to `parameter` as parameters (else constants)
     # Functions of (x, p) the caller evaluates after the solve, compiled with the solver's
     # (crashnlp.optimize.oracle); `functions` holds them all, as the last solve had them
     extras: dict[str, Callable[[], ca.Function]] = field(default_factory=dict)
@@ -112,9 +113,12 @@ class NLPBuilder:
 
     def parameter(self, name: str, value) -> ca.MX:
         """A named number of the problem (a scalar, vector or matrix), symbolic in the NLP:
-        its value is passed at every solve, so it may change without changing the NLP."""
+        its value is passed at every solve, so it may change without changing the NLP.
+        A constant of the graph instead when the NLP is not `symbolic`."""
         a = np.asarray(value, dtype=float)
         rows, cols = (a.shape + (1, 1))[:2] if a.ndim <= 2 else (a.size, 1)
+        if not self.symbolic:
+            return ca.MX(ca.DM(a.reshape(rows, cols)))
         symbol = ca.MX.sym(name, rows, cols)
         self.parameters.append(symbol)
         self.parameter_values.append(a.reshape(rows, cols).ravel(order="F"))

@@ -110,21 +110,28 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
     return solution
 
 
+def fit_ocp(case: Case) -> tuple[OptimalControl, list[Residual]]:
+    """The identification NLP of a case and its residuals; the covariance's sensitivities are
+    an extra of the NLP, so that they are compiled with its functions (crashnlp.optimize.oracle)."""
+    ocp = OptimalControl(case)
+    residuals = add_fit_objective(ocp)
+    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, residuals)
+    return ocp, residuals
+
+
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
     """Build and solve the identification NLP of a case; a start that falls short of the
     measured crush is repaired from the data first (crashnlp.autoinit), and says so."""
     case, note = repair_start(case) if warm is None else (case, None)
     if note and progress is not None:
         print(note, file=progress)
-    ocp = OptimalControl(case)
+    ocp, residuals = fit_ocp(case)
     if ocp.free.size == 0:
         raise InputError(f"{case.name}: estimate names no parameter to identify")
-    residuals = add_fit_objective(ocp)
     if not residuals:
         raise InputError(f"{case.name}: no test has data to fit")
     if warm is not None:
         ocp.set_guess(warm)
-    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, residuals)  # for the covariance, compiled alike
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = finish(case, ocp, result, theta0, residuals)

@@ -15,7 +15,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
-from crashnlp.optimize.oracle import compilable
+from crashnlp.optimize.oracle import compilable, symbolic
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
@@ -53,8 +53,9 @@ class OptimalControl:
     def __init__(self, case: Case):
         self.case = case
         problem = case.problem
-        # serial maps where the NLP may be compiled: its library then serves every thread setting
-        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None)
+        # numbers as parameters where the NLP may be compiled, and serial maps where it will be
+        # (its library then serves every thread setting)
+        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None, symbolic=symbolic(problem))
         self.free = FreeParameters(case.layout, case.base, problem.estimate)
         self.theta = self.nlp.variable(
             "theta", self.free.size, self.free.initial, self.free.lower, self.free.upper, self.free.scale
@@ -65,17 +66,20 @@ class OptimalControl:
         self._constraints()
 
     def _transcribe(self, test: TestCase, p0: np.ndarray, horizon: float) -> Transcript:
-        """One test's trajectory and outputs. The interval functions take q = [theta; the
-        test's full parameter vector]: the fixed values and the impact speed are NLP
-        parameters, so that a study changing them keeps the NLP's shape."""
+        """One test's trajectory and outputs. With symbolic numbers (an NLP that may be compiled)
+        the interval functions take q = [theta; the test's full parameter vector], the fixed
+        values an NLP parameter, so that a study changing them keeps the NLP's shape; else
+        q = theta and the fixed values are constants folded into them, which an exact Hessian
+        needs (derived through the fixed values, it costs ten times as much)."""
         model = self.case.model
         fine = np.linspace(0.0, horizon, 4 * self.transcription.intervals + 1)
         guess = simulate(model, self.case.test_parameters(test, p0), test.speed, fine, self.case.problem.simulation)
-        theta_sx, fixed_sx = ca.SX.sym("theta", self.free.size), ca.SX.sym("fixed", self.free.base.size)
-        q_sx = ca.vertcat(theta_sx, fixed_sx)
+        theta_sx = ca.SX.sym("theta", self.free.size)
+        fixed_sx = ca.SX.sym("fixed", self.free.base.size) if self.nlp.symbolic else None
+        q_sx = ca.vertcat(theta_sx, fixed_sx) if fixed_sx is not None else theta_sx
         p_sx = self.free.full(theta_sx, test.overrides, fixed_sx)
-        fixed = self.nlp.parameter(f"{test.name}.parameters", self.case.test_parameters(test))
-        q = ca.vertcat(self.theta, fixed)
+        fixed = self._fixed(f"{test.name}.parameters", self.case.test_parameters(test))
+        q = ca.vertcat(self.theta, fixed) if fixed is not None else self.theta
         x0 = model.initial_state(
             self.free.full(self.theta, test.overrides, fixed), self.nlp.parameter(f"{test.name}.speed", test.speed)
         )
@@ -85,6 +89,10 @@ class OptimalControl:
         outputs = ca.Function("outputs", [x, q_sx], [model.outputs(x, p_sx)])
         (y,) = self.nlp.mapped(outputs, len(traj.times), traj.states, q)
         return Transcript(test, traj, y)
+
+    def _fixed(self, name: str, values: np.ndarray) -> ca.MX | None:
+        """A full parameter vector as an NLP parameter, or None where the numbers are constants."""
+        return self.nlp.parameter(name, values) if self.nlp.symbolic else None
 
     def _constraints(self) -> None:
         spec = self.case.problem.constraints
@@ -99,7 +107,7 @@ class OptimalControl:
                 growth = self._unloaded_depth_growth(tr)
                 self.nlp.constrain("monotone_crush", growth, -MONOTONE_TOLERANCE, np.inf, test=tr.test.name)
         if spec.monotone_spring:
-            shared = self.nlp.parameter("parameters", self.case.base)
+            shared = self._fixed("parameters", self.case.base)
             values = self.free.full(self.theta, fixed=shared)[self.case.layout.index("model.spring.values")]
             self.nlp.constrain("monotone_spring", ca.diff(values), 0.0, np.inf)
 

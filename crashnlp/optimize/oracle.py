@@ -51,7 +51,7 @@ _loaded: dict[Path, dict[str, ca.Function]] = {}
 class Oracle:
     """The NLP as nlpsol takes it: (x, p) -> (f, g), and its derivatives as options."""
 
-    nlp: ca.Function
+    nlp: ca.Function | dict[str, ca.MX]
     derivatives: dict[str, ca.Function]
     key: str
     compiled: bool
@@ -65,15 +65,24 @@ def oracle(nlp: NLPBuilder, hessian: str, mode: str, expand: bool = False) -> Or
         functions = {name: f.expand() for name, f in functions.items()}
     nlp.functions = functions
     solver = {name: f for name, f in functions.items() if name in SOLVER_FUNCTIONS}
-    return Oracle(solver.pop("nlp"), solver, f"{nlp.key()}-{hessian}", built)
+    base = solver.pop("nlp")
+    # in the VM nlpsol gets the expressions themselves: an exact Hessian derived through a
+    # call of the `nlp` Function costs ten times as much to build and evaluate
+    return Oracle(base if built else nlp.problem(), solver, f"{nlp.key()}-{hessian}", built)
+
+
+def symbolic(problem: Problem) -> bool:
+    """Whether a problem's NLP carries its numbers as parameters: where its solver section lets
+    it be compiled (not `never`, not the exact Hessian, which `auto` means for a design),
+    whether or not this machine compiles, so that the result is the same bits either way."""
+    spec = problem.solver
+    exact = spec.hessian == "exact" or (spec.hessian == "auto" and problem.kind == "design")
+    return spec.compile != "never" and not exact
 
 
 def compilable(problem: Problem) -> bool:
-    """Whether a problem's NLP may be compiled: its solver section allows (not the exact Hessian,
-    which `auto` means for a design) and a compiler is there."""
-    spec = problem.solver
-    exact = spec.hessian == "exact" or (spec.hessian == "auto" and problem.kind == "design")
-    return spec.compile != "never" and not exact and compiled.compiler(nlp=True) is not None
+    """Whether a problem's NLP will be compiled here: symbolic, and a compiler is there."""
+    return symbolic(problem) and compiled.compiler(nlp=True) is not None
 
 
 def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str, allowed: bool) -> tuple[dict[str, ca.Function], bool]:

@@ -41,12 +41,10 @@ class Chain:
 
 def walk(chain: Chain) -> list[tuple[float, float, str]]:
     """(value, objective, IPOPT status) along a chain, each solve warm-started from the last."""
-    from crashnlp.optimize.fit import add_fit_objective
-    from crashnlp.optimize.ocp import OptimalControl
+    from crashnlp.optimize.identify import fit_ocp
     from crashnlp.optimize.solve import build_solver
 
-    ocp = OptimalControl(Case(chain.problem))
-    add_fit_objective(ocp)
+    ocp, _ = fit_ocp(Case(chain.problem))  # the identification's shape: its compiled library serves
     built = build_solver(ocp.nlp, chain.problem.solver)
     bounds = ocp.nlp.bounds()
     block = ocp.nlp.blocks["theta"]
