@@ -2,7 +2,8 @@
 
 Every solve is capped at MAX_ITER IPOPT iterations (800 intervals can be slow);
 a capped solve is recorded with its status. Times are end-to-end identify()
-calls, with IPOPT's own solve time beside. The log-log slope of time against
+calls with the compiled NLP (the first run, which compiles it, recorded beside), with
+IPOPT's own solve time beside. The log-log slope of time against
 intervals over the converged solves says how the cost grows (1 = linear).
 """
 
@@ -32,7 +33,11 @@ def with_tests(problem: Problem, count: int) -> Problem:
 
 
 def measure(method: str, intervals: int, tests: int) -> dict:
-    """One capped identification."""
+    """One capped identification with the compiled NLP (its library compiled first, untimed
+    beyond `first_run_s`)."""
+    first, _ = timed(
+        lambda: identify(Case(with_tests(load(PICKUP_56, method, intervals, MAX_ITER, "now"), tests)), progress=None)
+    )
     case = Case(with_tests(load(PICKUP_56, method, intervals, MAX_ITER), tests))
     wall, solution = timed(lambda: identify(case, progress=None))
     r = solution.result
@@ -40,6 +45,8 @@ def measure(method: str, intervals: int, tests: int) -> dict:
         "method": method,
         "intervals": intervals,
         "tests": tests,
+        "compiled": r.compiled,
+        "first_run_s": first,
         "wall_s": wall,
         "ipopt_s": r.wall_s,
         "iterations": r.iterations,

@@ -27,12 +27,26 @@ CLI = str(Path(sys.executable).with_name("crashnlp"))
 BASELINE = "from bench.identification import run_baseline; run_baseline(None, 100)"
 
 
+# Starts the command from a small process: a process forked from this one would carry this
+# one's resident memory as its own peak (the kernel keeps the high-water mark across exec).
+SPAWN = """
+import os, sys, time
+t0 = time.perf_counter()
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[1], sys.argv[1:])
+_, status, usage = os.wait4(pid, 0)
+print(time.perf_counter() - t0, usage.ru_maxrss, os.waitstatus_to_exitcode(status))
+"""
+
+
 def timed_process(command: list[str], env: dict[str, str] | None = None) -> tuple[float, float, int]:
-    """Wall time (s), peak resident memory (MB) and exit status of one process."""
-    t0 = time.perf_counter()
-    proc = subprocess.Popen(command, cwd=ROOT, env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    _, status, usage = os.wait4(proc.pid, 0)
-    return time.perf_counter() - t0, usage.ru_maxrss / 1024, os.waitstatus_to_exitcode(status)
+    """Wall time (s), peak resident memory (MB; the largest of the process and the children it
+    waited for, such as the figure process) and exit status of one process."""
+    spawn = [sys.executable, "-S", "-c", SPAWN, *command]
+    proc = subprocess.run(spawn, cwd=ROOT, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True)
+    wall, rss_kb, status = proc.stdout.split()[-3:]
+    return float(wall), float(rss_kb) / 1024, int(status)
 
 
 def wait_for_compiles(cache: Path, timeout: float = 300.0) -> float:

@@ -215,8 +215,29 @@ def _print_solution(result) -> None:
 
 
 def _solve(args, kind: str) -> int:
-    """identify and design: one NLP solve, its result files and a summary."""
+    """identify and design: one NLP solve, its result files and a summary. The figure process
+    starts first, so that matplotlib loads while this one reads the problem and solves."""
     from crashnlp.drawing import FigureProcess
+
+    drawing = not (args.no_figures or getattr(args, "check", False))
+    with FigureProcess() if drawing else nullcontext() as figures:
+        solved = _solve_case(args, kind)
+        if solved is None:
+            return 0
+        result, out = solved
+        result.save(out, figures=False)
+        if figures is not None:
+            figures.draw(result, out)
+    _print_solution(result)
+    print(f"wrote {out}/")
+    if not result.ok:
+        print(f"crashnlp: {result.name}: {result.status}", file=sys.stderr)
+        return 1
+    return 0
+
+
+def _solve_case(args, kind: str):
+    """(Result, output folder) of the problem file, or None after `--check`."""
     from crashnlp.optimize import solve_case
     from crashnlp.optimize.outcome import result_of
     from crashnlp.problem import load_problem
@@ -230,19 +251,9 @@ def _solve(args, kind: str) -> int:
     case = _load_case(args.problem, problem, check_data=True)  # errors name the file, before any solve
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
-        return 0
-    with FigureProcess() if not args.no_figures else nullcontext() as figures:  # matplotlib loads meanwhile
-        with _computing(args):  # crashnlp.api.solve, on the case already built
-            result = result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout))
-        result.save(out, figures=False)
-        if figures is not None:
-            figures.draw(result, out)
-    _print_solution(result)
-    print(f"wrote {out}/")
-    if not result.ok:
-        print(f"crashnlp: {result.name}: {result.status}", file=sys.stderr)
-        return 1
-    return 0
+        return None
+    with _computing(args):  # crashnlp.api.solve, on the case already built
+        return result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout)), out
 
 
 def cmd_identify(args) -> int:
