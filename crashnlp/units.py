@@ -15,6 +15,7 @@ from __future__ import annotations
 import json
 import os
 import re
+from contextlib import suppress
 from functools import cache
 from importlib.metadata import version
 from pathlib import Path
@@ -109,7 +110,8 @@ def _remember(known: dict[str, float]) -> None:
         partial.write_text(json.dumps(known, sort_keys=True))
         os.replace(partial, path)
     except OSError:
-        partial.unlink(missing_ok=True)
+        with suppress(OSError):
+            partial.unlink()
 
 
 def unit_scale(unit: str, si_unit: str) -> float:

@@ -96,3 +96,12 @@ def test_auto_solves_now_and_compiles_behind_for_the_next_run(tmp_path, monkeypa
     after = identify(pickup("auto"), progress=None)
     assert after.result.compiled
     assert np.array_equal(before.result.z, after.result.z)
+
+
+def test_a_cache_that_cannot_be_written_leaves_the_virtual_machine(tmp_path, monkeypatch):
+    blocker = tmp_path / "file"
+    blocker.write_text("not a folder")
+    switched_on(monkeypatch, blocker / "cache")
+    solved = identify(pickup("auto"), progress=None)
+    assert solved.result.converged and not solved.result.compiled
+    assert blocker.read_text() == "not a folder"

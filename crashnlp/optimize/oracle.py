@@ -29,6 +29,7 @@ import os
 import subprocess
 import sys
 import time
+from contextlib import suppress
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
@@ -42,6 +43,7 @@ from crashnlp.problem.schema import Problem
 NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
 STALE_S = 900.0  # a background compile older than this is taken for dead
 COMPILED_HESSIANS = ("gauss-newton", "limited-memory")  # the exact Hessian of a design is tens of MB of C: it stays in the VM
+COMPILE_ERRORS = (OSError, RuntimeError, subprocess.CalledProcessError)  # an unusable cache or compiler: stay in the VM
 SOLVER_FUNCTIONS = ("nlp", "grad_f", "jac_g", "hess_lag")
 SOLVER_OPTIONS = {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
 _loaded: dict[Path, dict[str, ca.Function]] = {}
@@ -87,19 +89,23 @@ def compilable(problem: Problem) -> bool:
 
 def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str, allowed: bool) -> tuple[dict[str, ca.Function], bool]:
     """The solver's functions and the NLP's extras: from the library of this NLP shape when the
-    cache holds one (True), else built (False) and compiled behind or now by `mode`."""
+    cache holds one (True), else built (False) and compiled behind or now by `mode`. A cache
+    that cannot be written or read, or a compiler that fails, leaves the VM's functions: the
+    result is the same, only slower."""
     cc = compiled.compiler(nlp=True) if mode != "never" and allowed else None
     library = _library(nlp, "-".join([hessian, *sorted(nlp.extras)]), cc) if cc else None
-    if library and (library in _loaded or library.exists()):
-        return _load(library), True
+    with suppress(*COMPILE_ERRORS):
+        if library and (library in _loaded or library.exists()):
+            return _load(library), True
     functions = {**_functions(nlp, hessian), **{name: make() for name, make in nlp.extras.items()}}
     if not (cc and library):
         return functions, False
-    if mode == "now":
-        _write_names(functions, library)
-        compiled.build(cc, _source(functions), library, NLP_FLAGS)
-        return _load(library), True
-    _compile_behind(cc, functions, library)
+    with suppress(*COMPILE_ERRORS):
+        if mode == "now":
+            _write_names(functions, library)
+            compiled.build(cc, _source(functions), library, NLP_FLAGS)
+            return _load(library), True
+        _compile_behind(cc, functions, library)
     return functions, False
 
 
