@@ -15,7 +15,8 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
-from crashnlp.optimize.oracle import compilable, symbolic
+from crashnlp.optimize.oracle import compilable
+from crashnlp.optimize.oracle import symbolic as is_symbolic
 from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
@@ -50,12 +51,14 @@ def _interpolator(response: Response):
 class OptimalControl:
     """Variables, dynamics and constraints of all tests of a case."""
 
-    def __init__(self, case: Case):
+    def __init__(self, case: Case, symbolic: bool | None = None):
+        """`symbolic`: the numbers as NLP parameters (default: where the NLP may be compiled)."""
         self.case = case
         problem = case.problem
         # numbers as parameters where the NLP may be compiled, and serial maps where it will be
         # (its library then serves every thread setting)
-        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None, symbolic=symbolic(problem))
+        numbers_as_parameters = is_symbolic(problem) if symbolic is None else symbolic
+        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None, symbolic=numbers_as_parameters)
         self.free = FreeParameters(case.layout, case.base, problem.estimate)
         self.theta = self.nlp.variable(
             "theta", self.free.size, self.free.initial, self.free.lower, self.free.upper, self.free.scale
