@@ -30,17 +30,21 @@ def _problem(problem: Problem | str | Path) -> Problem:
 
 
 def solve(
-    problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None, warm: np.ndarray | None = None
+    problem: Problem | str | Path,
+    verbose: bool = False,
+    progress: TextIO | None = None,
+    warm: np.ndarray | None = None,
+    ratings: bool = True,
 ) -> Result:
     """Identify or design, as the problem's `kind` says; `progress`: a stream for a line every ten
-    IPOPT iterations; `warm`: a Result.z of the same shape."""
+    IPOPT iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
     from crashnlp.case import Case
     from crashnlp.optimize import solve_case
     from crashnlp.optimize.outcome import result_of
 
     case = Case(_problem(problem))
     case.check_data()  # a fit to data that contradict the problem's speed is refused, not run
-    return result_of(solve_case(case, verbose=verbose, progress=progress, warm=warm))
+    return result_of(solve_case(case, verbose=verbose, progress=progress, warm=warm), ratings)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 from pathlib import Path
 
 import matplotlib
@@ -13,6 +14,7 @@ import numpy as np  # noqa: E402
 from crashnlp.outputs import MEASURABLE, OUTPUT  # noqa: E402
 
 PANELS = MEASURABLE  # the outputs a test measures, each a panel
+DPI = 110
 
 
 def response_figure(path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None) -> None:
@@ -69,8 +71,9 @@ def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None
     _save(fig, path)
 
 
-def xy_figure(path: Path, x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "") -> None:
-    """One panel per series against a swept value (studies)."""
+def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "") -> bytes:
+    """One panel per series against a swept value, as PNG bytes: a study draws its figures in its
+    workers, which may be on other machines, and writes them where its table is."""
     fig, axes = plt.subplots(len(series), 1, figsize=(6.5, 2.2 * len(series) + 0.5), sharex=True, squeeze=False)
     for ax, (label, y) in zip(axes[:, 0], series.items()):
         ax.plot(x, y, "o-", color="C0")
@@ -79,7 +82,10 @@ def xy_figure(path: Path, x: np.ndarray, series: dict[str, np.ndarray], xlabel: 
     axes[-1, 0].set_xlabel(xlabel)
     fig.suptitle(title)
     _layout(fig)
-    _save(fig, path)
+    buffer = io.BytesIO()
+    fig.savefig(buffer, format="png", dpi=DPI)
+    plt.close(fig)
+    return buffer.getvalue()
 
 
 MARGINS_IN = {"left": 0.95, "right": 0.2, "bottom": 0.6, "top": 0.5}  # room for tick and axis labels and a title
@@ -102,5 +108,5 @@ def _layout(fig, wspace: float = 0.2, hspace: float = 0.12) -> None:
 
 def _save(fig, path: Path) -> None:
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=DPI)
     plt.close(fig)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import os
 from pathlib import Path
 
 import numpy as np
@@ -77,3 +78,8 @@ def assert_monotone_crush(ts) -> None:
     assert np.all(np.diff(crush[: peak + 1]) >= -1e-4)  # MONOTONE_TOLERANCE
     contact = ts.outputs["contact_force"][peak:] > 0
     assert np.all(np.diff(crush[peak:])[contact[1:]] <= 1e-4)
+
+
+def worker_pid(_) -> int:
+    """A task that says which process ran it."""
+    return os.getpid()

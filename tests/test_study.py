@@ -3,18 +3,21 @@
 from __future__ import annotations
 
 import csv
+import itertools
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, worker_pid
 
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
-from crashnlp.studies.plan import case_indices, plan_cases, warm_start_plan
+from crashnlp.studies.executors import LocalExecutor
+from crashnlp.studies.plan import case_indices, corners, lattice, plan_cases, warm_start_plan
+from crashnlp.studies.schedule import run_tree
 
 PITCH = "constraints.bounds.pitch"
 BOUNDS = [[None, "2 deg"], [None, "2.5 deg"], [None, "3 deg"], [None, "4 deg"]]  # the free fit pitches ~3.2 deg
@@ -113,18 +116,40 @@ def test_tighter_pitch_bound_never_fits_better(shipped):
 
 # --------------------------------------------------------------------------- the plan
 def test_warm_start_plan_is_fixed_by_the_case_list():
-    parent, wave = warm_start_plan([(0,), (1,), (2,), (3,)], [0, 3])
-    assert parent == [None, 0, 3, None] and wave == [0, 1, 1, 0]
-    grid = [(i, j) for i in range(3) for j in range(3)]
-    parent, wave = warm_start_plan(grid, [0, 8])
-    assert wave == [0, 1, 2, 1, 1, 1, 2, 1, 0]
+    parent, depth = warm_start_plan((4,), [0, 3])
+    assert parent == [None, 0, 3, None] and depth == [0, 1, 1, 0]
+    parent, depth = warm_start_plan((3, 3), [0, 8])
+    assert depth == [0, 1, 2, 1, 1, 1, 2, 1, 0]
     assert parent[4] == 0 and parent[1] == 0 and parent[2] == 1
+
+
+def nearest_closer_neighbour(shape: tuple[int, ...], seeds: list[int]) -> tuple[list[int | None], list[int]]:
+    """The plan's rule, case by case: depth the Chebyshev distance to the nearest seed; parent the
+    neighbour one step closer, the nearest such (Euclidean), ties to the lower number."""
+    points = np.array(list(itertools.product(*(range(n) for n in shape))))
+    depth = [int(np.abs(points[seeds] - p).max(axis=1).min()) for p in points]
+    parent: list[int | None] = []
+    for n, p in enumerate(points):
+        near = [m for m in range(len(points)) if np.abs(points[m] - p).max() == 1 and depth[m] == depth[n] - 1]
+        parent.append(min(near, key=lambda m: (np.sum((points[m] - p) ** 2), m)) if depth[n] else None)
+    return parent, depth
+
+
+@pytest.mark.parametrize("shape", [(7,), (4, 5), (3, 1, 4), (2, 3, 2, 3)])
+def test_the_plan_follows_its_rule_on_any_grid(shape):
+    rng = np.random.default_rng(sum(shape))
+    count = int(np.prod(shape))
+    for seeds in (corners(shape), sorted(rng.choice(count, size=min(3, count), replace=False).tolist()), lattice(shape, 1)):
+        assert warm_start_plan(shape, seeds) == nearest_closer_neighbour(shape, seeds)
+    assert max(warm_start_plan(shape, lattice(shape, 1))[1]) <= 1
 
 
 def test_grid_and_zip_cases(small):
     grid = load_study(write_study(small, sweep={PITCH: BOUNDS[:2], "vehicle.mass": ["2400 kg", "2500 kg", 2600]}))
     assert case_indices(grid) == [(i, j) for i in range(2) for j in range(3)]
     assert [c.parent for c in plan_cases(grid)] == [None, 0, None, None, 3, None]
+    lattice_grid = load_study(write_study(small, max_depth=0, sweep={PITCH: BOUNDS[:2], "vehicle.mass": [2400, 2500, 2600]}))
+    assert [c.parent for c in plan_cases(lattice_grid)] == [None] * 6
     zipped = load_study(write_study(small, mode="zip", sweep={PITCH: BOUNDS[:3], "vehicle.mass": [2400, 2500, 2600]}))
     assert [c.values for c in plan_cases(zipped)][1] == (BOUNDS[1], 2500)
     assert zipped.entries[0].si(BOUNDS[0]) == pytest.approx(np.radians(2))
@@ -132,15 +157,69 @@ def test_grid_and_zip_cases(small):
 
 
 # --------------------------------------------------------------------------- (2) executors agree
-def test_local_and_dask_executors_give_the_same_table(small, tmp_path):
-    study = write_study(small)
-    local = run_study(study, tmp_path / "local", executor="local", workers=2, progress=False)
+class Shuffled:
+    """An executor whose lanes finish their tasks in a random order, in this process."""
+
+    def __init__(self, lanes: int, seed: int):
+        self.lanes, self.rng, self.running = lanes, np.random.default_rng(seed), {}
+
+    def submit(self, lane, fn, item):
+        assert lane not in self.running  # one task per lane
+        self.running[lane] = fn(item)
+
+    def wait(self):
+        lane = sorted(self.running)[self.rng.integers(len(self.running))]
+        return lane, self.running.pop(lane)
+
+
+def started_in_random_order(parent: dict, lanes: int, seed: int) -> list[int]:
+    """The order in which run_tree starts tasks finishing at random; each must start after its parent."""
+    finished: set[int] = set()
+    started: list[int] = []
+
+    def job(n):
+        assert parent[n] is None or parent[n] in finished
+        started.append(n)
+        return n
+
+    for n, result in run_tree(Shuffled(lanes, seed), lambda n: n, parent, job):
+        assert result == n
+        finished.add(n)
+    assert sorted(started) == sorted(finished) == sorted(parent)
+    return started
+
+
+@pytest.mark.parametrize("lanes", [1, 2, 3, 8])
+def test_every_case_starts_after_its_parent_whatever_the_lanes_and_timing(lanes):
+    shape = (5, 6)
+    for seeds in (corners(shape), lattice(shape, 1)):
+        parent = dict(enumerate(warm_start_plan(shape, seeds)[0]))
+        for seed in range(3):
+            started = started_in_random_order(parent, lanes, seed)
+            assert set(started[: min(lanes, len(seeds))]) <= set(seeds)  # cold seeds first: most work below
+
+
+def test_workers_live_across_cases_and_a_chain_stays_on_its_worker():
+    chain, other = {0: None, 1: 0, 2: 1, 3: 2}, {4: None, 5: 4, 6: 5}
+    executor = LocalExecutor(2)
+    try:
+        pid = dict(run_tree(executor, worker_pid, {**chain, **other}, lambda n: n))
+    finally:
+        executor.close()
+    assert len({pid[n] for n in chain}) == len({pid[n] for n in other}) == 1
+    assert len(set(pid.values())) == 2
+
+
+def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path):
+    study = write_study(small, sweep={PITCH: BOUNDS[:3], "vehicle.suspension.k_front": ["70 kN/m", "90 kN/m"]})
+    one = run_study(study, tmp_path / "one", workers=1, progress=False)
+    two = run_study(study, tmp_path / "two", workers=2, progress=False)
     dask = run_study(study, tmp_path / "dask", executor="dask", workers=2, progress=False)
-    assert [r["status"] for r in local] == ["ok"] * 4
-    assert [r["warm_start"] for r in local] == ["", "case-000", "case-003", ""]
-    assert without_wall_time(local) == without_wall_time(dask)
-    a, b = read_table(tmp_path / "local/table.csv"), read_table(tmp_path / "dask/table.csv")
-    assert without_wall_time(a) == without_wall_time(b)
+    assert [r["status"] for r in one] == ["ok"] * 6
+    assert [r["warm_start"] for r in one] == ["", "", "case-000", "case-001", "", ""]
+    assert without_wall_time(one) == without_wall_time(two) == without_wall_time(dask)
+    tables = [without_wall_time(read_table(tmp_path / name / "table.csv")) for name in ("one", "two", "dask")]
+    assert tables[0] == tables[1] == tables[2]
 
 
 # --------------------------------------------------------------------------- (3) resume
@@ -211,6 +290,8 @@ def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp
         ({"problem": "missing.yaml"}, "problem: file not found"),
         ({"sweep": {PITCH: []}}, f"sweep.{PITCH}:"),
         ({"seeds": [9]}, "seeds:"),
+        ({"seeds": [0], "max_depth": 1}, "give seeds or max_depth, not both"),
+        ({"max_depth": -1}, "max_depth:"),
     ],
 )
 def test_bad_study_file_is_one_line_naming_the_key(small, changes, message):

@@ -19,8 +19,9 @@ from crashnlp.summary import data_metrics, response_metrics
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
 
-def result_of(solution: Solution) -> Result:
-    """The plain result of a solve."""
+def result_of(solution: Solution, ratings: bool = True) -> Result:
+    """The plain result of a solve; `ratings`: rate each channel fit by ISO/TS 18571 (most of the
+    time of a warm-started study case, and no column of a study's table)."""
     case, res = solution.case, solution.result
     solver = SolverStats(
         res.return_status if res else None,
@@ -30,7 +31,7 @@ def result_of(solution: Solution) -> Result:
         res.build_s if res else None,
         res.compiled if res else None,
     )
-    tests = {test.name: _test(solution, ts, test) for ts, test in zip(solution.tests, case.tests)}
+    tests = {test.name: _test(solution, ts, test, ratings) for ts, test in zip(solution.tests, case.tests)}
     labels = solution.ocp.free.labels()
     cov, pull, at_bound = solution.covariance, solution.bound_pull(), solution.at_bound()
     return Result(
@@ -55,7 +56,7 @@ def result_of(solution: Solution) -> Result:
     )
 
 
-def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
+def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:
     v = solution.verification
     check = None
     if v is not None:
@@ -66,7 +67,7 @@ def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
         test.speed,
         ts,
         data,
-        _fits(solution, ts, test.name),
+        _fits(solution, ts, test.name, ratings),
         response_metrics(ts),
         data_metrics(test),
         ts.loading_end,
@@ -75,13 +76,13 @@ def _test(solution: Solution, ts: Response, test: TestCase) -> TestResult:
     )
 
 
-def _fits(solution: Solution, ts: Response, test: str) -> dict[str, ChannelFit]:
+def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[str, ChannelFit]:
     out = {}
     for r in solution.residuals:
         if r.test != test:
             continue
         times, model = ts.time[r.columns], ts.outputs[r.channel][r.columns]
-        rating = iso18571(times, r.data, model) if len(times) >= 10 else None
+        rating = iso18571(times, r.data, model) if ratings and len(times) >= 10 else None
         rmse = float(np.sqrt(np.mean((model - r.data) ** 2)))
         out[r.channel] = ChannelFit(r.channel, times, r.data, model, r.sigma, rmse, rating)
     return out

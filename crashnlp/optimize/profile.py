@@ -77,6 +77,7 @@ def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], t
 def profiles(solution, executor=None) -> dict[str, dict]:
     """Profile intervals of the parameters the problem's `uncertainty.profile` names."""
     from crashnlp.studies.executors import make_executor
+    from crashnlp.studies.schedule import map_all
 
     spec = solution.case.problem.uncertainty
     if not spec.profile or solution.covariance is None or solution.result is None:
@@ -99,7 +100,7 @@ def profiles(solution, executor=None) -> dict[str, dict]:
                 keys.append((label, side))
     runner = executor or make_executor(spec.executor, spec.workers)
     try:
-        walked = {keys[i]: result for i, result in runner.map_wave(walk, chains)}
+        walked = {keys[i]: result for i, result in map_all(runner, walk, chains)}
     finally:
         if executor is None:
             runner.close()

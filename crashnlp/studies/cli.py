@@ -19,11 +19,12 @@ path in the problem file. A study file:
     constraints.bounds.pitch: [[null, 4 deg], [null, 6 deg], [null, 8 deg]]
   mode: grid                              # grid | zip
   seeds: [0, 2]                           # optional: cases solved cold
+  # max_depth: 3                          # or: seeds on a lattice, no case more than 3 warm starts from one
 
-Seed cases (default: the corners of the grid) are solved cold; then, wave by
-wave, every case next to an already planned one warm-starts from its nearest
-such case. The plan depends only on the case list, so every executor and worker
-count gives the same table. Cases in a wave run in parallel.
+Seed cases (default: the corners of the grid) are solved cold; every other case
+warm-starts from a neighbour one step closer to the nearest seed, and starts as
+soon as that neighbour is solved. The plan depends only on the case list, so
+every executor and worker count gives the same table.
 
 Writes OUT/table.csv (one row per case: swept values as written and in SI,
 status, objective, iterations, solve time, metrics, estimated parameters,

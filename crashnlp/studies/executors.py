@@ -1,9 +1,13 @@
-"""Where the cases of a wave run: a local process pool or a dask.distributed cluster.
+"""Where tasks run: a local process pool or a dask.distributed cluster, as lanes.
 
-Both offer `map_wave(fn, items)`, yielding `(position, result)` as cases finish;
-an exception the task raised (or a worker that died) comes back as the result,
-so one broken case never stops the study. `fn` must be a top-level function of
-plain, picklable data.
+An executor has `lanes` (worker processes, or a cluster's worker threads) and
+runs one task per lane at a time: `submit(lane, fn, item)`, then `wait()` for
+`(lane, result)` of a task that finished. An exception the task raised (or a
+worker that died) comes back as the result, so one broken case never stops the
+study. `fn` must be a top-level function of plain, picklable data. The workers
+start once and live until `close`, so what a worker keeps (a solver built for a
+problem shape) serves every later task on its lane; crashnlp.studies.schedule
+decides what runs where.
 """
 
 from __future__ import annotations
@@ -15,7 +19,7 @@ import signal
 import sys
 import threading
 from collections.abc import Callable, Iterator
-from concurrent.futures import ProcessPoolExecutor, as_completed
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from typing import Any, Protocol
@@ -27,7 +31,11 @@ CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to 
 
 
 class Executor(Protocol):
-    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]: ...
+    lanes: int
+
+    def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None: ...
+
+    def wait(self) -> tuple[int, Any]: ...
 
     def close(self) -> None: ...
 
@@ -92,38 +100,47 @@ def _workers_skip_main_script() -> Iterator[None]:
 
 
 class LocalExecutor:
-    """A process pool on this machine."""
+    """Worker processes on this machine, one single-process pool per lane (so that a task can be
+    sent to the worker that ran its parent); a lane whose worker died starts a new one."""
 
     def __init__(self, workers: int | None = None):
-        self.workers = workers or default_workers()
-        self.pool = self._new_pool()
+        self.lanes = workers or default_workers()
+        self.pools = [_new_pool() for _ in range(self.lanes)]
+        self.running: dict[Future, int] = {}
 
-    def _new_pool(self) -> ProcessPoolExecutor:
-        return ProcessPoolExecutor(max_workers=self.workers, mp_context=_context(), initializer=_worker_init)
-
-    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
+    def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None:
         with _workers_skip_main_script():
             try:
-                futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
-            except BrokenProcessPool:  # a worker died in an earlier wave: start afresh
-                self.pool.shutdown(cancel_futures=True)
-                self.pool = self._new_pool()
-                futures = {self.pool.submit(fn, item): i for i, item in enumerate(items)}
-        for future in as_completed(futures):
-            exc = future.exception()
-            yield futures[future], exc if exc is not None else future.result()
+                future = self.pools[lane].submit(fn, item)
+            except BrokenProcessPool:  # its worker died on an earlier task
+                self.pools[lane].shutdown(cancel_futures=True)
+                self.pools[lane] = _new_pool()
+                future = self.pools[lane].submit(fn, item)
+        self.running[future] = lane
+
+    def wait(self) -> tuple[int, Any]:
+        done, _ = wait(self.running, return_when=FIRST_COMPLETED)
+        future = min(done, key=self.running.__getitem__)
+        exc = future.exception()
+        return self.running.pop(future), exc if exc is not None else future.result()
 
     def close(self) -> None:
-        self.pool.shutdown(cancel_futures=True)
+        for pool in self.pools:
+            pool.shutdown(cancel_futures=True)
 
     def abort(self) -> None:
         """Stop at once (a signal): end the workers mid-case instead of waiting for their cases."""
-        processes = list((getattr(self.pool, "_processes", None) or {}).values())
+        processes = [p for pool in self.pools for p in (getattr(pool, "_processes", None) or {}).values()]
         for process in processes:
             process.terminate()
-        self.pool.shutdown(wait=False, cancel_futures=True)
+        for pool in self.pools:
+            pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
             process.join(timeout=5)
+
+
+def _new_pool() -> ProcessPoolExecutor:
+    return ProcessPoolExecutor(max_workers=1, mp_context=_context(), initializer=_worker_init)
 
 
 @contextmanager
@@ -143,7 +160,7 @@ class DaskExecutor:
     """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
 
     def __init__(self, workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT):
-        from distributed import Client, LocalCluster
+        from distributed import Client, LocalCluster, as_completed
 
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
@@ -158,23 +175,26 @@ class DaskExecutor:
                     silence_logs=logging.CRITICAL,
                 )
             self.client = Client(self.cluster)
-            return
-        try:
-            self.client = Client(address, timeout=timeout)
-        except (ValueError, TypeError) as exc:
-            raise InputError(f"--address {address}: not a scheduler address ({exc})") from None
-        except (OSError, TimeoutError) as exc:
-            why = type(exc).__name__
-            raise RunError(f"--address {address}: no dask scheduler answered within {timeout:g} s ({why})") from None
+        else:
+            self.client = _connect(address, timeout)
+        # a lane per worker thread of the cluster (one unrestricted lane while it has no workers)
+        threads = {a: w.get("nthreads", 1) for a, w in self.client.scheduler_info()["workers"].items()}
+        self.addresses: list[str | None] = [a for a in sorted(threads) for _ in range(threads[a])] or [None]
+        self.lanes = len(self.addresses)
+        self.done = as_completed()
+        self.lane_of: dict[Any, int] = {}  # task key -> lane
 
-    def map_wave(self, fn: Callable[[Any], Any], items: list[Any]) -> Iterator[tuple[int, Any]]:
-        from distributed import as_completed as dask_completed
+    def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None:
+        """The task goes to the lane's worker, or another if that one has left the cluster."""
+        where = self.addresses[lane]
+        future = self.client.submit(fn, item, pure=False, workers=[where] if where else None, allow_other_workers=True)
+        self.lane_of[future.key] = lane
+        self.done.add(future)
 
-        futures = self.client.map(fn, items, pure=False)
-        where = {f.key: i for i, f in enumerate(futures)}
-        for future in dask_completed(futures):
-            exc = future.exception()
-            yield where[future.key], exc if exc is not None else future.result()
+    def wait(self) -> tuple[int, Any]:
+        future = next(self.done)
+        exc = future.exception()
+        return self.lane_of.pop(future.key), exc if exc is not None else future.result()
 
     def close(self) -> None:
         self.client.close()
@@ -188,6 +208,19 @@ class DaskExecutor:
         finally:
             if self.cluster is not None:
                 self.cluster.close(timeout=5)
+
+
+def _connect(address: str, timeout: float) -> Any:
+    """A client of the dask scheduler at `address`; a bad or silent address is one line."""
+    from distributed import Client
+
+    try:
+        return Client(address, timeout=timeout)
+    except (ValueError, TypeError) as exc:
+        raise InputError(f"--address {address}: not a scheduler address ({exc})") from None
+    except (OSError, TimeoutError) as exc:
+        why = type(exc).__name__
+        raise RunError(f"--address {address}: no dask scheduler answered within {timeout:g} s ({why})") from None
 
 
 def make_executor(

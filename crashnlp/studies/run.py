@@ -1,4 +1,4 @@
-"""Run a study: solve every case wave by wave, store each as it finishes, write the table and figures.
+"""Run a study: solve every case once its warm-start parent is solved, store each as it finishes, write the table and figures.
 
 Layout of the output folder:
   cases/<id>.json   the case's table row and a fingerprint of what it computed
@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -21,15 +22,16 @@ from tqdm import tqdm
 
 from crashnlp.errors import InputError
 from crashnlp.jsonfile import clean
-from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor
-from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases, waves
+from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor, start_early
+from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
+from crashnlp.studies.schedule import run_tree
 from crashnlp.studies.spec import Study, load_study
 from crashnlp.studies.store import CaseStore
 from crashnlp.studies.table import show, write_figures, write_table
 from crashnlp.studies.worker import one_line, solve_job
 
 if TYPE_CHECKING:
-    pass
+    from crashnlp.studies.executors import Executor
 
 RESULTS = Path("results")
 
@@ -61,6 +63,8 @@ def run_study(
     solve. `check`: stop there (return no rows). A signal stops the workers at once; the cases
     finished so far stay in `out`/cases, and running again resumes.
     """
+    if executor == "local" and not check:
+        start_early()  # the workers' fork server preloads crashnlp while the cases are checked
     study = load_study(path)
     out = Path(out) if out is not None else RESULTS / study.name
     cases = plan_cases(study)
@@ -73,34 +77,55 @@ def run_study(
     keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
     store = CaseStore(out / "cases")
     rows = {c.number: row for c in cases if (row := store.row(c.id, keys[c.number])) is not None}
-    todo = [[c for c in wave if c.number not in rows] for wave in waves(cases)]
-    size = min(workers or default_workers(), max(len(w) for w in todo))
-    pool = make_executor(executor, size, address, timeout) if any(todo) else None
+    todo = {c.number: c.parent for c in cases if c.number not in rows}
+    pool = make_executor(executor, min(workers or default_workers(), len(todo)), address, timeout) if todo else None
     bar = tqdm(total=len(cases), initial=len(rows), desc=study.name, unit="case", file=sys.stderr, disable=not progress)
     _postfix(bar, rows, len(cases))
-    if pool is not None:
-        try:
-            for wave in filter(None, todo):
-                threads = 1 if size > 1 else None  # parallel cases, serial maps inside each
-                jobs = [_job(study, c, raws[c.number], store, threads) for c in wave]
-                for i, outcome in pool.map_wave(solve_job, jobs):
-                    case = wave[i]
-                    row, z = _row(study, case, jobs[i], outcome)
-                    if not isinstance(outcome, BaseException):  # a lost worker is retried on the next run
-                        store.save(case.id, keys[case.number], row, z)
-                    rows[case.number] = clean(row)
-                    _postfix(bar, rows, len(cases))
-                    bar.update()
-        except BaseException:
-            bar.close()
+    try:
+        if pool is not None:
+            _Solving(study, cases, raws, keys, store).run(todo, pool, rows, bar)
+        bar.close()
+        table = [rows[c.number] for c in cases]
+        write_table(out / "table.csv", table)
+        write_figures(out / "figures", study, cases, table, pool)
+    except BaseException:
+        bar.close()
+        if pool is not None:
             pool.abort()
-            raise
+        raise
+    if pool is not None:
         pool.close()
-    bar.close()
-    table = [rows[c.number] for c in cases]
-    write_table(out / "table.csv", table)
-    write_figures(out / "figures", study, cases, table)
     return table
+
+
+@dataclass
+class _Solving:
+    """The cases of a study with their raw problems and fingerprints, and where they are stored."""
+
+    study: Study
+    cases: list[PlannedCase]
+    raws: dict[int, dict]
+    keys: dict[int, str]
+    store: CaseStore
+
+    def run(self, todo: dict[int, int | None], pool: Executor, rows: dict[int, dict], bar: tqdm) -> None:
+        """Solve the cases of `todo` (case -> parent), each once its parent is stored; store each
+        as it finishes and put its row in `rows`."""
+        threads = 1 if pool.lanes > 1 else None  # parallel cases, serial maps inside each
+        jobs: dict[int, dict] = {}
+
+        def job(n: int) -> dict:
+            jobs[n] = _job(self.study, self.cases[n], self.raws[n], self.store, threads)
+            return jobs[n]
+
+        for n, outcome in run_tree(pool, solve_job, todo, job):
+            case = self.cases[n]
+            row, z = _row(self.study, case, jobs.pop(n), outcome)
+            if not isinstance(outcome, BaseException):  # a lost worker is retried on the next run
+                self.store.save(case.id, self.keys[n], row, z)
+            rows[n] = clean(row)
+            _postfix(bar, rows, len(self.cases))
+            bar.update()
 
 
 def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:

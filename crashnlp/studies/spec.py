@@ -14,7 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from crashnlp.errors import InputError
 from crashnlp.problem.load import ProblemError, first_error, problem_from_dict, read_yaml
@@ -38,6 +38,18 @@ class StudySpec(BaseModel):
     seeds: list[int] | None = Field(
         None, description="case numbers (0-based) solved cold; default the corners of the grid (zip: both ends)"
     )
+    max_depth: int | None = Field(
+        None,
+        ge=0,
+        description="instead of seeds: cold seeds on a lattice, so that no case is more than this many warm starts "
+        "from one (more cold solves, shorter chains of solves that must run one after another)",
+    )
+
+    @model_validator(mode="after")
+    def _seeds_or_depth(self) -> StudySpec:
+        if self.seeds is not None and self.max_depth is not None:
+            raise ValueError("give seeds or max_depth, not both")
+        return self
 
 
 @dataclass(frozen=True)
@@ -74,6 +86,7 @@ class Study:
     entries: tuple[SweepEntry, ...]
     mode: str
     seeds: tuple[int, ...] | None
+    max_depth: int | None = None
 
 
 def load_study(path: str | Path) -> Study:
@@ -107,6 +120,7 @@ def load_study(path: str | Path) -> Study:
         entries,
         spec.mode,
         tuple(spec.seeds) if spec.seeds is not None else None,
+        spec.max_depth,
     )
 
 

@@ -11,10 +11,11 @@ import numpy as np
 
 from crashnlp.files import atomic_open
 from crashnlp.studies.plan import PlannedCase
+from crashnlp.studies.schedule import map_all
 from crashnlp.studies.spec import Study, SweepEntry
 
 if TYPE_CHECKING:
-    pass
+    from crashnlp.studies.executors import Executor
 
 PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
 
@@ -41,17 +42,31 @@ def write_table(path: Path, rows: list[dict[str, Any]]) -> None:
         writer.writerows([{k: "" if v is None else v for k, v in r.items()} for r in rows])
 
 
-def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict]) -> None:
-    """Objective, metrics and swept multipliers of the solved cases against each swept entry.
+def write_figures(
+    folder: Path, study: Study, cases: list[PlannedCase], rows: list[dict], executor: Executor | None = None
+) -> None:
+    """The figures of `figure_jobs`, drawn on the executor's workers (else here), written to `folder`."""
+    jobs = figure_jobs(study, cases, rows)
+    drawn = map_all(executor, draw_figure, jobs) if executor is not None else enumerate(map(draw_figure, jobs))
+    for i, png in drawn:
+        if isinstance(png, BaseException):
+            raise png
+        folder.mkdir(parents=True, exist_ok=True)
+        with atomic_open(folder / jobs[i]["file"], "wb") as fh:
+            fh.write(png)
 
-    With several varied entries in a grid, one figure per combination of the others.
+
+def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> list[dict[str, Any]]:
+    """Objective, metrics and swept multipliers of the solved cases against each swept entry, as plain
+    data for `draw_figure`. With several varied entries in a grid, one figure per combination of the others.
     """
     solved = [(c, r) for c, r in zip(cases, rows) if r["status"] == "ok"]
     if not solved:
-        return
+        return []
     names = ["objective"] + [
         k for k in dict.fromkeys(k for _, r in solved for k in r) if k.endswith(PLOTTED) or k.startswith("multiplier.")
     ]
+    jobs = []
     for i, entry in enumerate(study.entries):
         if len(entry.values) < 2:
             continue
@@ -62,10 +77,13 @@ def write_figures(folder: Path, study: Study, cases: list[PlannedCase], rows: li
         for k, (others, members) in enumerate(groups.items()):
             suffix = f"-{k}" if len(groups) > 1 else ""
             where = ", ".join(f"{e.path} = {v}" for e, v in zip([e for j, e in enumerate(study.entries) if j != i], others))
-            _figure(folder / f"{entry.path}{suffix}.png", entry, i, members, names, f"{study.name} {where}".strip())
+            job = _curves(entry, i, members, names)
+            jobs.append({"file": f"{entry.path}{suffix}.png", "title": f"{study.name} {where}".strip(), **job})
+    return jobs
 
 
-def _figure(path: Path, entry: SweepEntry, i: int, members: list, names: list[str], title: str) -> None:
+def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[str, Any]:
+    """x (SI, else the value number), the series sorted along it, and the x label."""
     x = np.array([entry.si(c.values[i]) for c, _ in members])
     xlabel = f"{entry.path} ({entry.unit})" if entry.unit else entry.path
     if np.all(np.isnan(x)):
@@ -73,9 +91,14 @@ def _figure(path: Path, entry: SweepEntry, i: int, members: list, names: list[st
         xlabel = f"{entry.path} (value number)"
     order = np.argsort(x, kind="stable")
     series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
-    from crashnlp import plots  # matplotlib: only once the figures are drawn
+    return {"x": x[order], "series": series, "xlabel": xlabel}
 
-    plots.xy_figure(path, x[order], series, xlabel, title)
+
+def draw_figure(job: dict[str, Any]) -> bytes:
+    """A figure job as PNG bytes (in a worker, where matplotlib is imported on first use)."""
+    from crashnlp import plots
+
+    return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"])
 
 
 def _number(value: Any) -> float:

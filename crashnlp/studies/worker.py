@@ -33,7 +33,7 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
         with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
-            result = solve(problem, progress=None, warm=job["warm"])
+            result = solve(problem, progress=None, warm=job["warm"], ratings=False)
     except InputError as exc:
         return {"record": {"status": f"input error: {one_line(exc)}"}, "z": None}
     except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status
