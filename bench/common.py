@@ -157,3 +157,11 @@ def machine() -> dict:
         "scipy": scipy.__version__,
         "numpy": np.__version__,
     }
+
+
+def wait_for_compiles(cache: Path, timeout: float = 300.0) -> float:
+    """Seconds until no NLP library is being compiled in `cache` (its source is the lock)."""
+    t0 = time.perf_counter()
+    while list(cache.glob("nlp-*.c")) and time.perf_counter() - t0 < timeout:
+        time.sleep(0.2)
+    return time.perf_counter() - t0

@@ -471,6 +471,16 @@ def comparison(before: dict, after: dict) -> list[list[str]]:
                     _scaling_wall(after["scaling"], method, 800),
                 ]
             )
+    if "whole_process" in after and "whole_process" in before:
+        for key, label in (("warm", ""), ("warm_no_figures", " --no-figures")):
+            b, a = before["whole_process"][key], after["whole_process"][key]
+            rows.append(
+                [
+                    f"`crashnlp identify pickup-56kph`{label}, whole process",
+                    f"{b['wall_s']:.2f} s, {b['peak_rss_mb']:.0f} MB",
+                    f"{a['wall_s']:.2f} s, {a['peak_rss_mb']:.0f} MB",
+                ]
+            )
     return rows
 
 

@@ -18,10 +18,9 @@ import statistics
 import subprocess
 import sys
 import tempfile
-import time
 from pathlib import Path
 
-from bench.common import PICKUP_56, ROOT
+from bench.common import PICKUP_56, ROOT, wait_for_compiles
 
 CLI = str(Path(sys.executable).with_name("crashnlp"))
 BASELINE = "from bench.identification import run_baseline; run_baseline(None, 100)"
@@ -47,14 +46,6 @@ def timed_process(command: list[str], env: dict[str, str] | None = None) -> tupl
     proc = subprocess.run(spawn, cwd=ROOT, env=env, stdin=subprocess.DEVNULL, capture_output=True, text=True)
     wall, rss_kb, status = proc.stdout.split()[-3:]
     return float(wall), float(rss_kb) / 1024, int(status)
-
-
-def wait_for_compiles(cache: Path, timeout: float = 300.0) -> float:
-    """Seconds until no NLP library is being compiled in `cache` (its source is the lock)."""
-    t0 = time.perf_counter()
-    while list(cache.glob("nlp-*.c")) and time.perf_counter() - t0 < timeout:
-        time.sleep(0.2)
-    return time.perf_counter() - t0
 
 
 def median_of(command: list[str], repeats: int, env: dict[str, str] | None = None) -> dict:
