@@ -165,9 +165,11 @@ def _load(library: Path) -> dict[str, ca.Function]:
 
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
     """Start compiling the library in a process of its own, which outlives this one; the
-    source file is the lock (one compile per library at a time, a stale one restarted)."""
+    source file is the lock (one compile per library at a time, a stale one restarted). No more
+    compiles at once than cores: a batch of many shapes compiles the rest on later runs."""
     source = library.with_suffix(".c")
-    if source.exists() and time.time() - source.stat().st_mtime < STALE_S:
+    running = [s for s in library.parent.glob("nlp-*.c") if time.time() - s.stat().st_mtime < STALE_S]
+    if source in running or len(running) >= (os.cpu_count() or 1):
         return
     library.parent.mkdir(parents=True, exist_ok=True)
     source.write_text(_source(functions))
