@@ -347,16 +347,19 @@ def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path
     refused(tmp_path, capsys, pickup({"vehicle": {"speed": "2000 km/h"}}), "vehicle.speed: ")
 
 
-def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys):
-    import threading
+def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys, monkeypatch):
+    from crashnlp.optimize.solve import Progress
 
+    iteration = Progress.eval
+
+    def interrupted_at_the_third(self, arg):  # the user's Ctrl-C, while IPOPT iterates
+        if self.count == 3:
+            os.kill(os.getpid(), signal.SIGINT)
+        return iteration(self, arg)
+
+    monkeypatch.setattr(Progress, "eval", interrupted_at_the_third)
     out = tmp_path / "out"
-    timer = threading.Timer(2.0, lambda: os.kill(os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        code, _, err = run(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(out)], capsys)
-    finally:
-        timer.cancel()
+    code, _, err = run(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(out)], capsys)
     assert code == 130 and err == "crashnlp: interrupted (SIGINT)\n", err
     assert not out.exists()
 

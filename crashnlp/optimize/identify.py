@@ -12,7 +12,6 @@ from crashnlp.autoinit import repair_start
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
-from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.fit import Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.profile import profiles
@@ -111,10 +110,10 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
     return solution
 
 
-def fit_ocp(case: Case, symbolic: bool | None = None) -> tuple[OptimalControl, list[Residual]]:
+def fit_ocp(case: Case) -> tuple[OptimalControl, list[Residual]]:
     """The identification NLP of a case and its residuals; the covariance's sensitivities are
     an extra of the NLP, so that they are compiled with its functions (crashnlp.optimize.oracle)."""
-    ocp = OptimalControl(case, symbolic)
+    ocp = OptimalControl(case)
     residuals = add_fit_objective(ocp)
     ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, residuals)
     return ocp, residuals
@@ -134,14 +133,7 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     if warm is not None:
         ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
-
-    def exact() -> NLPBuilder:  # the same NLP with its numbers folded in, for an exact-Hessian restart
-        folded = fit_ocp(case, symbolic=False)[0]
-        if warm is not None:
-            folded.set_guess(warm)
-        return folded.nlp
-
-    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, exact if ocp.nlp.symbolic else None)
+    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = finish(case, ocp, result, theta0, residuals)
     solution.notes = [note] if note else []
     solution.covariance = SensitivityEvaluator(ocp, residuals)(result.z).covariance()

@@ -51,14 +51,12 @@ def _interpolator(response: Response):
 class OptimalControl:
     """Variables, dynamics and constraints of all tests of a case."""
 
-    def __init__(self, case: Case, symbolic: bool | None = None):
-        """`symbolic`: the numbers as NLP parameters (default: where the NLP may be compiled)."""
+    def __init__(self, case: Case):
         self.case = case
         problem = case.problem
         # numbers as parameters where the NLP may be compiled, and serial maps where it will be
         # (its library then serves every thread setting)
-        numbers_as_parameters = is_symbolic(problem) if symbolic is None else symbolic
-        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None, symbolic=numbers_as_parameters)
+        self.nlp = NLPBuilder(threads=1 if compilable(problem) else None, symbolic=is_symbolic(problem))
         self.free = FreeParameters(case.layout, case.base, problem.estimate)
         self.theta = self.nlp.variable(
             "theta", self.free.size, self.free.initial, self.free.lower, self.free.upper, self.free.scale
@@ -72,8 +70,7 @@ class OptimalControl:
         """One test's trajectory and outputs. With symbolic numbers (an NLP that may be compiled)
         the interval functions take q = [theta; the test's full parameter vector], the fixed
         values an NLP parameter, so that a study changing them keeps the NLP's shape; else
-        q = theta and the fixed values are constants folded into them, which an exact Hessian
-        needs (derived through the fixed values, it costs ten times as much)."""
+        q = theta and the fixed values are constants folded into them."""
         model = self.case.model
         fine = np.linspace(0.0, horizon, 4 * self.transcription.intervals + 1)
         guess = simulate(model, self.case.test_parameters(test, p0), test.speed, fine, self.case.problem.simulation)

@@ -14,8 +14,9 @@ under a hash of the serialized NLP, the Hessian kind and the compiler:
 - `compile: now`: compile before solving and wait (before a large study).
 - `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
 
-The exact Hessian (designs, and fits that Gauss-Newton cannot finish) stays in
-the virtual machine, derived by nlpsol: its C code runs to tens of megabytes.
+The exact Hessian (designs, and fits that Gauss-Newton cannot finish) is the
+structured one of crashnlp.derivatives, compiled like the rest: derived by
+nlpsol through the whole graph, its C code ran to tens of megabytes.
 
 The virtual machine and the compiled code run the same operations in the same
 order (no -ffast-math, no contraction into FMA), so both give the same bits:
@@ -42,7 +43,6 @@ from crashnlp.problem.schema import Problem
 
 NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
 STALE_S = 900.0  # a background compile older than this is taken for dead
-COMPILED_HESSIANS = ("gauss-newton", "limited-memory")  # the exact Hessian of a design is tens of MB of C: it stays in the VM
 COMPILE_ERRORS = (OSError, RuntimeError, subprocess.CalledProcessError)  # an unusable cache or compiler: stay in the VM
 SOLVER_FUNCTIONS = ("nlp", "grad_f", "jac_g", "hess_lag")
 SOLVER_OPTIONS = {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
@@ -62,24 +62,20 @@ class Oracle:
 def oracle(nlp: NLPBuilder, hessian: str, mode: str, expand: bool = False) -> Oracle:
     """The NLP's functions, compiled when `mode` and the machine allow (see the module); all of
     them, the NLP's extras too, are left in nlp.functions."""
-    functions, built = _shape_functions(nlp, hessian, mode, hessian in COMPILED_HESSIANS)
+    functions, built = _shape_functions(nlp, hessian, mode)
     if expand and not built:
         functions = {name: f.expand() for name, f in functions.items()}
     nlp.functions = functions
     solver = {name: f for name, f in functions.items() if name in SOLVER_FUNCTIONS}
     base = solver.pop("nlp")
-    # in the VM nlpsol gets the expressions themselves: an exact Hessian derived through a
-    # call of the `nlp` Function costs ten times as much to build and evaluate
     return Oracle(base if built else nlp.problem(), solver, f"{nlp.key()}-{hessian}", built)
 
 
 def symbolic(problem: Problem) -> bool:
     """Whether a problem's NLP carries its numbers as parameters: where its solver section lets
-    it be compiled (not `never`, not the exact Hessian, which `auto` means for a design),
-    whether or not this machine compiles, so that the result is the same bits either way."""
-    spec = problem.solver
-    exact = spec.hessian == "exact" or (spec.hessian == "auto" and problem.kind == "design")
-    return spec.compile != "never" and not exact
+    it be compiled, whether or not this machine compiles, so that the result is the same bits
+    either way."""
+    return problem.solver.compile != "never"
 
 
 def compilable(problem: Problem) -> bool:
@@ -87,12 +83,12 @@ def compilable(problem: Problem) -> bool:
     return symbolic(problem) and compiled.compiler(nlp=True) is not None
 
 
-def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str, allowed: bool) -> tuple[dict[str, ca.Function], bool]:
+def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str, ca.Function], bool]:
     """The solver's functions and the NLP's extras: from the library of this NLP shape when the
     cache holds one (True), else built (False) and compiled behind or now by `mode`. A cache
     that cannot be written or read, or a compiler that fails, leaves the VM's functions: the
     result is the same, only slower."""
-    cc = compiled.compiler(nlp=True) if mode != "never" and allowed else None
+    cc = compiled.compiler(nlp=True) if mode != "never" else None
     library = _library(nlp, "-".join([hessian, *sorted(nlp.extras)]), cc) if cc else None
     with suppress(*COMPILE_ERRORS):
         if library and (library in _loaded or library.exists()):
@@ -133,8 +129,8 @@ def _write_names(functions: dict[str, ca.Function], library: Path) -> None:
 
 
 def _functions(nlp: NLPBuilder, hessian: str) -> dict[str, ca.Function]:
-    """nlp, grad_f, jac_g and the Gauss-Newton hess_lag, as MX Functions of (x, p). The exact
-    Hessian is left to nlpsol, which derives it from `nlp`."""
+    """nlp, grad_f, jac_g and hess_lag (exact or Gauss-Newton; none for limited memory), as MX
+    Functions of (x, p)."""
     problem = nlp.problem()
     x, p, f, g = (problem[k] for k in ("x", "p", "f", "g"))
     d = nlp.derivatives()
@@ -145,6 +141,8 @@ def _functions(nlp: NLPBuilder, hessian: str) -> dict[str, ca.Function]:
     }
     if hessian == "gauss-newton":
         out["hess_lag"] = d.gauss_newton(nlp.residuals, nlp.rest, g.numel())
+    elif hessian == "exact":
+        out["hess_lag"] = d.hessian(f, g)
     return out
 
 

@@ -6,7 +6,6 @@ import dataclasses
 import json
 import sys
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any, TextIO
 
@@ -137,7 +136,7 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress:
     return BuiltSolver(_solvers[key], time.perf_counter() - t0, None, o.compiled)
 
 
-AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
+AUTO_GAUSS_NEWTON_ITER = 50  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
 
 
 def solve(
@@ -145,17 +144,15 @@ def solve(
     spec: Solver,
     verbose: bool = False,
     progress: TextIO | None = sys.stdout,
-    exact: Callable[[], NLPBuilder] | None = None,
 ) -> SolveResult:
     """Solve; the returned status is IPOPT's own.
 
     With `hessian: auto` a least-squares fit starts with the Gauss-Newton Hessian, cheap and
     fast near a good fit (15 to 30 iterations on the shipped problems); where it has not
     converged after AUTO_GAUSS_NEWTON_ITER iterations (a large residual and strong curvature
-    make it crawl), IPOPT starts over with the exact Hessian: from the initial guess, since the
-    crawl can end far from where the exact Hessian converges from, and on the NLP `exact`
-    builds if given (the same variables, its numbers folded in as constants: an exact Hessian
-    derived through NLP parameters costs several times as much). The result counts the
+    make it crawl), IPOPT starts over with the exact Hessian (structured and compiled like the
+    rest, about twice a Gauss-Newton iteration's cost): from the initial guess, since the
+    crawl can end far from where the exact Hessian converges from. The result counts the
     iterations and time of both."""
     if spec.hessian != "auto" or hessian_kind(nlp, spec) != "gauss-newton":
         return _solve(nlp, spec, verbose, progress)
@@ -163,7 +160,7 @@ def solve(
     first = _solve(nlp, spec.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": limit}}), verbose, progress)
     if first.converged or first.return_status != "Maximum_Iterations_Exceeded" or limit < AUTO_GAUSS_NEWTON_ITER:
         return first
-    second = _solve(exact() if exact else nlp, spec.model_copy(update={"hessian": "exact"}), verbose, progress)
+    second = _solve(nlp, spec.model_copy(update={"hessian": "exact"}), verbose, progress)
     return dataclasses.replace(
         second,
         iterations=first.iterations + second.iterations,
