@@ -136,7 +136,7 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, progress:
     return BuiltSolver(_solvers[key], time.perf_counter() - t0, None, o.compiled)
 
 
-AUTO_GAUSS_NEWTON_ITER = 50  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
+AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
 
 
 def solve(
