@@ -107,7 +107,6 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
     from crashnlp.case import Case
     from crashnlp.model.pendulum import NX
     from crashnlp.optimize.ocp import OptimalControl
-    from crashnlp.transcription.base import IMPACT_SUBSTEPS
 
     n = 40
     spec = {"method": method, "intervals": n, **({"substeps": 1} if method == "multiple-shooting" else {"degree": 3})}
@@ -116,10 +115,9 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
     )
     states = ocp.nlp.blocks["t56.x"]
     assert states.shape == (NX, n + 1)
-    assert ocp.nlp.blocks["t56.xi"].shape == (NX, IMPACT_SUBSTEPS - 1)  # the states between the impact steps
     dynamics = sum(c.size for c in ocp.nlp.constraints if c.kind == DYNAMICS)
-    # initial state + the impact interval's steps + the other n - 1 intervals (and their collocation points)
-    assert dynamics == NX * (1 + IMPACT_SUBSTEPS + (n - 1) * (1 + per_interval))
+    # initial state + impact interval + the other n - 1 intervals (and their collocation points)
+    assert dynamics == NX * (1 + 1 + (n - 1) * (1 + per_interval))
     # at the initial guess (a forward simulation) the dynamics nearly hold
     (g,) = ocp.nlp.evaluate([ca.vertcat(*ocp.nlp.g)], ocp.nlp.bounds()["x0"])
     assert np.max(np.abs(np.asarray(g).ravel()[:dynamics])) < 0.05

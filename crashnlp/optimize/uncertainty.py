@@ -30,7 +30,6 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.nlp import DYNAMICS, NLPBuilder
-from crashnlp.transcription.base import STATE_BLOCKS
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.ocp import OptimalControl
 
@@ -149,7 +148,7 @@ class SensitivityEvaluator:
         self.theta = list(range(theta.offset, theta.offset + theta.shape[0]))  # columns of z
         self.theta_scale = theta.scale
         self.states = np.concatenate(
-            [np.arange(b.offset, b.offset + b.shape[0] * b.shape[1]) for n, b in nlp.blocks.items() if n.endswith(STATE_BLOCKS)]
+            [np.arange(b.offset, b.offset + b.shape[0] * b.shape[1]) for n, b in nlp.blocks.items() if n.endswith((".x", ".xc"))]
         ).tolist()
         sizes = [len(r.columns) for r in residuals]
         ends = np.cumsum(sizes)

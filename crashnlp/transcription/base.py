@@ -19,7 +19,6 @@ from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import NX, PendulumModel
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 
-STATE_BLOCKS = (".x", ".xi", ".xc")  # endings of the names of state variable blocks: nodes, impact steps, collocation points
 STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01, 0.01])  # smallest state scales: m, rad, m/s, rad/s, m
 IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
 
@@ -76,16 +75,11 @@ class Transcription(ABC):
         scale = nlp.parameter(f"{name}.state_scale", numeric)
         nlp.constrain(DYNAMICS, X[:, 0] - x0, test=name, detail="initial")
         h = float(times[1] - times[0])
-        # the first interval, by IMPACT_SUBSTEPS RK4 steps whatever the transcription: the front
-        # end engages over its first millimetre of crush, tens of microseconds at crash speed,
-        # which neither one RK4 step nor a collocation polynomial of an interval resolves. Each
-        # step is a shooting interval of its own, the states between them variables, so that the
-        # derivatives of the mapped step (crashnlp.derivatives) are those of one RK4 step
-        inner = np.linspace(0.0, h, IMPACT_SUBSTEPS + 1)[1:-1]
-        Xi = nlp.variable(f"{name}.xi", (NX, IMPACT_SUBSTEPS - 1), guess(inner), scale=numeric[:, None])
-        starts, ends = ca.horzcat(X[:, 0], Xi), ca.horzcat(Xi, X[:, 1])
-        (end,) = nlp.mapped(rk4(rhs, h / IMPACT_SUBSTEPS), IMPACT_SUBSTEPS, starts, theta)
-        nlp.constrain(DYNAMICS, (end - ends) / per_row(scale, IMPACT_SUBSTEPS), test=name, detail="impact")
+        # the first interval, by fine RK4 steps whatever the transcription: the front end
+        # engages over its first millimetre of crush, tens of microseconds at crash speed,
+        # which neither one RK4 step nor a collocation polynomial of an interval resolves
+        (end,) = nlp.mapped(rk4(rhs, h, IMPACT_SUBSTEPS), 1, X[:, 0], theta)
+        nlp.constrain(DYNAMICS, (end - X[:, 1]) / scale, test=name, detail="impact")
         if n > 1:
             self._add_dynamics(nlp, name, X[:, 1:], theta, times[1:], scale, numeric, guess, rhs)
         return Trajectory(times, X)
