@@ -507,8 +507,7 @@ CHANGES = [
     "parsed once (checking a case: 30 ms -> 4 ms).",
     "A structured exact Hessian (`crashnlp/derivatives.py`): each interval function's second derivatives, weighted by its "
     "own adjoints, mapped and laid out block-diagonally like the Jacobian, compiled with the rest. Designs and the exact "
-    "restart of a crawling Gauss-Newton fit leave the VM (7 ms per Hessian on the pickup, 74 ms in the VM); `auto` "
-    "restarts after 50 Gauss-Newton iterations instead of 300.",
+    "restart of a crawling Gauss-Newton fit leave the VM (7 ms per Hessian on the pickup, 74 ms in the VM).",
 ]
 
 

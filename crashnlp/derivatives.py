@@ -164,4 +164,3 @@ class Derivatives:
             ["x", "p", "lam_f", "lam_g"],
             ["triu_hess_gamma_x_x"],
         )
-
