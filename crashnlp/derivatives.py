@@ -75,10 +75,14 @@ class MappedBlock:
         extra, outs = derivative(ins, w)
         return ca.Function(f"{self.fn.name()}_{name}", [*ins, *extra], outs)
 
+    def _outputs(self, ins: list[ca.SX]) -> list[ca.SX]:
+        """The interval function's outputs on one column's symbols."""
+        return self.fn.call(ins)
+
     def jacobians(self, z: ca.MX) -> list[ca.MX]:
         """d vec(output) / dz of every output: per-column Jacobians, block-diagonal, times dW/dz."""
         _, dw = self.input_jacobian(z)
-        column = self._column("jac", z, lambda ins, w: ([], [ca.jacobian(ca.vec(o), w) for o in self.fn.call(ins)]))
+        column = self._column("jac", z, lambda ins, w: ([], [ca.jacobian(ca.vec(o), w) for o in self._outputs(ins)]))
         per_column = mapped(column, self.n, self.threads).call(self.inputs)
         return [ca.mtimes(_block_diagonal(J, column.sparsity_out(k), self.n), dw) for k, J in enumerate(per_column)]
 
@@ -89,7 +93,7 @@ class MappedBlock:
 
         def hessian(ins, w):
             mus = [ca.SX.sym(f"mu{k}", self.fn.sparsity_out(k)) for k in range(self.fn.n_out())]
-            weighted = sum(ca.dot(mu, o) for mu, o in zip(mus, self.fn.call(ins)))
+            weighted = sum(ca.dot(mu, o) for mu, o in zip(mus, self._outputs(ins)))
             return mus, [ca.hessian(weighted, w)[0]]
 
         column = self._column("hess", z, hessian)
