@@ -80,6 +80,25 @@ def assert_monotone_crush(ts) -> None:
     assert np.all(np.diff(crush[peak:])[contact[1:]] <= 1e-4)
 
 
+def assert_exact_hessian_is_casadis(nlp, z: np.ndarray, lam_f: float, seed: int) -> None:
+    """The structured exact Hessian of an NLP (crashnlp.derivatives) against CasADi's own Hessian
+    of the whole Lagrangian, at z with random constraint multipliers (every constraint's
+    curvature counts): the same values, and a pattern that holds every nonzero CasADi finds."""
+    import casadi as ca
+
+    p, values = nlp.problem(), nlp.bounds()["p"]
+    ng = p["g"].numel()
+    lam_g = np.random.default_rng(seed).standard_normal(ng)
+    H = nlp.derivatives().hessian(p["f"], p["g"])(z, values, lam_f, lam_g)
+    lf, lg = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)
+    lagrangian = ca.hessian(lf * p["f"] + ca.dot(lg, p["g"]), p["x"])[0]
+    reference = ca.Function("ref", [p["x"], p["p"], lf, lg], [ca.triu(lagrangian)])
+    expected = reference(z, values, lam_f, lam_g).full()
+    assert np.abs(expected).max() > 0
+    assert np.max(np.abs(H.full() - expected)) <= 1e-9 * np.abs(expected).max()
+    assert set(zip(*reference.sparsity_out(0).get_triplet())) <= set(zip(*H.sparsity().get_triplet()))
+
+
 def worker_pid(_) -> int:
     """A task that says which process ran it."""
     return os.getpid()
