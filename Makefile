@@ -11,6 +11,7 @@ $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
 	$(BIN)/pip install -q -e ".[test]"
+	$(BIN)/python -m compileall -q crashnlp  # as a regular install does; PYTHONDONTWRITEBYTECODE would leave it out
 	touch $(STAMP)
 
 demo: $(STAMP)

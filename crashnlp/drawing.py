@@ -1,10 +1,13 @@
-"""Figures drawn by a process of their own, started before the solve.
+"""Figures drawn by processes of their own, started before the solve.
 
 matplotlib takes about a third of a second to import, as long as the solve of a
-shipped problem. A process forked when the command has read its problem imports it
-on the other core while this one solves, then draws the figures of the result this
-one sends it once the result files are written. The command still waits for it, so the figures exist
-when it returns; where there is no fork (Windows) they are drawn in this process.
+shipped problem, and drawing the figures of an identification as long again. A
+process forked as the command starts (before CasADi, pydantic and the problem)
+imports matplotlib alone on the other core while this one reads the problem and
+solves. Once the result files are written this one sends it the figures as plain
+data (crashnlp.results.figure_jobs), and it draws them on every core, in processes
+forked from it. The command still waits for them, so the figures exist when it
+returns; where there is no fork (Windows) they are drawn in this process.
 """
 
 from __future__ import annotations
@@ -15,8 +18,10 @@ import signal
 import sys
 from pathlib import Path
 from types import TracebackType
+from typing import TYPE_CHECKING
 
-from crashnlp.result import Result
+if TYPE_CHECKING:
+    from crashnlp.result import Result
 
 
 class FigureProcess:
@@ -40,12 +45,12 @@ class FigureProcess:
 
     def draw(self, result: Result, folder: Path) -> None:
         """The figures of `result` into `folder` (where its files are); returns when they are written."""
-        if self.pid is None:
-            from crashnlp.results import write_figures
+        from crashnlp.results import figure_jobs, write_figures
 
+        if self.pid is None:
             write_figures(result, folder)
             return
-        self._send(pickle.dumps((folder.resolve(), result)))
+        self._send(pickle.dumps(figure_jobs(result, folder.resolve())))
         if self._wait() != 0:
             raise RuntimeError(f"the figures of {folder} were not drawn (see above)")
 
@@ -69,21 +74,48 @@ class FigureProcess:
 
 
 def _child(pipe: int) -> int:
-    """Import matplotlib, then draw what the parent names (nothing: it gave up)."""
+    """Import matplotlib, then draw what the parent sends (nothing: it gave up)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # an interrupt is the parent's to handle
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
-    try:
-        from crashnlp import plots  # noqa: F401 - matplotlib, while the parent solves
-        from crashnlp.results import write_figures
+    jobs: list = []
+    return _reported(lambda: jobs.extend(_receive(pipe))) or _on_every_core(jobs)
 
-        message = b""
-        while chunk := os.read(pipe, 65536):
-            message += chunk
-        if message:
-            folder, result = pickle.loads(message)
-            write_figures(result, folder)
+
+def _receive(pipe: int) -> list:
+    """The figure jobs the parent sends, matplotlib imported while it solves."""
+    from crashnlp import plots  # noqa: F401
+
+    message = b""
+    while chunk := os.read(pipe, 65536):
+        message += chunk
+    return pickle.loads(message) if message else []
+
+
+def _on_every_core(jobs: list) -> int:
+    """Draw the jobs over this process and forks of it, one per core, dealt round-robin (the
+    fit figures, the heaviest, first): 0 when all were drawn."""
+    from crashnlp.plots import draw
+
+    lanes = max(1, min(len(jobs), os.cpu_count() or 1))
+    forks = []
+    for lane in range(1, lanes):
+        pid = os.fork()
+        if pid == 0:
+            os._exit(_reported(draw, jobs[lane::lanes]))
+        forks.append(pid)
+    failed = _reported(draw, jobs[0::lanes])
+    for pid in forks:
+        failed |= os.waitstatus_to_exitcode(os.waitpid(pid, 0)[1]) != 0
+    return int(failed)
+
+
+def _reported(fn, *args) -> int:
+    """Run fn(*args): 0, or 1 after saying in one line why it failed (the parent says which
+    figures were not drawn)."""
+    try:
+        fn(*args)
         return 0
-    except Exception as exc:  # noqa: BLE001 - reported in one line; the parent says it failed
+    except Exception as exc:  # noqa: BLE001 - reported in one line
         print(f"crashnlp: figures: {type(exc).__name__}: {exc}", file=sys.stderr)
         return 1
     finally:

@@ -17,6 +17,12 @@ PANELS = MEASURABLE  # the outputs a test measures, each a panel
 DPI = 110
 
 
+def draw(jobs: list[tuple[str, tuple]]) -> None:
+    """Draw figure jobs: (name of a figure function of this module, its arguments)."""
+    for name, args in jobs:
+        FIGURES[name](*args)
+
+
 def response_figure(path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None) -> None:
     """Four panels of model curves (t, y SI) with the measured ones behind them."""
     fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
@@ -69,6 +75,9 @@ def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None
     fig.suptitle(title)
     _layout(fig)
     _save(fig, path)
+
+
+FIGURES = {f.__name__: f for f in (response_figure, force_crush_figure, residual_figure)}
 
 
 def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "") -> bytes:

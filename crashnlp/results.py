@@ -46,18 +46,26 @@ def write_figures(result: Result, out: Path) -> None:
     """Fit and residual figures per test, and the force-crush figure."""
     from crashnlp import plots  # matplotlib: a third of a second, only when drawing
 
+    plots.draw(figure_jobs(result, out))
+
+
+def figure_jobs(result: Result, out: Path) -> list[tuple[str, tuple]]:
+    """The figures of a result as (crashnlp.plots function, its arguments), in plain data: a
+    process that has imported matplotlib and nothing of the model draws them (crashnlp.drawing)."""
+    jobs: list[tuple[str, tuple]] = []
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
-        plots.response_figure(out / name / "fit.png", f"{result.name}: {name}", model, t.data)
+        jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items()}
         if residuals:
-            plots.residual_figure(out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)
+            jobs.append(("residual_figure", (out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)))
     fc = result.force_crush
     if fc is not None:
         curves = {"identified loading curve": (fc.crush, fc.force)}
         if fc.reference is not None:
             curves["reference"] = fc.reference
-        plots.force_crush_figure(out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)
+        jobs.append(("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)))
+    return jobs
 
 
 def write_simulation(case: Case, responses: dict[str, Response], out: Path, figures: bool = True) -> dict:

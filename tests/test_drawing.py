@@ -39,6 +39,14 @@ def test_a_failure_in_the_figure_process_is_reported(result, tmp_path):
         figures.draw(result, blocked)
 
 
+def test_a_failure_on_another_core_is_reported(result, tmp_path, monkeypatch):
+    monkeypatch.setattr(os, "cpu_count", lambda: 2)  # residuals.png is drawn by a second process
+    (tmp_path / "56kph" / "residuals.png").mkdir(parents=True)
+    with pytest.raises(RuntimeError, match="were not drawn"), FigureProcess() as figures:
+        figures.draw(result, tmp_path)
+    assert (tmp_path / "56kph" / "fit.png").exists() and (tmp_path / "force_crush.png").exists()
+
+
 def test_leaving_without_drawing_ends_the_process(tmp_path):
     with FigureProcess() as figures:
         pid = figures.pid

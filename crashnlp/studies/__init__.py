@@ -7,6 +7,9 @@ Submodules load on first use, so that the command line starts quickly.
 
 from importlib import import_module
 
+EXECUTORS = ("local", "dask")  # where cases run: crashnlp.studies.executors
+CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to answer
+
 _EXPORTS = {
     "run_study": "crashnlp.studies.run",
     "Study": "crashnlp.studies.spec",

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from crashnlp.studies.executors import CONNECT_TIMEOUT, EXECUTORS
+from crashnlp.studies import CONNECT_TIMEOUT, EXECUTORS
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)

@@ -25,9 +25,7 @@ from contextlib import contextmanager
 from typing import Any, Protocol
 
 from crashnlp.errors import InputError, RunError
-
-EXECUTORS = ("local", "dask")
-CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to answer
+from crashnlp.studies import CONNECT_TIMEOUT, EXECUTORS
 
 
 class Executor(Protocol):

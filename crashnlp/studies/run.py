@@ -22,7 +22,8 @@ from tqdm import tqdm
 
 from crashnlp.errors import InputError
 from crashnlp.jsonfile import clean
-from crashnlp.studies.executors import CONNECT_TIMEOUT, default_workers, make_executor, start_early
+from crashnlp.studies import CONNECT_TIMEOUT
+from crashnlp.studies.executors import default_workers, make_executor, start_early
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
 from crashnlp.studies.schedule import run_tree
 from crashnlp.studies.spec import Study, load_study
