@@ -49,10 +49,14 @@ def load(
     intervals: int | None = None,
     max_iter: int | None = None,
     compile: str | None = None,
+    from_data: bool = False,
 ) -> Problem:
     """A fresh problem, optionally with another transcription, interval count, IPOPT iteration cap
-    or NLP compilation (solver.compile)."""
+    or NLP compilation (solver.compile); `from_data`: the spring values left out, so that both
+    fits start from the measured force-crush curve (crashnlp.autoinit), not the problem's guess."""
     problem = load_problem(path)
+    if from_data:
+        problem.model.spring.values = None
     if method is not None or intervals is not None:
         problem.transcription = transcription(
             method or problem.transcription.method, intervals or problem.transcription.intervals
@@ -70,8 +74,9 @@ def load_case(
     intervals: int | None = None,
     max_iter: int | None = None,
     compile: str | None = None,
+    from_data: bool = False,
 ) -> Case:
-    return Case(load(path, method, intervals, max_iter, compile))
+    return Case(load(path, method, intervals, max_iter, compile, from_data))
 
 
 @dataclass

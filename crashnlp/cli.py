@@ -116,8 +116,30 @@ def _check_dt(dt: float | None, duration: float) -> None:
 
 
 def cmd_simulate(args) -> int:
+    from crashnlp.results import simulation_figure_jobs, write_simulation
+
+    with _figure_process(args) as figures:
+        simulated = _simulate(args)
+        if simulated is None:
+            return 0
+        case, responses, out = simulated
+        summary = write_simulation(case, responses, out, figures=False)
+        if figures is not None:
+            figures.draw(simulation_figure_jobs(case, responses, out), out)
+    for name, t in summary["tests"].items():
+        m = t["metrics"]
+        print(
+            f"{name}: max crush {m['max_crush_m'] * 1e3:.1f} mm at {m['time_max_crush_s'] * 1e3:.1f} ms, "
+            f"peak decel {m['peak_decel_g']:.1f} g, rebound {m['rebound_velocity_mps']:.2f} m/s, "
+            f"max pitch {m['max_pitch_deg']:.2f} deg"
+        )
+    print(f"wrote {out}/")
+    return 0
+
+
+def _simulate(args):
+    """(case, responses, output folder) of the problem file, or None after `--check`."""
     from crashnlp.problem import load_problem
-    from crashnlp.results import write_simulation
 
     _check_dt(args.dt, 0.0)
     problem = load_problem(args.problem)
@@ -135,19 +157,17 @@ def cmd_simulate(args) -> int:
     check_writable(out)
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
-        return 0
+        return None
     with _computing(args):
-        responses = case.simulate(dt=args.dt)
-    summary = write_simulation(case, responses, out, figures=not args.no_figures)
-    for name, t in summary["tests"].items():
-        m = t["metrics"]
-        print(
-            f"{name}: max crush {m['max_crush_m'] * 1e3:.1f} mm at {m['time_max_crush_s'] * 1e3:.1f} ms, "
-            f"peak decel {m['peak_decel_g']:.1f} g, rebound {m['rebound_velocity_mps']:.2f} m/s, "
-            f"max pitch {m['max_pitch_deg']:.2f} deg"
-        )
-    print(f"wrote {out}/")
-    return 0
+        return case, case.simulate(dt=args.dt), out
+
+
+def _figure_process(args):
+    """The process that draws the command's figures (crashnlp.drawing), started now so that
+    matplotlib loads while this one works; none with --no-figures or --check."""
+    from crashnlp.drawing import FigureProcess
+
+    return nullcontext() if args.no_figures or getattr(args, "check", False) else FigureProcess()
 
 
 METRIC_ROWS = (  # result.json key, label, factor
@@ -217,17 +237,16 @@ def _print_solution(result) -> None:
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary. The figure process
     starts first, so that matplotlib loads while this one reads the problem and solves."""
-    from crashnlp.drawing import FigureProcess
-
-    drawing = not (args.no_figures or getattr(args, "check", False))
-    with FigureProcess() if drawing else nullcontext() as figures:
+    with _figure_process(args) as figures:
         solved = _solve_case(args, kind)
         if solved is None:
             return 0
         result, out = solved
         result.save(out, figures=False)
         if figures is not None:
-            figures.draw(result, out)
+            from crashnlp.results import figure_jobs
+
+            figures.draw(figure_jobs(result, out), out)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:

@@ -4,8 +4,8 @@ matplotlib takes about a third of a second to import, as long as the solve of a
 shipped problem, and drawing the figures of an identification as long again. A
 process forked as the command starts (before CasADi, pydantic and the problem)
 imports matplotlib alone on the other core while this one reads the problem and
-solves. Once the result files are written this one sends it the figures as plain
-data (crashnlp.results.figure_jobs), and it draws them on every core, in processes
+solves (or simulates). Once the result files are written this one sends it the
+figures as plain data (crashnlp.results.figure_jobs), and it draws them on every core, in processes
 forked from it. The command still waits for them, so the figures exist when it
 returns; where there is no fork (Windows) they are drawn in this process.
 """
@@ -21,11 +21,11 @@ from types import TracebackType
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from crashnlp.result import Result
+    from crashnlp.plots import Job
 
 
 class FigureProcess:
-    """Use as a context: `draw(result, folder)` once the result files are written; leaving
+    """Use as a context: `draw(jobs, folder)` once the result files are written; leaving
     the context without drawing (an error, an interrupt) stops the process."""
 
     def __init__(self) -> None:
@@ -43,14 +43,14 @@ class FigureProcess:
             self.pid, self.pipe = pid, write
         return self
 
-    def draw(self, result: Result, folder: Path) -> None:
-        """The figures of `result` into `folder` (where its files are); returns when they are written."""
-        from crashnlp.results import figure_jobs, write_figures
-
+    def draw(self, jobs: list[Job], folder: Path) -> None:
+        """Figure jobs (crashnlp.plots.draw) of the files in `folder`; returns when they are drawn."""
         if self.pid is None:
-            write_figures(result, folder)
+            from crashnlp.plots import draw
+
+            draw(jobs)
             return
-        self._send(pickle.dumps(figure_jobs(result, folder.resolve())))
+        self._send(pickle.dumps(jobs))
         if self._wait() != 0:
             raise RuntimeError(f"the figures of {folder} were not drawn (see above)")
 

@@ -15,10 +15,11 @@ from crashnlp.outputs import MEASURABLE, OUTPUT  # noqa: E402
 
 PANELS = MEASURABLE  # the outputs a test measures, each a panel
 DPI = 110
+Job = tuple[str, tuple]  # a figure: the name of a figure function of this module, its arguments
 
 
-def draw(jobs: list[tuple[str, tuple]]) -> None:
-    """Draw figure jobs: (name of a figure function of this module, its arguments)."""
+def draw(jobs: list[Job]) -> None:
+    """Draw figure jobs, in plain data so that another process can draw them (crashnlp.drawing)."""
     for name, args in jobs:
         FIGURES[name](*args)
 

@@ -50,8 +50,8 @@ def write_figures(result: Result, out: Path) -> None:
 
 
 def figure_jobs(result: Result, out: Path) -> list[tuple[str, tuple]]:
-    """The figures of a result as (crashnlp.plots function, its arguments), in plain data: a
-    process that has imported matplotlib and nothing of the model draws them (crashnlp.drawing)."""
+    """The figures of a result as crashnlp.plots jobs: plain data, which a process that has
+    imported matplotlib and nothing of the model draws (crashnlp.drawing)."""
     jobs: list[tuple[str, tuple]] = []
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
@@ -79,8 +79,17 @@ def write_simulation(case: Case, responses: dict[str, Response], out: Path, figu
     if figures:
         from crashnlp import plots
 
-        for test in case.tests:
-            r = responses[test.name]
-            model = {k: (r.time, r[k]) for k in MEASURABLE}
-            plots.response_figure(out / test.name / "response.png", f"{case.name}: {test.name}", model, data_curves(test))
+        plots.draw(simulation_figure_jobs(case, responses, out))
     return summary
+
+
+def simulation_figure_jobs(case: Case, responses: dict[str, Response], out: Path) -> list[tuple[str, tuple]]:
+    """A response figure per simulated test, with its data behind it, as crashnlp.plots jobs."""
+    jobs: list[tuple[str, tuple]] = []
+    for test in case.tests:
+        r = responses[test.name]
+        model = {k: (r.time, r[k]) for k in MEASURABLE}
+        jobs.append(
+            ("response_figure", (out / test.name / "response.png", f"{case.name}: {test.name}", model, data_curves(test)))
+        )
+    return jobs

@@ -9,7 +9,7 @@ from builders import small_pickup_problem
 
 from crashnlp import api
 from crashnlp.drawing import FigureProcess
-from crashnlp.results import write_figures
+from crashnlp.results import figure_jobs, write_figures
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="drawn in place where there is no fork")
 
@@ -25,7 +25,7 @@ def pngs(folder) -> dict[str, bytes]:
 
 def test_the_figure_process_draws_what_drawing_in_place_draws(result, tmp_path):
     with FigureProcess() as figures:
-        figures.draw(result, tmp_path / "forked")
+        figures.draw(figure_jobs(result, tmp_path / "forked"), tmp_path / "forked")
     write_figures(result, tmp_path / "here")
     drawn = pngs(tmp_path / "forked")
     assert set(drawn) == {"force_crush.png", "56kph/fit.png", "56kph/residuals.png"}
@@ -36,14 +36,14 @@ def test_a_failure_in_the_figure_process_is_reported(result, tmp_path):
     blocked = tmp_path / "file"
     blocked.write_text("not a folder")
     with pytest.raises(RuntimeError, match="were not drawn"), FigureProcess() as figures:
-        figures.draw(result, blocked)
+        figures.draw(figure_jobs(result, blocked), blocked)
 
 
 def test_a_failure_on_another_core_is_reported(result, tmp_path, monkeypatch):
     monkeypatch.setattr(os, "cpu_count", lambda: 2)  # residuals.png is drawn by a second process
     (tmp_path / "56kph" / "residuals.png").mkdir(parents=True)
     with pytest.raises(RuntimeError, match="were not drawn"), FigureProcess() as figures:
-        figures.draw(result, tmp_path)
+        figures.draw(figure_jobs(result, tmp_path), tmp_path)
     assert (tmp_path / "56kph" / "fit.png").exists() and (tmp_path / "force_crush.png").exists()
 
 
