@@ -575,6 +575,7 @@ def whole_process_md(r: dict) -> list[str]:
         "warm": "crashnlp, warm caches",
         "warm_no_figures": "crashnlp --no-figures, warm caches",
         "simulate_warm": "`crashnlp simulate` of the same problem, warm caches",
+        "simulate_no_figures": "`crashnlp simulate --no-figures`, warm caches",
         "python_numpy_casadi": "python -c 'import numpy, casadi' (the floor)",
         "scipy_baseline": "scipy least_squares + solve_ivp fit (same model), as a process",
     }
@@ -582,7 +583,7 @@ def whole_process_md(r: dict) -> list[str]:
     return [
         "## Whole process",
         "",
-        f"`{r['command']}` as a process (median of {r['repeats']}), what a user waits for:",
+        f"`{r['command']}` as a process (median of {r['repeats']} runs, the commands taking turns), what a user waits for:",
         "",
         *_table(["run", "wall (s)", "peak RSS (MB)", "exit"], rows),
         "",

@@ -3,7 +3,8 @@
 `crashnlp identify problems/pickup-56kph.yaml` as a process: the first run on a fresh
 cache (the model's functions compiled, the NLP solved in CasADi's virtual machine while
 its library compiles in the background), then, once that compile has finished, the
-median of warm runs with and without figures, each with its peak resident memory
+median of warm runs with and without figures, the commands taking turns so that the
+drift of a shared machine's speed slows them alike, each with its peak resident memory
 (figures are drawn by a forked process, counted in the peak: the kernel reports the
 largest of a process and its waited-for children); against the scipy baseline fit
 (bench/baseline.py, the same model) run as a process of its own. `crashnlp simulate`,
@@ -55,17 +56,30 @@ def timed_process(command: list[str], env: dict[str, str] | None = None) -> tupl
 
 
 def median_of(command: list[str], repeats: int, env: dict[str, str] | None = None) -> dict:
-    runs = [timed_process(command, env) for _ in range(repeats)]
+    return taking_turns({"run": (command, env)}, repeats)["run"]
+
+
+def taking_turns(commands: dict[str, tuple[list[str], dict[str, str] | None]], repeats: int) -> dict[str, dict]:
+    """Median wall time, all wall times, peak memory and worst exit status of each command, the
+    commands run in turns (one of each, `repeats` times) so that a machine whose speed drifts
+    (a shared one) slows them alike."""
+    runs: dict[str, list] = {name: [] for name in commands}
+    for _ in range(repeats):
+        for name, (command, env) in commands.items():
+            runs[name].append(timed_process(command, env))
     return {
-        "wall_s": statistics.median(r[0] for r in runs),
-        "walls_s": [r[0] for r in runs],
-        "peak_rss_mb": max(r[1] for r in runs),
-        "exit": max(r[2] for r in runs),
+        name: {
+            "wall_s": statistics.median(r[0] for r in rs),
+            "walls_s": [r[0] for r in rs],
+            "peak_rss_mb": max(r[1] for r in rs),
+            "exit": max(r[2] for r in rs),
+        }
+        for name, rs in runs.items()
     }
 
 
 def run(quick: bool = False) -> dict:
-    repeats = 1 if quick else 3
+    repeats = 1 if quick else 5
     compileall.compile_dir(ROOT / "crashnlp", quiet=1)
     with tempfile.TemporaryDirectory() as tmp:
         identify = [CLI, "identify", str(PICKUP_56), "--out", str(Path(tmp) / "out")]
@@ -75,24 +89,20 @@ def run(quick: bool = False) -> dict:
         out["first_run_fresh_cache"] = median_of(identify, 1, fresh_env)
         out["background_compile_s"] = wait_for_compiles(Path(tmp) / "cache")
         out["second_run_fresh_cache"] = median_of(identify, 1, fresh_env)
-        out["warm"] = median_of(identify, repeats, fresh_env)
-        out["warm_no_figures"] = median_of([*identify, "--no-figures"], repeats, fresh_env)
         simulate = [CLI, "simulate", str(PICKUP_56), "--out", str(Path(tmp) / "sim")]
-        out["simulate_warm"] = median_of(simulate, repeats, fresh_env)
-        out["python_numpy_casadi"] = median_of([sys.executable, "-c", "import numpy, casadi"], repeats)
-        env = {**os.environ, "PYTHONPATH": str(ROOT)}
-        out["scipy_baseline"] = median_of([sys.executable, "-c", BASELINE], repeats, env)
+        baseline_env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        turns = {
+            "warm": (identify, fresh_env),
+            "warm_no_figures": ([*identify, "--no-figures"], fresh_env),
+            "simulate_warm": (simulate, fresh_env),
+            "simulate_no_figures": ([*simulate, "--no-figures"], fresh_env),
+            "python_numpy_casadi": ([sys.executable, "-c", "import numpy, casadi"], None),
+            "scipy_baseline": ([sys.executable, "-c", BASELINE], baseline_env),
+        }
+        out.update(taking_turns(turns, repeats))
     out["speedup"] = out["scipy_baseline"]["wall_s"] / out["warm"]["wall_s"]
     out["speedup_no_figures"] = out["scipy_baseline"]["wall_s"] / out["warm_no_figures"]["wall_s"]
-    for key in (
-        "first_run_fresh_cache",
-        "second_run_fresh_cache",
-        "warm",
-        "warm_no_figures",
-        "simulate_warm",
-        "python_numpy_casadi",
-        "scipy_baseline",
-    ):
+    for key in ("first_run_fresh_cache", "second_run_fresh_cache", *turns):
         r = out[key]
         print(f"  {key}: {r['wall_s']:.2f} s, peak {r['peak_rss_mb']:.0f} MB, exit {r['exit']}")
     return out

@@ -116,13 +116,13 @@ def _check_dt(dt: float | None, duration: float) -> None:
 
 
 def cmd_simulate(args) -> int:
-    from crashnlp.results import simulation_figure_jobs, write_simulation
-
     with _figure_process(args) as figures:
         simulated = _simulate(args)
         if simulated is None:
             return 0
         case, responses, out = simulated
+        from crashnlp.results import simulation_figure_jobs, write_simulation
+
         summary = write_simulation(case, responses, out, figures=False)
         if figures is not None:
             figures.draw(simulation_figure_jobs(case, responses, out), out)
