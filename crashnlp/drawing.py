@@ -26,7 +26,7 @@ if TYPE_CHECKING:
 
 class FigureProcess:
     """Use as a context: `draw(jobs, folder)` once the result files are written; leaving
-    the context without drawing (an error, an interrupt) stops the process."""
+    the context without drawing (an error, an interrupt) kills the process."""
 
     def __init__(self) -> None:
         self.pid: int | None = None
@@ -55,14 +55,17 @@ class FigureProcess:
             raise RuntimeError(f"the figures of {folder} were not drawn (see above)")
 
     def __exit__(self, kind: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None) -> None:
-        if self.pid is not None:
-            self._send(b"")
+        if self.pid is not None:  # left without its figures (bad input, an error, an interrupt)
+            os.kill(self.pid, signal.SIGKILL)  # it has written nothing; do not wait for matplotlib
+            self._send(None)
             self._wait()
 
-    def _send(self, message: bytes) -> None:
+    def _send(self, message: bytes | None) -> None:
+        """Send `message` (None: nothing) and close the pipe."""
         if self.pipe is not None:
-            with os.fdopen(self.pipe, "wb", closefd=False) as pipe:
-                pipe.write(message)
+            if message is not None:
+                with os.fdopen(self.pipe, "wb", closefd=False) as pipe:
+                    pipe.write(message)
             os.close(self.pipe)
             self.pipe = None
 

@@ -310,7 +310,9 @@ def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
     proc = subprocess.Popen(argv, cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline = time.monotonic() + 30
     children: set[int] = set()
-    while time.monotonic() < deadline and len(children) < 4:  # tracker, fork server, two workers
+    # until the tracker, the fork server and two workers are up, or a first case is done (the
+    # study must not finish before it is signalled)
+    while time.monotonic() < deadline and len(children) < 4 and not list(out.glob("cases/*.json")):
         time.sleep(0.1)
         children |= _descendants(proc.pid)
     proc.send_signal(signal.SIGTERM)
