@@ -78,32 +78,26 @@ class Progress(ca.Callback):
         return [0]
 
 
-# IPOPT's options for a least-squares fit (designs keep IPOPT's own):
-# - tol: near a fit that leaves residuals Gauss-Newton converges linearly (the KKT error falls
-#   about 3x per iteration on the pickup); from 1e-5 to 1e-8 a quarter of the iterations moved
-#   the shipped fits' parameters by less than 5e-6 of their standard errors.
-# - mu_max: the barrier never rises above its start (0.1). Far from a fit, the adaptive
-#   barrier's oracle raised it to 2.5 and more; the iterates then wandered with the shooting
-#   defects open for hundreds of iterations (corpus vehicles v08, v10: 300 Gauss-Newton
-#   iterations and the exact restart; capped, 13 and 24).
-FIT_OPTIONS = {"tol": 1e-5, "mu_max": 0.1}
+# IPOPT's tolerance on the scaled KKT error of a least-squares fit. Near a fit that leaves
+# residuals, Gauss-Newton converges linearly (the error falls about 3x per iteration on the
+# pickup); from 1e-5 to 1e-8 a quarter of the iterations moved the shipped fits' parameters by
+# less than 5e-6 of their standard errors. Designs keep IPOPT's 1e-8.
+FIT_TOL = 1e-5
 
 
 def ipopt_options(spec: Solver, verbose: bool, fit: bool = False) -> dict:
     """IPOPT's options: adaptive barrier, and MUMPS ordering by approximate minimum fill, which on
     the larger crash NLPs (collocation beyond 400 intervals, several tests) halves the iterations
-    and the time per factorization against MUMPS's automatic choice; FIT_OPTIONS for a
-    least-squares `fit`; the problem's own options win."""
+    and the time per factorization against MUMPS's automatic choice; FIT_TOL for a least-squares
+    `fit`; the problem's own options win."""
     opts = {
         "print_level": 5 if verbose else 0,
         "sb": "yes",
         "max_iter": 1000,
-        "tol": 1e-8,
+        "tol": FIT_TOL if fit else 1e-8,
         "mu_strategy": "adaptive",
         "mumps_pivot_order": 2,
     }
-    if fit:
-        opts.update(FIT_OPTIONS)
     if spec.hessian == "limited-memory":
         opts["hessian_approximation"] = "limited-memory"
     opts.update(spec.ipopt)
