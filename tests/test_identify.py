@@ -111,7 +111,7 @@ def test_recovers_known_parameters_within_three_standard_errors(data_file, trans
 def test_a_fit_stops_once_its_parameters_are_settled_to_a_sliver_of_their_errors(tmp_path):
     # Gauss-Newton converges linearly near a fit that leaves residuals (here the shipped pickup
     # data and a coarse spring curve): IPOPT's 1e-8 would add iterations that move no parameter
-    # by a noticeable share of its standard error (solve.FIT_TOL)
+    # by a noticeable share of its standard error (solve.FIT_OPTIONS)
     problem = load_problem(small_pickup_problem(tmp_path))
     default = identify(Case(problem), progress=None)
     problem.solver.ipopt = {"tol": 1e-8}
