@@ -83,7 +83,7 @@ def run(quick: bool = False) -> dict:
             )
     out["baseline"] = b = run_baseline(intervals, 4 if quick else 100)
     _print_baseline(b)
-    out["from_data"] = from_data(intervals, quick)
+    out["from_data"] = run_from_data(intervals, quick)
     out["ratios"] = {
         m: {
             "speedup": b["wall_s"] / r["wall_s"],
@@ -100,7 +100,7 @@ def run(quick: bool = False) -> dict:
     return out
 
 
-def from_data(intervals: int | None, quick: bool) -> dict:
+def run_from_data(intervals: int | None, quick: bool) -> dict:
     """Both fits again from the measured force-crush curve (the spring values left to
     crashnlp.autoinit, as a problem without a guess gets them): from the problem's flat guess the
     baseline stops at a fit 8 times worse than crashnlp's; from here it goes on to fit."""

@@ -123,7 +123,7 @@ def cmd_simulate(args) -> int:
         case, responses, out = simulated
         from crashnlp.results import simulation_figure_jobs, write_simulation
 
-        summary = write_simulation(case, responses, out, figures=False)
+        summary = write_simulation(case, responses, out)
         if figures is not None:
             figures.draw(simulation_figure_jobs(case, responses, out), out)
     for name, t in summary["tests"].items():

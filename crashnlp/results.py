@@ -7,7 +7,7 @@ it is written. Figures are drawn after the result files.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -18,6 +18,9 @@ from crashnlp.outputs import COLUMNS, MEASURABLE
 from crashnlp.result import Result
 from crashnlp.simulation import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
+
+if TYPE_CHECKING:
+    from crashnlp.plots import Job  # not at run time: matplotlib
 
 # ignored by reproducibility checks: the only entries that change from run to run
 VOLATILE = ("wall_s", "build_s", "compiled")  # how long and by which evaluator, not what: same bits either way
@@ -49,10 +52,10 @@ def write_figures(result: Result, out: Path) -> None:
     plots.draw(figure_jobs(result, out))
 
 
-def figure_jobs(result: Result, out: Path) -> list[tuple[str, tuple]]:
+def figure_jobs(result: Result, out: Path) -> list[Job]:
     """The figures of a result as crashnlp.plots jobs: plain data, which a process that has
     imported matplotlib and nothing of the model draws (crashnlp.drawing)."""
-    jobs: list[tuple[str, tuple]] = []
+    jobs: list[Job] = []
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
         jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
@@ -68,24 +71,21 @@ def figure_jobs(result: Result, out: Path) -> list[tuple[str, tuple]]:
     return jobs
 
 
-def write_simulation(case: Case, responses: dict[str, Response], out: Path, figures: bool = True) -> dict:
-    """response.csv, a figure and metrics for each simulated test."""
+def write_simulation(case: Case, responses: dict[str, Response], out: Path) -> dict:
+    """response.csv and metrics for each simulated test, and simulation.json; the figures are
+    `simulation_figure_jobs`, drawn by the caller (crashnlp.drawing)."""
     summary: dict[str, Any] = {"name": case.name, "tests": {}}
     for test in case.tests:
         r = responses[test.name]
         r.write_csv(out / test.name / "response.csv")
         summary["tests"][test.name] = {"speed_mps": test.speed, "metrics": response_metrics(r)}
     write_json(out / "simulation.json", summary)
-    if figures:
-        from crashnlp import plots
-
-        plots.draw(simulation_figure_jobs(case, responses, out))
     return summary
 
 
-def simulation_figure_jobs(case: Case, responses: dict[str, Response], out: Path) -> list[tuple[str, tuple]]:
+def simulation_figure_jobs(case: Case, responses: dict[str, Response], out: Path) -> list[Job]:
     """A response figure per simulated test, with its data behind it, as crashnlp.plots jobs."""
-    jobs: list[tuple[str, tuple]] = []
+    jobs: list[Job] = []
     for test in case.tests:
         r = responses[test.name]
         model = {k: (r.time, r[k]) for k in MEASURABLE}

@@ -54,3 +54,11 @@ def test_leaving_without_drawing_ends_the_process(tmp_path):
     with pytest.raises(ChildProcessError):
         os.waitpid(pid, os.WNOHANG)
     assert not list(tmp_path.iterdir())
+
+
+def test_simulate_draws_its_figure_in_the_figure_process(tmp_path):
+    from crashnlp.cli import main
+
+    assert main(["simulate", str(small_pickup_problem(tmp_path)), "--out", str(tmp_path / "sim")]) == 0
+    assert set(pngs(tmp_path / "sim")) == {"56kph/response.png"}
+    assert pngs(tmp_path / "sim")["56kph/response.png"].startswith(b"\x89PNG")
