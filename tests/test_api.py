@@ -114,10 +114,10 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
         Case(problem_from_dict(merge(BASE, {"transcription": spec, "estimate": {"vehicle.crush_offset": {}}}), ROOT))
     )
     states = ocp.nlp.blocks["t56.x"]
-    assert states.shape == (NX, n + 1)
+    assert states.shape == (NX, n)  # the first node is the state just after impact, not a variable
     dynamics = sum(c.size for c in ocp.nlp.constraints if c.kind == DYNAMICS)
-    # initial state + impact interval + the other n - 1 intervals (and their collocation points)
-    assert dynamics == NX * (1 + 1 + (n - 1) * (1 + per_interval))
+    # impact interval + the other n - 1 intervals (and their collocation points)
+    assert dynamics == NX * (1 + (n - 1) * (1 + per_interval))
     # at the initial guess (a forward simulation) the dynamics nearly hold
     (g,) = ocp.nlp.evaluate([ca.vertcat(*ocp.nlp.g)], ocp.nlp.bounds()["x0"])
     assert np.max(np.abs(np.asarray(g).ravel()[:dynamics])) < 0.05

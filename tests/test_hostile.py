@@ -350,16 +350,16 @@ def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path
 
 
 def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    from crashnlp.optimize.solve import Progress
+    from crashnlp.optimize.solve import Watch
 
-    iteration = Progress.eval
+    iteration = Watch.eval
 
     def interrupted_at_the_third(self, arg):  # the user's Ctrl-C, while IPOPT iterates
         if self.count == 3:
             os.kill(os.getpid(), signal.SIGINT)
         return iteration(self, arg)
 
-    monkeypatch.setattr(Progress, "eval", interrupted_at_the_third)
+    monkeypatch.setattr(Watch, "eval", interrupted_at_the_third)
     out = tmp_path / "out"
     code, _, err = run(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(out)], capsys)
     assert code == 130 and err == "crashnlp: interrupted (SIGINT)\n", err

@@ -80,15 +80,17 @@ class OptimalControl:
         p_sx = self.free.full(theta_sx, test.overrides, fixed_sx)
         fixed = self._fixed(f"{test.name}.parameters", self.case.test_parameters(test))
         q = ca.vertcat(self.theta, fixed) if fixed is not None else self.theta
-        x0 = model.initial_state(
-            self.free.full(self.theta, test.overrides, fixed), self.nlp.parameter(f"{test.name}.speed", test.speed)
-        )
+        v0 = ca.SX.sym("v0")
+        start = ca.Function("start", [q_sx, v0], [model.initial_state(p_sx, v0)])
+        speed = self.nlp.parameter(f"{test.name}.speed", test.speed)
         rhs = self.transcription.dynamics(q_sx, p_sx)
-        traj = self.transcription.discretize(self.nlp, test.name, rhs, q, x0, horizon, _interpolator(guess))
+        traj = self.transcription.discretize(self.nlp, test.name, rhs, q, start, speed, horizon, _interpolator(guess))
         x = ca.SX.sym("x", NX)
         outputs = ca.Function("outputs", [x, q_sx], [model.outputs(x, p_sx)])
-        (y,) = self.nlp.mapped(outputs, len(traj.times), traj.states, q)
-        return Transcript(test, traj, y)
+        at_start = ca.Function("outputs_at_start", [q_sx, v0], [model.outputs(start(q_sx, v0), p_sx)])
+        (y0,) = self.nlp.mapped(at_start, 1, q, speed)
+        (y,) = self.nlp.mapped(outputs, len(traj.times) - 1, traj.nodes, q)
+        return Transcript(test, traj, ca.horzcat(y0, y))
 
     def _fixed(self, name: str, values: np.ndarray) -> ca.MX | None:
         """A full parameter vector as an NLP parameter, or None where the numbers are constants."""

@@ -55,8 +55,8 @@ def walk(chain: Chain) -> list[tuple[float, float, str]]:
         lbx[k] = ubx[k] = value / scale
         z = z.copy()
         z[k] = value / scale
-        sol = built.function(x0=z, lbx=lbx, ubx=ubx, lbg=bounds["lbg"], ubg=bounds["ubg"], p=bounds["p"])
-        status = str(built.function.stats().get("return_status"))
+        sol, stats = built({**bounds, "x0": z, "lbx": lbx, "ubx": ubx})
+        status = str(stats.get("return_status"))
         z = np.asarray(sol["x"]).ravel()
         out.append((value, float(sol["f"]), status))
     return out
