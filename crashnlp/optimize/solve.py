@@ -47,7 +47,7 @@ class SolveResult:
 # TAIL_STEP in the scaled variables, the constraints met to TAIL_VIOLATION. A contraction of
 # 0.5 or slower gains a digit in 3.3 iterations or more; Newton gains them quadratically once
 # this close. The ratio must be steady: steps that shrink unevenly (0.75, 0.70, 0.83 on corpus
-# vehicle v10, before the front end's engagement) were Gauss-Newton leaving a point, not
+# vehicle v10, before the first node was exact) were Gauss-Newton leaving a point, not
 # closing in on it.
 TAIL_RATIO, TAIL_SPREAD, TAIL_RUN, TAIL_STEP, TAIL_VIOLATION = 0.5, 0.02, 3, 3e-2, 1e-4
 TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail takes 2 to 4 iterations
@@ -76,13 +76,14 @@ class Watch(ca.Callback):
         self.start(np.zeros(ng), np.zeros(ng), None, False)
         self.construct("watch", {})
 
-    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, tail: bool) -> None:
-        """Before a run: the constraint bounds, where progress goes, whether to watch the tail."""
-        self.lbg, self.ubg, self.out, self.tail = lbg, ubg, out, tail
+    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool) -> None:
+        """Before a run: the constraint bounds, where progress goes, whether to watch
+        Gauss-Newton (its tail, a stall, lost)."""
+        self.lbg, self.ubg, self.out, self.watch = lbg, ubg, out, watch
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
-        self.remaining: float | None = None  # in the slow tail: the distance still to go
+        self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
         self.objectives: list[float] = []
         self.feasible = 0  # iterations in a row with the constraints met to TAIL_VIOLATION
         self.start_point: tuple[float, float] | None = None  # objective and violation at the start
@@ -118,7 +119,7 @@ class Watch(ca.Callback):
             f = float(arg[names.index("f")])
             print(f"  iter {self.count:4d}  objective {f:11.5g}  constraint violation {viol:9.2e}", file=self.out)
         self.count += 1
-        if self.tail:
+        if self.watch:
             self._follow(np.asarray(arg[names.index("x")]).ravel(), float(arg[names.index("f")]), viol)
         return [int(self.remaining is not None or self.lost)]
 
@@ -215,10 +216,10 @@ class BuiltSolver:
     watch: Watch
     compiled: bool = False
 
-    def __call__(self, args: dict[str, np.ndarray], out: TextIO | None = None, tail: bool = False) -> tuple[dict, dict]:
-        """One IPOPT run: its solution and stats; progress lines to `out`; `tail`: stop in
-        Gauss-Newton's slow tail."""
-        self.watch.start(args["lbg"], args["ubg"], out, tail)
+    def __call__(self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False) -> tuple[dict, dict]:
+        """One IPOPT run: its solution and stats; progress lines to `out`; `watch`: stop
+        Gauss-Newton in its slow tail, stalled or lost (Watch)."""
+        self.watch.start(args["lbg"], args["ubg"], out, watch)
         sol = self.function(**args)
         return sol, self.function.stats()
 
@@ -286,7 +287,7 @@ def solve(
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
     gauss_newton = spec.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": limit}})
     exact = spec.model_copy(update={"hessian": "exact"})
-    first = _solve(nlp, gauss_newton, verbose, progress, tail=True)
+    first = _solve(nlp, gauss_newton, verbose, progress, watch=True)
     if first.tail is not None:
         newton = _solve(
             nlp, exact.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": TAIL_NEWTON_ITER}}), verbose, progress, start=first
@@ -323,16 +324,16 @@ def _after(before: SolveResult, run: SolveResult) -> SolveResult:
 
 
 def _solve(
-    nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None, tail: bool = False, start: SolveResult | None = None
+    nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None, watch: bool = False, start: SolveResult | None = None
 ) -> SolveResult:
     """One IPOPT run from the NLP's initial guess, or warm from `start`'s iterate and
-    multipliers; `tail`: stop in Gauss-Newton's slow tail."""
+    multipliers; `watch`: stop Gauss-Newton in its slow tail, stalled or lost (Watch)."""
     built = build_solver(nlp, spec, verbose, warm=start is not None)
     args = nlp.bounds()
     if start is not None:
         args.update(x0=start.z, lam_x0=start.lam_x, lam_g0=start.lam_g)
     t0 = time.perf_counter()
-    sol, stats = built(args, None if verbose else progress, tail)
+    sol, stats = built(args, None if verbose else progress, watch)
     wall = time.perf_counter() - t0
     return SolveResult(
         z=np.asarray(sol["x"]).ravel(),
