@@ -186,36 +186,6 @@ def test_the_fit_does_not_jump_with_a_force_at_zero_crush(tmp_path):
     assert np.ptp(f) <= 1e-9 * np.mean(f), f
 
 
-def test_a_gauss_newton_cycle_is_a_stall_and_progress_is_not():
-    # a joint fit of the pickup at 56 and 40 km/h by shooting repeated four iterates for 300
-    # iterations (objectives and steps from its log)
-    from crashnlp.optimize.solve import STALL_RUN, stalled
-
-    cycle = [2.8596, 2.8572, 2.8566, 2.8580] * 6
-    steps = [1.3e-3, 1.2e-2, 1.3e-2, 3.2e-3] * 6
-    assert stalled(steps, cycle)
-    assert not stalled(steps[:STALL_RUN], cycle[:STALL_RUN])  # too few iterations to tell
-    assert not stalled(steps, [*cycle[:-1], 2.80])  # a better objective is progress
-    shrinking = [1e-2 * 0.7**k for k in range(len(cycle))]
-    assert not stalled(shrinking, cycle)  # so are steps that shrink
-
-
-def test_gauss_newton_is_lost_after_ten_iterations_worse_than_its_start_on_both_counts():
-    from crashnlp.optimize.solve import LOST_RUN, Watch
-
-    watch = Watch(1, 1)
-    watch.start(np.zeros(1), np.zeros(1), None, True)
-    watch._follow(np.zeros(1), 10.0, 1e-5)  # the start: objective 10, violation 1e-5
-    for k in range(LOST_RUN - 1):
-        watch._follow(np.full(1, k + 1.0), 50.0, 1e-2)
-    assert not watch.lost
-    watch._follow(np.full(1, 0.5), 9.0, 1e-2)  # one better objective starts the count again
-    for k in range(LOST_RUN):
-        assert not watch.lost
-        watch._follow(np.full(1, -k - 1.0), 50.0, 1e-2)
-    assert watch.lost
-
-
 def test_transcriptions_agree_on_the_objective(data_file):
     a = solve(fit_problem(data_file, MS))
     b = solve(fit_problem(data_file, COLLOCATION))

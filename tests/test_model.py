@@ -80,24 +80,6 @@ def test_energy_balance_with_dissipation(law):
     assert np.max(np.abs(total - total[0])) < 1e-6 * total[0]
 
 
-def test_contact_force_joins_zero_smoothly_and_is_exact_outside_its_width():
-    from crashnlp.model.laws import contact_max
-    from crashnlp.model.pendulum import CONTACT_WIDTH
-
-    z = ca.SX.sym("z")
-    f = ca.Function("f", [z], [contact_max(z, CONTACT_WIDTH), ca.jacobian(contact_max(z, CONTACT_WIDTH), z)])
-    w = CONTACT_WIDTH
-    for value in (-5 * w, -w, 1.000001 * w, 7 * w):  # exact: zero below, z above
-        assert float(f(value)[0]) == pytest.approx(max(value, 0.0), abs=1e-6 * w)
-    # the slope runs from 0 to 1 without a jump, the value stays above zero and never pulls
-    for edge in (-w, w):
-        below, above = (float(f(edge + d)[1]) for d in (-1e-9 * w, 1e-9 * w))
-        assert above == pytest.approx(below, abs=1e-6)
-    grid = np.linspace(-2 * w, 2 * w, 401)
-    values = np.array([float(f(v)[0]) for v in grid])
-    assert np.all(values >= 0) and np.all(np.diff(values) >= 0)
-
-
 def test_plastic_unloading_leaves_permanent_set_and_never_pulls():
     plastic = make_case({"tests": [{"name": "t56", "duration": 0.3}]}).simulate()["t56"]
     elastic = make_case({"model": {"unloading": {"law": "elastic"}}, "tests": [{"name": "t56", "duration": 0.3}]}).simulate()[

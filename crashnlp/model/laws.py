@@ -25,15 +25,6 @@ def hinge(z: Expr, eps: float) -> Expr:
     return ca.fmax(z, 0) if eps == 0 else 0.5 * (z + ca.sqrt(z * z + eps * eps))
 
 
-def contact_max(z: Expr, width: float) -> Expr:
-    """max(z, 0), exact outside [-width, width] and joined there by a parabola: the slope
-    runs from 0 to 1 instead of jumping (width 0: the exact max). Exactly zero below -width,
-    so a vehicle that has left the barrier feels no force at all."""
-    if width == 0:
-        return ca.fmax(z, 0)
-    return ca.if_else(z >= width, z, ca.if_else(z <= -width, 0, (z + width) ** 2 / (4 * width)))
-
-
 def hinge_integral(z: Expr, eps: float) -> Expr:
     """Antiderivative of `hinge` in z, zero far left."""
     if eps == 0:

@@ -33,7 +33,7 @@ from typing import Any
 
 import casadi as ca
 
-from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, contact_max, damper_force, hinge
+from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.outputs import NAMES
 from crashnlp.problem.schema import Model as ModelSpec
@@ -42,7 +42,6 @@ STATES = ("r", "theta", "rdot", "thetadot", "x_max")  # x_max: largest crush so 
 NX = len(STATES)
 ABSORBED = ("barrier_power", "front_damper_power", "damper_power")  # integrated by the simulator
 HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush this far below it
-CONTACT_WIDTH = 1e3  # N: the contact force joins zero smoothly within this of it (laws.contact_max)
 OUTPUTS = NAMES  # the registry's order (crashnlp.outputs)
 
 
@@ -114,11 +113,7 @@ class PendulumModel:
             # starts from zero at impact instead of jumping to c * v0
             engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
             damper = engaged * damper_force(rate, dbps, dvals, s.eps_rate)
-        # the contact force ends when spring and damper together stop pushing (the rebound): its
-        # kink there made the fit's objective kinked, Gauss-Newton cycled around it and the
-        # exact Hessian failed (a joint fit of the pickup at 56 and 40 km/h by shooting)
-        width = CONTACT_WIDTH if s.eps_crush > 0 else 0.0
-        contact = ca.if_else(crush >= 0, contact_max(force + damper, width), 0)
+        contact = ca.if_else(crush >= 0, ca.fmax(force + damper, 0), 0)
         return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
 
     def _history_rate(self, crush, rate, x_max):

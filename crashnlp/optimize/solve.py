@@ -32,7 +32,6 @@ class SolveResult:
     profile: dict[str, tuple[int, float]] = field(default_factory=dict)  # IPOPT's functions: calls, seconds
     compiled: bool = False  # IPOPT called the compiled NLP functions (crashnlp.optimize.oracle)
     tail: float | None = None  # stopped in Gauss-Newton's slow tail (Watch): the distance still to go
-    lost: bool = False  # stopped as Gauss-Newton lost its way (Watch)
 
     @property
     def converged(self) -> bool:
@@ -51,24 +50,11 @@ class SolveResult:
 # closing in on it.
 TAIL_RATIO, TAIL_SPREAD, TAIL_RUN, TAIL_STEP, TAIL_VIOLATION = 0.5, 0.02, 3, 3e-2, 1e-4
 TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail takes 2 to 4 iterations
-# Gauss-Newton stalled: over STALL_RUN iterations with the constraints met to TAIL_VIOLATION, no
-# objective lower than before by STALL_GAIN of it, and steps no shorter in the second half than
-# half those of the first. Without the constraints' curvature, Gauss-Newton can cycle: a joint
-# fit of the pickup at 56 and 40 km/h by shooting repeated four iterates (objective 2.8562 to
-# 2.8596, the dual infeasibility at 2.5) for 300 iterations; Newton from there takes 4.
-STALL_RUN, STALL_GAIN = 12, 1e-6
-# Gauss-Newton lost: LOST_RUN iterations in a row with a higher objective than at the start and
-# the constraints violated LOST_VIOLATION times as much (plus TAIL_VIOLATION). Its steps are
-# then long (a poorly determined J^T J), the line search cuts them to a few per cent and the
-# adaptive barrier grows: corpus vehicle v16 wandered at objectives up to 119 for 300
-# iterations; the exact Hessian from the start needs 18. Lost, it starts over at once.
-LOST_RUN, LOST_VIOLATION = 10, 10.0
 
 
 class Watch(ca.Callback):
     """IPOPT's iteration callback: a short line every `every` iterations when asked, and for a
-    Gauss-Newton fit a stop in its slow tail (TAIL_RATIO above), stalled (STALL_RUN) or lost
-    (LOST_RUN)."""
+    Gauss-Newton fit a stop in its slow tail (TAIL_RATIO above)."""
 
     def __init__(self, nx: int, ng: int, every: int = 10):
         ca.Callback.__init__(self)
@@ -78,16 +64,12 @@ class Watch(ca.Callback):
 
     def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool) -> None:
         """Before a run: the constraint bounds, where progress goes, whether to watch
-        Gauss-Newton (its tail, a stall, lost)."""
+        Gauss-Newton for its slow tail."""
         self.lbg, self.ubg, self.out, self.watch = lbg, ubg, out, watch
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
         self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
-        self.objectives: list[float] = []
-        self.feasible = 0  # iterations in a row with the constraints met to TAIL_VIOLATION
-        self.start_point: tuple[float, float] | None = None  # objective and violation at the start
-        self.worse, self.lost = 0, False  # iterations in a row worse than the start on both
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -120,27 +102,17 @@ class Watch(ca.Callback):
             print(f"  iter {self.count:4d}  objective {f:11.5g}  constraint violation {viol:9.2e}", file=self.out)
         self.count += 1
         if self.watch:
-            self._follow(np.asarray(arg[names.index("x")]).ravel(), float(arg[names.index("f")]), viol)
-        return [int(self.remaining is not None or self.lost)]
+            self._follow(np.asarray(arg[names.index("x")]).ravel(), viol)
+        return [int(self.remaining is not None)]
 
-    def _follow(self, x: np.ndarray, f: float, viol: float) -> None:
-        """Gauss-Newton's progress: in its slow tail or stalled, `remaining` is the distance
-        still to go (for a stall, the steps' length)."""
+    def _follow(self, x: np.ndarray, viol: float) -> None:
+        """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go."""
         if self.x is not None:
             self.steps.append(float(np.max(np.abs(x - self.x), initial=0.0)))
         self.x = x
-        self.objectives.append(f)
-        self.feasible = self.feasible + 1 if viol <= TAIL_VIOLATION else 0
-        if self.start_point is None:
-            self.start_point = (f, viol)
-        worse = f > self.start_point[0] and viol > LOST_VIOLATION * self.start_point[1] + TAIL_VIOLATION
-        self.worse = self.worse + 1 if worse else 0
-        self.lost = self.worse >= LOST_RUN
         if viol <= TAIL_VIOLATION and slow_tail(self.steps):
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
-        elif self.feasible >= STALL_RUN and stalled(self.steps, self.objectives):
-            self.remaining = max(self.steps[-STALL_RUN:])
 
 
 def slow_tail(steps: list[float]) -> bool:
@@ -150,17 +122,6 @@ def slow_tail(steps: list[float]) -> bool:
     last = np.asarray(steps[-TAIL_RUN - 1 :])
     ratios = last[1:] / last[:-1]
     return bool(np.all((ratios >= TAIL_RATIO) & (ratios < 1)) and np.ptp(ratios) <= TAIL_SPREAD)
-
-
-def stalled(steps: list[float], objectives: list[float]) -> bool:
-    """Whether Gauss-Newton has gone STALL_RUN iterations without a better objective and
-    without its steps shrinking (STALL_RUN above)."""
-    if len(objectives) <= STALL_RUN or len(steps) < STALL_RUN:
-        return False
-    before, recent = min(objectives[:-STALL_RUN]), min(objectives[-STALL_RUN:])
-    half = STALL_RUN // 2
-    first, second = np.mean(steps[-STALL_RUN:-half]), np.mean(steps[-half:])
-    return bool(recent >= before - STALL_GAIN * abs(before) and second >= 0.5 * first)
 
 
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own):
@@ -218,7 +179,7 @@ class BuiltSolver:
 
     def __call__(self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False) -> tuple[dict, dict]:
         """One IPOPT run: its solution and stats; progress lines to `out`; `watch`: stop
-        Gauss-Newton in its slow tail, stalled or lost (Watch)."""
+        Gauss-Newton in its slow tail (Watch)."""
         self.watch.start(args["lbg"], args["ubg"], out, watch)
         sol = self.function(**args)
         return sol, self.function.stats()
@@ -249,9 +210,10 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, warm: boo
 
 
 AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
-# where IPOPT fails with the Gauss-Newton Hessian, the exact one starts over: a joint fit of the
-# pickup at 56 and 40 km/h by collocation ended in a failed restoration after 32 Gauss-Newton
-# iterations, and the exact Hessian from the start converges in 73
+# where IPOPT fails with the Gauss-Newton Hessian, the exact one starts over instead of the fit
+# failing: seen on a joint fit of the pickup at 56 and 40 km/h by collocation (a failed
+# restoration after 32 Gauss-Newton iterations, then 73 exact) with a variant of the contact
+# force that was not adopted (README, this round)
 GAUSS_NEWTON_FAILURES = ("Restoration_Failed", "Error_In_Step_Computation")
 # Newton from where Gauss-Newton's tail began: IPOPT takes the iterate and its multipliers as
 # they are, with a barrier already at its floor.
@@ -275,10 +237,10 @@ def solve(
     With `hessian: auto` a least-squares fit starts with the Gauss-Newton Hessian, cheap and
     fast near a good fit (15 to 30 iterations on the shipped problems). Where it converges only
     linearly (a large residual or a weakly determined direction: its slow tail, TAIL_RATIO
-    above) or stalls (STALL_RUN), the exact Hessian (structured and compiled like the rest,
+    above), the exact Hessian (structured and compiled like the rest,
     about twice a Gauss-Newton iteration's cost) finishes from there, warm-started; where
     Newton does not finish the same fit (`finishes`), Gauss-Newton runs again to the end
-    without the watch. Where Gauss-Newton is lost (LOST_RUN), fails (GAUSS_NEWTON_FAILURES) or
+    without the watch. Where Gauss-Newton fails (GAUSS_NEWTON_FAILURES) or
     has not converged after AUTO_GAUSS_NEWTON_ITER iterations, IPOPT starts over with the exact Hessian from the
     initial guess, since a crawl can end far from where the exact Hessian converges from. The
     result counts the iterations and time of every run."""
@@ -297,7 +259,7 @@ def solve(
         # Newton did not finish what Gauss-Newton began: Gauss-Newton all the way, as without the tail
         first = _after(_after(first, newton), _solve(nlp, gauss_newton, verbose, progress))
     crawled = first.return_status == "Maximum_Iterations_Exceeded" and limit >= AUTO_GAUSS_NEWTON_ITER
-    if first.converged or not (first.lost or crawled or first.return_status in GAUSS_NEWTON_FAILURES):
+    if first.converged or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
         return first
     return _after(first, _solve(nlp, exact, verbose, progress))
 
@@ -327,7 +289,7 @@ def _solve(
     nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None, watch: bool = False, start: SolveResult | None = None
 ) -> SolveResult:
     """One IPOPT run from the NLP's initial guess, or warm from `start`'s iterate and
-    multipliers; `watch`: stop Gauss-Newton in its slow tail, stalled or lost (Watch)."""
+    multipliers; `watch`: stop Gauss-Newton in its slow tail (Watch)."""
     built = build_solver(nlp, spec, verbose, warm=start is not None)
     args = nlp.bounds()
     if start is not None:
@@ -347,7 +309,6 @@ def _solve(
         build_s=built.build_s,
         compiled=built.compiled,
         tail=built.watch.remaining,
-        lost=built.watch.lost,
         profile={
             k[len("t_wall_") :]: (int(stats.get("n_call_" + k[len("t_wall_") :], 0)), float(v))
             for k, v in stats.items()
