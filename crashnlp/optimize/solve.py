@@ -94,13 +94,15 @@ class Watch(ca.Callback):
         return ca.Sparsity(0, 0)
 
     def eval(self, arg):
+        count, self.count = self.count, self.count + 1
+        if self.out is None and not self.watch:  # designs and profiles: nothing to look at
+            return [0]
         names = ca.nlpsol_out()
         g = np.asarray(arg[names.index("g")]).ravel()
         viol = float(np.max(np.maximum(self.lbg - g, g - self.ubg), initial=0.0))
-        if self.out is not None and self.count % self.every == 0:
+        if self.out is not None and count % self.every == 0:
             f = float(arg[names.index("f")])
-            print(f"  iter {self.count:4d}  objective {f:11.5g}  constraint violation {viol:9.2e}", file=self.out)
-        self.count += 1
+            print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {viol:9.2e}", file=self.out)
         if self.watch:
             self._follow(np.asarray(arg[names.index("x")]).ravel(), viol)
         return [int(self.remaining is not None)]
@@ -267,7 +269,7 @@ def solve(
 def finishes(tail: SolveResult, newton: SolveResult) -> bool:
     """Whether Newton, started in Gauss-Newton's tail, finished the same fit: converged, and
     to a lower objective or within TAIL_REACH times the distance the tail had still to go.
-    On corpus vehicle v10 (before the front end's engagement) Newton converged from the tail
+    On corpus vehicle v10 (before the first node was exact) Newton converged from the tail
     to another KKT point, 134 times that distance away, at an objective 11 % higher."""
     if not newton.converged or tail.tail is None:
         return False

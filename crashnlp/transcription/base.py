@@ -72,9 +72,8 @@ class Transcription(ABC):
         The first node is that state itself, not a variable held to it: held only to IPOPT's
         tolerance, its crush was +-1e-12, and where the front end carries a force at zero
         crush (spring.values[0] > 0) that sign switched the contact force on or off. The
-        objective then jumped by 16 % for a change of 1e-12 in any variable (corpus vehicle
-        v10), and Gauss-Newton chattered between the two sides (v12: 321 iterations). The
-        forward simulation starts from the same exact state.
+        objective then jumped by 16 % for a change of 1e-12 in any variable, and corpus vehicle
+        v10's fit sat on the jump. The forward simulation starts from the same exact state.
         The defects are divided by the state scales (an NLP parameter, from the guess)."""
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
