@@ -40,6 +40,12 @@ def _block_diagonal(per_column: ca.MX, pattern: ca.Sparsity, n: int) -> ca.MX:
     return ca.sparsity_cast(per_column, ca.kron(ca.DM.eye(n), ca.DM.ones(pattern)).sparsity())
 
 
+def _used_elements(d_outer: ca.MX | None, m: int) -> list[int]:
+    """The elements of one column's output (m of them, the same in every column) that a
+    Jacobian with respect to the whole mapped output uses in any column."""
+    return [] if d_outer is None else sorted({c % m for c in d_outer.sparsity().get_col()})
+
+
 @dataclass
 class MappedBlock:
     """One interval function mapped over n columns, as it appears in the NLP."""
@@ -79,12 +85,27 @@ class MappedBlock:
         """The interval function's outputs on one column's symbols."""
         return self.fn.call(ins)
 
-    def jacobians(self, z: ca.MX) -> list[ca.MX]:
-        """d vec(output) / dz of every output: per-column Jacobians, block-diagonal, times dW/dz."""
+    def jacobians(self, z: ca.MX, wanted: list[list[int]] | None = None) -> list[ca.MX]:
+        """d vec(output)[wanted] / dz of every output, rows column by column: per-column
+        Jacobians, block-diagonal, times dW/dz. `wanted[k]`: the elements of one column's
+        vec(output k) asked for, the same in every column (all when None): a constraint on the
+        crush needs one of the 14 outputs' rows, a fit its four channels."""
         _, dw = self.input_jacobian(z)
-        column = self._column("jac", z, lambda ins, w: ([], [ca.jacobian(ca.vec(o), w) for o in self._outputs(ins)]))
-        per_column = mapped(column, self.n, self.threads).call(self.inputs)
-        return [ca.mtimes(_block_diagonal(J, column.sparsity_out(k), self.n), dw) for k, J in enumerate(per_column)]
+        wanted = wanted or [list(range(self.fn.numel_out(k))) for k in range(self.fn.n_out())]
+        asked = [k for k, rows in enumerate(wanted) if rows]
+        if not asked:
+            return [ca.MX(0, z.numel()) for _ in wanted]
+
+        def jacobian(ins, w):
+            outs = self._outputs(ins)
+            return [], [ca.jacobian(ca.vec(outs[k])[wanted[k]], w) for k in asked]
+
+        column = self._column("jac", z, jacobian)
+        per_column = iter(mapped(column, self.n, self.threads).call(self.inputs))
+        jacobians = [ca.MX(0, z.numel()) for _ in wanted]
+        for i, k in enumerate(asked):
+            jacobians[k] = ca.mtimes(_block_diagonal(next(per_column), column.sparsity_out(i), self.n), dw)
+        return jacobians
 
     def curvature(self, z: ca.MX, adjoints: list[ca.MX]) -> ca.MX:
         """dW/dz^T blockdiag(hess_w sum_k <mu_k, F_k(w)>) dW/dz: the second derivatives of every
@@ -126,12 +147,19 @@ class Derivatives:
         return ca.graph_substitute(expr, self.flat, [ca.vec(v) for v in self.values])
 
     def jacobian(self, expr: ca.MX) -> ca.MX:
-        """d expr / dz, the blocks' Jacobians chained in."""
+        """d expr / dz, the blocks' Jacobians chained in: of each block output, only the rows
+        (elements of a column's output) that expr uses are differentiated and multiplied."""
         outer = self._outer(expr)
         J = ca.jacobian(outer, self.z)
-        for sym, dv in zip(self.flat, self._block_jacobians()):
-            if ca.depends_on(outer, sym):
-                J = J + ca.mtimes(ca.jacobian(outer, sym), dv)
+        flat = iter(self.flat)
+        for block in self._blocks:
+            syms = [next(flat) for _ in block.outputs]
+            d_outer = [ca.jacobian(outer, s) if ca.depends_on(outer, s) else None for s in syms]
+            wanted = [_used_elements(d, block.fn.numel_out(k)) for k, d in enumerate(d_outer)]
+            for k, (d, rows, dv) in enumerate(zip(d_outer, wanted, block.jacobians(self.z, wanted))):
+                if d is not None and rows:
+                    m = block.fn.numel_out(k)
+                    J = J + ca.mtimes(d[:, [j * m + e for j in range(block.n) for e in rows]], dv)
         return self._inner(J)
 
     def jac_g(self, g: ca.MX) -> ca.Function:
