@@ -88,11 +88,11 @@ class Watch(ca.Callback):
         name = ca.nlpsol_out(i)
         if name == "f":
             return ca.Sparsity.scalar()
-        if name in ("x", "lam_x"):
+        if name == "x":
             return ca.Sparsity.dense(self.nx)
-        if name in ("g", "lam_g"):
+        if name == "g":
             return ca.Sparsity.dense(self.ng)
-        return ca.Sparsity(0, 0)
+        return ca.Sparsity(0, 0)  # the multipliers are not read: nlpsol skips empty inputs
 
     def eval(self, arg):
         count, self.count = self.count, self.count + 1
@@ -109,14 +109,14 @@ class Watch(ca.Callback):
             f = float(arg[names.index("f")])
             print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
         if self.watch:
-            self._follow(np.asarray(arg[names.index("x")]).ravel(), violation)
+            self._follow(arg[names.index("x")].full().ravel(), violation)
         return [int(self.remaining is not None)]
 
     def _follow(self, x: np.ndarray, violation: Callable[[], float]) -> None:
         """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go
         (the constraint violation is computed only there)."""
         if self.x is not None:
-            self.steps.append(float(np.max(np.abs(x - self.x), initial=0.0)))
+            self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
@@ -127,9 +127,9 @@ def slow_tail(steps: list[float]) -> bool:
     """Whether the last primal steps shrink linearly, slowly and steadily (TAIL_RATIO above)."""
     if len(steps) <= TAIL_RUN or steps[-1] > TAIL_STEP or min(steps[-TAIL_RUN - 1 :]) <= 0:
         return False
-    last = np.asarray(steps[-TAIL_RUN - 1 :])
-    ratios = last[1:] / last[:-1]
-    return bool(np.all((ratios >= TAIL_RATIO) & (ratios < 1)) and np.ptp(ratios) <= TAIL_SPREAD)
+    last = steps[-TAIL_RUN - 1 :]
+    ratios = [b / a for a, b in zip(last, last[1:])]  # a few numbers: plain Python, no numpy calls
+    return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
 
 
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own):
