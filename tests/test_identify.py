@@ -154,6 +154,33 @@ def test_gauss_newtons_slow_tail_is_finished_by_newton_at_the_same_optimum(monke
     assert np.all(np.abs(auto.theta - gn.theta) <= 1e-4 * gn.std_errors), (auto.theta, gn.theta, gn.std_errors)
 
 
+def test_where_gauss_newton_fails_the_exact_hessian_starts_over_and_counts_both(tmp_path, monkeypatch):
+    # IPOPT can fail with the Gauss-Newton Hessian (a failed restoration, a step it cannot
+    # compute) where the exact one converges: the fit must not end there. The failure is
+    # stood in for here (the Gauss-Newton run is real, its status replaced); the exact run is real.
+    import dataclasses
+
+    from crashnlp.optimize import solve as solving
+
+    runs, run = [], solving._solve
+
+    def failing_gauss_newton(nlp, spec, *args, **kwargs):
+        result = run(nlp, spec, *args, **kwargs)
+        runs.append((spec.hessian, kwargs.get("start") is not None, result.iterations))
+        return dataclasses.replace(result, return_status="Restoration_Failed") if spec.hessian == "auto" else result
+
+    monkeypatch.setattr(solving, "_solve", failing_gauss_newton)
+    problem = load_problem(small_pickup_problem(tmp_path))
+    restarted = identify(Case(problem), progress=None)
+    assert [(h, warm) for h, warm, _ in runs] == [("auto", False), ("exact", False)]  # from the initial guess
+    assert restarted.ok and restarted.result.return_status == "Solve_Succeeded"
+    assert restarted.result.iterations == sum(n for _, _, n in runs)
+    monkeypatch.undo()
+    problem.solver.hessian = "exact"
+    exact = identify(Case(problem), progress=None)
+    assert np.array_equal(restarted.theta, exact.theta)
+
+
 @pytest.mark.parametrize(
     "ratio, last, tail",
     [(0.9, 1e-3, True), (0.5, 1e-3, True), (0.3, 1e-3, False), (1.1, 1e-3, False), (0.9, 0.1, False)],

@@ -114,6 +114,32 @@ def test_tighter_pitch_bound_never_fits_better(shipped):
     assert (out / "figures" / f"{PITCH}.png").is_file()
 
 
+def test_the_shipped_crush_space_designs_all_solve_and_more_space_never_costs_more(tmp_path):
+    # the shipped design study as it is: 100 intervals, damper, plastic unloading, pitch, the
+    # rebound and the end of contact (the kink of max(spring + damper, 0)) inside the horizon.
+    # A change of the contact force or of the NLP that stalls one design shows here.
+    crush = "constraints.bounds.crush"
+    rows = sorted(
+        run_study(ROOT / "problems/studies/crush-space.yaml", tmp_path, workers=2, progress=False), key=lambda r: r[f"{crush}_si"]
+    )
+    assert [r["status"] for r in rows] == ["ok"] * 7
+    space = np.array([r[f"{crush}_si"] for r in rows])
+    peak = np.array([r["objective"] for r in rows])
+    assert np.all(np.diff(peak) <= 1e-6 * peak[:-1]), peak  # a looser bound only adds designs
+    assert peak[0] > 1.5 * peak[-1]
+    travel = np.array([r["56kph.max_crush_m"] for r in rows])  # the CG's travel, on the NLP grid
+    assert np.all(np.abs(travel - space) < 0.01), travel  # each design uses its space (pitch adds mm)
+    gain = [r["multiplier.56kph.bound.crush.upper"] for r in rows]  # the bound's price: peak fallen per metre
+    assert gain == sorted(gain, reverse=True), gain  # space is worth less the more there is
+    for r in rows:
+        assert r["iterations"] > 0
+        assert r["56kph.max_pitch_deg"] <= 10 + 1e-6, r
+        assert r["56kph.rebound_velocity_mps"] > 0.5  # the front end springs back and leaves the barrier
+        values = [r[f"model.spring.values[{i}]"] for i in range(12)]
+        assert min(values) >= -1e-3 and max(values) <= 1.5e6 + 1e-3
+        assert r["multiplier.56kph.bound.crush.upper"] > 0, r  # every design is held by its crush space
+
+
 # --------------------------------------------------------------------------- the plan
 def test_warm_start_plan_is_fixed_by_the_case_list():
     parent, depth = warm_start_plan((4,), [0, 3])
