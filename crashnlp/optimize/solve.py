@@ -133,36 +133,31 @@ def slow_tail(steps: list[float]) -> bool:
 
 
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own):
-# - tol 1e-6. Near a fit that leaves residuals Gauss-Newton converges only linearly; its slow
-#   tail is handed to Newton (Watch). At 1e-5, with LOQO's barrier (below), which falls fast,
-#   IPOPT stopped on clean data while the misfit was still 20 times its floor (a weakly
-#   determined pitch inertia 1.4 % off; within 0.2 % at 1e-6); the pickup and most corpus fits
-#   take the same iterations at 1e-6 or one more.
+# - tol 1e-5: near a fit that leaves residuals Gauss-Newton converges linearly (the KKT error
+#   falls about 3x per iteration on the pickup); from 1e-5 to 1e-8 a quarter of the iterations
+#   moved the shipped fits' parameters by less than 5e-6 of their standard errors.
 # - tau_min 0.8: early steps go at most 80 % of the way to a bound, not 99 %. Gauss-Newton
 #   sends weakly determined parameters (the unloading stiffness, spring values beyond the
 #   largest crush) toward their bounds; at 99 % in one step (corpus vehicle v08: 38 -> 198 MN/m
 #   of 200) the dynamics changed so much that the shooting defects opened and the iterates
-#   wandered for hundreds of iterations. Designs took 8 times the iterations with it, so they
-#   keep 0.99.
-FIT_OPTIONS: dict[str, Any] = {"tol": 1e-6, "tau_min": 0.8}
-# And for a fit's Gauss-Newton runs, the LOQO rule for the adaptive barrier (mu from the current
-# complementarity) instead of the quality-function search, which solves the Newton system
-# several times per iteration to choose mu. The pickup at 56 km/h: 16 -> 12 iterations, 5.6 ->
-# 4.8 ms each; the shipped fits 2 to 6 fewer (nhtsa-10146 4 more); the 30-vehicle corpus 1422
-# -> 1274 iterations in all, the same optima. The exact Hessian keeps IPOPT's quality function:
-# on the non-smooth fits of the 64-case grid's 4-degree row (a pitch bound far below the free
-# fit's 9 degrees, the spring's breakpoints crossed inside 9 mm RK4 steps) it converged where
-# LOQO did not (k_front 100 kN/m: 49 iterations; 80 kN/m fails with either). Rejected: Mehrotra's
-# probing (one corpus vehicle 1220 iterations), tau_min 0.95 with LOQO (the corpus 2017).
-GAUSS_NEWTON_OPTIONS: dict[str, Any] = {"mu_oracle": "loqo"}
+#   wandered for hundreds of iterations. Corpus: 150 s -> 28 s (v06 907 -> 32 iterations, v08
+#   320 -> 19), the shipped fits and the pickup's noisy replicates within 3 iterations of before,
+#   at the same optima. Designs took 8 times the iterations with it, so they keep 0.99.
+# - IPOPT's own barrier rule (the quality function). LOQO's rule, which skips the extra solves
+#   that choose mu, took the pickup from 16 to 12 Gauss-Newton iterations and the corpus from
+#   1422 to 1274, but on fits held by a pitch bound far below the free fit's (4 degrees against
+#   9, the spring's breakpoints crossed inside 9 mm RK4 steps) Gauss-Newton then cycled where
+#   it had converged: a corner of the shipped 16-case grid 27 -> 519 iterations, and 2 workers
+#   no longer 1.7 times as fast as one. Mehrotra's probing (one corpus vehicle 1220) and LOQO
+#   with tau_min 0.95 (the corpus 2017) did no better.
+FIT_OPTIONS: dict[str, Any] = {"tol": 1e-5, "tau_min": 0.8}
 
 
 def ipopt_options(spec: Solver, verbose: bool, fit: bool = False) -> dict:
     """IPOPT's options: adaptive barrier, and MUMPS ordering by approximate minimum fill, which on
     the larger crash NLPs (collocation beyond 400 intervals, several tests) halves the iterations
     and the time per factorization against MUMPS's automatic choice; FIT_OPTIONS for a
-    least-squares `fit` (and GAUSS_NEWTON_OPTIONS where its Hessian is Gauss-Newton's); the
-    problem's own options win."""
+    least-squares `fit`; the problem's own options win."""
     opts = {
         "print_level": 5 if verbose else 0,
         "sb": "yes",
@@ -173,8 +168,6 @@ def ipopt_options(spec: Solver, verbose: bool, fit: bool = False) -> dict:
     }
     if fit:
         opts.update(FIT_OPTIONS)
-        if spec.hessian in ("auto", "gauss-newton"):
-            opts.update(GAUSS_NEWTON_OPTIONS)
     if spec.hessian == "limited-memory":
         opts["hessian_approximation"] = "limited-memory"
     opts.update(spec.ipopt)
