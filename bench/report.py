@@ -532,6 +532,10 @@ CHANGES = [
     "The figure process forks as the command starts, before CasADi, pydantic and the problem are imported; it gets the "
     "figures as plain data and draws them on every core; `simulate` uses it too. crashnlp's bytecode is written at "
     "install (PYTHONDONTWRITEBYTECODE on the benchmark machine made every process compile it: 0.1 s).",
+    "The constraint Jacobian differentiates only the output rows a constraint reads (`crashnlp/derivatives.py`; the "
+    "monotone-crush and pitch-bound constraints read one of 14 outputs per node): 1.63 -> 1.36 ms per call compiled. The "
+    "Gauss-Newton Hessian keeps every row (its sparser form changed MUMPS's pivoting on a near-singular joint fit). The "
+    "iteration callback reads x and g only, and the compiler is looked up once per process.",
 ]
 
 
