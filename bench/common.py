@@ -22,6 +22,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.data.signal import resample
 from crashnlp.optimize.fit import DEFAULT_SIGMA
+from crashnlp.optimize.oracle import compiles_running
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec, Problem
 from crashnlp.simulation import simulate
@@ -165,8 +166,9 @@ def machine() -> dict:
 
 
 def wait_for_compiles(cache: Path, timeout: float = 300.0) -> float:
-    """Seconds until no NLP library is being compiled in `cache` (its source is the lock)."""
+    """Seconds until no NLP library is being compiled in `cache` (a dead compile's source does
+    not hold it up: crashnlp.optimize.oracle.compiles_running)."""
     t0 = time.perf_counter()
-    while list(cache.glob("nlp-*.c")) and time.perf_counter() - t0 < timeout:
+    while compiles_running(cache) and time.perf_counter() - t0 < timeout:
         time.sleep(0.2)
     return time.perf_counter() - t0

@@ -56,6 +56,7 @@ class MappedBlock:
     outputs: list[ca.MX]  # the mapped call's outputs
     threads: int | None = None  # as the NLP's own maps
     _dw: tuple[list[int], Any] | None = field(default=None, init=False, repr=False)
+    _jacobians: dict[tuple, list[ca.MX]] = field(default_factory=dict, init=False, repr=False)
 
     def input_jacobian(self, z: ca.MX) -> tuple[list[int], Any]:
         """The rows of one column's inputs that depend on z ("live": the NLP's parameters, the
@@ -89,9 +90,17 @@ class MappedBlock:
         """d vec(output)[wanted] / dz of every output, rows column by column: per-column
         Jacobians, block-diagonal, times dW/dz. `wanted[k]`: the elements of one column's
         vec(output k) asked for, the same in every column (all when None): a constraint on the
-        crush needs one of the 14 outputs' rows, a fit its four channels."""
-        _, dw = self.input_jacobian(z)
+        crush needs one of the 14 outputs' rows, a fit its four channels. One mapped call per
+        selection, shared by every derivative that asks for it (jac_g, the Hessians, the
+        covariance's sensitivities), so the generated code holds each column function once."""
         wanted = wanted or [list(range(self.fn.numel_out(k))) for k in range(self.fn.n_out())]
+        key = tuple(tuple(rows) for rows in wanted)
+        if key not in self._jacobians:
+            self._jacobians[key] = self._selected_jacobians(z, wanted)
+        return self._jacobians[key]
+
+    def _selected_jacobians(self, z: ca.MX, wanted: list[list[int]]) -> list[ca.MX]:
+        _, dw = self.input_jacobian(z)
         asked = [k for k, rows in enumerate(wanted) if rows]
         if not asked:
             return [ca.MX(0, z.numel()) for _ in wanted]
@@ -131,12 +140,10 @@ class Derivatives:
         self.flat = [ca.MX.sym(f"V{i}", ca.vec(v).sparsity()) for i, v in enumerate(self.values)]
         self.symbols = [ca.reshape(s, v.size1(), v.size2()) for s, v in zip(self.flat, self.values)]
         self._blocks = blocks
-        self._jacobians: list[ca.MX] | None = None
 
     def _block_jacobians(self) -> list[ca.MX]:
-        if self._jacobians is None:
-            self._jacobians = [J for b in self._blocks for J in b.jacobians(self.z)]
-        return self._jacobians
+        """Every row of every block output (each block keeps its own)."""
+        return [J for b in self._blocks for J in b.jacobians(self.z)]
 
     def _outer(self, expr: ca.MX) -> ca.MX:
         """expr with the blocks' outputs replaced by symbols."""
@@ -158,9 +165,8 @@ class Derivatives:
             d_outer = [ca.jacobian(outer, s) if ca.depends_on(outer, s) else None for s in syms]
             sizes = [block.fn.numel_out(k) for k in range(len(syms))]
             wanted = [list(range(m)) if every_row and d is not None else _used_elements(d, m) for d, m in zip(d_outer, sizes)]
-            for k, (d, rows, dv) in enumerate(zip(d_outer, wanted, block.jacobians(self.z, wanted))):
+            for d, m, rows, dv in zip(d_outer, sizes, wanted, block.jacobians(self.z, wanted)):
                 if d is not None and rows:
-                    m = block.fn.numel_out(k)
                     J = J + ca.mtimes(d[:, [j * m + e for j in range(block.n) for e in rows]], dv)
         return self._inner(J)
 

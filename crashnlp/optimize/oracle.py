@@ -161,12 +161,23 @@ def _load(library: Path) -> dict[str, ca.Function]:
     return dict(_loaded[library])
 
 
+def compiles_running(cache: Path) -> list[Path]:
+    """The sources of the NLP libraries being compiled in `cache`: each compile's source file is
+    its lock, and one older than STALE_S is taken for a dead compile's."""
+    running = []
+    for source in cache.glob("nlp-*.c"):
+        with suppress(FileNotFoundError):  # a compile that finished meanwhile removed it
+            if time.time() - source.stat().st_mtime < STALE_S:
+                running.append(source)
+    return running
+
+
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
     """Start compiling the library in a process of its own, which outlives this one; the
     source file is the lock (one compile per library at a time, a stale one restarted). No more
     compiles at once than cores: a batch of many shapes compiles the rest on later runs."""
     source = library.with_suffix(".c")
-    running = [s for s in library.parent.glob("nlp-*.c") if time.time() - s.stat().st_mtime < STALE_S]
+    running = compiles_running(library.parent)
     if source in running or len(running) >= (os.cpu_count() or 1):
         return
     library.parent.mkdir(parents=True, exist_ok=True)

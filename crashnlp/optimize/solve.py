@@ -228,7 +228,7 @@ AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it 
 # where IPOPT fails with the Gauss-Newton Hessian, the exact one starts over instead of the fit
 # failing: seen on a joint fit of the pickup at 56 and 40 km/h by collocation (a failed
 # restoration after 32 Gauss-Newton iterations, then 73 exact) with a variant of the contact
-# force that was not adopted (README, this round)
+# force that was not adopted (README, last round)
 GAUSS_NEWTON_FAILURES = ("Restoration_Failed", "Error_In_Step_Computation")
 # Newton from where Gauss-Newton's tail began: IPOPT takes the iterate and its multipliers as
 # they are, with a barrier already at its floor.
