@@ -3,7 +3,9 @@
     import crashnlp
     problem = crashnlp.load("problems/pickup-56kph.yaml")      # validated, immutable
     result = crashnlp.identify(problem)                         # a crashnlp.Result
-    sims = crashnlp.simulation(problem, params=result.parameters)  # test -> output -> array (SI)
+    faster = problem.with_values({"vehicle.speed": "64 km/h"})
+    sims = crashnlp.simulate(faster, params=result)              # test -> PredictedTest (SI arrays)
+    sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
 
 The command line is a thin layer over these functions.
 """
@@ -11,13 +13,15 @@ The command line is a thin layer over these functions.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TYPE_CHECKING, Any, TextIO
 
 import numpy as np
 
-from crashnlp.outputs import OUTPUT
 from crashnlp.problem import Problem, load_problem
 from crashnlp.result import Result
+
+if TYPE_CHECKING:
+    from crashnlp.prediction import PredictedTest
 
 
 def load(path: str | Path) -> Problem:
@@ -64,22 +68,30 @@ def design(problem: Problem | str | Path, verbose: bool = False, progress: TextI
 
 
 def simulate(
-    problem: Problem | str | Path, params: dict[str, Any] | None = None, dt: float | None = None
-) -> dict[str, dict[str, np.ndarray]]:
-    """Forward simulation of every test: test name -> output key -> array, in SI with the unit in
-    the key ("time_s", "crush_m", "accel_mps2"; crashnlp.outputs lists them).
+    problem: Problem | str | Path, params: Result | dict[str, Any] | None = None, dt: float | None = None
+) -> dict[str, PredictedTest]:
+    """Forward simulation of every test: test name -> PredictedTest, a mapping of output key ->
+    array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.outputs
+    lists them), with the test's crash metrics.
 
-    `params` (e.g. a Result's `parameters`) replace the problem's values first."""
+    `params` a Result: the identified vehicle it carries is put into the problem first
+    (crashnlp.identified.apply: the problem may be the minimal one it was fitted from, or name
+    only a new speed, mass or duration), and each test also gets 95 % intervals of its metrics,
+    bands of its curves and how far it lies past the identified range (crashnlp.prediction).
+    `params` a dict of dotted paths: those values replace the problem's."""
     from crashnlp.case import Case
+    from crashnlp.identified import apply
+    from crashnlp.prediction import predict
 
     problem = _problem(problem)
-    if params:
+    identified = params.identified if isinstance(params, Result) else None
+    if identified is not None:
+        problem = apply(problem, identified, problem.name)
+    elif isinstance(params, Result):
+        problem = problem.with_values(params.parameters)
+    elif params:
         problem = problem.with_values(params)
-    responses = Case(problem).simulate(dt=dt)
-    return {
-        name: {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}}
-        for name, r in responses.items()
-    }
+    return predict(Case(problem), identified, dt)
 
 
 def study(

@@ -136,9 +136,11 @@ class Case:
 
     def simulate(self, p: np.ndarray | None = None, dt: float | None = None) -> dict[str, Response]:
         """Forward simulation of every test with the separate integrator."""
+        return {test.name: self.simulate_test(test, self.test_parameters(test, p), dt) for test in self.tests}
+
+    def simulate_test(self, test: TestCase, p: np.ndarray, dt: float | None = None) -> Response:
+        """One test simulated with the full parameter vector `p`, output every `dt` (default
+        simulation.dt) from impact to the test's duration."""
         step = dt or self.problem.simulation.dt
-        out = {}
-        for test in self.tests:
-            grid = np.arange(0.0, test.duration + 0.5 * step, step)
-            out[test.name] = simulate(self.model, self.test_parameters(test, p), test.speed, grid, self.problem.simulation)
-        return out
+        grid = np.arange(0.0, test.duration + 0.5 * step, step)
+        return simulate(self.model, p, test.speed, grid, self.problem.simulation)

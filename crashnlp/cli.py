@@ -38,9 +38,11 @@ def _out(args, name: str) -> Path:
 
 
 def _read_params(path: str) -> dict:
+    """The content of a result.json: a mapping with a 'parameters' mapping."""
     p = Path(path)
     try:
-        params = json.loads(p.read_text(encoding="utf-8"))["parameters"]
+        raw = json.loads(p.read_text(encoding="utf-8"))
+        params = raw["parameters"]
     except FileNotFoundError:
         raise InputError(f"{p}: file not found") from None
     except (IsADirectoryError, PermissionError) as exc:
@@ -49,7 +51,20 @@ def _read_params(path: str) -> dict:
         raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
     if not isinstance(params, dict):
         raise InputError(f"{p}: 'parameters' is not a mapping")
-    return params
+    return raw
+
+
+def _identified(source: str, raw: dict):
+    """The identified vehicle of a result.json, or None for one that carries only parameters."""
+    from crashnlp.identified import IdentifiedModel
+
+    entry = raw.get("identified_model")
+    if entry is None:
+        return None
+    try:
+        return IdentifiedModel.from_json(entry)
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
 
 
 def _load_case(path: str, problem=None, check_data: bool = False):
@@ -72,10 +87,17 @@ def _load_case(path: str, problem=None, check_data: bool = False):
 
 
 def _with_params(problem, source: str):
-    """The problem with the values of a result.json, entry by entry refusing what does not fit."""
+    """(problem, identified model) for a result.json: its identified vehicle put into the problem,
+    or for a result that carries only parameters, its values entry by entry, refusing what does
+    not fit (the identified model is then None)."""
+    from crashnlp.identified import apply
     from crashnlp.problem.schema import LARGEST
 
-    params = _read_params(source)
+    raw = _read_params(source)
+    identified = _identified(source, raw)
+    if identified is not None:
+        return apply(problem, identified, source), identified
+    params = raw["parameters"]
     for path, value in params.items():
         try:
             problem.unit_at(path)
@@ -95,7 +117,7 @@ def _with_params(problem, source: str):
         if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
             raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
     try:
-        return problem.with_values(params)
+        return problem.with_values(params), None
     except KeyError as exc:
         raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
     except InputError as exc:
@@ -120,31 +142,72 @@ def cmd_simulate(args) -> int:
         simulated = _simulate(args)
         if simulated is None:
             return 0
-        case, responses, out = simulated
+        case, predicted, out = simulated
         from crashnlp.results import simulation_figure_jobs, write_simulation
 
-        summary = write_simulation(case, responses, out)
+        write_simulation(case.name, predicted, out)
         if figures is not None:
-            figures.draw(simulation_figure_jobs(case, responses, out), out)
-    for name, t in summary["tests"].items():
-        m = t["metrics"]
-        print(
-            f"{name}: max crush {m['max_crush_m'] * 1e3:.1f} mm at {m['time_max_crush_s'] * 1e3:.1f} ms, "
-            f"peak decel {m['peak_decel_g']:.1f} g, rebound {m['rebound_velocity_mps']:.2f} m/s, "
-            f"max pitch {m['max_pitch_deg']:.2f} deg"
-        )
+            figures.draw(simulation_figure_jobs(case, predicted, out), out)
+    for test in predicted.values():
+        _print_prediction(test)
     print(f"wrote {out}/")
     return 0
 
 
+PREDICTED_ROWS = (  # metric key, what it is, factor to the printed unit, the unit, digits after the point
+    ("max_crush_m", "max crush", 1e3, "mm", 1),
+    ("time_zero_velocity_s", "zero velocity", 1e3, "ms", 2),
+    ("peak_decel_g", "peak decel", 1.0, "g", 1),
+    ("rebound_velocity_mps", "rebound", 1.0, "m/s", 2),
+    ("olc_g", "OLC", 1.0, "g", 1),
+    ("max_pitch_deg", "max pitch", 1.0, "deg", 2),
+)
+
+
+def _print_prediction(test) -> None:
+    """One line of metrics per simulated test (with their 95 % intervals when the identified model
+    gave them), and one line for a test past the identified range."""
+    parts = []
+    for key, label, factor, unit, digits in PREDICTED_ROWS:
+        value = test.metrics.get(key)
+        if value is None:
+            continue
+        text = f"{label} {value * factor:.{digits}f}"
+        band = test.intervals.get(key)
+        if band is not None:
+            text += f" [{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
+        parts.append(f"{text} {unit}")
+    print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if test.intervals else ""))
+    if test.extrapolation:
+        print(f"{test.name}: {_extrapolation_line(test.extrapolation)}")
+    for note in test.notes:
+        print(note)
+
+
+def _extrapolation_line(beyond: dict) -> str:
+    """How far a prediction lies past the identified range, in words."""
+    parts = []
+    if "crush_m" in beyond:
+        parts.append(f"max crush {beyond['crush_m'] * 1e3:.0f} mm ({beyond['crush_rel'] * 100:.0f} %) past the largest fitted")
+    if "speed_mps" in beyond:
+        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
+        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
+    if "mass_kg" in beyond:
+        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
+        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
+    return "extrapolates: " + "; ".join(parts)
+
+
 def _simulate(args):
-    """(case, responses, output folder) of the problem file, or None after `--check`."""
+    """(case, predicted tests, output folder) of the problem file, or None after `--check`."""
+    from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
 
     _check_dt(args.dt, 0.0)
     problem = load_problem(args.problem)
+    identified = None
     if args.params:
-        problem = _with_params(problem, args.params)
+        problem, identified = _with_params(problem, args.params)
     case = _load_case(args.problem, problem)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
@@ -159,7 +222,7 @@ def _simulate(args):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
     with _computing(args):
-        return case, case.simulate(dt=args.dt), out
+        return case, predict(case, identified, args.dt), out
 
 
 def _figure_process(args):

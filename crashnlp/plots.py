@@ -24,14 +24,22 @@ def draw(jobs: list[Job]) -> None:
         FIGURES[name](*args)
 
 
-def response_figure(path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None) -> None:
-    """Four panels of model curves (t, y SI) with the measured ones behind them."""
+def response_figure(
+    path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None, bands: dict[str, tuple] | None = None
+) -> None:
+    """Four panels of model curves (t, y SI) with the measured ones behind them, and where
+    given the model's 95 % band (t, low, high SI) shaded."""
     fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
     for ax, name in zip(axes.flat, PANELS):
         label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
         if data and name in data:
             t, y = data[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="0.6", lw=1.2, label="data")
+        if bands and name in bands:
+            t, low, high = bands[name]
+            ax.fill_between(
+                np.asarray(t) * 1e3, np.asarray(low) * f, np.asarray(high) * f, color="C0", alpha=0.2, lw=0, label="95 %"
+            )
         if name in model:
             t, y = model[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="C0", lw=1.6, label="model")

@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from crashnlp.identified import IdentifiedModel
 from crashnlp.simulation import Response
 
 
@@ -104,6 +105,8 @@ class Result:
     inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not
     notes: tuple[str, ...] = ()  # what was done to the problem on the way, e.g. a repaired start
     z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
+    identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
+    regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
 
     @property
     def ok(self) -> bool:
@@ -123,10 +126,12 @@ class Result:
             "not_identified": list(self.not_identified),
             "profiles": self.profiles,
             "covariance": self.covariance,
+            "regularization": self.regularization,
             "at_bound": self.at_bound,
             "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
             "active_constraints": [vars(c) for c in self.active_constraints],
+            "identified_model": self.identified.to_json() if self.identified is not None else None,
         }
 
     def save(self, folder: str | Path, figures: bool = True) -> None:
@@ -174,7 +179,9 @@ class Result:
             tests,
             profiles=raw.get("profiles", {}),
             covariance=raw.get("covariance", {}),
+            regularization=raw.get("regularization", {}),
             notes=tuple(raw.get("notes", ())),
+            identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )
 
 

@@ -15,9 +15,10 @@ from crashnlp.case import Case
 from crashnlp.files import write_columns
 from crashnlp.jsonfile import write_json
 from crashnlp.outputs import COLUMNS, MEASURABLE
+from crashnlp.prediction import PredictedTest, response_columns
 from crashnlp.result import Result
 from crashnlp.simulation import Response, write_response_csv
-from crashnlp.summary import data_curves, response_metrics
+from crashnlp.summary import data_curves
 
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
@@ -71,25 +72,34 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     return jobs
 
 
-def write_simulation(case: Case, responses: dict[str, Response], out: Path) -> dict:
-    """response.csv and metrics for each simulated test, and simulation.json; the figures are
-    `simulation_figure_jobs`, drawn by the caller (crashnlp.drawing)."""
-    summary: dict[str, Any] = {"name": case.name, "tests": {}}
-    for test in case.tests:
-        r = responses[test.name]
-        r.write_csv(out / test.name / "response.csv")
-        summary["tests"][test.name] = {"speed_mps": test.speed, "metrics": response_metrics(r)}
+def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
+    """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
+    simulated test, and simulation.json; the figures are `simulation_figure_jobs`, drawn by the
+    caller (crashnlp.drawing)."""
+    summary: dict[str, Any] = {"name": name, "tests": {}}
+    for test in tests.values():
+        r = test.response
+        write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+        entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+        if test.intervals:
+            entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+            entry["extrapolation"] = test.extrapolation
+        if test.notes:
+            entry["notes"] = list(test.notes)
+        summary["tests"][test.name] = entry
     write_json(out / "simulation.json", summary)
     return summary
 
 
-def simulation_figure_jobs(case: Case, responses: dict[str, Response], out: Path) -> list[Job]:
-    """A response figure per simulated test, with its data behind it, as crashnlp.plots jobs."""
+def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
+    """A response figure per simulated test, with its data behind it and its 95 % band shaded,
+    as crashnlp.plots jobs."""
     jobs: list[Job] = []
     for test in case.tests:
-        r = responses[test.name]
+        predicted = tests[test.name]
+        r = predicted.response
         model = {k: (r.time, r[k]) for k in MEASURABLE}
-        jobs.append(
-            ("response_figure", (out / test.name / "response.png", f"{case.name}: {test.name}", model, data_curves(test)))
-        )
+        bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
+        title = f"{case.name}: {test.name}"
+        jobs.append(("response_figure", (out / test.name / "response.png", title, model, data_curves(test), bands)))
     return jobs

@@ -42,10 +42,13 @@ class Response:
         write_response_csv(path, self.time, self.outputs)
 
 
-def write_response_csv(path: Path, time: np.ndarray, outputs: dict[str, np.ndarray]) -> None:
-    """response.csv: time and the registry's written outputs, in report units."""
+def write_response_csv(
+    path: Path, time: np.ndarray, outputs: dict[str, np.ndarray], extra: dict[str, np.ndarray] | None = None
+) -> None:
+    """response.csv: time and the registry's written outputs, in report units, then `extra`
+    columns (already in report units, e.g. a prediction's bands)."""
     written = {str(o.column): outputs[o.name] * o.factor for o in COLUMNS}  # COLUMNS: the outputs with a column
-    write_columns(path, {"time_s": np.asarray(time), **written})
+    write_columns(path, {"time_s": np.asarray(time), **written, **(extra or {})})
 
 
 def _key(grid: np.ndarray, options: Simulation) -> tuple:

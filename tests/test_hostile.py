@@ -212,7 +212,7 @@ def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypa
             '.../cvodes_interface.cpp:300: CVode returned "CV_FIRST_RHSFUNC_ERR".'
         )
 
-    monkeypatch.setattr(Case, "simulate", fail)
+    monkeypatch.setattr(Case, "simulate_test", fail)
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(BASE))
     code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)

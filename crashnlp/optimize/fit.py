@@ -15,6 +15,7 @@ import numpy as np
 from crashnlp.data.signal import resample
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
+from crashnlp.optimize.prior import SmoothnessPrior, smoothness_prior
 from crashnlp.units import G0
 
 DEFAULT_SIGMA = {"accel": 2.0 * G0, "velocity": 0.15, "displacement": 0.005, "pitch": np.radians(1.0)}
@@ -64,8 +65,20 @@ def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
     return out
 
 
-def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
-    """Sum of squares (or the paper's L1 form, through slacks) of all residuals, plus smoothing."""
+@dataclass
+class FitObjective:
+    """What an identification NLP minimizes: the channels' residuals and the smoothness prior
+    (None when the spring values are not estimated) at `weight`."""
+
+    residuals: list[Residual]
+    prior: SmoothnessPrior | None
+    weight: float
+
+
+def add_fit_objective(ocp: OptimalControl, prior_weight: float | None = None) -> FitObjective:
+    """Sum of squares (or the paper's L1 form, through slacks) of all residuals, plus the
+    smoothness prior (crashnlp.optimize.prior) at `prior_weight`, else at the problem's
+    `objective.regularization`."""
     objective = ocp.case.problem.objective
     residuals = [r for tr in ocp.transcripts for r in channel_residuals(ocp.nlp, tr)]
     for r in residuals:
@@ -77,17 +90,10 @@ def add_fit_objective(ocp: OptimalControl) -> list[Residual]:
             ocp.nlp.constrain("l1", slack - normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.above")
             ocp.nlp.constrain("l1", slack + normalised, 0.0, np.inf, test=r.test, detail=f"{r.channel}.below")
             ocp.nlp.minimize(r.weight / len(r.columns) * ca.sum1(slack))
-    if objective.regularization > 0:
-        ocp.nlp.minimize(objective.regularization * roughness(ocp))
-    return residuals
-
-
-def roughness(ocp: OptimalControl) -> ca.MX:
-    """Squared second differences of free breakpoint values, relative to their scale."""
-    total: ca.MX = ca.MX(0)
-    for e in ocp.free.entries:
-        n = e.at.stop - e.at.start
-        if e.path.endswith(".values") and n >= 3:
-            v = ocp.theta[e.at] / float(e.scale.max())
-            total += ca.sumsqr(v[2:] - 2 * v[1:-1] + v[:-2])
-    return total
+    prior = smoothness_prior(ocp.free, ocp.case.base[ocp.case.layout.index("model.spring.crush_breakpoints")])
+    weight = prior_weight if prior_weight is not None else objective.regularization
+    if prior is None or weight <= 0:
+        return FitObjective(residuals, None, 0.0)
+    root = ocp.nlp.parameter("prior.weight", np.sqrt(weight / prior.count))
+    ocp.nlp.least_squares(root * ca.mtimes(ca.DM(prior.matrix), ocp.theta))
+    return FitObjective(residuals, prior, weight)

@@ -12,7 +12,7 @@ from crashnlp.autoinit import repair_start
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
-from crashnlp.optimize.fit import Residual, add_fit_objective
+from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.solve import SolveResult, solve
@@ -36,6 +36,7 @@ class Solution:
     verification: Verification | None = None
     profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
     notes: list[str] = field(default_factory=list)  # what was done to the problem on the way (one line each)
+    regularization: dict = field(default_factory=dict)  # the smoothness prior's weight
 
     @property
     def ok(self) -> bool:
@@ -110,13 +111,14 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
     return solution
 
 
-def fit_ocp(case: Case) -> tuple[OptimalControl, list[Residual]]:
-    """The identification NLP of a case and its residuals; the covariance's sensitivities are
-    an extra of the NLP, so that they are compiled with its functions (crashnlp.optimize.oracle)."""
+def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalControl, FitObjective]:
+    """The identification NLP of a case and its objective (the prior at `prior_weight`, else
+    the problem's); the covariance's sensitivities are an extra of the NLP, so that they are
+    compiled with its functions (crashnlp.optimize.oracle)."""
     ocp = OptimalControl(case)
-    residuals = add_fit_objective(ocp)
-    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, residuals)
-    return ocp, residuals
+    fit = add_fit_objective(ocp, prior_weight)
+    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, fit.residuals)
+    return ocp, fit
 
 
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
@@ -125,18 +127,26 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     case, note = repair_start(case) if warm is None else (case, None)
     if note and progress is not None:
         print(note, file=progress)
-    ocp, residuals = fit_ocp(case)
+    ocp, fit = fit_ocp(case)
     if ocp.free.size == 0:
         raise InputError(f"{case.name}: estimate names no parameter to identify")
-    if not residuals:
+    if not fit.residuals:
         raise InputError(f"{case.name}: no test has data to fit")
     if warm is not None:
         ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
-    solution = finish(case, ocp, result, theta0, residuals)
+    solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = [note] if note else []
-    solution.covariance = SensitivityEvaluator(ocp, residuals)(result.z).covariance()
-    if case.problem.uncertainty.profile and result.converged:
+    if case.problem.uncertainty.profile and solution.result is not None and solution.result.converged:
         solution.profiles = profiles(solution)
+    return solution
+
+
+def _finished(case: Case, ocp: OptimalControl, fit: FitObjective, result: SolveResult, theta0: np.ndarray) -> Solution:
+    """`finish`, with the covariance (the prior's information in it) and the prior's weight."""
+    solution = finish(case, ocp, result, theta0, fit.residuals)
+    information = fit.prior.information(fit.weight) if fit.prior is not None else None
+    solution.covariance = SensitivityEvaluator(ocp, fit.residuals)(result.z).covariance(information)
+    solution.regularization = {"weight": fit.weight}
     return solution

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 import numpy as np
 
+from crashnlp.autoinit import case_pulses
 from crashnlp.case import Case, TestCase
+from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
@@ -53,7 +55,52 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
         notes=tuple(solution.notes),
+        identified=identified_model(solution, tests),
+        regularization=solution.regularization,
     )
+
+
+def identified_model(solution: Solution, tests: dict[str, TestResult]) -> IdentifiedModel:
+    """The fitted vehicle, complete, with what a prediction needs (crashnlp.identified)."""
+    case, free, cov = solution.case, solution.ocp.free, solution.covariance
+    fitted = case.problem.with_values(solution.parameters)
+    mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in
+    masses = [float(t.overrides.get("vehicle.mass", mass)) for t in case.tests]
+    pulses = case_pulses(case)
+    reach = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
+    return IdentifiedModel(
+        vehicle=fitted.vehicle.model_dump(mode="json"),
+        model=fitted.model.model_dump(mode="json"),
+        parameters=solution.parameters,
+        labels=tuple(free.labels()),
+        covariance=None if cov is None else cov.matrix,
+        bounds=tuple(zip(free.lower.tolist(), free.upper.tolist())),
+        range=IdentifiedRange(reach, _span([t.speed for t in case.tests]), _span(masses)),
+        discrepancy=_discrepancy(tests),
+        fitted_channels=tuple(sorted({r.channel for r in solution.residuals})),
+        channel_rmse=_channel_rmse(tests),
+    )
+
+
+def _span(values: list[float]) -> tuple[float, float]:
+    return float(min(values)), float(max(values))
+
+
+def _discrepancy(tests: dict[str, TestResult]) -> dict[str, float]:
+    """Per metric, the root mean square over tests of the model's relative miss of the data's value."""
+    out = {}
+    for key in INTERVAL_METRICS:
+        pairs = [(t.metrics.get(key), (t.data_metrics or {}).get(key)) for t in tests.values()]
+        misses = [model / data - 1.0 for model, data in pairs if model is not None and data]
+        if misses:
+            out[key] = float(np.sqrt(np.mean(np.square(misses))))
+    return out
+
+
+def _channel_rmse(tests: dict[str, TestResult]) -> dict[str, float]:
+    """Per fitted channel, the root mean square over tests of the fit's RMSE (SI)."""
+    channels = {c for t in tests.values() for c in t.fit}
+    return {c: float(np.sqrt(np.mean([t.fit[c].rmse ** 2 for t in tests.values() if c in t.fit]))) for c in sorted(channels)}
 
 
 def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:

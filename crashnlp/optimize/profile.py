@@ -84,6 +84,8 @@ def profiles(solution, executor=None) -> dict[str, dict]:
         return {}
     labels = solution.ocp.free.labels()
     free = solution.ocp.free
+    # the profiles re-optimise the objective the fit minimised: the prior at the weight it chose
+    problem = solution.case.problem.with_values({"objective.regularization": solution.regularization.get("weight", 0.0)})
     chains, keys = [], []
     for label in spec.profile:
         if label not in labels:
@@ -96,7 +98,7 @@ def profiles(solution, executor=None) -> dict[str, dict]:
             steps = solution.theta[i] + side * STEP * std * np.arange(1, spec.points + 1)
             steps = steps[(steps >= free.lower[i]) & (steps <= free.upper[i])]
             if steps.size:
-                chains.append(Chain(solution.case.problem, solution.result.z, i, tuple(float(v) for v in steps)))
+                chains.append(Chain(problem, solution.result.z, i, tuple(float(v) for v in steps)))
                 keys.append((label, side))
     runner = executor or make_executor(spec.executor, spec.workers)
     try:

@@ -86,24 +86,33 @@ class Sensitivity:
     rows: list[slice]  # rows of each channel
     residuals: list[Residual]
 
-    def covariance(self) -> Covariance:
-        """Sandwich covariance of the parameters (see the module's docstring)."""
-        n = self.jacobian.shape[1]
-        weights = np.concatenate(
+    def weights(self) -> np.ndarray:
+        """Each residual row's weight in the objective: weight / (n sigma^2) of its channel."""
+        return np.concatenate(
             [
                 np.full(r.stop - r.start, res.weight / (len(res.columns) * res.sigma**2))
                 for r, res in zip(self.rows, self.residuals)
             ]
         )
+
+    def covariance(self, prior: np.ndarray | None = None) -> Covariance:
+        """Sandwich covariance of the parameters (see the module's docstring). `prior`: the
+        information a prior adds (crashnlp.optimize.prior, SmoothnessPrior.information), to the
+        Hessian and, as the prior's own score variance, to the meat: a value the prior alone
+        holds gets the prior's width, not none."""
+        n = self.jacobian.shape[1]
+        weights = self.weights()
         Jw = self.jacobian * np.sqrt(weights)[:, None]
+        if prior is not None:
+            Jw = np.vstack([Jw, _root(prior)])
         d = np.linalg.norm(Jw, axis=0)
         d = np.where(d > 0, d, 1.0)
         U, s, Vt = np.linalg.svd(Jw / d, full_matrices=False)
         keep = s > RANK_RTOL * (s[0] if s.size and s[0] > 0 else 1.0)
         null = Vt[~keep]
         identified = np.ones(n, bool) if not null.size else np.max(np.abs(null), axis=0) < NULL_SHARE
-        H_inv = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(d, d)  # pseudo-inverse of J^T W J
-        M, bandwidth = np.zeros((n, n)), {}
+        H_inv = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(d, d)  # pseudo-inverse of J^T W J (+ prior)
+        M, bandwidth = np.zeros((n, n)) if prior is None else prior.copy(), {}
         for test, scores in self._scores(weights).items():
             bandwidth[test] = bartlett_bandwidth(scores)
             M += long_run_covariance(scores, bandwidth[test])
@@ -126,6 +135,12 @@ class Sensitivity:
             np.add.at(grown, nodes, g[rows])
             out[res.test] = grown
         return out
+
+
+def _root(information: np.ndarray) -> np.ndarray:
+    """Rows R with R^T R = `information` (symmetric, positive semi-definite)."""
+    values, vectors = np.linalg.eigh(information)
+    return (vectors * np.sqrt(np.maximum(values, 0.0))).T
 
 
 def sensitivity_function(nlp: NLPBuilder, residuals: list[Residual]) -> ca.Function:

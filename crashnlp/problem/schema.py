@@ -372,7 +372,9 @@ class Constraints(Strict):
 
 class Objective(Strict):
     loss: Literal["l2", "l1"] = "l2"
-    regularization: float = Field(0.0, ge=0.0, description="weight on second differences of breakpoint values")
+    regularization: float = Field(
+        0.0, ge=0.0, description="weight of the smoothness prior on the spring values' slope changes (crashnlp.optimize.prior)"
+    )
 
 
 MAX_INTERVALS = 10_000  # beyond this the NLP does not fit in memory, let alone solve
@@ -516,13 +518,16 @@ class Problem(Strict):
 
     def with_values(self, values: dict[str, Any]) -> Problem:
         """A new validated problem with entries replaced by dotted path ("vehicle.speed": "64 km/h",
-        "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is."""
+        "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is. What the
+        problem left out stays left out (`model_fields_set`), so that the new problem is still
+        completed from its data, and a result's identified vehicle still fills it in."""
         from crashnlp.problem.load import problem_from_dict
 
-        raw = self.model_dump(mode="python", exclude_none=False)
+        full = self.model_dump(mode="python", exclude_none=False)
+        raw = self.model_dump(mode="python", exclude_unset=True)
         for path, value in values.items():
             *parents, leaf = path.split(".")
-            node: Any = raw
+            node: Any = full
             try:
                 for key in parents:
                     node = node[int(key)] if isinstance(node, list) else node[key]
@@ -530,6 +535,9 @@ class Problem(Strict):
                     raise KeyError(path)
             except (KeyError, IndexError, ValueError, TypeError):
                 raise KeyError(path) from None
+            node = raw
+            for key in parents:
+                node = node[int(key)] if isinstance(node, list) else node.setdefault(key, {})
             node[leaf] = value
         return problem_from_dict(raw, self.base_dir, "with_values")
 

@@ -1,0 +1,172 @@
+"""Cross-speed predictions: fit a vehicle at two speeds, predict the third, judge against the generator.
+
+Each vehicle comes from bench/corpus.py (a planar rigid body, not crashnlp's pendulum) and is
+tested at 40, 56 and 64 km/h: the same structure at three speeds. The shared synthetic pickup
+is the first vehicle (its generator's parameters are those of the shared data set). Two fits
+per vehicle, from minimal problem files (crashnlp.autoinit fills in the front end):
+
+- extrapolation: fit 40 + 56 km/h, predict 64 km/h (8 km/h past the fastest fitted test);
+- interpolation: fit 40 + 64 km/h, predict 56 km/h.
+
+The prediction is `crashnlp.simulate` of a problem that names only the new test's speed and
+duration, with the fit's result as `params`; its max crush, peak deceleration and time of zero
+velocity are compared with the generator's noise-free response, and its 95 % intervals are
+checked for covering the generator's max crush and peak deceleration.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+import crashnlp
+from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, write_csv
+from bench.robustness import WINDOW, minimal_problem
+from crashnlp.metrics import crash_metrics
+from crashnlp.units import G0
+
+SPEEDS_KMH = (40.0, 56.0, 64.0)
+SPLITS = {"extrapolation": ((40.0, 56.0), 64.0), "interpolation": ((40.0, 64.0), 56.0)}
+TARGETS = {
+    "extrapolation": {"crush_rel": 0.03, "peak_rel": 0.15},
+    "interpolation": {"crush_rel": 0.02, "peak_rel": 0.10},
+    "coverage": 0.85,
+    "iterations": 100,
+}
+SEED, COUNT = 2030, 6  # corpus vehicles beside the pickup
+INTERVAL_METRICS = {"max_crush_m": "crush", "peak_decel_g": "peak"}
+
+
+def vehicles(count: int = COUNT, seed: int = SEED) -> list[Vehicle]:
+    """The pickup and `count` corpus vehicles, each built for 56 km/h (its structure, tested at any speed)."""
+    return [PICKUP, *(random_vehicle(i, seed, speed=56.0 / 3.6) for i in range(count))]
+
+
+def at_speed(v: Vehicle, kmh: float) -> Vehicle:
+    return dataclasses.replace(v, speed=kmh / 3.6)
+
+
+def test_entry(kmh: float, data: dict | None = None) -> dict:
+    """One test of a problem: its speed, and its data section, or without one the fits' duration."""
+    entry: dict = {"name": f"{kmh:.0f}kph", "speed": f"{kmh:g} km/h"}
+    return {**entry, "data": data} if data is not None else {**entry, "duration": WINDOW[1]}
+
+
+def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path) -> Path:
+    """The minimal problem of a joint fit at `speeds`, its CSVs written beside it."""
+    problem = minimal_problem(v, "unused.csv")
+    problem["vehicle"].pop("speed")
+    problem["name"] = f"{v.name}-{'-'.join(f'{s:.0f}' for s in speeds)}"
+    tests = []
+    for kmh in speeds:
+        name = f"{v.name}-{kmh:.0f}kph.csv"
+        write_csv(folder / name, measured(at_speed(v, kmh), simulate(at_speed(v, kmh))))
+        tests.append(test_entry(kmh, minimal_problem(v, name)["tests"][0]["data"]))
+    problem["tests"] = tests
+    path = folder / f"{problem['name']}.yaml"
+    path.write_text(yaml.safe_dump(problem, sort_keys=False))
+    return path
+
+
+def prediction_problem(fit_path: Path, kmh: float) -> crashnlp.Problem:
+    """The fitted problem with one test at a new speed and no data: what a user predicts with."""
+    raw = yaml.safe_load(fit_path.read_text())
+    raw["tests"] = [test_entry(kmh)]
+    path = fit_path.with_name(fit_path.stem + f"-predict-{kmh:.0f}.yaml")
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    return crashnlp.load(path)
+
+
+def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
+    truth = simulate(at_speed(v, kmh))
+    m = crash_metrics(truth["time"], truth["accel"], truth["velocity"], truth["displacement"])
+    return {"max_crush_m": m.max_crush, "peak_decel_g": m.peak_decel / G0, "time_zero_velocity_s": m.t_zero_velocity}
+
+
+def judge(v: Vehicle, split: str, folder: Path) -> dict:
+    """Fit one vehicle at two speeds, predict the third, compare with the generator."""
+    fitted, target = SPLITS[split]
+    t0 = time.perf_counter()
+    result = crashnlp.identify(fit_problem(v, fitted, folder))
+    wall = time.perf_counter() - t0
+    row: dict = {
+        "vehicle": v.name,
+        "split": split,
+        "status": result.status,
+        "iterations": result.solver.iterations,
+        "wall_s": wall,
+    }
+    if not result.ok:
+        return row
+    test = crashnlp.simulate(prediction_problem(folder / f"{result.name}.yaml", target), params=result)[f"{target:.0f}kph"]
+    real = truth_metrics(v, target)
+    row.update(
+        crush_rel=test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,
+        peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
+        stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
+        covered={
+            key: bool(test.intervals[key][0] <= real[key] <= test.intervals[key][1]) if test.intervals.get(key) else False
+            for key in INTERVAL_METRICS
+        },
+        intervals={key: test.intervals.get(key) for key in INTERVAL_METRICS},
+        truth=real,
+        extrapolation=test.extrapolation,
+    )
+    return row
+
+
+def within_targets(row: dict) -> bool:
+    target = TARGETS[row["split"]]
+    return (
+        row["status"] == "ok"
+        and row["iterations"] <= TARGETS["iterations"]
+        and abs(row["crush_rel"]) <= target["crush_rel"]
+        and abs(row["peak_rel"]) <= target["peak_rel"]
+    )
+
+
+def _worst(rows: list[dict], key: str) -> float:
+    return float(max((abs(r[key]) for r in rows), default=float("nan")))
+
+
+def summary(rows: list[dict]) -> dict:
+    """Per split: fits within targets, worst errors; over all: the intervals' coverage."""
+    out: dict = {}
+    for split in SPLITS:
+        ok = [r for r in rows if r["split"] == split and r["status"] == "ok"]
+        out[split] = {
+            "fits": sum(r["split"] == split for r in rows),
+            "ok": len(ok),
+            "within_targets": sum(within_targets(r) for r in ok),
+            "crush_rel_max": _worst(ok, "crush_rel"),
+            "peak_rel_max": _worst(ok, "peak_rel"),
+            "stop_err_max_s": _worst(ok, "stop_err_s"),
+            "iterations_max": max((r["iterations"] for r in rows if r["split"] == split), default=0),
+        }
+    pairs = [c for r in rows if r["status"] == "ok" for c in r["covered"].values()]
+    out["coverage"] = float(np.mean(pairs)) if pairs else float("nan")
+    out["pairs"] = len(pairs)
+    return out
+
+
+def run(quick: bool = False) -> dict:
+    """The bench section: the pickup and the corpus vehicles (2 with --quick), both splits."""
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="crashnlp-cross-speed-") as tmp:
+        for v in vehicles(2 if quick else COUNT):
+            for split in SPLITS:
+                rows.append(judge(v, split, Path(tmp)))
+                r = rows[-1]
+                line = f"  {v.name} {split}: {r['status']}, {r['iterations']} it"
+                if r["status"] == "ok":
+                    line += (
+                        f", crush {100 * r['crush_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %, "
+                        f"stop {1e3 * r['stop_err_s']:+.2f} ms, covered {sum(r['covered'].values())}/2"
+                    )
+                print(line, flush=True)
+    return {"seed": SEED, "speeds_kmh": SPEEDS_KMH, "targets": TARGETS, "summary": summary(rows), "fits": rows}

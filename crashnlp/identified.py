@@ -1,0 +1,181 @@
+"""The identified vehicle a fit hands on: its complete model, its uncertainty and its range.
+
+A fit completes its problem from the data (crashnlp.autoinit) and then estimates some of its
+entries. `IdentifiedModel` keeps all of it: every vehicle and model entry in SI with the
+fitted values in place, the covariance of the estimated ones, the range of crush, speed and
+mass the fitted tests covered, and how far the model's own crash metrics missed the data's on
+those tests. result.json stores it under `identified_model`; `apply` puts it into another
+problem of the same vehicle (a new speed, mass or duration), so that a prediction needs no
+more than the fit's result and a problem that names what is new.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from crashnlp.errors import InputError
+from crashnlp.problem.load import problem_from_dict
+from crashnlp.problem.schema import Problem
+
+# the vehicle's geometry: a problem that gives other values describes another vehicle
+GEOMETRY = ("cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+# the model's structure (section, field): given otherwise by a problem, it is another model
+STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
+SAME = 1e-9  # relative: values closer than this are the same
+# the crash metrics a prediction gives 95 % intervals for (result.json's metric keys)
+INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "olc_g", "max_pitch_deg")
+
+
+@dataclass(frozen=True)
+class IdentifiedRange:
+    """What the fitted tests covered: the largest measured crush (CG travel) and the speeds and
+    masses of the tests (SI). A prediction beyond it extrapolates."""
+
+    max_crush: float
+    speeds: tuple[float, float]
+    masses: tuple[float, float]
+
+    def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
+        """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
+        mass in kg, each only where it is past; empty inside the range."""
+        out: dict[str, float] = {}
+        if max_crush > self.max_crush * (1 + 1e-3):
+            out["crush_m"] = max_crush - self.max_crush
+            out["crush_rel"] = max_crush / self.max_crush - 1.0
+        for key, value, (lo, hi) in (("speed_mps", speed, self.speeds), ("mass_kg", mass, self.masses)):
+            past = value - hi if value > hi * (1 + 1e-6) else value - lo if value < lo * (1 - 1e-6) else 0.0
+            if past:
+                out[key] = past
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {"max_crush_m": self.max_crush, "speeds_mps": list(self.speeds), "masses_kg": list(self.masses)}
+
+    @classmethod
+    def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
+        return cls(float(raw["max_crush_m"]), _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]))
+
+
+def _pair(values: Any) -> tuple[float, float]:
+    lo, hi = (float(v) for v in values)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class IdentifiedModel:
+    """A fitted vehicle, complete (see the module's docstring). SI throughout.
+
+    `labels` name the estimated entries one number each ("model.spring.values[3]"), in the
+    order of `covariance` (None where the data do not determine a value) and `bounds`.
+    `discrepancy`: per crash metric, the root mean square over the fitted tests of the model's
+    relative miss of the data's value; a metric no fitted test measured is absent."""
+
+    vehicle: dict[str, Any]
+    model: dict[str, Any]
+    parameters: dict[str, float | list[float]]
+    labels: tuple[str, ...]
+    covariance: np.ndarray | None
+    bounds: tuple[tuple[float, float], ...]
+    range: IdentifiedRange
+    discrepancy: dict[str, float] = field(default_factory=dict)
+    fitted_channels: tuple[str, ...] = ()
+    channel_rmse: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        cov = None if self.covariance is None else [[_finite(x) for x in row] for row in self.covariance]
+        return {
+            "vehicle": self.vehicle,
+            "model": self.model,
+            "parameters": self.parameters,
+            "labels": list(self.labels),
+            "covariance": cov,
+            "bounds": [[_finite(lo), _finite(hi)] for lo, hi in self.bounds],
+            "range": self.range.to_json(),
+            "discrepancy": self.discrepancy,
+            "fitted_channels": list(self.fitted_channels),
+            "channel_rmse": self.channel_rmse,
+        }
+
+    @classmethod
+    def from_json(cls, raw: dict[str, Any]) -> IdentifiedModel:
+        cov = raw.get("covariance")
+        matrix = None if cov is None else np.array([[np.inf if x is None else x for x in row] for row in cov], dtype=float)
+        bounds = tuple((-np.inf if lo is None else lo, np.inf if hi is None else hi) for lo, hi in raw["bounds"])
+        return cls(
+            raw["vehicle"],
+            raw["model"],
+            raw["parameters"],
+            tuple(raw["labels"]),
+            matrix,
+            bounds,
+            IdentifiedRange.from_json(raw["range"]),
+            dict(raw.get("discrepancy", {})),
+            tuple(raw.get("fitted_channels", ())),
+            dict(raw.get("channel_rmse", {})),
+        )
+
+    def std(self) -> np.ndarray:
+        """Standard error of each labelled value; inf where the data do not determine it."""
+        if self.covariance is None:
+            return np.full(len(self.labels), np.inf)
+        return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
+    """`problem` with the identified vehicle in it: the whole model section, the estimated vehicle
+    entries, and every vehicle entry the problem leaves out. The problem's own speeds, masses,
+    durations and tests stay; a problem whose geometry or model structure differs from the
+    identified vehicle's is refused (InputError naming `source` and the entry)."""
+    _refuse_another_vehicle(problem, identified, source)
+    raw = problem.model_dump(mode="python", exclude_unset=True)
+    given = problem.vehicle.model_fields_set
+    vehicle = dict(raw.get("vehicle", {}))
+    for key, value in identified.vehicle.items():
+        if key not in given or f"vehicle.{key}" in identified.parameters or _estimated_within(identified, f"vehicle.{key}"):
+            vehicle[key] = value
+    raw["vehicle"] = vehicle
+    raw["model"] = identified.model
+    raw["estimate"] = {}
+    return problem_from_dict(raw, problem.base_dir, source)
+
+
+def _estimated_within(identified: IdentifiedModel, prefix: str) -> bool:
+    return any(path.startswith(prefix + ".") for path in identified.parameters)
+
+
+def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, source: str) -> None:
+    given = problem.vehicle.model_fields_set
+    for key in GEOMETRY:
+        mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
+        if key in given and theirs is not None and not _same(mine, theirs):
+            raise InputError(
+                f"{source}: vehicle.{key} is {mine:g} m, but the identified vehicle's is {theirs:g} m: "
+                "another vehicle (a result predicts the vehicle it was fitted to)"
+            )
+    for section, key in STRUCTURE:
+        node = getattr(problem.model, section)
+        theirs = (identified.model.get(section) or {}).get(key)
+        if node is None or key not in node.model_fields_set or theirs is None:
+            continue
+        mine = getattr(node, key)
+        if isinstance(mine, list) or isinstance(theirs, list):
+            differs = not isinstance(mine, list) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+        else:
+            differs = mine != theirs
+        if differs:
+            raise InputError(
+                f"{source}: model.{section}.{key} is {mine}, but the identified vehicle's is {theirs}: "
+                "another model (a result predicts the model it was fitted with)"
+            )
+
+
+def _same(a: float, b: float) -> bool:
+    return abs(a - b) <= SAME * max(abs(a), abs(b), 1e-12)
