@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
 from crashnlp.files import check_writable
 from crashnlp.outputs import OUTPUT
@@ -535,6 +536,8 @@ def main(argv: list[str] | None = None) -> int:
         if _received:  # a signal that arrived inside compiled code comes back as another exception
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
         return _fail(f"error: {describe(exc)}", 1, debug)
+    finally:
+        stop_compiles()  # none outlives the command unless CRASHNLP_KEEP_COMPILING=1 asked for that
 
 
 if __name__ == "__main__":

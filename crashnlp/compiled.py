@@ -6,6 +6,10 @@ two, so each library is kept under the cache folder (CRASHNLP_CACHE, default
 ~/.cache/crashnlp), named by a hash of its C source and flags: the same
 function is compiled once per machine, whatever the process. Without a C
 compiler the Function itself is returned, so results never depend on it.
+
+A compile runs in a process group of its own (crashnlp.compile_job) and ends with
+the process that started it, on exit as on a signal, leaving no half-written
+library; only CRASHNLP_KEEP_COMPILING=1 lets a background compile outlive it.
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from crashnlp import compile_job
 from crashnlp.cache import CACHE_ENV, cache_dir
 
 __all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler"]
@@ -73,13 +78,18 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
 
 
 def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:
-    """Compile into a temporary file, then move it in place (atomic for concurrent processes)."""
+    """Compile `source` into `library` and wait; a signal meanwhile stops the compile."""
     library.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        src, out = Path(tmp) / "fn.c", Path(tmp) / "fn.so"
+        src = Path(tmp) / "fn.c"
         src.write_text(source)
-        subprocess.run([cc, *flags, str(src), "-o", str(out), "-lm"], check=True, capture_output=True)
-        os.replace(out, library)
+        compile = compile_job.start(cc, src, library, flags, keep=False)
+        try:
+            code = compile.wait()
+        finally:
+            compile_job.stop_compiles([compile])
+        if code != 0:
+            raise subprocess.CalledProcessError(code, compile.args)
 
 
 class Evaluator:

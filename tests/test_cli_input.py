@@ -34,6 +34,10 @@ CASES = {
     "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
     "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),
     "bound unit": ({"constraints": {"bounds": {"pitch": [None, "12 kg"]}}}, "constraints:"),
+    "ipopt option typo": ({"solver": {"ipopt": {"max_itr": 5}}}, "solver.ipopt.max_itr: no such IPOPT option"),
+    "ipopt option type": ({"solver": {"ipopt": {"max_iter": 5.5}}}, "solver.ipopt.max_iter: 5.5 is not an integer"),
+    "ipopt option range": ({"solver": {"ipopt": {"tol": -1}}}, "solver.ipopt.tol: -1 is outside IPOPT's range 0 < tol"),
+    "ipopt option setting": ({"solver": {"ipopt": {"mu_strategy": "fast"}}}, "solver.ipopt.mu_strategy: 'fast' is none of"),
 }
 
 
@@ -75,3 +79,14 @@ def test_schema_lists_the_problem_keys(capsys):
     assert main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
     assert {"vehicle", "model", "tests", "estimate", "constraints", "transcription"} <= set(schema["properties"])
+
+
+def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
+    fit = merge(BASE, {"tests": [{"name": "a", "data": DATA}], "solver": {"ipopt": {"max_itr": 5, "sb": "yes"}}})
+    path = tmp_path / "fit.yaml"
+    path.write_text(yaml.safe_dump(fit))
+    code = main(["identify", str(path), "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert err == f"crashnlp: error: {path}: solver.ipopt.max_itr: no such IPOPT option (did you mean max_iter?)\n"
+    assert not (tmp_path / "out").exists()

@@ -318,6 +318,7 @@ def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp
         ({"seeds": [9]}, "seeds:"),
         ({"seeds": [0], "max_depth": 1}, "give seeds or max_depth, not both"),
         ({"max_depth": -1}, "max_depth:"),
+        ({"sweep": {"solver.ipopt.max_itr": [5]}}, "solver.ipopt.max_itr: no such IPOPT option (did you mean max_iter?)"),
     ],
 )
 def test_bad_study_file_is_one_line_naming_the_key(small, changes, message):

@@ -10,7 +10,8 @@ under a hash of the serialized NLP, the Hessian kind and the compiler:
 
 - `compile: auto` (default): a cached library when there is one; otherwise this
   solve runs in CasADi's virtual machine and the library is compiled in the
-  background, for the next run or study case of the same shape.
+  background, for the later study cases of the same shape; the compile ends with
+  the command (CRASHNLP_KEEP_COMPILING=1 lets it finish for the next run).
 - `compile: now`: compile before solving and wait (before a large study).
 - `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
 
@@ -37,7 +38,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from crashnlp import compiled
+from crashnlp import compile_job, compiled
 from crashnlp.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
@@ -173,9 +174,10 @@ def compiles_running(cache: Path) -> list[Path]:
 
 
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
-    """Start compiling the library in a process of its own, which outlives this one; the
-    source file is the lock (one compile per library at a time, a stale one restarted). No more
-    compiles at once than cores: a batch of many shapes compiles the rest on later runs."""
+    """Start compiling the library beside this process (crashnlp.compile_job: it ends with
+    the command unless CRASHNLP_KEEP_COMPILING=1); the source file is the lock (one compile per
+    library at a time, a stale one restarted). No more compiles at once than cores: a batch of
+    many shapes compiles the rest on later runs."""
     source = library.with_suffix(".c")
     running = compiles_running(library.parent)
     if source in running or len(running) >= (os.cpu_count() or 1):
@@ -183,12 +185,4 @@ def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -
     library.parent.mkdir(parents=True, exist_ok=True)
     source.write_text(_source(functions))
     _write_names(functions, library)
-    partial = library.with_suffix(f".{os.getpid()}.tmp")
-    script = f'"$0" "$@" "{source}" -o "{partial}" -lm && mv -f "{partial}" "{library}"; rm -f "{source}" "{partial}"'
-    subprocess.Popen(
-        ["sh", "-c", script, cc, *NLP_FLAGS],
-        stdin=subprocess.DEVNULL,
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-        start_new_session=True,
-    )
+    compile_job.start(cc, source, library, NLP_FLAGS, cleanup=(source,))

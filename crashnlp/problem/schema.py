@@ -18,13 +18,16 @@ from pydantic import (
     BeforeValidator,
     ConfigDict,
     Field,
+    ValidationError,
     ValidationInfo,
     WithJsonSchema,
     field_validator,
     model_validator,
 )
+from pydantic_core import InitErrorDetails, PydanticCustomError
 
 from crashnlp.outputs import MEASURABLE, OUTPUT
+from crashnlp.problem.ipopt import check_ipopt
 from crashnlp.units import to_si
 
 QuantityIn = float | str
@@ -407,6 +410,18 @@ class Solver(Strict):
         description="the NLP's functions in C, cached per problem shape: auto uses a cached library and else compiles"
         " one in the background for the next run; now compiles before solving; never stays in CasADi's virtual machine",
     )
+
+    @field_validator("ipopt")
+    @classmethod
+    def _ipopt(cls, v: dict[str, Any]) -> dict[str, Any]:
+        """Refuse what IPOPT would refuse, each error at its key (solver.ipopt.max_itr)."""
+        errors = [
+            InitErrorDetails(type=PydanticCustomError("ipopt_option", "{why}", {"why": why}), loc=(name,), input=v[name])
+            for name, why in check_ipopt(v).items()
+        ]
+        if errors:
+            raise ValidationError.from_exception_data("ipopt", errors)
+        return v
 
 
 class Uncertainty(Strict):

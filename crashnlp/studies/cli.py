@@ -96,7 +96,10 @@ def cmd_study(args) -> int:
             check=check,
         )
     except Interrupted as exc:
-        exc.detail = f"; finished cases are kept in {out}/cases: run the study again to resume"
+        cases = out / "cases"
+        finished = cases.is_dir() and any(cases.glob("*.json"))
+        kept = f"; finished cases are kept in {cases}/: run the study again to resume"
+        exc.detail = kept if finished else "; no case had finished"
         raise
     if check:
         if args.executor == "dask" and args.address is not None:  # reachable within --timeout?

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import logging
 import multiprocessing
+import multiprocessing.util
 import os
 import signal
 import sys
@@ -24,6 +25,7 @@ from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from typing import Any, Protocol
 
+from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, RunError
 from crashnlp.studies import CONNECT_TIMEOUT, EXECUTORS
 
@@ -75,8 +77,11 @@ def start_early() -> None:
 
 
 def _worker_init() -> None:
-    """Workers leave Ctrl-C to the main process, which stops them (a terminal sends SIGINT to all)."""
+    """Workers leave Ctrl-C to the main process, which stops them (a terminal sends SIGINT to all),
+    and stop the C compiles they started when they end (a worker ended by a signal stops them
+    too: crashnlp.compile_job watches its starter)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    multiprocessing.util.Finalize(None, stop_compiles, exitpriority=0)
 
 
 @contextmanager
