@@ -258,6 +258,17 @@ def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
 
+def _consistency_line(c: dict) -> str:
+    """The one printed line of a channel consistency (crashnlp.summary.channel_consistency)."""
+    parts = [
+        f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {s['time_zero_velocity_s'] * 1e3:.1f} ms"
+        f" after {s['max_crush_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
+        for name, s in c.items()
+        if isinstance(s, dict)
+    ]
+    return f"channel consistency (one mass): {'; '.join(parts)}; impulse wall / accelerometers {c['impulse_ratio']:.3f}"
+
+
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
     s = result.solver
@@ -290,6 +301,8 @@ def _print_solution(result) -> None:
                 + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items())
             )
             print("    ISO 18571 " + ", ".join(f"{c} {f.iso18571['overall']:.3f}" for c, f in t.fit.items() if f.iso18571))
+        if t.consistency:
+            print(f"    {_consistency_line(t.consistency)}")
         if t.energy:
             print(
                 f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ"

@@ -61,6 +61,7 @@ class Draft:
     vehicle: dict[str, tuple[float, str]] = field(default_factory=dict)
     notes: list[str] = field(default_factory=list)
     comments: dict[str, str] = field(default_factory=dict)  # per channel
+    optional: dict[str, dict] = field(default_factory=dict)  # channels written commented out, for the user to add
 
 
 @dataclass
@@ -110,6 +111,23 @@ def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
     raise InputError("no longitudinal vehicle accelerometer (rear seat, CG, floor or sill) in the INSTRUMENTATION card")
 
 
+def _ev5_barrier(path: Path, curves: dict, draft: Draft) -> None:
+    """The wall force of a load-cell barrier, offered commented out: a one-mass model does not
+    meet it and the accelerometers at once unless the user weighs them (docs/barrier.md)."""
+    from crashnlp.data.channels import DataError
+    from crashnlp.data.nhtsa_ev5 import barrier_cells
+
+    try:
+        kept, dropped = barrier_cells(path, curves)
+    except DataError:
+        return
+    draft.optional["barrier_force"] = {"curves": "all-valid-barrier-fx", "sign": -1}
+    left_out = f", {len(dropped)} marked not valid left out" if dropped else ""
+    draft.comments["barrier_force"] = (
+        f"wall force: sum of the {len(kept)} valid load cells{left_out}, CFC 60; to fit it too, see docs/barrier.md"
+    )
+
+
 def ev5_draft(path: Path) -> Draft:
     """Mass, speed, wheelbase, CG and overhang from the TEST and VEHICLE cards; the accelerometers."""
     from crashnlp.data.nhtsa_ev5 import card_number, read_header
@@ -127,6 +145,7 @@ def ev5_draft(path: Path) -> Draft:
         },
     )
     draft.comments = {"accel": why, "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    _ev5_barrier(path, curves, draft)
     speed = card_number(cards["TEST"][0], 15)
     if speed:
         draft.vehicle["speed"] = (speed / 3.6, "TEST card closing speed")
@@ -500,6 +519,8 @@ def _test_lines(draft: Draft, data_file: str) -> list[str]:
     lines.append("      channels:")
     for name, ch in d["channels"].items():
         lines.append(_line(8, f"{name}: {_flow(ch)}", draft.comments.get(name, "")))
+    for name, ch in draft.optional.items():
+        lines.append(_line(8, f"# {name}: {_flow(ch)}", draft.comments.get(name, "")))
     return lines
 
 

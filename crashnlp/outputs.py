@@ -40,7 +40,7 @@ OUTPUTS: tuple[Output, ...] = (
     Output("pitch", "rad", "deg", 180 / math.pi, "pitch (deg)", 180 / math.pi, "pitch_deg", True),
     Output("crush", "m", "m", 1.0, "crush (mm)", 1e3, "crush_m"),
     Output("crush_rate", "m/s", "m/s", 1.0, "crush rate (m/s)", 1.0),
-    Output("barrier_force", "N", "N", 1.0, "barrier force (kN)", 1e-3, "barrier_force_N"),
+    Output("barrier_force", "N", "N", 1.0, "barrier force (kN)", 1e-3, "barrier_force_N", True),
     Output("contact_force", "N", "N", 1.0, "front-end force (kN)", 1e-3),
     Output("kinetic", "J", "J", 1.0, "kinetic energy (kJ)", 1e-3),
     Output("potential", "J", "J", 1.0, "potential energy (kJ)", 1e-3),

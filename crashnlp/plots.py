@@ -27,9 +27,12 @@ def draw(jobs: list[Job]) -> None:
 def response_figure(
     path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None, bands: dict[str, tuple] | None = None
 ) -> None:
-    """Four panels of model curves (t, y SI) with the measured ones behind them, and where
-    given the model's 95 % band (t, low, high SI) shaded."""
-    fig, axes = plt.subplots(2, 2, figsize=(10, 6.5), sharex=True)
+    """A panel per measurable output, two a row: model curves (t, y SI) with the measured ones
+    behind them, and where given the model's 95 % band (t, low, high SI) shaded."""
+    rows = -(-len(PANELS) // 2)
+    fig, axes = plt.subplots(rows, 2, figsize=(10, 3.25 * rows), sharex=True)
+    for ax in axes.flat[len(PANELS) :]:
+        ax.set_visible(False)
     for ax, name in zip(axes.flat, PANELS):
         label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
         if data and name in data:
@@ -45,8 +48,9 @@ def response_figure(
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="C0", lw=1.6, label="model")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
-    for ax in axes[1]:
+    for ax in axes.flat[len(PANELS) - 2 :]:
         ax.set_xlabel("time (ms)")
+        ax.xaxis.set_tick_params(labelbottom=True)
     axes[0, 0].legend(loc="lower right")
     fig.suptitle(title)
     _layout(fig, wspace=0.28)

@@ -36,6 +36,7 @@ BAND_CHANNEL = {
     "accel": "accel",
     "pitch": "pitch",
     "crush": "displacement",
+    "barrier_force": "barrier_force",
 }
 
 

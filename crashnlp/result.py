@@ -70,6 +70,7 @@ class TestResult:
     loading_end: float
     energy: dict[str, float] | None = None
     forward_check: dict[str, Any] | None = None
+    consistency: dict[str, Any] | None = None  # wall force against accelerometers (summary.channel_consistency)
 
 
 @dataclass(frozen=True)
@@ -161,6 +162,7 @@ class Result:
                 _number(t.get("loading_ends_s")),
                 t.get("energy"),
                 t.get("forward_check"),
+                t.get("consistency"),
             )
         return cls(
             raw["name"],
@@ -190,7 +192,7 @@ def _number(value: Any) -> float:
 
 
 def _test_json(t: TestResult) -> dict[str, Any]:
-    return {
+    out = {
         "speed_mps": t.speed,
         "loading_ends_s": t.loading_end,
         "forward_check": t.forward_check,
@@ -198,6 +200,7 @@ def _test_json(t: TestResult) -> dict[str, Any]:
         "metrics": {"model": t.metrics, "data": t.data_metrics},
         "fit": {c: _fit_json(f) for c, f in t.fit.items()},
     }
+    return out | ({"consistency": t.consistency} if t.consistency is not None else {})
 
 
 def _fit_json(f: ChannelFit) -> dict[str, Any]:

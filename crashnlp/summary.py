@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.case import TestCase
-from crashnlp.data.signal import resample
+from crashnlp.data.signal import integrate, resample
 from crashnlp.metrics import crash_metrics
 from crashnlp.simulation import Response
 from crashnlp.units import G0
@@ -63,3 +63,32 @@ def data_metrics(test: TestCase) -> dict | None:
 def response_metrics(r: Response) -> dict:
     y = r.outputs
     return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+
+
+def channel_consistency(test: TestCase, mass: float) -> dict | None:
+    """What the wall force and the accelerometers each say of the crash, when a test has both.
+
+    Each is integrated as one mass from the impact speed (the wall force as -F / m): its impulse
+    m (v0 - v_end) over the data [N s], time of zero velocity [s], largest travel [m] and rebound
+    [m/s]. A one-mass model meets both only as far as these agree (docs/barrier.md)."""
+    ch = test.data.channels if test.data is not None else {}
+    if not {"accel", "barrier_force"} <= set(ch):
+        return None
+    wall = ch["barrier_force"]
+    sets = {
+        "wall": _one_mass(wall.time, -wall.values / mass, test.speed, mass),
+        "accelerometers": _one_mass(ch["accel"].time, ch["accel"].values, test.speed, mass),
+    }
+    return {**sets, "impulse_ratio": sets["wall"]["impulse_Ns"] / sets["accelerometers"]["impulse_Ns"]}
+
+
+def _one_mass(t: np.ndarray, accel: np.ndarray, v0: float, mass: float) -> dict[str, float]:
+    """Impulse, stop time, travel and rebound of one mass decelerated by `accel` from v0."""
+    velocity, displacement = integrate(t, accel, v0, max(0.0, float(t[0])))
+    m = crash_metrics(t, accel, velocity, displacement)
+    return {
+        "impulse_Ns": mass * (m.v0 - m.end_velocity),
+        "time_zero_velocity_s": m.t_zero_velocity,
+        "max_crush_m": m.max_crush,
+        "rebound_velocity_mps": m.rebound_velocity,
+    }

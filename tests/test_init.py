@@ -29,6 +29,7 @@ def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     text = out.read_text()
     assert "mass: 1719 kg" in text and "VEHTWT" in text and "57.09 km/h" in text
     assert "curves: [93, 94]" in text and "REAR SEAT CROSSMEMBER" in text
+    assert "# barrier_force: {curves: all-valid-barrier-fx, sign: -1}" in text and "174 valid load cells" in text
     assert "cg_to_front_axle: 1.246 m" in text and "cg_to_impact: 2.219 m" in text and "estimate" in text
     (test,) = _identify(out, tmp_path / "res")["tests"].values()
     model = test["metrics"]["model"]

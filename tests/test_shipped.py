@@ -40,3 +40,19 @@ def test_shipped_pickup_fit_meets_the_targets(solutions, method):
 def test_transcriptions_agree_on_the_shipped_objective(solutions):
     a, b = (solutions[m].result.objective for m in ("multiple-shooting", "collocation"))
     assert b == pytest.approx(a, rel=0.01)
+
+
+def test_shipped_barrier_fit_meets_the_wall_and_the_accelerometers():
+    from crashnlp.optimize.outcome import result_of
+
+    result = result_of(identify(Case(load_problem(ROOT / "problems/nhtsa-10146-barrier.yaml")), progress=None))
+    assert result.ok, result.status
+    (test,) = result.tests.values()
+    assert test.fit["barrier_force"].iso18571["overall"] >= 0.9
+    wall, accel = test.consistency["wall"], test.consistency["accelerometers"]
+    assert wall["time_zero_velocity_s"] == pytest.approx(0.0730, abs=5e-4)
+    assert accel["time_zero_velocity_s"] == pytest.approx(0.07396, abs=5e-4)
+    stop = test.metrics["time_zero_velocity_s"]
+    assert abs(stop - accel["time_zero_velocity_s"]) <= 1e-3 and abs(stop - wall["time_zero_velocity_s"]) <= 1e-3
+    assert wall["max_crush_m"] <= test.metrics["max_crush_m"] <= accel["max_crush_m"]
+    assert test.consistency["impulse_ratio"] == pytest.approx(1.056, abs=0.005)

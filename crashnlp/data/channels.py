@@ -28,15 +28,17 @@ class Channel:
 
 @dataclass
 class TestData:
-    """Channels by name ('accel', 'velocity', 'displacement', 'pitch') and header values in SI.
+    """Channels by name (the measurable outputs) and header values in SI.
 
-    `meta` may hold 'mass' [kg] and 'speed' [m/s] when the file header gives them.
+    `meta` may hold 'mass' [kg] and 'speed' [m/s] when the file header gives them; `notes` say
+    what a reader chose from the data (one line each, e.g. the load cells it summed and left out).
     """
 
     __test__ = False  # not a pytest test class
 
     channels: Mapping[str, Channel]
     meta: dict[str, float] = field(default_factory=dict)
+    notes: list[str] = field(default_factory=list)
 
 
 def where(path: object, channel: str, detail: str = "") -> str:

@@ -15,7 +15,7 @@ from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_ev5 import read_ev5
 from crashnlp.data.signal import CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
-from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
+from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
 
 Reader = Callable[[DataSpec], TestData]
 READERS: dict[str, Reader] = {
@@ -23,6 +23,7 @@ READERS: dict[str, Reader] = {
     "nhtsa-ev5": read_ev5,
     "iso-mme": read_mme,
 }
+BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an offset, removed over `bias_window`
 
 
 def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
@@ -35,11 +36,20 @@ def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
         raise DataError(f"{at}: {exc}") from None
 
 
+def _filter_note(name: str, cfc: str | None) -> str:
+    """What filter a channel with a default class got, said beside SAE J211's class."""
+    j211 = DEFAULT_FILTER[name]
+    if cfc == j211:
+        return f"filtered at {cfc}, the SAE J211 class for {name} and the default"
+    return f"filtered at {cfc or 'no CFC'}, where SAE J211 names {j211} for {name}"
+
+
 def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
     """Channels in SI and the model frame, ready to compare with the model.
 
-    Order: read; multiply by `sign`; remove the mean over `bias_window` from accel; filter each
-    read channel at its CFC; derive channels with `derive: integrate` from the bias-removed
+    Order: read; multiply by `sign`; remove the mean over `bias_window` from accel and
+    barrier_force; filter each read channel at its CFC (barrier_force at CFC 60 unless the
+    problem says otherwise, and the notes say so); derive channels with `derive: integrate` from the bias-removed
     accel, filtered at the derived channel's own CFC or else accel's, with v(0) = speed (the
     header's speed when `speed` is None) and x(0) = 0; cut every channel to `window` last.
     """
@@ -49,6 +59,7 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
     raw = reader(spec)
     path = spec.file
     out: dict[str, Channel] = {}
+    notes = list(raw.notes)
     accel_unfiltered = None
     for name, ch in spec.channels.items():
         if ch.derive is not None:
@@ -56,7 +67,9 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         c = raw.channels[name]
         check_sampling(c.time, where(path, name))
         values = c.values * ch.sign
-        if name == "accel" and spec.bias_window is not None:
+        if name in DEFAULT_FILTER:
+            notes.append(f"{name}: {_filter_note(name, ch.filter)}")
+        if name in BIASED and spec.bias_window is not None:
             try:
                 values = remove_bias(c.time, values, spec.bias_window)
             except ValueError as exc:
@@ -92,4 +105,4 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
             out[name] = cut(out[name], spec.window)
             if out[name].time.size < 2:
                 raise DataError(f"{where(path, name)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples")
-    return TestData(out, dict(raw.meta))
+    return TestData(out, dict(raw.meta), notes)

@@ -8,17 +8,22 @@ Header cards used (fields counted from 1, as in the NHTSA Test Reference Guide):
   8 y units, 15 first point NFP, 16 last point NLP, 17 sample interval DELT [us],
   18 data status DASTAT, 19 channel status (P primary, R redundant), 20 comment.
 Curve NNN lives next to the header as <stem>.NNN (time [s] TAB value).
+
+A curve is read only as far as the header says its data are valid (`valid_until`): status NO
+(not installed) or CF ("No valid data") never, "No valid data after 67ms" up to 67 ms.
 """
 
 from __future__ import annotations
 
+import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
-from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
+from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
 # EV5 unit codes -> pint units
 UNITS = {
@@ -41,6 +46,9 @@ UNITS = {
     "MS": "ms",
 }
 NO_DATA = {"NO"}  # data status meaning the channel holds no data (e.g. sensor not installed)
+FAILED = {"CF"}  # data status of a failed channel: valid only as far as its comment says
+NEVER_VALID = ("NO VALID DATA", "NOT INSTALLED")  # comments, upper case, of a curve holding no data
+VALID_UNTIL = re.compile(r"NO VALID DATA AFTER\s*([0-9.]+)\s*MS")  # a comment giving the end of the valid data
 
 
 @dataclass
@@ -120,13 +128,28 @@ def read_header(path: Path) -> tuple[dict[str, list[list[str]]], dict[int, Curve
     return cards, _curves(path, cards["INSTRUMENTATION"])
 
 
+def valid_until(curve: Curve) -> float | None:
+    """The last time [s] the header says a curve's data are valid: inf throughout, None never.
+
+    Status NO, or a comment "No valid data" or "Not installed", is never valid; a comment "No
+    valid data after 67ms" is valid up to 67 ms; status CF (channel failed) without one, never."""
+    comment = curve.comment.upper()
+    until = VALID_UNTIL.search(comment)
+    if until and curve.status not in NO_DATA:
+        return float(until.group(1)) * 1e-3
+    if curve.status in NO_DATA | FAILED or any(text in comment for text in NEVER_VALID):
+        return None
+    return math.inf
+
+
 def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[np.ndarray, np.ndarray]:
-    """Time and raw values of one curve, cut to the valid range NFP..NLP the header gives."""
+    """Time and raw values of one curve, cut to the valid range NFP..NLP and to `valid_until`."""
     at = where(path, channel, f"curve {curve.number}")
+    until = valid_until(curve)
+    if until is None:
+        raise DataError(f"{at}: the header marks the curve's data as not valid ({curve.status}: {curve.comment})")
     if not path.is_file():
         raise DataError(f"{at}: curve file missing (listed in {header.name})")
-    if curve.status in NO_DATA:
-        raise DataError(f"{at}: header marks the curve as holding no data ({curve.comment or curve.status})")
     try:
         table = np.loadtxt(path, ndmin=2)
     except ValueError as exc:
@@ -140,20 +163,47 @@ def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[n
         if abs(dt - curve.interval) > 0.01 * curve.interval:
             raise DataError(f"{at}: sample interval {dt:g} s differs from the header's {curve.interval:g} s")
         tol = 0.5 * curve.interval
-        valid = (time >= curve.first * curve.interval - tol) & (time <= curve.last * curve.interval + tol)
+        valid = (time >= curve.first * curve.interval - tol) & (time <= min(curve.last * curve.interval, until) + tol)
         time, values = time[valid], values[valid]
-        if time.size < 2:
-            raise DataError(f"{at}: no samples in the valid range the header gives")
+    else:
+        time, values = time[time <= until], values[time <= until]
+    if time.size < 2:
+        raise DataError(f"{at}: no samples in the valid range the header gives")
     return time, values
 
 
+def barrier_cells(header: Path, curves: dict[int, Curve]) -> tuple[list[int], list[Curve]]:
+    """The barrier's Fx load cells (sensor LC, axis XG, a force): the numbers of those valid
+    throughout, and the curves of those the header marks invalid for some or all of the test."""
+    cells = [c for c in curves.values() if c.sensor == "LC" and c.axis == "XG" and UNITS.get(c.unit.upper()) == "N"]
+    if not cells:
+        raise DataError(f"{header}: no barrier Fx load cell (sensor LC, axis XG, unit NWT) in the INSTRUMENTATION card")
+    kept = [c.number for c in cells if valid_until(c) == math.inf]
+    if not kept:
+        raise DataError(f"{header}: the header marks every barrier Fx load cell as not valid")
+    return kept, [c for c in cells if valid_until(c) != math.inf]
+
+
+def _curve_numbers(header: Path, curves: dict[int, Curve], name: str, ch: ChannelSpec) -> tuple[list[int], str | None]:
+    """The curves a channel reads, and a note of what `all-valid-barrier-fx` summed and left out."""
+    if ch.curves == ALL_BARRIER_FX:
+        kept, dropped = barrier_cells(header, curves)
+        left_out = "; ".join(f"{c.number:03d} ({c.status}: {c.comment})" for c in dropped) or "none"
+        return kept, f"{name}: {len(kept)} barrier Fx load cells summed; dropped as not valid: {left_out}"
+    if not ch.curves:
+        raise DataError(f"{where(header, name)}: no curves given (an EV5 channel needs `curves`)")
+    return list(ch.curves), None
+
+
 def read_ev5(spec: DataSpec) -> TestData:
-    """Channels from the curves `ChannelSpec.curves` (averaged when several), values in SI.
+    """Channels from the curves `ChannelSpec.curves` (averaged when several, summed for a
+    force), values in SI.
 
     Units come from the header (G'S is g) unless `ChannelSpec.unit` overrides. A curve whose
-    header marks a shorter valid range (NLP, e.g. a channel failed mid-test) is cut to it;
-    averaged curves must share sample interval and time range. Meta: 'speed' [m/s] from the
-    TEST card, 'mass' [kg] from the VEHICLE card of the vehicle carrying the curves.
+    header marks a shorter valid range (NLP, or a comment "No valid data after ...") is cut to
+    it, and one it marks not valid is refused; combined curves must share sample interval and
+    time range. Meta: 'speed' [m/s] from the TEST card, 'mass' [kg] from the VEHICLE card of the
+    vehicle carrying the curves (the barrier's are vehicle 0).
     """
     header = spec.file
     cards, curves = read_header(header)
@@ -162,32 +212,33 @@ def read_ev5(spec: DataSpec) -> TestData:
     if speed is not None and speed > 0:
         meta["speed"] = speed / 3.6
     vehicle = 1
-    channels = {}
+    channels, notes = {}, []
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        if not ch.curves:
-            raise DataError(f"{where(header, name)}: no curves given (an EV5 channel needs `curves`)")
+        numbers, note = _curve_numbers(header, curves, name, ch)
+        notes += [note] if note else []
         read = []
-        for number in ch.curves:
+        for number in numbers:
             if number not in curves:
                 raise DataError(f"{where(header, name, f'curve {number}')}: curve not in the INSTRUMENTATION card")
             curve = curves[number]
-            vehicle = curve.vehicle
+            vehicle = curve.vehicle or vehicle
             file = header.with_suffix(f".{number:03d}")
             time, values = _read_curve(file, header, curve, name)
             unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
             values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
             read.append((file, time, values))
-        channels[name] = _average(read, name)
+        channels[name] = _combine(read, name)
     for row in cards.get("VEHICLE", []):
         if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass
-    return TestData(channels, meta)
+    return TestData(channels, meta, notes)
 
 
-def _average(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
-    """Mean of curves on one time base; refuse curves whose sampling or range differ."""
+def _combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
+    """Sum (a force, `SUMMED`) or mean of curves on one time base; refuse curves whose sampling
+    or range differ."""
     file0, time, total = read[0]
     dt0 = (time[-1] - time[0]) / (time.size - 1)
     for file, t, v in read[1:]:
@@ -201,4 +252,4 @@ def _average(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Chan
             )
         total = total + v
     source = "+".join(f.name for f, _, _ in read)
-    return Channel(time, total / len(read), CHANNEL_UNITS[name], source)
+    return Channel(time, total if name in SUMMED else total / len(read), CHANNEL_UNITS[name], source)

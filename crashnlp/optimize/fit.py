@@ -18,7 +18,13 @@ from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.prior import SmoothnessPrior, smoothness_prior
 from crashnlp.units import G0
 
-DEFAULT_SIGMA = {"accel": 2.0 * G0, "velocity": 0.15, "displacement": 0.005, "pitch": np.radians(1.0)}
+DEFAULT_SIGMA = {
+    "accel": 2.0 * G0,
+    "velocity": 0.15,
+    "displacement": 0.005,
+    "pitch": np.radians(1.0),
+    "barrier_force": 20e3,  # N: 3 % of a car's 700 kN peak wall force, about 1.2 g of its mass
+}
 
 
 @dataclass

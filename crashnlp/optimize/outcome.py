@@ -16,7 +16,7 @@ from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
 from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
 from crashnlp.simulation import Response
-from crashnlp.summary import data_metrics, response_metrics
+from crashnlp.summary import channel_consistency, data_metrics, response_metrics
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
@@ -54,7 +54,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
-        notes=tuple(solution.notes),
+        notes=tuple(solution.notes) + _data_notes(case),
         identified=identified_model(solution, tests),
         regularization=solution.regularization,
     )
@@ -103,6 +103,11 @@ def _channel_rmse(tests: dict[str, TestResult]) -> dict[str, float]:
     return {c: float(np.sqrt(np.mean([t.fit[c].rmse ** 2 for t in tests.values() if c in t.fit]))) for c in sorted(channels)}
 
 
+def _data_notes(case: Case) -> tuple[str, ...]:
+    """What the readers chose from each test's data, one line each, naming the test."""
+    return tuple(f"test {t.name}: {n}" for t in case.tests if t.data is not None for n in t.data.notes)
+
+
 def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:
     v = solution.verification
     check = None
@@ -120,7 +125,14 @@ def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> Te
         ts.loading_end,
         v.energy[test.name] if v is not None else None,
         check,
+        channel_consistency(test, _mass(solution, test)),
     )
+
+
+def _mass(solution: Solution, test: TestCase) -> float:
+    """The vehicle mass [kg] of a test at the solution."""
+    case = solution.case
+    return float(case.test_parameters(test, solution.full_parameters())[case.layout.index("vehicle.mass")][0])
 
 
 def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[str, ChannelFit]:

@@ -275,8 +275,13 @@ class Model(Strict):
 
 # --------------------------------------------------------------------------- data
 CHANNEL_UNITS = {name: OUTPUT[name].unit for name in MEASURABLE}
-ChannelName = Literal["accel", "velocity", "displacement", "pitch"]
+ChannelName = Literal["accel", "velocity", "displacement", "pitch", "barrier_force"]
+assert set(get_args(ChannelName)) == set(MEASURABLE), "the channels a problem names are the measurable outputs"
 CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
+DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
+SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
+AllBarrierFx = Literal["all-valid-barrier-fx"]  # EV5: every load cell (sensor LC, axis XG, a force) the header marks valid
+ALL_BARRIER_FX: str = get_args(AllBarrierFx)[0]
 
 
 class TimeColumn(Strict):
@@ -286,11 +291,19 @@ class TimeColumn(Strict):
 
 class ChannelSpec(Strict):
     column: str | None = Field(None, description="CSV column")
-    curves: list[int] | None = Field(None, description="NHTSA EV5 curve numbers; several are averaged")
+    curves: list[int] | AllBarrierFx | None = Field(
+        None,
+        description="NHTSA EV5 curve numbers, averaged (barrier_force: summed); all-valid-barrier-fx: every valid"
+        " barrier Fx load cell of the test",
+    )
     code: str | None = Field(None, description="ISO-MME channel code")
     unit: str | None = Field(None, description="unit of the stored values; EV5 and MME files carry their own")
-    filter: CFC | None = None
-    sign: Literal[1, -1] = Field(1, description="multiplies the stored values into the model frame (x toward the barrier)")
+    filter: CFC | None = Field(None, description="SAE J211 filter class; barrier_force: CFC60 unless given (null: none)")
+    sign: Literal[1, -1] = Field(
+        1,
+        description="multiplies the stored values into the model frame (x toward the barrier; barrier_force: compression"
+        " positive, so -1 for NHTSA load cells)",
+    )
     derive: Literal["integrate"] | None = Field(None, description="integrate the accel channel from the impact speed")
     sigma: QuantityIn | None = Field(None, description="scale of the residuals; default per channel")
     weight: float = Field(1.0, ge=0.0)
@@ -321,8 +334,13 @@ class DataSpec(Strict):
         return v
 
     @model_validator(mode="after")
-    def _sigmas(self):
+    def _channels(self):
+        """Default filters, curve lists that fit their channel, and sigmas in SI."""
         for name, ch in self.channels.items():
+            if name in DEFAULT_FILTER and "filter" not in ch.model_fields_set:
+                ch.filter = DEFAULT_FILTER[name]
+            if ch.curves == ALL_BARRIER_FX and name != "barrier_force":
+                raise ValueError(f"channels.{name}: curves {ALL_BARRIER_FX} are barrier forces, a barrier_force channel")
             if ch.sigma is not None:
                 ch.sigma = _positive(si(ch.sigma, CHANNEL_UNITS[name]))
         return self

@@ -1,0 +1,82 @@
+"""The load-cell barrier: summed wall force, channel status honoured, the shipped barrier fit."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import yaml
+from builders import ROOT
+
+from crashnlp.cli import main
+from crashnlp.data.load import load_test_data
+from crashnlp.data.nhtsa_ev5 import Curve, valid_until
+from crashnlp.problem.schema import DataSpec
+
+EV5 = ROOT / "problems" / "data" / "nhtsa-10146" / "v10146.EV5"
+CELLS = [n for n in range(107, 633, 3)]
+DEAD = (347, 500)
+
+
+def _load(channels: dict, **data) -> object:
+    return load_test_data(DataSpec.model_validate({"file": EV5, "format": "nhtsa-ev5", "channels": channels, **data}))
+
+
+def _file(number: int) -> np.ndarray:
+    return np.loadtxt(EV5.with_suffix(f".{number:03d}"))
+
+
+def test_every_valid_cell_is_the_sum_of_the_174_files_read_one_by_one():
+    data = _load({"barrier_force": {"curves": "all-valid-barrier-fx", "sign": -1, "filter": None}})
+    wall = data.channels["barrier_force"]
+    valid = [n for n in CELLS if n not in DEAD]
+    assert len(valid) == 174
+    expected = -sum(_file(n)[:, 1] for n in valid)
+    np.testing.assert_allclose(wall.values, expected, rtol=1e-12, atol=1e-6)
+    (note,) = [n for n in data.notes if "summed" in n]
+    assert "174 barrier Fx load cells summed" in note and "347" in note and "500" in note
+    assert any("SAE J211" in n and "no CFC" in n for n in data.notes)  # filter: null, said beside J211's CFC 60
+
+
+def test_the_wall_force_is_filtered_at_cfc60_and_its_offset_removed_by_default():
+    raw = _load({"barrier_force": {"curves": [107, 110], "sign": -1, "filter": None}})
+    default = _load({"barrier_force": {"curves": [107, 110], "sign": -1}}, bias_window=[-0.05, 0.0])
+    t, f = default.channels["barrier_force"].time, default.channels["barrier_force"].values
+    assert abs(np.mean(f[t <= 0])) < 1.0  # N: the pre-impact mean is gone
+    assert np.max(np.abs(np.diff(f))) < np.max(np.abs(np.diff(raw.channels["barrier_force"].values)))
+    assert any("CFC60, the SAE J211 class" in n for n in default.notes)
+
+
+def test_a_dead_cell_named_explicitly_exits_2_naming_file_and_curve(tmp_path, capsys):
+    problem = yaml.safe_load((ROOT / "problems" / "nhtsa-10146-barrier.yaml").read_text())
+    problem["tests"][0]["data"]["file"] = str(EV5)
+    problem["tests"][0]["data"]["channels"]["barrier_force"] = {"curves": [347], "sign": -1}
+    path = tmp_path / "dead.yaml"
+    path.write_text(yaml.safe_dump(problem))
+    out = tmp_path / "out"
+    assert main(["identify", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "v10146.347" in err and "curve 347" in err and "not valid" in err
+    assert not out.exists()
+
+
+def test_a_curve_valid_to_67_ms_is_never_read_past_it():
+    engine = _load({"accel": {"curves": [96]}}).channels["accel"]
+    assert engine.time[-1] <= 0.067 + 1e-9
+    assert _file(96)[-1, 0] <= 0.067 + 1e-9  # the shipped file stops there too; the header alone decides
+
+
+@pytest.mark.parametrize(
+    ("status", "comment", "until"),
+    [
+        ("AM", "BARRIER K-01 Fx", np.inf),
+        ("CF", "BARRIER F-01 Fx: No valid data", None),
+        ("CF", "BOTTOM OF ENGINE X: No valid data after 67ms", 0.067),
+        ("CF", "", None),
+        ("NO", "DRIVER LAP BELT: Not installed", None),
+        ("AM", "DRIVER LAP BELT: Not installed", None),
+    ],
+)
+def test_status_and_comment_say_how_far_a_curve_is_valid(status, comment, until):
+    curve = Curve(1, 1, "", "XG", "NWT", -500, 2999, 1e-4, status, comment)
+    assert valid_until(curve) == until
