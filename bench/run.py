@@ -15,7 +15,17 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import identification, report, robustness, scaling, self_consistency, simulation, studies, whole_process  # noqa: E402
+from bench import (  # noqa: E402
+    cross_speed,
+    identification,
+    report,
+    robustness,
+    scaling,
+    self_consistency,
+    simulation,
+    studies,
+    whole_process,
+)
 from bench.common import RESULTS, machine, wait_for_compiles  # noqa: E402
 from crashnlp.cache import cache_dir  # noqa: E402
 
@@ -26,6 +36,7 @@ SECTIONS = {
     "scaling": scaling,
     "corpus": robustness,
     "self_consistency": self_consistency,
+    "cross_speed": cross_speed,
     "whole_process": whole_process,
 }
 

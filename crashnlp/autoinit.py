@@ -5,10 +5,12 @@ The given problem is never changed. What is filled, and how:
 - Crush from the data: the displacement channel, else the integral of velocity, else the
   integral of acceleration from the impact speed; samples from impact (t >= 0) on.
 - `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints (default 8),
-  evenly spaced from 0 to REACH = 1.1 times the largest crush of all tests. Even spacing
-  gives every segment of the force-crush curve the same share of the crush range; the
-  10 % beyond the largest crush keeps the identified curve from being extrapolated where
-  a model that crushes a little further than the data would need it.
+  evenly spaced from 0 to the largest crush of all tests (REACH = 1). Even spacing gives
+  every segment of the force-crush curve the same share of the crush range, and the data
+  reach every breakpoint: a breakpoint past the largest crush would carry a value the data
+  barely see, which a fit runs to where model-form error pulls it and a prediction at a
+  higher speed then meets. Past the last breakpoint the spring law continues its last
+  segment, or holds its force where that segment falls (crashnlp.model.laws.rising_tail).
 - `values` omitted: the measured force-crush curve while loading (impact to largest crush),
   m |a| minus the damper's force, against the crush, averaged over the crush band nearest
   each breakpoint (halfway to its neighbours). A band the data do not reach takes the
@@ -23,7 +25,9 @@ The given problem is never changed. What is filled, and how:
 - `estimate` omitted (identification): the spring values within [0, 5 times the largest
   initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
   and where a test has a pitch channel the CG height above the impact point, the pitch
-  inertia and the pitch lever within the physical bounds of PITCH_BOUNDS.
+  inertia and the pitch lever within the physical bounds of PITCH_BOUNDS; with tests at
+  speeds more than SPEED_SPREAD apart also the damper, within [0, DAMPER_BOUND_FACTOR times
+  the nominal one], since two speeds separate it from the spring.
 """
 
 from __future__ import annotations
@@ -43,8 +47,10 @@ if TYPE_CHECKING:
     from crashnlp.case import Case, TestCase
 
 DEFAULT_COUNT = 8
-REACH = 1.1
+REACH = 1.0
 DAMPING_PER_MASS = 2.0  # 1/s: nominal damper per kg of vehicle
+DAMPER_BOUND_FACTOR = 10.0  # the estimated damper's upper bound: this times the nominal one
+SPEED_SPREAD = 0.1  # relative: tests at speeds further apart separate the damper from the spring
 NOMINAL_UNLOADING = 3.0e7  # N/m
 UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
 SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
@@ -161,6 +167,13 @@ def unloading_stiffness(pulses: list[Pulse]) -> float:
     return float(np.clip(np.mean(estimates), *UNLOADING_BOUNDS)) if estimates else NOMINAL_UNLOADING
 
 
+def separates_damper(pulses: list[Pulse]) -> bool:
+    """Whether the tests' impact speeds lie far enough apart (SPEED_SPREAD) to tell the
+    crush-rate damper from the crush spring: at one speed crush and crush rate move together."""
+    speeds = [p.speed for p in pulses]
+    return len(speeds) > 1 and max(speeds) > (1 + SPEED_SPREAD) * min(speeds)
+
+
 def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, EstimateSpec]:
     """What an identification estimates when the problem does not say (see the module notes)."""
     spring = problem.model.spring
@@ -168,6 +181,8 @@ def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, Estimat
     out = {"model.spring.values": EstimateSpec(bounds=(0.0, top))}
     if problem.model.unloading.law == "plastic":
         out["model.unloading.stiffness"] = EstimateSpec(bounds=UNLOADING_BOUNDS)
+    if problem.model.damper is not None and separates_damper(pulses):
+        out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * problem.vehicle.mass))
     if any(p.has_pitch for p in pulses):
         mass = problem.vehicle.mass
         lo, hi = PITCH_GYRATION_BOUNDS

@@ -8,7 +8,13 @@ The intervals propagate two sources of error to every crash metric and response 
   bound), so a metric that bends within that span is not linearised at a point;
 - the model's form: on the fitted tests, the model missed each metric of the data by some
   relative amount, and each channel by its RMSE; that miss, root mean square over the tests,
-  is added in quadrature, scaled to the predicted value.
+  is added in quadrature, scaled to the predicted value;
+- the force past the fitted crush, which no test measured: the loading curve continues its
+  last segment there (crashnlp.model.laws.rising_tail), and how well that rule predicts is
+  measured on the identified curve itself, breakpoint by breakpoint inside the data
+  (`tail_error`). That relative error of the force, grown in proportion to the distance past
+  the fitted crush over the breakpoint spacing, moves the max crush (by the energy it adds or
+  takes) and the peak deceleration (where the peak lies past the fitted crush).
 
 A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
 interval, nor does anything when an estimated value is not determined by the data: the
@@ -27,6 +33,7 @@ from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
 from crashnlp.outputs import COLUMNS, OUTPUT
 from crashnlp.simulation import Response
 from crashnlp.summary import response_metrics
+from crashnlp.units import G0
 
 Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
 # response columns and the fitted channel whose RMSE measures the model's miss of them
@@ -107,13 +114,14 @@ def _uncertainty(
     cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
     intervals: dict[str, tuple[float, float] | None] = {}
     notes = []
+    past = _past_the_fitted_crush(response, identified, float(p[case.layout.index("vehicle.mass")][0]))
     for i, key in enumerate(INTERVAL_METRICS):
         value, miss = metrics.get(key), identified.discrepancy.get(key)
         if value is None or miss is None or not np.isfinite(value):
             intervals[key] = None
             notes.append(f"{test.name}: no interval for {key}: no fitted test measured it")
             continue
-        half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + (miss * value) ** 2)
+        half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + (miss * value) ** 2 + past.get(key, 0.0) ** 2)
         intervals[key] = (float(value - half), float(value + half))
     bands = {}
     for name, channel in BAND_CHANNEL.items():
@@ -124,6 +132,41 @@ def _uncertainty(
         half = Z95 * np.sqrt(np.einsum("it,ij,jt->t", g, cov, g) + rmse**2)
         bands[name] = (response[name] - half, response[name] + half)
     return intervals, bands, tuple(notes)
+
+
+def tail_error(breakpoints: np.ndarray, values: np.ndarray) -> float:
+    """The relative error of the tail rule on the identified loading curve: at each breakpoint
+    from the third on, the force the curve's two breakpoints before it predict (continuing
+    their segment, or holding its force where it falls) against the curve's own, relative to
+    the curve's mean force; root mean square over the breakpoints."""
+    x, f = np.asarray(breakpoints, float), np.asarray(values, float)
+    if x.size < 3:
+        return 0.0
+    slope = np.maximum(np.diff(f[:-1]) / np.diff(x[:-1]), 0.0)
+    predicted = f[1:-1] + slope * np.diff(x[1:])
+    scale = max(float(np.mean(np.abs(f[1:]))), 1.0)
+    return float(np.sqrt(np.mean(((f[2:] - predicted) / scale) ** 2)))
+
+
+def _past_the_fitted_crush(response: Response, identified: IdentifiedModel, mass: float) -> dict[str, float]:
+    """One standard error of max crush (m) and peak deceleration (g) from the force past the
+    fitted crush: force error u F_R (d / spacing) at a distance d past it (see the module's
+    docstring); none inside the fitted crush."""
+    spring = identified.model.get("spring") or {}
+    if spring.get("law") != "force":
+        return {}
+    x, f = np.asarray(spring["crush_breakpoints"], float), np.asarray(spring["values"], float)
+    crush, reach = response["displacement"], identified.range.max_crush
+    beyond = float(np.max(crush)) - reach
+    if beyond <= 0 or x.size < 3:
+        return {}
+    slope = tail_error(x, f) * float(np.mean(np.abs(f[1:]))) / float(np.mean(np.diff(x)))  # N/m of force error
+    at_max = max(float(np.interp(np.max(crush), x, f)), 1.0)
+    out = {"max_crush_m": slope * beyond**2 / 2 / at_max}
+    peak = int(np.argmax(-response["accel"]))
+    if crush[peak] > reach:
+        out["peak_decel_g"] = slope * (crush[peak] - reach) / mass / G0
+    return out
 
 
 def _sensitivities(

@@ -1,5 +1,5 @@
 """crashnlp from Python: identify the synthetic pickup, look at the result, simulate a
-faster impact with the identified parameters, and run a what-if study.
+faster impact with the identified vehicle, and run a what-if study.
 
 Run from the repository root: `python examples/quickstart.py` (the test suite runs it).
 """
@@ -19,8 +19,9 @@ def main() -> None:
     result.save("results/pickup-56kph")  # the files `crashnlp identify` writes
 
     faster = problem.with_values({"vehicle.speed": "64 km/h"})  # a new problem; `problem` is unchanged
-    sims = crashnlp.simulate(faster, params=result.parameters)
-    print("max crush at 64 km/h (m):", sims["56kph"]["crush_m"].max())  # name -> array, per test
+    test = crashnlp.simulate(faster, params=result)["56kph"]  # the identified vehicle, with 95 % intervals
+    print("max crush at 64 km/h (m):", test["crush_m"].max(), test.intervals["max_crush_m"])  # name -> array, per test
+    print("past the fitted range:", test.extrapolation)
 
     table = crashnlp.study("problems/studies/pitch-bound.yaml", executor="local")
     for row in table:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 from builders import ROOT, merge
@@ -148,3 +150,22 @@ def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_c
     (integrated,) = case_pulses(accel_only)
     assert integrated.max_crush == pytest.approx(measured.max_crush, rel=0.01)
     assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_crush, rel=0.01)
+
+
+def test_tests_at_two_speeds_estimate_the_damper_one_speed_does_not(tmp_path):
+    from bench.corpus import measured, random_vehicle, simulate, write_csv
+    from bench.robustness import minimal_problem
+
+    v = random_vehicle(1, 2030)
+    raw = minimal_problem(v, "a.csv")
+    write_csv(tmp_path / "a.csv", measured(v, simulate(v)))
+    one = Case(problem_from_dict(raw, tmp_path)).problem
+    assert "model.damper.values" not in one.estimate
+    faster = dataclasses.replace(v, speed=1.3 * v.speed)
+    write_csv(tmp_path / "b.csv", measured(faster, simulate(faster)))
+    second = merge(raw["tests"][0], {"name": "t2", "speed": faster.speed, "data": {"file": "b.csv"}})
+    two = Case(
+        problem_from_dict({**raw, "vehicle": {**raw["vehicle"], "speed": None}, "tests": [raw["tests"][0], second]}, tmp_path)
+    )
+    lo, hi = two.problem.estimate["model.damper.values"].bounds
+    assert lo == 0.0 and hi > two.problem.model.damper.values[0] > 0.0  # the nominal damper inside its bounds

@@ -76,6 +76,9 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
     assert np.all(band_low <= prediction.response["accel"]) and np.all(prediction.response["accel"] <= band_high)
     slower = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
     assert slower.extrapolation == {}
+    # past the fitted crush the force is the tail rule's guess: the interval widens beyond the parameters' share
+    width = lambda t: np.diff(t.intervals["max_crush_m"])[0] / t.metrics["max_crush_m"]  # noqa: E731
+    assert width(prediction) > 1.5 * width(slower)
     # a faster impact crushes more: the identified vehicle is one physical vehicle at both speeds
     assert prediction.metrics["max_crush_m"] > slower.metrics["max_crush_m"]
 
@@ -132,3 +135,14 @@ def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():
     kinked = np.where(bps > 0.4, 1e6 + 4e6 * (bps - 0.4), 2.5e6 * bps)
     rows = prior.matrix @ kinked
     assert np.count_nonzero(np.abs(rows) > 1e-9) == 1  # the one kink, at its breakpoint
+
+
+def test_the_tail_rule_error_is_zero_on_a_straight_curve_and_measures_a_miss():
+    from crashnlp.prediction import tail_error
+
+    x = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
+    assert tail_error(x, 1e6 * x) == pytest.approx(0.0, abs=1e-12)
+    assert tail_error(x, np.full(5, 1e5)) == pytest.approx(0.0, abs=1e-12)  # flat: held
+    # steps the rule cannot see: each of its three predictions misses by 1e5 N, mean force 1.5e5 N
+    f = np.array([0.0, 1e5, 1e5, 2e5, 2e5])
+    assert tail_error(x, f) == pytest.approx(1e5 / 1.5e5)
