@@ -18,7 +18,9 @@ from typing import Any
 import casadi as ca
 
 Expr = Any  # a CasADi SX or MX expression (their stubs do not mix the two in arithmetic)
-TAIL_EPS = 1e3  # smoothing of the tail's slope (values per metre: N/m, or N/m^2 for secant stiffnesses)
+# smoothing of the tail's slope (values per metre: N/m, or N/m^2 for secant stiffnesses): at a slope
+# of 1 MN/m it adds 2.5 kN/m; much narrower, the tail is a kink in the values that fits and designs stall on
+TAIL_EPS = 1e5
 
 
 def hinge(z: Expr, eps: float) -> Expr:
