@@ -9,8 +9,7 @@ The given problem is never changed. What is filled, and how:
   every segment of the force-crush curve the same share of the crush range, and the data
   reach every breakpoint: a breakpoint past the largest crush would carry a value the data
   barely see, which a fit runs to where model-form error pulls it and a prediction at a
-  higher speed then meets. Past the last breakpoint the spring law continues its last
-  segment, or holds its force where that segment falls (crashnlp.model.laws.rising_tail).
+  higher speed then meets. Past the last breakpoint the spring law continues its last segment.
 - `values` omitted: the measured force-crush curve while loading (impact to largest crush),
   m |a| minus the damper's force, against the crush, averaged over the crush band nearest
   each breakpoint (halfway to its neighbours). A band the data do not reach takes the

@@ -10,7 +10,7 @@ The intervals propagate two sources of error to every crash metric and response 
   relative amount, and each channel by its RMSE; that miss, root mean square over the tests,
   is added in quadrature, scaled to the predicted value;
 - the force past the fitted crush, which no test measured: the loading curve continues its
-  last segment there (crashnlp.model.laws.rising_tail), and how well that rule predicts is
+  last segment there (crashnlp.model.laws), and how well that rule predicts is
   measured on the identified curve itself, breakpoint by breakpoint inside the data
   (`tail_error`). That relative error of the force, grown in proportion to the distance past
   the fitted crush over the breakpoint spacing, moves the max crush (by the energy it adds or
@@ -137,12 +137,12 @@ def _uncertainty(
 def tail_error(breakpoints: np.ndarray, values: np.ndarray) -> float:
     """The relative error of the tail rule on the identified loading curve: at each breakpoint
     from the third on, the force the curve's two breakpoints before it predict (continuing
-    their segment, or holding its force where it falls) against the curve's own, relative to
+    their segment) against the curve's own, relative to
     the curve's mean force; root mean square over the breakpoints."""
     x, f = np.asarray(breakpoints, float), np.asarray(values, float)
     if x.size < 3:
         return 0.0
-    slope = np.maximum(np.diff(f[:-1]) / np.diff(x[:-1]), 0.0)
+    slope = np.diff(f[:-1]) / np.diff(x[:-1])
     predicted = f[1:-1] + slope * np.diff(x[1:])
     scale = max(float(np.mean(np.abs(f[1:]))), 1.0)
     return float(np.sqrt(np.mean(((f[2:] - predicted) / scale) ** 2)))

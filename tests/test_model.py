@@ -215,32 +215,3 @@ def test_compiled_evaluation_equals_the_virtual_machine(monkeypatch, tmp_path):
     monkeypatch.delenv(SWITCH_ENV)
     c_batch = simulate_batch(make_case().model, P, case.tests[0].speed, 0.1, 5e-4, jit=True)
     np.testing.assert_allclose(c_batch["accel"], vm_batch["accel"], rtol=1e-10, atol=1e-9)
-
-
-@pytest.mark.parametrize("law", ["force", "secant"])
-def test_past_the_last_breakpoint_the_curve_never_falls_and_its_energy_is_its_integral(law):
-    import casadi as ca
-
-    from crashnlp.model.laws import SPRING_LAWS, TAIL_EPS
-
-    bps = [0.0, 0.2, 0.4, 0.6]
-    rising, falling = [0.0, 4e5, 5e5, 7e5], [0.0, 4e5, 5e5, 3e5]
-    if law == "secant":  # stiffnesses: the same shapes in N/m
-        rising, falling = [2e6, 2e6, 1.25e6, 1.2e6], [2e6, 2e6, 1.25e6, 0.5e6]
-    x = ca.SX.sym("x")
-    curve = {
-        name: ca.Function(name, [x], list(SPRING_LAWS[law](x, bps, v, 0.0))) for name, v in (("up", rising), ("down", falling))
-    }
-    past = np.linspace(0.6, 1.2, 61)
-    force_down = np.array([float(curve["down"](xi)[0]) for xi in past])
-    force_up = np.array([float(curve["up"](xi)[0]) for xi in past])
-    assert np.all(np.diff(force_down) >= -1e-6 * force_down[0])  # a falling last segment turns flat
-    if law == "force":
-        assert force_down[-1] == pytest.approx(falling[-1], abs=TAIL_EPS)  # flat, to the smoothing
-        assert force_up[-1] == pytest.approx(7e5 + 1e6 * 0.6, abs=TAIL_EPS)  # a rising one continues
-    grid = np.linspace(0.0, 1.2, 2401)
-    for name in ("up", "down"):
-        f = np.array([float(curve[name](xi)[0]) for xi in grid])
-        energy = np.array([float(curve[name](xi)[1]) for xi in grid])
-        trapezoid = np.concatenate([[0.0], np.cumsum(0.5 * (f[1:] + f[:-1]) * np.diff(grid))])
-        assert np.max(np.abs(energy - energy[0] - trapezoid)) <= 1e-4 * trapezoid[-1]

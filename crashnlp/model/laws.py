@@ -18,9 +18,6 @@ from typing import Any
 import casadi as ca
 
 Expr = Any  # a CasADi SX or MX expression (their stubs do not mix the two in arithmetic)
-# smoothing of the tail's slope (values per metre: N/m, or N/m^2 for secant stiffnesses): at a slope
-# of 1 MN/m it adds 2.5 kN/m; much narrower, the tail is a kink in the values that fits and designs stall on
-TAIL_EPS = 1e5
 
 
 def hinge(z: Expr, eps: float) -> Expr:
@@ -36,63 +33,49 @@ def hinge_integral(z: Expr, eps: float) -> Expr:
     return 0.25 * (z * z + z * r + eps * eps * ca.log((z + r) / eps))
 
 
-def _pieces(bps, vals, tail: bool = False):
-    """Slopes of the segments, and the (breakpoint, slope change) of each kink: at the interior
-    breakpoints, and with `tail` at the last one too, where a falling last segment turns flat
-    (`rising_tail`)."""
+def _pieces(bps, vals):
+    """Slopes of the segments and their changes at interior breakpoints."""
     n = len(bps)
     slopes = [(vals[i + 1] - vals[i]) / (bps[i + 1] - bps[i]) for i in range(n - 1)]
-    kinks = [(bps[i], slopes[i] - slopes[i - 1]) for i in range(1, n - 1)]
-    if tail:
-        kinks.append((bps[-1], rising_tail(slopes[-1]) - slopes[-1]))
+    kinks = [slopes[i] - slopes[i - 1] for i in range(1, n - 1)]
     return slopes, kinks
 
 
-def rising_tail(slope: Expr) -> Expr:
-    """The slope past the last breakpoint: the last segment's where it rises, else zero
-    (smoothed over TAIL_EPS). A crushed front end past the crush its curve describes does not
-    give way: a falling last segment, continued, would let the vehicle run through the wall."""
-    return hinge(slope, TAIL_EPS)
-
-
-def piecewise_linear(x: Expr, bps, vals, eps: float, tail: bool = False) -> Expr:
-    """Interpolant through (bps, vals), exact at bps[0], continued linearly before it and past
-    the last breakpoint (there with `rising_tail` when `tail`)."""
-    slopes, kinks = _pieces(bps, vals, tail)
+def piecewise_linear(x: Expr, bps, vals, eps: float) -> Expr:
+    """Interpolant through (bps, vals), extrapolated linearly, exact at bps[0]."""
+    slopes, kinks = _pieces(bps, vals)
     f = vals[0] + slopes[0] * (x - bps[0])
-    for b, dk in kinks:
+    for b, dk in zip(bps[1:-1], kinks):
         f += dk * (hinge(x - b, eps) - hinge(bps[0] - b, eps))
     return f
 
 
-def piecewise_linear_integral(x: Expr, bps, vals, eps: float, tail: bool = False) -> Expr:
+def piecewise_linear_integral(x: Expr, bps, vals, eps: float) -> Expr:
     """Integral of `piecewise_linear` from bps[0] to x."""
-    slopes, kinks = _pieces(bps, vals, tail)
+    slopes, kinks = _pieces(bps, vals)
     dx = x - bps[0]
     f = vals[0] * dx + 0.5 * slopes[0] * dx * dx
-    for b, dk in kinks:
+    for b, dk in zip(bps[1:-1], kinks):
         f += dk * (hinge_integral(x - b, eps) - hinge_integral(bps[0] - b, eps) - hinge(bps[0] - b, eps) * dx)
     return f
 
 
 def force_law(x: Expr, bps, vals, eps: float) -> tuple[Expr, Expr]:
-    """F(x) piecewise linear over crush breakpoints, never falling past the last one; strain
-    energy is its integral."""
-    return piecewise_linear(x, bps, vals, eps, tail=True), piecewise_linear_integral(x, bps, vals, eps, tail=True)
+    """F(x) piecewise linear over crush breakpoints; strain energy is its integral."""
+    return piecewise_linear(x, bps, vals, eps), piecewise_linear_integral(x, bps, vals, eps)
 
 
 def secant_law(x: Expr, bps, vals, eps: float) -> tuple[Expr, Expr]:
-    """Paper Eq. (1): F = k(x) x with k piecewise linear (secant stiffness), k never falling
-    past the last breakpoint.
+    """Paper Eq. (1): F = k(x) x with k piecewise linear (secant stiffness).
 
     The energy integral int k(s) s ds is exact for eps = 0 and uses the same
     hinge integrals otherwise (first order in eps).
     """
-    k = piecewise_linear(x, bps, vals, eps, tail=True)
-    slopes, kinks = _pieces(bps, vals, tail=True)
+    k = piecewise_linear(x, bps, vals, eps)
+    slopes, kinks = _pieces(bps, vals)
     k0 = vals[0] - slopes[0] * bps[0]
     energy = 0.5 * k0 * x * x + slopes[0] * x**3 / 3
-    for b, dk in kinks:
+    for b, dk in zip(bps[1:-1], kinks):
         h = ca.fmax(x - b, 0)
         energy += dk * (h**3 / 3 + 0.5 * b * h * h - hinge(bps[0] - b, eps) * 0.5 * x * x)
     return k * x, energy
