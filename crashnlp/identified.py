@@ -82,7 +82,6 @@ class IdentifiedModel:
     bounds: tuple[tuple[float, float], ...]
     range: IdentifiedRange
     discrepancy: dict[str, float] = field(default_factory=dict)
-    fitted_channels: tuple[str, ...] = ()
     channel_rmse: dict[str, float] = field(default_factory=dict)
 
     def to_json(self) -> dict[str, Any]:
@@ -96,7 +95,6 @@ class IdentifiedModel:
             "bounds": [[_finite(lo), _finite(hi)] for lo, hi in self.bounds],
             "range": self.range.to_json(),
             "discrepancy": self.discrepancy,
-            "fitted_channels": list(self.fitted_channels),
             "channel_rmse": self.channel_rmse,
         }
 
@@ -114,7 +112,6 @@ class IdentifiedModel:
             bounds,
             IdentifiedRange.from_json(raw["range"]),
             dict(raw.get("discrepancy", {})),
-            tuple(raw.get("fitted_channels", ())),
             dict(raw.get("channel_rmse", {})),
         )
 
@@ -139,7 +136,7 @@ def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem
     given = problem.vehicle.model_fields_set
     vehicle = dict(raw.get("vehicle", {}))
     for key, value in identified.vehicle.items():
-        if key not in given or f"vehicle.{key}" in identified.parameters or _estimated_within(identified, f"vehicle.{key}"):
+        if key not in given or _estimated(identified, f"vehicle.{key}"):
             vehicle[key] = value
     raw["vehicle"] = vehicle
     raw["model"] = identified.model
@@ -147,8 +144,9 @@ def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem
     return problem_from_dict(raw, problem.base_dir, source)
 
 
-def _estimated_within(identified: IdentifiedModel, prefix: str) -> bool:
-    return any(path.startswith(prefix + ".") for path in identified.parameters)
+def _estimated(identified: IdentifiedModel, path: str) -> bool:
+    """Whether the fit estimated the entry at `path` or one inside it (vehicle.suspension.k_front)."""
+    return any(p == path or p.startswith(path + ".") for p in identified.parameters)
 
 
 def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, source: str) -> None:

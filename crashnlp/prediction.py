@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -63,18 +64,19 @@ class PredictedTest(Mapping[str, np.ndarray]):
     extrapolation: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
 
+    @cached_property
     def _arrays(self) -> dict[str, np.ndarray]:
         r = self.response
         return {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}}
 
     def __getitem__(self, key: str) -> np.ndarray:
-        return self._arrays()[key]
+        return self._arrays[key]
 
     def __iter__(self) -> Iterator[str]:
-        return iter(self._arrays())
+        return iter(self._arrays)
 
     def __len__(self) -> int:
-        return len(self._arrays())
+        return len(self._arrays)
 
 
 def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | None = None) -> dict[str, PredictedTest]:
@@ -89,7 +91,7 @@ def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | N
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics)
             continue
-        intervals, bands, notes = _uncertainty(case, test, p, response, metrics, identified, dt)
+        intervals, bands, notes = _uncertainty(case, test, p, mass, response, metrics, identified, dt)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, intervals, bands, beyond, notes)
     return out
@@ -99,6 +101,7 @@ def _uncertainty(
     case: Case,
     test: TestCase,
     p: np.ndarray,
+    mass: float,
     response: Response,
     metrics: dict[str, float | None],
     identified: IdentifiedModel,
@@ -114,12 +117,13 @@ def _uncertainty(
     cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
     intervals: dict[str, tuple[float, float] | None] = {}
     notes = []
-    past = _past_the_fitted_crush(response, identified, float(p[case.layout.index("vehicle.mass")][0]))
+    past = _past_the_fitted_crush(response, identified, mass)
     for i, key in enumerate(INTERVAL_METRICS):
         value, miss = metrics.get(key), identified.discrepancy.get(key)
-        if value is None or miss is None or not np.isfinite(value):
+        if value is None or not np.isfinite(value) or miss is None:
             intervals[key] = None
-            notes.append(f"{test.name}: no interval for {key}: no fitted test measured it")
+            why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
+            notes.append(f"{test.name}: no interval for {key}: {why}")
             continue
         half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + (miss * value) ** 2 + past.get(key, 0.0) ** 2)
         intervals[key] = (float(value - half), float(value + half))

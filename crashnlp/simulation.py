@@ -38,9 +38,6 @@ class Response:
             return float("nan")
         return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.time[k - 1 : k + 1]))
 
-    def write_csv(self, path: Path) -> None:
-        write_response_csv(path, self.time, self.outputs)
-
 
 def write_response_csv(
     path: Path, time: np.ndarray, outputs: dict[str, np.ndarray], extra: dict[str, np.ndarray] | None = None

@@ -77,7 +77,6 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         bounds=tuple(zip(free.lower.tolist(), free.upper.tolist())),
         range=IdentifiedRange(reach, _span([t.speed for t in case.tests]), _span(masses)),
         discrepancy=_discrepancy(tests),
-        fitted_channels=tuple(sorted({r.channel for r in solution.residuals})),
         channel_rmse=_channel_rmse(tests),
     )
 
