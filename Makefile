@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test fuzz lint identify simulate study design bench readme-figures clean
+.PHONY: demo test fuzz lint docs identify simulate study design bench readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -50,11 +50,20 @@ FUZZ_SEED ?= 14
 fuzz: $(STAMP)
 	CRASHNLP_FUZZ_RUNS=$(FUZZ_RUNS) CRASHNLP_FUZZ_SEED=$(FUZZ_SEED) CRASHNLP_FUZZ_SECONDS=3600 $(BIN)/python -m pytest -s tests/test_fuzz.py
 
+# the documentation site into site/, warnings as errors; the tutorial notebook is executed in the build
+DOCS_STAMP := $(VENV)/.installed-docs
+$(DOCS_STAMP): $(STAMP) pyproject.toml
+	$(BIN)/pip install -q -e ".[test,docs]"
+	touch $(DOCS_STAMP)
+
+docs: $(DOCS_STAMP)
+	CRASHNLP_COMPILE=model NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
+
 lint: $(STAMP)
 	$(BIN)/ruff check crashnlp tests bench examples
 	$(BIN)/ruff format --check crashnlp tests bench examples
 	$(BIN)/mypy
 
 clean:
-	rm -rf $(VENV) .pytest_cache
+	rm -rf $(VENV) .pytest_cache site
 	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.md' ! -name 'bench.json' ! -name 'bench-scaling.png' -exec rm -rf {} +
