@@ -484,133 +484,6 @@ def corpus_md(r: dict) -> list[str]:
     ]
 
 
-def _batch_best(b: dict) -> float:
-    """Fastest batch run (the compiled mode was called "jit" before)."""
-    return min(v["wall_s"] for k, v in b.items() if k in ("vm", "jit", "compiled"))
-
-
-def _scaling_wall(r: dict, method: str, intervals: int) -> str:
-    row = next((x for x in r["intervals"] if x["method"] == method and x["intervals"] == intervals), None)
-    return f"{row['wall_s']:.2f} s ({row['iterations']} it)" if row else ""
-
-
-def comparison(before: dict, after: dict) -> list[list[str]]:
-    """[what, before, after] for the headline numbers of two benchmark runs."""
-    rows = []
-    for method in after.get("identification", {}).get("crashnlp", {}):
-        b, a = before["identification"]["crashnlp"][method], after["identification"]["crashnlp"][method]
-        rb, ra = before["identification"]["ratios"][method], after["identification"]["ratios"][method]
-        rows.append(
-            [
-                f"identify pickup-56kph, {method}",
-                f"{b['wall_s']:.2f} s ({b['ipopt_s']:.2f} s IPOPT, {b['iterations']} it)",
-                f"{a['wall_s']:.2f} s ({a['ipopt_s']:.2f} s IPOPT, {a['iterations']} it)",
-            ]
-        )
-        rows.append(
-            [
-                f"  against the scipy baseline ({method})",
-                f"{rb['speedup']:.1f}x, objective {rb['objective_ratio']:.4f} of its",
-                f"{ra['speedup']:.1f}x, objective {ra['objective_ratio']:.4f} of its",
-            ]
-        )
-    if "simulation" in after:
-        sb, sa = before["simulation"], after["simulation"]
-        rows.append(
-            [
-                "one simulation, states and outputs",
-                f"{1e3 * sb['single']['crashnlp_s']:.1f} ms ({sb['single']['speedup']:.1f}x)",
-                f"{1e3 * sa['single']['crashnlp_s']:.1f} ms ({sa['single']['speedup']:.1f}x)",
-            ]
-        )
-        rows.append(
-            [f"{sa['batch']['n']} batched simulations", f"{_batch_best(sb['batch']):.2f} s", f"{_batch_best(sa['batch']):.2f} s"]
-        )
-    if "studies" in after and "studies" in before:
-        walls_b, walls_a = _pitch_bound_walls(before["studies"]), _pitch_bound_walls(after["studies"])
-        for serial in (False, True):
-            label = "serial maps" if serial else "as shipped"
-            rows.append(
-                [
-                    f"pitch-bound study, 1 / 2 workers ({label})",
-                    f"{walls_b[1, serial]:.1f} s / {walls_b[2, serial]:.1f} s",
-                    f"{walls_a[1, serial]:.1f} s / {walls_a[2, serial]:.1f} s",
-                ]
-            )
-    if "scaling" in after:
-        for method in ("multiple-shooting", "collocation"):
-            rows.append(
-                [
-                    f"identify at 800 intervals, {method}",
-                    _scaling_wall(before["scaling"], method, 800),
-                    _scaling_wall(after["scaling"], method, 800),
-                ]
-            )
-    if "whole_process" in after and "whole_process" in before:
-        for key, label in (("warm", ""), ("warm_no_figures", " --no-figures")):
-            b, a = before["whole_process"][key], after["whole_process"][key]
-            rows.append(
-                [
-                    f"`crashnlp identify pickup-56kph`{label}, whole process",
-                    f"{b['wall_s']:.2f} s, {b['peak_rss_mb']:.0f} MB",
-                    f"{a['wall_s']:.2f} s, {a['peak_rss_mb']:.0f} MB",
-                ]
-            )
-    return rows
-
-
-def _pitch_bound_walls(r: dict) -> dict[tuple[int, bool], float]:
-    """(workers, serial maps) -> wall time of the pitch-bound runs, in either layout of the section."""
-    runs = r["runs"] if "runs" in r else r["pitch_bound"].values()
-    return {(x["workers"], x.get("serial_maps", False)): x["wall_s"] for x in runs}
-
-
-CHANGES = [
-    "A compiled NLP (`crashnlp/optimize/oracle.py`): every number that changes between runs (data, fixed model values, impact "
-    "speeds, variable and defect scales) is an NLP parameter, so IPOPT's functions depend on the problem's shape only; they "
-    "are compiled to C once per shape and machine, in the background after the first run, and loaded by every later run, "
-    "study case and profile of that shape. Same bits as CasADi's virtual machine.",
-    "The structured Jacobian differentiates only the inputs that depend on the decision variables (not the fixed values "
-    "beside theta), and the covariance's sensitivities are compiled with the solver's functions.",
-    "ISO 18571 in numpy (`crashnlp/rating.py`), equal to objective-rating-metrics to 1e-15: no numba, dtwalign, seaborn or "
-    "scipy at run time (4 ratings 2.2 s -> 0.03 s, 300 MB less memory).",
-    "The J211 filter and the sensitivity solve without scipy; pint's conversions remembered in the cache; figures with fixed "
-    "margins (tight_layout drew each twice), drawn by a process forked before the solve, which imports matplotlib meanwhile.",
-    "Study scheduling (`crashnlp/studies/schedule.py`): a case starts as soon as the case it warm-starts from is solved, "
-    "critical path first, on the worker that solved its parent when that one is free, instead of wave by wave; the "
-    "figures are drawn on the workers; the worker skips the ISO/TS 18571 ratings no table column uses; unit strings are "
-    "parsed once (checking a case: 30 ms -> 4 ms).",
-    "A structured exact Hessian (`crashnlp/derivatives.py`): each interval function's second derivatives, weighted by its "
-    "own adjoints, mapped and laid out block-diagonally like the Jacobian, compiled with the rest. Designs and the exact "
-    "restart of a crawling Gauss-Newton fit leave the VM (7 ms per Hessian on the pickup, 74 ms in the VM).",
-    "Fits stop at IPOPT tol 1e-5 instead of 1e-8, and step at most 80 % of the way to a bound instead of 99 % "
-    "(`crashnlp/optimize/solve.py`, FIT_OPTIONS): Gauss-Newton converges linearly near a fit that leaves residuals, and "
-    "its last quarter of iterations moved no parameter of the shipped fits by 5e-6 of its standard error; weakly "
-    "determined parameters jumped to 99 % of a bound in one step, the shooting defects opened and the fit wandered. "
-    "The corpus: 30 of 30 identified, 28 s for all (245 s), v06 907 -> 32 iterations.",
-    "The figure process forks as the command starts, before CasADi, pydantic and the problem are imported; it gets the "
-    "figures as plain data and draws them on every core; `simulate` uses it too. crashnlp's bytecode is written at "
-    "install (PYTHONDONTWRITEBYTECODE on the benchmark machine made every process compile it: 0.1 s).",
-    "The constraint Jacobian differentiates only the output rows a constraint reads (`crashnlp/derivatives.py`; the "
-    "monotone-crush and pitch-bound constraints read one of 14 outputs per node): 1.63 -> 1.36 ms per call compiled. The "
-    "Gauss-Newton Hessian keeps every row (its sparser form changed MUMPS's pivoting on a near-singular joint fit). The "
-    "iteration callback reads x and g only, and the compiler is looked up once per process.",
-]
-
-
-def before_after_md(before: dict, after: dict) -> list[str]:
-    return [
-        "## Before and after this round of fixes",
-        "",
-        "Before: `results/bench-before.json`, the same benchmarks on the code as it stood. What changed:",
-        "",
-        *(f"- {c}" for c in CHANGES),
-        "",
-        *_table(["what", "before", "after"], comparison(before, after)),
-        "",
-    ]
-
-
 def self_consistency_md(r: dict) -> list[str]:
     rows = [
         [
@@ -677,7 +550,7 @@ SECTIONS = {
 }
 
 
-def markdown(results: dict, before: dict | None = None) -> str:
+def markdown(results: dict) -> str:
     m = results.get("machine", {})
     lines = [
         "# crashnlp benchmarks",
@@ -690,8 +563,6 @@ def markdown(results: dict, before: dict | None = None) -> str:
         *_table(["target", "measured", "result"], [[t, v, _met(ok)] for t, v, ok in targets(results)]),
         "",
     ]
-    if before and not results.get("quick"):
-        lines += before_after_md(before, results)
     for name, fn in SECTIONS.items():
         if name in results:
             lines += fn(results[name])
@@ -699,8 +570,8 @@ def markdown(results: dict, before: dict | None = None) -> str:
 
 
 def write(results: dict, json_path: Path, md_path: Path) -> None:
-    """All numbers to `json_path`, the summary to `md_path` (compared with `bench-before.json` beside it, if there)."""
+    """All numbers to `json_path`, the targets and tables of this run to `md_path` (how the numbers moved
+    from round to round is CHANGELOG.md's)."""
     json_path.parent.mkdir(parents=True, exist_ok=True)
     json_path.write_text(json.dumps(results, indent=2, default=float))
-    before = json_path.with_name("bench-before.json")
-    md_path.write_text(markdown(results, json.loads(before.read_text()) if before.exists() else None))
+    md_path.write_text(markdown(results))
