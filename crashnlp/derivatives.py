@@ -192,9 +192,9 @@ class Derivatives:
     def gauss_newton(self, residuals: ca.MX, rest: ca.MX, ng: int) -> ca.Function:
         """nlpsol's `hess_lag` for f = |residuals|^2 + rest: lam_f (2 J^T J + hess(rest)). J has
         every row of the output blocks the residuals use: dropping the other outputs' rows gives
-        the same values but a sparser Hessian, and MUMPS then pivoted the near-singular KKT
-        systems of a joint collocation fit (pickup at 56 and 40 km/h, 200 intervals) otherwise:
-        63 iterations became a failure after 300."""
+        the same values but a sparser Hessian, with which MUMPS pivots the near-singular KKT
+        systems of joint fits otherwise and can fail where this one converges
+        (docs/design-notes.md)."""
         J = self.jacobian(residuals, every_row=True)
         H = 2 * ca.mtimes(J.T, J) + ca.hessian(rest, self.z)[0]
         lam_f, lam_g = ca.MX.sym("lam_f"), ca.MX.sym("lam_g", ng)

@@ -41,14 +41,13 @@ class SolveResult:
 
 # Gauss-Newton's slow tail. Near a fit that leaves large residuals, or along a weakly determined
 # direction, Gauss-Newton converges only linearly: on pickup-40kph every primal step is 0.91 of
-# the one before, and it took 113 iterations where the exact Hessian, started from where
+# the one before, and it takes 113 iterations where the exact Hessian, started from where
 # Gauss-Newton had got to, needs 1 or 2. The tail: TAIL_RUN ratios of successive steps in a
 # row between TAIL_RATIO and 1 and within TAIL_SPREAD of each other, the last step below
 # TAIL_STEP in the scaled variables, the constraints met to TAIL_VIOLATION. A contraction of
 # 0.5 or slower gains a digit in 3.3 iterations or more; Newton gains them quadratically once
-# this close. The ratio must be steady: steps that shrink unevenly (0.75, 0.70, 0.83 on corpus
-# vehicle v10, before the first node was exact) were Gauss-Newton leaving a point, not
-# closing in on it.
+# this close. The ratio must be steady: steps that shrink unevenly are Gauss-Newton leaving a
+# point, not closing in on it. The measurements behind these numbers: docs/design-notes.md.
 TAIL_RATIO, TAIL_SPREAD, TAIL_RUN, TAIL_STEP, TAIL_VIOLATION = 0.5, 0.02, 3, 3e-2, 1e-4
 TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail takes 2 to 4 iterations
 
@@ -132,24 +131,19 @@ def slow_tail(steps: list[float]) -> bool:
     return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
 
 
-# IPOPT's options for a least-squares fit (designs keep IPOPT's own):
+# IPOPT's options for a least-squares fit (designs keep IPOPT's own); the measurements behind
+# them, and the options screened beside them, are in docs/design-notes.md ("IPOPT options of a fit"):
 # - tol 1e-5: near a fit that leaves residuals Gauss-Newton converges linearly (the KKT error
 #   falls about 3x per iteration on the pickup); from 1e-5 to 1e-8 a quarter of the iterations
 #   moved the shipped fits' parameters by less than 5e-6 of their standard errors.
 # - tau_min 0.8: early steps go at most 80 % of the way to a bound, not 99 %. Gauss-Newton
 #   sends weakly determined parameters (the unloading stiffness, spring values beyond the
-#   largest crush) toward their bounds; at 99 % in one step (corpus vehicle v08: 38 -> 198 MN/m
-#   of 200) the dynamics changed so much that the shooting defects opened and the iterates
-#   wandered for hundreds of iterations. Corpus: 150 s -> 28 s (v06 907 -> 32 iterations, v08
-#   320 -> 19), the shipped fits and the pickup's noisy replicates within 3 iterations of before,
-#   at the same optima. Designs took 8 times the iterations with it, so they keep 0.99.
-# - IPOPT's own barrier rule (the quality function). LOQO's rule, which skips the extra solves
-#   that choose mu, took the pickup from 16 to 12 Gauss-Newton iterations and the corpus from
-#   1422 to 1274, but on fits held by a pitch bound far below the free fit's (4 degrees against
-#   9, the spring's breakpoints crossed inside 9 mm RK4 steps) Gauss-Newton then cycled where
-#   it had converged: a corner of the shipped 16-case grid 27 -> 519 iterations, and 2 workers
-#   no longer 1.7 times as fast as one. Mehrotra's probing (one corpus vehicle 1220) and LOQO
-#   with tau_min 0.95 (the corpus 2017) did no better.
+#   largest crush) toward their bounds; a step to 99 % of a bound changes the dynamics so much
+#   that the shooting defects open and the iterates wander for hundreds of iterations. Designs
+#   take many times the iterations with it, so they keep 0.99.
+# - IPOPT's own barrier rule (the quality function). LOQO's rule saves iterations on most fits,
+#   but on fits held by a pitch bound far below the free fit's (the spring's breakpoints crossed
+#   inside 9 mm RK4 steps) Gauss-Newton cycles with it where it converges with this one.
 FIT_OPTIONS: dict[str, Any] = {"tol": 1e-5, "tau_min": 0.8}
 
 
@@ -225,10 +219,8 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, warm: boo
 
 
 AUTO_GAUSS_NEWTON_ITER = 300  # Gauss-Newton iterations `auto` allows before it starts over with the exact Hessian
-# where IPOPT fails with the Gauss-Newton Hessian, the exact one starts over instead of the fit
-# failing: seen on a joint fit of the pickup at 56 and 40 km/h by collocation (a failed
-# restoration after 32 Gauss-Newton iterations, then 73 exact) with a variant of the contact
-# force that was not adopted (README, last round)
+# where IPOPT fails with the Gauss-Newton Hessian (a failed restoration or step computation),
+# the exact one starts over from the initial guess instead of the fit failing
 GAUSS_NEWTON_FAILURES = ("Restoration_Failed", "Error_In_Step_Computation")
 # Newton from where Gauss-Newton's tail began: IPOPT takes the iterate and its multipliers as
 # they are, with a barrier already at its floor.
@@ -282,8 +274,8 @@ def solve(
 def finishes(tail: SolveResult, newton: SolveResult) -> bool:
     """Whether Newton, started in Gauss-Newton's tail, finished the same fit: converged, and
     to a lower objective or within TAIL_REACH times the distance the tail had still to go.
-    On corpus vehicle v10 (before the first node was exact) Newton converged from the tail
-    to another KKT point, 134 times that distance away, at an objective 11 % higher."""
+    Started from a tail, Newton can also converge to another KKT point, far away and at a
+    higher objective: that is not the fit Gauss-Newton was closing in on."""
     if not newton.converged or tail.tail is None:
         return False
     moved = float(np.max(np.abs(newton.z - tail.z), initial=0.0))

@@ -37,7 +37,7 @@ class CaseStore:
         row = stored.get("row")
         if not isinstance(row, dict) or not isinstance(row.get("status"), str):
             return None
-        size = stored.get("vector", -1)  # -1: written before sizes were stored; check the file if there
+        size = stored.get("vector", -1)  # -1: a row stored without its size; check the file if there
         if size is None:
             return row
         z = self.vector(case)

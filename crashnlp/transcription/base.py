@@ -70,10 +70,10 @@ class Transcription(ABC):
         start(theta, speed) the state just after impact.
 
         The first node is that state itself, not a variable held to it: held only to IPOPT's
-        tolerance, its crush was +-1e-12, and where the front end carries a force at zero
-        crush (spring.values[0] > 0) that sign switched the contact force on or off. The
-        objective then jumped by 16 % for a change of 1e-12 in any variable, and corpus vehicle
-        v10's fit sat on the jump. The forward simulation starts from the same exact state.
+        tolerance, its crush would be +-1e-12, and where the front end carries a force at zero
+        crush (spring.values[0] > 0) that sign would switch the contact force on or off, a jump
+        in the objective for a change of 1e-12 in any variable. The forward simulation starts
+        from the same exact state.
         The defects are divided by the state scales (an NLP parameter, from the guess)."""
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
