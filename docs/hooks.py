@@ -1,9 +1,10 @@
 """mkdocs hooks of the crashnlp site (mkdocs.yml `hooks:`).
 
 - The problem-file reference (`reference/problem-file.md`) is generated from the JSON Schema of
-  the top-level `crashnlp.problem.Problem` (the one `crashnlp schema` prints): every key by
-  dotted path, its type, SI unit, default and description. Only the JSON Schema is read, never
-  the schema module's class names, so the page follows any refactoring of the pydantic models.
+  problem files (what `crashnlp schema` prints: the pydantic schema of the top-level
+  `crashnlp.problem.Problem`): every key by dotted path, its type, SI unit, default and
+  description. Only the JSON Schema is read, never the schema module's class names, so the page
+  follows any refactoring of the pydantic models.
 - The figures under results/readme/ and results/bench-scaling.png, CHANGELOG.md and
   results/bench.md live outside docs/; they are added to the site as generated files, so the
   pages link them by their site paths (figures/..., changelog.md, bench-results.md).
@@ -13,6 +14,8 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
+import sys
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -50,17 +53,28 @@ def _page(path: Path) -> str:
 
 
 # --------------------------------------------------------------------------- problem-file reference
-def problem_reference() -> str:
+def file_schema() -> dict:
+    """The JSON Schema of problem files: what `crashnlp schema` prints, else the pydantic schema of
+    `crashnlp.problem.Problem` it is made from."""
+    command = Path(sys.executable).with_name("crashnlp")
+    if command.exists():
+        run = subprocess.run([str(command), "schema"], capture_output=True, text=True, check=False)
+        if run.returncode == 0:
+            return dict(json.loads(run.stdout))
     from crashnlp.problem import Problem
 
-    schema = Problem.model_json_schema()
+    return Problem.model_json_schema()
+
+
+def problem_reference() -> str:
+    schema = file_schema()
     rows: list[list[str]] = []
     _walk(schema, schema, "", rows, set(), _shipped_units())
     lines = [
         "# Problem-file reference",
         "",
-        "Generated at each docs build from the JSON Schema of `crashnlp.problem.Problem`, the one",
-        "`crashnlp schema` prints for editors. Keys are dotted paths (`tests[]` is every entry of the",
+        "Generated at each docs build from the JSON Schema that `crashnlp schema` prints for editors",
+        "(the pydantic schema of `crashnlp.problem.Problem`). Keys are dotted paths (`tests[]` is every entry of the",
         "list `tests`). Plain numbers are SI; a quantity also accepts a string with units",
         '("56 km/h", "70 kN/m"). The unit column is the SI unit a quantity is stored in.',
         "See [Problem files](../problem-files.md) for a worked example and what may be left out.",
