@@ -304,7 +304,7 @@ def simulation_md(r: dict) -> list[str]:
 
 def studies_md(r: dict) -> list[str]:
     if "grid_16" not in r:
-        return ["## Studies", "", r.get("skipped", "(an earlier layout of this section)"), ""]
+        return ["## Studies", "", r.get("skipped", "(no 16-case grid in these results)"), ""]
     c, g = r["case"], r["grid_16"]["1 worker, serial maps"]
     return [
         "## Studies",
