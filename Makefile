@@ -57,6 +57,7 @@ $(DOCS_STAMP): $(STAMP) pyproject.toml
 	touch $(DOCS_STAMP)
 
 docs: $(DOCS_STAMP)
+	@test $$(wc -l < README.md) -le 200 || { echo "README.md has more than 200 lines: the guide belongs in docs/"; exit 1; }
 	CRASHNLP_COMPILE=model NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
