@@ -76,8 +76,8 @@ def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], t
 
 def profiles(solution, executor=None) -> dict[str, dict]:
     """Profile intervals of the parameters the problem's `uncertainty.profile` names."""
-    from crashnlp.studies.executors import make_executor
-    from crashnlp.studies.schedule import map_all
+    from crashnlp.engine.executors import make_executor
+    from crashnlp.engine.schedule import map_all
 
     spec = solution.case.problem.uncertainty
     if not spec.profile or solution.covariance is None or solution.result is None:

@@ -20,19 +20,19 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
+from crashnlp.engine import CONNECT_TIMEOUT
+from crashnlp.engine.executors import default_workers, make_executor, start_early
+from crashnlp.engine.schedule import run_tree
 from crashnlp.errors import InputError
 from crashnlp.jsonfile import clean
-from crashnlp.studies import CONNECT_TIMEOUT
-from crashnlp.studies.executors import default_workers, make_executor, start_early
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
-from crashnlp.studies.schedule import run_tree
 from crashnlp.studies.spec import Study, load_study
 from crashnlp.studies.store import CaseStore
 from crashnlp.studies.table import show, write_figures, write_table
 from crashnlp.studies.worker import one_line, solve_job
 
 if TYPE_CHECKING:
-    from crashnlp.studies.executors import Executor
+    from crashnlp.engine.executors import Executor
 
 RESULTS = Path("results")
 
