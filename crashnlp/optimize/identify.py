@@ -8,7 +8,7 @@ from typing import TextIO
 
 import numpy as np
 
-from crashnlp.autoinit import repair_start
+from crashnlp.autoinit import measured_pulse, repaired_start
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
@@ -109,6 +109,28 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
     if solution.ok and solution.verification.problem:
         solution.status = solution.verification.problem
     return solution
+
+
+def repair_start(case: Case) -> tuple[Case, str | None]:
+    """A start that leaves spring values with a zero derivative although the data reach them,
+    replaced by crashnlp.autoinit.repaired_start: the case from the new start (Case.with_start),
+    and the one line that says so; the case itself and None when its start serves.
+
+    A breakpoint value moves the force from the breakpoint before it on, so it has a zero
+    derivative when the start's crush stops short of that breakpoint; the data reach it when
+    their crush goes past it (an `estimate` entry's own `initial` still wins over it)."""
+    simulated = case.simulate()
+    breakpoints = case.base[case.layout.index("model.spring.crush_breakpoints")][:-1]
+    for test in case.tests:
+        measured = measured_pulse(case.problem, test)
+        model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
+        if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
+            return case.with_start(repaired_start(case.problem, case.tests)), (
+                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
+                f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
+                "measured force-crush curve"
+            )
+    return case, None
 
 
 def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalControl, FitObjective]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.autoinit import case_pulses
+from crashnlp.autoinit import measured_pulses
 from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
 from crashnlp.nlp import NOT_REPORTED
@@ -66,7 +66,7 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
     fitted = case.problem.with_values(solution.parameters)
     mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in
     masses = [float(t.overrides.get("vehicle.mass", mass)) for t in case.tests]
-    pulses = case_pulses(case)
+    pulses = measured_pulses(case.problem, case.tests)
     reach = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
     return IdentifiedModel(
         vehicle=fitted.vehicle.model_dump(mode="json"),
