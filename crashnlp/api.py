@@ -7,7 +7,9 @@
     sims = crashnlp.simulate(faster, params=result)              # test -> PredictedTest (SI arrays)
     sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
 
-The command line is a thin layer over these functions.
+Every solve goes through crashnlp.pipeline (every check, then the steps), as the
+command line's and a study's do; the command line is a thin layer for arguments,
+console and exit codes over that pipeline.
 """
 
 from __future__ import annotations
@@ -40,15 +42,13 @@ def solve(
     warm: np.ndarray | None = None,
     ratings: bool = True,
 ) -> Result:
-    """Identify or design, as the problem's `kind` says; `progress`: a stream for a line every ten
-    IPOPT iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
-    from crashnlp.case import Case
-    from crashnlp.optimize import solve_case
-    from crashnlp.optimize.outcome import result_of
+    """Identify or design, as the problem's `kind` says (crashnlp.pipeline.solve_problem: a problem
+    it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
+    iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
+    from crashnlp.pipeline import solve_problem
 
-    case = Case(_problem(problem))
-    case.check_data()  # a fit to data that contradict the problem's speed is refused, not run
-    return result_of(solve_case(case, verbose=verbose, progress=progress, warm=warm), ratings)
+    source = None if isinstance(problem, Problem) else str(problem)
+    return solve_problem(_problem(problem), source, verbose, progress, warm, ratings)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:

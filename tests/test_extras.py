@@ -7,12 +7,17 @@ import sys
 import tomllib
 
 import pytest
+import yaml
 from builders import ROOT
 
 from crashnlp.cli import main
 from crashnlp.engine import DASK_EXTRA
+from crashnlp.errors import InputError
+from crashnlp.pipeline import prepare_case
+from crashnlp.problem import problem_from_dict
 
 STUDY = ROOT / "problems/studies/pitch-bound.yaml"
+PICKUP = ROOT / "problems/pickup-56kph.yaml"
 
 
 @pytest.fixture
@@ -34,3 +39,11 @@ def test_executor_dask_without_dask_is_one_line_and_exit_2(no_dask, tmp_path, ca
     assert code == 2
     assert err == f"crashnlp: error: --executor dask: dask is not installed ({DASK_EXTRA})\n"
     assert not (tmp_path / "out").exists()
+
+
+def test_profiles_on_dask_without_dask_are_refused_before_the_fit(no_dask):
+    raw = yaml.safe_load(PICKUP.read_text())
+    raw["uncertainty"] = {"profile": ["vehicle.crush_offset"], "executor": "dask"}
+    problem = problem_from_dict(raw, PICKUP.parent, source=str(PICKUP))
+    with pytest.raises(InputError, match=r"uncertainty\.executor: dask is not installed \(pip install 'crashnlp\[dask\]'\)"):
+        prepare_case(problem, str(PICKUP))

@@ -47,12 +47,12 @@ def default_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-# imported once by the fork server, so each worker starts in milliseconds, not seconds
+# imported once by the fork server, so each worker starts in milliseconds, not seconds: what a
+# study's cases and a fit's profile chains run
 PRELOAD = [
     "crashnlp.studies.run",
     "crashnlp.studies.worker",
-    "crashnlp.case",
-    "crashnlp.optimize",
+    "crashnlp.pipeline",
     "crashnlp.results",
 ]
 

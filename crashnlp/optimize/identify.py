@@ -14,7 +14,6 @@ from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
@@ -34,7 +33,7 @@ class Solution:
     residuals: list[Residual] = field(default_factory=list)
     covariance: Covariance | None = None
     verification: Verification | None = None
-    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
+    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label (crashnlp.optimize.profile)
     notes: list[str] = field(default_factory=list)  # what was done to the problem on the way (one line each)
     regularization: dict = field(default_factory=dict)  # the smoothness prior's weight
 
@@ -160,8 +159,6 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = [note] if note else []
-    if case.problem.uncertainty.profile and solution.result is not None and solution.result.converged:
-        solution.profiles = profiles(solution)
     return solution
 
 
