@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TextIO
 
 import numpy as np
@@ -138,7 +139,7 @@ def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalContr
     compiled with its functions (crashnlp.optimize.oracle)."""
     ocp = OptimalControl(case)
     fit = add_fit_objective(ocp, prior_weight)
-    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, fit.residuals)
+    ocp.nlp.extras["sens"] = partial(sensitivity_function, ocp.nlp, fit.residuals)  # its module keys the library
     return ocp, fit
 
 
