@@ -125,7 +125,7 @@ def cmd_simulate(args) -> int:
         if simulated is None:
             return 0
         case, predicted, out = simulated
-        from crashnlp.results import simulation_figure_jobs, write_simulation
+        from crashnlp.prediction import simulation_figure_jobs, write_simulation
 
         write_simulation(case.name, predicted, out)
         if figures is not None:
@@ -303,7 +303,7 @@ def _solve(args, kind: str) -> int:
         result, out = solved
         result.save(out, figures=False)
         if figures is not None:
-            from crashnlp.results import figure_jobs
+            from crashnlp.result import figure_jobs
 
             figures.draw(figure_jobs(result, out), out)
     _print_solution(result)

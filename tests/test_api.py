@@ -16,7 +16,7 @@ import crashnlp
 from crashnlp.cli import main
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.problem import problem_from_dict
-from crashnlp.results import VOLATILE
+from crashnlp.result import VOLATILE
 
 
 @pytest.fixture(scope="module")

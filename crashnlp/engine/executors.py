@@ -53,7 +53,7 @@ PRELOAD = [
     "crashnlp.studies.run",
     "crashnlp.studies.worker",
     "crashnlp.pipeline",
-    "crashnlp.results",
+    "crashnlp.result",
 ]
 
 
