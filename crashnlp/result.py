@@ -85,7 +85,7 @@ class TestResult:
 
 
 @dataclass(frozen=True)
-class ForceCrush:
+class LoadingCurve:
     """The identified loading curve, its breakpoints, and a reference curve if the problem has one."""
 
     crush: np.ndarray
@@ -111,7 +111,7 @@ class Result:
     at_bound: dict[str, float]
     active_constraints: tuple[ActiveConstraint, ...]
     tests: dict[str, TestResult]
-    force_crush: ForceCrush | None = None
+    force_crush: LoadingCurve | None = None
     profiles: dict[str, dict] = field(default_factory=dict)
     covariance: dict[str, Any] = field(default_factory=dict)
     inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not

@@ -14,7 +14,7 @@ from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRan
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
-from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
+from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 from crashnlp.simulation import Response
 from crashnlp.summary import channel_consistency, data_metrics, response_metrics
 
@@ -192,7 +192,7 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
     ]
 
 
-def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> ForceCrush:
+def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
     reach = max(float(np.max(t.response["crush"])) for t in tests.values())
     x = np.linspace(0.0, max(reach * 1.05, 1e-3), 201)
@@ -203,4 +203,4 @@ def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> For
     values = np.asarray(curve.map(inside.size)(inside, p)).ravel() if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
-    return ForceCrush(x, f, inside, values, reference)
+    return LoadingCurve(x, f, inside, values, reference)
