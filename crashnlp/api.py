@@ -45,26 +45,37 @@ def solve(
     """Identify or design, as the problem's `kind` says (crashnlp.pipeline.solve_problem: a problem
     it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
     iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
+    return _solve(problem, None, verbose, progress, warm, ratings)
+
+
+def _solve(
+    problem: Problem | str | Path,
+    kind: str | None,
+    verbose: bool,
+    progress: TextIO | None,
+    warm: np.ndarray | None = None,
+    ratings: bool = True,
+) -> Result:
+    """crashnlp.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
+    for; its input errors name the file when it is given as one."""
     from crashnlp.pipeline import solve_problem
 
+    validated = _problem(problem)
+    if kind is not None and validated.kind != kind:
+        other = "design" if kind == "identify" else "identify"
+        raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
     source = None if isinstance(problem, Problem) else str(problem)
-    return solve_problem(_problem(problem), source, verbose, progress, warm, ratings)
+    return solve_problem(validated, source, verbose, progress, warm, ratings)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
     """Fit the problem's estimated parameters to its tests' data."""
-    problem = _problem(problem)
-    if problem.kind != "identify":
-        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.design")
-    return solve(problem, verbose, progress)
+    return _solve(problem, "identify", verbose, progress)
 
 
 def design(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
     """Choose the problem's free parameters for its design goal."""
-    problem = _problem(problem)
-    if problem.kind != "design":
-        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.identify")
-    return solve(problem, verbose, progress)
+    return _solve(problem, "design", verbose, progress)
 
 
 def simulate(

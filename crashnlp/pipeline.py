@@ -15,9 +15,7 @@ from typing import TextIO
 import numpy as np
 
 from crashnlp.case import Case
-from crashnlp.checks import check_keys, check_tests, named
-
-__all__ = ["case_of", "check_keys", "check_tests", "prepare_case", "solve_case", "solve_problem"]
+from crashnlp.checks import check_keys, named
 from crashnlp.engine.executors import make_executor
 from crashnlp.optimize.design import design
 from crashnlp.optimize.identify import Solution, identify
