@@ -35,6 +35,11 @@ def _problem(problem: Problem | str | Path) -> Problem:
     return problem if isinstance(problem, Problem) else load_problem(problem)
 
 
+def _source(problem: Problem | str | Path) -> str | None:
+    """The file a problem was given as, which its input errors name (None: the problem's name)."""
+    return None if isinstance(problem, Problem) else str(problem)
+
+
 def solve(
     problem: Problem | str | Path,
     verbose: bool = False,
@@ -64,8 +69,7 @@ def _solve(
     if kind is not None and validated.kind != kind:
         other = "design" if kind == "identify" else "identify"
         raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
-    source = None if isinstance(problem, Problem) else str(problem)
-    return solve_problem(validated, source, verbose, progress, warm, ratings)
+    return solve_problem(validated, _source(problem), verbose, progress, warm, ratings)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
@@ -90,10 +94,11 @@ def simulate(
     only a new speed, mass or duration), and each test also gets 95 % intervals of its metrics,
     bands of its curves and how far it lies past the identified range (crashnlp.prediction).
     `params` a dict of dotted paths: those values replace the problem's."""
-    from crashnlp.case import Case
+    from crashnlp.case import case_of
     from crashnlp.identified import apply
     from crashnlp.prediction import predict
 
+    source = _source(problem)
     problem = _problem(problem)
     identified = params.identified if isinstance(params, Result) else None
     if identified is not None:
@@ -102,7 +107,7 @@ def simulate(
         problem = problem.with_values(params.parameters)
     elif params:
         problem = problem.with_values(params)
-    return predict(Case(problem), identified, dt)
+    return predict(case_of(problem, source), identified, dt)
 
 
 def study(

@@ -16,13 +16,14 @@ from typing import Any
 import numpy as np
 
 from crashnlp.autoinit import complete, measured_pulses
+from crashnlp.checks import named
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.problem import Problem, load_problem
 from crashnlp.simulation import Response, simulate
 from crashnlp.testcase import TestCase, check_data, check_speed, load_tests
 
-__all__ = ["Case", "TestCase", "check_speed"]
+__all__ = ["Case", "TestCase", "case_of", "check_speed"]
 
 
 class Case:
@@ -49,6 +50,7 @@ class Case:
 
     @classmethod
     def load(cls, path: str | Path) -> Case:
+        """The Case of a problem file."""
         return cls(load_problem(path))
 
     @property
@@ -78,3 +80,9 @@ class Case:
         step = dt or self.problem.simulation.dt
         grid = np.arange(0.0, test.duration + 0.5 * step, step)
         return simulate(self.model, p, test.speed, grid, self.problem.simulation)
+
+
+def case_of(problem: Problem, source: str | None = None) -> Case:
+    """Case(problem), its input errors naming `source` (a file; the problem's name when None)."""
+    with named(source or problem.name):
+        return Case(problem)

@@ -182,7 +182,7 @@ def _extrapolation_line(beyond: dict) -> str:
 
 def _simulate(args):
     """(case, predicted tests, output folder) of the problem file, or None after `--check`."""
-    from crashnlp.pipeline import case_of
+    from crashnlp.case import case_of
     from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
 

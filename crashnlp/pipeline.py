@@ -14,7 +14,7 @@ from typing import TextIO
 
 import numpy as np
 
-from crashnlp.case import Case
+from crashnlp.case import Case, case_of
 from crashnlp.checks import check_keys, named
 from crashnlp.engine.executors import make_executor
 from crashnlp.optimize.design import design
@@ -23,12 +23,6 @@ from crashnlp.optimize.outcome import result_of
 from crashnlp.optimize.profile import profiles
 from crashnlp.problem import Problem
 from crashnlp.result import Result
-
-
-def case_of(problem: Problem, source: str | None = None) -> Case:
-    """The Case of a problem (crashnlp.case), its input errors naming `source`."""
-    with named(source or problem.name):
-        return Case(problem)
 
 
 def prepare_case(problem: Problem, source: str | None = None) -> Case:
