@@ -10,7 +10,7 @@ CLI     := $(BIN)/crashnlp
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
 	$(BIN)/pip install -q --upgrade pip
-	$(BIN)/pip install -q -e ".[test]"
+	$(BIN)/pip install -q -e ".[test,dask]"  # the tests run studies on dask too
 	$(BIN)/python -m compileall -q crashnlp  # as a regular install does; PYTHONDONTWRITEBYTECODE would leave it out
 	touch $(STAMP)
 

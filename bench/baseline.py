@@ -20,7 +20,7 @@ from scipy.optimize import least_squares
 
 from bench.common import Target, node_times, residual_vector
 from crashnlp.case import Case
-from crashnlp.optimize.parameters import FreeParameters
+from crashnlp.optimize.free import FreeParameters
 from crashnlp.simulation import response_from_states
 
 METHOD, RTOL, ATOL, MAX_STEP = "LSODA", 1e-6, 1e-8, 1e-3

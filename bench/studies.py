@@ -183,8 +183,8 @@ def echo(item: tuple[bytes, bytes]) -> bytes:
 def scheduler_cost(kind: str, tasks: int, job_bytes: int, result_bytes: int) -> dict:
     """Per task: no-op tasks with payloads of a real job's and result's size through run_tree on
     two lanes, once the workers are up (their start timed apart)."""
-    from crashnlp.studies.executors import make_executor
-    from crashnlp.studies.schedule import map_all
+    from crashnlp.engine.executors import make_executor
+    from crashnlp.engine.schedule import map_all
 
     items = [(os.urandom(job_bytes), os.urandom(result_bytes))] * tasks
     t0 = time.perf_counter()
@@ -252,8 +252,8 @@ def projection(cold: list[float], warm: list[float], per_case: float, overhead: 
     """Makespan of a side x side grid on each of LANES workers: the real plan and scheduler, case
     costs drawn from the measured cold and warm ones (+ `per_case` outside IPOPT), the main
     process's `overhead` per case serial."""
+    from crashnlp.engine.schedule import run_tree
     from crashnlp.studies.plan import corners, lattice, warm_start_plan
-    from crashnlp.studies.schedule import run_tree
 
     shape = (side, side)
     rng = np.random.default_rng(0)

@@ -7,7 +7,9 @@
     sims = crashnlp.simulate(faster, params=result)              # test -> PredictedTest (SI arrays)
     sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
 
-The command line is a thin layer over these functions.
+Every solve goes through crashnlp.pipeline (every check, then the steps), as the
+command line's and a study's do; the command line is a thin layer for arguments,
+console and exit codes over that pipeline.
 """
 
 from __future__ import annotations
@@ -33,6 +35,11 @@ def _problem(problem: Problem | str | Path) -> Problem:
     return problem if isinstance(problem, Problem) else load_problem(problem)
 
 
+def _source(problem: Problem | str | Path) -> str | None:
+    """The file a problem was given as, which its input errors name (None: the problem's name)."""
+    return None if isinstance(problem, Problem) else str(problem)
+
+
 def solve(
     problem: Problem | str | Path,
     verbose: bool = False,
@@ -40,31 +47,39 @@ def solve(
     warm: np.ndarray | None = None,
     ratings: bool = True,
 ) -> Result:
-    """Identify or design, as the problem's `kind` says; `progress`: a stream for a line every ten
-    IPOPT iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
-    from crashnlp.case import Case
-    from crashnlp.optimize import solve_case
-    from crashnlp.optimize.outcome import result_of
+    """Identify or design, as the problem's `kind` says (crashnlp.pipeline.solve_problem: a problem
+    it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
+    iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
+    return _solve(problem, None, verbose, progress, warm, ratings)
 
-    case = Case(_problem(problem))
-    case.check_data()  # a fit to data that contradict the problem's speed is refused, not run
-    return result_of(solve_case(case, verbose=verbose, progress=progress, warm=warm), ratings)
+
+def _solve(
+    problem: Problem | str | Path,
+    kind: str | None,
+    verbose: bool,
+    progress: TextIO | None,
+    warm: np.ndarray | None = None,
+    ratings: bool = True,
+) -> Result:
+    """crashnlp.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
+    for; its input errors name the file when it is given as one."""
+    from crashnlp.pipeline import solve_problem
+
+    validated = _problem(problem)
+    if kind is not None and validated.kind != kind:
+        other = "design" if kind == "identify" else "identify"
+        raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
+    return solve_problem(validated, _source(problem), verbose, progress, warm, ratings)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
     """Fit the problem's estimated parameters to its tests' data."""
-    problem = _problem(problem)
-    if problem.kind != "identify":
-        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.design")
-    return solve(problem, verbose, progress)
+    return _solve(problem, "identify", verbose, progress)
 
 
 def design(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
     """Choose the problem's free parameters for its design goal."""
-    problem = _problem(problem)
-    if problem.kind != "design":
-        raise ValueError(f"{problem.name}: kind is {problem.kind!r}; use crashnlp.identify")
-    return solve(problem, verbose, progress)
+    return _solve(problem, "design", verbose, progress)
 
 
 def simulate(
@@ -79,10 +94,11 @@ def simulate(
     only a new speed, mass or duration), and each test also gets 95 % intervals of its metrics,
     bands of its curves and how far it lies past the identified range (crashnlp.prediction).
     `params` a dict of dotted paths: those values replace the problem's."""
-    from crashnlp.case import Case
+    from crashnlp.case import case_of
     from crashnlp.identified import apply
     from crashnlp.prediction import predict
 
+    source = _source(problem)
     problem = _problem(problem)
     identified = params.identified if isinstance(params, Result) else None
     if identified is not None:
@@ -91,7 +107,7 @@ def simulate(
         problem = problem.with_values(params.parameters)
     elif params:
         problem = problem.with_values(params)
-    return predict(Case(problem), identified, dt)
+    return predict(case_of(problem, source), identified, dt)
 
 
 def study(

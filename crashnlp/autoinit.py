@@ -1,4 +1,4 @@
-"""Fill in what a problem leaves out, from its tests' data: problem + measured pulses -> new problem.
+"""Fill in what a problem leaves out, from its tests' data: (problem, tests) -> measured pulses -> new problem.
 
 The given problem is never changed. What is filled, and how:
 
@@ -31,9 +31,9 @@ The given problem is never changed. What is filled, and how:
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
@@ -41,9 +41,7 @@ from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem
-
-if TYPE_CHECKING:
-    from crashnlp.case import Case, TestCase
+from crashnlp.testcase import TestCase
 
 DEFAULT_COUNT = 8
 REACH = 1.0
@@ -219,14 +217,15 @@ def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
     return out
 
 
-def repaired_start(case: Case) -> dict[str, Any]:
-    """Spring values at the case's own breakpoints and unloading stiffness from its data.
+def repaired_start(problem: Problem, tests: Sequence[TestCase]) -> dict[str, Any]:
+    """Spring values at the problem's own breakpoints and unloading stiffness from its tests' data.
 
     For a start whose spring stops the model short of the measured crush (parameters with a
-    zero derivative): `case.layout.with_values(case.base, repaired_start(case))`, or `repair_start`.
+    zero derivative): `case.with_start(repaired_start(case.problem, case.tests))`, as
+    crashnlp.optimize.identify.repair_start does.
     """
-    pulses = case_pulses(case)
-    spring, damper = case.problem.model.spring, case.problem.model.damper
+    pulses = measured_pulses(problem, tests)
+    spring, damper = problem.model.spring, problem.model.damper
     return {
         "model.spring.values": spring_values(
             spring.crush_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper
@@ -235,37 +234,13 @@ def repaired_start(case: Case) -> dict[str, Any]:
     }
 
 
-def repair_start(case: Case) -> tuple[Case, str | None]:
-    """A start that leaves spring values with a zero derivative although the data reach them,
-    replaced by `repaired_start`: a copy of the case with the new values, and the one line that
-    says so; the case itself and None when its start serves.
-
-    A breakpoint value moves the force from the breakpoint before it on, so it has a zero
-    derivative when the start's crush stops short of that breakpoint; the data reach it when
-    their crush goes past it (an `estimate` entry's own `initial` still wins over it)."""
-    simulated = case.simulate()
-    breakpoints = case.base[case.layout.index("model.spring.crush_breakpoints")][:-1]
-    for test in case.tests:
-        measured = measured_pulse(case, test)
-        model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
-        if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
-            repaired = copy.copy(case)
-            repaired.base = case.layout.with_values(case.base, repaired_start(case))
-            return repaired, (
-                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
-                f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
-                "measured force-crush curve"
-            )
-    return case, None
-
-
-def measured_pulse(case: Case, test: TestCase) -> Pulse | None:
-    """The measured pulse of one test of a case; None without accel or velocity data."""
+def measured_pulse(problem: Problem, test: TestCase) -> Pulse | None:
+    """The measured pulse of one test of a problem; None without accel or velocity data."""
     if test.data is None:
         return None
-    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", case.problem.vehicle.mass))
+    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", problem.vehicle.mass))
 
 
-def case_pulses(case: Case) -> list[Pulse]:
-    """The measured pulse of every test of a case that has accel or velocity data."""
-    return [p for test in case.tests if (p := measured_pulse(case, test)) is not None]
+def measured_pulses(problem: Problem, tests: Sequence[TestCase]) -> list[Pulse]:
+    """The measured pulse of every test that has accel or velocity data."""
+    return [p for test in tests if (p := measured_pulse(problem, test)) is not None]

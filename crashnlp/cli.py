@@ -68,25 +68,6 @@ def _identified(source: str, raw: dict):
         raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
 
 
-def _load_case(path: str, problem=None, check_data: bool = False):
-    """The Case of a problem file (`check_data`: for a fit, data that contradict the problem are
-    refused too); an input error found while building it names the file."""
-    from crashnlp.case import Case
-    from crashnlp.data.channels import DataError
-    from crashnlp.problem import load_problem
-
-    problem = problem if problem is not None else load_problem(path)
-    try:
-        case = Case(problem)
-        if check_data:
-            case.check_data()
-        return case
-    except DataError:
-        raise
-    except InputError as exc:
-        raise InputError(exc if str(exc).startswith(str(path)) else f"{path}: {exc}") from None
-
-
 def _with_params(problem, source: str):
     """(problem, identified model) for a result.json: its identified vehicle put into the problem,
     or for a result that carries only parameters, its values entry by entry, refusing what does
@@ -144,7 +125,7 @@ def cmd_simulate(args) -> int:
         if simulated is None:
             return 0
         case, predicted, out = simulated
-        from crashnlp.results import simulation_figure_jobs, write_simulation
+        from crashnlp.prediction import simulation_figure_jobs, write_simulation
 
         write_simulation(case.name, predicted, out)
         if figures is not None:
@@ -201,6 +182,7 @@ def _extrapolation_line(beyond: dict) -> str:
 
 def _simulate(args):
     """(case, predicted tests, output folder) of the problem file, or None after `--check`."""
+    from crashnlp.case import case_of
     from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
 
@@ -209,7 +191,7 @@ def _simulate(args):
     identified = None
     if args.params:
         problem, identified = _with_params(problem, args.params)
-    case = _load_case(args.problem, problem)
+    case = case_of(problem, args.problem)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
     if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
@@ -321,7 +303,7 @@ def _solve(args, kind: str) -> int:
         result, out = solved
         result.save(out, figures=False)
         if figures is not None:
-            from crashnlp.results import figure_jobs
+            from crashnlp.result import figure_jobs
 
             figures.draw(figure_jobs(result, out), out)
     _print_solution(result)
@@ -333,23 +315,21 @@ def _solve(args, kind: str) -> int:
 
 
 def _solve_case(args, kind: str):
-    """(Result, output folder) of the problem file, or None after `--check`."""
-    from crashnlp.optimize import solve_case
-    from crashnlp.optimize.outcome import result_of
+    """(Result, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
+    checks and steps, as crashnlp.api's solve runs them, its errors naming the file."""
+    from crashnlp.pipeline import prepare_case, solve_case
     from crashnlp.problem import load_problem
-    from crashnlp.problem.load import check_fit_keys
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
-    check_fit_keys(problem, args.problem)
+    case = prepare_case(problem, args.problem)  # before any solve
     out = check_writable(_out(args, problem.name))
-    case = _load_case(args.problem, problem, check_data=True)  # errors name the file, before any solve
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    with _computing(args):  # crashnlp.api.solve, on the case already built
-        return result_of(solve_case(case, verbose=args.verbose, progress=sys.stdout)), out
+    with _computing(args):
+        return solve_case(case, verbose=args.verbose, progress=sys.stdout), out
 
 
 def cmd_identify(args) -> int:

@@ -5,7 +5,7 @@ shipped problem, and drawing the figures of an identification as long again. A
 process forked as the command starts (before CasADi, pydantic and the problem)
 imports matplotlib alone on the other core while this one reads the problem and
 solves (or simulates). Once the result files are written this one sends it the
-figures as plain data (crashnlp.results.figure_jobs), and it draws them on every core, in processes
+figures as plain data (crashnlp.result.figure_jobs), and it draws them on every core, in processes
 forked from it. The command still waits for them, so the figures exist when it
 returns; where there is no fork (Windows) they are drawn in this process.
 """

@@ -19,6 +19,9 @@ The intervals propagate two sources of error to every crash metric and response 
 A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
 interval, nor does anything when an estimated value is not determined by the data: the
 prediction says so in `notes`, instead of a band that only looks narrow.
+
+`write_simulation` writes what `crashnlp simulate` writes of the predicted tests, and
+`simulation_figure_jobs` are their figures.
 """
 
 from __future__ import annotations
@@ -26,15 +29,21 @@ from __future__ import annotations
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
-from crashnlp.outputs import COLUMNS, OUTPUT
-from crashnlp.simulation import Response
-from crashnlp.summary import response_metrics
+from crashnlp.jsonfile import write_json
+from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
+from crashnlp.simulation import Response, write_response_csv
+from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
+
+if TYPE_CHECKING:
+    from crashnlp.plots import Job  # not at run time: matplotlib
 
 Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
 # response columns and the fitted channel whose RMSE measures the model's miss of them
@@ -219,3 +228,36 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
         if band is not None:
             out[f"{o.column}_low"], out[f"{o.column}_high"] = band[0] * o.factor, band[1] * o.factor
     return out
+
+
+def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
+    """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
+    simulated test, and simulation.json; the figures are `simulation_figure_jobs`, drawn by the
+    caller (crashnlp.drawing)."""
+    summary: dict[str, Any] = {"name": name, "tests": {}}
+    for test in tests.values():
+        r = test.response
+        write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+        entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+        if test.intervals:
+            entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+            entry["extrapolation"] = test.extrapolation
+        if test.notes:
+            entry["notes"] = list(test.notes)
+        summary["tests"][test.name] = entry
+    write_json(out / "simulation.json", summary)
+    return summary
+
+
+def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
+    """A response figure per simulated test, with its data behind it and its 95 % band shaded,
+    as crashnlp.plots jobs."""
+    jobs: list[Job] = []
+    for test in case.tests:
+        predicted = tests[test.name]
+        r = predicted.response
+        model = {k: (r.time, r[k]) for k in MEASURABLE}
+        bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
+        title = f"{case.name}: {test.name}"
+        jobs.append(("response_figure", (out / test.name / "response.png", title, model, data_curves(test), bands)))
+    return jobs

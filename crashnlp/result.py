@@ -1,9 +1,11 @@
-"""The plain outcome of an identification or a design: frozen dataclasses, no CasADi.
+"""The plain outcome of an identification or a design: frozen dataclasses, and its files.
 
 A `Result` is built once, by the optimizer (crashnlp.optimize.outcome), from
 the solved NLP; everything downstream (result files, figures, the console,
 study tables, the Python API) reads it and nothing else. `Result.save(dir)`
-writes what the command line writes; `Result.load(dir)` reads it back.
+writes what the command line writes (result.json, response and force-crush
+tables, figures); `Result.load(dir)` reads it back. Everything is SI inside and
+converted to report units (g, deg, ms) only as it is written.
 """
 
 from __future__ import annotations
@@ -11,12 +13,21 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from crashnlp.files import write_columns
 from crashnlp.identified import IdentifiedModel
-from crashnlp.simulation import Response
+from crashnlp.jsonfile import write_json
+from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
+from crashnlp.simulation import Response, write_response_csv
+
+if TYPE_CHECKING:
+    from crashnlp.plots import Job  # not at run time: matplotlib
+
+# ignored by reproducibility checks: the only entries that change from run to run
+VOLATILE = ("wall_s", "build_s", "compiled")  # how long and by which evaluator, not what: same bits either way
 
 
 @dataclass(frozen=True)
@@ -74,7 +85,7 @@ class TestResult:
 
 
 @dataclass(frozen=True)
-class ForceCrush:
+class LoadingCurve:
     """The identified loading curve, its breakpoints, and a reference curve if the problem has one."""
 
     crush: np.ndarray
@@ -100,7 +111,7 @@ class Result:
     at_bound: dict[str, float]
     active_constraints: tuple[ActiveConstraint, ...]
     tests: dict[str, TestResult]
-    force_crush: ForceCrush | None = None
+    force_crush: LoadingCurve | None = None
     profiles: dict[str, dict] = field(default_factory=dict)
     covariance: dict[str, Any] = field(default_factory=dict)
     inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not
@@ -137,15 +148,11 @@ class Result:
 
     def save(self, folder: str | Path, figures: bool = True) -> None:
         """result.json, responses, force-crush table and figures: what the command line writes."""
-        from crashnlp.results import write_result
-
         write_result(self, Path(folder), figures=figures)
 
     @classmethod
     def load(cls, folder: str | Path) -> Result:
         """A Result read back from a folder `save` wrote (responses from response.csv)."""
-        from crashnlp.results import read_response
-
         folder = Path(folder)
         raw = json.loads((folder / "result.json").read_text())
         tests = {}
@@ -204,7 +211,50 @@ def _test_json(t: TestResult) -> dict[str, Any]:
 
 
 def _fit_json(f: ChannelFit) -> dict[str, Any]:
-    from crashnlp.outputs import OUTPUT
-
     out = OUTPUT[f.channel]
     return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}
+
+
+def read_response(path: Path) -> Response:
+    """A response.csv back in SI (the registry's written outputs)."""
+    table = np.genfromtxt(path, delimiter=",", names=True)
+    outputs = {o.name: table[o.column] / o.factor for o in COLUMNS}
+    return Response(np.asarray(table["time_s"]), outputs, np.zeros((0, table.size)))
+
+
+def write_result(result: Result, out: Path, figures: bool = True) -> None:
+    """result.json, per-test responses, the force-crush table, and the figures after them."""
+    for name, t in result.tests.items():
+        write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
+    fc = result.force_crush
+    if fc is not None:
+        write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
+    write_json(out / "result.json", result.to_json())
+    if figures:
+        write_figures(result, out)
+
+
+def write_figures(result: Result, out: Path) -> None:
+    """Fit and residual figures per test, and the force-crush figure."""
+    from crashnlp import plots  # matplotlib: a third of a second, only when drawing
+
+    plots.draw(figure_jobs(result, out))
+
+
+def figure_jobs(result: Result, out: Path) -> list[Job]:
+    """The figures of a result as crashnlp.plots jobs: plain data, which a process that has
+    imported matplotlib and nothing of the model draws (crashnlp.drawing)."""
+    jobs: list[Job] = []
+    for name, t in result.tests.items():
+        model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
+        jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
+        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items()}
+        if residuals:
+            jobs.append(("residual_figure", (out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)))
+    fc = result.force_crush
+    if fc is not None:
+        curves = {"identified loading curve": (fc.crush, fc.force)}
+        if fc.reference is not None:
+            curves["reference"] = fc.reference
+        jobs.append(("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)))
+    return jobs

@@ -4,10 +4,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.case import TestCase
 from crashnlp.data.signal import integrate, resample
 from crashnlp.metrics import crash_metrics
 from crashnlp.simulation import Response
+from crashnlp.testcase import TestCase
 from crashnlp.units import G0
 
 

@@ -10,13 +10,15 @@ import sys
 import casadi as ca
 import numpy as np
 import pytest
+import yaml
 from builders import BASE, ROOT, merge, small_pickup_problem
 
 import crashnlp
 from crashnlp.cli import main
+from crashnlp.errors import InputError
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 from crashnlp.problem import problem_from_dict
-from crashnlp.results import VOLATILE
+from crashnlp.result import VOLATILE
 
 
 @pytest.fixture(scope="module")
@@ -64,6 +66,22 @@ def test_with_values_returns_a_new_problem_and_leaves_the_old_one(small_problem)
     assert faster.vehicle.speed == pytest.approx(64 / 3.6) and problem.vehicle.speed == pytest.approx(56 / 3.6)
     with pytest.raises(KeyError):
         problem.with_values({"vehicle.no_such_thing": 1.0})
+
+
+def test_the_api_refuses_what_the_command_line_refuses(tmp_path, capsys):
+    """One pipeline (crashnlp.pipeline): a test duration that the data window would override is
+    refused by crashnlp.identify as by `crashnlp identify`, before anything is solved."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw["tests"][0]["duration"] = "0.25 s"
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    message = "tests.0.duration: 0.25 s would be ignored"
+    with pytest.raises(InputError, match=message):
+        crashnlp.identify(problem_from_dict(raw, tmp_path))
+    with pytest.raises(InputError, match=f"{path}: {message}"):
+        crashnlp.identify(path)
+    assert main(["identify", str(path), "--check"]) == 2 and message in capsys.readouterr().err
 
 
 def test_simulate_returns_named_arrays_in_si(small_problem):

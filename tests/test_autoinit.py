@@ -14,14 +14,14 @@ from crashnlp.autoinit import (
     PITCH_LEVER,
     REACH,
     breakpoints,
-    case_pulses,
     complete,
-    repair_start,
+    measured_pulses,
     repaired_start,
     spring_values,
     unloading_stiffness,
 )
 from crashnlp.case import Case
+from crashnlp.optimize.identify import repair_start
 from crashnlp.problem import ProblemError, load_problem, problem_from_dict
 from crashnlp.problem.load import read_yaml
 
@@ -39,7 +39,7 @@ def pickup_case() -> Case:
 
 
 def test_breakpoints_span_the_measured_crush_evenly(pickup_case):
-    pulses = case_pulses(pickup_case)
+    pulses = measured_pulses(pickup_case.problem, pickup_case.tests)
     crush = max(p.max_crush for p in pulses)
     assert crush == pytest.approx(0.593, abs=0.002)  # the data set's truth
     bps = breakpoints(pulses)
@@ -50,7 +50,7 @@ def test_breakpoints_span_the_measured_crush_evenly(pickup_case):
 
 def test_spring_values_follow_the_true_load_curve(pickup_case):
     """m|a| against crush while loading recovers the generator's load curve within 3 % inside the crush range."""
-    pulses = case_pulses(pickup_case)
+    pulses = measured_pulses(pickup_case.problem, pickup_case.tests)
     bps = breakpoints(pulses)
     ref = pickup_case.problem.reference.force_crush
     truth = PchipInterpolator(ref.crush, ref.force)(bps)
@@ -60,7 +60,7 @@ def test_spring_values_follow_the_true_load_curve(pickup_case):
 
 
 def test_unloading_stiffness_from_the_rebound_is_of_the_right_order(pickup_case):
-    k = unloading_stiffness(case_pulses(pickup_case))
+    k = unloading_stiffness(measured_pulses(pickup_case.problem, pickup_case.tests))
     assert 0.5 * 3e7 < k < 2 * 3e7  # the data were made with 30 MN/m
 
 
@@ -112,7 +112,7 @@ def test_breakpoints_without_data_are_refused():
 def test_complete_keeps_what_the_problem_gives(pickup_case):
     """A complete problem comes back equal (the shipped problems do not change)."""
     problem = load_problem(PICKUP)
-    assert complete(problem, case_pulses(pickup_case)).model_dump() == problem.model_dump()
+    assert complete(problem, measured_pulses(pickup_case.problem, pickup_case.tests)).model_dump() == problem.model_dump()
 
 
 def test_repaired_start_reaches_the_measured_crush():
@@ -120,7 +120,7 @@ def test_repaired_start_reaches_the_measured_crush():
     raw = pickup(model={"spring": {"values": ["1500 kN"] * 7}})  # stops far short of the measured 0.593 m
     case = Case(problem_from_dict(raw, PICKUP.parent))
     short = np.max(case.simulate()["56kph"]["displacement"])
-    start = case.layout.with_values(case.base, repaired_start(case))
+    start = case.layout.with_values(case.base, repaired_start(case.problem, case.tests))
     reached = np.max(case.simulate(start)["56kph"]["displacement"])
     assert short < 0.4 and reached == pytest.approx(0.593, rel=0.05)
     original = case.base.copy()
@@ -146,8 +146,8 @@ def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_c
     for name in ("velocity", "displacement", "pitch"):
         del channels[name]
     accel_only = Case(problem_from_dict(raw, PICKUP.parent))
-    (measured,) = case_pulses(pickup_case)
-    (integrated,) = case_pulses(accel_only)
+    (measured,) = measured_pulses(pickup_case.problem, pickup_case.tests)
+    (integrated,) = measured_pulses(accel_only.problem, accel_only.tests)
     assert integrated.max_crush == pytest.approx(measured.max_crush, rel=0.01)
     assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_crush, rel=0.01)
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from builders import assert_exact_hessian_is_casadis, assert_monotone_crush, make_case
 
-from crashnlp.optimize import solve_case
+from crashnlp.optimize.design import design
 
 V0, CRUSH_SPACE = 15.0, 0.5
 
@@ -33,7 +33,7 @@ def design_case(n_breakpoints: int, extra: dict | None = None):
 @pytest.fixture(scope="module")
 def fine():
     case = design_case(13)
-    return case, solve_case(case, progress=None)
+    return case, design(case, progress=None)
 
 
 def test_design_meets_every_constraint_at_every_grid_point(fine):
@@ -68,7 +68,7 @@ def test_pitch_bound_holds_in_design():
     case = design_case(
         7, {"vehicle": {"cg_above_impact": 0.18, "crush_offset": 0.1}, "constraints": {"bounds": {"pitch": [None, "3 deg"]}}}
     )
-    sol = solve_case(case, progress=None)
+    sol = design(case, progress=None)
     assert sol.ok, sol.status
     assert np.max(sol.tests[0].outputs["pitch"]) <= np.radians(3) + 1e-7  # 3.3 deg without the bound
     assert np.max(sol.tests[0].outputs["crush"]) <= CRUSH_SPACE + 1e-7

@@ -9,7 +9,7 @@ from builders import small_pickup_problem
 
 from crashnlp import api
 from crashnlp.drawing import FigureProcess
-from crashnlp.results import figure_jobs, write_figures
+from crashnlp.result import figure_jobs, write_figures
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="drawn in place where there is no fork")
 

@@ -14,7 +14,7 @@ from bench.corpus import measured, random_vehicle, simulate, write_csv
 from bench.robustness import minimal_problem
 from crashnlp.cli import main
 from crashnlp.metrics import crash_metrics
-from crashnlp.optimize.parameters import FreeParameters
+from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}

@@ -16,6 +16,7 @@ from builders import BASE, merge
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
+from crashnlp.pipeline import profile
 from crashnlp.problem import problem_from_dict
 
 TRUTH = {
@@ -159,6 +160,7 @@ def test_profile_intervals_run_in_parallel_and_agree_with_the_sandwich_near_line
     labels = ["vehicle.crush_offset", "model.spring.values[2]"]
     sol = fit(path, {**MS, "intervals": 60}, accel_filter="CFC60", uncertainty={"profile": labels, "points": 3, "workers": 2})
     assert sol.ok, sol.status
+    profile(sol)  # the step after the fit, on the executor the uncertainty section names
     for label in labels:
         p, i = sol.profiles[label], sol.ocp.free.labels().index(label)
         half = 1.96 * sol.std_errors[i]

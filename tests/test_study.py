@@ -12,12 +12,12 @@ import yaml
 from builders import BASE, ROOT, merge, worker_pid
 
 from crashnlp.case import Case
+from crashnlp.engine.executors import LocalExecutor
+from crashnlp.engine.schedule import run_tree
 from crashnlp.errors import InputError
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
-from crashnlp.studies.executors import LocalExecutor
 from crashnlp.studies.plan import case_indices, corners, lattice, plan_cases, warm_start_plan
-from crashnlp.studies.schedule import run_tree
 
 PITCH = "constraints.bounds.pitch"
 BOUNDS = [[None, "2 deg"], [None, "2.5 deg"], [None, "3 deg"], [None, "4 deg"]]  # the free fit pitches ~3.2 deg

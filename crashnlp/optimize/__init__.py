@@ -1,25 +1,5 @@
-"""Optimal control on the crash model: identification (fit to data) and design (no data)."""
-
-from __future__ import annotations
-
-import sys
-from typing import TextIO
-
-import numpy as np
-
-from crashnlp.case import Case
-from crashnlp.optimize.identify import Solution, identify
-
-
-def solve_case(
-    case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None
-) -> Solution:
-    """Solve a case as its problem's `kind` says (identify or design)."""
-    if case.problem.kind == "design":
-        from crashnlp.optimize.design import design
-
-        return design(case, verbose=verbose, progress=progress, warm=warm)
-    return identify(case, verbose=verbose, progress=progress, warm=warm)
-
-
-__all__ = ["Solution", "solve_case"]
+"""Optimal control on the crash model: identification (fit to data, crashnlp.optimize.identify)
+and design (no data, crashnlp.optimize.design), profile intervals on a fit
+(crashnlp.optimize.profile), and the plain Result of a solve (crashnlp.optimize.outcome).
+crashnlp.pipeline runs them in order; the submodules are imported where they are used.
+"""

@@ -4,17 +4,17 @@ from __future__ import annotations
 
 import sys
 from dataclasses import dataclass, field
+from functools import partial
 from typing import TextIO
 
 import numpy as np
 
-from crashnlp.autoinit import repair_start
+from crashnlp.autoinit import measured_pulse, repaired_start
 from crashnlp.case import Case
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.profile import profiles
 from crashnlp.optimize.solve import SolveResult, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
@@ -34,7 +34,7 @@ class Solution:
     residuals: list[Residual] = field(default_factory=list)
     covariance: Covariance | None = None
     verification: Verification | None = None
-    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label
+    profiles: dict[str, dict] = field(default_factory=dict)  # profile-likelihood intervals by label (crashnlp.optimize.profile)
     notes: list[str] = field(default_factory=list)  # what was done to the problem on the way (one line each)
     regularization: dict = field(default_factory=dict)  # the smoothness prior's weight
 
@@ -111,13 +111,35 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
     return solution
 
 
+def repair_start(case: Case) -> tuple[Case, str | None]:
+    """A start that leaves spring values with a zero derivative although the data reach them,
+    replaced by crashnlp.autoinit.repaired_start: the case from the new start (Case.with_start),
+    and the one line that says so; the case itself and None when its start serves.
+
+    A breakpoint value moves the force from the breakpoint before it on, so it has a zero
+    derivative when the start's crush stops short of that breakpoint; the data reach it when
+    their crush goes past it (an `estimate` entry's own `initial` still wins over it)."""
+    simulated = case.simulate()
+    breakpoints = case.base[case.layout.index("model.spring.crush_breakpoints")][:-1]
+    for test in case.tests:
+        measured = measured_pulse(case.problem, test)
+        model = float(np.max(simulated[test.name]["displacement"]))  # the measured crush is the CG's travel
+        if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_crush)):
+            return case.with_start(repaired_start(case.problem, case.tests)), (
+                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
+                f"reach {measured.max_crush * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
+                "measured force-crush curve"
+            )
+    return case, None
+
+
 def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalControl, FitObjective]:
     """The identification NLP of a case and its objective (the prior at `prior_weight`, else
     the problem's); the covariance's sensitivities are an extra of the NLP, so that they are
     compiled with its functions (crashnlp.optimize.oracle)."""
     ocp = OptimalControl(case)
     fit = add_fit_objective(ocp, prior_weight)
-    ocp.nlp.extras["sens"] = lambda: sensitivity_function(ocp.nlp, fit.residuals)
+    ocp.nlp.extras["sens"] = partial(sensitivity_function, ocp.nlp, fit.residuals)  # its module keys the library
     return ocp, fit
 
 
@@ -138,8 +160,6 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
     solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = [note] if note else []
-    if case.problem.uncertainty.profile and solution.result is not None and solution.result.converged:
-        solution.profiles = profiles(solution)
     return solution
 
 

@@ -15,9 +15,9 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.model.pendulum import NX, OUTPUTS, STATES
 from crashnlp.nlp import NLPBuilder
+from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.oracle import compilable
 from crashnlp.optimize.oracle import symbolic as is_symbolic
-from crashnlp.optimize.parameters import FreeParameters
 from crashnlp.simulation import Response, simulate
 from crashnlp.transcription import Trajectory, make_transcription
 

@@ -6,7 +6,8 @@ CasADi Functions of (x, p) (crashnlp.derivatives for the structured Jacobian
 and the Gauss-Newton Hessian) and, since every number that changes between runs
 is in p (crashnlp.nlp), they depend on the problem's structure only. So they
 are compiled to C once per structure and machine and kept in the crashnlp cache,
-under a hash of the serialized NLP, the Hessian kind and the compiler:
+under a hash of the serialized NLP, the code that derives the compiled functions from it, the
+Hessian kind and the compiler:
 
 - `compile: auto` (default): a cached library when there is one; otherwise this
   solve runs in CasADi's virtual machine and the library is compiled in the
@@ -38,7 +39,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from crashnlp import compile_job, compiled
+from crashnlp import compile_job, compiled, derivatives
 from crashnlp.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
@@ -108,19 +109,25 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
 
 def _library(nlp: NLPBuilder, tag: str, cc: str) -> Path:
     """Where the library of this NLP shape, tag (Hessian and extras), compiler and flags lives."""
-    key = hashlib.sha256("\0".join([nlp.key(), _code(), cc, *NLP_FLAGS]).encode()).hexdigest()[:20]
+    key = hashlib.sha256("\0".join([nlp.key(), _code(_makers(nlp)), cc, *NLP_FLAGS]).encode()).hexdigest()[:20]
     return compiled.cache_dir() / f"nlp-{key}-{tag}.so"
 
 
-@cache
-def _code() -> str:
-    """A hash of the code that builds the compiled functions: a library from other code is not reused."""
-    from crashnlp import derivatives, nlp
-    from crashnlp.optimize import uncertainty
+def _makers(nlp: NLPBuilder) -> tuple[str, ...]:
+    """The modules whose code turns the NLP's f and g into what is compiled: crashnlp.derivatives
+    and crashnlp.nlp (the solver's functions), the module of each extra's maker (a function or a
+    functools.partial of one), and this one."""
+    extras = [getattr(make, "func", make).__module__ for _, make in sorted(nlp.extras.items())]
+    return (derivatives.__name__, NLPBuilder.__module__, *extras, __name__)
 
-    return hashlib.sha256(
-        b"".join(Path(str(m.__file__)).read_bytes() for m in (derivatives, nlp, uncertainty, sys.modules[__name__]))
-    ).hexdigest()
+
+@cache
+def _code(modules: tuple[str, ...]) -> str:
+    """A hash of the code of `modules` (all imported by then): a library from other code is not reused.
+
+    The key of a library names the NLP (its serialized f and g) and this code, not the compiled
+    functions themselves: serializing those would cost more than building them."""
+    return hashlib.sha256(b"".join(Path(str(sys.modules[m].__file__)).read_bytes() for m in modules)).hexdigest()
 
 
 def _write_names(functions: dict[str, ca.Function], library: Path) -> None:

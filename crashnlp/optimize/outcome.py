@@ -8,13 +8,13 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.autoinit import case_pulses
+from crashnlp.autoinit import measured_pulses
 from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
-from crashnlp.result import ActiveConstraint, ChannelFit, ForceCrush, Result, SolverStats, TestResult
+from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 from crashnlp.simulation import Response
 from crashnlp.summary import channel_consistency, data_metrics, response_metrics
 
@@ -66,7 +66,7 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
     fitted = case.problem.with_values(solution.parameters)
     mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in
     masses = [float(t.overrides.get("vehicle.mass", mass)) for t in case.tests]
-    pulses = case_pulses(case)
+    pulses = measured_pulses(case.problem, case.tests)
     reach = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
     return IdentifiedModel(
         vehicle=fitted.vehicle.model_dump(mode="json"),
@@ -192,7 +192,7 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
     ]
 
 
-def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> ForceCrush:
+def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
     reach = max(float(np.max(t.response["crush"])) for t in tests.values())
     x = np.linspace(0.0, max(reach * 1.05, 1e-3), 201)
@@ -203,4 +203,4 @@ def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> For
     values = np.asarray(curve.map(inside.size)(inside, p)).ravel() if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
-    return ForceCrush(x, f, inside, values, reference)
+    return LoadingCurve(x, f, inside, values, reference)

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crashnlp.optimize.parameters import FreeParameters
+from crashnlp.optimize.free import FreeParameters
 
 SPRING = "model.spring.values"
 

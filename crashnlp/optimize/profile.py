@@ -4,7 +4,8 @@ For each chosen parameter the NLP is solved again with that entry held at
 values stepping away from the optimum, 0.75 standard errors apart, each solve
 warm-started from the previous one (one IPOPT solver per chain: only its
 bounds change). The two sides of every parameter are independent chains and
-run in parallel on the study executors.
+run in parallel on the executor given (crashnlp.engine): a step after the fit,
+on its solution, as pyPESTO's parameter_profile(problem, result, optimizer, engine).
 
 Threshold: near the optimum the objective f = sum w e^2 rises along a profile
 as delta^2 / [H^-1]_ii (H = J^T W J). The interval ends where the rise reaches
@@ -22,7 +23,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.case import Case
+from crashnlp.engine.executors import Executor
+from crashnlp.engine.schedule import map_all
 from crashnlp.errors import InputError
+from crashnlp.optimize.identify import Solution, fit_ocp
+from crashnlp.optimize.solve import build_solver
 from crashnlp.problem.schema import Problem
 
 Z95 = 1.96
@@ -41,9 +46,6 @@ class Chain:
 
 def walk(chain: Chain) -> list[tuple[float, float, str]]:
     """(value, objective, IPOPT status) along a chain, each solve warm-started from the last."""
-    from crashnlp.optimize.identify import fit_ocp
-    from crashnlp.optimize.solve import build_solver
-
     ocp, _ = fit_ocp(Case(chain.problem))  # the identification's shape: its compiled library serves
     built = build_solver(ocp.nlp, chain.problem.solver)
     bounds = ocp.nlp.bounds()
@@ -74,11 +76,9 @@ def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], t
     return None
 
 
-def profiles(solution, executor=None) -> dict[str, dict]:
-    """Profile intervals of the parameters the problem's `uncertainty.profile` names."""
-    from crashnlp.studies.executors import make_executor
-    from crashnlp.studies.schedule import map_all
-
+def profiles(solution: Solution, executor: Executor) -> dict[str, dict]:
+    """Profile intervals of the parameters the problem's `uncertainty.profile` names, their
+    chains run on `executor` (which the caller closes)."""
     spec = solution.case.problem.uncertainty
     if not spec.profile or solution.covariance is None or solution.result is None:
         return {}
@@ -100,12 +100,7 @@ def profiles(solution, executor=None) -> dict[str, dict]:
             if steps.size:
                 chains.append(Chain(problem, solution.result.z, i, tuple(float(v) for v in steps)))
                 keys.append((label, side))
-    runner = executor or make_executor(spec.executor, spec.workers)
-    try:
-        walked = {keys[i]: result for i, result in map_all(runner, walk, chains)}
-    finally:
-        if executor is None:
-            runner.close()
+    walked = {keys[i]: result for i, result in map_all(executor, walk, chains)}
     out = {}
     for label in spec.profile:
         i = labels.index(label)

@@ -1,14 +1,11 @@
 """Constraint what-if studies: one base problem, some entries varied, every case solved.
 
-`run_study` solves the cases in parallel (a local process pool or dask), each
+`run_study` solves the cases in parallel (on crashnlp.engine's executors), each
 warm-started from a neighbour fixed in advance, and writes a table and figures.
 Submodules load on first use, so that the command line starts quickly.
 """
 
 from importlib import import_module
-
-EXECUTORS = ("local", "dask")  # where cases run: crashnlp.studies.executors
-CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to answer
 
 _EXPORTS = {
     "run_study": "crashnlp.studies.run",

@@ -6,7 +6,7 @@ import argparse
 import math
 from pathlib import Path
 
-from crashnlp.studies import CONNECT_TIMEOUT, EXECUTORS
+from crashnlp.engine import CONNECT_TIMEOUT, EXECUTORS
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)
@@ -50,7 +50,7 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
         "--executor",
         choices=EXECUTORS,
         default="local",
-        help="local: a process pool on this machine (default); dask: a dask.distributed cluster",
+        help="local: a process pool on this machine (default); dask: a dask.distributed cluster (pip install 'crashnlp[dask]')",
     )
     p.add_argument("--workers", type=int, help="worker processes (default: the cores available; ignored with --address)")
     p.add_argument("--address", help="scheduler of a running dask cluster, e.g. tcp://host:8786 (default: start a local one)")
@@ -67,12 +67,14 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
+    from crashnlp.engine.executors import require_dask, start_early
     from crashnlp.errors import InputError, Interrupted
     from crashnlp.files import check_writable
-    from crashnlp.studies.executors import start_early
 
     check = getattr(args, "check", False)
-    if args.executor == "local" and not check:
+    if args.executor == "dask":
+        require_dask()
+    elif not check:
         start_early()
     from crashnlp.studies.run import RESULTS, run_study
     from crashnlp.studies.spec import load_study
@@ -103,7 +105,7 @@ def cmd_study(args) -> int:
         raise
     if check:
         if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
-            from crashnlp.studies.executors import make_executor
+            from crashnlp.engine.executors import make_executor
 
             make_executor("dask", None, args.address, args.timeout).close()
         print(f"{args.study}: ok (would write {out}/)")

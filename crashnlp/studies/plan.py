@@ -5,7 +5,7 @@ case warm-starts from a parent: a case next to it (Chebyshev distance 1 in
 grid-index space) one step closer to the nearest seed, the nearest such
 (Euclidean in index space), ties to the lower case number. A case's depth, its
 number of warm starts from a seed, is its Chebyshev distance to the nearest seed.
-A case runs as soon as its parent is solved (crashnlp.studies.schedule), so one
+A case runs as soon as its parent is solved (crashnlp.engine.schedule), so one
 slow case holds up only the cases planned from it.
 
 Identical tables or full parallelism: a plan that adapted to the run (a seed

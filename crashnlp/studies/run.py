@@ -20,19 +20,21 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
+from crashnlp.checks import check_keys, check_tests
+from crashnlp.engine import CONNECT_TIMEOUT
+from crashnlp.engine.executors import default_workers, make_executor, start_early
+from crashnlp.engine.schedule import run_tree
 from crashnlp.errors import InputError
 from crashnlp.jsonfile import clean
-from crashnlp.studies import CONNECT_TIMEOUT
-from crashnlp.studies.executors import default_workers, make_executor, start_early
+from crashnlp.problem import problem_from_dict
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
-from crashnlp.studies.schedule import run_tree
 from crashnlp.studies.spec import Study, load_study
 from crashnlp.studies.store import CaseStore
 from crashnlp.studies.table import show, write_figures, write_table
 from crashnlp.studies.worker import one_line, solve_job
 
 if TYPE_CHECKING:
-    from crashnlp.studies.executors import Executor
+    from crashnlp.engine.executors import Executor
 
 RESULTS = Path("results")
 
@@ -137,40 +139,20 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
 
 
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
-    """Refuse a case whose problem is not valid, or whose data contradict it, naming the study file,
-    the case and its values. Data are read once per distinct set of tests (`checked`)."""
-    from crashnlp.problem import problem_from_dict
-    from crashnlp.problem.load import check_fit_keys
-
+    """Refuse a case whose problem is not valid, or whose data contradict it (crashnlp.checks:
+    those of a solve, short of building the model), naming the study file, the case and its
+    values. Data are read once per distinct set of tests (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
     try:
         problem = problem_from_dict(raw, study.base_dir, source="problem")
-        check_fit_keys(problem, "problem")
+        check_keys(problem, "problem")
         tests = json.dumps([raw.get("tests"), raw.get("vehicle", {}).get("speed")], sort_keys=True, default=str)
         if tests not in checked:
-            _check_data(problem)
+            check_tests(problem, "problem")
             checked.add(tests)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
-
-
-def _check_data(problem) -> None:
-    """Read every test's data and refuse a speed they contradict (what Case does, without the model)."""
-    from crashnlp.case import check_speed
-    from crashnlp.data import load_test_data
-
-    masses = [problem.vehicle.mass] + [t.mass for t in problem.tests]
-    for i, test in enumerate(problem.tests):
-        data = load_test_data(test.data, problem.speed(test)) if test.data is not None else None
-        speed = problem.speed(test) or (data.meta.get("speed") if data is not None else None)
-        if speed is None:
-            raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
-        if data is not None:
-            check_speed(i, float(speed), test, data)
-            masses.append(data.meta.get("mass"))
-    if not any(masses):
-        raise InputError("vehicle.mass: not given and no data header gives it")
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:

@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from crashnlp.engine.schedule import map_all
 from crashnlp.files import atomic_open
 from crashnlp.studies.plan import PlannedCase
-from crashnlp.studies.schedule import map_all
 from crashnlp.studies.spec import Study, SweepEntry
 
 if TYPE_CHECKING:
-    from crashnlp.studies.executors import Executor
+    from crashnlp.engine.executors import Executor
 
 PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
 

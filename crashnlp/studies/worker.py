@@ -11,6 +11,8 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.errors import InputError
+from crashnlp.problem import problem_from_dict
+from crashnlp.runtime import THREADS_ENV
 
 if TYPE_CHECKING:
     from crashnlp.result import Result
@@ -24,16 +26,14 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     Returns {"record": table columns of the outcome, "z": solution vector or None};
     bad input and any exception become a record with that status.
     """
-    from crashnlp.api import solve
-    from crashnlp.problem import problem_from_dict
-    from crashnlp.runtime import THREADS_ENV
+    from crashnlp.pipeline import solve_problem  # the solver stack: loaded by the workers, not by the study's planner
 
     if job["threads"] is not None:
         os.environ[THREADS_ENV] = str(job["threads"])
     try:
         problem = problem_from_dict(job["raw"], Path(job["base_dir"]), source=job["id"])
         with contextlib.redirect_stderr(io.StringIO()):  # CasADi's warnings: the row's status says it
-            result = solve(problem, progress=None, warm=job["warm"], ratings=False)
+            result = solve_problem(problem, job["id"], progress=None, warm=job["warm"], ratings=False)
     except InputError as exc:
         return {"record": {"status": f"input error: {one_line(exc)}"}, "z": None}
     except Exception as exc:  # noqa: BLE001 - any failure of one case is that case's status

@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterator, Mapping, Sequence
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
-    from crashnlp.studies.executors import Executor
+    from crashnlp.engine.executors import Executor
 
 COLD_WORK = 5.0  # a cold solve against a warm one (pickup studies: cold 35-340 IPOPT iterations, warm mostly 13-60)
 

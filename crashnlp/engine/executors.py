@@ -1,12 +1,12 @@
-"""Where tasks run: a local process pool or a dask.distributed cluster, as lanes.
+"""Where tasks run: a local process pool or a dask.distributed cluster (crashnlp[dask]), as lanes.
 
 An executor has `lanes` (worker processes, or a cluster's worker threads) and
 runs one task per lane at a time: `submit(lane, fn, item)`, then `wait()` for
 `(lane, result)` of a task that finished. An exception the task raised (or a
-worker that died) comes back as the result, so one broken case never stops the
-study. `fn` must be a top-level function of plain, picklable data. The workers
+worker that died) comes back as the result, so one broken task never stops the
+others. `fn` must be a top-level function of plain, picklable data. The workers
 start once and live until `close`, so what a worker keeps (a solver built for a
-problem shape) serves every later task on its lane; crashnlp.studies.schedule
+problem shape) serves every later task on its lane; crashnlp.engine.schedule
 decides what runs where.
 """
 
@@ -26,8 +26,8 @@ from contextlib import contextmanager
 from typing import Any, Protocol
 
 from crashnlp.compile_job import stop_compiles
+from crashnlp.engine import CONNECT_TIMEOUT, DASK_EXTRA, EXECUTORS
 from crashnlp.errors import InputError, RunError
-from crashnlp.studies import CONNECT_TIMEOUT, EXECUTORS
 
 
 class Executor(Protocol):
@@ -47,13 +47,13 @@ def default_workers() -> int:
     return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
 
 
-# imported once by the fork server, so each worker starts in milliseconds, not seconds
+# imported once by the fork server, so each worker starts in milliseconds, not seconds: what a
+# study's cases and a fit's profile chains run
 PRELOAD = [
     "crashnlp.studies.run",
     "crashnlp.studies.worker",
-    "crashnlp.case",
-    "crashnlp.optimize",
-    "crashnlp.results",
+    "crashnlp.pipeline",
+    "crashnlp.result",
 ]
 
 
@@ -163,28 +163,28 @@ class DaskExecutor:
     """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
 
     def __init__(self, workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT):
-        from distributed import Client, LocalCluster, as_completed
+        distributed = require_dask()
 
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
             # the worker processes inherit it: Ctrl-C is the main process's to handle
             with _sigint_ignored(), _workers_skip_main_script():
-                self.cluster = LocalCluster(
+                self.cluster = distributed.LocalCluster(
                     n_workers=workers or default_workers(),
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=None,
                     silence_logs=logging.CRITICAL,
                 )
-            self.client = Client(self.cluster)
+            self.client = distributed.Client(self.cluster)
         else:
             self.client = _connect(address, timeout)
         # a lane per worker thread of the cluster (one unrestricted lane while it has no workers)
         threads = {a: w.get("nthreads", 1) for a, w in self.client.scheduler_info()["workers"].items()}
         self.addresses: list[str | None] = [a for a in sorted(threads) for _ in range(threads[a])] or [None]
         self.lanes = len(self.addresses)
-        self.done = as_completed()
+        self.done = distributed.as_completed()
         self.lane_of: dict[Any, int] = {}  # task key -> lane
 
     def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None:
@@ -213,12 +213,20 @@ class DaskExecutor:
                 self.cluster.close(timeout=5)
 
 
+def require_dask(where: str = "--executor dask") -> Any:
+    """The dask.distributed module; without it (a plain `pip install crashnlp`) an InputError that
+    names `where` dask was asked for and says what to install."""
+    try:
+        import distributed
+    except ImportError:
+        raise InputError(f"{where}: dask is not installed ({DASK_EXTRA})") from None
+    return distributed
+
+
 def _connect(address: str, timeout: float) -> Any:
     """A client of the dask scheduler at `address`; a bad or silent address is one line."""
-    from distributed import Client
-
     try:
-        return Client(address, timeout=timeout)
+        return require_dask().Client(address, timeout=timeout)
     except (ValueError, TypeError) as exc:
         raise InputError(f"--address {address}: not a scheduler address ({exc})") from None
     except (OSError, TimeoutError) as exc:

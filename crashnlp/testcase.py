@@ -1,0 +1,103 @@
+"""The first step of a Case: a problem's tests with their data loaded, impact speeds and horizons.
+
+problem -> load_tests -> (problem with its vehicle mass, tests); crashnlp.autoinit then
+completes the problem from the tests' data, and crashnlp.case lays out its parameters and
+builds the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from crashnlp.data import TestData, load_test_data
+from crashnlp.errors import InputError
+from crashnlp.problem import Problem, Test
+
+SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
+
+
+@dataclass
+class TestCase:
+    """One test of a problem: its impact speed, horizon, data and parameter overrides."""
+
+    spec: Test
+    speed: float
+    duration: float
+    data: TestData | None
+    overrides: dict[str, float]
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+
+def load_tests(problem: Problem) -> tuple[Problem, list[TestCase]]:
+    """The problem (with the vehicle mass from a test or a data header when it gives none) and
+    its tests, their data read."""
+    loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
+    problem = _with_vehicle_mass(problem, loaded)
+    return problem, [_test_case(problem, i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
+
+
+def _with_vehicle_mass(problem: Problem, loaded: list[TestData | None]) -> Problem:
+    if problem.vehicle.mass is not None:
+        return problem
+    masses = [t.mass for t in problem.tests if t.mass] + [d.meta["mass"] for d in loaded if d and "mass" in d.meta]
+    if not masses:
+        raise InputError("vehicle.mass: not given and no data header gives it")
+    return problem.with_values({"vehicle.mass": masses[0]})
+
+
+def _test_case(problem: Problem, i: int, test: Test, data: TestData | None) -> TestCase:
+    speed = problem.speed(test)
+    if speed is None and data is not None:
+        speed = data.meta.get("speed")
+    if speed is None:
+        raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+    window = test.data.window if test.data is not None else None
+    if test.duration is not None:
+        duration = test.duration
+    elif data is not None and window is not None:
+        duration = window[1]
+    elif data is not None:
+        duration = max(float(ch.time[-1]) for ch in data.channels.values())
+    else:
+        duration = problem.simulation.duration
+    overrides = {"vehicle.mass": test.mass} if test.mass is not None else {}
+    return TestCase(test, float(speed), float(duration), data, overrides)
+
+
+def check_data(tests: list[TestCase]) -> None:
+    """Refuse test data that contradict the problem's speed (check_speed). For fits: a
+    simulation may well ask what a test would do at another speed."""
+    for i, test in enumerate(tests):
+        if test.data is not None:
+            check_speed(i, test.speed, test.spec, test.data)
+
+
+def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a test speed the data contradict: the header's speed, or a measured velocity at impact.
+
+    A plain number is m/s, so `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs
+    into the iteration limit without ever saying why.
+    """
+    where = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+    header = data.meta.get("speed")
+    if header and abs(speed - header) > SPEED_TOLERANCE * header:
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the data header of test {test.name} says {header:g} m/s "
+            f"(more than 5 % apart; a plain number is m/s)"
+        )
+    spec = test.data.channels.get("velocity") if test.data is not None else None
+    velocity = data.channels.get("velocity")
+    if velocity is None or spec is None or spec.derive is not None or test.data is None:
+        return
+    t0 = min(max(0.0, float(velocity.time[0])), float(velocity.time[-1]))
+    start = float(np.interp(t0, velocity.time, velocity.values))
+    if abs(start - speed) > SPEED_TOLERANCE * abs(speed):
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s "
+            f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
+        )
