@@ -33,6 +33,7 @@ class SolveResult:
     profile: dict[str, tuple[int, float]] = field(default_factory=dict)  # IPOPT's functions: calls, seconds
     compiled: bool = False  # IPOPT called the compiled NLP functions (crashnlp.optimize.oracle)
     tail: float | None = None  # stopped in Gauss-Newton's slow tail (Watch): the distance still to go
+    cycling: bool = False  # stopped in a cycle of Gauss-Newton's iterates (Watch, `cycling`)
 
     @property
     def converged(self) -> bool:
@@ -50,6 +51,15 @@ class SolveResult:
 # point, not closing in on it. The measurements behind these numbers: docs/design-notes.md.
 TAIL_RATIO, TAIL_SPREAD, TAIL_RUN, TAIL_STEP, TAIL_VIOLATION = 0.5, 0.02, 3, 3e-2, 1e-4
 TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail takes 2 to 4 iterations
+
+# A cycle: the iterates go round a point instead of closing in on it. Where the crush crosses a
+# kink of the force laws inside an integration step, the step's derivatives jump as the
+# parameters move the crossing across a stage of the step; the dual infeasibility then stays
+# put and IPOPT steps round and round the optimum. Seen as: after CYCLE_START iterations, over
+# the last CYCLE_RUN the objective spread within CYCLE_SPREAD of its value and rose at least
+# CYCLE_RISES times, the constraints met to CYCLE_VIOLATION, and the last half of the steps no
+# shorter than CYCLE_SHRINK of the half before (a converging run, even a slow one, shortens them).
+CYCLE_START, CYCLE_RUN, CYCLE_SPREAD, CYCLE_RISES, CYCLE_VIOLATION, CYCLE_SHRINK = 25, 12, 1e-2, 3, 1e-3, 0.7
 
 
 class Watch(ca.Callback):
@@ -69,7 +79,9 @@ class Watch(ca.Callback):
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
+        self.objectives: list[float] = []
         self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
+        self.cycling = False  # set to stop a cycle (CYCLE_START above)
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -108,18 +120,21 @@ class Watch(ca.Callback):
             f = float(arg[names.index("f")])
             print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
         if self.watch:
-            self._follow(arg[names.index("x")].full().ravel(), violation)
-        return [int(self.remaining is not None)]
+            self._follow(arg[names.index("x")].full().ravel(), float(arg[names.index("f")]), violation)
+        return [int(self.remaining is not None or self.cycling)]
 
-    def _follow(self, x: np.ndarray, violation: Callable[[], float]) -> None:
-        """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go
-        (the constraint violation is computed only there)."""
+    def _follow(self, x: np.ndarray, f: float, violation: Callable[[], float]) -> None:
+        """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go; in a
+        cycle, `cycling` (the constraint violation is computed only there)."""
         if self.x is not None:
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
+        self.objectives.append(f)
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
+        elif self.count >= CYCLE_START and cycle(self.objectives, self.steps) and violation() <= CYCLE_VIOLATION:
+            self.cycling = True
 
 
 def slow_tail(steps: list[float]) -> bool:
@@ -129,6 +144,17 @@ def slow_tail(steps: list[float]) -> bool:
     last = steps[-TAIL_RUN - 1 :]
     ratios = [b / a for a, b in zip(last, last[1:])]  # a few numbers: plain Python, no numpy calls
     return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
+
+
+def cycle(objectives: list[float], steps: list[float]) -> bool:
+    """Whether the last CYCLE_RUN iterates go round a point (CYCLE_START above)."""
+    if len(objectives) < CYCLE_RUN or len(steps) < CYCLE_RUN:
+        return False
+    f, last = objectives[-CYCLE_RUN:], steps[-CYCLE_RUN:]
+    spread = (max(f) - min(f)) / max(abs(f[-1]), 1e-300)
+    rises = sum(b > a for a, b in zip(f, f[1:]))
+    half = CYCLE_RUN // 2
+    return spread <= CYCLE_SPREAD and rises >= CYCLE_RISES and sum(last[half:]) >= CYCLE_SHRINK * sum(last[:half])
 
 
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own); the measurements behind
@@ -249,8 +275,10 @@ def solve(
     Newton does not finish the same fit (`finishes`), Gauss-Newton runs again to the end
     without the watch. Where Gauss-Newton fails (GAUSS_NEWTON_FAILURES) or
     has not converged after AUTO_GAUSS_NEWTON_ITER iterations, IPOPT starts over with the exact Hessian from the
-    initial guess, since a crawl can end far from where the exact Hessian converges from. The
-    result counts the iterations and time of every run."""
+    initial guess, since a crawl can end far from where the exact Hessian converges from. Where
+    Gauss-Newton's iterates cycle (CYCLE_START above), the run stops there, `cycling`: the
+    exact Hessian sees the same kink, and the caller refines the integration instead
+    (crashnlp.optimize.identify). The result counts the iterations and time of every run."""
     if spec.hessian != "auto" or hessian_kind(nlp, spec) != "gauss-newton":
         return _solve(nlp, spec, verbose, progress)
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
@@ -262,13 +290,13 @@ def solve(
             nlp, exact.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": TAIL_NEWTON_ITER}}), verbose, progress, start=first
         )
         if finishes(first, newton):
-            return _after(first, newton)
+            return after(first, newton)
         # Newton did not finish what Gauss-Newton began: Gauss-Newton all the way, as without the tail
-        first = _after(_after(first, newton), _solve(nlp, gauss_newton, verbose, progress))
+        first = after(after(first, newton), _solve(nlp, gauss_newton, verbose, progress))
     crawled = first.return_status == "Maximum_Iterations_Exceeded" and limit >= AUTO_GAUSS_NEWTON_ITER
-    if first.converged or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
+    if first.converged or first.cycling or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
         return first
-    return _after(first, _solve(nlp, exact, verbose, progress))
+    return after(first, _solve(nlp, exact, verbose, progress))
 
 
 def finishes(tail: SolveResult, newton: SolveResult) -> bool:
@@ -282,7 +310,7 @@ def finishes(tail: SolveResult, newton: SolveResult) -> bool:
     return newton.objective <= tail.objective or moved <= TAIL_REACH * tail.tail
 
 
-def _after(before: SolveResult, run: SolveResult) -> SolveResult:
+def after(before: SolveResult, run: SolveResult) -> SolveResult:
     """A run's result, counting the iterations and time of the runs before it."""
     return dataclasses.replace(
         run,
@@ -316,6 +344,7 @@ def _solve(
         build_s=built.build_s,
         compiled=built.compiled,
         tail=built.watch.remaining,
+        cycling=built.watch.cycling,
         profile={
             k[len("t_wall_") :]: (int(stats.get("n_call_" + k[len("t_wall_") :], 0)), float(v))
             for k, v in stats.items()
