@@ -38,7 +38,7 @@ def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
         )
     spec = test.data.channels.get("velocity") if test.data is not None else None
     velocity = data.channels.get("velocity")
-    if velocity is None or spec is None or spec.derive is not None:
+    if test.data is None or velocity is None or spec is None or spec.derive is not None:
         return
     t0 = min(max(0.0, float(velocity.time[0])), float(velocity.time[-1]))
     start = float(np.interp(t0, velocity.time, velocity.values))
@@ -109,7 +109,7 @@ class Case:
             raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
         if test.duration is not None:
             duration = test.duration
-        elif data is not None and test.data.window is not None:
+        elif data is not None and test.data is not None and test.data.window is not None:
             duration = test.data.window[1]
         elif data is not None:
             duration = max(float(ch.time[-1]) for ch in data.channels.values())
