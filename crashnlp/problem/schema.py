@@ -133,9 +133,6 @@ SIValue = Annotated[float, WithJsonSchema(QUANTITY_IN_SCHEMA)]  # a float in SI;
 Bound = tuple[SIValue | None, SIValue | None]
 
 
-_T = TypeVar("_T")
-
-
 class Strict(BaseModel):
     """A section of a problem: unknown keys refused, and frozen once validated."""
 
@@ -152,6 +149,7 @@ class Strict(BaseModel):
 
 
 _S = TypeVar("_S", bound=Strict)
+_T = TypeVar("_T")
 
 
 def _filled_in(value: _T | None, path: str) -> _T:
