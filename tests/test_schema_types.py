@@ -51,6 +51,8 @@ def test_entries_whose_unit_another_entry_decides_are_converted_in_that_unit():
     assert problem.constraints.bounds["pitch"] == pytest.approx((None, 4 * 3.141592653589793 / 180))
     with pytest.raises(ProblemError, match=r"^problem: model\.spring: '2 MN/m' does not convert to N$"):
         problem_from_dict(pickup(model__spring__values=["2 MN/m"] * 7), PICKUP.parent)
+    with pytest.raises(ProblemError, match=r"^problem: tests\.0\.data\.channels\.accel\.sigma: Input should be a valid number$"):
+        problem_from_dict(pickup(tests__0__data__channels__accel__sigma=[1]), PICKUP.parent)
     with pytest.raises(ProblemError, match=r"^problem: estimate\.vehicle\.crush_offset: '1 kg' does not convert to m$"):
         problem_from_dict(pickup(estimate={"vehicle.crush_offset": {"bounds": [0, "1 kg"]}}), PICKUP.parent)
 

@@ -431,8 +431,8 @@ def _channel_in_si(name: Any, channel: Any) -> Any:
     out = dict(channel)
     if name in DEFAULT_FILTER and "filter" not in out:
         out["filter"] = DEFAULT_FILTER[name]
-    if out.get("sigma") is not None:
-        out["sigma"] = _positive(_quantity_in_si(out["sigma"], CHANNEL_UNITS[name]))
+    if isinstance(out.get("sigma"), (int, float, str)):
+        out["sigma"] = _positive(si(out["sigma"], CHANNEL_UNITS[name]))
     return out
 
 
