@@ -56,7 +56,10 @@ def si(value: Any, unit: str) -> float:
 
 
 def _quantity_in_si(value: Any, unit: str) -> Any:
-    """A file's number or text in SI `unit`; any other value as it is, for the field's own check to refuse."""
+    """A file's number or text in SI `unit`. Any other value, and a number that is not finite, stay as
+    they are: the field's own check refuses them at their key."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return value
     return si(value, unit) if isinstance(value, (int, float, str)) else value
 
 
@@ -382,6 +385,8 @@ class ChannelSpec(Strict):
     sigma: SIValue | None = Field(None, description="scale of the residuals; default per channel")
     weight: float = Field(1.0, ge=0.0)
 
+    _positive = field_validator("sigma")(lambda v: _positive(v))
+
 
 class DataSpec(Strict):
     file: Path
@@ -431,8 +436,8 @@ def _channel_in_si(name: Any, channel: Any) -> Any:
     out = dict(channel)
     if name in DEFAULT_FILTER and "filter" not in out:
         out["filter"] = DEFAULT_FILTER[name]
-    if isinstance(out.get("sigma"), (int, float, str)):
-        out["sigma"] = _positive(si(out["sigma"], CHANNEL_UNITS[name]))
+    if out.get("sigma") is not None:
+        out["sigma"] = _quantity_in_si(out["sigma"], CHANNEL_UNITS[name])
     return out
 
 
