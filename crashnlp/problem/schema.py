@@ -597,7 +597,8 @@ class Reference(Strict):
 
 
 class Problem(Strict):
-    """A problem, every quantity in SI; `with_values` makes a changed copy."""
+    """A problem file: the vehicle, its model, its tests and what to estimate. Validated, every
+    quantity is in SI and the problem is frozen: `with_values` makes a changed copy."""
 
     name: FolderName
     kind: Literal["identify", "design"] = "identify"
