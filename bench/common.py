@@ -16,6 +16,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -56,17 +57,17 @@ def load(
     or NLP compilation (solver.compile); `from_data`: the spring values left out, so that both
     fits start from the measured force-crush curve (crashnlp.autoinit), not the problem's guess."""
     problem = load_problem(path)
+    changes: dict[str, Any] = {}
     if from_data:
-        problem.model.spring.values = None
+        changes["model.spring.values"] = None
     if method is not None or intervals is not None:
-        problem.transcription = transcription(
-            method or problem.transcription.method, intervals or problem.transcription.intervals
-        )
+        spec = transcription(method or problem.transcription.method, intervals or problem.transcription.intervals)
+        changes["transcription"] = spec.model_dump()
     if max_iter is not None:
-        problem.solver.ipopt = {**problem.solver.ipopt, "max_iter": max_iter}
+        changes["solver.ipopt"] = {**problem.solver.ipopt, "max_iter": max_iter}
     if compile is not None:
-        problem.solver.compile = compile  # type: ignore[assignment]  # one of the schema's literals
-    return problem
+        changes["solver.compile"] = compile
+    return problem.with_values(changes)
 
 
 def load_case(

@@ -28,8 +28,7 @@ def with_tests(problem: Problem, count: int) -> Problem:
     tests = [
         pair[i % 2].model_copy(update={"name": f"{pair[i % 2].name}{'' if i < 2 else '-' + str(i // 2)}"}) for i in range(count)
     ]
-    problem.tests = tests
-    return problem
+    return problem.model_copy(update={"tests": tests})
 
 
 def measure(method: str, intervals: int, tests: int) -> dict:

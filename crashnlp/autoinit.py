@@ -40,7 +40,7 @@ import numpy as np
 from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
-from crashnlp.problem.schema import Damper, EstimateSpec, Problem
+from crashnlp.problem.schema import Damper, EstimateSpec, Problem, with_fields
 from crashnlp.testcase import TestCase
 
 DEFAULT_COUNT = 8
@@ -173,15 +173,14 @@ def separates_damper(pulses: list[Pulse]) -> bool:
 
 def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, EstimateSpec]:
     """What an identification estimates when the problem does not say (see the module notes)."""
-    spring = problem.model.spring
-    top = max(SPRING_BOUND_FACTOR * max(spring.values), SPRING_BOUND_FLOOR if spring.law == "force" else 0.0)
+    spring, mass = problem.model.spring, problem.vehicle.known_mass
+    top = max(SPRING_BOUND_FACTOR * max(spring.known_values), SPRING_BOUND_FLOOR if spring.law == "force" else 0.0)
     out = {"model.spring.values": EstimateSpec(bounds=(0.0, top))}
     if problem.model.unloading.law == "plastic":
         out["model.unloading.stiffness"] = EstimateSpec(bounds=UNLOADING_BOUNDS)
     if problem.model.damper is not None and separates_damper(pulses):
-        out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * problem.vehicle.mass))
+        out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * mass))
     if any(p.has_pitch for p in pulses):
-        mass = problem.vehicle.mass
         lo, hi = PITCH_GYRATION_BOUNDS
         out["vehicle.cg_above_impact"] = EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS)
         out["vehicle.pitch_inertia"] = EstimateSpec(bounds=(mass * lo**2, mass * hi**2))
@@ -197,23 +196,27 @@ def _required(pulses: list[Pulse], what: str) -> list[Pulse]:
 
 def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
     """A copy of `problem` with breakpoints, spring values, damper, unloading stiffness and
-    estimate filled in from the pulses where the problem leaves them out."""
-    out = problem.model_copy(deep=True)
-    model = out.model
-    spring = model.spring
-    from_data = spring.values is None
+    estimate filled in from the pulses where the problem leaves them out. A filled-in entry
+    counts as set in its own section (`model_fields_set`), the sections around it do not."""
+    model = problem.model
+    spring, unloading = model.spring, model.unloading
+    set_in_model: dict[str, Damper] = {}
     if not isinstance(spring.crush_breakpoints, list):
         count = spring.crush_breakpoints.count if spring.crush_breakpoints is not None else DEFAULT_COUNT
-        spring.crush_breakpoints = breakpoints(_required(pulses, "model.spring.crush_breakpoints"), count)
-    if from_data:
+        placed = breakpoints(_required(pulses, "model.spring.crush_breakpoints"), count)
+        spring = spring.model_copy(update={"crush_breakpoints": placed})
+    if spring.values is None:
         measured = _required(pulses, "model.spring.values")
+        damper = model.damper if model.damper is not None else nominal_damper(measured, problem.vehicle.known_mass)
         if model.damper is None:
-            model.damper = nominal_damper(measured, out.vehicle.mass)
-        spring.values = spring_values(spring.crush_breakpoints, measured, spring.law, model.damper)
-    if model.unloading.stiffness is None:
-        model.unloading.stiffness = unloading_stiffness(pulses)
+            set_in_model["damper"] = damper
+        values = spring_values(spring.placed_breakpoints, measured, spring.law, damper)
+        spring = spring.model_copy(update={"values": values})
+    if unloading.stiffness is None:
+        unloading = unloading.model_copy(update={"stiffness": unloading_stiffness(pulses)})
+    out = with_fields(problem, model=with_fields(model, spring=spring, unloading=unloading).model_copy(update=set_in_model))
     if not out.estimate and out.kind == "identify" and pulses:
-        out.estimate = default_estimate(out, pulses)
+        out = out.model_copy(update={"estimate": default_estimate(out, pulses)})
     return out
 
 
@@ -228,7 +231,7 @@ def repaired_start(problem: Problem, tests: Sequence[TestCase]) -> dict[str, Any
     spring, damper = problem.model.spring, problem.model.damper
     return {
         "model.spring.values": spring_values(
-            spring.crush_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper
+            spring.placed_breakpoints, _required(pulses, "model.spring.values"), spring.law, damper
         ),
         "model.unloading.stiffness": unloading_stiffness(pulses),
     }
@@ -238,7 +241,7 @@ def measured_pulse(problem: Problem, test: TestCase) -> Pulse | None:
     """The measured pulse of one test of a problem; None without accel or velocity data."""
     if test.data is None:
         return None
-    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", problem.vehicle.mass))
+    return pulse(test.data, test.speed, test.overrides.get("vehicle.mass", problem.vehicle.known_mass))
 
 
 def measured_pulses(problem: Problem, tests: Sequence[TestCase]) -> list[Pulse]:

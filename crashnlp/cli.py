@@ -356,8 +356,8 @@ def cmd_init(args) -> int:
         raise InputError(f"--mass/--speed: {exc}") from None
     problem = init_problem(Path(args.data), Path(args.out), Options(args.format, mass, speed, columns, args.name))
     print(
-        f"wrote {args.out}: {problem.name}, {len(problem.model.spring.values)} breakpoints to "
-        f"{problem.model.spring.crush_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
+        f"wrote {args.out}: {problem.name}, {len(problem.model.spring.known_values)} breakpoints to "
+        f"{problem.model.spring.placed_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
     )
     return 0
 

@@ -252,14 +252,14 @@ def _column(header: list[str], channel: str, given: str | None) -> tuple[str, st
         if name not in header:
             raise InputError(f"--column {channel}={given}: no column {name!r} (columns: {', '.join(header)})")
     else:
-        name = next((h for h in header if re.search(CSV_PATTERNS[channel], h.lower())), None)
-        if name is None:
+        match = next((h for h in header if re.search(CSV_PATTERNS[channel], h.lower())), None)
+        if match is None:
             return None
-        unit = ""
-    unit = unit or unit_in_name(name)
-    if unit is None:
+        name, unit = match, ""
+    named = unit or unit_in_name(name)
+    if named is None:
         raise InputError(f"column {name!r} ({channel}): no unit in its name; give --column {channel}={name}:UNIT")
-    return name, unit
+    return name, named
 
 
 def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
@@ -272,8 +272,8 @@ def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
     time = _column(header, "time", columns.get("time"))
     if time is None:
         raise InputError(f"{path}: no time column (give --column time=NAME:UNIT)")
-    found = {ch: _column(header, ch, columns.get(ch)) for ch in ("accel", "velocity", "displacement", "pitch")}
-    found = {ch: c for ch, c in found.items() if c is not None}
+    given = {ch: _column(header, ch, columns.get(ch)) for ch in ("accel", "velocity", "displacement", "pitch")}
+    found = {ch: c for ch, c in given.items() if c is not None}
     if "accel" not in found and "velocity" not in found:
         raise InputError(f"{path}: no accel or velocity column (give --column accel=NAME:UNIT)")
     channels = {ch: {"column": name, "unit": unit} for ch, (name, unit) in found.items()}
@@ -430,7 +430,7 @@ def _line(indent: int, text: str, comment: str = "") -> str:
     return f"{body:<43} # {comment}" if comment else body
 
 
-def _flow(values: dict) -> str:
+def _flow(values: dict | list) -> str:
     return yaml.safe_dump(values, default_flow_style=True, sort_keys=False, width=1000).strip()
 
 
@@ -470,13 +470,14 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
             f"estimate: axle loads at {RIDE_FREQUENCY} Hz ride frequency, damping ratio {DAMPING_RATIO}",
         )
     )
-    bps = [round(b, 4) for b in m.spring.crush_breakpoints]
+    bps = [round(b, 4) for b in m.spring.placed_breakpoints]
+    assert m.damper is not None  # spring values from the data come with a nominal damper (crashnlp.autoinit.complete)
     lines += [
         "model:",
         "  spring:",
         "    law: force",
         _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, a little past the largest crush"),
-        _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.values)}]", "measured force-crush curve"),
+        _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.known_values)}]", "measured force-crush curve"),
         _line(
             2,
             "damper: "
@@ -488,13 +489,19 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
             ),
             "nominal",
         ),
-        _line(2, f"unloading: {{law: plastic, stiffness: {_q(m.unloading.stiffness, 'MN/m', 1e-6, '.1f')}}}", "from the rebound"),
+        _line(
+            2,
+            f"unloading: {{law: plastic, stiffness: {_q(m.unloading.known_stiffness, 'MN/m', 1e-6, '.1f')}}}",
+            "from the rebound",
+        ),
     ]
     lines += _test_lines(draft, data_file)
     lines.append("estimate:")
     for path, spec in problem.estimate.items():
         unit, scale, fmt = ESTIMATE_UNITS[path]
-        bounds = ", ".join(_q(b, unit, scale, fmt) for b in spec.bounds)
+        lo, hi = spec.bounds or (None, None)
+        assert lo is not None and hi is not None  # crashnlp.autoinit.default_estimate bounds each entry on both sides
+        bounds = ", ".join(_q(b, unit, scale, fmt) for b in (lo, hi))
         lines.append(_line(2, f"{path}: {{bounds: [{bounds}]}}", "pitch lever" if path == PITCH_LEVER else ""))
     lines += ["constraints:", "  monotone_crush: true", "transcription: " + _flow(problem.transcription.model_dump())]
     return "\n".join(lines) + "\n"

@@ -114,8 +114,7 @@ def test_a_fit_stops_once_its_parameters_are_settled_to_a_sliver_of_their_errors
     # by a noticeable share of its standard error (solve.FIT_OPTIONS)
     problem = load_problem(small_pickup_problem(tmp_path))
     default = identify(Case(problem), progress=None)
-    problem.solver.ipopt = {"tol": 1e-8}
-    tight = identify(Case(problem), progress=None)
+    tight = identify(Case(problem.with_values({"solver.ipopt": {"tol": 1e-8}})), progress=None)
     assert default.ok and tight.ok
     assert default.result.iterations < tight.result.iterations
     assert np.all(np.abs(default.theta - tight.theta) <= 1e-4 * tight.std_errors), (default.theta, tight.theta)
@@ -124,8 +123,7 @@ def test_a_fit_stops_once_its_parameters_are_settled_to_a_sliver_of_their_errors
 def test_a_fit_that_converges_fast_stays_with_gauss_newton(tmp_path):
     problem = load_problem(small_pickup_problem(tmp_path))
     auto = identify(Case(problem), progress=None)
-    problem.solver.hessian = "gauss-newton"
-    gn = identify(Case(problem), progress=None)
+    gn = identify(Case(problem.with_values({"solver.hessian": "gauss-newton"})), progress=None)
     assert auto.ok and auto.result.iterations == gn.result.iterations
     assert np.array_equal(auto.theta, gn.theta)
 
@@ -143,12 +141,10 @@ def test_gauss_newtons_slow_tail_is_finished_by_newton_at_the_same_optimum(monke
         return result
 
     monkeypatch.setattr(solving, "_solve", recorded)
-    problem = load_problem(ROOT / "problems/pickup-40kph.yaml")
-    problem.transcription.intervals = 40
+    problem = load_problem(ROOT / "problems/pickup-40kph.yaml").with_values({"transcription.intervals": 40})
     auto = identify(Case(problem), progress=None)
     assert runs == [("auto", False, "User_Requested_Stop"), ("exact", True, "Solve_Succeeded")]
-    problem.solver.hessian, problem.solver.ipopt = "gauss-newton", {"tol": 1e-8}
-    gn = identify(Case(problem), progress=None)
+    gn = identify(Case(problem.with_values({"solver.hessian": "gauss-newton", "solver.ipopt": {"tol": 1e-8}})), progress=None)
     assert auto.ok and gn.ok
     assert auto.result.iterations < gn.result.iterations / 2
     assert np.all(np.abs(auto.theta - gn.theta) <= 1e-4 * gn.std_errors), (auto.theta, gn.theta, gn.std_errors)
@@ -176,8 +172,7 @@ def test_where_gauss_newton_fails_the_exact_hessian_starts_over_and_counts_both(
     assert restarted.ok and restarted.result.return_status == "Solve_Succeeded"
     assert restarted.result.iterations == sum(n for _, _, n in runs)
     monkeypatch.undo()
-    problem.solver.hessian = "exact"
-    exact = identify(Case(problem), progress=None)
+    exact = identify(Case(problem.with_values({"solver.hessian": "exact"})), progress=None)
     assert np.array_equal(restarted.theta, exact.theta)
 
 
@@ -203,8 +198,7 @@ def test_the_fit_does_not_jump_with_a_force_at_zero_crush(tmp_path):
 
     from crashnlp.optimize.identify import fit_ocp
 
-    problem = load_problem(small_pickup_problem(tmp_path))
-    problem.model.spring.values = [200e3, 400e3, 500e3]
+    problem = load_problem(small_pickup_problem(tmp_path)).with_values({"model.spring.values": [200e3, 400e3, 500e3]})
     ocp, _ = fit_ocp(Case(problem))
     nlp, args = ocp.nlp.problem(), ocp.nlp.bounds()
     objective = ca.Function("f", [nlp["x"], nlp["p"]], [nlp["f"]])

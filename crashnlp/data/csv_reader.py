@@ -39,7 +39,7 @@ def read_csv(spec: DataSpec) -> TestData:
         time = time * unit_scale(spec.time.unit, "s")
     except Exception:
         raise DataError(f"{where(path, 'time')}: unit {spec.time.unit!r} is not a time") from None
-    channels = {}
+    channels: dict[str, Channel] = {}
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue

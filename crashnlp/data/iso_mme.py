@@ -114,7 +114,7 @@ def read_mme(spec: DataSpec) -> TestData:
     """
     path = spec.file
     store, mme_name, chn_name, codes = _open(path)
-    channels = {}
+    channels: dict[str, Channel] = {}
     obj = None
     for name, ch in spec.channels.items():
         if ch.derive is not None:

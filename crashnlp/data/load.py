@@ -101,8 +101,8 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         out[name] = Channel(accel_unfiltered.time, values, CHANNEL_UNITS[name], source)
 
     if spec.window is not None:
-        for name in out:
-            out[name] = cut(out[name], spec.window)
-            if out[name].time.size < 2:
-                raise DataError(f"{where(path, name)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples")
+        for channel in out:
+            out[channel] = cut(out[channel], spec.window)
+            if out[channel].time.size < 2:
+                raise DataError(f"{where(path, channel)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples")
     return TestData(out, dict(raw.meta), notes)

@@ -190,7 +190,7 @@ def _curve_numbers(header: Path, curves: dict[int, Curve], name: str, ch: Channe
         kept, dropped = barrier_cells(header, curves)
         left_out = "; ".join(f"{c.number:03d} ({c.status}: {c.comment})" for c in dropped) or "none"
         return kept, f"{name}: {len(kept)} barrier Fx load cells summed; dropped as not valid: {left_out}"
-    if not ch.curves:
+    if not isinstance(ch.curves, list) or not ch.curves:
         raise DataError(f"{where(header, name)}: no curves given (an EV5 channel needs `curves`)")
     return list(ch.curves), None
 
@@ -212,7 +212,8 @@ def read_ev5(spec: DataSpec) -> TestData:
     if speed is not None and speed > 0:
         meta["speed"] = speed / 3.6
     vehicle = 1
-    channels, notes = {}, []
+    channels: dict[str, Channel] = {}
+    notes: list[str] = []
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue

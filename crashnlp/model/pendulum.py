@@ -61,7 +61,7 @@ class Structure:
         return cls(
             spec.spring.law,
             spec.unloading.law,
-            len(spec.spring.crush_breakpoints),
+            len(spec.spring.placed_breakpoints),
             0 if spec.damper is None else len(spec.damper.rate_breakpoints),
             spec.smoothing.crush,
             spec.smoothing.rate,

@@ -18,6 +18,7 @@ from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.solve import SolveResult, after, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
+from crashnlp.problem.schema import MultipleShootingSpec
 from crashnlp.simulation import Response
 
 
@@ -168,14 +169,10 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
-    while result.cycling and (refined := _refined(case)) is not None:
-        notes.append(
-            note := f"{case.name}: IPOPT's iterates cycled after {result.iterations} iterations at "
-            f"{case.problem.transcription.substeps} RK4 step(s) per interval (a kink of the force laws crossed inside "
-            f"a step); solved again from there with {refined.problem.transcription.substeps}"
-        )
+    while result.cycling and (refined := _refined(case, result)) is not None:
+        (case, note), notes = refined, [*notes, refined[1]]
         _say(note, progress)
-        case, (ocp, fit) = refined, fit_ocp(refined)
+        ocp, fit = fit_ocp(case)
         ocp.set_guess(result.z)
         result = after(result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress))
     solution = _finished(case, ocp, fit, result, theta0)
@@ -188,13 +185,17 @@ def _say(note: str | None, progress: TextIO | None) -> None:
         print(note, file=progress)
 
 
-def _refined(case: Case) -> Case | None:
-    """The case with REFINE times the RK4 steps per shooting interval; None where there is no
-    such step to refine (collocation) or the steps are at MAX_SUBSTEPS."""
+def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str] | None:
+    """The case with REFINE times the RK4 steps per shooting interval, and the line that says
+    so; None where there is no such step to refine (collocation) or the steps are at MAX_SUBSTEPS."""
     spec = case.problem.transcription
-    if spec.method != "multiple-shooting" or spec.substeps * REFINE > MAX_SUBSTEPS:
+    if not isinstance(spec, MultipleShootingSpec) or spec.substeps * REFINE > MAX_SUBSTEPS:
         return None
-    return Case(case.problem.with_values({"transcription.substeps": spec.substeps * REFINE}))
+    steps = spec.substeps * REFINE
+    return Case(case.problem.with_values({"transcription.substeps": steps})), (
+        f"{case.name}: IPOPT's iterates cycled after {cycled.iterations} iterations at {spec.substeps} RK4 step(s) "
+        f"per interval (a kink of the force laws crossed inside a step); solved again from there with {steps}"
+    )
 
 
 def _finished(case: Case, ocp: OptimalControl, fit: FitObjective, result: SolveResult, theta0: np.ndarray) -> Solution:

@@ -21,7 +21,7 @@ import tempfile
 from dataclasses import asdict, dataclass
 from functools import cache
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, cast
 
 from crashnlp.cache import cache_dir
 
@@ -184,7 +184,7 @@ def parse_documentation(text: str) -> dict[str, IpoptOption]:
         bounds = _RANGE.search(entry.group(0))
         lo, lo_op, hi_op, hi = bounds.groups() if bounds else (None, None, None, None)
         options[entry.group(1)] = IpoptOption(
-            kind.group(1),
+            cast(Kind, kind.group(1)),  # _KIND matches the kinds only
             lower=None if lo is None else float(lo),
             lower_strict=lo_op == "<",
             upper=None if hi is None else float(hi),

@@ -2,60 +2,14 @@
 
 from __future__ import annotations
 
-import copy
+from collections.abc import Hashable
 from pathlib import Path
 from typing import Any
 
 import yaml
-from pydantic import ValidationError
 
-from crashnlp.errors import InputError
-from crashnlp.problem.schema import Problem
-
-
-class ProblemError(InputError):
-    """Bad input: the message is the one line the user sees (exit status 2)."""
-
-
-def _loc(loc: tuple) -> str:
-    return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
-
-
-def _message(err: Any) -> str:
-    msg = err["msg"].removeprefix("Value error, ")
-    loc = _loc(err["loc"])
-    if err["type"] == "extra_forbidden":
-        msg = "unknown key"
-    elif err["type"] == "missing":
-        msg = "missing key"
-    return f"{loc}: {msg}" if loc else msg
-
-
-def all_errors(exc: ValidationError) -> str:
-    """Every error of a validation in one line ("a: missing key; b.c: unknown key"), one per key.
-
-    A value that fits no member of a union gets an error per member; the first stands for all.
-    """
-    seen: dict[str, str] = {}
-    for err in exc.errors():
-        seen.setdefault(_loc(err["loc"]), _message(err))
-    return "; ".join(seen.values())
-
-
-first_error = all_errors  # the name studies import
-
-
-def problem_from_dict(raw: dict[str, Any], base_dir: Path, source: str = "problem") -> Problem:
-    """Validate a problem given as a plain dict (paths relative to `base_dir`)."""
-    if not isinstance(raw, dict):
-        raise ProblemError(f"{source}: expected a mapping at the top level")
-    try:
-        problem = Problem.model_validate(copy.deepcopy(raw), context={"base_dir": base_dir})
-    except ValidationError as exc:
-        raise ProblemError(f"{source}: {all_errors(exc)}") from None
-    problem.base_dir = base_dir
-    return problem
-
+from crashnlp.problem.errors import ProblemError
+from crashnlp.problem.schema import Problem, problem_from_dict
 
 MAX_ALIASES = 100  # YAML aliases in one file: a few share channel lists; thousands are a "billion laughs"
 
@@ -66,16 +20,16 @@ class UniqueKeyLoader(yaml.SafeLoader):
 
     aliases = 0
 
-    def compose_node(self, parent, index):
+    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
         if self.check_event(yaml.events.AliasEvent):
             self.aliases += 1
             if self.aliases > MAX_ALIASES:
                 raise yaml.composer.ComposerError(None, None, f"more than {MAX_ALIASES} aliases", self.peek_event().start_mark)
         return super().compose_node(parent, index)
 
-    def construct_mapping(self, node, deep=False):
+    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
         if isinstance(node, yaml.MappingNode):
-            seen: set = set()
+            seen: set[Hashable] = set()
             for key_node, _ in node.value:
                 if key_node.tag == "tag:yaml.org,2002:merge":
                     continue

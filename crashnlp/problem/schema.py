@@ -1,36 +1,47 @@
 """The problem file schema: what a YAML problem may say, validated and converted to SI.
 
-Every quantity field accepts a plain number (SI) or a string with units. Fields
-tagged with `Unit` know their SI unit, which also lets `estimate` and `sweep`
-entries name them by dotted path and give bounds with units.
+Two types meet in every quantity. What a file may give is a `QuantityIn`: a plain number
+(SI) or a string with units ("56 km/h"). What a validated `Problem` holds is a float in SI.
+A field of a fixed unit says so in its type (`Length`, `Speed`, ...: a float marked with its
+`Unit`, which converts the file's value); a field whose unit another entry decides (spring
+values by the law, a channel's sigma by the channel, bounds by what they bound) is an
+`SIValue`, converted by its model's validator before the fields are checked. The unit
+markers also let `estimate` and `sweep` entries name fields by dotted path and give bounds
+with units. A validated problem is frozen: `Problem.with_values` makes a changed copy.
 """
 
 from __future__ import annotations
 
+import copy
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, get_args
+from typing import Annotated, Any, Literal, TypeVar, cast, get_args
 
 from pydantic import (
     AfterValidator,
     BaseModel,
-    BeforeValidator,
     ConfigDict,
     Field,
+    GetCoreSchemaHandler,
+    GetJsonSchemaHandler,
     ValidationError,
     ValidationInfo,
     WithJsonSchema,
     field_validator,
     model_validator,
 )
-from pydantic_core import InitErrorDetails, PydanticCustomError
+from pydantic.json_schema import JsonSchemaValue
+from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
 
 from crashnlp.outputs import MEASURABLE, OUTPUT
+from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.ipopt import check_ipopt
 from crashnlp.units import to_si
 
-QuantityIn = float | str
+QuantityIn = float | str  # what a file may give for a quantity: a number (SI) or a string with units
+QUANTITY_IN_SCHEMA: JsonSchemaValue = {"anyOf": [{"type": "number"}, {"type": "string"}]}
 LARGEST = 1e12  # no quantity of this model comes near it in SI; beyond it is a typo or an attack
 
 
@@ -42,6 +53,14 @@ def si(value: Any, unit: str) -> float:
     if abs(v) > LARGEST:
         raise ValueError(f"{value!r} is beyond any physical value here (|value| <= {LARGEST:g} in SI)")
     return v
+
+
+def _quantity_in_si(value: Any, unit: str) -> Any:
+    """A file's number or text in SI `unit`. Any other value, and a number that is not finite, stay as
+    they are: the field's own check refuses them at their key."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return value
+    return si(value, unit) if isinstance(value, (int, float, str)) else value
 
 
 def _positive(v: float | None) -> float | None:
@@ -87,9 +106,16 @@ def _speed(v: float | None) -> float | None:
 
 @dataclass(frozen=True)
 class Unit:
-    """Marks a field as a physical quantity stored in SI `unit`."""
+    """Marks a float field as a physical quantity in SI `si`: the file gives a `QuantityIn`,
+    which validation converts (`si`), and the field holds the SI float."""
 
     si: str
+
+    def __get_pydantic_core_schema__(self, source: Any, handler: GetCoreSchemaHandler) -> CoreSchema:
+        return core_schema.no_info_before_validator_function(lambda v: si(v, self.si), handler(source))
+
+    def __get_pydantic_json_schema__(self, schema: CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
+        return {**QUANTITY_IN_SCHEMA, "description": f"SI unit {self.si}"}
 
 
 @dataclass(frozen=True)
@@ -97,22 +123,23 @@ class Structural:
     """Marks a numeric field that shapes the model and is never a free parameter."""
 
 
-def Q(unit: str):
-    """A float field in SI `unit` that also accepts strings with units."""
-    return Annotated[
-        float,
-        BeforeValidator(lambda v: si(v, unit)),
-        WithJsonSchema({"anyOf": [{"type": "number"}, {"type": "string"}], "description": f"SI unit {unit}"}),
-        Unit(unit),
-    ]
-
-
-def QList(unit: str):
-    return Annotated[list[Q(unit)], Unit(unit)]
+Length = Annotated[float, Unit("m")]
+Speed = Annotated[float, Unit("m/s")]
+Acceleration = Annotated[float, Unit("m/s^2")]
+Time = Annotated[float, Unit("s")]
+Mass = Annotated[float, Unit("kg")]
+Inertia = Annotated[float, Unit("kg*m^2")]
+Force = Annotated[float, Unit("N")]
+Stiffness = Annotated[float, Unit("N/m")]
+Damping = Annotated[float, Unit("N*s/m")]
+SIValue = Annotated[float, WithJsonSchema(QUANTITY_IN_SCHEMA)]  # a float in SI; its model's validator converts the file's
+Bound = tuple[SIValue | None, SIValue | None]
 
 
 class Strict(BaseModel):
-    model_config = ConfigDict(extra="forbid", frozen=False, allow_inf_nan=False)
+    """A section of a problem: unknown keys refused, and frozen once validated."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
@@ -122,6 +149,24 @@ class Strict(BaseModel):
         if any(isinstance(m, Structural) for m in info.metadata):
             return None
         return _find_unit([info.annotation, *info.metadata])
+
+
+_S = TypeVar("_S", bound=Strict)
+_T = TypeVar("_T")
+
+
+def _filled_in(value: _T | None, path: str) -> _T:
+    """A value a Case fills in from the data when the file leaves it out (crashnlp.autoinit), once filled in."""
+    if value is None:
+        raise RuntimeError(f"{path}: not filled in from the data yet (a Case does that)")
+    return value
+
+
+def with_fields(section: _S, **values: Any) -> _S:
+    """A copy of a validated section with fields replaced, that leaves what the file gave
+    (`model_fields_set`) as it was: a section filled in from the data is not given by the file."""
+    copied = type(section).model_construct(_fields_set=set(section.model_fields_set), **{**dict(section), **values})
+    return cast(_S, copied)  # model_construct of type(section) builds a type(section); the mypy plugin types it as Strict
 
 
 def _find_unit(items: list[Any]) -> str | None:
@@ -149,41 +194,46 @@ def _increasing(values: list[float], what: str) -> list[float]:
 
 # --------------------------------------------------------------------------- vehicle
 class Suspension(Strict):
-    k_front: Q("N/m") = 0.0
-    k_rear: Q("N/m") = 0.0
-    c_front: Q("N*s/m") = 0.0
-    c_rear: Q("N*s/m") = 0.0
+    k_front: Stiffness = 0.0
+    k_rear: Stiffness = 0.0
+    c_front: Damping = 0.0
+    c_rear: Damping = 0.0
 
     _not_negative = field_validator("k_front", "k_rear", "c_front", "c_rear")(lambda v: _not_negative(v))
 
 
 class Vehicle(Strict):
-    mass: Q("kg") | None = Field(None, description="test mass; may come from the data header")
-    speed: Annotated[Q("m/s") | None, Structural()] = Field(None, description="impact speed (a test may override)")
-    pitch_inertia: Q("kg*m^2") = Field(0.0, description="about the CG; 0 is the paper's point mass")
-    cg_to_impact: Q("m") = Field(description="horizontal distance CG to the impact point")
-    cg_above_impact: Q("m") = 0.0
-    cg_to_front_axle: Q("m")
-    cg_to_rear_axle: Q("m")
+    mass: Mass | None = Field(None, description="test mass; may come from the data header")
+    speed: Annotated[Speed | None, Structural()] = Field(None, description="impact speed (a test may override)")
+    pitch_inertia: Inertia = Field(0.0, description="about the CG; 0 is the paper's point mass")
+    cg_to_impact: Length = Field(description="horizontal distance CG to the impact point")
+    cg_above_impact: Length = 0.0
+    cg_to_front_axle: Length
+    cg_to_rear_axle: Length
     suspension: Suspension = Suspension()
-    crush_offset: Q("m") = Field(
+    crush_offset: Length = Field(
         0.0,
         description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
-    gravity: Q("m/s^2") = 9.80665
+    gravity: Acceleration = 9.80665
 
     @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
     @classmethod
-    def _positive(cls, v):
+    def _positive(cls, v: float | None) -> float | None:
         return _positive(v)
 
     @field_validator("pitch_inertia")
     @classmethod
-    def _not_negative(cls, v):
+    def _not_negative(cls, v: float) -> float | None:
         return _not_negative(v)
 
     _check_mass = field_validator("mass")(lambda v: _mass(v))
     _check_speed = field_validator("speed")(lambda v: _speed(v))  # 0: a vehicle at rest
+
+    @property
+    def known_mass(self) -> float:
+        """The mass, once known: a Case takes it from a test or a data header when the file leaves it out."""
+        return _filled_in(self.mass, "vehicle.mass")
 
 
 # --------------------------------------------------------------------------- model
@@ -200,25 +250,36 @@ class Spring(Strict):
     law: Literal["force", "secant"] = Field(
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
     )
-    crush_breakpoints: QList("m") | BreakpointCount | None = Field(
+    crush_breakpoints: list[Length] | BreakpointCount | None = Field(
         None, description="crush at the breakpoints; omitted or {count: N}: placed over the data's crush range"
     )
-    values: list[QuantityIn] | None = Field(
+    values: list[SIValue] | None = Field(
         None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
     )
 
+    @model_validator(mode="before")
+    @classmethod
+    def _values_in_si(cls, data: Any) -> Any:
+        """The values in the law's unit. Without a valid law their unit is unknown: they are left
+        out, and the law's error stands for them."""
+        if not isinstance(data, dict) or not isinstance(data.get("values"), list):
+            return data
+        law = data.get("law", "force")
+        if not isinstance(law, str) or law not in SPRING_UNITS:
+            return {k: v for k, v in data.items() if k != "values"}
+        return {**data, "values": [_quantity_in_si(v, SPRING_UNITS[law]) for v in data["values"]]}
+
     @field_validator("crush_breakpoints")
     @classmethod
-    def _bp(cls, v):
+    def _bp(cls, v: list[float] | BreakpointCount | None) -> list[float] | BreakpointCount | None:
         return _increasing(v, "crush_breakpoints") if isinstance(v, list) else v
 
     @model_validator(mode="after")
-    def _values(self):
+    def _values(self) -> Spring:
         if self.values is None:
             return self
         if not isinstance(self.crush_breakpoints, list):
             raise ValueError("values need crush_breakpoints given as a list")
-        self.values = [si(v, SPRING_UNITS[self.law]) for v in self.values]
         if len(self.values) != len(self.crush_breakpoints):
             raise ValueError(f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}")
         return self
@@ -226,18 +287,31 @@ class Spring(Strict):
     def unit_of(self, field: str) -> str | None:
         return SPRING_UNITS[self.law] if field == "values" else super().unit_of(field)
 
+    @property
+    def placed_breakpoints(self) -> list[float]:
+        """The crush breakpoints, once placed: a Case places them over the data's crush range when the
+        file gives none or a count (crashnlp.autoinit)."""
+        if not isinstance(self.crush_breakpoints, list):
+            raise RuntimeError("model.spring.crush_breakpoints: not placed yet (a Case places them from the data)")
+        return self.crush_breakpoints
+
+    @property
+    def known_values(self) -> list[float]:
+        """The spring values, once known: a Case takes them from the measured force-crush curve when the file leaves them out."""
+        return _filled_in(self.values, "model.spring.values")
+
 
 class Damper(Strict):
-    rate_breakpoints: QList("m/s")
-    values: QList("N*s/m")
+    rate_breakpoints: list[Speed]
+    values: list[Damping]
 
     @field_validator("rate_breakpoints")
     @classmethod
-    def _bp(cls, v):
+    def _bp(cls, v: list[float]) -> list[float]:
         return _increasing(v, "rate_breakpoints")
 
     @model_validator(mode="after")
-    def _same_length(self):
+    def _same_length(self) -> Damper:
         if len(self.values) != len(self.rate_breakpoints):
             raise ValueError(f"values has {len(self.values)} entries but rate_breakpoints has {len(self.rate_breakpoints)}")
         return self
@@ -245,23 +319,26 @@ class Damper(Strict):
 
 class Unloading(Strict):
     law: Literal["elastic", "plastic"] = "elastic"
-    stiffness: Q("N/m") | None = Field(
+    stiffness: Stiffness | None = Field(
         None, description="unloading stiffness of the plastic law; omitted: from the data's rebound"
     )
 
     @field_validator("stiffness")
     @classmethod
-    def _positive(cls, v):
-        if v is not None and v <= 0:
-            raise ValueError("must be positive")
-        return v
+    def _positive(cls, v: float | None) -> float | None:
+        return _positive(v)
+
+    @property
+    def known_stiffness(self) -> float:
+        """The unloading stiffness, once known: a Case takes it from the data's rebound when the file leaves it out."""
+        return _filled_in(self.stiffness, "model.unloading.stiffness")
 
 
 class Smoothing(Strict):
     """Width of the smoothed hinges at breakpoints (keeps IPOPT away from kinks); 0 = exact kinks."""
 
-    crush: Annotated[Q("m"), Structural()] = 1e-3
-    rate: Annotated[Q("m/s"), Structural()] = 1e-3
+    crush: Annotated[Length, Structural()] = 1e-3
+    rate: Annotated[Speed, Structural()] = 1e-3
 
     _not_negative = field_validator("crush", "rate")(lambda v: _not_negative(v))
 
@@ -305,21 +382,31 @@ class ChannelSpec(Strict):
         " positive, so -1 for NHTSA load cells)",
     )
     derive: Literal["integrate"] | None = Field(None, description="integrate the accel channel from the impact speed")
-    sigma: QuantityIn | None = Field(None, description="scale of the residuals; default per channel")
+    sigma: SIValue | None = Field(None, description="scale of the residuals; default per channel")
     weight: float = Field(1.0, ge=0.0)
+
+    _positive = field_validator("sigma")(lambda v: _positive(v))
 
 
 class DataSpec(Strict):
     file: Path
     format: Literal["csv", "nhtsa-ev5", "iso-mme"] = "csv"
     time: TimeColumn = TimeColumn(column="time_s")
-    window: tuple[Q("s"), Q("s")] | None = None
-    bias_window: tuple[Q("s"), Q("s")] | None = Field(None, description="pre-impact samples whose mean is removed")
+    window: tuple[Time, Time] | None = None
+    bias_window: tuple[Time, Time] | None = Field(None, description="pre-impact samples whose mean is removed")
     channels: dict[ChannelName, ChannelSpec]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _channels_in_si(cls, data: Any) -> Any:
+        """Default filters, and sigmas in their channel's unit."""
+        if not isinstance(data, dict) or not isinstance(data.get("channels"), dict):
+            return data
+        return {**data, "channels": {name: _channel_in_si(name, ch) for name, ch in data["channels"].items()}}
 
     @field_validator("file")
     @classmethod
-    def _exists(cls, v: Path, info: ValidationInfo):
+    def _exists(cls, v: Path, info: ValidationInfo) -> Path:
         base = Path((info.context or {}).get("base_dir", "."))
         path = v if v.is_absolute() else base / v
         if not path.exists():
@@ -328,29 +415,37 @@ class DataSpec(Strict):
 
     @field_validator("window", "bias_window")
     @classmethod
-    def _ordered(cls, v):
+    def _ordered(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
         if v is not None and v[1] <= v[0]:
             raise ValueError("window end must be after its start")
         return v
 
     @model_validator(mode="after")
-    def _channels(self):
-        """Default filters, curve lists that fit their channel, and sigmas in SI."""
+    def _curves(self) -> DataSpec:
+        """Curve lists that fit their channel."""
         for name, ch in self.channels.items():
-            if name in DEFAULT_FILTER and "filter" not in ch.model_fields_set:
-                ch.filter = DEFAULT_FILTER[name]
             if ch.curves == ALL_BARRIER_FX and name != "barrier_force":
                 raise ValueError(f"channels.{name}: curves {ALL_BARRIER_FX} are barrier forces, a barrier_force channel")
-            if ch.sigma is not None:
-                ch.sigma = _positive(si(ch.sigma, CHANNEL_UNITS[name]))
         return self
+
+
+def _channel_in_si(name: Any, channel: Any) -> Any:
+    """A channel as given, with its default filter when it names none and its sigma in SI."""
+    if not isinstance(channel, dict) or name not in CHANNEL_UNITS:
+        return channel
+    out = dict(channel)
+    if name in DEFAULT_FILTER and "filter" not in out:
+        out["filter"] = DEFAULT_FILTER[name]
+    if out.get("sigma") is not None:
+        out["sigma"] = _quantity_in_si(out["sigma"], CHANNEL_UNITS[name])
+    return out
 
 
 class Test(Strict):
     name: FolderName
-    speed: Q("m/s") | None = None
-    mass: Q("kg") | None = None
-    duration: Q("s") | None = None
+    speed: Speed | None = None
+    mass: Mass | None = None
+    duration: Time | None = None
     data: DataSpec | None = None
 
     _positive = field_validator("duration")(lambda v: _positive(v))
@@ -368,13 +463,22 @@ OUTPUT_UNITS = {
     "barrier_force": "N",
 }
 OutputName = Literal["displacement", "velocity", "accel", "pitch", "crush", "barrier_force"]
-Bound = tuple[QuantityIn | None, QuantityIn | None]
 
 
 class EstimateSpec(Strict):
-    initial: QuantityIn | list[QuantityIn] | None = Field(None, description="default: the value in the problem")
+    """How an entry is estimated: its start, bounds and scale, in the unit of the entry it names."""
+
+    initial: SIValue | list[SIValue] | None = Field(None, description="default: the value in the problem")
     bounds: Bound | None = None
-    prior_scale: QuantityIn | None = Field(None, description="scale of the decision variable; default from bounds")
+    prior_scale: SIValue | None = Field(None, description="scale of the decision variable; default from bounds")
+
+
+def _bound_in_si(bound: Any, unit: str | None) -> Any:
+    """(lower, upper) in SI `unit` (None: no bound). A key that names no output has no unit: its error
+    stands for its bounds, which are not read."""
+    if unit is None:
+        return (None, None)
+    return [None if b is None else _quantity_in_si(b, unit) for b in bound] if isinstance(bound, (list, tuple)) else bound
 
 
 class Constraints(Strict):
@@ -382,9 +486,16 @@ class Constraints(Strict):
     monotone_spring: bool = Field(False, description="spring values non-decreasing")
     bounds: dict[OutputName, Bound] = Field(default_factory=dict)
 
+    @model_validator(mode="before")
+    @classmethod
+    def _bounds_in_si(cls, data: Any) -> Any:
+        """Each output's bounds in its unit."""
+        if not isinstance(data, dict) or not isinstance(data.get("bounds"), dict):
+            return data
+        return {**data, "bounds": {k: _bound_in_si(v, OUTPUT_UNITS.get(k)) for k, v in data["bounds"].items()}}
+
     @model_validator(mode="after")
-    def _convert(self):
-        self.bounds = {k: tuple(None if b is None else si(b, OUTPUT_UNITS[k]) for b in v) for k, v in self.bounds.items()}
+    def _ordered(self) -> Constraints:
         for k, (lo, hi) in self.bounds.items():
             if lo is not None and hi is not None and lo > hi:
                 raise ValueError(f"bounds.{k}: lower bound above upper bound")
@@ -458,8 +569,8 @@ class Simulation(Strict):
     substeps: int = Field(4, ge=1, le=1000, description="rk sub-steps per output step")
     rtol: float = Field(1e-8, gt=0.0, lt=1.0)
     atol: float = Field(1e-10, gt=0.0, lt=1.0)
-    dt: Q("s") = Field(1e-4, description="output step")
-    duration: Q("s") = Field(0.25, description="when a test gives neither duration nor data")
+    dt: Time = Field(1e-4, description="output step")
+    duration: Time = Field(0.25, description="when a test gives neither duration nor data")
 
     _positive = field_validator("dt", "duration")(lambda v: _positive(v))
 
@@ -469,11 +580,11 @@ class Design(Strict):
 
 
 class ForceCrush(Strict):
-    crush: QList("m")
-    force: QList("N")
+    crush: list[Length]
+    force: list[Force]
 
     @model_validator(mode="after")
-    def _same_length(self):
+    def _same_length(self) -> ForceCrush:
         if len(self.crush) != len(self.force):
             raise ValueError("crush and force need the same number of entries")
         return self
@@ -486,12 +597,14 @@ class Reference(Strict):
 
 
 class Problem(Strict):
+    """A problem file: the vehicle, its model, its tests and what to estimate. Validated, every
+    quantity is in SI and the problem is frozen: `with_values` makes a changed copy."""
+
     name: FolderName
     kind: Literal["identify", "design"] = "identify"
     vehicle: Vehicle
     model: Model
     tests: list[Test] = Field(min_length=1)
-    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)
     constraints: Constraints = Constraints()
     objective: Objective = Objective()
     transcription: TranscriptionSpec = Field(default_factory=lambda: MultipleShootingSpec(method="multiple-shooting"))
@@ -501,25 +614,36 @@ class Problem(Strict):
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
+    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
+
+    @field_validator("estimate", mode="before")
+    @classmethod
+    def _estimate_in_si(cls, value: Any, info: ValidationInfo) -> Any:
+        """Each entry's initial value, bounds and scale in the unit of the entry it names, each error at
+        its entry (estimate.vehicle.mass: ...). An entry in a section that failed its own validation
+        is left out: that section's error stands for it."""
+        if not isinstance(value, dict):
+            return value
+        converted, errors = {}, []
+        for path, spec in value.items():
+            if not isinstance(path, str):
+                converted[path] = spec  # the key's own check refuses it
+            elif path.split(".")[0] not in cls.model_fields or path.split(".")[0] in info.data:
+                try:
+                    converted[path] = _estimate_in_si(spec, _unit_at(info.data, path))
+                except ValueError as exc:
+                    why = PydanticCustomError("estimate", "{why}", {"why": str(exc)})
+                    errors.append(InitErrorDetails(type=why, loc=(path,), input=spec))
+        if errors:
+            raise ValidationError.from_exception_data("estimate", errors)
+        return converted
 
     @model_validator(mode="after")
-    def _check(self):
+    def _check(self) -> Problem:
         names = [t.name for t in self.tests]
         if len(set(names)) != len(names):
             raise ValueError("tests: names must be unique")
         for path, spec in self.estimate.items():
-            unit = self.unit_at(path)
-            try:
-                if spec.initial is not None:
-                    spec.initial = (
-                        [si(v, unit) for v in spec.initial] if isinstance(spec.initial, list) else si(spec.initial, unit)
-                    )
-                if spec.bounds is not None:
-                    spec.bounds = tuple(None if b is None else si(b, unit) for b in spec.bounds)
-                if spec.prior_scale is not None:
-                    spec.prior_scale = si(spec.prior_scale, unit)
-            except ValueError as exc:
-                raise ValueError(f"estimate.{path}: {exc}") from None
             self._initial_within_bounds(path, spec)
         return self
 
@@ -554,8 +678,6 @@ class Problem(Strict):
         "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is. What the
         problem left out stays left out (`model_fields_set`), so that the new problem is still
         completed from its data, and a result's identified vehicle still fills it in."""
-        from crashnlp.problem.load import problem_from_dict
-
         full = self.model_dump(mode="python", exclude_none=False)
         raw = self.model_dump(mode="python", exclude_unset=True)
         for path, value in values.items():
@@ -576,13 +698,48 @@ class Problem(Strict):
 
     def unit_at(self, path: str) -> str:
         """SI unit of a numeric entry named by dotted path ("model.spring.values")."""
-        *parents, leaf = path.split(".")
-        node: Any = self
-        for key in parents:
-            node = getattr(node, key, None) if isinstance(node, BaseModel) else None
-            if node is None:
-                break
-        unit = node.unit_of(leaf) if isinstance(node, Strict) else None
+        unit = _unit_at(dict(self), path)
         if unit is None:
             raise ValueError(f"estimate.{path}: not a numeric entry of the problem")
         return unit
+
+
+def _unit_at(sections: Mapping[str, Any], path: str) -> str | None:
+    """SI unit of the numeric entry at a dotted path into a problem's validated sections, or None."""
+    first, _, rest = path.partition(".")
+    *parents, leaf = rest.split(".")
+    node: Any = sections.get(first)
+    for key in parents:
+        node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+    return node.unit_of(leaf) if isinstance(node, Strict) else None
+
+
+def _estimate_in_si(spec: Any, unit: str | None) -> Any:
+    """An estimate entry as given, with its quantities in SI `unit` (ValueError: the entry names no
+    numeric entry, or a quantity does not convert)."""
+    if unit is None:
+        raise ValueError("not a numeric entry of the problem")
+    if not isinstance(spec, dict):
+        return spec
+    out = dict(spec)
+    initial = out.get("initial")
+    if isinstance(initial, list):
+        out["initial"] = [_quantity_in_si(v, unit) for v in initial]
+    elif initial is not None:
+        out["initial"] = _quantity_in_si(initial, unit)
+    if out.get("bounds") is not None:
+        out["bounds"] = _bound_in_si(out["bounds"], unit)
+    if out.get("prior_scale") is not None:
+        out["prior_scale"] = _quantity_in_si(out["prior_scale"], unit)
+    return out
+
+
+def problem_from_dict(raw: dict[str, Any], base_dir: Path, source: str = "problem") -> Problem:
+    """Validate a problem given as a plain dict (paths relative to `base_dir`)."""
+    if not isinstance(raw, dict):
+        raise ProblemError(f"{source}: expected a mapping at the top level")
+    try:
+        problem = Problem.model_validate(copy.deepcopy(raw), context={"base_dir": base_dir})
+    except ValidationError as exc:
+        raise ProblemError(f"{source}: {all_errors(exc)}") from None
+    return problem.model_copy(update={"base_dir": base_dir})

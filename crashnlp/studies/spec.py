@@ -17,8 +17,9 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from crashnlp.errors import InputError
-from crashnlp.problem.load import ProblemError, first_error, problem_from_dict, read_yaml
-from crashnlp.problem.schema import OUTPUT_UNITS, FolderName, Problem
+from crashnlp.problem.errors import ProblemError, all_errors
+from crashnlp.problem.load import read_yaml
+from crashnlp.problem.schema import OUTPUT_UNITS, FolderName, Problem, problem_from_dict
 from crashnlp.units import to_si
 
 Key = str | int
@@ -98,7 +99,7 @@ def load_study(path: str | Path) -> Study:
     try:
         spec = StudySpec.model_validate(raw)
     except ValidationError as exc:
-        raise InputError(f"{path}: {first_error(exc)}") from None
+        raise InputError(f"{path}: {all_errors(exc)}") from None
     problem_path = spec.problem if spec.problem.is_absolute() else path.resolve().parent / spec.problem
     if not problem_path.is_file():
         raise InputError(f"{path}: problem: file not found: {problem_path}")
@@ -133,7 +134,7 @@ def _entry(source: Path, path: str, values: list[Any], base: dict, problem: Prob
 
 def _unit(keys: tuple[Key, ...], problem: Problem) -> str | None:
     if len(keys) == 3 and keys[:2] == ("constraints", "bounds"):
-        return OUTPUT_UNITS[keys[2]]
+        return OUTPUT_UNITS[str(keys[2])]
     try:
         return problem.unit_at(".".join(map(str, keys)))
     except ValueError:

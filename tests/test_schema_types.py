@@ -1,0 +1,80 @@
+"""The validated problem holds what its types say: SI floats, frozen sections, unset entries left unset."""
+
+from __future__ import annotations
+
+import pydantic
+import pytest
+import yaml
+from builders import ROOT
+
+from crashnlp.problem import ProblemError, load_problem, problem_from_dict
+
+PICKUP = ROOT / "problems/pickup-56kph.yaml"
+
+
+def pickup(**changes) -> dict:
+    raw = yaml.safe_load(PICKUP.read_text())
+    for path, value in changes.items():
+        *parents, leaf = path.split("__")
+        node = raw
+        for key in parents:
+            node = node[int(key)] if isinstance(node, list) else node.setdefault(key, {})
+        node[leaf] = value
+    return raw
+
+
+def numbers(node) -> list:
+    """Every number under a validated section (its lists and tuples too)."""
+    if isinstance(node, pydantic.BaseModel):
+        return [x for name in type(node).model_fields for x in numbers(getattr(node, name))]
+    if isinstance(node, (list, tuple)):
+        return [x for v in node for x in numbers(v)]
+    return [node] if isinstance(node, (int, float)) and not isinstance(node, bool) else []
+
+
+def test_every_quantity_of_a_validated_problem_is_an_si_float():
+    problem = load_problem(PICKUP)
+    assert problem.vehicle.speed == pytest.approx(56 / 3.6) and problem.vehicle.suspension.c_front == 8e3
+    assert problem.model.spring.values == [0.0] + [500e3] * 6
+    assert problem.estimate["model.spring.values"].bounds == (0.0, 3e6)
+    assert problem.estimate["vehicle.pitch_inertia"].bounds == (1000.0, 10000.0)
+    quantities = numbers(problem.vehicle) + numbers(problem.model) + numbers(problem.estimate["vehicle.crush_offset"])
+    assert len(quantities) > 30 and all(type(x) is float for x in quantities), quantities
+
+
+def test_entries_whose_unit_another_entry_decides_are_converted_in_that_unit():
+    secant = pickup(model__spring__law="secant", model__spring__values=["2 MN/m"] * 7, estimate={})
+    assert problem_from_dict(secant, PICKUP.parent).model.spring.values == [2e6] * 7
+    sigma = pickup(tests__0__data__channels__accel__sigma="0.5 g", constraints__bounds={"pitch": [None, "4 deg"]})
+    problem = problem_from_dict(sigma, PICKUP.parent)
+    assert problem.tests[0].data.channels["accel"].sigma == pytest.approx(0.5 * 9.80665)
+    assert problem.constraints.bounds["pitch"] == pytest.approx((None, 4 * 3.141592653589793 / 180))
+    with pytest.raises(ProblemError, match=r"^problem: model\.spring: '2 MN/m' does not convert to N$"):
+        problem_from_dict(pickup(model__spring__values=["2 MN/m"] * 7), PICKUP.parent)
+    with pytest.raises(ProblemError, match=r"^problem: tests\.0\.data\.channels\.accel\.sigma: Input should be a valid number$"):
+        problem_from_dict(pickup(tests__0__data__channels__accel__sigma=[1]), PICKUP.parent)
+    with pytest.raises(ProblemError, match=r"^problem: estimate\.vehicle\.crush_offset: '1 kg' does not convert to m$"):
+        problem_from_dict(pickup(estimate={"vehicle.crush_offset": {"bounds": [0, "1 kg"]}}), PICKUP.parent)
+
+
+@pytest.mark.parametrize("section", ["problem", "vehicle", "spring", "estimate"])
+def test_a_validated_problem_is_frozen(section):
+    problem = load_problem(PICKUP)
+    target, field = {
+        "problem": (problem, "name"),
+        "vehicle": (problem.vehicle, "mass"),
+        "spring": (problem.model.spring, "values"),
+        "estimate": (problem.estimate["vehicle.crush_offset"], "bounds"),
+    }[section]
+    with pytest.raises(pydantic.ValidationError, match="frozen"):
+        setattr(target, field, None)
+
+
+def test_with_values_makes_a_changed_copy_that_leaves_unset_entries_unset():
+    problem = load_problem(PICKUP)
+    faster = problem.with_values({"vehicle.speed": "64 km/h", "model.spring.values": [0, *[600e3] * 6]})
+    assert faster.vehicle.speed == pytest.approx(64 / 3.6) and faster.model.spring.values[1] == 600e3
+    assert problem.vehicle.speed == pytest.approx(56 / 3.6) and problem.model.spring.values[1] == 500e3
+    assert faster.vehicle.model_fields_set == problem.vehicle.model_fields_set
+    assert "gravity" not in faster.vehicle.model_fields_set and "solver" not in faster.model_fields_set
+    assert faster.base_dir == problem.base_dir
