@@ -16,10 +16,6 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 PACKAGE = ROOT / "crashnlp"
 
-# The one cycle allowed, until the problem file's input types are split from the validated ones:
-# crashnlp.problem.load reads a file into crashnlp.problem.schema's Problem, whose with_values
-# validates again through load. Remove this entry with that split.
-ALLOWED_CYCLES = [{"crashnlp.problem.load", "crashnlp.problem.schema"}]
 API_IMPORTERS = {"crashnlp", "crashnlp.cli"}  # the only modules that may import crashnlp.api
 
 
@@ -112,14 +108,8 @@ def cycles(graph: dict[str, set[str]]) -> list[set[str]]:
 
 
 def test_no_import_cycle():
-    found = [sorted(c) for c in cycles(import_graph()) if c not in ALLOWED_CYCLES]
+    found = [sorted(c) for c in cycles(import_graph())]
     assert not found, f"import cycles in crashnlp: {found}"
-
-
-def test_allowed_cycles_still_exist():
-    """An allowance with no cycle behind it is stale: remove it."""
-    found = cycles(import_graph())
-    assert all(c in found for c in ALLOWED_CYCLES)
 
 
 def test_api_is_imported_by_the_command_line_only():
