@@ -55,11 +55,12 @@ TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail 
 # A cycle: the iterates go round a point instead of closing in on it. Where the crush crosses a
 # kink of the force laws inside an integration step, the step's derivatives jump as the
 # parameters move the crossing across a stage of the step; the dual infeasibility then stays
-# put and IPOPT steps round and round the optimum. Seen as: after CYCLE_START iterations, over
-# the last CYCLE_RUN the objective spread within CYCLE_SPREAD of its value and rose at least
-# CYCLE_RISES times, the constraints met to CYCLE_VIOLATION, and the last half of the steps no
-# shorter than CYCLE_SHRINK of the half before (a converging run, even a slow one, shortens them).
-CYCLE_START, CYCLE_RUN, CYCLE_SPREAD, CYCLE_RISES, CYCLE_VIOLATION, CYCLE_SHRINK = 25, 12, 1e-2, 3, 1e-3, 0.7
+# put and IPOPT steps round and round the optimum. Seen as: after CYCLE_START iterations, for
+# CYCLE_RUN iterations in a row each iterate lies within CYCLE_RETURN of its last step from one
+# of the CYCLE_PERIOD iterates before the last (it came back), the steps no shorter over the last
+# half of them than CYCLE_SHRINK of the half before (a converging run shortens them), and the
+# constraints met to CYCLE_VIOLATION.
+CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATION = 20, 8, 5, 0.3, 0.7, 1e-3
 
 
 class Watch(ca.Callback):
@@ -79,7 +80,8 @@ class Watch(ca.Callback):
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
-        self.objectives: list[float] = []
+        self.iterates: list[np.ndarray] = []  # the last CYCLE_PERIOD + 1
+        self.returns = 0  # iterates in a row that came back (CYCLE_START above)
         self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
         self.cycling = False  # set to stop a cycle (CYCLE_START above)
 
@@ -120,20 +122,21 @@ class Watch(ca.Callback):
             f = float(arg[names.index("f")])
             print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
         if self.watch:
-            self._follow(arg[names.index("x")].full().ravel(), float(arg[names.index("f")]), violation)
+            self._follow(arg[names.index("x")].full().ravel(), violation)
         return [int(self.remaining is not None or self.cycling)]
 
-    def _follow(self, x: np.ndarray, f: float, violation: Callable[[], float]) -> None:
+    def _follow(self, x: np.ndarray, violation: Callable[[], float]) -> None:
         """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go; in a
         cycle, `cycling` (the constraint violation is computed only there)."""
         if self.x is not None:
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
-        self.objectives.append(f)
+        self.iterates = [*self.iterates[-CYCLE_PERIOD:], x]
+        self.returns = self.returns + 1 if came_back(self.iterates) else 0
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
-        elif self.count >= CYCLE_START and cycle(self.objectives, self.steps) and violation() <= CYCLE_VIOLATION:
+        elif self.count >= CYCLE_START and cycle(self.returns, self.steps) and violation() <= CYCLE_VIOLATION:
             self.cycling = True
 
 
@@ -146,15 +149,22 @@ def slow_tail(steps: list[float]) -> bool:
     return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
 
 
-def cycle(objectives: list[float], steps: list[float]) -> bool:
-    """Whether the last CYCLE_RUN iterates go round a point (CYCLE_START above)."""
-    if len(objectives) < CYCLE_RUN or len(steps) < CYCLE_RUN:
+def came_back(iterates: list[np.ndarray]) -> bool:
+    """Whether the last iterate lies within CYCLE_RETURN of its step from an earlier one than
+    the one before it (CYCLE_START above)."""
+    if len(iterates) < 3:
         return False
-    f, last = objectives[-CYCLE_RUN:], steps[-CYCLE_RUN:]
-    spread = (max(f) - min(f)) / max(abs(f[-1]), 1e-300)
-    rises = sum(b > a for a, b in zip(f, f[1:]))
-    half = CYCLE_RUN // 2
-    return spread <= CYCLE_SPREAD and rises >= CYCLE_RISES and sum(last[half:]) >= CYCLE_SHRINK * sum(last[:half])
+    x, step = iterates[-1], float(np.abs(iterates[-1] - iterates[-2]).max(initial=0.0))
+    return step > 0 and any(float(np.abs(x - y).max(initial=0.0)) <= CYCLE_RETURN * step for y in iterates[:-2])
+
+
+def cycle(returns: int, steps: list[float]) -> bool:
+    """Whether the iterates go round a point: CYCLE_RUN of them in a row came back, with steps
+    that do not shrink (CYCLE_START above)."""
+    if returns < CYCLE_RUN or len(steps) < CYCLE_RUN:
+        return False
+    last, half = steps[-CYCLE_RUN:], CYCLE_RUN // 2
+    return sum(last[half:]) >= CYCLE_SHRINK * sum(last[:half])
 
 
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own); the measurements behind
