@@ -150,8 +150,8 @@ def test_ninety_five_percent_intervals_cover_the_truth(tmp_path):
         z.extend(((est - truth) / sol.std_errors)[free])
     z = np.asarray(z)
     coverage = np.mean(np.abs(z) <= 1.96)
-    assert 0.85 <= coverage <= 1.0, (coverage, z)
-    assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z
+    assert coverage >= 0.85, (coverage, z)  # 0.90 of 80 when written
+    assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z  # and the intervals are not too wide either
 
 
 def test_profile_intervals_run_in_parallel_and_agree_with_the_sandwich_near_linearity(tmp_path):
