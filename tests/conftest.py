@@ -1,10 +1,54 @@
-"""Settings for the whole test run.
+"""Settings for the whole test run: markers, the run's cache, the compiled NLP.
 
-The tests' NLPs are not compiled to C: nearly every test builds an NLP of a shape of its
-own, and compiling it costs more than solving it (the model's small functions still are).
-tests/test_oracle.py compiles its own, on purpose.
+Markers (registered in pyproject.toml, where --strict-markers refuses any other):
+
+    pytest -m unit                   one piece at a time: no IPOPT, no study, no worker process (~20 s)
+    pytest -m integration            fits, designs, studies, the command line, processes and signals
+    pytest -m "not slow"             all but the tests that cost more than ~5 s each
+    pytest -m slow                   only those
+    pytest -n 2 --dist loadfile      what `make test` runs: two workers, a file's tests on one
+                                     worker (its module fixtures fit once)
+
+A test is `unit` unless it, or its module's `pytestmark`, says `integration`; `slow` is
+always written on the test (or on its module).
+
+The run's cache: every process of the run (xdist workers, study workers, command lines the
+tests start) shares one crashnlp cache folder, made fresh for the run and removed at its
+end, so the compiled model functions and NLP libraries a run uses are compiled by that run
+(as on a fresh clone), and nothing is read from or written to ~/.cache/crashnlp.
+
+The tests' NLPs are not compiled to C (CRASHNLP_COMPILE=model): nearly every test builds an
+NLP of a shape of its own, and compiling it costs more than solving it (the model's small
+functions still are). tests/test_oracle.py compiles its own, on purpose.
 """
 
-import os
+from __future__ import annotations
 
-os.environ.setdefault("CRASHNLP_COMPILE", "model")
+import os
+import shutil
+import tempfile
+
+import pytest
+
+from crashnlp.cache import CACHE_ENV
+from crashnlp.compiled import SWITCH_ENV
+
+RUN_CACHE_ENV = "CRASHNLP_TEST_RUN_CACHE"  # set by the run's first process: the folder every process shares
+
+os.environ.setdefault(SWITCH_ENV, "model")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    # the controller (or a run without xdist) makes the folder before any worker starts; the
+    # workers, which inherit its environment, find it set
+    if RUN_CACHE_ENV not in os.environ:
+        folder = tempfile.mkdtemp(prefix="crashnlp-test-cache-")
+        os.environ[RUN_CACHE_ENV] = folder
+        config.add_cleanup(lambda: shutil.rmtree(folder, ignore_errors=True))
+    os.environ[CACHE_ENV] = os.environ[RUN_CACHE_ENV]
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        if item.get_closest_marker("integration") is None:
+            item.add_marker(pytest.mark.unit)

@@ -41,6 +41,8 @@ def fine():
     return case, design(case, progress=None)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_design_meets_every_constraint_at_every_grid_point(fine):
     case, sol = fine
     assert sol.ok, sol.status
@@ -62,6 +64,8 @@ def test_design_meets_every_constraint_at_every_grid_point(fine):
         assert_contact_force_is_the_front_ends(case, r, p)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_peak_deceleration_against_the_square_wave_bound(fine):
     case, sol = fine
     square_wave = V0**2 / (2 * CRUSH_SPACE)
@@ -79,6 +83,7 @@ def test_peak_deceleration_against_the_square_wave_bound(fine):
     np.testing.assert_allclose(values[reached][1:], mass * V0**2 / (2 * CRUSH_SPACE), rtol=0.02)
 
 
+@pytest.mark.integration
 def test_pitch_bound_holds_in_design():
     case = design_case(
         7, {"vehicle": {"cg_above_impact": 0.18, "crush_offset": 0.1}, "constraints": {"bounds": {"pitch": [None, "3 deg"]}}}

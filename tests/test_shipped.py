@@ -11,6 +11,8 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 from crashnlp.units import G0
 
+pytestmark = pytest.mark.integration
+
 LIMITS = {"displacement": 0.005, "velocity": 0.15, "accel": 2 * G0, "pitch": np.radians(1.0)}
 
 
@@ -42,6 +44,7 @@ def test_transcriptions_agree_on_the_shipped_objective(solutions):
     assert b == pytest.approx(a, rel=0.01)
 
 
+@pytest.mark.slow
 def test_shipped_barrier_fit_meets_the_wall_and_the_accelerometers():
     from crashnlp.optimize.outcome import result_of
 

@@ -95,6 +95,7 @@ def shipped(tmp_path_factory):
     return out, rows
 
 
+@pytest.mark.integration
 def test_tighter_pitch_bound_never_fits_better(shipped):
     out, rows = shipped
     assert [r["status"] for r in rows] == ["ok"] * 4
@@ -114,6 +115,8 @@ def test_tighter_pitch_bound_never_fits_better(shipped):
     assert (out / "figures" / f"{PITCH}.png").is_file()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_the_shipped_crush_space_designs_all_solve_and_more_space_never_costs_more(tmp_path):
     # the shipped design study as it is: 100 intervals, damper, plastic unloading, pitch, the
     # rebound and the end of contact (the kink of max(spring + damper, 0)) inside the horizon.
@@ -225,6 +228,7 @@ def test_every_case_starts_after_its_parent_whatever_the_lanes_and_timing(lanes)
             assert set(started[: min(lanes, len(seeds))]) <= set(seeds)  # cold seeds first: most work below
 
 
+@pytest.mark.integration
 def test_workers_live_across_cases_and_a_chain_stays_on_its_worker():
     chain, other = {0: None, 1: 0, 2: 1, 3: 2}, {4: None, 5: 4, 6: 5}
     executor = LocalExecutor(2)
@@ -236,6 +240,8 @@ def test_workers_live_across_cases_and_a_chain_stays_on_its_worker():
     assert len(set(pid.values())) == 2
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path):
     study = write_study(small, sweep={PITCH: BOUNDS[:3], "vehicle.suspension.k_front": ["70 kN/m", "90 kN/m"]})
     one = run_study(study, tmp_path / "one", workers=1, progress=False)
@@ -249,6 +255,8 @@ def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path):
 
 
 # --------------------------------------------------------------------------- (3) resume
+@pytest.mark.integration
+@pytest.mark.slow
 def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, tmp_path):
     study, out = write_study(small), tmp_path / "out"
     first = run_study(study, out, workers=2, progress=False)
@@ -267,6 +275,7 @@ def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, tmp_
     assert {p.name: p.stat().st_mtime_ns for p in cases.glob("*.json")} == restamp
 
 
+@pytest.mark.integration
 def test_a_changed_case_is_solved_again(small, tmp_path):
     out = tmp_path / "out"
     run_study(write_study(small, sweep={PITCH: BOUNDS[:2]}), out, workers=1, progress=False)
@@ -278,6 +287,7 @@ def test_a_changed_case_is_solved_again(small, tmp_path):
 
 
 # --------------------------------------------------------------------------- (4) failures
+@pytest.mark.integration
 def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
     sweep = {PITCH: BOUNDS, "solver.ipopt.max_iter": [1000, 1000, 0, 1000]}
     rows = run_study(write_study(small, mode="zip", sweep=sweep), tmp_path / "out", workers=2, progress=False)
