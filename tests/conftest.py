@@ -17,9 +17,13 @@ tests start) shares one crashnlp cache folder, made fresh for the run and remove
 end, so the compiled model functions and NLP libraries a run uses are compiled by that run
 (as on a fresh clone), and nothing is read from or written to ~/.cache/crashnlp.
 
-The tests' NLPs are not compiled to C (CRASHNLP_COMPILE=model): nearly every test builds an
-NLP of a shape of its own, and compiling it costs more than solving it (the model's small
-functions still are). tests/test_oracle.py compiles its own, on purpose.
+The compiled NLP: NLP compilation is off by default (CRASHNLP_COMPILE=model): nearly every
+test builds an NLP of a shape of its own, and compiling one costs ~10 s of CPU at the
+library's -O1 (designs with the exact Hessian ~90 s) against ~1 s to solve it. The tests
+that take the `compiled_nlp` fixture turn it on, into the run's cache: the shipped pickup
+problem (tests/test_shipped.py), a small identification by the API and the command line
+(tests/test_api.py) and a study (tests/test_study.py) each compile their shape and are
+compared with the virtual machine's solve; tests/test_oracle.py compiles into caches of its own.
 """
 
 from __future__ import annotations
@@ -31,7 +35,7 @@ import tempfile
 import pytest
 
 from crashnlp.cache import CACHE_ENV
-from crashnlp.compiled import SWITCH_ENV
+from crashnlp.compiled import SWITCH_ENV, compiler
 
 RUN_CACHE_ENV = "CRASHNLP_TEST_RUN_CACHE"  # set by the run's first process: the folder every process shares
 
@@ -52,3 +56,14 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("integration") is None:
             item.add_marker(pytest.mark.unit)
+
+
+@pytest.fixture
+def compiled_nlp(monkeypatch: pytest.MonkeyPatch) -> str:
+    """NLP compilation on (as in real use), into the run's cache; the test is skipped without
+    a C compiler. Returns the compiler."""
+    monkeypatch.setenv(SWITCH_ENV, "1")
+    cc = compiler(nlp=True)
+    if cc is None:
+        pytest.skip("no C compiler")
+    return cc

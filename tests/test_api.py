@@ -33,13 +33,23 @@ def _stable(result: dict) -> dict:
 
 
 @pytest.mark.integration
-def test_api_result_equals_the_command_line(small_problem, tmp_path):
-    result = crashnlp.identify(crashnlp.load(small_problem))
+def test_api_result_equals_the_command_line(small_problem, tmp_path, compiled_nlp, monkeypatch):
+    """The API in CasADi's virtual machine, the command line as users run it (compilation on),
+    once the problem's library is compiled: the same result.json, but for how it was computed."""
+    with monkeypatch.context() as mp:
+        mp.setenv("CRASHNLP_COMPILE", "model")
+        result = crashnlp.identify(crashnlp.load(small_problem))
     assert result.ok, result.status
     result.save(tmp_path / "api")
+    now = crashnlp.identify(crashnlp.load(small_problem).with_values({"solver.compile": "now"}))
+    assert now.solver.compiled and (now.status, now.solver.iterations) == (result.status, result.solver.iterations)
+    for path, value in result.parameters.items():
+        np.testing.assert_allclose(now.parameters[path], value, rtol=1e-12)
     assert main(["identify", str(small_problem), "--out", str(tmp_path / "cli")]) == 0
-    api = _stable(json.loads((tmp_path / "api/result.json").read_text()))
-    cli = _stable(json.loads((tmp_path / "cli/result.json").read_text()))
+    api = json.loads((tmp_path / "api/result.json").read_text())
+    cli = json.loads((tmp_path / "cli/result.json").read_text())
+    assert cli["solver"]["compiled"] and not api["solver"]["compiled"]
+    api, cli = _stable(api), _stable(cli)
     assert api.keys() == cli.keys()
     for path, value in cli["parameters"].items():
         np.testing.assert_allclose(api["parameters"][path], value, rtol=1e-6)
