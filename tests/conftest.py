@@ -2,15 +2,16 @@
 
 Markers (registered in pyproject.toml, where --strict-markers refuses any other):
 
-    pytest -m unit                   one piece at a time: no IPOPT, no study, no worker process (~20 s)
+    pytest -m unit                   one piece at a time: no IPOPT, no study, no worker process
     pytest -m integration            fits, designs, studies, the command line, processes and signals
     pytest -m "not slow"             all but the tests that cost more than ~5 s each
     pytest -m slow                   only those
     pytest -n 2 --dist loadfile      what `make test` runs: two workers, a file's tests on one
                                      worker (its module fixtures fit once)
 
-A test is `unit` unless it, or its module's `pytestmark`, says `integration`; `slow` is
-always written on the test (or on its module).
+A test is `unit` unless it, or its module's `pytestmark`, says `integration`, and a unit test
+that builds an IPOPT solver for an NLP (more than one variable: not the option probes) fails
+and says so; `slow` is always written on the test (or on its module).
 
 The run's cache: every process of the run (xdist workers, study workers, command lines the
 tests start) shares one crashnlp cache folder, made fresh for the run and removed at its
@@ -32,6 +33,7 @@ import os
 import shutil
 import tempfile
 
+import casadi as ca
 import pytest
 
 from crashnlp.cache import CACHE_ENV
@@ -56,6 +58,23 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("integration") is None:
             item.add_marker(pytest.mark.unit)
+
+
+@pytest.fixture(autouse=True)
+def _unit_tests_solve_nothing(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> None:
+    """A unit test that builds IPOPT for an NLP fails: it is an integration test. (Fits in module
+    fixtures, set up before this, and in worker processes are not seen.)"""
+    if request.node.get_closest_marker("integration") is not None:
+        return
+    nlpsol = ca.nlpsol
+
+    def refused(name, plugin, problem, *args, **kwargs):
+        size = problem["x"].numel() if isinstance(problem, dict) else problem.nnz_in(0)
+        if plugin == "ipopt" and size > 1:
+            pytest.fail(f"{request.node.nodeid} solves an NLP: mark it integration")
+        return nlpsol(name, plugin, problem, *args, **kwargs)
+
+    monkeypatch.setattr(ca, "nlpsol", refused)
 
 
 @pytest.fixture
