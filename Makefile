@@ -41,8 +41,9 @@ bench: $(STAMP)
 readme-figures: demo identify study
 	$(BIN)/python scripts/readme_figures.py
 
+# two workers, each file's tests on one of them (a module's fixtures fit once); see tests/conftest.py
 test: $(STAMP)
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2 --dist loadfile
 
 # the fuzz test of tests/test_fuzz.py with more mutations (make test runs 30 s of it); FUZZ_SEED=n for others
 FUZZ_RUNS ?= 2000

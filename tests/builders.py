@@ -102,3 +102,55 @@ def assert_exact_hessian_is_casadis(nlp, z: np.ndarray, lam_f: float, seed: int)
 def worker_pid(_) -> int:
     """A task that says which process ran it."""
     return os.getpid()
+
+
+def _linear(x: np.ndarray, bps: np.ndarray, vals: np.ndarray) -> np.ndarray:
+    """The piecewise-linear curve through (bps, vals), its end segments continued."""
+    i = np.clip(np.searchsorted(bps, x) - 1, 0, len(bps) - 2)
+    return vals[i] + (vals[i + 1] - vals[i]) / (bps[i + 1] - bps[i]) * (x - bps[i])
+
+
+def assert_contact_force_is_the_front_ends(case: Case, r, p: np.ndarray) -> None:
+    """The contact force of response `r` (test parameters `p`) at every point, against the
+    front-end law written here again in numpy:
+
+    - zero, exactly, wherever the crush is negative (the vehicle has left the barrier);
+    - wherever the damper is engaged (crush past the smoothing width), max(spring + damper, 0):
+      zero exactly where the unloading spring and the rebounding damper pull, the sum
+      otherwise. The spring is the loading curve, or for plastic unloading the smaller of it
+      and the unloading line from the largest crush (the history state). The smoothed hinges
+      depart from the exact kinks by at most eps / 2 times each slope change, the smoothed
+      switch to unloading by 0.05 eps times the unloading stiffness;
+    - the force the dynamics feel: the power the vehicle loses to the barrier is the contact
+      force times the crush rate.
+    """
+    value = {path: np.asarray(p[s], dtype=float) for path, s in case.layout.slices().items()}
+    spec = case.problem.model
+    crush, rate, force, x_max = r["crush"], r["crush_rate"], r["contact_force"], r.states[4]
+    peak = np.max(np.abs(force))
+    assert peak > 0, "the front end never touched the barrier"
+    separated = crush < 0
+    assert np.all(force[separated] == 0), np.max(np.abs(force[separated]))
+    np.testing.assert_allclose(r["barrier_power"], force * rate, rtol=0, atol=1e-9 * np.max(np.abs(force * rate)))
+
+    eps = spec.smoothing.crush
+    bps, vals = value["model.spring.crush_breakpoints"], value["model.spring.values"]
+    slopes = np.diff(vals) / np.diff(bps)
+
+    def load(x):
+        return _linear(x, bps, vals) * (x if spec.spring.law == "secant" else 1)  # secant: F = k(x) x
+
+    spring, tolerance = load(crush), 0.5 * eps * np.sum(np.abs(np.diff(slopes))) * (bps[-1] if spec.spring.law == "secant" else 1)
+    if spec.unloading.law == "plastic":
+        stiffness = value["model.unloading.stiffness"][0]
+        spring = np.minimum(spring, load(x_max) - stiffness * (x_max - crush))
+        tolerance += 0.05 * eps * stiffness
+    damper = 0.0
+    if spec.damper is not None:
+        damper = _linear(np.abs(rate), value["model.damper.rate_breakpoints"], value["model.damper.values"]) * rate
+    expected = np.maximum(spring + damper, 0)
+    engaged = crush > eps
+    loading = engaged & (rate > 0.1) & (x_max - crush < 1e-6)
+    assert np.count_nonzero(loading) >= 5, "no point of the response is loading"
+    error = np.abs(force - expected)[engaged]
+    assert np.max(error) <= tolerance + 1e-6 * peak, (np.max(error), tolerance)

@@ -18,6 +18,8 @@ from crashnlp.problem import load_problem
 from crashnlp.problem.load import read_yaml
 from crashnlp.problem.schema import Solver
 
+pytestmark = pytest.mark.integration
+
 FAST = {"method": "multiple-shooting", "intervals": 100, "substeps": 1}
 # a 1059 kg city car at 44 km/h, a 1612 kg car at 63 km/h, a 1882 kg car at 50 km/h, a 3069 kg van at 59 km/h
 VEHICLES = (8, 18, 2, 23)
@@ -91,6 +93,7 @@ def least_room(problem_path, tau_min: float | None, iterations: int = 5) -> floa
     )
 
 
+@pytest.mark.slow
 def test_early_steps_leave_every_parameter_a_fifth_of_its_way_to_a_bound(tmp_path):
     # Vehicle 8: with IPOPT's own 99 %, early Gauss-Newton steps took weakly determined parameters
     # (the pitch inertia, a spring value past the largest crush) to 1 % of their way to a bound,

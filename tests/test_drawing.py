@@ -23,6 +23,7 @@ def pngs(folder) -> dict[str, bytes]:
     return {str(p.relative_to(folder)): p.read_bytes() for p in sorted(folder.rglob("*.png"))}
 
 
+@pytest.mark.integration
 def test_the_figure_process_draws_what_drawing_in_place_draws(result, tmp_path):
     with FigureProcess() as figures:
         figures.draw(figure_jobs(result, tmp_path / "forked"), tmp_path / "forked")

@@ -25,10 +25,13 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import pytest
 import yaml
 from builders import ROOT
 
 from crashnlp.cli import main
+
+pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 PROBLEMS = sorted((ROOT / "problems").glob("*.yaml"))
 STUDIES = sorted((ROOT / "problems/studies").glob("*.yaml"))

@@ -182,6 +182,7 @@ def test_files_are_written_with_the_mode_the_umask_gives(tmp_path):
         assert (tmp_path / "cases" / name).stat().st_mode & 0o777 == 0o640
 
 
+@pytest.mark.integration
 def test_simulate_writes_to_a_folder_of_its_own(tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(tmp_path)
     problem = tmp_path / "p.yaml"
@@ -192,6 +193,7 @@ def test_simulate_writes_to_a_folder_of_its_own(tmp_path, capsys, monkeypatch):
     assert not (tmp_path / "results/unit/t56").exists()
 
 
+@pytest.mark.integration
 def test_the_readme_example_problem_runs_as_written(tmp_path, capsys):
     text = (ROOT / "README.md").read_text()
     block = re.search(r"```yaml\n(.*?)```", text, re.S).group(1)
@@ -235,6 +237,7 @@ def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
     assert code == 1 and err.count("\n") == 1 and "No space left on device" in err
 
 
+@pytest.mark.integration
 def test_an_unreachable_dask_scheduler_fails_in_time(tmp_path):
     started = time.monotonic()
     proc = subprocess.run(
@@ -303,6 +306,8 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
 def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
     study = ROOT / "problems/studies/pitch-bound.yaml"
@@ -335,6 +340,7 @@ def _command(pid: int) -> str:
         return ""
 
 
+@pytest.mark.integration
 @pytest.mark.skipif(not Path("/proc").is_dir() or shutil.which("cc") is None, reason="needs /proc and a C compiler")
 def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_path):
     """With the NLPs compiled (unlike the other tests), SIGTERM once a worker's background
@@ -365,6 +371,7 @@ def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_pat
     assert "kept in" in line or "no case had finished" in line, line
 
 
+@pytest.mark.integration
 def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
     from crashnlp import compile_job
 
@@ -406,6 +413,7 @@ def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path
     refused(tmp_path, capsys, pickup({"vehicle": {"speed": "2000 km/h"}}), "vehicle.speed: ")
 
 
+@pytest.mark.integration
 def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys, monkeypatch):
     from crashnlp.optimize.solve import Watch
 

@@ -92,6 +92,7 @@ def solve(problem: dict, tmp_path=None):
     return identify(Case(problem_from_dict(problem, tmp_path or ".")), progress=None)
 
 
+@pytest.mark.integration
 @pytest.mark.parametrize("transcription", [MS, COLLOCATION], ids=["multiple-shooting", "collocation"])
 def test_recovers_known_parameters_within_three_standard_errors(data_file, transcription):
     sol = solve(fit_problem(data_file, transcription))
@@ -108,6 +109,7 @@ def test_recovers_known_parameters_within_three_standard_errors(data_file, trans
     assert np.all(np.abs(start - truth)[reached] > 10 * std[reached])
 
 
+@pytest.mark.integration
 def test_a_fit_stops_once_its_parameters_are_settled_to_a_sliver_of_their_errors(tmp_path):
     # Gauss-Newton converges linearly near a fit that leaves residuals (here the shipped pickup
     # data and a coarse spring curve): IPOPT's 1e-8 would add iterations that move no parameter
@@ -120,6 +122,7 @@ def test_a_fit_stops_once_its_parameters_are_settled_to_a_sliver_of_their_errors
     assert np.all(np.abs(default.theta - tight.theta) <= 1e-4 * tight.std_errors), (default.theta, tight.theta)
 
 
+@pytest.mark.integration
 def test_a_fit_that_converges_fast_stays_with_gauss_newton(tmp_path):
     problem = load_problem(small_pickup_problem(tmp_path))
     auto = identify(Case(problem), progress=None)
@@ -128,6 +131,7 @@ def test_a_fit_that_converges_fast_stays_with_gauss_newton(tmp_path):
     assert np.array_equal(auto.theta, gn.theta)
 
 
+@pytest.mark.integration
 def test_gauss_newtons_slow_tail_is_finished_by_newton_at_the_same_optimum(monkeypatch):
     # pickup-40kph: along its weakly determined spring values each Gauss-Newton step is 0.9 of
     # the last; from where that tail begins the exact Hessian needs two or three iterations
@@ -150,6 +154,7 @@ def test_gauss_newtons_slow_tail_is_finished_by_newton_at_the_same_optimum(monke
     assert np.all(np.abs(auto.theta - gn.theta) <= 1e-4 * gn.std_errors), (auto.theta, gn.theta, gn.std_errors)
 
 
+@pytest.mark.integration
 def test_where_gauss_newton_fails_the_exact_hessian_starts_over_and_counts_both(tmp_path, monkeypatch):
     # IPOPT can fail with the Gauss-Newton Hessian (a failed restoration, a step it cannot
     # compute) where the exact one converges: the fit must not end there. The failure is
@@ -191,6 +196,7 @@ def test_the_slow_tail_is_a_steady_slow_contraction_close_in(ratio, last, tail):
     assert not slow_tail([*steps[:-1], steps[-1] * 0.9])  # so does an uneven ratio (corpus v10)
 
 
+@pytest.mark.integration
 def test_the_fit_does_not_jump_with_a_force_at_zero_crush(tmp_path):
     # the first node is the state just after impact itself: held to it only to IPOPT's
     # tolerance, its crush of +-1e-12 switched a 200 kN contact force on or off
@@ -207,6 +213,7 @@ def test_the_fit_does_not_jump_with_a_force_at_zero_crush(tmp_path):
     assert np.ptp(f) <= 1e-9 * np.mean(f), f
 
 
+@pytest.mark.integration
 def test_transcriptions_agree_on_the_objective(data_file):
     a = solve(fit_problem(data_file, MS))
     b = solve(fit_problem(data_file, COLLOCATION))
@@ -214,6 +221,7 @@ def test_transcriptions_agree_on_the_objective(data_file):
     assert b.result.objective == pytest.approx(a.result.objective, rel=0.01)
 
 
+@pytest.mark.integration
 def test_parameter_that_cannot_move_the_fit_is_reported(data_file):
     problem = fit_problem(
         data_file,
@@ -228,6 +236,7 @@ def test_parameter_that_cannot_move_the_fit_is_reported(data_file):
     assert np.all(np.isfinite(np.delete(sol.std_errors, dead)))  # the rest keep their errors
 
 
+@pytest.mark.integration
 def test_a_solve_that_never_moves_is_not_success(data_file):
     sol = solve(fit_problem(data_file, solver={"ipopt": {"max_iter": 0}}))
     assert not sol.ok
@@ -235,6 +244,7 @@ def test_a_solve_that_never_moves_is_not_success(data_file):
     assert sol.status.startswith("solver failed")
 
 
+@pytest.mark.integration
 def test_pitch_bound_below_the_optimum_becomes_active(data_file):
     free = solve(fit_problem(data_file))
     pitch_free = np.max(free.tests[0].outputs["pitch"])
@@ -254,6 +264,7 @@ def test_pitch_bound_below_the_optimum_becomes_active(data_file):
     assert "t56.bound.pitch.upper" not in {c.name for c in active_constraints(free)}
 
 
+@pytest.mark.integration
 def test_l1_loss_fits_through_slacks(data_file):
     sol = solve(fit_problem(data_file, objective={"loss": "l1"}))
     assert sol.ok, sol.status
@@ -261,6 +272,8 @@ def test_l1_loss_fits_through_slacks(data_file):
     np.testing.assert_allclose(estimate[1:], TRUTH["values"][1:], rtol=0.1)
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
     problem = tmp_path / "fit.yaml"
     problem.write_text(yaml.safe_dump(fit_problem(data_file)))
@@ -272,7 +285,7 @@ def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
         assert (out / name).exists()
     fit = result["tests"]["t56"]["fit"]
     assert set(fit) == {"accel", "velocity", "displacement", "pitch"}
-    assert 0.5 < fit["displacement"]["iso18571"]["overall"] <= 1.0
+    assert fit["displacement"]["iso18571"]["overall"] > 0.95  # 0.993 when written; "excellent" from 0.94
     # the separate integrator reproduces the NLP's maximum crush
     sim = tmp_path / "sim"
     assert main(["simulate", str(problem), "--params", str(out / "result.json"), "--out", str(sim)]) == 0
@@ -348,6 +361,7 @@ def test_structured_exact_hessian_equals_casadis_own(data_file, transcription):
     assert_exact_hessian_is_casadis(nlp, z, 0.7, seed=1)
 
 
+@pytest.mark.integration
 def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
     # without monotone crush: its inequalities make the problem non-convex, and the two
     # Hessians can then stop at different KKT points (see the README)

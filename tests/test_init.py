@@ -23,6 +23,7 @@ def _identify(problem_file, out) -> dict:
     return json.loads((out / "result.json").read_text())
 
 
+@pytest.mark.integration
 def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     out = tmp_path / "camry.yaml"
     assert main(["init", str(EV5), "--out", str(out)]) == 0
@@ -67,6 +68,7 @@ def test_csv_columns_units_and_signs_are_recognised(compact_csv):
     assert unit_in_name("a_mps2") == "m/s^2" and unit_in_name("accel") is None
 
 
+@pytest.mark.integration
 def test_init_on_a_csv_given_mass_and_speed_identifies(compact_csv, tmp_path):
     v, truth, path = compact_csv
     out = tmp_path / "compact.yaml"

@@ -17,6 +17,8 @@ from crashnlp.compiled import compiler
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 
+pytestmark = pytest.mark.integration
+
 
 def switched_on(monkeypatch: pytest.MonkeyPatch, folder) -> None:
     """NLP compilation on, into `folder` as the crashnlp cache."""
@@ -59,6 +61,7 @@ def libraries(folder) -> list[str]:
     return sorted(p.name for p in folder.glob("nlp-*-gauss-newton*.so"))
 
 
+@pytest.mark.slow
 def test_compiled_solve_gives_the_bits_of_the_virtual_machine(cache, monkeypatch):
     folder, built = cache
     vm = in_the_vm(monkeypatch)
@@ -84,6 +87,7 @@ def test_one_library_serves_other_fixed_values(cache, monkeypatch):
     assert np.max(np.abs(first.theta - other.theta) / first.ocp.free.scale) > 1e-3  # really another problem
 
 
+@pytest.mark.slow
 def test_auto_solves_now_and_compiles_behind_for_the_next_run(tmp_path, monkeypatch):
     switched_on(monkeypatch, tmp_path)
     before = identify(pickup("auto"), progress=None)

@@ -46,6 +46,7 @@ def _new_speed(folder, raw: dict, kmh: float):
     return path
 
 
+@pytest.mark.integration
 def test_the_result_simulates_the_minimal_file_it_was_fitted_from(fitted, capsys):
     folder, path, _, result, _ = fitted
     out = folder / "sim"
@@ -62,6 +63,7 @@ def test_the_result_simulates_the_minimal_file_it_was_fitted_from(fitted, capsys
     assert {"crush_m_low", "crush_m_high", "accel_g_low", "accel_g_high"} <= set(header)
 
 
+@pytest.mark.integration
 def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fitted):
     folder, _, raw, result, v = fitted
     prediction = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
@@ -83,6 +85,7 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
     assert prediction.metrics["max_crush_m"] > slower.metrics["max_crush_m"]
 
 
+@pytest.mark.integration
 def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted):
     folder, _, raw, result, _ = fitted
     heavier = yaml.safe_load(_new_speed(folder, raw, 48).read_text())
@@ -96,6 +99,7 @@ def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted
     assert more.extrapolation["mass_kg"] == pytest.approx(0.2 * base.mass)
 
 
+@pytest.mark.integration
 def test_another_vehicle_is_refused_in_one_line(fitted, capsys):
     folder, _, raw, _, _ = fitted
     other = {**raw, "vehicle": {**raw["vehicle"], "cg_to_impact": raw["vehicle"]["cg_to_impact"] + 0.4}}
@@ -107,6 +111,7 @@ def test_another_vehicle_is_refused_in_one_line(fitted, capsys):
     assert not (folder / "o").exists()
 
 
+@pytest.mark.integration
 def test_the_result_carries_its_complete_model_and_range(fitted):
     folder, _, _, result, v = fitted
     loaded = crashnlp.Result.load(folder / "fit")

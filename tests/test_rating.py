@@ -60,11 +60,12 @@ CASES = [
 
 
 @pytest.fixture(scope="module")
-def package_ratings():
-    """The package's ratings of two 10 kHz curves; its numba functions are cached on disk (else
-    they compile for 7 s in every run)."""
+def package_ratings(request):
+    """The package's ratings of two 10 kHz curves; its numba functions are cached on disk, in
+    pytest's cache (the run's crashnlp cache is new every run, and they compile for 7 s)."""
+    cache = request.config.cache
     with pytest.MonkeyPatch.context() as mp:
-        mp.setenv("NUMBA_CACHE_DIR", str(cache_dir() / "numba"))
+        mp.setenv("NUMBA_CACHE_DIR", str(cache.mkdir("numba") if cache is not None else cache_dir() / "numba"))
         dtwalign = pytest.importorskip("dtwalign")
         ISO18571 = pytest.importorskip("objective_rating_metrics.rating").ISO18571
     for module in (dtwalign.backtrack, dtwalign.cost, dtwalign.window):
@@ -80,6 +81,7 @@ def package_ratings():
     return ratings
 
 
+@pytest.mark.slow
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the constant and nan cases divide by 0
 @pytest.mark.parametrize(("t", "reference", "model"), CASES)
 def test_equals_the_package(package_ratings, monkeypatch, t, reference, model):

@@ -19,6 +19,8 @@ from crashnlp.optimize.identify import identify
 from crashnlp.pipeline import profile
 from crashnlp.problem import problem_from_dict
 
+pytestmark = pytest.mark.integration
+
 TRUTH = {
     "model.spring.values": [0.0, 380e3, 520e3, 900e3],
     "vehicle.crush_offset": 0.2,
@@ -134,6 +136,7 @@ def test_energy_balances_and_the_barrier_supplies_nothing(clean):
     assert 0 < energy["impact_loss"] < 0.05 * energy["impact_kinetic"]  # the pivot impulse, small
 
 
+@pytest.mark.slow
 def test_ninety_five_percent_intervals_cover_the_truth(tmp_path):
     """12 noisy replicates (1 g filtered at CFC 60, 0.02 m/s, 1 mm, 0.1 deg): the sandwich
     intervals cover the truth as often as they say, and z-scores are of unit size."""
@@ -150,10 +153,11 @@ def test_ninety_five_percent_intervals_cover_the_truth(tmp_path):
         z.extend(((est - truth) / sol.std_errors)[free])
     z = np.asarray(z)
     coverage = np.mean(np.abs(z) <= 1.96)
-    assert 0.85 <= coverage <= 1.0, (coverage, z)
-    assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z
+    assert coverage >= 0.85, (coverage, z)  # 0.90 of 80 when written
+    assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z  # and the intervals are not too wide either
 
 
+@pytest.mark.slow
 def test_profile_intervals_run_in_parallel_and_agree_with_the_sandwich_near_linearity(tmp_path):
     path = tmp_path / "noisy.csv"
     write_data(path, {"accel": 1.0, "velocity": 0.02, "displacement": 1e-3, "pitch": 0.1}, seed=3)

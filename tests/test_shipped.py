@@ -11,6 +11,8 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 from crashnlp.units import G0
 
+pytestmark = pytest.mark.integration
+
 LIMITS = {"displacement": 0.005, "velocity": 0.15, "accel": 2 * G0, "pitch": np.radians(1.0)}
 
 
@@ -37,11 +39,33 @@ def test_shipped_pickup_fit_meets_the_targets(solutions, method):
         assert rmse <= LIMITS[r.channel], (r.channel, rmse)
 
 
+@pytest.mark.slow
+def test_the_compiled_nlp_fits_the_shipped_problem_as_the_virtual_machine_does(solutions, compiled_nlp):
+    """The shipped problem as users run it, its NLP compiled (into the run's cache): the same
+    optimum, iterations, multipliers and standard errors (the covariance's functions are in
+    the library too) as in CasADi's virtual machine; and the next run (compile: auto) finds
+    the library and uses it."""
+    vm = solutions["multiple-shooting"]
+    problem = load_problem(ROOT / "problems/pickup-56kph.yaml")
+    now = identify(Case(problem.with_values({"solver.compile": "now"})), progress=None)
+    later = identify(Case(problem), progress=None)
+    assert not vm.result.compiled and now.result.compiled and later.result.compiled
+    for sol in (now, later):
+        assert sol.status == vm.status == "ok"
+        assert sol.result.iterations == vm.result.iterations
+        assert sol.result.objective == pytest.approx(vm.result.objective, rel=1e-12)
+        for mine, theirs in ((sol.result.z, vm.result.z), (sol.result.lam_g, vm.result.lam_g)):
+            assert np.max(np.abs(mine - theirs)) <= 1e-9 * np.max(np.abs(theirs))
+        np.testing.assert_allclose(sol.theta, vm.theta, rtol=1e-9)
+        np.testing.assert_allclose(sol.std_errors, vm.std_errors, rtol=1e-9)
+
+
 def test_transcriptions_agree_on_the_shipped_objective(solutions):
     a, b = (solutions[m].result.objective for m in ("multiple-shooting", "collocation"))
     assert b == pytest.approx(a, rel=0.01)
 
 
+@pytest.mark.slow
 def test_shipped_barrier_fit_meets_the_wall_and_the_accelerometers():
     from crashnlp.optimize.outcome import result_of
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import csv
 import itertools
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -15,9 +18,10 @@ from crashnlp.case import Case
 from crashnlp.engine.executors import LocalExecutor
 from crashnlp.engine.schedule import run_tree
 from crashnlp.errors import InputError
+from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
-from crashnlp.studies.plan import case_indices, corners, lattice, plan_cases, warm_start_plan
+from crashnlp.studies.plan import case_indices, case_problem, corners, lattice, plan_cases, warm_start_plan
 
 PITCH = "constraints.bounds.pitch"
 BOUNDS = [[None, "2 deg"], [None, "2.5 deg"], [None, "3 deg"], [None, "4 deg"]]  # the free fit pitches ~3.2 deg
@@ -95,6 +99,7 @@ def shipped(tmp_path_factory):
     return out, rows
 
 
+@pytest.mark.integration
 def test_tighter_pitch_bound_never_fits_better(shipped):
     out, rows = shipped
     assert [r["status"] for r in rows] == ["ok"] * 4
@@ -114,6 +119,8 @@ def test_tighter_pitch_bound_never_fits_better(shipped):
     assert (out / "figures" / f"{PITCH}.png").is_file()
 
 
+@pytest.mark.integration
+@pytest.mark.slow
 def test_the_shipped_crush_space_designs_all_solve_and_more_space_never_costs_more(tmp_path):
     # the shipped design study as it is: 100 intervals, damper, plastic unloading, pitch, the
     # rebound and the end of contact (the kink of max(spring + damper, 0)) inside the horizon.
@@ -225,6 +232,7 @@ def test_every_case_starts_after_its_parent_whatever_the_lanes_and_timing(lanes)
             assert set(started[: min(lanes, len(seeds))]) <= set(seeds)  # cold seeds first: most work below
 
 
+@pytest.mark.integration
 def test_workers_live_across_cases_and_a_chain_stays_on_its_worker():
     chain, other = {0: None, 1: 0, 2: 1, 3: 2}, {4: None, 5: 4, 6: 5}
     executor = LocalExecutor(2)
@@ -236,19 +244,41 @@ def test_workers_live_across_cases_and_a_chain_stays_on_its_worker():
     assert len(set(pid.values())) == 2
 
 
-def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path):
+@pytest.mark.integration
+@pytest.mark.slow
+def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path, compiled_nlp, monkeypatch):
+    """One worker and Dask in CasADi's virtual machine; two workers of the command line, as
+    users run it (compilation on), with the study's NLP compiled beforehand: the same table."""
     study = write_study(small, sweep={PITCH: BOUNDS[:3], "vehicle.suspension.k_front": ["70 kN/m", "90 kN/m"]})
-    one = run_study(study, tmp_path / "one", workers=1, progress=False)
-    two = run_study(study, tmp_path / "two", workers=2, progress=False)
-    dask = run_study(study, tmp_path / "dask", executor="dask", workers=2, progress=False)
+    with monkeypatch.context() as mp:
+        mp.setenv("CRASHNLP_COMPILE", "model")
+        one = run_study(study, tmp_path / "one", workers=1, progress=False)
+        dask = run_study(study, tmp_path / "dask", executor="dask", workers=2, progress=False)
     assert [r["status"] for r in one] == ["ok"] * 6
     assert [r["warm_start"] for r in one] == ["", "", "case-000", "case-001", "", ""]
-    assert without_wall_time(one) == without_wall_time(two) == without_wall_time(dask)
+    assert without_wall_time(one) == without_wall_time(dask)
+    # the library of the cases' shape (the swept entries are numbers the NLP takes as
+    # parameters), compiled into a cache of this test's own, so that nothing else adds to it
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("CRASHNLP_CACHE", str(cache))
+    spec = load_study(study)
+    first = problem_from_dict(case_problem(spec, plan_cases(spec)[0]), small).with_values({"solver.compile": "now"})
+    assert identify(Case(first), progress=None).result.compiled
+    libraries = sorted(p.name for p in cache.glob("nlp-*"))
+    env = {k: v for k, v in os.environ.items() if k not in ("CRASHNLP_COMPILE", "CRASHNLP_KEEP_COMPILING")}
+    argv = [sys.executable, "-m", "crashnlp.cli", "study", str(study), "--out", str(tmp_path / "two"), "--workers", "2"]
+    done = subprocess.run([*argv, "--no-progress"], env=env, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    # every case loaded that library: a case of another shape would have built its NLP's
+    # functions for a compile of their own, and named them beside the library
+    assert sorted(p.name for p in cache.glob("nlp-*")) == libraries
     tables = [without_wall_time(read_table(tmp_path / name / "table.csv")) for name in ("one", "two", "dask")]
     assert tables[0] == tables[1] == tables[2]
 
 
 # --------------------------------------------------------------------------- (3) resume
+@pytest.mark.integration
+@pytest.mark.slow
 def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, tmp_path):
     study, out = write_study(small), tmp_path / "out"
     first = run_study(study, out, workers=2, progress=False)
@@ -267,6 +297,7 @@ def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, tmp_
     assert {p.name: p.stat().st_mtime_ns for p in cases.glob("*.json")} == restamp
 
 
+@pytest.mark.integration
 def test_a_changed_case_is_solved_again(small, tmp_path):
     out = tmp_path / "out"
     run_study(write_study(small, sweep={PITCH: BOUNDS[:2]}), out, workers=1, progress=False)
@@ -278,6 +309,7 @@ def test_a_changed_case_is_solved_again(small, tmp_path):
 
 
 # --------------------------------------------------------------------------- (4) failures
+@pytest.mark.integration
 def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
     sweep = {PITCH: BOUNDS, "solver.ipopt.max_iter": [1000, 1000, 0, 1000]}
     rows = run_study(write_study(small, mode="zip", sweep=sweep), tmp_path / "out", workers=2, progress=False)
