@@ -63,7 +63,7 @@ CASES = [
 def package_ratings(request):
     """The package's ratings of two 10 kHz curves; its numba functions are cached on disk, in
     pytest's cache (the run's crashnlp cache is new every run, and they compile for 7 s)."""
-    cache = request.config.cache
+    cache = getattr(request.config, "cache", None)  # None with -p no:cacheprovider
     with pytest.MonkeyPatch.context() as mp:
         mp.setenv("NUMBA_CACHE_DIR", str(cache.mkdir("numba") if cache is not None else cache_dir() / "numba"))
         dtwalign = pytest.importorskip("dtwalign")

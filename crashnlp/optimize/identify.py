@@ -165,10 +165,9 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         raise InputError(f"{case.name}: estimate names no parameter to identify")
     if not fit.residuals:
         raise InputError(f"{case.name}: no test has data to fit")
-    if warm is not None:
-        ocp.set_guess(warm)
+    from_neighbour = warm is not None and ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
-    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress)
+    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, from_neighbour)
     while result.cycling and (refined := _refined(case, result)) is not None:
         (case, note), notes = refined, [*notes, refined[1]]
         _say(note, progress)

@@ -8,7 +8,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TextIO
+from typing import Any, Literal, TextIO
 
 import casadi as ca
 import numpy as np
@@ -33,11 +33,15 @@ class SolveResult:
     profile: dict[str, tuple[int, float]] = field(default_factory=dict)  # IPOPT's functions: calls, seconds
     compiled: bool = False  # IPOPT called the compiled NLP functions (crashnlp.optimize.oracle)
     tail: float | None = None  # stopped in Gauss-Newton's slow tail (Watch): the distance still to go
-    cycling: bool = False  # stopped in a cycle of Gauss-Newton's iterates (Watch, `cycling`)
+    stopped: Stop | None = None  # why the Watch stopped Gauss-Newton short of convergence
 
     @property
     def converged(self) -> bool:
         return self.return_status in SUCCESS
+
+    @property
+    def cycling(self) -> bool:
+        return self.stopped == "cycle"
 
 
 # Gauss-Newton's slow tail. Near a fit that leaves large residuals, or along a weakly determined
@@ -62,6 +66,18 @@ TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail 
 # constraints met to CYCLE_VIOLATION.
 CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATION = 20, 8, 5, 0.3, 0.7, 1e-3
 
+# Wandering: the iterates left the start's basin. From a start near a fit (a study case warm-
+# started from its neighbour's solution), a long Gauss-Newton step
+# along a weakly determined direction can open the shooting defects; IPOPT then wanders for
+# hundreds of iterations at objectives far above the start's before it finds its way back. Seen
+# as: after WANDER_START iterations, an objective above WANDER_RISE times the start's with the
+# constraints violated by more than WANDER_VIOLATION. The exact Hessian, which holds the defects'
+# curvature that Gauss-Newton leaves out, then starts over from the start. From the cold start
+# of a fit the same rule would stop runs that find their way back (corpus v17: 101 iterations of
+# Gauss-Newton, 623 with the exact Hessian), so it watches warm starts only.
+WANDER_START, WANDER_RISE, WANDER_VIOLATION = 25, 2.0, 1e-3
+Stop = Literal["cycle", "wander"]
+
 
 class Watch(ca.Callback):
     """IPOPT's iteration callback: a short line every `every` iterations when asked, and for a
@@ -73,17 +89,18 @@ class Watch(ca.Callback):
         self.start(np.zeros(ng), np.zeros(ng), None, False)
         self.construct("watch", {})
 
-    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool) -> None:
+    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool, wander: bool = False) -> None:
         """Before a run: the constraint bounds, where progress goes, whether to watch
-        Gauss-Newton for its slow tail."""
-        self.lbg, self.ubg, self.out, self.watch = lbg, ubg, out, watch
+        Gauss-Newton for its slow tail and its cycles, and for a wander from its start."""
+        self.lbg, self.ubg, self.out, self.watch, self.wander = lbg, ubg, out, watch, wander
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
         self.iterates: list[np.ndarray] = []  # the last CYCLE_PERIOD + 1
         self.returns = 0  # iterates in a row that came back (CYCLE_START above)
         self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
-        self.cycling = False  # set to stop a cycle (CYCLE_START above)
+        self.start_objective: float | None = None
+        self.stopped: Stop | None = None  # set to stop a cycle or a wander (CYCLE_START, WANDER_START above)
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -122,12 +139,14 @@ class Watch(ca.Callback):
             f = float(arg[names.index("f")])
             print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
         if self.watch:
-            self._follow(arg[names.index("x")].full().ravel(), violation)
-        return [int(self.remaining is not None or self.cycling)]
+            self._follow(arg[names.index("x")].full().ravel(), float(arg[names.index("f")]), violation)
+        return [int(self.remaining is not None or self.stopped is not None)]
 
-    def _follow(self, x: np.ndarray, violation: Callable[[], float]) -> None:
+    def _follow(self, x: np.ndarray, f: float, violation: Callable[[], float]) -> None:
         """Gauss-Newton's steps: in its slow tail, `remaining` is the distance still to go; in a
-        cycle, `cycling` (the constraint violation is computed only there)."""
+        cycle or a wander, `stopped` says which (the constraint violation is computed only there)."""
+        if self.start_objective is None:
+            self.start_objective = f
         if self.x is not None:
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
@@ -137,7 +156,14 @@ class Watch(ca.Callback):
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
         elif self.count >= CYCLE_START and cycle(self.returns, self.steps) and violation() <= CYCLE_VIOLATION:
-            self.cycling = True
+            self.stopped = "cycle"
+        elif (
+            self.wander
+            and self.count >= WANDER_START
+            and f > WANDER_RISE * self.start_objective
+            and violation() > WANDER_VIOLATION
+        ):
+            self.stopped = "wander"
 
 
 def slow_tail(steps: list[float]) -> bool:
@@ -222,10 +248,12 @@ class BuiltSolver:
     watch: Watch
     compiled: bool = False
 
-    def __call__(self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False) -> tuple[dict, dict]:
+    def __call__(
+        self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False, wander: bool = False
+    ) -> tuple[dict, dict]:
         """One IPOPT run: its solution and stats; progress lines to `out`; `watch`: stop
-        Gauss-Newton in its slow tail (Watch)."""
-        self.watch.start(args["lbg"], args["ubg"], out, watch)
+        Gauss-Newton in its slow tail or a cycle, `wander`: and in a wander (Watch)."""
+        self.watch.start(args["lbg"], args["ubg"], out, watch, wander)
         sol = self.function(**args)
         return sol, self.function.stats()
 
@@ -274,8 +302,10 @@ def solve(
     spec: Solver,
     verbose: bool = False,
     progress: TextIO | None = sys.stdout,
+    from_neighbour: bool = False,
 ) -> SolveResult:
-    """Solve; the returned status is IPOPT's own.
+    """Solve; the returned status is IPOPT's own. `from_neighbour`: the NLP starts from a
+    neighbouring problem's solution (a study's warm start), where a wander is watched for.
 
     With `hessian: auto` a least-squares fit starts with the Gauss-Newton Hessian, cheap and
     fast near a good fit (15 to 30 iterations on the shipped problems). Where it converges only
@@ -288,13 +318,14 @@ def solve(
     initial guess, since a crawl can end far from where the exact Hessian converges from. Where
     Gauss-Newton's iterates cycle (CYCLE_START above), the run stops there, `cycling`: the
     exact Hessian sees the same kink, and the caller refines the integration instead
-    (crashnlp.optimize.identify). The result counts the iterations and time of every run."""
+    (crashnlp.optimize.identify). Where they wander from a neighbour's solution (WANDER_START
+    above), the exact Hessian starts over from it at once. The result counts the iterations and time of every run."""
     if spec.hessian != "auto" or hessian_kind(nlp, spec) != "gauss-newton":
         return _solve(nlp, spec, verbose, progress)
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
     gauss_newton = spec.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": limit}})
     exact = spec.model_copy(update={"hessian": "exact"})
-    first = _solve(nlp, gauss_newton, verbose, progress, watch=True)
+    first = _solve(nlp, gauss_newton, verbose, progress, watch=True, wander=from_neighbour)
     if first.tail is not None:
         newton = _solve(
             nlp, exact.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": TAIL_NEWTON_ITER}}), verbose, progress, start=first
@@ -304,7 +335,8 @@ def solve(
         # Newton did not finish what Gauss-Newton began: Gauss-Newton all the way, as without the tail
         first = after(after(first, newton), _solve(nlp, gauss_newton, verbose, progress))
     crawled = first.return_status == "Maximum_Iterations_Exceeded" and limit >= AUTO_GAUSS_NEWTON_ITER
-    if first.converged or first.cycling or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
+    restart = crawled or first.stopped == "wander" or first.return_status in GAUSS_NEWTON_FAILURES
+    if first.converged or not restart:
         return first
     return after(first, _solve(nlp, exact, verbose, progress))
 
@@ -331,16 +363,23 @@ def after(before: SolveResult, run: SolveResult) -> SolveResult:
 
 
 def _solve(
-    nlp: NLPBuilder, spec: Solver, verbose: bool, progress: TextIO | None, watch: bool = False, start: SolveResult | None = None
+    nlp: NLPBuilder,
+    spec: Solver,
+    verbose: bool,
+    progress: TextIO | None,
+    watch: bool = False,
+    start: SolveResult | None = None,
+    wander: bool = False,
 ) -> SolveResult:
     """One IPOPT run from the NLP's initial guess, or warm from `start`'s iterate and
-    multipliers; `watch`: stop Gauss-Newton in its slow tail (Watch)."""
+    multipliers; `watch`: stop Gauss-Newton in its slow tail or a cycle, `wander`: and in a
+    wander (Watch)."""
     built = build_solver(nlp, spec, verbose, warm=start is not None)
     args = nlp.bounds()
     if start is not None:
         args.update(x0=start.z, lam_x0=start.lam_x, lam_g0=start.lam_g)
     t0 = time.perf_counter()
-    sol, stats = built(args, None if verbose else progress, watch)
+    sol, stats = built(args, None if verbose else progress, watch, wander)
     wall = time.perf_counter() - t0
     return SolveResult(
         z=np.asarray(sol["x"]).ravel(),
@@ -354,7 +393,7 @@ def _solve(
         build_s=built.build_s,
         compiled=built.compiled,
         tail=built.watch.remaining,
-        cycling=built.watch.cycling,
+        stopped=built.watch.stopped,
         profile={
             k[len("t_wall_") :]: (int(stats.get("n_call_" + k[len("t_wall_") :], 0)), float(v))
             for k, v in stats.items()
