@@ -257,7 +257,7 @@ def _regularized_md(r: dict | None) -> list[str]:
             x["intervals"],
             x["status"],
             x["iterations"],
-            f"{x['wall_s']:.2f}",
+            f"{x['wall_s']:.2f} ({'compiled' if x.get('compiled') else 'VM'})",
             f"{100 * x['crush_rel']:+.1f}" if ok(x) else "",
             f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
         ]
