@@ -3,7 +3,10 @@
 from __future__ import annotations
 
 import json
+import statistics
 from pathlib import Path
+
+from bench import convergence
 
 
 def _met(ok: bool | None) -> str:
@@ -98,6 +101,8 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
             )
         )
     rows += cross_speed_targets(results.get("cross_speed"))
+    if "convergence" in results:
+        rows += convergence_targets(convergence.summary(results))
     wp = results.get("whole_process")
     if wp and "second_run_fresh_cache" in wp:
         warm, bare = wp["warm"], wp["warm_no_figures"]
@@ -141,6 +146,150 @@ def cross_speed_targets(xs: dict | None) -> list[tuple[str, str, bool | None]]:
         (f"cross-speed: every fit within {t['iterations']} IPOPT iterations", f"largest {worst}", worst <= t["iterations"])
     )
     return rows
+
+
+def convergence_targets(groups: dict[str, dict | None]) -> list[tuple[str, str, bool | None]]:
+    """Issue 25's acceptance per group of fits (bench/convergence.py); n/a where its section did not run."""
+    c, j, g, r = groups["corpus"], groups["joint"], groups["grid"], groups["regularized"]
+    limits = convergence.TARGETS
+    return [
+        (
+            f"convergence, corpus: every vehicle ok, median iterations <= {convergence.CORPUS_MEDIAN}, "
+            f"none above {limits['corpus_iterations']}",
+            _iterations(c),
+            None if c is None else _all_ok(c) and c["median_iterations"] <= c["median_target"],
+        ),
+        (
+            f"convergence, joint fits of 2 and 4 tests by both transcriptions: ok within {limits['joint_iterations']} iterations",
+            _iterations(j),
+            None if j is None else _all_ok(j),
+        ),
+        (
+            f"convergence, {limits['grid_cases']}-case grid: every case ok within {limits['grid_iterations']} iterations, "
+            "the same table on 1 and 2 workers",
+            "n/a" if g is None else f"{_iterations(g)}; tables {'identical' if g['same_table'] else '**differ**'}",
+            None if g is None else _all_ok(g) and g["count"] == limits["grid_cases"] and g["same_table"],
+        ),
+        (
+            f"convergence, regularized joint fits: ok within {limits['joint_iterations']} iterations",
+            _iterations(r),
+            None if r is None else _all_ok(r),
+        ),
+    ]
+
+
+def _all_ok(g: dict) -> bool:
+    return g["ok"] == g["count"] and g["above_limit"] == 0
+
+
+def _iterations(g: dict | None) -> str:
+    if g is None:
+        return "n/a"
+    above = f", {g['above_limit']} above {g['limit']}" if g["above_limit"] else ""
+    return f"{g['ok']} of {g['count']} ok; iterations median {g['median_iterations']:g}, largest {g['max_iterations']}{above}"
+
+
+def convergence_md(results: dict) -> list[str]:
+    """The convergence summary over the run's corpus, scaling, studies and convergence results."""
+    groups = convergence.summary(results)
+    sources = {"corpus": "corpus", "joint": "scaling", "grid": "studies", "regularized": "convergence"}
+    labels = {"corpus": "robustness corpus", "joint": "joint fits", "grid": "64-case grid", "regularized": "regularized fits"}
+    rows = [[labels[k], sources[k], *(["not run", "", "", "", ""] if g is None else _group_cells(g))] for k, g in groups.items()]
+    return [
+        "## Convergence",
+        "",
+        "Status, IPOPT iterations and wall time of the fits issue 25 requires to finish. The corpus, joint fits and grid "
+        "are those of the corpus, scaling and studies sections of this results file, read rather than solved again. "
+        "Iterations count every IPOPT run of a fit (Gauss-Newton, its hand-over to Newton, restarts); a grid case's "
+        "time is its solve's, the others' the whole identification's.",
+        "",
+        *_table(["fits", "section", "ok", "median iterations", "largest", "above limit", "wall (s), median"], rows),
+        "",
+        *_slow_fits_md(groups["corpus"], "Corpus vehicles"),
+        *_fits_md(
+            groups["joint"],
+            f"Joint fits (scaling section, each IPOPT run capped at {(groups['joint'] or {}).get('max_iter')} iterations):",
+        ),
+        *_regularized_md(results.get("convergence")),
+        *_grid_md(groups["grid"]),
+    ]
+
+
+def _group_cells(g: dict) -> list:
+    wall = statistics.median(f["wall_s"] for f in g["fits"]) if g["fits"] else float("nan")
+    return [
+        f"{g['ok']} of {g['count']}",
+        f"{g['median_iterations']:g}",
+        g["max_iterations"],
+        f"{g['above_limit']} above {g['limit']}",
+        f"{wall:.2f}",
+    ]
+
+
+def _fit_table(fits: list[dict]) -> list[str]:
+    return _table(
+        ["fit", "status", "iterations", "wall (s)"],
+        [[f["fit"], f["status"], f["iterations"], f"{f['wall_s']:.2f}"] for f in fits],
+    )
+
+
+def _fits_md(g: dict | None, title: str) -> list[str]:
+    return [] if g is None else [title, "", *_fit_table(g["fits"]), ""]
+
+
+def _slow_fits_md(g: dict | None, title: str) -> list[str]:
+    """A group's fits that failed or ended above its limit (every fit's row is in its own section)."""
+    if g is None:
+        return []
+    slow = [f for f in g["fits"] if f["status"] != "ok" or f["iterations"] > g["limit"]]
+    if not slow:
+        return [f"{title}: every one ok within {g['limit']} iterations.", ""]
+    return [f"{title} that failed or took more than {g['limit']} iterations:", "", *_fit_table(slow), ""]
+
+
+def _regularized_md(r: dict | None) -> list[str]:
+    if not r:
+        return []
+    ok = lambda x: "crush_rel" in x  # noqa: E731
+    rows = [
+        [
+            f"{x['regularization']:g}",
+            x["intervals"],
+            x["status"],
+            x["iterations"],
+            f"{x['wall_s']:.2f} ({'compiled' if x.get('compiled') else 'VM'})",
+            f"{100 * x['crush_rel']:+.1f}" if ok(x) else "",
+            f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
+        ]
+        for x in r["regularized"]
+    ]
+    kmh = f"{r['predict_kmh']:.0f} km/h"
+    return [
+        f"{r['problem']} with `objective.regularization` set, identified; its {kmh} prediction (a problem naming only that "
+        "speed, as in the cross-speed section) against the generator's noise-free pickup:",
+        "",
+        *_table(["regularization", "intervals", "status", "iterations", "wall (s)", f"{kmh} crush (%)", f"{kmh} peak (%)"], rows),
+        "",
+    ]
+
+
+def _grid_md(g: dict | None) -> list[str]:
+    """The grid's iterations as a matrix: pitch bound down, front suspension across; failed cases marked."""
+    if g is None:
+        return []
+    pitch = list(dict.fromkeys(f["pitch"] for f in g["fits"]))
+    k_front = list(dict.fromkeys(f["k_front"] for f in g["fits"]))
+    cell = {(f["pitch"], f["k_front"]): f for f in g["fits"]}
+    show = lambda f: f["iterations"] if f["status"] == "ok" else f"**{f['iterations']}, {f['status']}**"  # noqa: E731
+    matrix = [[p, *(show(cell[p, k]) if (p, k) in cell else "" for k in k_front)] for p in pitch]
+    same = "identical but for solve times" if g["same_table"] else "**differ**"
+    return [
+        f"64-case grid (studies section, pickup-56kph): IPOPT iterations of each case in the 1-worker table; the tables of "
+        f"{' and '.join(str(w) for w in g['workers'])} workers are {same}.",
+        "",
+        *_table(["pitch bound, front suspension", *k_front], matrix),
+        "",
+    ]
 
 
 def cross_speed_md(r: dict) -> list[str]:
@@ -566,6 +715,8 @@ def markdown(results: dict) -> str:
     for name, fn in SECTIONS.items():
         if name in results:
             lines += fn(results[name])
+    if "convergence" in results:
+        lines += convergence_md(results)
     return "\n".join(lines)
 
 

@@ -16,6 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import (  # noqa: E402
+    convergence,
     cross_speed,
     identification,
     report,
@@ -38,6 +39,7 @@ SECTIONS = {
     "self_consistency": self_consistency,
     "cross_speed": cross_speed,
     "whole_process": whole_process,
+    "convergence": convergence,  # reads the corpus, scaling and studies sections' fits: bench/report.py
 }
 
 

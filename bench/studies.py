@@ -326,6 +326,7 @@ def run(quick: bool = False) -> dict:
         "pitch_bound": pitch,
         "grid_16": grid,
         "grid_64": big,
+        "grid_64_rows": rows,  # the 1-worker table (bench/convergence.py reads its statuses and iterations)
         "speedup_16": speedups(grid),
         "speedup_64": speedups(big),
         "speedup_pitch_bound": speedups(pitch),
