@@ -191,7 +191,7 @@ def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str] | None:
     if not isinstance(spec, MultipleShootingSpec) or spec.substeps * REFINE > MAX_SUBSTEPS:
         return None
     steps = spec.substeps * REFINE
-    return Case(case.problem.with_values({"transcription.substeps": steps})), (
+    return Case(case.problem.with_values({"transcription": {**spec.model_dump(), "substeps": steps}})), (
         f"{case.name}: IPOPT's iterates cycled after {cycled.iterations} iterations at {spec.substeps} RK4 step(s) "
         f"per interval (a kink of the force laws crossed inside a step); solved again from there with {steps}"
     )
