@@ -89,8 +89,9 @@ def test_a_joint_shooting_fit_of_two_speeds_finishes_refined_at_the_same_optimum
     assert shooting.result.iterations <= ITERATION_LIMIT
     assert any("cycled" in note for note in shooting.notes)
     assert shooting.case.problem.transcription.substeps > 1
-    collocation = identify(Case(problem.with_values({"transcription": {"method": "collocation", "intervals": 200}})), progress=None)
+    collocation = identify(
+        Case(problem.with_values({"transcription": {"method": "collocation", "intervals": 200}})), progress=None
+    )
     assert collocation.ok, collocation.status
     scale = np.abs(collocation.theta) + shooting.ocp.free.scale * 1e-3
     assert np.max(np.abs(shooting.theta - collocation.theta) / scale) < 0.02
-

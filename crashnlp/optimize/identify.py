@@ -78,8 +78,6 @@ class Solution:
 
 def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.ndarray) -> str:
     """'ok' only for a converged solve that moved; otherwise why not."""
-    if result.cycling:
-        return f"solver failed: the iterates cycled (IPOPT stopped at the user's request: {result.return_status})"
     if not result.converged:
         return f"solver failed: {result.return_status}"
     if result.iterations == 0:
@@ -167,13 +165,16 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         raise InputError(f"{case.name}: no test has data to fit")
     from_neighbour = warm is not None and ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
-    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, from_neighbour)
-    while result.cycling and (refined := _refined(case, result)) is not None:
-        (case, note), notes = refined, [*notes, refined[1]]
+    result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, from_neighbour, _refinable(case))
+    while result.cycling:
+        case, note = _refined(case, result)
+        notes.append(note)
         _say(note, progress)
         ocp, fit = fit_ocp(case)
         ocp.set_guess(result.z)
-        result = after(result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress))
+        result = after(
+            result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, refinable=_refinable(case))
+        )
     solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = notes
     return solution
@@ -184,12 +185,18 @@ def _say(note: str | None, progress: TextIO | None) -> None:
         print(note, file=progress)
 
 
-def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str] | None:
-    """The case with REFINE times the RK4 steps per shooting interval, and the line that says
-    so; None where there is no such step to refine (collocation) or the steps are at MAX_SUBSTEPS."""
+def _refinable(case: Case) -> bool:
+    """Whether the case's integration steps can be refined: multiple shooting below MAX_SUBSTEPS
+    (collocation has no step to refine). Only then does its solve stop at a cycle."""
     spec = case.problem.transcription
-    if not isinstance(spec, MultipleShootingSpec) or spec.substeps * REFINE > MAX_SUBSTEPS:
-        return None
+    return isinstance(spec, MultipleShootingSpec) and spec.substeps * REFINE <= MAX_SUBSTEPS
+
+
+def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str]:
+    """The case with REFINE times the RK4 steps per shooting interval, and the line that says
+    so (a solve stops at a cycle only where its case is `_refinable`)."""
+    spec = case.problem.transcription
+    assert isinstance(spec, MultipleShootingSpec) and _refinable(case)
     steps = spec.substeps * REFINE
     return Case(case.problem.with_values({"transcription": {**spec.model_dump(), "substeps": steps}})), (
         f"{case.name}: IPOPT's iterates cycled after {cycled.iterations} iterations at {spec.substeps} RK4 step(s) "

@@ -93,10 +93,12 @@ class Watch(ca.Callback):
         self.start(np.zeros(ng), np.zeros(ng), None, False)
         self.construct("watch", {})
 
-    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool, wander: bool = False) -> None:
+    def start(
+        self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool, stops: frozenset[Stop] = frozenset()
+    ) -> None:
         """Before a run: the constraint bounds, where progress goes, whether to watch
-        Gauss-Newton for its slow tail and its cycles, and for a wander from its start."""
-        self.lbg, self.ubg, self.out, self.watch, self.wander = lbg, ubg, out, watch, wander
+        Gauss-Newton for its slow tail, and which of a cycle and a wander stop it."""
+        self.lbg, self.ubg, self.out, self.watch, self.stops = lbg, ubg, out, watch, stops
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
@@ -159,10 +161,15 @@ class Watch(ca.Callback):
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
-        elif self.count >= CYCLE_START and cycle(self.returns, self.steps) and violation() <= CYCLE_VIOLATION:
+        elif (
+            "cycle" in self.stops
+            and self.count >= CYCLE_START
+            and cycle(self.returns, self.steps)
+            and violation() <= CYCLE_VIOLATION
+        ):
             self.stopped = "cycle"
         elif (
-            self.wander
+            "wander" in self.stops
             and self.count >= WANDER_START
             and f > WANDER_RISE * self.start_objective
             and violation() > WANDER_VIOLATION
@@ -253,11 +260,11 @@ class BuiltSolver:
     compiled: bool = False
 
     def __call__(
-        self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False, wander: bool = False
+        self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False, stops: frozenset[Stop] = frozenset()
     ) -> tuple[dict, dict]:
         """One IPOPT run: its solution and stats; progress lines to `out`; `watch`: stop
-        Gauss-Newton in its slow tail or a cycle, `wander`: and in a wander (Watch)."""
-        self.watch.start(args["lbg"], args["ubg"], out, watch, wander)
+        Gauss-Newton in its slow tail, and in the `stops` it is given (Watch)."""
+        self.watch.start(args["lbg"], args["ubg"], out, watch, stops)
         sol = self.function(**args)
         return sol, self.function.stats()
 
@@ -307,9 +314,11 @@ def solve(
     verbose: bool = False,
     progress: TextIO | None = sys.stdout,
     from_neighbour: bool = False,
+    refinable: bool = False,
 ) -> SolveResult:
     """Solve; the returned status is IPOPT's own. `from_neighbour`: the NLP starts from a
-    neighbouring problem's solution (a study's warm start), where a wander is watched for.
+    neighbouring problem's solution (a study's warm start), where a wander is watched for;
+    `refinable`: the caller can refine the integration, so that a cycle is watched for.
 
     With `hessian: auto` a least-squares fit starts with the Gauss-Newton Hessian, cheap and
     fast near a good fit (15 to 30 iterations on the shipped problems). Where it converges only
@@ -330,10 +339,11 @@ def solve(
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
     gauss_newton = spec.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": limit}})
     exact = spec.model_copy(update={"hessian": "exact"})
-    first = _solve(nlp, gauss_newton, verbose, progress, watch=True, wander=from_neighbour)
+    cycles: frozenset[Stop] = frozenset({"cycle"} if refinable else ())
+    first = _solve(nlp, gauss_newton, verbose, progress, watch=True, stops=cycles | ({"wander"} if from_neighbour else set()))
     if first.stopped == "wander":
         near = gauss_newton.model_copy(update={"ipopt": {**WANDER_OPTIONS, **gauss_newton.ipopt}})
-        first = after(first, _solve(nlp, near, verbose, progress, watch=True))
+        first = after(first, _solve(nlp, near, verbose, progress, watch=True, stops=cycles))
     if first.tail is not None:
         newton = _solve(
             nlp, exact.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": TAIL_NEWTON_ITER}}), verbose, progress, start=first
@@ -376,17 +386,16 @@ def _solve(
     progress: TextIO | None,
     watch: bool = False,
     start: SolveResult | None = None,
-    wander: bool = False,
+    stops: frozenset[Stop] = frozenset(),
 ) -> SolveResult:
     """One IPOPT run from the NLP's initial guess, or warm from `start`'s iterate and
-    multipliers; `watch`: stop Gauss-Newton in its slow tail or a cycle, `wander`: and in a
-    wander (Watch)."""
+    multipliers; `watch`: stop Gauss-Newton in its slow tail, and in the `stops` given (Watch)."""
     built = build_solver(nlp, spec, verbose, warm=start is not None)
     args = nlp.bounds()
     if start is not None:
         args.update(x0=start.z, lam_x0=start.lam_x, lam_g0=start.lam_g)
     t0 = time.perf_counter()
-    sol, stats = built(args, None if verbose else progress, watch, wander)
+    sol, stats = built(args, None if verbose else progress, watch, stops)
     wall = time.perf_counter() - t0
     return SolveResult(
         z=np.asarray(sol["x"]).ravel(),
