@@ -55,7 +55,7 @@ def load(
 ) -> Problem:
     """A fresh problem, optionally with another transcription, interval count, IPOPT iteration cap
     or NLP compilation (solver.compile); `from_data`: the spring values left out, so that both
-    fits start from the measured force-crush curve (crashnlp.autoinit), not the problem's guess."""
+    fits start from the measured force-crush curve (crashnlp.completion), not the problem's guess."""
     problem = load_problem(path)
     changes: dict[str, Any] = {}
     if from_data:

@@ -3,7 +3,7 @@
 Each vehicle comes from bench/corpus.py (a planar rigid body, not crashnlp's pendulum) and is
 tested at 40, 56 and 64 km/h: the same structure at three speeds. The shared synthetic pickup
 is the first vehicle (its generator's parameters are those of the shared data set). Two fits
-per vehicle, from minimal problem files (crashnlp.autoinit fills in the front end):
+per vehicle, from minimal problem files (crashnlp.completion fills in the front end):
 
 - extrapolation: fit 40 + 56 km/h, predict 64 km/h (8 km/h past the fastest fitted test);
 - interpolation: fit 40 + 64 km/h, predict 56 km/h.

@@ -407,7 +407,7 @@ def _from_data_md(d: dict | None) -> list[str]:
         return []
     c, b = d["crashnlp"], d["baseline"]
     return [
-        "From the measured force-crush curve instead (the spring values left to crashnlp.autoinit, for both): "
+        "From the measured force-crush curve instead (the spring values left to crashnlp.completion, for both): "
         f"crashnlp {d['method']} {c['wall_s']:.2f} s, {c['iterations']} it, objective {c['objective']:.5g}; "
         f"the baseline {b['wall_s']:.1f} s, {b['iterations']} it, {b['simulations']} simulations, objective "
         f"{b['objective']:.5g} ({'converged' if b['converged'] else 'not converged'}): {d['speedup']:.1f}x. From the "

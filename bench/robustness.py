@@ -1,7 +1,7 @@
 """Robustness corpus: identify random vehicles from bench/corpus.py with minimal problem files.
 
 Each vehicle's test is written as a CSV, and a problem file that gives only the vehicle and
-its test (no breakpoints, no spring values, no estimate: crashnlp.autoinit fills them in).
+its test (no breakpoints, no spring values, no estimate: crashnlp.completion fills them in).
 The identified model is simulated (CVODES, 10 kHz) and judged against the generator's
 noise-free response: maximum crush, time of zero velocity, and the ISO/TS 18571 rating of
 the barrier force over the pulse (impact to the generator's separation from the wall).

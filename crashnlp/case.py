@@ -2,7 +2,7 @@
 
 `Case(problem)` runs the steps in order (like PyBaMM's Simulation): load the tests'
 data (crashnlp.testcase), complete what the problem leaves out from them
-(crashnlp.autoinit), lay out the parameters, build the symbolic model. Shared by
+(crashnlp.completion), lay out the parameters, build the symbolic model. Shared by
 simulate, identify, design and studies.
 """
 
@@ -15,8 +15,8 @@ from typing import Any
 
 import numpy as np
 
-from crashnlp.autoinit import complete, measured_pulses
 from crashnlp.checks import named
+from crashnlp.completion import complete, measured_pulses
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.problem import Problem, load_problem
@@ -30,7 +30,7 @@ class Case:
     """Problem + data + parameter layout + symbolic model.
 
     What the problem leaves out (vehicle mass, breakpoints, spring values, unloading
-    stiffness, estimate) is filled in from the data (crashnlp.autoinit); `problem` is the
+    stiffness, estimate) is filled in from the data (crashnlp.completion); `problem` is the
     completed copy, and the problem it is given is not changed.
     """
 

@@ -1,6 +1,6 @@
 """The identified vehicle a fit hands on: its complete model, its uncertainty and its range.
 
-A fit completes its problem from the data (crashnlp.autoinit) and then estimates some of its
+A fit completes its problem from the data (crashnlp.completion) and then estimates some of its
 entries. `IdentifiedModel` keeps all of it: every vehicle and model entry in SI with the
 fitted values in place, the covariance of the estimated ones, the range of crush, speed and
 mass the fitted tests covered, and how far the model's own crash metrics missed the data's on

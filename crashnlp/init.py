@@ -12,7 +12,7 @@ marked as an estimate:
 - suspension: each axle's static load at a ride frequency of 1.2 Hz, damping ratio 0.25.
 
 The breakpoints, spring values, damper, unloading stiffness and estimate are then filled in
-from the data (crashnlp.autoinit) and written out, so the file identifies as it stands and
+from the data (crashnlp.completion) and written out, so the file identifies as it stands and
 every entry can be edited.
 """
 
@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from crashnlp.autoinit import PITCH_LEVER
+from crashnlp.completion import PITCH_LEVER
 from crashnlp.data.load import load_test_data
 from crashnlp.errors import InputError
 from crashnlp.metrics import STOPPED, zero_crossing
@@ -454,7 +454,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
         f"# Written by `crashnlp init` from {data_file} ({draft.data['format']}).",
         *(f"# {n}" for n in draft.notes),
         "# Front end: breakpoints over the data's crush range, values from the measured force-crush curve",
-        "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/autoinit.py).",
+        "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/completion.py).",
         f"name: {json.dumps(draft.name)}",
         "vehicle:",
     ]
@@ -471,7 +471,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
         )
     )
     bps = [round(b, 4) for b in m.spring.placed_breakpoints]
-    assert m.damper is not None  # spring values from the data come with a nominal damper (crashnlp.autoinit.complete)
+    assert m.damper is not None  # spring values from the data come with a nominal damper (crashnlp.completion.complete)
     lines += [
         "model:",
         "  spring:",
@@ -500,7 +500,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
     for path, spec in problem.estimate.items():
         unit, scale, fmt = ESTIMATE_UNITS[path]
         lo, hi = spec.bounds or (None, None)
-        assert lo is not None and hi is not None  # crashnlp.autoinit.default_estimate bounds each entry on both sides
+        assert lo is not None and hi is not None  # crashnlp.completion.default_estimate bounds each entry on both sides
         bounds = ", ".join(_q(b, unit, scale, fmt) for b in (lo, hi))
         lines.append(_line(2, f"{path}: {{bounds: [{bounds}]}}", "pitch lever" if path == PITCH_LEVER else ""))
     lines += ["constraints:", "  monotone_crush: true", "transcription: " + _flow(problem.transcription.model_dump())]

@@ -1,6 +1,6 @@
 """The first step of a Case: a problem's tests with their data loaded, impact speeds and horizons.
 
-problem -> load_tests -> (problem with its vehicle mass, tests); crashnlp.autoinit then
+problem -> load_tests -> (problem with its vehicle mass, tests); crashnlp.completion then
 completes the problem from the tests' data, and crashnlp.case lays out its parameters and
 builds the model.
 """

@@ -116,7 +116,7 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
     folder, _, _, result, v = fitted
     loaded = crashnlp.Result.load(folder / "fit")
     model = loaded.identified.model
-    assert len(model["spring"]["crush_breakpoints"]) == len(model["spring"]["values"]) == 8  # filled in by the autoinit
+    assert len(model["spring"]["crush_breakpoints"]) == len(model["spring"]["values"]) == 8  # completed from the data
     assert model["spring"]["values"] == pytest.approx(result.parameters["model.spring.values"], rel=1e-9)
     assert loaded.identified.range.speeds == (pytest.approx(v.speed), pytest.approx(v.speed))
     assert loaded.identified.range.max_crush == pytest.approx(result.tests["t1"].data_metrics["max_crush_m"], rel=0.01)

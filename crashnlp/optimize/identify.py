@@ -9,8 +9,8 @@ from typing import TextIO
 
 import numpy as np
 
-from crashnlp.autoinit import measured_pulse, repaired_start
 from crashnlp.case import Case
+from crashnlp.completion import measured_pulse, repaired_start
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective

@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.autoinit import measured_pulses
 from crashnlp.case import Case, TestCase
+from crashnlp.completion import measured_pulses
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution

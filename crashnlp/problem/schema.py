@@ -156,7 +156,7 @@ _T = TypeVar("_T")
 
 
 def _filled_in(value: _T | None, path: str) -> _T:
-    """A value a Case fills in from the data when the file leaves it out (crashnlp.autoinit), once filled in."""
+    """A value a Case fills in from the data when the file leaves it out (crashnlp.completion), once filled in."""
     if value is None:
         raise RuntimeError(f"{path}: not filled in from the data yet (a Case does that)")
     return value
@@ -241,7 +241,7 @@ SPRING_UNITS = {"force": "N", "secant": "N/m"}
 
 
 class BreakpointCount(Strict):
-    """Breakpoints to be placed over the data's crush range (crashnlp.autoinit)."""
+    """Breakpoints to be placed over the data's crush range (crashnlp.completion)."""
 
     count: int = Field(ge=2, le=30, description="number of breakpoints, 0 included")
 
@@ -290,7 +290,7 @@ class Spring(Strict):
     @property
     def placed_breakpoints(self) -> list[float]:
         """The crush breakpoints, once placed: a Case places them over the data's crush range when the
-        file gives none or a count (crashnlp.autoinit)."""
+        file gives none or a count (crashnlp.completion)."""
         if not isinstance(self.crush_breakpoints, list):
             raise RuntimeError("model.spring.crush_breakpoints: not placed yet (a Case places them from the data)")
         return self.crush_breakpoints

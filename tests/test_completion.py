@@ -9,7 +9,8 @@ import pytest
 from builders import ROOT, merge
 from scipy.interpolate import PchipInterpolator
 
-from crashnlp.autoinit import (
+from crashnlp.case import Case
+from crashnlp.completion import (
     DEFAULT_COUNT,
     PITCH_LEVER,
     REACH,
@@ -20,7 +21,6 @@ from crashnlp.autoinit import (
     spring_values,
     unloading_stiffness,
 )
-from crashnlp.case import Case
 from crashnlp.optimize.identify import repair_start
 from crashnlp.problem import ProblemError, load_problem, problem_from_dict
 from crashnlp.problem.load import read_yaml
