@@ -114,7 +114,7 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
 
 def repair_start(case: Case) -> tuple[Case, str | None]:
     """A start that leaves spring values with a zero derivative although the data reach them,
-    replaced by crashnlp.autoinit.repaired_start: the case from the new start (Case.with_start),
+    replaced by crashnlp.completion.repaired_start: the case from the new start (Case.with_start),
     and the one line that says so; the case itself and None when its start serves.
 
     A breakpoint value moves the force from the breakpoint before it on, so it has a zero
@@ -153,7 +153,7 @@ REFINE, MAX_SUBSTEPS = 4, 16
 
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
     """Build and solve the identification NLP of a case; a start that falls short of the
-    measured crush is repaired from the data first (crashnlp.autoinit), and says so; a solve
+    measured crush is repaired from the data first (crashnlp.completion), and says so; a solve
     whose iterates cycle is refined (REFINE above), and says so."""
     case, note = repair_start(case) if warm is None else (case, None)
     notes = [note] if note else []
