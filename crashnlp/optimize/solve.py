@@ -67,14 +67,13 @@ TAIL_REACH, TAIL_NEWTON_ITER = 10.0, 20  # see `finishes`; Newton from the tail 
 CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATION = 20, 8, 5, 0.3, 0.7, 1e-3
 
 # Wandering: the iterates left the start's basin. From a start near a fit (a study case warm-
-# started from its neighbour's solution), a long Gauss-Newton step
-# along a weakly determined direction can open the shooting defects; IPOPT then wanders for
-# hundreds of iterations at objectives far above the start's before it finds its way back. Seen
-# as: after WANDER_START iterations, an objective above WANDER_RISE times the start's with the
-# constraints violated by more than WANDER_VIOLATION. IPOPT's first barrier (mu 0.1, adapted)
-# pushes a start that sits on its constraints (the monotone crush, the pitch bound at many
-# nodes) away from them; Gauss-Newton then starts over from the start with a barrier that
-# starts at WANDER_OPTIONS' 1e-4 and only falls. Not the default for every warm start: on cases
+# started from its neighbour's solution), IPOPT's first barrier (mu 0.1, adapted) pushes a start
+# that sits on its constraints (the monotone crush, the pitch bound at many nodes) away from
+# them, a long Gauss-Newton step opens the shooting defects, and IPOPT wanders for a hundred
+# iterations at objectives far above the start's before it finds its way back. Seen as: after
+# WANDER_START iterations, an objective above WANDER_RISE times the start's with the constraints
+# violated by more than WANDER_VIOLATION. Gauss-Newton then starts over from the start with a
+# barrier that starts at WANDER_OPTIONS' 1e-4 and only falls. Not the default for every warm start: on cases
 # that do not wander it saves nothing and costs some (3 deg/40 -> 50 kN/m: 21 -> 42 iterations).
 # From the cold start of a fit, a long way from the optimum, the objective may rise above the
 # start's and come back (corpus v17), so the rule watches warm starts only.
@@ -156,8 +155,9 @@ class Watch(ca.Callback):
         if self.x is not None:
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
-        self.iterates = [*self.iterates[-CYCLE_PERIOD:], x]
-        self.returns = self.returns + 1 if came_back(self.iterates) else 0
+        if "cycle" in self.stops:
+            self.iterates = [*self.iterates[-CYCLE_PERIOD:], x]
+            self.returns = self.returns + 1 if came_back(self.iterates) else 0
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
