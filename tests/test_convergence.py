@@ -66,8 +66,8 @@ def _pitch_bound_fit(degrees: float, k_front_kn: float):
 @pytest.mark.slow
 @pytest.mark.parametrize("degrees, k_front_kn", [(3, 90), (4, 80)])
 def test_the_64_case_grids_neighbours_both_converge(degrees, k_front_kn):
-    """3 deg / 90 kN/m converged at one step; 4 deg / 80 kN/m cycled there (and failed after
-    1300 iterations), and finishes refined. Both hold the pitch bound at every node."""
+    """3 deg / 90 kN/m converges at one RK4 step per interval; 4 deg / 80 kN/m cycles there and
+    finishes refined. Both hold the pitch bound at every node, and the bound is what holds them."""
     solution = _pitch_bound_fit(degrees, k_front_kn)
     assert solution.ok, solution.status
     assert solution.result.iterations <= ITERATION_LIMIT
@@ -80,8 +80,8 @@ def test_the_64_case_grids_neighbours_both_converge(degrees, k_front_kn):
 @pytest.mark.slow
 def test_a_joint_shooting_fit_of_two_speeds_finishes_refined_at_the_same_optimum():
     """pickup-56kph's problem with the 40 km/h test added (the damper fixed), by multiple
-    shooting: it cycled at one RK4 step per interval (600 iterations, then failed) and finishes
-    refined, where collocation of the same problem ends."""
+    shooting: it cycles at one RK4 step per interval and finishes refined, where collocation of
+    the same problem ends."""
     base = load_problem(PICKUP_56)
     problem = base.model_copy(update={"tests": [base.tests[0], load_problem(PICKUP_40).tests[0]]})
     shooting = identify(Case(problem), progress=None)
