@@ -20,6 +20,7 @@ from crashnlp.completion import complete, measured_pulses
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.problem import Problem, load_problem
+from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec
 from crashnlp.simulation import Response, simulate
 from crashnlp.testcase import TestCase, check_data, check_speed, load_tests
 
@@ -46,6 +47,12 @@ class Case:
         """The same case, its start (`base`) with `values` (dotted paths, SI) in place of the problem's."""
         other = copy.copy(self)
         other.base = self.layout.with_values(self.base, values)
+        return other
+
+    def with_transcription(self, transcription: MultipleShootingSpec | CollocationSpec) -> Case:
+        """The same case (data, completed problem, start, model) transcribed otherwise."""
+        other = copy.copy(self)
+        other.problem = self.problem.model_copy(update={"transcription": transcription})
         return other
 
     @classmethod

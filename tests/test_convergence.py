@@ -12,7 +12,7 @@ from builders import ROOT
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
-from crashnlp.optimize.solve import CYCLE_RUN, came_back, cycle
+from crashnlp.optimize.solve import CYCLE_RUN, cycle, followed
 from crashnlp.problem import load_problem
 
 PICKUP_56, PICKUP_40 = ROOT / "problems/pickup-56kph.yaml", ROOT / "problems/pickup-40kph.yaml"
@@ -21,13 +21,11 @@ ITERATION_LIMIT = 150  # issue 25's acceptance for the joint fits and the 64-cas
 
 def _returns(iterates: list[np.ndarray]) -> tuple[int, list[float]]:
     """The Watch's bookkeeping over a sequence of iterates: came-back count and step lengths."""
-    returns, steps, window = 0, [], []
+    window: list[np.ndarray] = []
+    returns = 0
     for x in iterates:
-        if window:
-            steps.append(float(np.abs(x - window[-1]).max()))
-        window = [*window[-5:], x]
-        returns = returns + 1 if came_back(window) else 0
-    return returns, steps
+        window, returns = followed(window, returns, x)
+    return returns, [float(np.abs(b - a).max()) for a, b in zip(iterates, iterates[1:])]
 
 
 def test_a_two_cycle_is_a_cycle():

@@ -198,7 +198,7 @@ def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str]:
     spec = case.problem.transcription
     assert isinstance(spec, MultipleShootingSpec) and _refinable(case)
     steps = spec.substeps * REFINE
-    return Case(case.problem.with_values({"transcription": {**spec.model_dump(), "substeps": steps}})), (
+    return case.with_transcription(spec.model_copy(update={"substeps": steps})), (
         f"{case.name}: IPOPT's iterates cycled after {cycled.iterations} iterations at {spec.substeps} RK4 step(s) "
         f"per interval (a kink of the force laws crossed inside a step); solved again from there with {steps}"
     )

@@ -156,8 +156,7 @@ class Watch(ca.Callback):
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
         if "cycle" in self.stops:
-            self.iterates = [*self.iterates[-CYCLE_PERIOD:], x]
-            self.returns = self.returns + 1 if came_back(self.iterates) else 0
+            self.iterates, self.returns = followed(self.iterates, self.returns, x)
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
@@ -184,6 +183,12 @@ def slow_tail(steps: list[float]) -> bool:
     last = steps[-TAIL_RUN - 1 :]
     ratios = [b / a for a, b in zip(last, last[1:])]  # a few numbers: plain Python, no numpy calls
     return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
+
+
+def followed(iterates: list[np.ndarray], returns: int, x: np.ndarray) -> tuple[list[np.ndarray], int]:
+    """The last CYCLE_PERIOD + 1 iterates with `x`, and how many in a row came back (`came_back`)."""
+    iterates = [*iterates[-CYCLE_PERIOD:], x]
+    return iterates, returns + 1 if came_back(iterates) else 0
 
 
 def came_back(iterates: list[np.ndarray]) -> bool:
