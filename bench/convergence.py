@@ -20,7 +20,6 @@ section does.
 
 from __future__ import annotations
 
-import shutil
 import statistics
 import tempfile
 import time
@@ -62,9 +61,7 @@ def prediction_errors(result: crashnlp.Result) -> dict[str, float]:
     """Max crush and peak deceleration of the fit's PREDICT_KMH prediction (bench/cross_speed.py's
     way: a problem naming only the new speed) relative to the generator's noise-free pickup."""
     with tempfile.TemporaryDirectory(prefix="crashnlp-convergence-") as tmp:
-        fit = Path(tmp) / JOINT.name
-        shutil.copy(JOINT, fit)
-        test = crashnlp.simulate(prediction_problem(fit, PREDICT_KMH), params=result)[f"{PREDICT_KMH:.0f}kph"]
+        test = crashnlp.simulate(prediction_problem(JOINT, PREDICT_KMH, Path(tmp)), params=result)[f"{PREDICT_KMH:.0f}kph"]
     real = truth_metrics(PICKUP, PREDICT_KMH)
     return {
         "crush_rel": test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,

@@ -19,6 +19,7 @@ from crashnlp.checks import named
 from crashnlp.completion import complete, measured_pulses
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import PendulumModel, build_model
+from crashnlp.model.tail import Curve
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec
 from crashnlp.simulation import Response, simulate
@@ -76,6 +77,12 @@ class Case:
         """Time span the NLP covers for a test: the data window, else [0, duration]."""
         window = test.spec.data.window if test.spec.data is not None else None
         return (0.0, window[1]) if window else (0.0, test.duration)
+
+    def loading_curve(self, p: np.ndarray) -> Curve:
+        """The front end's loading force (N) as a function of crush (m, a numpy array) at the
+        parameters `p`: the model's own law, smoothing and tail."""
+        curve = self.model.loading_curve
+        return lambda crush: np.asarray(curve.map(crush.size)(crush, p)).ravel()
 
     def simulate(self, p: np.ndarray | None = None, dt: float | None = None) -> dict[str, Response]:
         """Forward simulation of every test with the separate integrator."""

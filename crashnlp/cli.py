@@ -272,6 +272,8 @@ def _print_solution(result) -> None:
     if result.at_bound:
         pulls = ", ".join(f"{label} ({pull:.2g} std)" for label, pull in result.at_bound.items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
+    for note in result.identified.tail_notes() if result.identified is not None else ():
+        print(f"  {note}")
     for name, t in result.tests.items():
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")

@@ -32,12 +32,14 @@ INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebo
 
 @dataclass(frozen=True)
 class IdentifiedRange:
-    """What the fitted tests covered: the largest measured crush (CG travel) and the speeds and
-    masses of the tests (SI). A prediction beyond it extrapolates."""
+    """What the fitted tests covered: the largest measured crush (CG travel), the speeds and
+    masses of the tests, and the largest front-end crush the model went through in them, how far
+    the data determine its loading curve (SI). A prediction beyond it extrapolates."""
 
     max_crush: float
     speeds: tuple[float, float]
     masses: tuple[float, float]
+    model_crush: float
 
     def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
         """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
@@ -53,11 +55,16 @@ class IdentifiedRange:
         return out
 
     def to_json(self) -> dict[str, Any]:
-        return {"max_crush_m": self.max_crush, "speeds_mps": list(self.speeds), "masses_kg": list(self.masses)}
+        return {
+            "max_crush_m": self.max_crush,
+            "speeds_mps": list(self.speeds),
+            "masses_kg": list(self.masses),
+            "model_crush_m": self.model_crush,
+        }
 
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
-        return cls(float(raw["max_crush_m"]), _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]))
+        return cls(float(raw["max_crush_m"]), _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), float(raw["model_crush_m"]))
 
 
 def _pair(values: Any) -> tuple[float, float]:
@@ -115,6 +122,22 @@ class IdentifiedModel:
             dict(raw.get("channel_rmse", {})),
         )
 
+    def tail_notes(self) -> tuple[str, ...]:
+        """What a prediction's loading curve does past the crush the fit reached, and which fitted
+        values lie past it (none without a tail)."""
+        spring = self.model["spring"]
+        tail = spring.get("tail")
+        if not isinstance(tail, dict):
+            return ()
+        note = (
+            f"past {1e3 * tail['start']:.0f} mm of crush (the model reached {1e3 * self.range.model_crush:.0f} mm in the"
+            f" fitted tests) a prediction's loading curve follows its trend, {1e-3 * tail['slope']:.0f} kN/m"
+        )
+        past = [f"model.spring.values[{i}]" for i, x in enumerate(spring["crush_breakpoints"]) if x > tail["start"]]
+        if past:
+            note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"
+        return (note,)
+
     def std(self) -> np.ndarray:
         """Standard error of each labelled value; inf where the data do not determine it."""
         if self.covariance is None:
@@ -127,8 +150,8 @@ def _finite(x: float) -> float | None:
 
 
 def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
-    """`problem` with the identified vehicle in it: the whole model section, the estimated vehicle
-    entries, and every vehicle entry the problem leaves out. The problem's own speeds, masses,
+    """`problem` with the identified vehicle in it: the whole model section (but a tail the problem
+    gives), the estimated vehicle entries, and every vehicle entry the problem leaves out. The problem's own speeds, masses,
     durations and tests stay; a problem whose geometry or model structure differs from the
     identified vehicle's is refused (InputError naming `source` and the entry)."""
     _refuse_another_vehicle(problem, identified, source)
@@ -139,9 +162,20 @@ def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem
         if key not in given or _estimated(identified, f"vehicle.{key}"):
             vehicle[key] = value
     raw["vehicle"] = vehicle
-    raw["model"] = identified.model
+    raw["model"] = _model(problem, identified)
     raw["estimate"] = {}
     return problem_from_dict(raw, problem.base_dir, source)
+
+
+def _model(problem: Problem, identified: IdentifiedModel) -> dict[str, Any]:
+    """The identified model section, with the problem's own `model.spring.tail` where it gives a
+    line or `segment`: the user's word on the force past the fitted crush wins (`trend` is what
+    the identified model holds already)."""
+    spring = problem.model.spring
+    if "tail" not in spring.model_fields_set or spring.tail == "trend":
+        return identified.model
+    tail = spring.tail if isinstance(spring.tail, str) else spring.tail.model_dump()
+    return {**identified.model, "spring": {**identified.model["spring"], "tail": tail}}
 
 
 def _estimated(identified: IdentifiedModel, path: str) -> bool:

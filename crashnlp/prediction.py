@@ -7,14 +7,19 @@ The intervals propagate two sources of error to every crash metric and response 
   differences of the forward simulation over one standard error each way (one-sided at a
   bound), so a metric that bends within that span is not linearised at a point;
 - the model's form: on the fitted tests, the model missed each metric of the data by some
-  relative amount, and each channel by its RMSE; that miss, root mean square over the tests,
-  is added in quadrature, scaled to the predicted value;
-- the force past the fitted crush, which no test measured: the loading curve continues its
-  last segment there (crashnlp.model.laws), and how well that rule predicts is
-  measured on the identified curve itself, breakpoint by breakpoint inside the data
-  (`tail_error`). That relative error of the force, grown in proportion to the distance past
-  the fitted crush over the breakpoint spacing, moves the max crush (by the energy it adds or
-  takes) and the peak deceleration (where the peak lies past the fitted crush).
+  relative amount, root mean square over the tests, scaled to the predicted value; and the
+  curve the metric is read from by its RMSE. The fit tunes the metrics it was fitted at (two
+  peaks, two crushes), so their miss there understates the miss at another speed, where the
+  metric falls on another part of the curve; the curve's RMSE is how far the model's form is
+  from the data at any instant. Both are added in quadrature; each channel's band adds its RMSE;
+- the force past the crush the model reached in the fitted tests, which no test measured: the
+  identified loading curve follows its trend there (crashnlp.model.tail), and how well that
+  rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
+  the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
+  the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes)
+  and the peak deceleration (where the peak lies past the reach); and since the force there
+  may rise above the peak predicted inside the reach, the peak's interval reaches up to what
+  the tail's force may be, 95 %, at the deepest crush.
 
 A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
 interval, nor does anything when an estimated value is not determined by the data: the
@@ -37,6 +42,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
 from crashnlp.jsonfile import write_json
+from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
 from crashnlp.simulation import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
@@ -46,6 +52,11 @@ if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
 Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
+# two-sided 95 % quantiles of Student's t for 1 to 30 degrees of freedom
+T95 = (
+    *(12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131),
+    *(2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042),
+)
 # response columns and the fitted channel whose RMSE measures the model's miss of them
 BAND_CHANNEL = {
     "displacement": "displacement",
@@ -54,6 +65,16 @@ BAND_CHANNEL = {
     "pitch": "pitch",
     "crush": "displacement",
     "barrier_force": "barrier_force",
+}
+
+
+# the fitted channel each metric is read from (its report unit is the metric's)
+METRIC_CHANNEL = {
+    "max_crush_m": "displacement",
+    "peak_decel_g": "accel",
+    "rebound_velocity_mps": "velocity",
+    "olc_g": "accel",
+    "max_pitch_deg": "pitch",
 }
 
 
@@ -126,7 +147,7 @@ def _uncertainty(
     cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
     intervals: dict[str, tuple[float, float] | None] = {}
     notes = []
-    past = _past_the_fitted_crush(response, identified, mass)
+    past = past_the_reach(case, p, response, identified, mass)
     for i, key in enumerate(INTERVAL_METRICS):
         value, miss = metrics.get(key), identified.discrepancy.get(key)
         if value is None or not np.isfinite(value) or miss is None:
@@ -134,8 +155,10 @@ def _uncertainty(
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue
-        half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + (miss * value) ** 2 + past.get(key, 0.0) ** 2)
-        intervals[key] = (float(value - half), float(value + half))
+        form = (miss * value) ** 2 + _curve_miss(identified, key) ** 2
+        half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + form + past.std.get(key, 0.0) ** 2)
+        high = max(value + half, past.peak_ceiling or 0.0) if key == "peak_decel_g" else value + half
+        intervals[key] = (float(value - half), float(high))
     bands = {}
     for name, channel in BAND_CHANNEL.items():
         rmse = identified.channel_rmse.get(channel)
@@ -147,39 +170,54 @@ def _uncertainty(
     return intervals, bands, tuple(notes)
 
 
-def tail_error(breakpoints: np.ndarray, values: np.ndarray) -> float:
-    """The relative error of the tail rule on the identified loading curve: at each breakpoint
-    from the third on, the force the curve's two breakpoints before it predict (continuing
-    their segment) against the curve's own, relative to
-    the curve's mean force; root mean square over the breakpoints."""
-    x, f = np.asarray(breakpoints, float), np.asarray(values, float)
-    if x.size < 3:
-        return 0.0
-    slope = np.diff(f[:-1]) / np.diff(x[:-1])
-    predicted = f[1:-1] + slope * np.diff(x[1:])
-    scale = max(float(np.mean(np.abs(f[1:]))), 1.0)
-    return float(np.sqrt(np.mean(((f[2:] - predicted) / scale) ** 2)))
+def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
+    """The fitted tests' RMSE of the channel `metric` is read from, in the metric's unit (0 when
+    none is fitted)."""
+    channel = METRIC_CHANNEL.get(metric)
+    rmse = identified.channel_rmse.get(channel) if channel else None
+    return 0.0 if rmse is None or channel is None else rmse * OUTPUT[channel].factor
 
 
-def _past_the_fitted_crush(response: Response, identified: IdentifiedModel, mass: float) -> dict[str, float]:
-    """One standard error of max crush (m) and peak deceleration (g) from the force past the
-    fitted crush: force error u F_R (d / spacing) at a distance d past it (see the module's
-    docstring); none inside the fitted crush."""
-    spring = identified.model.get("spring") or {}
-    if spring.get("law") != "force":
-        return {}
-    x, f = np.asarray(spring["crush_breakpoints"], float), np.asarray(spring["values"], float)
-    crush, reach = response["displacement"], identified.range.max_crush
-    beyond = float(np.max(crush)) - reach
-    if beyond <= 0 or x.size < 3:
-        return {}
-    slope = tail_error(x, f) * float(np.mean(np.abs(f[1:]))) / float(np.mean(np.diff(x)))  # N/m of force error
-    at_max = max(float(np.interp(np.max(crush), x, f)), 1.0)
-    out = {"max_crush_m": slope * beyond**2 / 2 / at_max}
+@dataclass(frozen=True)
+class PastTheReach:
+    """What the force past the model's reach in the fitted tests adds to a prediction: one
+    standard error of max crush (m) and peak deceleration (g), widened to Student's t for the few
+    misses it is measured from, and the deceleration (g) the tail's force may reach at the
+    deepest crush, 95 % (a faster impact's peak may lie there though the predicted one lies
+    inside the reach)."""
+
+    std: dict[str, float] = field(default_factory=dict)
+    peak_ceiling: float | None = None
+
+
+def past_the_reach(case: Case, p: np.ndarray, response: Response, identified: IdentifiedModel, mass: float) -> PastTheReach:
+    """The force past the reach is the trend rule's guess: its miss per breakpoint spacing
+    (crashnlp.model.tail.trend_misses), times the distance d past the reach, is the force's
+    standard error there; the crush moves by the energy that error adds over d, the peak by the
+    error where the peak lies. Nothing inside the reach."""
+    crush, reach = response["crush"], identified.range.model_crush
+    deepest = float(np.max(crush))
+    beyond = deepest - reach
+    if beyond <= 0:
+        return PastTheReach()
+    curve = case.loading_curve(p)
+    breakpoints = np.asarray(identified.model["spring"]["crush_breakpoints"], float)
+    misses = trend_misses(curve, breakpoints, reach)
+    if misses.size == 0:
+        return PastTheReach()
+    quantile = student_t95(misses.size)  # a root mean square of few misses: Student's t, not the normal's 1.96
+    rate = float(np.sqrt(np.mean(misses**2))) * quantile / Z95 / spacing(breakpoints)  # N of force error per m past the reach
+    at_deepest = max(float(curve(np.array([deepest]))[0]), 1.0)
+    std = {"max_crush_m": rate * beyond**2 / 2 / at_deepest}
     peak = int(np.argmax(-response["accel"]))
     if crush[peak] > reach:
-        out["peak_decel_g"] = slope * (crush[peak] - reach) / mass / G0
-    return out
+        std["peak_decel_g"] = rate * (crush[peak] - reach) / mass / G0
+    return PastTheReach(std, (at_deepest + Z95 * rate * beyond) / mass / G0)
+
+
+def student_t95(dof: int) -> float:
+    """The two-sided 95 % quantile of Student's t with `dof` degrees of freedom (the normal's past 30)."""
+    return T95[dof - 1] if dof <= len(T95) else Z95
 
 
 def _sensitivities(

@@ -28,6 +28,7 @@ if TYPE_CHECKING:
 
 # ignored by reproducibility checks: the only entries that change from run to run
 VOLATILE = ("wall_s", "build_s", "compiled")  # how long and by which evaluator, not what: same bits either way
+TAIL_SHOWN = 1.25  # the force-crush figure draws a fit's tail to this times its start
 
 
 @dataclass(frozen=True)
@@ -254,6 +255,13 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     fc = result.force_crush
     if fc is not None:
         curves = {"identified loading curve": (fc.crush, fc.force)}
+        tail = result.identified.model["spring"].get("tail") if result.identified is not None else None
+        if isinstance(tail, dict):  # the fitted curve to the tail's start, then the tail that predictions follow
+            inside = fc.crush <= tail["start"]
+            curves["identified loading curve"] = (fc.crush[inside], fc.force[inside])
+            x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
+            at_start = np.interp(tail["start"], fc.crush, fc.force)
+            curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
         if fc.reference is not None:
             curves["reference"] = fc.reference
         jobs.append(("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)))

@@ -217,3 +217,45 @@ def test_compiled_evaluation_equals_the_virtual_machine(monkeypatch, tmp_path):
     monkeypatch.delenv(SWITCH_ENV)
     c_batch = simulate_batch(make_case().model, P, case.tests[0].speed, 0.1, 5e-4, jit=True)
     np.testing.assert_allclose(c_batch["accel"], vm_batch["accel"], rtol=1e-10, atol=1e-9)
+
+
+@pytest.mark.parametrize("law", ["force", "secant"])
+@pytest.mark.parametrize("eps", [0.0, 1e-3])
+def test_a_tail_bends_the_law_into_its_line_and_stores_the_work_of_its_force(law, eps):
+    """Before the tail's start the law is untouched; past it the force is the line from the law's
+    force there; the energy's derivative is the force (exactly with exact kinks, to first order in
+    the smoothing width otherwise, as the laws' own)."""
+    from crashnlp.model.laws import SPRING_LAWS, with_tail
+
+    bps, vals = [0.0, 0.2, 0.4, 0.6], {"force": [0.0, 4e5, 3e5, 9e5], "secant": [2e6, 2e6, 1e6, 1.5e6]}[law]
+    start, slope = 0.45, 2e5
+    plain, tailed = SPRING_LAWS[law], with_tail(SPRING_LAWS[law], start, slope)
+    force = lambda f, x: float(f(x, bps, vals, eps)[0])  # noqa: E731
+    energy = lambda f, x: float(f(x, bps, vals, eps)[1])  # noqa: E731
+    for x in (0.1, 0.3, start - 0.05):
+        assert force(tailed, x) == pytest.approx(force(plain, x), rel=1e-4)
+    for x in (start + 0.05, 0.7, 0.9):  # the law's own segment there would rise at 3 MN/m (force) or more
+        assert force(tailed, x) == pytest.approx(force(plain, start) + slope * (x - start), rel=1e-4)
+    xs, h = np.linspace(0.01, 0.8, 120), 1e-6
+    work = np.array([(energy(tailed, x + h) - energy(tailed, x - h)) / (2 * h) for x in xs])
+    forces = np.array([force(tailed, x) for x in xs])
+    assert np.max(np.abs(work - forces)) <= (1e-8 if eps == 0 else 2e-3) * np.max(np.abs(forces))
+
+
+def test_a_tail_in_the_problem_caps_the_force_past_its_start():
+    """A tail given in the problem acts in the simulation: past its start the contact force follows
+    the line (flat here), not the law's last segments (which would reach 1.5 MN at 0.85 m)."""
+    case = make_case({"model": {"spring": {"tail": {"start": "0.3 m", "slope": "0 kN/m"}}, "unloading": {"law": "elastic"}}})
+    p = case.test_parameters(case.tests[0])
+    plateau = case.loading_curve(p)(np.array([0.35, 0.6, 0.85]))
+    assert np.allclose(plateau, plateau[0], rtol=1e-4)
+    assert plateau[0] == pytest.approx(380e3 + (520e3 - 380e3) * (0.3 - 0.25) / 0.15, rel=1e-3)  # the law's force at 0.3 m
+    r = case.simulate()["t56"]
+    assert np.max(r["crush"]) > 0.45  # well past the start: the plateau lets the front end crush further
+    past = (r["crush_rate"] > 0) & (r["crush"] > 0.31)
+    assert np.allclose(r["contact_force"][past] - _damper(r)[past], plateau[0], rtol=1e-4)
+
+
+def _damper(r) -> np.ndarray:
+    """The front-end damper's force along a response (its power over the crush rate)."""
+    return np.divide(r["front_damper_power"], r["crush_rate"], out=np.zeros_like(r.time), where=np.abs(r["crush_rate"]) > 1e-6)

@@ -1,4 +1,4 @@
-"""Predictions: a fitted vehicle simulated from its result, its intervals, its range, and the prior."""
+"""Predictions: a fitted vehicle simulated from its result, its intervals, its range, its tail, and the prior."""
 
 from __future__ import annotations
 
@@ -10,12 +10,13 @@ import pytest
 import yaml
 
 import crashnlp
-from bench.corpus import measured, random_vehicle, simulate, write_csv
+from bench.corpus import PICKUP, measured, random_vehicle, simulate, write_csv
 from bench.robustness import minimal_problem
 from crashnlp.cli import main
 from crashnlp.metrics import crash_metrics
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
+from crashnlp.units import G0
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
 WINDOW = 0.12  # s: past the stop and a little rebound
@@ -120,6 +121,11 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
     assert model["spring"]["values"] == pytest.approx(result.parameters["model.spring.values"], rel=1e-9)
     assert loaded.identified.range.speeds == (pytest.approx(v.speed), pytest.approx(v.speed))
     assert loaded.identified.range.max_crush == pytest.approx(result.tests["t1"].data_metrics["max_crush_m"], rel=0.01)
+    # past the front-end crush the model reached, predictions follow the curve's trend
+    reach = float(np.max(result.tests["t1"].response["crush"]))
+    assert loaded.identified.range.model_crush == pytest.approx(reach)
+    assert model["spring"]["tail"]["start"] == pytest.approx(reach + 2 * result.identified.model["smoothing"]["crush"])
+    assert model["spring"]["tail"]["slope"] >= 0
 
 
 def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():
@@ -142,12 +148,63 @@ def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():
     assert np.count_nonzero(np.abs(rows) > 1e-9) == 1  # the one kink, at its breakpoint
 
 
-def test_the_tail_rule_error_is_zero_on_a_straight_curve_and_measures_a_miss():
-    from crashnlp.prediction import tail_error
+def test_the_trend_is_the_least_squares_slope_below_the_reach_and_never_falls():
+    from crashnlp.model.tail import CLEARANCE, trend_slope, trend_tail
 
-    x = np.array([0.0, 0.1, 0.2, 0.3, 0.4])
-    assert tail_error(x, 1e6 * x) == pytest.approx(0.0, abs=1e-12)
-    assert tail_error(x, np.full(5, 1e5)) == pytest.approx(0.0, abs=1e-12)  # flat: held
-    # steps the rule cannot see: each of its three predictions misses by 1e5 N, mean force 1.5e5 N
-    f = np.array([0.0, 1e5, 1e5, 2e5, 2e5])
-    assert tail_error(x, f) == pytest.approx(1e5 / 1.5e5)
+    def line(x):
+        return 2e5 + 1.5e6 * x
+
+    assert trend_slope(line, 0.5, 0.1) == pytest.approx(1.5e6)
+    # a kink in the middle of the window: least squares over it takes the mean of the two slopes
+    kinked = lambda x: np.interp(x, [0.0, 0.45, 1.0], [0.0, 4.5e5, 4.5e5 + 3e6 * 0.55])  # noqa: E731
+    assert trend_slope(kinked, 0.5, 0.1) == pytest.approx(2e6, rel=1e-9)
+    assert trend_slope(lambda x: 5e5 - 1e6 * x, 0.5, 0.1) == 0.0  # a falling force is held, not continued to zero
+    start, slope = trend_tail(line, np.linspace(0.0, 0.6, 7), 0.5, 1e-3)
+    assert start == pytest.approx(0.5 + CLEARANCE * 1e-3) and slope == pytest.approx(1.5e6)
+
+
+def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
+    from crashnlp.model.tail import trend_misses
+
+    x = np.linspace(0.0, 0.6, 7)
+    assert np.allclose(trend_misses(lambda c: 1e6 * c, x, 0.6), 0.0, atol=1e-6)
+    # rises at 1 MN/m to 0.4 m, then falls: from 0.4 m the trend (1 MN/m) overshoots 0.5 m by 2e5 N;
+    # from 0.5 m the falling trend is held flat, which overshoots 0.6 m by 1e5 N
+    f = np.array([0.0, 1e5, 2e5, 3e5, 4e5, 3e5, 2e5])
+    misses = trend_misses(lambda c: np.interp(c, x, f), x, 0.6)
+    assert misses == pytest.approx([0.0, 0.0, -2e5, -1e5], abs=1e-6)
+    assert trend_misses(lambda c: np.interp(c, x, f), x, 0.15).size == 0  # nothing to measure inside so short a reach
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_path):
+    """The shipped pickup's structure (generator, not pendulum) fitted at 48 km/h with breakpoints
+    to 1.3 times its crush: the last value has no data, and with the law as fitted (`tail: segment`)
+    a 60 km/h prediction meets the wall it runs to. The default tail follows the curve's trend
+    there and predicts the generator's crush and peak, inside its 95 % intervals."""
+    v = dataclasses.replace(PICKUP, speed=48 / 3.6)
+    truth = simulate(v)
+    write_csv(tmp_path / "t1.csv", measured(v, truth))
+    raw = minimal_problem(v, "t1.csv", SMALL)
+    raw["tests"][0]["data"]["window"] = [0.0, WINDOW]
+    raw["model"]["spring"]["crush_breakpoints"] = np.linspace(0.0, 1.3 * np.max(truth["displacement"]), 7).tolist()
+    (tmp_path / "fit.yaml").write_text(yaml.safe_dump(raw, sort_keys=False))
+    result = crashnlp.identify(tmp_path / "fit.yaml")
+    assert result.ok
+    assert any("model.spring.values[6]" in note for note in result.notes)  # said: no test determines it
+    real = simulate(dataclasses.replace(PICKUP, speed=60 / 3.6))
+    truth60 = crash_metrics(real["time"], real["accel"], real["velocity"], real["displacement"])
+    predicted = {}
+    for tail in ("trend", "segment"):
+        new = {**raw, "model": {"spring": {"tail": tail}}, "tests": [{"name": "new", "speed": "60 km/h", "duration": WINDOW}]}
+        (tmp_path / f"{tail}.yaml").write_text(yaml.safe_dump(new, sort_keys=False))
+        predicted[tail] = crashnlp.simulate(tmp_path / f"{tail}.yaml", params=result)["new"]
+    trend, segment = predicted["trend"], predicted["segment"]
+    assert trend.metrics["max_crush_m"] == pytest.approx(truth60.max_crush, rel=0.03)
+    assert trend.metrics["peak_decel_g"] == pytest.approx(truth60.peak_decel / G0, rel=0.15)
+    low, high = trend.intervals["max_crush_m"]
+    assert low <= truth60.max_crush <= high
+    low, high = trend.intervals["peak_decel_g"]
+    assert low <= truth60.peak_decel / G0 <= high
+    assert segment.metrics["peak_decel_g"] > 1.5 * truth60.peak_decel / G0  # the wall

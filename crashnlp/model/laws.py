@@ -7,7 +7,8 @@ may be smoothed, max(z, 0) ~ (z + sqrt(z^2 + eps^2)) / 2, which keeps IPOPT
 away from kinks at the breakpoints.
 
 A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
-added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS.
+added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS. Past the last
+breakpoint a law continues its last segment, unless `with_tail` bends it into a line.
 """
 
 from __future__ import annotations
@@ -83,6 +84,20 @@ def secant_law(x: Expr, bps, vals, eps: float) -> tuple[Expr, Expr]:
 
 SpringLaw = Callable[[Expr, list, list, float], tuple[Expr, Expr]]
 SPRING_LAWS: dict[str, SpringLaw] = {"force": force_law, "secant": secant_law}
+
+
+def with_tail(law: SpringLaw, start: Expr, slope: Expr) -> SpringLaw:
+    """`law` up to the crush `start`; past it the straight line from the law's force at `start`
+    rising at `slope` (a hinge smoothed as the law's own). The energy is the law's up to `start`
+    plus the line's trapezoid, exact for eps = 0."""
+
+    def tailed(x: Expr, bps: list, vals: list, eps: float) -> tuple[Expr, Expr]:
+        past = hinge(x - start, eps)
+        force, energy = law(x - past, bps, vals, eps)
+        at_start = law(start, bps, vals, eps)[0]
+        return force + slope * past, energy + at_start * past + 0.5 * slope * past * past
+
+    return tailed
 
 
 def damper_force(rate: Expr, bps, vals, eps: float) -> Expr:

@@ -33,10 +33,11 @@ from typing import Any
 
 import casadi as ca
 
-from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge
+from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge, with_tail
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.outputs import NAMES
 from crashnlp.problem.schema import Model as ModelSpec
+from crashnlp.problem.schema import Tail as TailSpec
 
 STATES = ("r", "theta", "rdot", "thetadot", "x_max")  # x_max: largest crush so far (m)
 NX = len(STATES)
@@ -55,6 +56,7 @@ class Structure:
     n_damper: int
     eps_crush: float
     eps_rate: float
+    tail: bool = False  # the spring law bends into the line of model.spring.tail
 
     @classmethod
     def of(cls, spec: ModelSpec) -> Structure:
@@ -65,6 +67,7 @@ class Structure:
             0 if spec.damper is None else len(spec.damper.rate_breakpoints),
             spec.smoothing.crush,
             spec.smoothing.rate,
+            isinstance(spec.spring.tail, TailSpec),
         )
 
 
@@ -95,6 +98,8 @@ class PendulumModel:
         bps = [self._par("model.spring.crush_breakpoints")[i] for i in range(s.n_spring)]
         vals = [self._par("model.spring.values")[i] for i in range(s.n_spring)]
         law = SPRING_LAWS[s.spring_law]
+        if s.tail:
+            law = with_tail(law, self._par("model.spring.tail.start"), self._par("model.spring.tail.slope"))
 
         def load(x):
             return law(x, bps, vals, s.eps_crush)[0]

@@ -11,6 +11,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.completion import measured_pulses
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
+from crashnlp.model.tail import trend_tail
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
@@ -35,6 +36,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
     )
     tests = {test.name: _test(solution, ts, test, ratings) for ts, test in zip(solution.tests, case.tests)}
     labels = solution.ocp.free.labels()
+    identified = identified_model(solution, tests)
     cov, pull, at_bound = solution.covariance, solution.bound_pull(), solution.at_bound()
     return Result(
         name=case.name,
@@ -54,31 +56,45 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
-        notes=tuple(solution.notes) + _data_notes(case),
-        identified=identified_model(solution, tests),
+        notes=tuple(solution.notes) + _data_notes(case) + identified.tail_notes(),
+        identified=identified,
         regularization=solution.regularization,
     )
 
 
 def identified_model(solution: Solution, tests: dict[str, TestResult]) -> IdentifiedModel:
-    """The fitted vehicle, complete, with what a prediction needs (crashnlp.identified)."""
+    """The fitted vehicle, complete, with what a prediction needs (crashnlp.identified); a fit's
+    loading curve bends into its trend just past the crush the model reached (crashnlp.model.tail)."""
     case, free, cov = solution.case, solution.ocp.free, solution.covariance
     fitted = case.problem.with_values(solution.parameters)
     mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in
     masses = [float(t.overrides.get("vehicle.mass", mass)) for t in case.tests]
     pulses = measured_pulses(case.problem, case.tests)
-    reach = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
+    measured = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
+    reach = model_reach(tests)
+    model = fitted.model.model_dump(mode="json")
+    if case.problem.kind == "identify" and fitted.model.spring.tail == "trend":
+        curve = case.loading_curve(solution.full_parameters())
+        breakpoints = np.asarray(fitted.model.spring.placed_breakpoints)
+        start, slope = trend_tail(curve, breakpoints, reach, fitted.model.smoothing.crush)
+        model["spring"]["tail"] = {"start": start, "slope": slope}
     return IdentifiedModel(
         vehicle=fitted.vehicle.model_dump(mode="json"),
-        model=fitted.model.model_dump(mode="json"),
+        model=model,
         parameters=solution.parameters,
         labels=tuple(free.labels()),
         covariance=None if cov is None else cov.matrix,
         bounds=tuple(zip(free.lower.tolist(), free.upper.tolist())),
-        range=IdentifiedRange(reach, _span([t.speed for t in case.tests]), _span(masses)),
+        range=IdentifiedRange(measured, _span([t.speed for t in case.tests]), _span(masses), reach),
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
     )
+
+
+def model_reach(tests: dict[str, TestResult]) -> float:
+    """The largest front-end crush the model went through in the fitted tests (m): how far the
+    data determine its loading curve."""
+    return max(float(np.max(t.response["crush"])) for t in tests.values())
 
 
 def _span(values: list[float]) -> tuple[float, float]:
@@ -194,7 +210,7 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
 
 def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
-    reach = max(float(np.max(t.response["crush"])) for t in tests.values())
+    reach = model_reach(tests)
     x = np.linspace(0.0, max(reach * 1.05, 1e-3), 201)
     curve = case.model.loading_curve
     f = np.asarray(curve.map(len(x))(x, p)).ravel()

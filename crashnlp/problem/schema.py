@@ -246,6 +246,20 @@ class BreakpointCount(Strict):
     count: int = Field(ge=2, le=30, description="number of breakpoints, 0 included")
 
 
+class Tail(Strict):
+    """The loading curve past `start`: the straight line from the law's force there, rising at `slope`."""
+
+    start: Length = Field(description="crush from which the line replaces the law")
+    slope: Stiffness = Field(
+        description="the line's rise of force per crush (not negative: a crushed front end does not weaken without end)"
+    )
+
+    _not_negative = field_validator("start", "slope")(lambda v: _not_negative(v))
+
+
+TailRule = Literal["trend", "segment"]
+
+
 class Spring(Strict):
     law: Literal["force", "secant"] = Field(
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
@@ -255,6 +269,13 @@ class Spring(Strict):
     )
     values: list[SIValue] | None = Field(
         None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
+    )
+    tail: Tail | TailRule = Field(
+        "trend",
+        description="past the last breakpoint the law continues its last segment; {start, slope}: a straight line from"
+        " start on, in fits and simulations alike; trend: a fit's identified model gets that line from the largest crush"
+        " the model reached in the fitted tests, along the curve's trend there (crashnlp.model.tail); segment: it keeps"
+        " the law as fitted",
     )
 
     @model_validator(mode="before")
