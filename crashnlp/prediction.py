@@ -52,6 +52,7 @@ if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
 Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
+DRIFT = 0.05  # m/s toward the barrier at the end of a record, without contact: not a stop
 # two-sided 95 % quantiles of Student's t for 1 to 30 degrees of freedom
 T95 = (
     *(12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131),
@@ -118,13 +119,27 @@ def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | N
         response = case.simulate_test(test, p, dt)
         metrics = response_metrics(response)
         mass = float(p[case.layout.index("vehicle.mass")][0])
+        drift = _drift(test.name, response)
         if identified is None:
-            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics)
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=drift)
             continue
         intervals, bands, notes = _uncertainty(case, test, p, mass, response, metrics, identified, dt)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
-        out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, intervals, bands, beyond, notes)
+        out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, intervals, bands, beyond, drift + notes)
     return out
+
+
+def _drift(name: str, response: Response) -> tuple[str, ...]:
+    """A note when the vehicle ends its record still moving toward the barrier without touching
+    it: the pendulum's pitch lifted its front end off, and its max crush is its travel at the end,
+    not where it stopped."""
+    velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
+    if velocity <= DRIFT or contact > 0:
+        return ()
+    return (
+        f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
+        "lifted the front end off): its max crush is its travel at the end of the record, not a stop",
+    )
 
 
 def _uncertainty(

@@ -208,3 +208,18 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
     low, high = trend.intervals["peak_decel_g"]
     assert low <= truth60.peak_decel / G0 <= high
     assert segment.metrics["peak_decel_g"] > 1.5 * truth60.peak_decel / G0  # the wall
+
+
+def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_not_to_have_stopped():
+    from crashnlp.prediction import _drift
+    from crashnlp.simulation import Response
+
+    t = np.linspace(0.0, 0.2, 5)
+
+    def ending(velocity: float, contact: float) -> Response:
+        return Response(t, {"velocity": np.full(5, velocity), "contact_force": np.full(5, contact)}, np.zeros((0, 5)))
+
+    (note,) = _drift("t1", ending(0.3, 0.0))
+    assert note.startswith("t1:") and "0.30 m/s" in note
+    assert _drift("t1", ending(-0.1, 0.0)) == ()  # rebounded: a stop
+    assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
