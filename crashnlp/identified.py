@@ -150,10 +150,11 @@ def _finite(x: float) -> float | None:
 
 
 def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
-    """`problem` with the identified vehicle in it: the whole model section (but a tail the problem
-    gives), the estimated vehicle entries, and every vehicle entry the problem leaves out. The problem's own speeds, masses,
-    durations and tests stay; a problem whose geometry or model structure differs from the
-    identified vehicle's is refused (InputError naming `source` and the entry)."""
+    """`problem` with the identified vehicle in it: the whole model section (but a tail the
+    problem gives), the estimated vehicle entries, and every vehicle entry the problem leaves out.
+    The problem's own speeds, masses, durations and tests stay; a problem whose geometry or model
+    structure differs from the identified vehicle's is refused (InputError naming `source` and
+    the entry)."""
     _refuse_another_vehicle(problem, identified, source)
     raw = problem.model_dump(mode="python", exclude_unset=True)
     given = problem.vehicle.model_fields_set

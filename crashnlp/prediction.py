@@ -1,6 +1,6 @@
 """Predictions: an identified vehicle simulated at new speeds, masses or durations, with 95 % intervals.
 
-The intervals propagate two sources of error to every crash metric and response curve:
+The intervals propagate three sources of error to every crash metric and response curve:
 
 - the parameters: their covariance (the fit's sandwich, with the smoothness prior as the
   information it adds) pushed through the output's sensitivities, taken as central

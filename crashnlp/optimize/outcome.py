@@ -210,13 +210,11 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
 
 def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
-    reach = model_reach(tests)
-    x = np.linspace(0.0, max(reach * 1.05, 1e-3), 201)
-    curve = case.model.loading_curve
-    f = np.asarray(curve.map(len(x))(x, p)).ravel()
+    x = np.linspace(0.0, max(model_reach(tests) * 1.05, 1e-3), 201)
+    curve = case.loading_curve(p)
     bps = p[case.layout.index("model.spring.crush_breakpoints")]
     inside = bps[bps <= x[-1]]
-    values = np.asarray(curve.map(inside.size)(inside, p)).ravel() if inside.size else np.zeros(0)
+    f, values = curve(x), curve(inside) if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
     return LoadingCurve(x, f, inside, values, reference)
