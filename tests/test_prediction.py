@@ -223,3 +223,23 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
     assert note.startswith("t1:") and "0.30 m/s" in note
     assert _drift("t1", ending(-0.1, 0.0)) == ()  # rebounded: a stop
     assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
+
+
+@pytest.mark.parametrize(
+    ("tail", "key"),
+    [
+        ("foo", "model.spring.tail.rule"),
+        ({"start": "-1 m", "slope": "1 MN/m"}, "model.spring.tail.line.start"),
+        ({"start": "0.5 m"}, "model.spring.tail.line.slope"),
+        ({"start": "0.5 m", "slope": "-2 kN/m"}, "model.spring.tail.line.slope"),
+    ],
+)
+def test_a_bad_tail_is_refused_in_one_line_naming_its_key(tail, key):
+    from builders import BASE, merge
+
+    from crashnlp.problem import ProblemError, problem_from_dict
+
+    with pytest.raises(ProblemError) as err:
+        problem_from_dict(merge(BASE, {"model": {"spring": {"tail": tail}}}), ".", "bad.yaml")
+    message = str(err.value)
+    assert message.startswith(f"bad.yaml: {key}:") and "\n" not in message

@@ -23,9 +23,11 @@ from pydantic import (
     AfterValidator,
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
     GetCoreSchemaHandler,
     GetJsonSchemaHandler,
+    Tag,
     ValidationError,
     ValidationInfo,
     WithJsonSchema,
@@ -270,7 +272,10 @@ class Spring(Strict):
     values: list[SIValue] | None = Field(
         None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
     )
-    tail: Tail | TailRule = Field(
+    tail: Annotated[
+        Annotated[Tail, Tag("line")] | Annotated[TailRule, Tag("rule")],
+        Discriminator(lambda v: "rule" if isinstance(v, str) else "line"),
+    ] = Field(
         "trend",
         description="past the last breakpoint the law continues its last segment; {start, slope}: a straight line from"
         " start on, in fits and simulations alike; trend: a fit's identified model gets that line from the largest crush"
