@@ -187,7 +187,8 @@ def run(quick: bool = False) -> dict:
             if r["status"] == "ok":
                 line += (
                     f", crush {100 * r['crush_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %, "
-                    f"stop {1e3 * r['stop_err_s']:+.2f} ms, covered {sum(r['covered'].values())}/2, load rise {r['load_rise']:.2f}x"
+                    f"stop {1e3 * r['stop_err_s']:+.2f} ms, covered {sum(r['covered'].values())}/2"
                 )
+                line += f", load rise {r['load_rise']:.2f}x" if "load_rise" in r else ""
             print(line, flush=True)
     return {"seed": SEED, "speeds_kmh": SPEEDS_KMH, "targets": TARGETS, "summary": summary(rows), "fits": rows}

@@ -163,6 +163,19 @@ def test_the_trend_is_the_least_squares_slope_below_the_reach_and_never_falls():
     assert start == pytest.approx(0.5 + CLEARANCE * 1e-3) and slope == pytest.approx(1.5e6)
 
 
+def test_the_trend_is_the_segment_s_own_slope_only_where_the_data_cover_half_of_it():
+    from crashnlp.model.tail import trend_tail, trend_window
+
+    x = np.array([0.0, 0.1, 0.2, 0.3])
+    assert trend_window(x, 0.27) == pytest.approx(0.07)  # 70 % of its segment: that part of it
+    assert trend_window(x, 0.22) == pytest.approx(0.1)  # 20 %: one spacing, across the segment before
+    assert trend_window(x, 0.35) == pytest.approx(0.15)  # past the last breakpoint: the last segment continued
+    # a wall the data barely enter (the shipped pickup's 0.55-0.70 m segment, reached to 0.557 m)
+    wall = lambda c: np.interp(c, [0.0, 0.4, 0.55, 0.7], [0.0, 6.2e5, 7.4e5, 3e6])  # noqa: E731
+    _, slope = trend_tail(wall, np.array([0.0, 0.4, 0.55, 0.7]), 0.557, 0.0)
+    assert slope < 1.5e6  # not the wall's 15 MN/m
+
+
 def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
     from crashnlp.model.tail import trend_misses
 

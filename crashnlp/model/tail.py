@@ -6,10 +6,12 @@ cover only in part, moves the force there as freely as the model's misfit pulls 
 shipped pickup fitted at 40 and 56 km/h, the value at 0.70 m (reached to 0.557 m) runs to its
 3 MN bound, and a faster impact then meets a wall. A fit's identified model therefore bends its
 loading curve, just past the reach, into a straight line along the curve's trend
-(`trend_tail`, put into `model.spring.tail` by crashnlp.optimize.outcome): the least-squares
-slope of the identified curve over the last breakpoint spacing below the reach. The slope is
-never negative: a falling force continued without end would reach zero and stop resisting
-crush, which no front end does.
+(`trend_tail`, put into `model.spring.tail` by crashnlp.optimize.outcome): the slope of the
+segment in which the reach lies, where the data cover at least half of it (the curve's own
+slope where the data end); where they cover less, that slope is set by a few millimetres of
+crush and the model's misfit, and the least-squares slope over the last breakpoint spacing
+(across the segment before) stands in. The slope is never negative: a falling force continued
+without end would reach zero and stop resisting crush, which no front end does.
 
 `trend_misses` measures the rule on the identified curve itself: from each breakpoint inside the
 reach, the trend of the curve before it predicts the force one spacing on. Those misses, grown
@@ -26,6 +28,7 @@ import numpy as np
 Curve = Callable[[np.ndarray], np.ndarray]  # crush (m) -> loading force (N), vectorised
 SAMPLES = 50  # points of the curve the trend's least squares use
 CLEARANCE = 2.0  # smoothing widths between the reach and the tail's start: its hinge leaves the fit's range as it was
+COVERED = 0.5  # the share of its segment the data must cover for the segment's own slope to be the trend
 
 
 def spacing(breakpoints: np.ndarray) -> float:
@@ -40,10 +43,20 @@ def trend_slope(curve: Curve, reach: float, window: float) -> float:
     return max(float(np.polyfit(x, curve(x), 1)[0]), 0.0)
 
 
+def trend_window(breakpoints: np.ndarray, reach: float) -> float:
+    """The crush over which the trend at the reach is taken (m): the part of its segment the data
+    cover, where they cover at least COVERED of it; else one breakpoint spacing, across the
+    segment before."""
+    x = np.asarray(breakpoints, float)
+    k = int(np.clip(np.searchsorted(x, reach, side="right") - 1, 0, x.size - 2))
+    covered = reach - x[k]
+    return covered if covered >= COVERED * (x[k + 1] - x[k]) else spacing(x)
+
+
 def trend_tail(curve: Curve, breakpoints: np.ndarray, reach: float, eps: float) -> tuple[float, float]:
     """The tail's start (m) and slope (N/m) for a curve reached to `reach` by the fitted tests:
-    CLEARANCE smoothing widths past the reach, along the trend over one breakpoint spacing."""
-    return reach + CLEARANCE * eps, trend_slope(curve, reach, spacing(breakpoints))
+    CLEARANCE smoothing widths past the reach, along the trend over `trend_window`."""
+    return reach + CLEARANCE * eps, trend_slope(curve, reach, trend_window(breakpoints, reach))
 
 
 def trend_misses(curve: Curve, breakpoints: np.ndarray, reach: float) -> np.ndarray:
