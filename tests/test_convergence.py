@@ -75,9 +75,9 @@ def test_a_collocation_nlp_regularizes_its_constraint_block_for_gauss_newton():
 @pytest.mark.slow
 @pytest.mark.parametrize("intervals", [120, 250])
 def test_joint_collocation_fits_of_two_speeds_finish(intervals):
-    """pickup-56kph's problem with the 40 km/h test, by collocation: MUMPS misjudged the inertia of
-    these ill-conditioned KKT systems and the fits stalled (70 and 299 iterations at 120 and 250
-    intervals); with the constraint block regularized they take 14 and 17, at the same optimum."""
+    """pickup-56kph's problem with the 40 km/h test, by collocation: without the constraint block
+    regularized, MUMPS misjudges the inertia of these ill-conditioned KKT systems and the fits
+    stall (70 and 299 iterations at 120 and 250 intervals); with it they take 14 and 17."""
     base = load_problem(PICKUP_56)
     problem = base.model_copy(update={"tests": [base.tests[0], load_problem(PICKUP_40).tests[0]]})
     solution = identify(

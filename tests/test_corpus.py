@@ -41,9 +41,9 @@ def test_minimal_problem_identifies_a_corpus_vehicle(index, tmp_path):
 
 
 # Vehicles 13 and 17 start far from their fits (objective 3.6 and 41 against 0.15 and 0.17 at
-# full size); the first Gauss-Newton steps move the crush at the shooting nodes, and the fits
-# wandered (at 100 intervals 532 and 67 iterations) while the largest crush stalled behind the
-# crush there. They take 13 and 10.
+# full size); the first Gauss-Newton steps move the crush at the shooting nodes past the largest
+# crush. Where the largest crush stalls behind the crush there, the fits wander (532 and 67
+# iterations at 100 intervals); where it follows, they take 13 and 10.
 @pytest.mark.parametrize("index", (13, 17))
 def test_cold_start_far_from_the_fit_closes_in(index, tmp_path):
     v = random_vehicle(index, SEED)

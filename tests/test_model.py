@@ -186,10 +186,10 @@ def _largest_crush_rate(case, gap: float, rate: float = 10.0) -> float:
 
 def test_largest_crush_follows_a_crush_that_outruns_it():
     """A simulation keeps the largest crush at or above the crush; a shooting node's states are
-    free variables and can put it below. There it must grow with the crush at the full rate: when
-    it stalled (the gate acting on both sides), such a node's defect could not close, and corpus
-    vehicles 13 and 17 wandered for hundreds of iterations. Above the crush, unloaded, the gate
-    still stops it within a few millimetres."""
+    free variables and can put it below. There it must grow with the crush at the full rate:
+    stalled (a gate on both sides), such a node's defect cannot close, and corpus vehicles 13 and
+    17 wander for hundreds of iterations. Above the crush, unloaded, the gate still stops it
+    within a few millimetres."""
     case, rate = make_case(), 10.0
     hinged = 0.5 * (rate + np.sqrt(rate**2 + 1e-3**2))  # the crush rate's hinge, smoothed over 1 mm/s
     for gap in (0.0, -0.005, -0.02):

@@ -124,8 +124,8 @@ class PendulumModel:
         The gate acts only where x_max lies above the crush. A simulation never puts it below
         (the rate's hinge is at least the crush rate), but a shooting node's states are free
         variables: there x_max keeps growing with the crush instead of stalling behind it, so
-        that the node's defect can close (corpus vehicles 13 and 17 wandered for hundreds of
-        iterations while it stalled)."""
+        that the node's defect can close (a gate on both sides makes corpus vehicles 13 and 17
+        wander for hundreds of iterations: docs/design-notes.md)."""
         gap = ca.fmax(x_max - crush, 0) / HISTORY_GATE
         return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
 

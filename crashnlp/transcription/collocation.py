@@ -13,11 +13,11 @@ from crashnlp.transcription.base import Transcription, per_row
 # 40 km/h, 200 intervals: Gauss-Newton entries of 2e4 beside a near null space of the dynamics'
 # multipliers). MUMPS's pivoting then can report a wrong inertia although the Gauss-Newton
 # Hessian is positive semi-definite; IPOPT regularizes the Hessian by up to 1e8 and the steps
-# stall (that fit took 25 to 391 iterations over 50 to 300 intervals). A small permanent
-# regularization of the constraint block (delta_c = 1e-10 mu^0.25: IPOPT's `perturb_always_cd`)
-# removes the near null space: 14 to 41 iterations (docs/design-notes.md). Shooting fits do not
-# need it, and their iterations move with it (paper-configuration 51 -> 53), so only collocation
-# asks for it.
+# stall (without what follows that fit takes 25 to 391 iterations over 50 to 300 intervals). A
+# small permanent regularization of the constraint block (delta_c = 1e-10 mu^0.25: IPOPT's
+# `perturb_always_cd`) removes the near null space: 14 to 41 iterations (docs/design-notes.md).
+# Shooting fits do not need it, and their iterations move with it (paper-configuration 53
+# instead of 51), so only collocation asks for it.
 GAUSS_NEWTON_OPTIONS = {"perturb_always_cd": "yes", "jacobian_regularization_value": 1e-10}
 
 
