@@ -17,6 +17,7 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import casadi as ca
 import numpy as np
@@ -87,6 +88,8 @@ class NLPBuilder:
     rest: ca.MX = field(default_factory=lambda: ca.MX(0))  # the other objective terms
     threads: int | None = None  # for the mapped interval functions (None: runtime.map_threads(); 1 when compiled)
     symbolic: bool = True  # the numbers given to `parameter` as parameters (else constants)
+    # IPOPT options a solve of this NLP with the Gauss-Newton Hessian needs (its transcription's)
+    gauss_newton_options: dict[str, Any] = field(default_factory=dict)
     # Functions of (x, p) the caller evaluates after the solve, compiled with the solver's
     # (crashnlp.optimize.oracle); `functions` holds them all, as the last solve had them
     extras: dict[str, Callable[[], ca.Function]] = field(default_factory=dict)

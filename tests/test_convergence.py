@@ -1,5 +1,6 @@
-"""Fits that finish: a cycle of Gauss-Newton's iterates is told from a slow convergence, and the
-shooting fits that cycled at one RK4 step per interval finish once the steps are refined.
+"""Fits that finish: a cycle of Gauss-Newton's iterates is told from a slow convergence, the
+shooting fits that cycled at one RK4 step per interval finish once the steps are refined, and
+joint collocation fits finish with their constraint block regularized.
 
 The fits are the shipped pickup's, at full size: the cycles come from the crush crossing a kink
 of the force laws inside a 1 ms step, which a coarser grid would change."""
@@ -8,12 +9,15 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from builders import ROOT
+from builders import ROOT, make_case
 
 from crashnlp.case import Case
 from crashnlp.optimize.identify import identify
-from crashnlp.optimize.solve import CYCLE_RUN, cycle, followed
+from crashnlp.optimize.ocp import OptimalControl
+from crashnlp.optimize.solve import CYCLE_RUN, cycle, followed, ipopt_options
 from crashnlp.problem import load_problem
+from crashnlp.problem.schema import Solver
+from crashnlp.transcription.collocation import GAUSS_NEWTON_OPTIONS
 
 PICKUP_56, PICKUP_40 = ROOT / "problems/pickup-56kph.yaml", ROOT / "problems/pickup-40kph.yaml"
 ITERATION_LIMIT = 150  # issue 25's acceptance for the joint fits and the 64-case grid
@@ -51,6 +55,36 @@ def test_an_oscillation_that_closes_in_is_not_a_cycle():
     """Alternating steps that shrink by half each time do come back, but their steps shrink."""
     iterates = [np.array([(-0.5) ** k, 0.0]) for k in range(4 * CYCLE_RUN)]
     assert not cycle(*_returns(iterates))
+
+
+def test_a_collocation_nlp_regularizes_its_constraint_block_for_gauss_newton():
+    """Collocation asks a Gauss-Newton solve for the permanent constraint regularization; shooting
+    asks nothing; the problem's own IPOPT options win over both."""
+    method = {
+        "collocation": {"method": "collocation", "intervals": 20},
+        "shooting": {"method": "multiple-shooting", "intervals": 20},
+    }
+    asked = {name: OptimalControl(make_case({"transcription": spec})).nlp.gauss_newton_options for name, spec in method.items()}
+    assert asked == {"collocation": GAUSS_NEWTON_OPTIONS, "shooting": {}}
+    opts = ipopt_options(Solver(ipopt={"perturb_always_cd": "no"}), verbose=False, fit=True, formulation=asked["collocation"])
+    assert opts["perturb_always_cd"] == "no"
+    assert opts["jacobian_regularization_value"] == GAUSS_NEWTON_OPTIONS["jacobian_regularization_value"]
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+@pytest.mark.parametrize("intervals", [120, 250])
+def test_joint_collocation_fits_of_two_speeds_finish(intervals):
+    """pickup-56kph's problem with the 40 km/h test, by collocation: without the constraint block
+    regularized, MUMPS misjudges the inertia of these ill-conditioned KKT systems and the fits
+    stall (70 and 299 iterations at 120 and 250 intervals); with it they take 14 and 17."""
+    base = load_problem(PICKUP_56)
+    problem = base.model_copy(update={"tests": [base.tests[0], load_problem(PICKUP_40).tests[0]]})
+    solution = identify(
+        Case(problem.with_values({"transcription": {"method": "collocation", "intervals": intervals}})), progress=None
+    )
+    assert solution.ok, solution.status
+    assert solution.result.iterations <= 50
 
 
 def _pitch_bound_fit(degrees: float, k_front_kn: float):

@@ -175,6 +175,28 @@ def test_breakpoint_derivatives_match_finite_differences(law):
     np.testing.assert_allclose(J, fd, rtol=1e-6, atol=1e-6 * np.abs(fd).max())
 
 
+def _largest_crush_rate(case, gap: float, rate: float = 10.0) -> float:
+    """d x_max / dt of the case's model at 0.3 m of crush, crushing at `rate`, with the largest
+    crush `gap` above the crush (pitch and its rate zero, so crush = -r)."""
+    model, p = case.model, case.test_parameters(case.tests[0])
+    theta0 = np.arctan2(0.18, 2.45)  # make_case's cg_above_impact over cg_to_impact
+    x = [-0.3, theta0, -rate, 0.0, 0.3 + gap]
+    return float(model.rhs(x, p)[4])
+
+
+def test_largest_crush_follows_a_crush_that_outruns_it():
+    """A simulation keeps the largest crush at or above the crush; a shooting node's states are
+    free variables and can put it below. There it must grow with the crush at the full rate:
+    stalled (a gate on both sides), such a node's defect cannot close, and corpus vehicles 13 and
+    17 wander for hundreds of iterations. Above the crush, unloaded, the gate still stops it
+    within a few millimetres."""
+    case, rate = make_case(), 10.0
+    hinged = 0.5 * (rate + np.sqrt(rate**2 + 1e-3**2))  # the crush rate's hinge, smoothed over 1 mm/s
+    for gap in (0.0, -0.005, -0.02):
+        assert _largest_crush_rate(case, gap, rate) == pytest.approx(hinged, rel=1e-12)
+    assert _largest_crush_rate(case, 0.01, rate) == pytest.approx(hinged / 17, rel=1e-12)  # 2 gates above
+
+
 def test_rk_and_cvodes_agree():
     r1 = make_case().simulate()["t56"]
     r2 = make_case({"simulation": {"integrator": "rk", "substeps": 4}}).simulate()["t56"]

@@ -124,8 +124,14 @@ class PendulumModel:
     def _history_rate(self, crush, rate, x_max):
         """d x_max / dt: the crush rate while loading (a smoothed max(rate, 0)), zero while
         unloading; a reloading crush moves x_max again within HISTORY_GATE of it. No feedback
-        acts while the crush follows x_max, so the state adds no stiffness to the ODE."""
-        gap = (x_max - crush) / HISTORY_GATE
+        acts while the crush follows x_max, so the state adds no stiffness to the ODE.
+
+        The gate acts only where x_max lies above the crush. A simulation never puts it below
+        (the rate's hinge is at least the crush rate), but a shooting node's states are free
+        variables: there x_max keeps growing with the crush instead of stalling behind it, so
+        that the node's defect can close (a gate on both sides makes corpus vehicles 13 and 17
+        wander for hundreds of iterations: docs/design-notes.md)."""
+        gap = ca.fmax(x_max - crush, 0) / HISTORY_GATE
         return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
 
     def _build(self):

@@ -225,11 +225,12 @@ def cycle(returns: int, steps: list[float]) -> bool:
 FIT_OPTIONS: dict[str, Any] = {"tol": 1e-5, "tau_min": 0.8}
 
 
-def ipopt_options(spec: Solver, verbose: bool, fit: bool = False) -> dict:
+def ipopt_options(spec: Solver, verbose: bool, fit: bool = False, formulation: dict[str, Any] | None = None) -> dict:
     """IPOPT's options: adaptive barrier, and MUMPS ordering by approximate minimum fill, which on
     the larger crash NLPs (collocation beyond 400 intervals, several tests) halves the iterations
     and the time per factorization against MUMPS's automatic choice; FIT_OPTIONS for a
-    least-squares `fit`; the problem's own options win."""
+    least-squares `fit`; the options the NLP's `formulation` asks for (its transcription's, for
+    the Gauss-Newton Hessian: NLPBuilder.gauss_newton_options); the problem's own options win."""
     opts = {
         "print_level": 5 if verbose else 0,
         "sb": "yes",
@@ -240,6 +241,7 @@ def ipopt_options(spec: Solver, verbose: bool, fit: bool = False) -> dict:
     }
     if fit:
         opts.update(FIT_OPTIONS)
+    opts.update(formulation or {})
     if spec.hessian == "limited-memory":
         opts["hessian_approximation"] = "limited-memory"
     opts.update(spec.ipopt)
@@ -284,8 +286,10 @@ def build_solver(nlp: NLPBuilder, spec: Solver, verbose: bool = False, warm: boo
     holds them; one solver per NLP shape and options in a process (study workers and profiles
     solve many NLPs of one shape); `warm`: IPOPT starts from the given multipliers too."""
     t0 = time.perf_counter()
-    o = oracle(nlp, hessian_kind(nlp, spec), spec.compile, spec.expand)
-    ipopt = ipopt_options(spec, verbose, fit=bool(nlp.squares))
+    hessian = hessian_kind(nlp, spec)
+    o = oracle(nlp, hessian, spec.compile, spec.expand)
+    formulation = nlp.gauss_newton_options if hessian == "gauss-newton" else {}
+    ipopt = ipopt_options(spec, verbose, fit=bool(nlp.squares), formulation=formulation)
     if warm:
         ipopt = {**WARM_OPTIONS, **ipopt}
     opts: dict[str, Any] = {"ipopt": ipopt, "print_time": False, **SOLVER_OPTIONS}
