@@ -43,6 +43,14 @@ def test_a_four_cycle_is_a_cycle():
     assert cycle(*_returns([corners[k % 4] for k in range(3 * CYCLE_RUN)]))
 
 
+def test_a_long_uneven_cycle_is_a_cycle():
+    """A loop of 23 iterates with steps of uneven length, as Gauss-Newton ran on a corpus vehicle
+    (seed 2032, vehicle 1, 40 + 56 km/h) at 4 RK4 steps per interval: every 23rd iterate repeats."""
+    rng = np.random.default_rng(23)
+    loop = np.cumsum(rng.normal(size=(23, 4)) * rng.uniform(1e-3, 1.4e-2, (23, 1)), axis=0)
+    assert cycle(*_returns([loop[k % 23] for k in range(23 + 3 * CYCLE_RUN)]))
+
+
 @pytest.mark.parametrize("ratio", [0.5, 0.9, 0.99])
 def test_a_converging_run_is_not_a_cycle(ratio):
     """Steady steps toward a point, however slowly, never come back."""
