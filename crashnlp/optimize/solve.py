@@ -158,7 +158,8 @@ class Watch(ca.Callback):
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
         if "cycle" in self.stops:
-            self.iterates, self.returns = followed(self.iterates, self.returns, x)
+            judged = self.count >= CYCLE_START - CYCLE_RUN  # a cycle is seen from CYCLE_START on
+            self.iterates, self.returns = followed(self.iterates, self.returns, x, judged)
         if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
@@ -187,10 +188,11 @@ def slow_tail(steps: list[float]) -> bool:
     return all(TAIL_RATIO <= r < 1 for r in ratios) and max(ratios) - min(ratios) <= TAIL_SPREAD
 
 
-def followed(iterates: list[np.ndarray], returns: int, x: np.ndarray) -> tuple[list[np.ndarray], int]:
-    """The last CYCLE_PERIOD + 1 iterates with `x`, and how many in a row came back (`came_back`)."""
+def followed(iterates: list[np.ndarray], returns: int, x: np.ndarray, judged: bool = True) -> tuple[list[np.ndarray], int]:
+    """The last CYCLE_PERIOD + 1 iterates with `x`, and how many in a row came back (`came_back`);
+    not `judged`, none (before a cycle could be seen, the window is only filled)."""
     iterates = [*iterates[-CYCLE_PERIOD:], x]
-    return iterates, returns + 1 if came_back(iterates) else 0
+    return iterates, returns + 1 if judged and came_back(iterates) else 0
 
 
 def came_back(iterates: list[np.ndarray]) -> bool:
@@ -199,7 +201,10 @@ def came_back(iterates: list[np.ndarray]) -> bool:
     if len(iterates) < 3:
         return False
     x, step = iterates[-1], float(np.abs(iterates[-1] - iterates[-2]).max(initial=0.0))
-    return step > 0 and any(float(np.abs(x - y).max(initial=0.0)) <= CYCLE_RETURN * step for y in iterates[:-2])
+    if step <= 0:
+        return False
+    distances = np.abs(np.stack(iterates[:-2]) - x).max(axis=1, initial=0.0)  # one call for the window
+    return bool(distances.min() <= CYCLE_RETURN * step)
 
 
 def cycle(returns: int, steps: list[float]) -> bool:
