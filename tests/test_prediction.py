@@ -14,8 +14,14 @@ from bench.corpus import PICKUP, measured, random_vehicle, simulate, write_csv
 from bench.robustness import minimal_problem
 from crashnlp.cli import main
 from crashnlp.metrics import crash_metrics
+from crashnlp.model.parameters import ParameterLayout
+from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
+from crashnlp.prediction import _drift
+from crashnlp.problem import ProblemError, problem_from_dict
+from crashnlp.problem.schema import EstimateSpec
+from crashnlp.simulation import Response
 from crashnlp.units import G0
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
@@ -131,10 +137,6 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
 def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():
     from builders import BASE
 
-    from crashnlp.model.parameters import ParameterLayout
-    from crashnlp.problem import problem_from_dict
-    from crashnlp.problem.schema import EstimateSpec
-
     problem = problem_from_dict(BASE, ".")
     layout = ParameterLayout.of(problem)
     base = layout.values(problem)
@@ -149,7 +151,6 @@ def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():
 
 
 def test_the_trend_is_the_least_squares_slope_below_the_reach_and_never_falls():
-    from crashnlp.model.tail import CLEARANCE, trend_slope, trend_tail
 
     def line(x):
         return 2e5 + 1.5e6 * x
@@ -164,7 +165,6 @@ def test_the_trend_is_the_least_squares_slope_below_the_reach_and_never_falls():
 
 
 def test_the_trend_is_the_segment_s_own_slope_only_where_the_data_cover_half_of_it():
-    from crashnlp.model.tail import trend_tail, trend_window
 
     x = np.array([0.0, 0.1, 0.2, 0.3])
     assert trend_window(x, 0.27) == pytest.approx(0.07)  # 70 % of its segment: that part of it
@@ -177,7 +177,6 @@ def test_the_trend_is_the_segment_s_own_slope_only_where_the_data_cover_half_of_
 
 
 def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
-    from crashnlp.model.tail import trend_misses
 
     x = np.linspace(0.0, 0.6, 7)
     assert np.allclose(trend_misses(lambda c: 1e6 * c, x, 0.6), 0.0, atol=1e-6)
@@ -224,8 +223,6 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
 
 
 def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_not_to_have_stopped():
-    from crashnlp.prediction import _drift
-    from crashnlp.simulation import Response
 
     t = np.linspace(0.0, 0.2, 5)
 
@@ -249,8 +246,6 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
 )
 def test_a_bad_tail_is_refused_in_one_line_naming_its_key(tail, key):
     from builders import BASE, merge
-
-    from crashnlp.problem import ProblemError, problem_from_dict
 
     with pytest.raises(ProblemError) as err:
         problem_from_dict(merge(BASE, {"model": {"spring": {"tail": tail}}}), ".", "bad.yaml")
