@@ -1,9 +1,11 @@
 """Fits that finish: a cycle of Gauss-Newton's iterates is told from a slow convergence, the
-shooting fits that cycled at one RK4 step per interval finish once the steps are refined, and
-joint collocation fits finish with their constraint block regularized.
+shooting fits that cycled at one RK4 step per interval finish once the steps are refined, a cycle
+no finer step may take away settles at IPOPT's acceptable level, and joint collocation fits
+finish with their constraint block regularized.
 
 The fits are the shipped pickup's, at full size: the cycles come from the crush crossing a kink
-of the force laws inside a 1 ms step, which a coarser grid would change."""
+of the force laws inside a 1 ms step, which a coarser grid would change. Which IPOPT runs a
+cycle leads to is checked on scripted runs."""
 
 from __future__ import annotations
 
@@ -12,9 +14,10 @@ import pytest
 from builders import ROOT, make_case
 
 from crashnlp.case import Case
+from crashnlp.optimize import solve as solve_module
 from crashnlp.optimize.identify import identify
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.solve import CYCLE_RUN, cycle, followed, ipopt_options
+from crashnlp.optimize.solve import CYCLE_RUN, SETTLE_OPTIONS, SolveResult, cycle, followed, ipopt_options
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import Solver
 from crashnlp.transcription.collocation import GAUSS_NEWTON_OPTIONS
@@ -135,3 +138,55 @@ def test_a_joint_shooting_fit_of_two_speeds_finishes_refined_at_the_same_optimum
     assert collocation.ok, collocation.status
     scale = np.abs(collocation.theta) + shooting.ocp.free.scale * 1e-3
     assert np.max(np.abs(shooting.theta - collocation.theta) / scale) < 0.02
+
+
+def _run(status: str, stopped: str | None = None, tail: float | None = None) -> SolveResult:
+    """One IPOPT run's result, as `_solve` returns it."""
+    none = np.zeros(0)
+    return SolveResult(np.ones(2), 1.0, none, none, none, status, 10, 0.0, 0.0, tail=tail, stopped=stopped)
+
+
+def _scripted(monkeypatch, runs: list[SolveResult]) -> list[dict]:
+    """`solve` on a Gauss-Newton fit whose IPOPT runs return `runs` in turn; the calls it made."""
+    calls: list[dict] = []
+
+    def run(nlp, spec, verbose, progress, start=None, looks=frozenset()):
+        calls.append({"spec": spec, "start": start, "looks": looks})
+        return runs[len(calls) - 1]
+
+    monkeypatch.setattr(solve_module, "_solve", run)
+    monkeypatch.setattr(solve_module, "hessian_kind", lambda nlp, spec: "gauss-newton")
+    return calls
+
+
+@pytest.mark.parametrize("refinable", [True, False])
+def test_a_cycle_is_refined_where_the_steps_can_be_and_settled_where_not(monkeypatch, refinable):
+    """A cycle ends a refinable solve (its caller refines the steps); any other solve settles it:
+    Gauss-Newton warm from the cycle's iterate, to IPOPT's acceptable level (SETTLE_OPTIONS)."""
+    cycled = _run("User_Requested_Stop", stopped="cycle")
+    calls = _scripted(monkeypatch, [cycled, _run("Solved_To_Acceptable_Level")])
+    result = solve_module.solve(None, Solver(), progress=None, refinable=refinable)
+    assert calls[0]["looks"] == {"tail", "cycle"}
+    if refinable:
+        assert result.cycling and len(calls) == 1
+        return
+    assert result.converged and result.settled and result.iterations == 20
+    assert calls[1]["start"] is cycled
+    assert SETTLE_OPTIONS.items() <= calls[1]["spec"].ipopt.items()
+
+
+def test_gauss_newton_after_a_newton_that_did_not_finish_settles_its_cycle(monkeypatch):
+    """Where Newton, started in Gauss-Newton's slow tail, does not finish, Gauss-Newton runs again
+    looking for a cycle only (a tail there would hand over to Newton again), and settles it."""
+    runs = [
+        _run("User_Requested_Stop", tail=0.01),
+        _run("Maximum_Iterations_Exceeded"),
+        _run("User_Requested_Stop", stopped="cycle"),
+        _run("Solved_To_Acceptable_Level"),
+    ]
+    calls = _scripted(monkeypatch, runs)
+    result = solve_module.solve(None, Solver(), progress=None)
+    assert result.converged and result.iterations == 40
+    assert calls[1]["spec"].hessian == "exact" and calls[1]["start"] is runs[0]
+    assert calls[2]["looks"] == {"cycle"} and calls[2]["start"] is None
+    assert calls[3]["start"].z is runs[2].z  # warm from the cycle, the runs before it counted

@@ -15,7 +15,7 @@ from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.solve import SolveResult, after, solve
+from crashnlp.optimize.solve import SETTLE_OPTIONS, SolveResult, after, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
@@ -175,6 +175,9 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         result = after(
             result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, refinable=_refinable(case))
         )
+    if result.settled and result.converged:
+        notes.append(note := _settled(case))
+        _say(note, progress)
     solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = notes
     return solution
@@ -201,6 +204,18 @@ def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str]:
     return case.with_transcription(spec.model_copy(update={"substeps": steps})), (
         f"{case.name}: IPOPT's iterates cycled after {cycled.iterations} iterations at {spec.substeps} RK4 step(s) "
         f"per interval (a kink of the force laws crossed inside a step); solved again from there with {steps}"
+    )
+
+
+def _settled(case: Case) -> str:
+    """The line that says a cycle no finer integration could take away was settled
+    (crashnlp.optimize.solve.SETTLE_OPTIONS)."""
+    spec = case.problem.transcription
+    where = f"{spec.substeps} RK4 steps per interval" if isinstance(spec, MultipleShootingSpec) else "its collocation grid"
+    return (
+        f"{case.name}: IPOPT's iterates circled the optimum at {where} (a kink of the force laws crossed inside a "
+        f"step); stopped at IPOPT's acceptable level: the objective steady to {SETTLE_OPTIONS['acceptable_obj_change_tol']:g}"
+        f" over {SETTLE_OPTIONS['acceptable_iter']} iterations, the constraints met"
     )
 
 

@@ -34,6 +34,7 @@ class SolveResult:
     compiled: bool = False  # IPOPT called the compiled NLP functions (crashnlp.optimize.oracle)
     tail: float | None = None  # stopped in Gauss-Newton's slow tail (Watch): the distance still to go
     stopped: Stop | None = None  # why the Watch stopped Gauss-Newton short of convergence
+    settled: bool = False  # the run settled a cycle (SETTLE_OPTIONS)
 
     @property
     def converged(self) -> bool:
@@ -81,25 +82,37 @@ CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATIO
 # start's and come back (corpus v17), so the rule watches warm starts only.
 WANDER_START, WANDER_RISE, WANDER_VIOLATION = 25, 2.0, 1e-3
 WANDER_OPTIONS = {"mu_strategy": "monotone", "mu_init": 1e-4}
+# Settling a cycle that no finer integration can take away (the finest RK4 steps, or collocation):
+# Gauss-Newton starts again from the cycle's iterate, warm, and IPOPT stops at its own acceptable
+# level once SETTLE_OPTIONS hold for 15 iterations in a row: the objective steady to the fit's
+# tolerance (relative) with the constraints met. The dual infeasibility is not asked to fall, since
+# the derivatives' jump at the kink keeps it up; the parameters then move by a small fraction of
+# their standard errors from one iterate of the cycle to the next (docs/identification.md).
+SETTLE_OPTIONS = {
+    "acceptable_tol": 1e20,
+    "acceptable_obj_change_tol": 1e-5,
+    "acceptable_constr_viol_tol": 1e-6,
+    "acceptable_iter": 15,
+}
 Stop = Literal["cycle", "wander"]
+Look = Literal["tail", "cycle", "wander"]  # what the Watch looks for: the slow tail, and the stops
 
 
 class Watch(ca.Callback):
     """IPOPT's iteration callback: a short line every `every` iterations when asked, and for a
-    Gauss-Newton fit a stop in its slow tail (TAIL_RATIO above)."""
+    Gauss-Newton fit a stop in its slow tail, a cycle or a wander (TAIL_RATIO, CYCLE_START and
+    WANDER_START above)."""
 
     def __init__(self, nx: int, ng: int, every: int = 10):
         ca.Callback.__init__(self)
         self.nx, self.ng, self.every = nx, ng, every
-        self.start(np.zeros(ng), np.zeros(ng), None, False)
+        self.start(np.zeros(ng), np.zeros(ng), None)
         self.construct("watch", {})
 
-    def start(
-        self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, watch: bool, stops: frozenset[Stop] = frozenset()
-    ) -> None:
-        """Before a run: the constraint bounds, where progress goes, whether to watch
-        Gauss-Newton for its slow tail, and which of a cycle and a wander stop it."""
-        self.lbg, self.ubg, self.out, self.watch, self.stops = lbg, ubg, out, watch, stops
+    def start(self, lbg: np.ndarray, ubg: np.ndarray, out: TextIO | None, looks: frozenset[Look] = frozenset()) -> None:
+        """Before a run: the constraint bounds, where progress goes, and which of Gauss-Newton's
+        slow tail, a cycle and a wander stop it."""
+        self.lbg, self.ubg, self.out, self.looks = lbg, ubg, out, looks
         self.count = 0
         self.x: np.ndarray | None = None  # the last iterate
         self.steps: list[float] = []  # the primal steps' lengths, scaled variables
@@ -134,7 +147,7 @@ class Watch(ca.Callback):
     def eval(self, arg):
         count, self.count = self.count, self.count + 1
         printing = self.out is not None and count % self.every == 0
-        if not (printing or self.watch):  # designs, profiles, most iterations: nothing to look at
+        if not (printing or self.looks):  # designs, profiles, most iterations: nothing to look at
             return [0]
         names = ca.nlpsol_out()
 
@@ -145,7 +158,7 @@ class Watch(ca.Callback):
         if printing:
             f = float(arg[names.index("f")])
             print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
-        if self.watch:
+        if self.looks:
             self._follow(arg[names.index("x")].full().ravel(), float(arg[names.index("f")]), violation)
         return [int(self.remaining is not None or self.stopped is not None)]
 
@@ -157,21 +170,21 @@ class Watch(ca.Callback):
         if self.x is not None:
             self.steps.append(float(np.abs(x - self.x).max(initial=0.0)))
         self.x = x
-        if "cycle" in self.stops:
+        if "cycle" in self.looks:
             judged = self.count >= CYCLE_START - CYCLE_RUN  # a cycle is seen from CYCLE_START on
             self.iterates, self.returns = followed(self.iterates, self.returns, x, judged)
-        if slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
+        if "tail" in self.looks and slow_tail(self.steps) and violation() <= TAIL_VIOLATION:
             ratio = self.steps[-1] / self.steps[-2]
             self.remaining = self.steps[-1] * ratio / (1 - ratio)
         elif (
-            "cycle" in self.stops
+            "cycle" in self.looks
             and self.count >= CYCLE_START
             and cycle(self.returns, self.steps)
             and violation() <= CYCLE_VIOLATION
         ):
             self.stopped = "cycle"
         elif (
-            "wander" in self.stops
+            "wander" in self.looks
             and self.count >= WANDER_START
             and f > WANDER_RISE * self.start_objective
             and violation() > WANDER_VIOLATION
@@ -274,11 +287,11 @@ class BuiltSolver:
     compiled: bool = False
 
     def __call__(
-        self, args: dict[str, np.ndarray], out: TextIO | None = None, watch: bool = False, stops: frozenset[Stop] = frozenset()
+        self, args: dict[str, np.ndarray], out: TextIO | None = None, looks: frozenset[Look] = frozenset()
     ) -> tuple[dict, dict]:
-        """One IPOPT run: its solution and stats; progress lines to `out`; `watch`: stop
-        Gauss-Newton in its slow tail, and in the `stops` it is given (Watch)."""
-        self.watch.start(args["lbg"], args["ubg"], out, watch, stops)
+        """One IPOPT run: its solution and stats; progress lines to `out`; Gauss-Newton stopped
+        at what it `looks` for (Watch)."""
+        self.watch.start(args["lbg"], args["ubg"], out, looks)
         sol = self.function(**args)
         return sol, self.function.stats()
 
@@ -334,20 +347,22 @@ def solve(
 ) -> SolveResult:
     """Solve; the returned status is IPOPT's own. `from_neighbour`: the NLP starts from a
     neighbouring problem's solution (a study's warm start), where a wander is watched for;
-    `refinable`: the caller can refine the integration, so that a cycle is watched for.
+    `refinable`: the caller can refine the integration, so that a cycle ends the solve
+    (`cycling`) instead of being settled.
 
     With `hessian: auto` a least-squares fit starts with the Gauss-Newton Hessian, cheap and
     fast near a good fit (15 to 30 iterations on the shipped problems). Where it converges only
     linearly (a large residual or a weakly determined direction: its slow tail, TAIL_RATIO
     above), the exact Hessian (structured and compiled like the rest,
     about twice a Gauss-Newton iteration's cost) finishes from there, warm-started; where
-    Newton does not finish the same fit (`finishes`), Gauss-Newton runs again to the end
-    without the watch. Where Gauss-Newton fails (GAUSS_NEWTON_FAILURES) or
+    Newton does not finish the same fit (`finishes`), Gauss-Newton runs again to the end,
+    watched for a cycle only. Where Gauss-Newton fails (GAUSS_NEWTON_FAILURES) or
     has not converged after AUTO_GAUSS_NEWTON_ITER iterations, IPOPT starts over with the exact Hessian from the
     initial guess, since a crawl can end far from where the exact Hessian converges from. Where
-    Gauss-Newton's iterates cycle (CYCLE_START above), the run stops there, `cycling`: the
-    exact Hessian sees the same kink, and the caller refines the integration instead
-    (crashnlp.optimize.identify). Where they wander from a neighbour's solution (WANDER_START
+    Gauss-Newton's iterates cycle (CYCLE_START above), the run stops there: the exact Hessian
+    sees the same kink. A `refinable` solve returns `cycling`, and the caller refines the
+    integration (crashnlp.optimize.identify); any other settles it (SETTLE_OPTIONS above), to
+    IPOPT's acceptable level. Where they wander from a neighbour's solution (WANDER_START
     above), Gauss-Newton starts over from it with a small, monotone barrier (WANDER_OPTIONS). The
     result counts the iterations and time of every run."""
     if spec.hessian != "auto" or hessian_kind(nlp, spec) != "gauss-newton":
@@ -355,11 +370,11 @@ def solve(
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
     gauss_newton = spec.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": limit}})
     exact = spec.model_copy(update={"hessian": "exact"})
-    cycles: frozenset[Stop] = frozenset({"cycle"} if refinable else ())
-    first = _solve(nlp, gauss_newton, verbose, progress, watch=True, stops=cycles | ({"wander"} if from_neighbour else set()))
+    looks: frozenset[Look] = frozenset({"tail", "cycle"})
+    first = _solve(nlp, gauss_newton, verbose, progress, looks=looks | ({"wander"} if from_neighbour else set()))
     if first.stopped == "wander":
         near = gauss_newton.model_copy(update={"ipopt": {**WANDER_OPTIONS, **gauss_newton.ipopt}})
-        first = after(first, _solve(nlp, near, verbose, progress, watch=True, stops=cycles))
+        first = after(first, _solve(nlp, near, verbose, progress, looks=looks))
     if first.tail is not None:
         newton = _solve(
             nlp, exact.model_copy(update={"ipopt": {**spec.ipopt, "max_iter": TAIL_NEWTON_ITER}}), verbose, progress, start=first
@@ -367,7 +382,10 @@ def solve(
         if finishes(first, newton):
             return after(first, newton)
         # Newton did not finish what Gauss-Newton began: Gauss-Newton all the way, as without the tail
-        first = after(after(first, newton), _solve(nlp, gauss_newton, verbose, progress))
+        first = after(after(first, newton), _solve(nlp, gauss_newton, verbose, progress, looks=frozenset({"cycle"})))
+    if first.cycling and not refinable:
+        settle = gauss_newton.model_copy(update={"ipopt": {**SETTLE_OPTIONS, **gauss_newton.ipopt}})
+        first = dataclasses.replace(after(first, _solve(nlp, settle, verbose, progress, start=first)), settled=True)
     crawled = first.return_status == "Maximum_Iterations_Exceeded" and limit >= AUTO_GAUSS_NEWTON_ITER
     if first.converged or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
         return first
@@ -400,18 +418,17 @@ def _solve(
     spec: Solver,
     verbose: bool,
     progress: TextIO | None,
-    watch: bool = False,
     start: SolveResult | None = None,
-    stops: frozenset[Stop] = frozenset(),
+    looks: frozenset[Look] = frozenset(),
 ) -> SolveResult:
     """One IPOPT run from the NLP's initial guess, or warm from `start`'s iterate and
-    multipliers; `watch`: stop Gauss-Newton in its slow tail, and in the `stops` given (Watch)."""
+    multipliers; Gauss-Newton stopped at what it `looks` for (Watch)."""
     built = build_solver(nlp, spec, verbose, warm=start is not None)
     args = nlp.bounds()
     if start is not None:
         args.update(x0=start.z, lam_x0=start.lam_x, lam_g0=start.lam_g)
     t0 = time.perf_counter()
-    sol, stats = built(args, None if verbose else progress, watch, stops)
+    sol, stats = built(args, None if verbose else progress, looks)
     wall = time.perf_counter() - t0
     return SolveResult(
         z=np.asarray(sol["x"]).ravel(),
