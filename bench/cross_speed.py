@@ -7,8 +7,8 @@ problem, pickup-joint.yaml, whose breakpoints run past the 56 km/h crush, is fit
 predicted at 64 km/h too. The corpus vehicles come in FAMILIES: a seed and the speed their
 structure is built for (56 km/h: the 64 km/h test crushes into the stiffening the generator puts
 past the crush a vehicle is built for; 64 km/h: it ends where that stiffening begins; 72 km/h: it
-stays inside the built structure). Two fits
-per vehicle, from minimal problem files (crashnlp.completion fills in the front end):
+stays inside the built structure). Two fits per vehicle, from minimal problem files
+(crashnlp.completion fills in the front end):
 
 - extrapolation: fit 40 + 56 km/h, predict 64 km/h (8 km/h past the fastest fitted test);
 - interpolation: fit 40 + 64 km/h, predict 56 km/h.

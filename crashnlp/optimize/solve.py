@@ -86,8 +86,8 @@ WANDER_OPTIONS = {"mu_strategy": "monotone", "mu_init": 1e-4}
 # Gauss-Newton starts again from the cycle's iterate, warm, and IPOPT stops at its own acceptable
 # level once SETTLE_OPTIONS hold for 15 iterations in a row: the objective steady to the fit's
 # tolerance (relative) with the constraints met. The dual infeasibility is not asked to fall, since
-# the derivatives' jump at the kink keeps it up; the parameters then move by a small fraction of
-# their standard errors from one iterate of the cycle to the next (docs/identification.md).
+# the derivatives' jump at the kink keeps it up. Going on round the cycle would move the parameters
+# by a few millionths of their standard errors (docs/identification.md).
 SETTLE_OPTIONS = {
     "acceptable_tol": 1e20,
     "acceptable_obj_change_tol": 1e-5,
