@@ -19,7 +19,7 @@ import numpy as np
 
 from crashnlp.errors import InputError
 from crashnlp.problem.load import problem_from_dict
-from crashnlp.problem.schema import Problem
+from crashnlp.problem.schema import BreakpointCount, Problem
 
 # the vehicle's geometry: a problem that gives other values describes another vehicle
 GEOMETRY = ("cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
@@ -199,15 +199,21 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
         if node is None or key not in node.model_fields_set or theirs is None:
             continue
         mine = getattr(node, key)
-        if isinstance(mine, list) or isinstance(theirs, list):
-            differs = not isinstance(mine, list) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
-        else:
-            differs = mine != theirs
-        if differs:
+        if _differs(mine, theirs):
             raise InputError(
                 f"{source}: model.{section}.{key} is {mine}, but the identified vehicle's is {theirs}: "
                 "another model (a result predicts the model it was fitted with)"
             )
+
+
+def _differs(mine: Any, theirs: Any) -> bool:
+    """Whether the problem's structure entry names another model than the identified one's: a list
+    differs in length or a value, a count (`{count: N}`, which the fit placed as N breakpoints) in N."""
+    if isinstance(mine, BreakpointCount):
+        return not isinstance(theirs, list) or mine.count != len(theirs)
+    if isinstance(mine, list) or isinstance(theirs, list):
+        return not isinstance(mine, list) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+    return mine != theirs
 
 
 def _same(a: float, b: float) -> bool:

@@ -13,6 +13,7 @@ import crashnlp
 from bench.corpus import PICKUP, measured, random_vehicle, simulate, write_csv
 from bench.robustness import minimal_problem
 from crashnlp.cli import main
+from crashnlp.errors import InputError
 from crashnlp.metrics import crash_metrics
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
@@ -116,6 +117,25 @@ def test_another_vehicle_is_refused_in_one_line(fitted, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "vehicle.cg_to_impact" in err and "Traceback" not in err
     assert not (folder / "o").exists()
+
+
+@pytest.mark.integration
+def test_a_breakpoint_count_predicts_where_it_is_the_count_the_fit_placed(fitted):
+    folder, _, raw, result, _ = fitted
+    placed = len(result.identified.model["spring"]["crush_breakpoints"])
+
+    def with_count(count: int):
+        new = yaml.safe_load(_new_speed(folder, raw, 48).read_text())
+        new["model"]["spring"]["crush_breakpoints"] = {"count": count}
+        path = folder / f"count-{count}.yaml"
+        path.write_text(yaml.safe_dump(new))
+        return path
+
+    same = crashnlp.simulate(with_count(placed), params=result)["new"]
+    plain = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
+    assert same.metrics["max_crush_m"] == pytest.approx(plain.metrics["max_crush_m"], rel=1e-9)
+    with pytest.raises(InputError, match="model.spring.crush_breakpoints"):
+        crashnlp.simulate(with_count(placed + 1), params=result)
 
 
 @pytest.mark.integration
