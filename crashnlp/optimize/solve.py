@@ -95,7 +95,7 @@ SETTLE_OPTIONS = {
     "acceptable_iter": 15,
 }
 Stop = Literal["cycle", "wander"]
-Look = Literal["tail", "cycle", "wander"]  # what the Watch looks for: the slow tail, and the stops
+Look = Literal["tail", Stop]  # what the Watch looks for: the slow tail, and the stops
 
 
 class Watch(ca.Callback):
