@@ -4,12 +4,14 @@ The given problem is never changed. What is filled, and how:
 
 - Crush from the data: the displacement channel, else the integral of velocity, else the
   integral of acceleration from the impact speed; samples from impact (t >= 0) on.
-- `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints (default 8),
-  evenly spaced from 0 to the largest crush of all tests (REACH = 1). Even spacing gives
-  every segment of the force-crush curve the same share of the crush range, and the data
-  reach every breakpoint: a breakpoint past the largest crush would carry a value the data
-  barely see, which a fit runs to where model-form error pulls it and a prediction at a
-  higher speed then meets. Past the last breakpoint the spring law continues its last segment.
+- `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints (default 8) from 0
+  to the largest crush of all tests (REACH = 1), where the measured loading curve (m |a|
+  against crush, all tests together) bends (crashnlp.segmentation): at the bumper's first
+  peak, the ends of plateaus, the start of a stack-up, which evenly spaced breakpoints put
+  corners inside. None lies past the largest crush, so the data reach every one: a breakpoint
+  past it would carry a value the data barely see, which a fit runs to where model-form error
+  pulls it and a prediction at a higher speed then meets. Past the last breakpoint the spring
+  law continues its last segment.
 - `values` omitted: the measured force-crush curve while loading (impact to largest crush),
   m |a| minus the damper's force, against the crush, averaged over the crush band nearest
   each breakpoint (halfway to its neighbours). A band the data do not reach takes the
@@ -41,6 +43,7 @@ from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem, with_fields
+from crashnlp.segmentation import bends
 from crashnlp.testcase import TestCase
 
 DEFAULT_COUNT = 8
@@ -105,9 +108,12 @@ def pulse(data: TestData, speed: float, mass: float) -> Pulse | None:
 
 
 def breakpoints(pulses: list[Pulse], count: int = DEFAULT_COUNT) -> list[float]:
-    """`count` breakpoints evenly from 0 to REACH times the largest crush of all pulses."""
+    """`count` breakpoints from 0 to REACH times the largest crush of all pulses, where their
+    measured loading curve (m |a| against crush) bends (crashnlp.segmentation)."""
     top = REACH * max(p.max_crush for p in pulses)
-    return [float(b) for b in np.linspace(0.0, top, count)]
+    crush = np.concatenate([p.crush[p.loading] for p in pulses])
+    force = np.concatenate([p.force[p.loading] for p in pulses])
+    return bends(crush, force, top, count)
 
 
 def measured_force(bps: list[float], pulses: list[Pulse], damper: Damper | None = None) -> np.ndarray:

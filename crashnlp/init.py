@@ -476,7 +476,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
         "model:",
         "  spring:",
         "    law: force",
-        _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, a little past the largest crush"),
+        _line(4, f"crush_breakpoints: {_flow(bps)}", f"m; to {bps[-1] * 1e3:.0f} mm, the largest crush; at its bends"),
         _line(4, f"values: [{', '.join(_q(x, 'kN', 1e-3, '.0f') for x in m.spring.known_values)}]", "measured force-crush curve"),
         _line(
             2,

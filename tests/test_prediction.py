@@ -196,6 +196,16 @@ def test_the_trend_is_the_segment_s_own_slope_only_where_the_data_cover_half_of_
     assert slope < 1.5e6  # not the wall's 15 MN/m
 
 
+def test_a_short_segment_gives_its_slope_only_over_half_a_mean_spacing():
+    """Breakpoints placed where the curve bends come unevenly: a short last segment the data
+    cover most of may still be only a few centimetres of crush, too little to set the trend."""
+    x = np.array([0.0, 0.05, 0.14, 0.25, 0.29, 0.35, 0.39, 0.46])  # mean spacing 0.066 m
+    assert trend_window(x, 0.38) == pytest.approx(0.46 / 7)  # 75 % of a 0.04 m segment: 0.03 m, too short
+    assert trend_window(x, 0.32) == pytest.approx(0.46 / 7)  # 50 % of 0.06 m: under half the mean spacing
+    assert trend_window(x, 0.20) == pytest.approx(0.06)  # 55 % of the 0.11 m segment: that part of it
+    assert trend_window(x, 0.17) == pytest.approx(0.46 / 7)  # 27 % of it: one spacing
+
+
 def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
 
     x = np.linspace(0.0, 0.6, 7)

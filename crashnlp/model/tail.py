@@ -7,11 +7,12 @@ shipped pickup fitted at 40 and 56 km/h, the value at 0.70 m (reached to 0.557 m
 3 MN bound, and a faster impact then meets a wall. A fit's identified model therefore bends its
 loading curve, just past the reach, into a straight line along the curve's trend
 (`trend_tail`, put into `model.spring.tail` by crashnlp.optimize.outcome): the slope of the
-segment in which the reach lies, where the data cover at least half of it (the curve's own
-slope where the data end); where they cover less, that slope is set by a few millimetres of
-crush and the model's misfit, and the least-squares slope over the last breakpoint spacing
-(across the segment before) stands in. The slope is never negative: a falling force continued
-without end would reach zero and stop resisting crush, which no front end does.
+segment in which the reach lies, where the data cover at least half of it and at least half
+the mean breakpoint spacing (the curve's own slope where the data end); where they cover less,
+that slope is set by a few millimetres of crush and the model's misfit, and the least-squares
+slope over the mean breakpoint spacing (across the segment before) stands in. The slope is
+never negative: a falling force continued without end would reach zero and stop resisting
+crush, which no front end does.
 
 `trend_misses` measures the rule on the identified curve itself: from each breakpoint inside the
 reach, the trend of the curve before it predicts the force one spacing on. Those misses, grown
@@ -45,12 +46,12 @@ def trend_slope(curve: Curve, reach: float, window: float) -> float:
 
 def trend_window(breakpoints: np.ndarray, reach: float) -> float:
     """The crush over which the trend at the reach is taken (m): the part of its segment the data
-    cover, where they cover at least COVERED of it; else one breakpoint spacing, across the
-    segment before."""
+    cover, where that is at least COVERED of the segment and of the mean spacing (breakpoints
+    placed where the curve bends can be close); else one mean spacing, across the segment before."""
     x = np.asarray(breakpoints, float)
     k = int(np.clip(np.searchsorted(x, reach, side="right") - 1, 0, x.size - 2))
     covered = reach - x[k]
-    return covered if covered >= COVERED * (x[k + 1] - x[k]) else spacing(x)
+    return covered if covered >= COVERED * max(x[k + 1] - x[k], spacing(x)) else spacing(x)
 
 
 def trend_tail(curve: Curve, breakpoints: np.ndarray, reach: float, eps: float) -> tuple[float, float]:
