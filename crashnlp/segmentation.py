@@ -17,7 +17,7 @@ import numpy as np
 
 BANDS = 70  # crush bands the curve is averaged over (at least 4 per segment)
 MIN_SPACING = 0.6  # the shortest segment, relative to the even spacing
-EVEN_WEIGHT = 1e-6  # the tie-break toward even segments, relative to the curve's variance
+EVEN_WEIGHT = 1e-6  # the tie-break toward even segments, relative to the curve's sum of squares
 
 
 def bends(crush: np.ndarray, force: np.ndarray, top: float, count: int) -> list[float]:
@@ -27,7 +27,8 @@ def bends(crush: np.ndarray, force: np.ndarray, top: float, count: int) -> list[
     edges = np.linspace(0.0, top, bands + 1)
     at, means = band_means(crush, force, edges)
     shortest = max(2, int(np.ceil(MIN_SPACING * bands / segments)))
-    cost = line_misfits(at, means) + EVEN_WEIGHT * float(np.var(means)) * bands * _squared_lengths(bands) / bands**2
+    spread = float(np.sum((means - np.mean(means)) ** 2))  # the curve's own sum of squares
+    cost = line_misfits(at, means) + EVEN_WEIGHT * spread * _shares(bands) ** 2
     return [float(edges[c]) for c in _split(cost, segments, shortest)]
 
 
@@ -54,9 +55,10 @@ def line_misfits(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return np.where(n >= 2, np.maximum(cost, 0.0), np.inf)
 
 
-def _squared_lengths(bands: int) -> np.ndarray:
+def _shares(bands: int) -> np.ndarray:
+    """shares[i, j]: the share of all bands that bands i to j - 1 make."""
     i = np.arange(bands + 1)
-    return (i[None, :] - i[:, None]).astype(float) ** 2
+    return (i[None, :] - i[:, None]) / bands
 
 
 def _split(cost: np.ndarray, segments: int, shortest: int) -> list[int]:
@@ -69,10 +71,9 @@ def _split(cost: np.ndarray, segments: int, shortest: int) -> list[int]:
     for k in range(1, segments + 1):
         for j in range(k * shortest, bands + 1):
             starts = np.arange((k - 1) * shortest, j - shortest + 1)
-            if starts.size:
-                total = best[k - 1, starts] + cost[starts, j]
-                came_from[k, j] = starts[int(np.argmin(total))]
-                best[k, j] = float(np.min(total))
+            total = best[k - 1, starts] + cost[starts, j]
+            came_from[k, j] = starts[int(np.argmin(total))]
+            best[k, j] = float(np.min(total))
     cuts = [bands]
     for k in range(segments, 0, -1):
         cuts.append(int(came_from[k, cuts[-1]]))
