@@ -111,15 +111,19 @@ def breakpoints(pulses: list[Pulse], count: int = DEFAULT_COUNT) -> list[float]:
     """`count` breakpoints from 0 to REACH times the largest crush of all pulses, where their
     measured loading curve (m |a| against crush) bends (crashnlp.segmentation)."""
     top = REACH * max(p.max_crush for p in pulses)
+    return bends(*loading_curve(pulses), top, count)
+
+
+def loading_curve(pulses: list[Pulse], damper: Damper | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Every pulse's samples while loading, together: crush, and m |a| less the damper's force."""
     crush = np.concatenate([p.crush[p.loading] for p in pulses])
-    force = np.concatenate([p.force[p.loading] for p in pulses])
-    return bends(crush, force, top, count)
+    force = np.concatenate([p.force[p.loading] - _damper_force(damper, p.rate[p.loading]) for p in pulses])
+    return crush, force
 
 
 def measured_force(bps: list[float], pulses: list[Pulse], damper: Damper | None = None) -> np.ndarray:
     """Mean measured spring force while loading over the crush band nearest each breakpoint."""
-    crush = np.concatenate([p.crush[p.loading] for p in pulses])
-    force = np.concatenate([p.force[p.loading] - _damper_force(damper, p.rate[p.loading]) for p in pulses])
+    crush, force = loading_curve(pulses, damper)
     edges = np.concatenate([[-np.inf], 0.5 * (np.asarray(bps[1:]) + np.asarray(bps[:-1])), [np.inf]])
     band = np.searchsorted(edges, crush, side="right") - 1
     values = np.full(len(bps), np.nan)
