@@ -25,7 +25,8 @@ import numpy as np
 from crashnlp.derivatives import Derivatives, MappedBlock
 from crashnlp.runtime import mapped
 
-SUCCESS = ("Solve_Succeeded", "Solved_To_Acceptable_Level")
+ACCEPTABLE = "Solved_To_Acceptable_Level"  # IPOPT stopped at its acceptable level (solve.STEADY_OPTIONS)
+SUCCESS = ("Solve_Succeeded", ACCEPTABLE)
 
 
 def _fill(value, shape: tuple[int, int]) -> np.ndarray:

@@ -13,9 +13,10 @@ from crashnlp.case import Case
 from crashnlp.completion import measured_pulse, repaired_start
 from crashnlp.errors import InputError
 from crashnlp.model.pendulum import OUTPUTS
+from crashnlp.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.solve import SETTLE_OPTIONS, SolveResult, after, solve
+from crashnlp.optimize.solve import SETTLE_OPTIONS, STEADY_OPTIONS, SolveResult, after, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
@@ -175,8 +176,8 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         result = after(
             result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, refinable=_refinable(case))
         )
-    if result.settled and result.converged:
-        notes.append(note := _settled(case))
+    if result.converged and (result.settled or result.return_status == ACCEPTABLE):
+        notes.append(note := _settled(case) if result.settled else _steady(case))
         _say(note, progress)
     solution = _finished(case, ocp, fit, result, theta0)
     solution.notes = notes
@@ -216,6 +217,17 @@ def _settled(case: Case) -> str:
         f"{case.name}: IPOPT's iterates circled the optimum at {where} (a kink of the force laws crossed inside a "
         f"step); stopped at IPOPT's acceptable level: the objective steady to {SETTLE_OPTIONS['acceptable_obj_change_tol']:g}"
         f" over {SETTLE_OPTIONS['acceptable_iter']} iterations, the constraints met"
+    )
+
+
+def _steady(case: Case) -> str:
+    """The line that says a fit stopped at IPOPT's acceptable level with its objective steady
+    (crashnlp.optimize.solve.STEADY_OPTIONS)."""
+    return (
+        f"{case.name}: the objective steady to {STEADY_OPTIONS['acceptable_obj_change_tol']:g} over"
+        f" {STEADY_OPTIONS['acceptable_iter']} iterations with the constraints met: stopped at IPOPT's acceptable level,"
+        " short of its tolerance (as where a kink of the force laws, crossed inside an integration step, holds the"
+        " dual infeasibility up)"
     )
 
 
