@@ -25,7 +25,7 @@ import numpy as np
 from crashnlp.derivatives import Derivatives, MappedBlock
 from crashnlp.runtime import mapped
 
-ACCEPTABLE = "Solved_To_Acceptable_Level"  # IPOPT stopped at its acceptable level (solve.STEADY_OPTIONS)
+ACCEPTABLE = "Solved_To_Acceptable_Level"  # IPOPT stopped at its acceptable level (solve.STEADY_OPTIONS, SETTLE_OPTIONS)
 SUCCESS = ("Solve_Succeeded", ACCEPTABLE)
 
 

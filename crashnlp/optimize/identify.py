@@ -215,8 +215,7 @@ def _settled(case: Case) -> str:
     where = f"{spec.substeps} RK4 steps per interval" if isinstance(spec, MultipleShootingSpec) else "its collocation grid"
     return (
         f"{case.name}: IPOPT's iterates circled the optimum at {where} (a kink of the force laws crossed inside a "
-        f"step); stopped at IPOPT's acceptable level: the objective steady to {SETTLE_OPTIONS['acceptable_obj_change_tol']:g}"
-        f" over {SETTLE_OPTIONS['acceptable_iter']} iterations, the constraints met"
+        f"step); stopped at IPOPT's acceptable level: {_steady_for(case, SETTLE_OPTIONS)}"
     )
 
 
@@ -224,10 +223,19 @@ def _steady(case: Case) -> str:
     """The line that says a fit stopped at IPOPT's acceptable level with its objective steady
     (crashnlp.optimize.solve.STEADY_OPTIONS)."""
     return (
-        f"{case.name}: the objective steady to {STEADY_OPTIONS['acceptable_obj_change_tol']:g} over"
-        f" {STEADY_OPTIONS['acceptable_iter']} iterations with the constraints met: stopped at IPOPT's acceptable level,"
-        " short of its tolerance (as where a kink of the force laws, crossed inside an integration step, holds the"
-        " dual infeasibility up)"
+        f"{case.name}: {_steady_for(case, STEADY_OPTIONS)}: stopped at IPOPT's acceptable level, short of its"
+        " tolerance (as where a kink of the force laws, crossed inside an integration step, holds the dual"
+        " infeasibility up)"
+    )
+
+
+def _steady_for(case: Case, defaults: dict[str, float]) -> str:
+    """How steady IPOPT's acceptable level asked the objective to be: the run's `defaults`, with
+    the problem's own solver.ipopt options winning, as they do in the run."""
+    options = {**defaults, **case.problem.solver.ipopt}
+    return (
+        f"the objective steady to {options['acceptable_obj_change_tol']:g} over {options['acceptable_iter']} iterations,"
+        " the constraints met"
     )
 
 
