@@ -7,8 +7,9 @@ problem, pickup-joint.yaml, whose breakpoints run past the 56 km/h crush, is fit
 predicted at 64 km/h too. The corpus vehicles come in FAMILIES: a seed and the speed their
 structure is built for (56 km/h: the 64 km/h test crushes into the stiffening the generator puts
 past the crush a vehicle is built for; 64 km/h: it ends where that stiffening begins; 72 km/h: it
-stays inside the built structure). Two fits per vehicle, from minimal problem files
-(crashnlp.completion fills in the front end):
+stays inside the built structure), and two of vans and tall SUVs, whose CG sits higher above the
+impact point than the corpus's (0.30-0.45 m against 0.04-0.26 m), so that they pitch more. Two
+fits per vehicle, from minimal problem files (crashnlp.completion fills in the front end):
 
 - extrapolation: fit 40 + 56 km/h, predict 64 km/h (8 km/h past the fastest fitted test);
 - interpolation: fit 40 + 64 km/h, predict 56 km/h.
@@ -33,7 +34,7 @@ from scipy.interpolate import PchipInterpolator
 
 import crashnlp
 from bench.common import PROBLEMS
-from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, write_csv
+from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, tall_vehicle, write_csv
 from bench.robustness import WINDOW, minimal_problem
 from crashnlp.metrics import crash_metrics
 from crashnlp.units import G0
@@ -46,18 +47,40 @@ TARGETS = {
     "coverage": 0.85,
     "iterations": 100,
 }
-FAMILIES = ((2030, 56.0), (2031, 56.0), (2041, 64.0), (2032, 72.0))  # (seed, km/h the structure is built for)
 COUNT = 6  # corpus vehicles per family
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """Corpus vehicles of one seed, each built for one speed (its structure, tested at any
+    speed); `tall`: vans and tall SUVs (bench.corpus.tall_vehicle)."""
+
+    seed: int
+    built_kmh: float
+    tall: bool = False
+
+    @property
+    def label(self) -> str:
+        return f"seed {self.seed}, {'tall, ' if self.tall else ''}built for {self.built_kmh:g} km/h"
+
+    def vehicles(self, count: int = COUNT) -> list[Vehicle]:
+        make = tall_vehicle if self.tall else random_vehicle
+        return [make(i, self.seed, speed=self.built_kmh / 3.6) for i in range(count)]
+
+
+FAMILIES = (
+    Family(2030, 56.0),
+    Family(2031, 56.0),
+    Family(2041, 64.0),
+    Family(2032, 72.0),
+    Family(2050, 56.0, tall=True),
+    Family(2051, 64.0, tall=True),
+)
 PICKUP_FAMILY = "the shared pickup"  # its shipped and minimal problems
 SHIPPED = (
     PROBLEMS / "pickup-joint.yaml"
 )  # the shipped joint fit, its breakpoints past the 56 km/h crush: predicted at 64 km/h too
 INTERVAL_METRICS = {"max_crush_m": "crush", "peak_decel_g": "peak"}
-
-
-def vehicles(count: int, seed: int, built_kmh: float) -> list[Vehicle]:
-    """`count` corpus vehicles of a family, each built for `built_kmh` (its structure, tested at any speed)."""
-    return [random_vehicle(i, seed, speed=built_kmh / 3.6) for i in range(count)]
 
 
 def at_speed(v: Vehicle, kmh: float) -> Vehicle:
@@ -70,9 +93,10 @@ def test_entry(kmh: float, data: dict | None = None) -> dict:
     return {**entry, "data": data} if data is not None else {**entry, "duration": WINDOW[1]}
 
 
-def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path) -> Path:
-    """The minimal problem of a joint fit at `speeds`, its CSVs written beside it."""
-    problem = minimal_problem(v, "unused.csv")
+def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path, transcription: dict | None = None) -> Path:
+    """The minimal problem of a joint fit at `speeds` (with `transcription`, else the default one),
+    its CSVs written beside it."""
+    problem = minimal_problem(v, "unused.csv", transcription)
     problem["vehicle"].pop("speed")
     problem["name"] = f"{v.name}-{'-'.join(f'{s:.0f}' for s in speeds)}"
     tests = []
@@ -99,14 +123,19 @@ def prediction_problem(fit_path: Path, kmh: float, folder: Path) -> crashnlp.Pro
 def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
     truth = simulate(at_speed(v, kmh))
     m = crash_metrics(truth["time"], truth["accel"], truth["velocity"], truth["displacement"])
-    return {"max_crush_m": m.max_crush, "peak_decel_g": m.peak_decel / G0, "time_zero_velocity_s": m.t_zero_velocity}
+    return {
+        "max_crush_m": m.max_crush,
+        "peak_decel_g": m.peak_decel / G0,
+        "time_zero_velocity_s": m.t_zero_velocity,
+        "max_pitch_deg": float(np.degrees(np.max(truth["pitch"]))),
+    }
 
 
-def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None) -> dict:
+def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None, transcription: dict | None = None) -> dict:
     """Fit one vehicle at two speeds, predict the third, compare with the generator; the fit's
-    problem is the minimal one, or `shipped`."""
+    problem is the minimal one (with `transcription`), or `shipped`."""
     fitted, target = SPLITS[split]
-    path = fit_problem(v, fitted, folder) if shipped is None else shipped
+    path = fit_problem(v, fitted, folder, transcription) if shipped is None else shipped
     t0 = time.perf_counter()
     result = crashnlp.identify(path)
     wall = time.perf_counter() - t0
@@ -119,12 +148,17 @@ def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None) -> 
     }
     if not result.ok:
         return row
+    pitch_rmse = result.identified.channel_rmse.get("pitch")
+    row.update(
+        lever_m=result.identified.vehicle["crush_offset"], pitch_rmse_deg=None if pitch_rmse is None else np.degrees(pitch_rmse)
+    )
     test = crashnlp.simulate(prediction_problem(path, target, folder), params=result)[f"{target:.0f}kph"]
     real = truth_metrics(v, target)
     row.update(
         crush_rel=test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,
         peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
         stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
+        pitch_err_deg=test.metrics["max_pitch_deg"] - real["max_pitch_deg"],
         covered={
             key: bool(test.intervals[key][0] <= real[key] <= test.intervals[key][1]) if test.intervals.get(key) else False
             for key in INTERVAL_METRICS
@@ -179,10 +213,6 @@ def summary(rows: list[dict]) -> dict:
     return out
 
 
-def family(seed: int, built_kmh: float) -> str:
-    return f"seed {seed}, built for {built_kmh:g} km/h"
-
-
 def run(quick: bool = False) -> dict:
     """The bench section: the shipped pickup-joint problem, then the pickup and each family's
     corpus vehicles from minimal problems (the first family's first two with --quick), both
@@ -192,9 +222,8 @@ def run(quick: bool = False) -> dict:
     with tempfile.TemporaryDirectory(prefix="crashnlp-cross-speed-") as tmp:
         jobs = [(PICKUP, "extrapolation", SHIPPED, PICKUP_FAMILY)]
         jobs += [(PICKUP, split, None, PICKUP_FAMILY) for split in SPLITS]
-        for seed, built in families:
-            count = 2 if quick else COUNT
-            jobs += [(v, split, None, family(seed, built)) for v in vehicles(count, seed, built) for split in SPLITS]
+        for f in families:
+            jobs += [(v, split, None, f.label) for v in f.vehicles(2 if quick else COUNT) for split in SPLITS]
         for v, split, shipped, label in jobs:
             folder = Path(tmp) / re.sub(r"\W+", "-", label)
             folder.mkdir(exist_ok=True)
@@ -209,7 +238,7 @@ def run(quick: bool = False) -> dict:
             print(line, flush=True)
     by_family = {label: summary([r for r in rows if r["family"] == label]) for label in dict.fromkeys(r["family"] for r in rows)}
     return {
-        "families": [list(f) for f in families],
+        "families": [dataclasses.asdict(f) for f in families],
         "speeds_kmh": SPEEDS_KMH,
         "targets": TARGETS,
         "summary": {**summary(rows), "families": by_family},

@@ -313,6 +313,8 @@ def cross_speed_md(r: dict) -> list[str]:
             f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
             f"{sum(x['covered'].values())} of {len(x['covered'])}" if ok(x) else "",
             f"{x['load_rise']:.2f}" if "load_rise" in x else "",
+            f"{x['pitch_err_deg']:+.1f}" if ok(x) else "",
+            f"{x['pitch_rmse_deg']:.2f}" if x.get("pitch_rmse_deg") is not None else "",
         ]
         for x in r["fits"]
     ]
@@ -336,7 +338,8 @@ def cross_speed_md(r: dict) -> list[str]:
         "whether the 95 % intervals hold the generator's max crush and peak deceleration; load rise: the generator's "
         "load at the predicted test's largest crush over its load at the fitted tests' largest, how much the structure "
         "stiffens where only the prediction goes (the corpus's load curves double at 1.15 times the crush each vehicle "
-        "was built for: built for 56 km/h, the 64 km/h test crushes into that rise). The targets above count every fit.",
+        "was built for: built for 56 km/h, the 64 km/h test crushes into that rise); max pitch: the predicted test's max pitch less the "
+        "generator's; pitch RMSE: the fit's miss of the measured pitch on its own tests. The targets above count every fit.",
         "",
         *_table(
             ["family", *(f"{split}s within {_goal(r['targets'][split])}" for split in SPLITS), "covered", "iterations, largest"],
@@ -355,6 +358,8 @@ def cross_speed_md(r: dict) -> list[str]:
                 "stop (ms)",
                 "covered",
                 "load rise (x)",
+                "max pitch (deg)",
+                "pitch RMSE, fitted (deg)",
             ],
             rows,
         ),

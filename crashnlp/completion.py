@@ -26,7 +26,7 @@ The given problem is never changed. What is filled, and how:
 - `estimate` omitted (identification): the spring values within [0, 5 times the largest
   initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
   and where a test has a pitch channel the CG height above the impact point, the pitch
-  inertia and the pitch lever within the physical bounds of PITCH_BOUNDS; with tests at
+  inertia and the pitch lever within physical bounds (`pitch_lever_bounds`); with tests at
   speeds more than SPEED_SPREAD apart also the damper, within [0, DAMPER_BOUND_FACTOR times
   the nominal one], since two speeds separate it from the spring.
 """
@@ -50,14 +50,16 @@ DEFAULT_COUNT = 8
 REACH = 1.0
 DAMPING_PER_MASS = 2.0  # 1/s: nominal damper per kg of vehicle
 DAMPER_BOUND_FACTOR = 10.0  # the estimated damper's upper bound: this times the nominal one
-SPEED_SPREAD = 0.1  # relative: tests at speeds further apart separate the damper from the spring
+SPEED_SPREAD = 0.1  # relative: tests at speeds further apart are at several speeds (`several_speeds`)
 NOMINAL_UNLOADING = 3.0e7  # N/m
 UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
 SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
 
 # The pitch lever: the offset of the crush force's line of action from the pivot-CG line (m),
-# positive nose-down. Its bounds are those of an effective lever: the pendulum's body pitches
-# with the pivot-CG line, so it needs a larger lever than the rails' height below the CG.
+# positive nose-down; its moment about the CG is the lever times the force. The bounds of an
+# effective lever (PITCH_LEVER_BOUNDS): the pendulum's body pitches with the pivot-CG line, so it
+# needs a larger lever than the rails' height below the CG; fitted at several speeds, the
+# physical one (`pitch_lever_bounds`).
 PITCH_LEVER = "vehicle.crush_offset"
 PITCH_LEVER_BOUNDS = (-0.5, 1.0)  # m
 # CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
@@ -174,9 +176,10 @@ def unloading_stiffness(pulses: list[Pulse]) -> float:
     return float(np.clip(np.mean(estimates), *UNLOADING_BOUNDS)) if estimates else NOMINAL_UNLOADING
 
 
-def separates_damper(pulses: list[Pulse]) -> bool:
-    """Whether the tests' impact speeds lie far enough apart (SPEED_SPREAD) to tell the
-    crush-rate damper from the crush spring: at one speed crush and crush rate move together."""
+def several_speeds(pulses: list[Pulse]) -> bool:
+    """Whether the tests' impact speeds lie far enough apart (SPEED_SPREAD) to count as several:
+    they tell the crush-rate damper from the crush spring (at one speed crush and crush rate move
+    together), and they ask one loading curve to serve several pitches (`pitch_lever_bounds`)."""
     speeds = [p.speed for p in pulses]
     return len(speeds) > 1 and max(speeds) > (1 + SPEED_SPREAD) * min(speeds)
 
@@ -188,14 +191,31 @@ def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, Estimat
     out = {"model.spring.values": EstimateSpec(bounds=(0.0, top))}
     if problem.model.unloading.law == "plastic":
         out["model.unloading.stiffness"] = EstimateSpec(bounds=UNLOADING_BOUNDS)
-    if problem.model.damper is not None and separates_damper(pulses):
+    if problem.model.damper is not None and several_speeds(pulses):
         out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * mass))
     if any(p.has_pitch for p in pulses):
         lo, hi = PITCH_GYRATION_BOUNDS
         out["vehicle.cg_above_impact"] = EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS)
         out["vehicle.pitch_inertia"] = EstimateSpec(bounds=(mass * lo**2, mass * hi**2))
-        out[PITCH_LEVER] = EstimateSpec(bounds=PITCH_LEVER_BOUNDS)
+        out[PITCH_LEVER] = EstimateSpec(bounds=pitch_lever_bounds(problem, pulses))
     return out
+
+
+def pitch_lever_bounds(problem: Problem, pulses: list[Pulse]) -> tuple[float, float]:
+    """The estimated pitch lever's bounds (m): PITCH_LEVER_BOUNDS, but with tests at several speeds
+    up to the CG's height above the impact point as the problem gives it (not below zero).
+
+    The wall pushes the front end back where it meets the barrier, so the crush force's moment
+    about the CG is at most the force times that height; the lever's moment is the lever times the
+    force. The pendulum's body turns about the impact point, with inertia m l0^2 + I, not about
+    its CG, so a larger lever fits the measured pitch closer (about h m l0^2 / I, two to four
+    times h), and the crush pays for the lever's moment: the model's front end gives up that many
+    times the crush a real one gives up to the same pitch. A fit of one test absorbs that into its
+    loading curve and predicts other speeds as well with either bound. Fitted at two speeds, one
+    curve has to serve two pitches, and with the larger lever it predicts a third speed wrong
+    (docs/design-notes.md, "The pitch lever")."""
+    low, high = PITCH_LEVER_BOUNDS
+    return (low, max(float(problem.vehicle.cg_above_impact), 0.0)) if several_speeds(pulses) else (low, high)
 
 
 def _required(pulses: list[Pulse], what: str) -> list[Pulse]:

@@ -13,10 +13,12 @@ from crashnlp.case import Case
 from crashnlp.completion import (
     DEFAULT_COUNT,
     PITCH_LEVER,
+    PITCH_LEVER_BOUNDS,
     REACH,
     breakpoints,
     complete,
     measured_pulses,
+    pitch_lever_bounds,
     repaired_start,
     spring_values,
     unloading_stiffness,
@@ -97,7 +99,23 @@ def test_minimal_problem_is_completed_without_changing_the_given_one():
     }
     lo, hi = bounds["vehicle.pitch_inertia"]
     assert lo < 4800 < hi and bounds["vehicle.cg_above_impact"][0] < 0.18 < bounds["vehicle.cg_above_impact"][1]
+    assert bounds[PITCH_LEVER] == PITCH_LEVER_BOUNDS  # one test: an effective lever's bounds
     assert bounds["model.spring.values"][1] >= 2 * max(filled.model.spring.values)
+
+
+@pytest.mark.parametrize(("height", "top"), [("0.42 m", 0.42), ("0 m", 0.0), ("-0.05 m", 0.0)])
+def test_at_several_speeds_the_pitch_lever_reaches_up_to_the_cg_height_above_the_impact_point(height, top, pickup_case):
+    """The wall's force acts where the front end meets it, so its moment about the CG is at most the
+    force times the CG's height above the impact point; a CG at or below it gets no nose-down lever.
+    A fit of one test keeps the effective lever's bounds."""
+    problem = problem_from_dict(pickup(vehicle={"cg_above_impact": height}, estimate=None), PICKUP.parent)
+    (measured,) = measured_pulses(pickup_case.problem, pickup_case.tests)
+    slower = dataclasses.replace(measured, speed=40 / 3.6)
+    assert pitch_lever_bounds(problem, [measured, slower]) == (PITCH_LEVER_BOUNDS[0], pytest.approx(top))
+    assert (
+        pitch_lever_bounds(problem, [measured, dataclasses.replace(measured, speed=0.95 * measured.speed)]) == PITCH_LEVER_BOUNDS
+    )
+    assert pitch_lever_bounds(problem, [measured]) == PITCH_LEVER_BOUNDS
 
 
 def test_no_pitch_channel_estimates_the_front_end_only():
