@@ -25,8 +25,8 @@ The given problem is never changed. What is filled, and how:
   without a measured rebound the nominal 30 MN/m.
 - `estimate` omitted (identification): the spring values within [0, 5 times the largest
   initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
-  and where a test has a pitch channel the CG height above the impact point, the pitch
-  inertia and the pitch lever within physical bounds (`pitch_lever_bounds`); with tests at
+  and where a test has a pitch channel the CG height above the impact point and the pitch
+  inertia within physical bounds and the pitch lever within `pitch_lever_bounds`; with tests at
   speeds more than SPEED_SPREAD apart also the damper, within [0, DAMPER_BOUND_FACTOR times
   the nominal one], since two speeds separate it from the spring.
 """
@@ -214,8 +214,9 @@ def pitch_lever_bounds(problem: Problem, pulses: list[Pulse]) -> tuple[float, fl
     loading curve and predicts other speeds as well with either bound. Fitted at two speeds, one
     curve has to serve two pitches, and with the larger lever it predicts a third speed wrong
     (docs/design-notes.md, "The pitch lever")."""
-    low, high = PITCH_LEVER_BOUNDS
-    return (low, max(float(problem.vehicle.cg_above_impact), 0.0)) if several_speeds(pulses) else (low, high)
+    if not several_speeds(pulses):
+        return PITCH_LEVER_BOUNDS
+    return PITCH_LEVER_BOUNDS[0], max(float(problem.vehicle.cg_above_impact), 0.0)
 
 
 def _required(pulses: list[Pulse], what: str) -> list[Pulse]:
