@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import os
+import signal
 from pathlib import Path
 
 import numpy as np
@@ -97,6 +98,45 @@ def assert_exact_hessian_is_casadis(nlp, z: np.ndarray, lam_f: float, seed: int)
     assert np.abs(expected).max() > 0
     assert np.max(np.abs(H.full() - expected)) <= 1e-9 * np.abs(expected).max()
     assert set(zip(*reference.sparsity_out(0).get_triplet())) <= set(zip(*H.sparsity().get_triplet()))
+
+
+def parents() -> dict[int, int]:
+    """Every process's parent, from /proc (Linux)."""
+    found: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                stat = (entry / "stat").read_text()
+            except OSError:
+                continue
+            found[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    return found
+
+
+def descendants(pid: int) -> set[int]:
+    """Every process below `pid`, from /proc (Linux)."""
+    parent = parents()
+    found, frontier = set(), {pid}
+    while frontier:
+        frontier = {p for p, pp in parent.items() if pp in frontier} - found
+        found |= frontier
+    return found
+
+
+def die_once(marker: str) -> int:
+    """A task whose worker is killed (SIGKILL) the first time it runs, as by the kernel's OOM
+    killer or a user's kill; `marker` is the file that remembers it ran. Returns the pid."""
+    path = Path(marker)
+    if not path.exists():
+        path.touch()
+        os.kill(os.getpid(), signal.SIGKILL)
+    return os.getpid()
+
+
+def die_always(_) -> int:
+    """A task whose worker is killed every time it runs."""
+    os.kill(os.getpid(), signal.SIGKILL)
+    return os.getpid()
 
 
 def worker_pid(_) -> int:

@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, descendants, merge
 
 from crashnlp.cli import main
 from crashnlp.jsonfile import write_json
@@ -281,23 +281,6 @@ def test_corrupt_case_files_are_solved_again(tmp_path):
         assert store.row("case-000", "k") is None
 
 
-def _descendants(pid: int) -> set[int]:
-    """Every process below `pid`, from /proc (Linux)."""
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                stat = (entry / "stat").read_text()
-            except OSError:
-                continue
-            parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
-    found, frontier = set(), {pid}
-    while frontier:
-        frontier = {p for p, pp in parents.items() if pp in frontier} - found
-        found |= frontier
-    return found
-
-
 def _alive(pid: int) -> bool:
     try:
         state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
@@ -320,7 +303,7 @@ def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
     # study must not finish before it is signalled)
     while time.monotonic() < deadline and len(children) < 4 and not list(out.glob("cases/*.json")):
         time.sleep(0.1)
-        children |= _descendants(proc.pid)
+        children |= descendants(proc.pid)
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 143, err
@@ -354,8 +337,8 @@ def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_pat
     deadline, started = time.monotonic() + 60, set()
     while time.monotonic() < deadline and not any("cc1" in _command(p) for p in started):
         time.sleep(0.1)
-        started |= _descendants(proc.pid)
-    started |= _descendants(proc.pid)
+        started |= descendants(proc.pid)
+    started |= descendants(proc.pid)
     assert any("cc1" in _command(p) for p in started), "no background compile was started"
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
@@ -381,9 +364,9 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
     source.write_text("".join(f"double f{i}(double x) {{ return x * {i} + x * x / {i + 1}; }}\n" for i in range(100_000)))
     job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not any("cc1" in _command(p) for p in _descendants(job.pid)):
+    while time.monotonic() < deadline and not any("cc1" in _command(p) for p in descendants(job.pid)):
         time.sleep(0.05)
-    group = _descendants(job.pid) | {job.pid}
+    group = descendants(job.pid) | {job.pid}
     assert any("cc1" in _command(p) for p in group)
     compile_job.stop_compiles()
     time.sleep(0.2)

@@ -5,18 +5,21 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+import signal
 import subprocess
 import sys
+import time
+from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge, worker_pid
+from builders import BASE, ROOT, die_always, die_once, merge, parents, worker_pid
 
 from crashnlp.case import Case
-from crashnlp.engine.executors import LocalExecutor
-from crashnlp.engine.schedule import run_tree
+from crashnlp.engine.executors import WORKER_DEATHS, DaskExecutor, LocalExecutor
+from crashnlp.engine.schedule import map_all, run_tree
 from crashnlp.errors import InputError
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
@@ -274,6 +277,77 @@ def test_tables_agree_for_one_and_two_workers_and_dask(small, tmp_path, compiled
     assert sorted(p.name for p in cache.glob("nlp-*")) == libraries
     tables = [without_wall_time(read_table(tmp_path / name / "table.csv")) for name in ("one", "two", "dask")]
     assert tables[0] == tables[1] == tables[2]
+
+
+@pytest.mark.integration
+def test_a_task_whose_worker_is_killed_runs_again_on_a_fresh_worker(tmp_path):
+    """Each of three tasks kills its worker the first time: each runs again and finishes; a
+    task that kills its worker every time ends as the pool's error after WORKER_DEATHS reruns,
+    and the others are not held up by it."""
+    executor = LocalExecutor(2)
+    items = [str(tmp_path / f"ran-{n}") for n in range(3)]
+    try:
+        pid = dict(map_all(executor, die_once, items))
+        last = dict(map_all(executor, die_always, [None]))
+    finally:
+        executor.close()
+    assert all(isinstance(p, int) for p in pid.values()) and len(pid) == 3
+    assert all(Path(item).exists() for item in items)
+    assert isinstance(last[0], BrokenProcessPool)
+    assert WORKER_DEATHS >= 1
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_a_dask_task_whose_worker_is_lost_runs_on_another(tmp_path):
+    """On a LocalCluster, tasks bound to workers that die under them run again elsewhere."""
+    executor = DaskExecutor(2)
+    items = [str(tmp_path / f"ran-{n}") for n in range(3)]
+    try:
+        pid = dict(map_all(executor, die_once, items))
+    finally:
+        executor.close()
+    assert all(isinstance(p, int) for p in pid.values()) and len(pid) == 3
+
+
+def _workers_of(pid: int) -> set[int]:
+    """The pool workers below a crashnlp process: the children of its fork server's process."""
+    parent = parents()
+    below = {p for p, pp in parent.items() if pp == pid}
+    return {p for p, pp in parent.items() if pp in below and "forkserver" in _cmdline(pp)}
+
+
+def _cmdline(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+@pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
+def test_a_study_whose_worker_is_killed_mid_case_completes_with_the_same_table(small, tmp_path):
+    """SIGKILL to one of the two workers while it solves a case: the command ends 0 and its
+    table is the undisturbed run's."""
+    study = write_study(small)
+    calm = run_study(study, tmp_path / "calm", workers=2, progress=False)
+    out = tmp_path / "killed"
+    argv = [sys.executable, "-m", "crashnlp.cli", "study", str(study), "--out", str(out), "--workers", "2", "--no-progress"]
+    proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline, killed = time.monotonic() + 60, None
+    while killed is None and time.monotonic() < deadline and proc.poll() is None:
+        workers = _workers_of(proc.pid)
+        if workers and not list(out.glob("cases/*.json")):
+            time.sleep(0.3)  # into its case
+            killed = min(workers)
+            os.kill(killed, signal.SIGKILL)
+        time.sleep(0.05)
+    _, err = proc.communicate(timeout=120)
+    assert killed is not None, "no worker was seen to kill"
+    assert proc.returncode == 0, err
+    assert without_wall_time(read_table(out / "table.csv")) == without_wall_time(read_table(tmp_path / "calm/table.csv"))
+    assert [r["status"] for r in calm] == ["ok"] * 4
 
 
 # --------------------------------------------------------------------------- (3) resume

@@ -2,12 +2,15 @@
 
 An executor has `lanes` (worker processes, or a cluster's worker threads) and
 runs one task per lane at a time: `submit(lane, fn, item)`, then `wait()` for
-`(lane, result)` of a task that finished. An exception the task raised (or a
-worker that died) comes back as the result, so one broken task never stops the
-others. `fn` must be a top-level function of plain, picklable data. The workers
-start once and live until `close`, so what a worker keeps (a solver built for a
-problem shape) serves every later task on its lane; crashnlp.engine.schedule
-decides what runs where.
+`(lane, result)` of a task that finished. A task whose worker died under it
+(killed, out of memory) runs again on a fresh worker, up to WORKER_DEATHS times:
+the death was the machine's, not the task's, and the task's item is the same, so
+its result is too. An exception the task raised (or a worker that died on it
+every time) comes back as the result, so one broken task never stops the others.
+`fn` must be a top-level function of plain, picklable data. The workers start
+once and live until `close`, so what a worker keeps (a solver built for a problem
+shape) serves every later task on its lane; crashnlp.engine.schedule decides what
+runs where.
 """
 
 from __future__ import annotations
@@ -23,11 +26,15 @@ from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
+from dataclasses import dataclass
 from typing import Any, Protocol
 
 from crashnlp.compile_job import stop_compiles
 from crashnlp.engine import CONNECT_TIMEOUT, DASK_EXTRA, EXECUTORS
 from crashnlp.errors import InputError, RunError
+
+WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
+LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
 
 
 class Executor(Protocol):
@@ -102,30 +109,51 @@ def _workers_skip_main_script() -> Iterator[None]:
         main.__file__ = path
 
 
+@dataclass
+class _Task:
+    lane: int
+    fn: Callable[[Any], Any]
+    item: Any
+    deaths: int = 0
+
+
 class LocalExecutor:
     """Worker processes on this machine, one single-process pool per lane (so that a task can be
-    sent to the worker that ran its parent); a lane whose worker died starts a new one."""
+    sent to the worker that ran its parent); a lane whose worker died starts a new one, and runs
+    the task it died under again (WORKER_DEATHS)."""
 
     def __init__(self, workers: int | None = None):
         self.lanes = workers or default_workers()
         self.pools = [_new_pool() for _ in range(self.lanes)]
-        self.running: dict[Future, int] = {}
+        self.running: dict[Future, _Task] = {}
 
     def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None:
+        self._start(_Task(lane, fn, item))
+
+    def _start(self, task: _Task) -> None:
         with _workers_skip_main_script():
             try:
-                future = self.pools[lane].submit(fn, item)
+                future = self.pools[task.lane].submit(task.fn, task.item)
             except BrokenProcessPool:  # its worker died on an earlier task
-                self.pools[lane].shutdown(cancel_futures=True)
-                self.pools[lane] = _new_pool()
-                future = self.pools[lane].submit(fn, item)
-        self.running[future] = lane
+                self._renew(task.lane)
+                future = self.pools[task.lane].submit(task.fn, task.item)
+        self.running[future] = task
+
+    def _renew(self, lane: int) -> None:
+        self.pools[lane].shutdown(cancel_futures=True)
+        self.pools[lane] = _new_pool()
 
     def wait(self) -> tuple[int, Any]:
-        done, _ = wait(self.running, return_when=FIRST_COMPLETED)
-        future = min(done, key=self.running.__getitem__)
-        exc = future.exception()
-        return self.running.pop(future), exc if exc is not None else future.result()
+        while True:
+            done, _ = wait(self.running, return_when=FIRST_COMPLETED)
+            future = min(done, key=lambda f: self.running[f].lane)
+            task = self.running.pop(future)
+            exc = future.exception()
+            if not isinstance(exc, BrokenProcessPool) or task.deaths >= WORKER_DEATHS:
+                return task.lane, exc if exc is not None else future.result()
+            task.deaths += 1
+            self._renew(task.lane)
+            self._start(task)
 
     def close(self) -> None:
         for pool in self.pools:
@@ -160,44 +188,72 @@ def _sigint_ignored() -> Iterator[None]:
 
 
 class DaskExecutor:
-    """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes."""
+    """Cases as dask tasks: on the cluster at `address`, else on a LocalCluster of `workers` processes.
+
+    A task is sent to its lane's worker, other workers allowed. dask keeps a task bound to the
+    address of a worker that has left the cluster until a worker of that address returns
+    (dask/distributed#7346), so a task whose worker is gone is sent again, to any worker, once
+    `wait` sees it missing (every LOST_WORKER_POLL seconds while nothing finishes)."""
 
     def __init__(self, workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT):
-        distributed = require_dask()
+        self.distributed = require_dask()
 
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
             # the worker processes inherit it: Ctrl-C is the main process's to handle
             with _sigint_ignored(), _workers_skip_main_script():
-                self.cluster = distributed.LocalCluster(
+                self.cluster = self.distributed.LocalCluster(
                     n_workers=workers or default_workers(),
                     threads_per_worker=1,
                     processes=True,
                     dashboard_address=None,
                     silence_logs=logging.CRITICAL,
                 )
-            self.client = distributed.Client(self.cluster)
+            self.client = self.distributed.Client(self.cluster)
         else:
             self.client = _connect(address, timeout)
         # a lane per worker thread of the cluster (one unrestricted lane while it has no workers)
-        threads = {a: w.get("nthreads", 1) for a, w in self.client.scheduler_info()["workers"].items()}
+        threads = self._workers()
         self.addresses: list[str | None] = [a for a in sorted(threads) for _ in range(threads[a])] or [None]
         self.lanes = len(self.addresses)
-        self.done = distributed.as_completed()
-        self.lane_of: dict[Any, int] = {}  # task key -> lane
+        self.running: dict[Any, _Task] = {}  # future -> its task
+
+    def _workers(self) -> dict[str, int]:
+        """The cluster's workers now: address -> threads."""
+        return {a: w.get("nthreads", 1) for a, w in self.client.scheduler_info()["workers"].items()}
 
     def submit(self, lane: int, fn: Callable[[Any], Any], item: Any) -> None:
-        """The task goes to the lane's worker, or another if that one has left the cluster."""
-        where = self.addresses[lane]
-        future = self.client.submit(fn, item, pure=False, workers=[where] if where else None, allow_other_workers=True)
-        self.lane_of[future.key] = lane
-        self.done.add(future)
+        self._start(_Task(lane, fn, item), self.addresses[lane])
+
+    def _start(self, task: _Task, where: str | None) -> None:
+        bound = {"workers": [where], "allow_other_workers": True} if where else {}
+        future = self.client.submit(task.fn, task.item, pure=False, **bound)
+        self.running[future] = task
 
     def wait(self) -> tuple[int, Any]:
-        future = next(self.done)
-        exc = future.exception()
-        return self.lane_of.pop(future.key), exc if exc is not None else future.result()
+        while True:
+            try:
+                done = self.distributed.wait(list(self.running), timeout=LOST_WORKER_POLL, return_when="FIRST_COMPLETED").done
+            except TimeoutError:
+                self._resend_lost()
+                continue
+            future = min(done, key=lambda f: self.running[f].lane)
+            task = self.running.pop(future)
+            exc = future.exception()
+            return task.lane, exc if exc is not None else future.result()
+
+    def _resend_lost(self) -> None:
+        """Send again, to any worker, the tasks bound to a worker that has left the cluster."""
+        alive = self._workers()
+        for lane, where in enumerate(self.addresses):
+            if where is not None and where not in alive:
+                self.addresses[lane] = None
+                for future, task in list(self.running.items()):
+                    if task.lane == lane:
+                        del self.running[future]
+                        future.cancel()
+                        self._start(task, None)
 
     def close(self) -> None:
         self.client.close()
