@@ -68,17 +68,20 @@ def _identified(source: str, raw: dict):
         raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
 
 
-def _with_params(problem, source: str):
-    """(problem, identified model) for a result.json: its identified vehicle put into the problem,
-    or for a result that carries only parameters, its values entry by entry, refusing what does
-    not fit (the identified model is then None)."""
-    from crashnlp.identified import apply
+def _with_params(file: str, source: str):
+    """(problem, identified model) of a problem file and a result.json: its identified vehicle put
+    into the problem (what the file leaves out of vehicle and model comes from it), or for a result
+    that carries only parameters, its values entry by entry, refusing what does not fit (the
+    identified model is then None)."""
+    from crashnlp.identified import load_applied
+    from crashnlp.problem import load_problem
     from crashnlp.problem.schema import LARGEST
 
     raw = _read_params(source)
     identified = _identified(source, raw)
     if identified is not None:
-        return apply(problem, identified, source), identified
+        return load_applied(file, identified, source), identified
+    problem = load_problem(file)
     params = raw["parameters"]
     for path, value in params.items():
         try:
@@ -129,7 +132,7 @@ def cmd_simulate(args) -> int:
 
         write_simulation(case.name, predicted, out)
         if figures is not None:
-            figures.draw(simulation_figure_jobs(case, predicted, out), out)
+            figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
     for test in predicted.values():
         _print_prediction(test)
     print(f"wrote {out}/")
@@ -185,13 +188,12 @@ def _simulate(args):
     from crashnlp.case import case_of
     from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
+    from crashnlp.problem.schema import what_if
 
     _check_dt(args.dt, 0.0)
-    problem = load_problem(args.problem)
-    identified = None
-    if args.params:
-        problem, identified = _with_params(problem, args.params)
-    case = case_of(problem, args.problem)
+    speed, mass = what_if(args.speed, args.mass, prefix="--")
+    problem, identified = _with_params(args.problem, args.params) if args.params else (load_problem(args.problem), None)
+    case = case_of(problem, args.problem).at(speed, mass)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
     if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
@@ -381,6 +383,8 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
     p.add_argument("problem", help="problem YAML file")
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
+    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
+    p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")

@@ -83,7 +83,9 @@ METRIC_CHANNEL = {
 class PredictedTest(Mapping[str, np.ndarray]):
     """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.outputs
     names them), its crash metrics, and with an identified model their 95 % intervals, the
-    response bands (output name -> (low, high)) and how far it lies past the identified range."""
+    response bands (output name -> (low, high)) and how far it lies past the identified range.
+    `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
+    conditions they were recorded at; empty otherwise, with a note saying why."""
 
     name: str
     speed: float
@@ -94,6 +96,7 @@ class PredictedTest(Mapping[str, np.ndarray]):
     bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     extrapolation: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    data: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     @cached_property
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -112,20 +115,27 @@ class PredictedTest(Mapping[str, np.ndarray]):
 
 def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | None = None) -> dict[str, PredictedTest]:
     """Every test of `case` simulated (`case` built from a problem the identified model was
-    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too."""
+    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too.
+    A test's data come with it only where it runs at the speed, mass and duration they were
+    recorded at (TestCase.other_conditions); otherwise a note says which test and why."""
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)
         response = case.simulate_test(test, p, dt)
         metrics = response_metrics(response)
         mass = float(p[case.layout.index("vehicle.mass")][0])
+        other = test.other_conditions(mass)
+        data = data_curves(test) if other is None else {}
+        first = (other,) if other is not None else ()
         drift = _drift(test.name, response)
         if identified is None:
-            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=drift)
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
         intervals, bands, notes = _uncertainty(case, test, p, mass, response, metrics, identified, dt)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
-        out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, intervals, bands, beyond, drift + notes)
+        out[test.name] = PredictedTest(
+            test.name, test.speed, mass, response, metrics, intervals, bands, beyond, first + drift + notes, data
+        )
     return out
 
 
@@ -302,15 +312,14 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
     return summary
 
 
-def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
-    """A response figure per simulated test, with its data behind it and its 95 % band shaded,
-    as crashnlp.plots jobs."""
+def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
+    """A response figure per simulated test, with its data behind it where it runs at their
+    conditions (PredictedTest.data) and its 95 % band shaded, as crashnlp.plots jobs."""
     jobs: list[Job] = []
-    for test in case.tests:
-        predicted = tests[test.name]
+    for predicted in tests.values():
         r = predicted.response
         model = {k: (r.time, r[k]) for k in MEASURABLE}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
-        title = f"{case.name}: {test.name}"
-        jobs.append(("response_figure", (out / test.name / "response.png", title, model, data_curves(test), bands)))
+        title = f"{name}: {predicted.name}"
+        jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs

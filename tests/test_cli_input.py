@@ -90,3 +90,22 @@ def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1
     assert err == f"crashnlp: error: {path}: solver.ipopt.max_itr: no such IPOPT option (did you mean max_iter?)\n"
     assert not (tmp_path / "out").exists()
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "expected"),
+    [
+        ("--speed", "64 kmh", "--speed 64 kmh: cannot read '64 kmh' as a quantity"),
+        ("--speed", "64 kg", "--speed 64 kg: '64 kg' does not convert to m/s"),
+        ("--speed", "-3 m/s", "--speed -3 m/s: must not be negative"),
+        ("--speed", "nan", "--speed nan: not a finite number"),
+        ("--mass", "3 g", "--mass 3 g: 0.003 kg is no vehicle's mass"),
+    ],
+)
+def test_a_bad_what_if_is_refused_in_one_line_naming_the_option(option, value, expected, tmp_path, capsys):
+    out = tmp_path / "out"
+    code = main(["simulate", str(ROOT / "problems/pickup-56kph.yaml"), option, value, "--out", str(out)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
+    assert expected in err, err
+    assert not out.exists()
