@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
-from crashnlp.files import check_writable
+from crashnlp.files import check_output, claim, run_name
 from crashnlp.outputs import OUTPUT
 from crashnlp.studies.cli import add_parser as add_study_parser
 
@@ -124,15 +124,18 @@ def _check_dt(dt: float | None, duration: float) -> None:
 
 def cmd_simulate(args) -> int:
     with _figure_process(args) as figures:
-        simulated = _simulate(args)
-        if simulated is None:
+        prepared = _simulation(args)
+        if prepared is None:
             return 0
-        case, predicted, out = simulated
-        from crashnlp.prediction import simulation_figure_jobs, write_simulation
+        case, identified, out = prepared
+        from crashnlp.prediction import predict, simulation_figure_jobs, write_simulation
 
-        write_simulation(case.name, predicted, out)
-        if figures is not None:
-            figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
+        with claim(out, run_name("simulate", case.name)):
+            with _computing(args):
+                predicted = predict(case, identified, args.dt)
+            write_simulation(case.name, predicted, out)
+            if figures is not None:
+                figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
     for test in predicted.values():
         _print_prediction(test)
     print(f"wrote {out}/")
@@ -183,10 +186,10 @@ def _extrapolation_line(beyond: dict) -> str:
     return "extrapolates: " + "; ".join(parts)
 
 
-def _simulate(args):
-    """(case, predicted tests, output folder) of the problem file, or None after `--check`."""
+def _simulation(args):
+    """(case, identified model or None, output folder) of the problem file, every check made and
+    the folder checked (crashnlp.files.check_output), or None after `--check`."""
     from crashnlp.case import case_of
-    from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
 
@@ -202,12 +205,11 @@ def _simulate(args):
             f"output steps over {longest:g} s (tests' duration)"
         )
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
-    check_writable(out)
+    check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    with _computing(args):
-        return case, predict(case, identified, args.dt), out
+    return case, identified, out
 
 
 def _figure_process(args):
@@ -299,17 +301,22 @@ def _print_solution(result) -> None:
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary. The figure process
-    starts first, so that matplotlib loads while this one reads the problem and solves."""
+    starts first, so that matplotlib loads while this one reads the problem and solves; the
+    output folder is claimed (crashnlp.files.claim) from the solve to the last figure."""
     with _figure_process(args) as figures:
-        solved = _solve_case(args, kind)
-        if solved is None:
+        prepared = _prepared_case(args, kind)
+        if prepared is None:
             return 0
-        result, out = solved
-        result.save(out, figures=False)
-        if figures is not None:
-            from crashnlp.result import figure_jobs
+        case, out = prepared
+        from crashnlp.pipeline import solve_case
+        from crashnlp.result import figure_jobs
 
-            figures.draw(figure_jobs(result, out), out)
+        with claim(out, run_name(kind, case.name)):
+            with _computing(args):
+                result = solve_case(case, verbose=args.verbose, progress=sys.stdout)
+            result.save(out, figures=False)
+            if figures is not None:
+                figures.draw(figure_jobs(result, out), out)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:
@@ -318,22 +325,21 @@ def _solve(args, kind: str) -> int:
     return 0
 
 
-def _solve_case(args, kind: str):
-    """(Result, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
-    checks and steps, as crashnlp.api's solve runs them, its errors naming the file."""
-    from crashnlp.pipeline import prepare_case, solve_case
+def _prepared_case(args, kind: str):
+    """(Case, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
+    checks, as crashnlp.api's solve runs them, its errors naming the file, and the folder's."""
+    from crashnlp.pipeline import prepare_case
     from crashnlp.problem import load_problem
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     case = prepare_case(problem, args.problem)  # before any solve
-    out = check_writable(_out(args, problem.name))
+    out = check_output(_out(args, problem.name), run_name(kind, problem.name))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    with _computing(args):
-        return solve_case(case, verbose=args.verbose, progress=sys.stdout), out
+    return case, out
 
 
 def cmd_identify(args) -> int:

@@ -40,6 +40,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.case import Case, TestCase
+from crashnlp.files import claim, run_name
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
@@ -295,20 +296,22 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
 
 def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
     """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
-    simulated test, and simulation.json; the figures are `simulation_figure_jobs`, drawn by the
-    caller (crashnlp.drawing)."""
+    simulated test, and simulation.json, into a folder that then holds this simulation only
+    (crashnlp.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
+    (crashnlp.drawing)."""
     summary: dict[str, Any] = {"name": name, "tests": {}}
-    for test in tests.values():
-        r = test.response
-        write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
-        entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
-        if test.intervals:
-            entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
-            entry["extrapolation"] = test.extrapolation
-        if test.notes:
-            entry["notes"] = list(test.notes)
-        summary["tests"][test.name] = entry
-    write_json(out / "simulation.json", summary)
+    with claim(out, run_name("simulate", name), option=None):
+        for test in tests.values():
+            r = test.response
+            write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+            entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+            if test.intervals:
+                entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+                entry["extrapolation"] = test.extrapolation
+            if test.notes:
+                entry["notes"] = list(test.notes)
+            summary["tests"][test.name] = entry
+        write_json(out / "simulation.json", summary)
     return summary
 
 
