@@ -83,7 +83,7 @@ def design(problem: Problem | str | Path, verbose: bool = False, progress: TextI
 
 
 def simulate(
-    problem: Problem | str | Path,
+    problem: Problem | str | Path | Result,
     params: Result | dict[str, Any] | None = None,
     dt: float | None = None,
     speed: float | str | None = None,
@@ -99,15 +99,20 @@ def simulate(
     then come from the result), and each test also gets 95 % intervals of its metrics, bands of
     its curves and how far it lies past the identified range (crashnlp.prediction).
     `params` a dict of dotted paths: those values replace the problem's.
+    `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
     data (PredictedTest.data) and a note saying why."""
     from crashnlp.case import case_of
     from crashnlp.identified import apply, load_applied
-    from crashnlp.prediction import predict
+    from crashnlp.prediction import own_tests, predict
     from crashnlp.problem.schema import what_if
 
     new_speed, new_mass = what_if(speed, mass)
+    if isinstance(problem, Result):
+        if params is not None:
+            raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
+        return predict(case_of(own_tests(problem, problem.name)).at(new_speed, new_mass), problem.identified, dt)
     source = _source(problem)
     identified = params.identified if isinstance(params, Result) else None
     if identified is not None:

@@ -186,6 +186,24 @@ def _extrapolation_line(beyond: dict) -> str:
     return "extrapolates: " + "; ".join(parts)
 
 
+def _result_alone(path: str, params: str | None):
+    """(problem, identified model) of a result.json given in place of a problem: its own tests
+    with its identified vehicle (crashnlp.prediction.own_tests)."""
+    from crashnlp.prediction import own_tests
+    from crashnlp.result import Result
+
+    if params is not None:
+        raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
+    _read_params(path)  # one line for a file that is not a result.json
+    if Path(path).name != "result.json":
+        raise InputError(f"{path}: a result is simulated from its folder, as RESULT_DIR/result.json")
+    try:
+        result = Result.load(Path(path).parent)
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a result folder crashnlp wrote ({exc})") from None
+    return own_tests(result, path), result.identified
+
+
 def _simulation(args):
     """(case, identified model or None, output folder) of the problem file, every check made and
     the folder checked (crashnlp.files.check_output), or None after `--check`."""
@@ -195,7 +213,12 @@ def _simulation(args):
 
     _check_dt(args.dt, 0.0)
     speed, mass = what_if(args.speed, args.mass, prefix="--")
-    problem, identified = _with_params(args.problem, args.params) if args.params else (load_problem(args.problem), None)
+    if args.problem.endswith(".json"):
+        problem, identified = _result_alone(args.problem, args.params)
+    elif args.params:
+        problem, identified = _with_params(args.problem, args.params)
+    else:
+        problem, identified = load_problem(args.problem), None
     case = case_of(problem, args.problem).at(speed, mass)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
@@ -387,7 +410,7 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
-    p.add_argument("problem", help="problem YAML file")
+    p.add_argument("problem", help="problem YAML file, or a fit's result.json alone: its own tests, with its identified vehicle")
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
     p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
     p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')

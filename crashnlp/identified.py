@@ -154,16 +154,20 @@ def _finite(x: float) -> float | None:
 
 
 def load_applied(path: str | Path, identified: IdentifiedModel, source: str) -> Problem:
-    """A problem file with the identified vehicle in it (`apply`). What the file leaves out comes
-    from the identified vehicle before the file is validated: every vehicle entry, and every
-    section of the model (spring, damper, ...; a section the file gives is its own, whole), so
-    that a prediction file of only `name` and `tests` is a problem."""
+    """A problem file with the identified vehicle in it (`applied`)."""
     path = Path(path)
-    raw = read_yaml(path)
+    return applied(read_yaml(path), path.resolve().parent, identified, source, str(path))
+
+
+def applied(raw: Any, base_dir: Path, identified: IdentifiedModel, source: str, name: str) -> Problem:
+    """A problem given as a plain dict (`name` its file, which its errors name) with the identified
+    vehicle in it (`apply`). What it leaves out comes from the identified vehicle before it is
+    validated: every vehicle entry, and every section of the model (spring, damper, ...; a section
+    it gives is its own, whole), so that a prediction of only `name` and `tests` is a problem."""
     if isinstance(raw, dict):
         vehicle, model = ({} if raw.get(key) is None else raw[key] for key in ("vehicle", "model"))
         raw = {**raw, "vehicle": _filled(vehicle, identified.vehicle), "model": _filled(model, identified.model, deep=False)}
-    return apply(problem_from_dict(raw, path.resolve().parent, source=str(path)), identified, source)
+    return apply(problem_from_dict(raw, base_dir, source=name), identified, source)
 
 
 def _filled(given: Any, theirs: dict[str, Any], deep: bool = True) -> Any:

@@ -40,11 +40,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.case import Case, TestCase
+from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
+from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, applied
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
+from crashnlp.problem import Problem
+from crashnlp.result import Result
 from crashnlp.simulation import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
@@ -112,6 +115,19 @@ class PredictedTest(Mapping[str, np.ndarray]):
 
     def __len__(self) -> int:
         return len(self._arrays)
+
+
+def own_tests(result: Result, source: str) -> Problem:
+    """The problem a result's own tests make, with its identified vehicle (crashnlp.identified):
+    each test at its speed over its fitted window, at the identified vehicle's mass; what
+    `crashnlp simulate RESULT_DIR/result.json` simulates. InputError for a result without an
+    identified model."""
+    if result.identified is None:
+        raise InputError(
+            f"{source}: identified_model: none (a design's or a hand-written result); give a problem file and --params"
+        )
+    tests = [{"name": name, "speed": t.speed, "duration": float(t.response.time[-1])} for name, t in result.tests.items()]
+    return applied({"name": result.name, "tests": tests}, Path("."), result.identified, source, source)
 
 
 def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | None = None) -> dict[str, PredictedTest]:

@@ -201,6 +201,23 @@ def test_a_what_if_speed_or_mass_predicts_as_a_file_naming_them_and_shows_no_dat
     assert json.loads((out / "simulation.json").read_text())["tests"]["t1"]["notes"][0] == faster.notes[0]
 
 
+@pytest.mark.integration
+def test_a_result_alone_simulates_its_own_tests_with_a_what_if(fitted, capsys):
+    folder, _, raw, result, _ = fitted
+    at56 = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
+    alone = crashnlp.simulate(result, speed="56 km/h")["t1"]
+    assert alone.metrics["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-9)
+    out = folder / "alone"
+    assert main(["simulate", str(folder / "fit" / "result.json"), "--speed", "56 km/h", "--out", str(out), "--no-figures"]) == 0
+    sim = json.loads((out / "simulation.json").read_text())["tests"]["t1"]
+    assert sim["metrics"]["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-6)
+    capsys.readouterr()
+    args = ["simulate", str(folder / "fit" / "result.json"), "--params", str(folder / "fit" / "result.json")]
+    assert main([*args, "--out", str(folder / "both")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is a result already" in err and not (folder / "both").exists()
+
+
 def test_data_recorded_at_other_conditions_are_named_within_one_percent():
     recorded = Recorded((15.0, "the data header"), (1500.0, "the problem"), 0.15)
     assert recorded.other(15.1, 1510.0, 0.15) is None  # within 1 %: the test's own data
