@@ -148,7 +148,9 @@ class Result:
         }
 
     def save(self, folder: str | Path, figures: bool = True) -> None:
-        """result.json, responses, force-crush table and figures: what the command line writes."""
+        """result.json, responses, force-crush table and figures: what the command line writes,
+        into a folder that then holds this result only (crashnlp.files.claim: InputError for a
+        folder holding another run's results, or being written by another run)."""
         write_result(self, Path(folder), figures=figures)
 
     @classmethod

@@ -162,6 +162,15 @@ def test_a_prediction_file_of_only_name_and_tests_takes_the_rest_from_the_result
     folder, _, raw, result, _ = fitted
     minimal = folder / "only-tests.yaml"
     minimal.write_text(yaml.safe_dump({"name": "only-tests", "tests": [{"name": "new", "speed": "56 km/h", "duration": WINDOW}]}))
+    heavier = {
+        "name": "heavier",
+        "vehicle": {"mass": 1.2 * raw["vehicle"]["mass"]},
+        "tests": [{"name": "new", "speed": "56 km/h"}],
+    }
+    (folder / "heavier-only.yaml").write_text(yaml.safe_dump(heavier))
+    assert crashnlp.simulate(folder / "heavier-only.yaml", params=result)["new"].mass == pytest.approx(
+        1.2 * raw["vehicle"]["mass"]
+    )
     out = folder / "only-tests"
     assert (
         main(["simulate", str(minimal), "--params", str(folder / "fit" / "result.json"), "--out", str(out), "--no-figures"]) == 0
