@@ -4,10 +4,11 @@ and one run's at a time.
 An output folder holds one run: `claim` locks it for the run (a second run into it at once is
 refused, not mixed in), refuses a folder that holds another run's results (another problem,
 study or command), and once the run is done removes what the same run wrote there before and
-did not write again (a renamed test's folder). Its record, RECORD in the folder, names the run
-and the entries it wrote (every file goes through `atomic_open`, every figure through
-crashnlp.drawing or crashnlp.plots, which note them); nothing else is ever removed: a user's
-own files, a run's folder nested in another's (a simulation inside its fit's folder).
+did not write again (a renamed test's files, and its folder once empty). Its record, RECORD in
+the folder, names the run and the files it wrote (every file goes through `atomic_open`, every
+figure through crashnlp.drawing or crashnlp.plots, which note them, and a study notes the cases
+it keeps); nothing else is ever removed: a user's own files, a run's folder nested in another's
+(a simulation inside its fit's folder).
 """
 
 from __future__ import annotations
@@ -16,7 +17,6 @@ import csv
 import fcntl
 import json
 import os
-import shutil
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -59,7 +59,7 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
         with open(fd, mode, newline=newline) as fh:
             yield fh
         os.replace(tmp, path)
-        note_written(path)
+        note_output(path)
     finally:
         if os.path.exists(tmp):
             os.unlink(tmp)
@@ -96,13 +96,13 @@ def check_writable(out: str | Path, option: str = "--out") -> Path:
     return out
 
 
-RECORD = ".crashnlp-run.json"  # in an output folder: the run that wrote it and its entries; locked while a run writes
+RECORD = ".crashnlp-run.json"  # in an output folder: the run that wrote it and its files; locked while a run writes
 
 
 @dataclass
 class _Claim:
     run: str
-    entries: set[str] = field(default_factory=set)  # what the run has written: names in its folder
+    entries: set[str] = field(default_factory=set)  # the run's files, relative to its folder
 
 
 _held: dict[Path, _Claim] = {}  # folders this process has claimed (resolved)
@@ -155,13 +155,13 @@ def claim(out: Path, run: str, option: str | None = "--out") -> Iterator[Path]:
         os.close(fd)
 
 
-def note_written(path: Path) -> None:
-    """Count `path` (a file written, or a figure about to be drawn) among the entries of the
-    claimed folder it lies in."""
+def note_output(path: Path) -> None:
+    """Count `path` among the files of the run that has claimed the folder it lies in: a file
+    written, a figure drawn, or one it keeps (a study's case finished by an earlier run)."""
     path = path.resolve()
     for folder, held in _held.items():
         if path.is_relative_to(folder) and path != folder:
-            held.entries.add(path.relative_to(folder).parts[0])
+            held.entries.add(path.relative_to(folder).as_posix())
 
 
 def _lock(out: Path, option: str | None) -> int:
@@ -205,20 +205,25 @@ def _refuse_another(out: Path, holder: str | None, run: str, option: str | None)
 
 
 def _remove(out: Path, names: set[str]) -> None:
-    """Remove the entries an earlier run wrote and this one did not (never the record)."""
-    for name in names - {RECORD}:
+    """Remove the files an earlier run wrote and this one did not, and the folders inside `out`
+    that this leaves empty (nothing else: never a folder with anything else in it)."""
+    for name in sorted(names - {RECORD}):
         path = out / name
-        if path.is_dir() and not path.is_symlink():
-            if not (path / RECORD).exists():  # a run's folder of its own stays
-                shutil.rmtree(path, ignore_errors=True)
-        else:
+        if path.is_relative_to(out) and not path.is_dir():
             path.unlink(missing_ok=True)
+            for folder in path.parents:
+                if folder == out:
+                    break
+                try:
+                    folder.rmdir()
+                except OSError:
+                    break
 
 
 def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path]) -> None:
-    """Write the record in place (under the lock), or where the run wrote nothing, remove it and
-    the folders the claim made."""
-    present = sorted(name for name in entries if (out / name).exists())
+    """Write the record in place (under the lock), or where the run has no file there, remove it
+    and the folders the claim made."""
+    present = sorted(name for name in entries if (out / name).is_file())
     if present:
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps({"run": run, "entries": present}, indent=1).encode(), 0)

@@ -129,7 +129,8 @@ def test_an_output_folder_holds_one_run(tmp_path, capsys):
     (out / "my-notes.txt").write_text("mine")
     assert _simulated(tmp_path, "a", ["t1", "t3"], out) == 0
     assert sorted(p.name for p in out.iterdir()) == [RECORD, "my-notes.txt", "simulation.json", "t1", "t3"]
-    assert json.loads((out / RECORD).read_text()) == {"run": "simulate a", "entries": ["simulation.json", "t1", "t3"]}
+    record = {"run": "simulate a", "entries": ["simulation.json", "t1/response.csv", "t3/response.csv"]}
+    assert json.loads((out / RECORD).read_text()) == record
     capsys.readouterr()
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*")}
     assert _simulated(tmp_path, "b", ["t1"], out) == 2
