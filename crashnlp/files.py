@@ -207,9 +207,11 @@ def _refuse_another(out: Path, holder: str | None, run: str, option: str | None)
 def _remove(out: Path, names: set[str]) -> None:
     """Remove the files an earlier run wrote and this one did not, and the folders inside `out`
     that this leaves empty (nothing else: never a folder with anything else in it)."""
+    root = out.resolve()
     for name in sorted(names - {RECORD}):
         path = out / name
-        if path.is_relative_to(out) and not path.is_dir():
+        inside = path.parent.resolve().is_relative_to(root) and path.name not in ("", ".", "..")
+        if inside and not path.is_dir():  # a record edited to name ../x removes nothing outside
             path.unlink(missing_ok=True)
             for folder in path.parents:
                 if folder == out:

@@ -139,6 +139,15 @@ def test_an_output_folder_holds_one_run(tmp_path, capsys):
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # nothing of b written
 
 
+def test_a_record_naming_files_outside_its_folder_removes_nothing_there(tmp_path, capsys):
+    out, outside = tmp_path / "out", tmp_path / "precious.txt"
+    outside.write_text("mine")
+    assert _simulated(tmp_path, "a", ["t1"], out) == 0
+    (out / RECORD).write_text(json.dumps({"run": "simulate a", "entries": ["../precious.txt", "/etc/hostname"]}))
+    assert _simulated(tmp_path, "a", ["t1"], out) == 0
+    assert outside.read_text() == "mine"
+
+
 def test_a_run_that_fails_leaves_no_folder_it_made(tmp_path):
     deep = tmp_path / "new" / "deeper"
     with pytest.raises(RuntimeError), claim(deep, "simulate a"):
