@@ -213,8 +213,9 @@ def _simulation(args):
 
     _check_dt(args.dt, 0.0)
     speed, mass = what_if(args.speed, args.mass, prefix="--")
-    if args.problem.endswith(".json"):
-        problem, identified = _result_alone(args.problem, args.params)
+    folder = Path(args.problem) / "result.json"
+    if args.problem.endswith(".json") or folder.is_file():
+        problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
     elif args.params:
         problem, identified = _with_params(args.problem, args.params)
     else:
@@ -410,7 +411,10 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
-    p.add_argument("problem", help="problem YAML file, or a fit's result.json alone: its own tests, with its identified vehicle")
+    p.add_argument(
+        "problem",
+        help="problem YAML file, or a fit's result.json (or its folder) alone: its own tests, with its identified vehicle",
+    )
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
     p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
     p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')

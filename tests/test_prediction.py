@@ -217,7 +217,7 @@ def test_a_result_alone_simulates_its_own_tests_with_a_what_if(fitted, capsys):
     alone = crashnlp.simulate(result, speed="56 km/h")["t1"]
     assert alone.metrics["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-9)
     out = folder / "alone"
-    assert main(["simulate", str(folder / "fit" / "result.json"), "--speed", "56 km/h", "--out", str(out), "--no-figures"]) == 0
+    assert main(["simulate", str(folder / "fit"), "--speed", "56 km/h", "--out", str(out), "--no-figures"]) == 0  # the folder
     sim = json.loads((out / "simulation.json").read_text())["tests"]["t1"]
     assert sim["metrics"]["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-6)
     capsys.readouterr()
