@@ -6,6 +6,7 @@
     faster = problem.with_values({"vehicle.speed": "64 km/h"})
     sims = crashnlp.simulate(faster, params=result)              # test -> PredictedTest (SI arrays)
     sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
+    crashnlp.simulate(problem, params=result, speed="64 km/h", mass="2700 kg")   # a what-if, every test
 
 Every solve goes through crashnlp.pipeline (every check, then the steps), as the
 command line's and a study's do; the command line is a thin layer for arguments,
