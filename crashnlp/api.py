@@ -6,6 +6,7 @@
     faster = problem.with_values({"vehicle.speed": "64 km/h"})
     sims = crashnlp.simulate(faster, params=result)              # test -> PredictedTest (SI arrays)
     sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
+    crashnlp.simulate(problem, params=result, speed="64 km/h", mass="2700 kg")   # a what-if, every test
 
 Every solve goes through crashnlp.pipeline (every check, then the steps), as the
 command line's and a study's do; the command line is a thin layer for arguments,
@@ -83,7 +84,11 @@ def design(problem: Problem | str | Path, verbose: bool = False, progress: TextI
 
 
 def simulate(
-    problem: Problem | str | Path, params: Result | dict[str, Any] | None = None, dt: float | None = None
+    problem: Problem | str | Path | Result,
+    params: Result | dict[str, Any] | None = None,
+    dt: float | None = None,
+    speed: float | str | None = None,
+    mass: float | str | None = None,
 ) -> dict[str, PredictedTest]:
     """Forward simulation of every test: test name -> PredictedTest, a mapping of output key ->
     array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.outputs
@@ -91,23 +96,37 @@ def simulate(
 
     `params` a Result: the identified vehicle it carries is put into the problem first
     (crashnlp.identified.apply: the problem may be the minimal one it was fitted from, or name
-    only a new speed, mass or duration), and each test also gets 95 % intervals of its metrics,
-    bands of its curves and how far it lies past the identified range (crashnlp.prediction).
-    `params` a dict of dotted paths: those values replace the problem's."""
+    only a new speed, mass or duration; a problem file may leave out its vehicle and model, which
+    then come from the result), and each test also gets 95 % intervals of its metrics, bands of
+    its curves and how far it lies past the identified range (crashnlp.prediction).
+    `params` a dict of dotted paths: those values replace the problem's.
+    `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
+    `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
+    and mass. A test that then runs at other conditions than its data were recorded at gets no
+    data (PredictedTest.data) and a note saying why."""
     from crashnlp.case import case_of
-    from crashnlp.identified import apply
-    from crashnlp.prediction import predict
+    from crashnlp.identified import apply, load_applied
+    from crashnlp.prediction import own_tests, predict
+    from crashnlp.problem.schema import what_if
 
+    new_speed, new_mass = what_if(speed, mass)
+    if isinstance(problem, Result):
+        if params is not None:
+            raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
+        return predict(case_of(own_tests(problem, problem.name)).at(new_speed, new_mass), problem.identified, dt)
     source = _source(problem)
-    problem = _problem(problem)
     identified = params.identified if isinstance(params, Result) else None
     if identified is not None:
-        problem = apply(problem, identified, problem.name)
-    elif isinstance(params, Result):
-        problem = problem.with_values(params.parameters)
-    elif params:
-        problem = problem.with_values(params)
-    return predict(case_of(problem, source), identified, dt)
+        problem = (
+            apply(problem, identified, problem.name)
+            if isinstance(problem, Problem)
+            else load_applied(problem, identified, str(problem))
+        )
+    else:
+        problem = _problem(problem)
+        values = params.parameters if isinstance(params, Result) else params
+        problem = problem.with_values(values) if values else problem
+    return predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
 
 
 def study(

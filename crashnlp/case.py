@@ -50,6 +50,21 @@ class Case:
         other.base = self.layout.with_values(self.base, values)
         return other
 
+    def at(self, speed: float | None = None, mass: float | None = None) -> Case:
+        """The same case with every test at `speed` (m/s) and `mass` (kg) where given: a what-if.
+        The data stay as they were loaded, with the conditions they were recorded at
+        (TestCase.recorded), so that a prediction can tell they are another test's."""
+        other = copy.copy(self)
+        other.tests = [
+            dataclasses.replace(
+                test,
+                speed=test.speed if speed is None else speed,
+                overrides=test.overrides if mass is None else {**test.overrides, "vehicle.mass": mass},
+            )
+            for test in self.tests
+        ]
+        return other
+
     def with_transcription(self, transcription: MultipleShootingSpec | CollocationSpec) -> Case:
         """The same case (data, completed problem, start, model) transcribed otherwise."""
         other = copy.copy(self)

@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
-from crashnlp.files import check_writable
+from crashnlp.files import check_output, claim, run_name
 from crashnlp.outputs import OUTPUT
 from crashnlp.studies.cli import add_parser as add_study_parser
 
@@ -68,17 +68,20 @@ def _identified(source: str, raw: dict):
         raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
 
 
-def _with_params(problem, source: str):
-    """(problem, identified model) for a result.json: its identified vehicle put into the problem,
-    or for a result that carries only parameters, its values entry by entry, refusing what does
-    not fit (the identified model is then None)."""
-    from crashnlp.identified import apply
+def _with_params(file: str, source: str):
+    """(problem, identified model) of a problem file and a result.json: its identified vehicle put
+    into the problem (what the file leaves out of vehicle and model comes from it), or for a result
+    that carries only parameters, its values entry by entry, refusing what does not fit (the
+    identified model is then None)."""
+    from crashnlp.identified import load_applied
+    from crashnlp.problem import load_problem
     from crashnlp.problem.schema import LARGEST
 
     raw = _read_params(source)
     identified = _identified(source, raw)
     if identified is not None:
-        return apply(problem, identified, source), identified
+        return load_applied(file, identified, source), identified
+    problem = load_problem(file)
     params = raw["parameters"]
     for path, value in params.items():
         try:
@@ -121,15 +124,18 @@ def _check_dt(dt: float | None, duration: float) -> None:
 
 def cmd_simulate(args) -> int:
     with _figure_process(args) as figures:
-        simulated = _simulate(args)
-        if simulated is None:
+        prepared = _simulation(args)
+        if prepared is None:
             return 0
-        case, predicted, out = simulated
-        from crashnlp.prediction import simulation_figure_jobs, write_simulation
+        case, identified, out = prepared
+        from crashnlp.prediction import predict, simulation_figure_jobs, write_simulation
 
-        write_simulation(case.name, predicted, out)
-        if figures is not None:
-            figures.draw(simulation_figure_jobs(case, predicted, out), out)
+        with claim(out, run_name("simulate", case.name)):
+            with _computing(args):
+                predicted = predict(case, identified, args.dt)
+            write_simulation(case.name, predicted, out)
+            if figures is not None:
+                figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
     for test in predicted.values():
         _print_prediction(test)
     print(f"wrote {out}/")
@@ -180,18 +186,41 @@ def _extrapolation_line(beyond: dict) -> str:
     return "extrapolates: " + "; ".join(parts)
 
 
-def _simulate(args):
-    """(case, predicted tests, output folder) of the problem file, or None after `--check`."""
+def _result_alone(path: str, params: str | None):
+    """(problem, identified model) of a result.json given in place of a problem: its own tests
+    with its identified vehicle (crashnlp.prediction.own_tests)."""
+    from crashnlp.prediction import own_tests
+    from crashnlp.result import Result
+
+    if params is not None:
+        raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
+    _read_params(path)  # one line for a file that is not a result.json
+    if Path(path).name != "result.json":
+        raise InputError(f"{path}: a result is simulated from its folder, as RESULT_DIR/result.json")
+    try:
+        result = Result.load(Path(path).parent)
+    except (OSError, KeyError, TypeError, ValueError) as exc:
+        raise InputError(f"{path}: not a result folder crashnlp wrote ({exc})") from None
+    return own_tests(result, path), result.identified
+
+
+def _simulation(args):
+    """(case, identified model or None, output folder) of the problem file, every check made and
+    the folder checked (crashnlp.files.check_output), or None after `--check`."""
     from crashnlp.case import case_of
-    from crashnlp.prediction import predict
     from crashnlp.problem import load_problem
+    from crashnlp.problem.schema import what_if
 
     _check_dt(args.dt, 0.0)
-    problem = load_problem(args.problem)
-    identified = None
-    if args.params:
-        problem, identified = _with_params(problem, args.params)
-    case = case_of(problem, args.problem)
+    speed, mass = what_if(args.speed, args.mass, prefix="--")
+    folder = Path(args.problem) / "result.json"
+    if args.problem.endswith(".json") or folder.is_file():
+        problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
+    elif args.params:
+        problem, identified = _with_params(args.problem, args.params)
+    else:
+        problem, identified = load_problem(args.problem), None
+    case = case_of(problem, args.problem).at(speed, mass)
     longest = max(t.duration for t in case.tests)
     _check_dt(args.dt, longest)
     if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
@@ -200,12 +229,11 @@ def _simulate(args):
             f"output steps over {longest:g} s (tests' duration)"
         )
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
-    check_writable(out)
+    check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    with _computing(args):
-        return case, predict(case, identified, args.dt), out
+    return case, identified, out
 
 
 def _figure_process(args):
@@ -297,17 +325,22 @@ def _print_solution(result) -> None:
 
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary. The figure process
-    starts first, so that matplotlib loads while this one reads the problem and solves."""
+    starts first, so that matplotlib loads while this one reads the problem and solves; the
+    output folder is claimed (crashnlp.files.claim) from the solve to the last figure."""
     with _figure_process(args) as figures:
-        solved = _solve_case(args, kind)
-        if solved is None:
+        prepared = _prepared_case(args, kind)
+        if prepared is None:
             return 0
-        result, out = solved
-        result.save(out, figures=False)
-        if figures is not None:
-            from crashnlp.result import figure_jobs
+        case, out = prepared
+        from crashnlp.pipeline import solve_case
+        from crashnlp.result import figure_jobs
 
-            figures.draw(figure_jobs(result, out), out)
+        with claim(out, run_name(kind, case.name)):
+            with _computing(args):
+                result = solve_case(case, verbose=args.verbose, progress=sys.stdout)
+            result.save(out, figures=False)
+            if figures is not None:
+                figures.draw(figure_jobs(result, out), out)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:
@@ -316,22 +349,21 @@ def _solve(args, kind: str) -> int:
     return 0
 
 
-def _solve_case(args, kind: str):
-    """(Result, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
-    checks and steps, as crashnlp.api's solve runs them, its errors naming the file."""
-    from crashnlp.pipeline import prepare_case, solve_case
+def _prepared_case(args, kind: str):
+    """(Case, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
+    checks, as crashnlp.api's solve runs them, its errors naming the file, and the folder's."""
+    from crashnlp.pipeline import prepare_case
     from crashnlp.problem import load_problem
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     case = prepare_case(problem, args.problem)  # before any solve
-    out = check_writable(_out(args, problem.name))
+    out = check_output(_out(args, problem.name), run_name(kind, problem.name))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    with _computing(args):
-        return solve_case(case, verbose=args.verbose, progress=sys.stdout), out
+    return case, out
 
 
 def cmd_identify(args) -> int:
@@ -379,8 +411,13 @@ def parser() -> argparse.ArgumentParser:
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")
-    p.add_argument("problem", help="problem YAML file")
+    p.add_argument(
+        "problem",
+        help="problem YAML file, or a fit's result.json (or its folder) alone: its own tests, with its identified vehicle",
+    )
     p.add_argument("--params", help="result.json whose parameters replace the problem's values")
+    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
+    p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")

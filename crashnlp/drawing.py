@@ -20,6 +20,8 @@ from pathlib import Path
 from types import TracebackType
 from typing import TYPE_CHECKING
 
+from crashnlp.files import note_output
+
 if TYPE_CHECKING:
     from crashnlp.plots import Job
 
@@ -50,6 +52,8 @@ class FigureProcess:
 
             draw(jobs)
             return
+        for _, args in jobs:  # drawn in the other process, written in this one's output folder
+            note_output(args[0])
         self._send(pickle.dumps(jobs))
         if self._wait() != 0:
             raise RuntimeError(f"the figures of {folder} were not drawn (see above)")

@@ -13,16 +13,20 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from crashnlp.errors import InputError
-from crashnlp.problem.load import problem_from_dict
+from crashnlp.problem.load import problem_from_dict, read_yaml
 from crashnlp.problem.schema import BreakpointCount, Problem
 
 # the vehicle's geometry: a problem that gives other values describes another vehicle
 GEOMETRY = ("cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+# relative: geometry this close is the same vehicle, given in other units (8.0381 ft for 2.45 m is 5e-6
+# apart, five significant digits of feet); 0.1 mm in a metre is finer than a vehicle is measured
+SAME_GEOMETRY = 1e-4
 # the model's structure (section, field): given otherwise by a problem, it is another model
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
@@ -149,6 +153,33 @@ def _finite(x: float) -> float | None:
     return float(x) if math.isfinite(x) else None
 
 
+def load_applied(path: str | Path, identified: IdentifiedModel, source: str) -> Problem:
+    """A problem file with the identified vehicle in it (`applied`)."""
+    path = Path(path)
+    return applied(read_yaml(path), path.resolve().parent, identified, source, str(path))
+
+
+def applied(raw: Any, base_dir: Path, identified: IdentifiedModel, source: str, name: str) -> Problem:
+    """A problem given as a plain dict (`name` its file, which its errors name) with the identified
+    vehicle in it (`apply`). What it leaves out comes from the identified vehicle before it is
+    validated: every vehicle entry, and every section of the model (spring, damper, ...; a section
+    it gives is its own, whole), so that a prediction of only `name` and `tests` is a problem."""
+    if isinstance(raw, dict):
+        vehicle, model = ({} if raw.get(key) is None else raw[key] for key in ("vehicle", "model"))
+        raw = {**raw, "vehicle": _filled(vehicle, identified.vehicle), "model": _filled(model, identified.model, deep=False)}
+    return apply(problem_from_dict(raw, base_dir, source=name), identified, source)
+
+
+def _filled(given: Any, theirs: dict[str, Any], deep: bool = True) -> Any:
+    """A section of a problem file with the entries it leaves out taken from `theirs`, and with
+    `deep`, those of the mappings inside it too (what the file gives wins; a section that is not a
+    mapping is left for the schema to refuse)."""
+    if not isinstance(given, dict):
+        return given
+    inner = {k: _filled(v, theirs[k]) for k, v in given.items() if deep and isinstance(theirs.get(k), dict)}
+    return {**theirs, **given, **inner}
+
+
 def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
     """`problem` with the identified vehicle in it: the whole model section (but a tail the
     problem gives), the estimated vehicle entries, and every vehicle entry the problem leaves out.
@@ -188,7 +219,7 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
     given = problem.vehicle.model_fields_set
     for key in GEOMETRY:
         mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
-        if key in given and theirs is not None and not _same(mine, theirs):
+        if key in given and theirs is not None and not _same(mine, theirs, SAME_GEOMETRY):
             raise InputError(
                 f"{source}: vehicle.{key} is {mine:g} m, but the identified vehicle's is {theirs:g} m: "
                 "another vehicle (a result predicts the vehicle it was fitted to)"
@@ -216,5 +247,5 @@ def _differs(mine: Any, theirs: Any) -> bool:
     return mine != theirs
 
 
-def _same(a: float, b: float) -> bool:
-    return abs(a - b) <= SAME * max(abs(a), abs(b), 1e-12)
+def _same(a: float, b: float, tolerance: float = SAME) -> bool:
+    return abs(a - b) <= tolerance * max(abs(a), abs(b), 1e-12)

@@ -11,6 +11,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from crashnlp.files import note_output  # noqa: E402
 from crashnlp.outputs import MEASURABLE, OUTPUT  # noqa: E402
 
 PANELS = MEASURABLE  # the outputs a test measures, each a panel
@@ -19,8 +20,10 @@ Job = tuple[str, tuple]  # a figure: the name of a figure function of this modul
 
 
 def draw(jobs: list[Job]) -> None:
-    """Draw figure jobs, in plain data so that another process can draw them (crashnlp.drawing)."""
+    """Draw figure jobs, in plain data so that another process can draw them (crashnlp.drawing);
+    each file is noted in the output folder it is drawn into (crashnlp.files.note_output)."""
     for name, args in jobs:
+        note_output(args[0])
         FIGURES[name](*args)
 
 

@@ -40,10 +40,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.case import Case, TestCase
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
+from crashnlp.errors import InputError
+from crashnlp.files import claim, run_name
+from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, applied
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
+from crashnlp.problem import Problem
+from crashnlp.result import Result
 from crashnlp.simulation import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
@@ -83,7 +87,9 @@ METRIC_CHANNEL = {
 class PredictedTest(Mapping[str, np.ndarray]):
     """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.outputs
     names them), its crash metrics, and with an identified model their 95 % intervals, the
-    response bands (output name -> (low, high)) and how far it lies past the identified range."""
+    response bands (output name -> (low, high)) and how far it lies past the identified range.
+    `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
+    conditions they were recorded at; empty otherwise, with a note saying why."""
 
     name: str
     speed: float
@@ -94,6 +100,7 @@ class PredictedTest(Mapping[str, np.ndarray]):
     bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
     extrapolation: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
+    data: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
     @cached_property
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -110,22 +117,42 @@ class PredictedTest(Mapping[str, np.ndarray]):
         return len(self._arrays)
 
 
+def own_tests(result: Result, source: str) -> Problem:
+    """The problem a result's own tests make, with its identified vehicle (crashnlp.identified):
+    each test at its speed over its fitted window, at the identified vehicle's mass; what
+    `crashnlp simulate RESULT_DIR/result.json` simulates. InputError for a result without an
+    identified model."""
+    if result.identified is None:
+        raise InputError(
+            f"{source}: identified_model: none (a design's or a hand-written result); give a problem file and --params"
+        )
+    tests = [{"name": name, "speed": t.speed, "duration": float(t.response.time[-1])} for name, t in result.tests.items()]
+    return applied({"name": result.name, "tests": tests}, Path("."), result.identified, source, source)
+
+
 def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | None = None) -> dict[str, PredictedTest]:
     """Every test of `case` simulated (`case` built from a problem the identified model was
-    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too."""
+    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too.
+    A test's data come with it only where it runs at the speed, mass and duration they were
+    recorded at (TestCase.other_conditions); otherwise a note says which test and why."""
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)
         response = case.simulate_test(test, p, dt)
         metrics = response_metrics(response)
         mass = float(p[case.layout.index("vehicle.mass")][0])
+        other = test.other_conditions(mass)
+        data = data_curves(test) if other is None else {}
+        first = (other,) if other is not None else ()
         drift = _drift(test.name, response)
         if identified is None:
-            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=drift)
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
         intervals, bands, notes = _uncertainty(case, test, p, mass, response, metrics, identified, dt)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
-        out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, intervals, bands, beyond, drift + notes)
+        out[test.name] = PredictedTest(
+            test.name, test.speed, mass, response, metrics, intervals, bands, beyond, first + drift + notes, data
+        )
     return out
 
 
@@ -285,32 +312,33 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
 
 def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
     """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
-    simulated test, and simulation.json; the figures are `simulation_figure_jobs`, drawn by the
-    caller (crashnlp.drawing)."""
+    simulated test, and simulation.json, into a folder that then holds this simulation only
+    (crashnlp.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
+    (crashnlp.drawing)."""
     summary: dict[str, Any] = {"name": name, "tests": {}}
-    for test in tests.values():
-        r = test.response
-        write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
-        entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
-        if test.intervals:
-            entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
-            entry["extrapolation"] = test.extrapolation
-        if test.notes:
-            entry["notes"] = list(test.notes)
-        summary["tests"][test.name] = entry
-    write_json(out / "simulation.json", summary)
+    with claim(out, run_name("simulate", name), option=None):
+        for test in tests.values():
+            r = test.response
+            write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+            entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+            if test.intervals:
+                entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+                entry["extrapolation"] = test.extrapolation
+            if test.notes:
+                entry["notes"] = list(test.notes)
+            summary["tests"][test.name] = entry
+        write_json(out / "simulation.json", summary)
     return summary
 
 
-def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
-    """A response figure per simulated test, with its data behind it and its 95 % band shaded,
-    as crashnlp.plots jobs."""
+def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
+    """A response figure per simulated test, with its data behind it where it runs at their
+    conditions (PredictedTest.data) and its 95 % band shaded, as crashnlp.plots jobs."""
     jobs: list[Job] = []
-    for test in case.tests:
-        predicted = tests[test.name]
+    for predicted in tests.values():
         r = predicted.response
         model = {k: (r.time, r[k]) for k in MEASURABLE}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
-        title = f"{case.name}: {test.name}"
-        jobs.append(("response_figure", (out / test.name / "response.png", title, model, data_curves(test), bands)))
+        title = f"{name}: {predicted.name}"
+        jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.files import write_columns
+from crashnlp.files import claim, run_name, write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
 from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
@@ -148,7 +148,9 @@ class Result:
         }
 
     def save(self, folder: str | Path, figures: bool = True) -> None:
-        """result.json, responses, force-crush table and figures: what the command line writes."""
+        """result.json, responses, force-crush table and figures: what the command line writes,
+        into a folder that then holds this result only (crashnlp.files.claim: InputError for a
+        folder holding another run's results, or being written by another run)."""
         write_result(self, Path(folder), figures=figures)
 
     @classmethod
@@ -224,15 +226,18 @@ def read_response(path: Path) -> Response:
 
 
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
-    """result.json, per-test responses, the force-crush table, and the figures after them."""
-    for name, t in result.tests.items():
-        write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
-    fc = result.force_crush
-    if fc is not None:
-        write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
-    write_json(out / "result.json", result.to_json())
-    if figures:
-        write_figures(result, out)
+    """result.json, per-test responses, the force-crush table, and the figures after them, into a
+    folder that then holds this result only (crashnlp.files.claim: refused where it holds another
+    run's)."""
+    with claim(out, run_name(result.kind, result.name), option=None):
+        for name, t in result.tests.items():
+            write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
+        fc = result.force_crush
+        if fc is not None:
+            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
+        write_json(out / "result.json", result.to_json())
+        if figures:
+            write_figures(result, out)
 
 
 def write_figures(result: Result, out: Path) -> None:

@@ -109,6 +109,15 @@ def test_simulate_returns_named_arrays_in_si(small_problem):
     assert work > 0.8 * run["kinetic_J"][0]
 
 
+def test_simulate_takes_a_what_if_speed_and_mass_for_every_test(small_problem):
+    """speed and mass replace every test's; data recorded at other conditions are not its data."""
+    run = crashnlp.simulate(small_problem, dt=1e-3, speed="64 km/h", mass="2700 kg")["56kph"]
+    assert run["velocity_mps"][0] == pytest.approx(64 / 3.6, rel=0.01) and run.mass == 2700.0
+    assert run.data == {} and run.notes[0].startswith("56kph: data not shown: recorded at 56.0 km/h")
+    with pytest.raises(InputError, match="speed fast: cannot read 'fast'"):
+        crashnlp.simulate(small_problem, speed="fast")
+
+
 @pytest.mark.integration
 @pytest.mark.slow
 def test_the_example_runs_as_written(tmp_path):

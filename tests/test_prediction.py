@@ -21,10 +21,11 @@ from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
-from crashnlp.prediction import _drift
+from crashnlp.prediction import _drift, simulation_figure_jobs
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
 from crashnlp.simulation import Response
+from crashnlp.testcase import Recorded
 from crashnlp.units import G0
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
@@ -154,6 +155,97 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
     assert loaded.identified.range.model_crush == pytest.approx(reach)
     assert model["spring"]["tail"]["start"] == pytest.approx(reach + 2 * result.identified.model["smoothing"]["crush"])
     assert model["spring"]["tail"]["slope"] >= 0
+
+
+@pytest.mark.integration
+def test_a_prediction_file_of_only_name_and_tests_takes_the_rest_from_the_result(fitted, capsys):
+    folder, _, raw, result, _ = fitted
+    minimal = folder / "only-tests.yaml"
+    minimal.write_text(yaml.safe_dump({"name": "only-tests", "tests": [{"name": "new", "speed": "56 km/h", "duration": WINDOW}]}))
+    heavier = {
+        "name": "heavier",
+        "vehicle": {"mass": 1.2 * raw["vehicle"]["mass"]},
+        "tests": [{"name": "new", "speed": "56 km/h"}],
+    }
+    (folder / "heavier-only.yaml").write_text(yaml.safe_dump(heavier))
+    assert crashnlp.simulate(folder / "heavier-only.yaml", params=result)["new"].mass == pytest.approx(
+        1.2 * raw["vehicle"]["mass"]
+    )
+    out = folder / "only-tests"
+    assert (
+        main(["simulate", str(minimal), "--params", str(folder / "fit" / "result.json"), "--out", str(out), "--no-figures"]) == 0
+    )
+    sim = json.loads((out / "simulation.json").read_text())["tests"]["new"]
+    full = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
+    assert sim["metrics"]["max_crush_m"] == pytest.approx(full.metrics["max_crush_m"], rel=1e-6)  # result.json: 10 digits
+    assert sim["intervals"]["peak_decel_g"] == pytest.approx(list(full.intervals["peak_decel_g"]), rel=1e-6)
+    # the vehicle in feet, to five significant digits (5e-6 apart): the same vehicle, not another
+    feet = yaml.safe_load(_new_speed(folder, raw, 56).read_text())
+    feet["vehicle"]["cg_to_impact"] = f"{raw['vehicle']['cg_to_impact'] / 0.3048:.5g} ft"
+    (folder / "feet.yaml").write_text(yaml.safe_dump(feet))
+    in_feet = crashnlp.simulate(folder / "feet.yaml", params=result)["new"]
+    assert in_feet.metrics["max_crush_m"] == pytest.approx(full.metrics["max_crush_m"], rel=1e-4)
+
+
+@pytest.mark.integration
+def test_a_what_if_speed_or_mass_predicts_as_a_file_naming_them_and_shows_no_data(fitted, capsys):
+    folder, path, raw, result, v = fitted
+    own = crashnlp.simulate(path, params=result)["t1"]
+    assert set(own.data) >= {"accel", "velocity"} and not any("data not shown" in n for n in own.notes)
+    faster = crashnlp.simulate(path, params=result, speed="56 km/h")["t1"]
+    assert faster.metrics["max_crush_m"] == pytest.approx(
+        crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"].metrics["max_crush_m"], rel=1e-9
+    )
+    assert faster.data == {}
+    assert faster.notes[0] == "t1: data not shown: recorded at 48.0 km/h (its velocity data), simulated at 56.0 km/h"
+    (job,) = simulation_figure_jobs("x", {"t1": faster}, folder)
+    assert job[1][3] == {}  # the figure draws no data under the prediction
+    heavier = crashnlp.simulate(path, params=result, mass=1.2 * v.mass)["t1"]
+    assert heavier.mass == pytest.approx(1.2 * v.mass) and heavier.data == {}
+    assert f"at {v.mass:.0f} kg (the problem), simulated at {1.2 * v.mass:.0f} kg" in heavier.notes[0]
+    out = folder / "what-if"
+    args = ["simulate", str(path), "--params", str(folder / "fit" / "result.json"), "--speed", "56 km/h", "--out", str(out)]
+    assert main([*args, "--no-figures"]) == 0
+    assert "t1: data not shown: recorded at 48.0 km/h" in capsys.readouterr().out
+    assert json.loads((out / "simulation.json").read_text())["tests"]["t1"]["notes"][0] == faster.notes[0]
+
+
+@pytest.mark.integration
+def test_a_result_alone_simulates_its_own_tests_with_a_what_if(fitted, capsys):
+    folder, _, raw, result, _ = fitted
+    at56 = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
+    alone = crashnlp.simulate(result, speed="56 km/h")["t1"]
+    assert alone.metrics["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-9)
+    out = folder / "alone"
+    assert main(["simulate", str(folder / "fit"), "--speed", "56 km/h", "--out", str(out), "--no-figures"]) == 0  # the folder
+    sim = json.loads((out / "simulation.json").read_text())["tests"]["t1"]
+    assert sim["metrics"]["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-6)
+    capsys.readouterr()
+    args = ["simulate", str(folder / "fit" / "result.json"), "--params", str(folder / "fit" / "result.json")]
+    assert main([*args, "--out", str(folder / "both")]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "is a result already" in err and not (folder / "both").exists()
+
+
+def test_data_recorded_at_other_conditions_are_named_within_one_percent():
+    recorded = Recorded((15.0, "the data header"), (1500.0, "the problem"), 0.15)
+    assert recorded.other(15.1, 1510.0, 0.15) is None  # within 1 %: the test's own data
+    assert recorded.other(15.0, 1500.0, 0.2) == "to 150 ms, simulated to 200 ms"
+    assert recorded.other(16.0, 1650.0, 0.15) == (
+        "at 54.0 km/h (the data header), simulated at 57.6 km/h; at 1500 kg (the problem), simulated at 1650 kg"
+    )
+
+
+def test_the_camry_at_another_speed_than_its_header_s_shows_no_data():
+    """The NHTSA test's accelerometers, recorded at 57.09 km/h (the EV5 header), are not drawn
+    under a 64 km/h simulation: integrated again from 64 km/h they would only look like data."""
+    camry = "problems/nhtsa-10146.yaml"
+    same = crashnlp.simulate(camry)["10146"]
+    assert set(same.data) == {"accel", "velocity", "displacement"} and same.notes == ()
+    faster = crashnlp.simulate(crashnlp.load(camry).with_values({"tests.0.speed": "64 km/h"}))["10146"]
+    assert faster.data == {}
+    assert faster.notes[0] == "10146: data not shown: recorded at 57.1 km/h (the data header), simulated at 64.0 km/h"
+    assert crashnlp.simulate(camry, speed="64 km/h")["10146"].notes[0] == faster.notes[0]
 
 
 def test_the_prior_is_zero_on_a_straight_curve_and_follows_slope_changes():

@@ -411,6 +411,22 @@ def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp
     assert not (tmp_path / "out").exists()
 
 
+def test_a_study_refuses_a_folder_holding_another_run_s_results(small, tmp_path, capsys):
+    """The output rule of every command (crashnlp.files.claim): a fit's folder is not a study's."""
+    from crashnlp.cli import main
+    from crashnlp.files import RECORD
+
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / RECORD).write_text('{"run": "identify fit", "entries": ["result.json"]}')
+    code = main(["study", str(write_study(small)), "--out", str(out), "--check"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1
+    assert "holds the results of another run (identify fit), not of study small-study" in err
+    with pytest.raises(InputError, match="holds the results of another run"):
+        run_study(write_study(small), out, progress=False)
+
+
 # --------------------------------------------------------------------------- bad study files
 @pytest.mark.parametrize(
     "changes, message",

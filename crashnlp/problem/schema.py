@@ -106,6 +106,21 @@ def _speed(v: float | None) -> float | None:
     return v
 
 
+def what_if(speed: QuantityIn | None, mass: QuantityIn | None, prefix: str = "") -> tuple[float | None, float | None]:
+    """A speed and a mass given outside a problem file ("64 km/h", "1650 kg"; a plain number is
+    SI), in SI and checked as a file's are; a ProblemError names `prefix` + speed or mass."""
+    out = []
+    for name, value, unit, check in (("speed", speed, "m/s", _speed), ("mass", mass, "kg", _mass)):
+        try:
+            si = None if value is None else to_si(value, unit)
+            if si is not None and not math.isfinite(si):
+                raise ValueError("not a finite number")
+            out.append(check(si))
+        except ValueError as exc:
+            raise ProblemError(f"{prefix}{name} {value}: {exc}") from None
+    return out[0], out[1]
+
+
 @dataclass(frozen=True)
 class Unit:
     """Marks a float field as a physical quantity in SI `si`: the file gives a `QuantityIn`,

@@ -69,7 +69,7 @@ def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
     from crashnlp.engine.executors import require_dask, start_early
     from crashnlp.errors import InputError, Interrupted
-    from crashnlp.files import check_writable
+    from crashnlp.files import check_output, run_name
 
     check = getattr(args, "check", False)
     if args.executor == "dask":
@@ -85,7 +85,8 @@ def cmd_study(args) -> int:
         raise InputError(f"--timeout {args.timeout:g}: must be a number of seconds from 0 to 3600")
     if args.address is not None and args.executor != "dask":
         raise InputError("--address needs --executor dask")
-    out = check_writable(Path(args.out) if args.out else RESULTS / load_study(args.study).name)
+    name = load_study(args.study).name
+    out = check_output(Path(args.out) if args.out else RESULTS / name, run_name("study", name))
     try:
         rows = run_study(
             args.study,

@@ -25,6 +25,7 @@ from crashnlp.engine import CONNECT_TIMEOUT
 from crashnlp.engine.executors import default_workers, make_executor, start_early
 from crashnlp.engine.schedule import run_tree
 from crashnlp.errors import InputError
+from crashnlp.files import claim, run_name
 from crashnlp.jsonfile import clean
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
@@ -77,6 +78,22 @@ def run_study(
         _validate(study, c, raws[c.number], checked)
     if check:
         return []
+    with claim(out, run_name("study", study.name), option=None):
+        return _run(study, cases, raws, out, executor, workers, address, progress, timeout)
+
+
+def _run(
+    study: Study,
+    cases: list[PlannedCase],
+    raws: dict[int, dict],
+    out: Path,
+    executor: str,
+    workers: int | None,
+    address: str | None,
+    progress: bool,
+    timeout: float,
+) -> list[dict[str, Any]]:
+    """Solve the cases not yet stored in `out`/cases, then write the table and the figures."""
     keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
     store = CaseStore(out / "cases")
     rows = {c.number: row for c in cases if (row := store.row(c.id, keys[c.number])) is not None}

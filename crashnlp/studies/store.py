@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from crashnlp.files import atomic_open
+from crashnlp.files import atomic_open, note_output
 from crashnlp.jsonfile import write_json
 
 if TYPE_CHECKING:
@@ -37,13 +37,22 @@ class CaseStore:
         row = stored.get("row")
         if not isinstance(row, dict) or not isinstance(row.get("status"), str):
             return None
-        size = stored.get("vector", -1)  # -1: a row stored without its size; check the file if there
+        if not self._whole(case, stored.get("vector", -1)):
+            return None
+        for kept in (path, self.folder / f"{case}.npy"):  # the study's output as much as a case it solves
+            if kept.exists():
+                note_output(kept)
+        return row
+
+    def _whole(self, case: str, size: int | None) -> bool:
+        """Whether the solution vector a stored row promises (its size; None: none; -1: a row
+        stored without its size, so the file's, if there) is there, whole."""
         if size is None:
-            return row
+            return True
         z = self.vector(case)
         if size == -1:
-            return row if z is not None or not (self.folder / f"{case}.npy").exists() else None
-        return row if z is not None and z.size == size else None
+            return z is not None or not (self.folder / f"{case}.npy").exists()
+        return z is not None and z.size == size
 
     def vector(self, case: str) -> np.ndarray | None:
         """The stored solution vector, or None if there is none or it is not a whole finite vector."""
