@@ -44,7 +44,7 @@ from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
-from crashnlp.simulation import Response, write_response_csv
+from crashnlp.response import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
 

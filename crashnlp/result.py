@@ -20,8 +20,8 @@ import numpy as np
 from crashnlp.files import write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
-from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
-from crashnlp.simulation import Response, write_response_csv
+from crashnlp.outputs import MEASURABLE, OUTPUT
+from crashnlp.response import Response, read_response, write_response_csv
 
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
@@ -214,13 +214,6 @@ def _test_json(t: TestResult) -> dict[str, Any]:
 def _fit_json(f: ChannelFit) -> dict[str, Any]:
     out = OUTPUT[f.channel]
     return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}
-
-
-def read_response(path: Path) -> Response:
-    """A response.csv back in SI (the registry's written outputs)."""
-    table = np.genfromtxt(path, delimiter=",", names=True)
-    outputs = {o.name: table[o.column] / o.factor for o in COLUMNS}
-    return Response(np.asarray(table["time_s"]), outputs, np.zeros((0, table.size)))
 
 
 def write_result(result: Result, out: Path, figures: bool = True) -> None:

@@ -15,8 +15,8 @@ from crashnlp.model.tail import trend_tail
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
+from crashnlp.response import Response
 from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
-from crashnlp.simulation import Response
 from crashnlp.summary import channel_consistency, data_metrics, response_metrics
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
