@@ -44,8 +44,18 @@ def write_response_csv(
     write_columns(path, {"time_s": np.asarray(time), **written, **(extra or {})})
 
 
+def read_columns(path: Path) -> dict[str, np.ndarray]:
+    """The columns of a CSV `write_columns` wrote, by name (a response.csv with any extra columns)."""
+    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    return {name: np.asarray(table[name], dtype=float) for name in table.dtype.names or ()}
+
+
+def response_of(columns: dict[str, np.ndarray]) -> Response:
+    """The response in a response.csv's columns (`read_columns`), back in SI."""
+    outputs = {o.name: columns[str(o.column)] / o.factor for o in COLUMNS}
+    return Response(columns["time_s"], outputs, np.zeros((0, columns["time_s"].size)))
+
+
 def read_response(path: Path) -> Response:
     """A response.csv back in SI (the registry's written outputs)."""
-    table = np.genfromtxt(path, delimiter=",", names=True)
-    outputs = {o.name: table[o.column] / o.factor for o in COLUMNS}
-    return Response(np.asarray(table["time_s"]), outputs, np.zeros((0, table.size)))
+    return response_of(read_columns(path))

@@ -153,7 +153,9 @@ class Result:
 
     @classmethod
     def load(cls, folder: str | Path) -> Result:
-        """A Result read back from a folder `save` wrote (responses from response.csv)."""
+        """A Result read back from a folder `save` wrote (responses from response.csv). The data
+        and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
+        ratings, its node arrays are empty."""
         folder = Path(folder)
         raw = json.loads((folder / "result.json").read_text())
         tests = {}
@@ -164,7 +166,7 @@ class Result:
                 t["speed_mps"],
                 response,
                 {},
-                {},
+                {c: _fit_from_json(c, f) for c, f in t.get("fit", {}).items()},
                 t["metrics"]["model"],
                 t["metrics"]["data"],
                 _number(t.get("loading_ends_s")),
@@ -216,6 +218,12 @@ def _fit_json(f: ChannelFit) -> dict[str, Any]:
     return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}
 
 
+def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
+    """A channel's fit as result.json keeps it (`_fit_json`), back in SI, without its nodes."""
+    factor, empty = OUTPUT[channel].factor, np.zeros(0)
+    return ChannelFit(channel, empty, empty, empty, raw["sigma"] / factor, raw["rmse"] / factor, raw["iso18571"])
+
+
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
     """result.json, per-test responses, the force-crush table, and the figures after them."""
     for name, t in result.tests.items():
@@ -242,7 +250,7 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
         jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
-        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items()}
+        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
             jobs.append(("residual_figure", (out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)))
     fc = result.force_crush

@@ -90,7 +90,7 @@ def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[
         x = np.array([float(c.index[0] if len(c.index) == 1 else c.index[i]) for c, _ in members])
         xlabel = f"{entry.path} (value number)"
     order = np.argsort(x, kind="stable")
-    series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
+    series = {n: np.array([number(r.get(n)) for _, r in members])[order] for n in names}
     return {"x": x[order], "series": series, "xlabel": xlabel}
 
 
@@ -101,5 +101,6 @@ def draw_figure(job: dict[str, Any]) -> bytes:
     return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"])
 
 
-def _number(value: Any) -> float:
+def number(value: Any) -> float:
+    """A table cell as a number: NaN for an empty or non-numeric one."""
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan
