@@ -50,9 +50,11 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
             os.unlink(tmp)
 
 
-def write_columns(path: Path, columns: dict[str, np.ndarray]) -> None:
-    """A CSV of numeric columns (header: their names), nine significant digits."""
+def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:
+    """A CSV of numeric columns (header: their names), nine significant digits; `comments` go
+    first, each a line starting with "# " (what the columns are, a check of them)."""
     with atomic_open(path) as fh:
+        fh.writelines(f"# {line}\n" for line in comments)
         writer = csv.writer(fh)
         writer.writerow(columns)
         for row in zip(*(np.asarray(c, dtype=float) for c in columns.values())):

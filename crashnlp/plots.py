@@ -104,6 +104,49 @@ def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str
     axes[-1, 0].set_xlabel(xlabel)
     fig.suptitle(title)
     _layout(fig)
+    return _png(fig)
+
+
+def correlation_png(labels: list[str], matrix: np.ndarray, title: str) -> bytes:
+    """The estimates' correlation matrix as a heatmap, -1 to 1 (a report's map), as PNG bytes."""
+    n = len(labels)
+    side = max(4.5, 0.42 * n + 3.0)
+    fig, ax = plt.subplots(figsize=(side + 1.0, side))
+    image = ax.imshow(np.asarray(matrix, dtype=float), cmap="RdBu_r", vmin=-1.0, vmax=1.0)
+    ax.set_xticks(range(n), labels, rotation=90, fontsize=8)
+    ax.set_yticks(range(n), labels, fontsize=8)
+    for i, j in np.ndindex(n, n):
+        value = matrix[i][j]
+        if value is not None and np.isfinite(value) and n <= 16:
+            ax.text(j, i, f"{value:.2f}", ha="center", va="center", fontsize=7, color="white" if abs(value) > 0.6 else "black")
+    fig.colorbar(image, ax=ax, fraction=0.046, pad=0.04, label="correlation")
+    ax.set_title(title)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def map_png(x: list[str], y: list[str], values: np.ndarray, labels: tuple[str, str, str], title: str) -> bytes:
+    """A study's two-entry grid as a heatmap: `values` (len(y) x len(x), NaN where a case failed)
+    over the swept values as written; labels: x axis, y axis, colour bar. PNG bytes."""
+    fig, ax = plt.subplots(figsize=(6.5, 4.8))
+    grid = np.ma.masked_invalid(np.asarray(values, dtype=float))
+    image = ax.imshow(grid, cmap="viridis", origin="lower", aspect="auto")
+    ax.set_xticks(range(len(x)), x)
+    ax.set_yticks(range(len(y)), y)
+    failed = np.ma.getmaskarray(grid)
+    for i, j in np.ndindex(grid.shape):
+        text = "failed" if failed[i, j] else f"{grid[i, j]:.4g}"
+        ax.text(j, i, text, ha="center", va="center", fontsize=8, color="white")
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    fig.colorbar(image, ax=ax, label=labels[2])
+    ax.set_title(title)
+    fig.tight_layout()
+    return _png(fig)
+
+
+def _png(fig) -> bytes:
+    """The figure as PNG bytes, closed."""
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=DPI)
     plt.close(fig)
