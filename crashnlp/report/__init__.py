@@ -139,8 +139,8 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
 
 def _parameters(result: Result) -> list[dict[str, str]]:
     """Every estimated value, one number each: value, standard error and 95 % interval (the
-    profile's where the fit profiled it, else value ± 1.96 standard errors), its bounds, in the
-    unit it reads in."""
+    profile's where the fit profiled it, else value ± 1.96 standard errors, cut at its bounds),
+    its bounds, in the unit it reads in."""
     problem = result.identified.as_problem(result.name) if result.identified is not None else None
     bounds = dict(zip(result.identified.labels, result.identified.bounds)) if result.identified is not None else {}
     rows = []
@@ -163,7 +163,10 @@ def _parameter(
     if profile.get("lower") is not None and profile.get("upper") is not None:
         interval, how = (profile["lower"], profile["upper"]), "profile"
     elif std is not None and math.isfinite(std):
-        interval, how = (value - Z95 * std, value + Z95 * std), "± 1.96 std"
+        lo, hi = bounds or (-math.inf, math.inf)
+        interval = (max(value - Z95 * std, lo), min(value + Z95 * std, hi))
+        cut = interval != (value - Z95 * std, value + Z95 * std)
+        how = "± 1.96 std" + (", cut at a bound" if cut else "")
     else:
         interval, how = None, "not identified"
     return {
