@@ -84,3 +84,9 @@ def shown_unit(unit: str) -> tuple[str, float]:
     """The unit an SI quantity is shown in, and the factor from SI to it (the SI unit itself, 1.0,
     where no other reads better)."""
     return SHOWN_UNITS.get(unit, (unit, 1.0))
+
+
+def test_title(name: str, test: str) -> str:
+    """A problem's test as a figure names it: the problem alone where its name holds the test's
+    ("pickup-56kph", test "56kph"; "v10146", test "v10146"), else both."""
+    return name if name.endswith(test) else f"{name}, test {test}"

@@ -57,17 +57,23 @@ def response_figure(
     _save(fig, path)
 
 
-def force_crush_figure(path: Path, curves: dict[str, tuple], points: tuple | None = None, title: str = "") -> None:
-    """Force against crush: named curves (x m, F N) and optional breakpoint markers."""
+def force_crush_figure(
+    path: Path, curves: dict[str, tuple], points: tuple | None = None, title: str = "", measured: dict[str, tuple] | None = None
+) -> None:
+    """Force against crush: named curves (x m, F N), optional breakpoint markers, and behind them
+    measured curves in grey."""
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    for i, (label, (x, f)) in enumerate((measured or {}).items()):
+        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, lw=1.0, color=f"{0.55 + 0.1 * i:.2f}", label=label)
     for i, (label, (x, f)) in enumerate(curves.items()):
-        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, lw=1.6, color=f"C{i}", label=label)
+        style = "--" if label.startswith("unloading") else "-"
+        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, style, lw=1.6, color=f"C{i}", label=label)
     if points is not None:
         ax.plot(np.asarray(points[0]) * 1e3, np.asarray(points[1]) / 1e3, "o", color="C0", ms=4)
     ax.set_xlabel("crush (mm)")
     ax.set_ylabel("force (kN)")
     ax.grid(alpha=0.3)
-    ax.legend()
+    ax.legend(fontsize=8)
     ax.set_title(title)
     _layout(fig)
     _save(fig, path)
@@ -99,7 +105,8 @@ def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str
     fig, axes = plt.subplots(len(series), 1, figsize=(6.5, 2.2 * len(series) + 0.5), sharex=True, squeeze=False)
     for ax, (label, y) in zip(axes[:, 0], series.items()):
         ax.plot(x, y, "o-", color="C0")
-        ax.set_ylabel(label)
+        ax.set_ylabel(label, fontsize=8)
+        ax.ticklabel_format(useOffset=False)  # no "1e-5+5.908e-1": the values as they are
         ax.grid(alpha=0.3)
     axes[-1, 0].set_xlabel(xlabel)
     fig.suptitle(title)
@@ -134,9 +141,11 @@ def map_png(x: list[str], y: list[str], values: np.ndarray, labels: tuple[str, s
     ax.set_xticks(range(len(x)), x)
     ax.set_yticks(range(len(y)), y)
     failed = np.ma.getmaskarray(grid)
+    shade = (np.asarray(values, dtype=float) - np.nanmin(values)) / max(float(np.nanmax(values) - np.nanmin(values)), 1e-300)
     for i, j in np.ndindex(grid.shape):
+        light = not failed[i, j] and shade[i, j] > 0.6  # viridis' yellow end: dark text reads
         text = "failed" if failed[i, j] else f"{grid[i, j]:.4g}"
-        ax.text(j, i, text, ha="center", va="center", fontsize=8, color="white")
+        ax.text(j, i, text, ha="center", va="center", fontsize=8, color="black" if light else "white")
     ax.set_xlabel(labels[0])
     ax.set_ylabel(labels[1])
     fig.colorbar(image, ax=ax, label=labels[2])

@@ -20,7 +20,7 @@ import numpy as np
 from crashnlp.files import write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
-from crashnlp.outputs import MEASURABLE, OUTPUT
+from crashnlp.outputs import MEASURABLE, OUTPUT, test_title
 from crashnlp.response import Response, read_response, write_response_csv
 
 if TYPE_CHECKING:
@@ -87,13 +87,15 @@ class TestResult:
 
 @dataclass(frozen=True)
 class LoadingCurve:
-    """The identified loading curve, its breakpoints, and a reference curve if the problem has one."""
+    """The identified loading curve, its breakpoints, a reference curve if the problem has one,
+    and per test with data its measured m |a| (spring and damper) against CG travel while loading."""
 
     crush: np.ndarray
     force: np.ndarray
     breakpoints: np.ndarray
     values: np.ndarray
     reference: tuple[np.ndarray, np.ndarray] | None = None
+    measured: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
 
 
 @dataclass(frozen=True)
@@ -249,21 +251,41 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     jobs: list[Job] = []
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
-        jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
+        title = f"{test_title(result.name, name)}: {'fit to the data' if t.data else 'model'}"
+        jobs.append(("response_figure", (out / name / "fit.png", title, model, t.data)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
-            jobs.append(("residual_figure", (out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)))
-    fc = result.force_crush
-    if fc is not None:
-        curves = {"identified loading curve": (fc.crush, fc.force)}
-        tail = result.identified.model["spring"].get("tail") if result.identified is not None else None
-        if isinstance(tail, dict):  # the fitted curve to the tail's start, then the tail that predictions follow
-            inside = fc.crush <= tail["start"]
-            curves["identified loading curve"] = (fc.crush[inside], fc.force[inside])
-            x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
-            at_start = np.interp(tail["start"], fc.crush, fc.force)
-            curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
-        if fc.reference is not None:
-            curves["reference"] = fc.reference
-        jobs.append(("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)))
+            title = f"{test_title(result.name, name)}: residuals (model - data)"
+            jobs.append(("residual_figure", (out / name / "residuals.png", title, residuals)))
+    if result.force_crush is not None:
+        jobs.append(_force_crush_job(result, result.force_crush, out))
     return jobs
+
+
+def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
+    """The force-crush figure: the identified loading curve (to the tail's start, then the tail
+    predictions follow), the unloading from each test's largest crush, the reference, and behind
+    them each test's measured m |a| while loading."""
+    curves = {"identified loading curve": (fc.crush, fc.force)}
+    model = result.identified.model if result.identified is not None else {}
+    tail = model.get("spring", {}).get("tail")
+    if isinstance(tail, dict):
+        inside = fc.crush <= tail["start"]
+        curves["identified loading curve"] = (fc.crush[inside], fc.force[inside])
+        x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
+        at_start = np.interp(tail["start"], fc.crush, fc.force)
+        curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
+    unloading = model.get("unloading", {})
+    if unloading.get("law") == "plastic":
+        stiffness = float(unloading["stiffness"])
+        for name, t in result.tests.items():
+            top = float(np.max(t.response["crush"]))
+            force = float(np.interp(top, fc.crush, fc.force))
+            label = f"unloading at {stiffness / 1e6:.3g} kN/mm" + (f" ({name})" if len(result.tests) > 1 else "")
+            curves[label] = (np.array([top - force / stiffness, top]), np.array([0.0, force]))
+    if fc.reference is not None:
+        curves["reference"] = fc.reference
+    several = len(fc.measured) > 1
+    measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
+    title = f"{result.name}: identified loading curve"
+    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured))

@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.case import Case, TestCase
-from crashnlp.completion import measured_pulses
+from crashnlp.completion import measured_pulse, measured_pulses
 from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
 from crashnlp.model.tail import trend_tail
 from crashnlp.nlp import NOT_REPORTED
@@ -209,7 +209,8 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
 
 
 def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
-    """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
+    """The loading curve from zero to just past the largest crush reached, its breakpoints, and
+    each test's measured m |a| against CG travel while loading."""
     x = np.linspace(0.0, max(model_reach(tests) * 1.05, 1e-3), 201)
     curve = case.loading_curve(p)
     bps = p[case.layout.index("model.spring.crush_breakpoints")]
@@ -217,4 +218,6 @@ def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> Loa
     f, values = curve(x), curve(inside) if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
-    return LoadingCurve(x, f, inside, values, reference)
+    pulses = {test.name: measured_pulse(case.problem, test) for test in case.tests}
+    measured = {name: (p.crush[p.loading], p.force[p.loading]) for name, p in pulses.items() if p is not None}
+    return LoadingCurve(x, f, inside, values, reference, measured)

@@ -25,7 +25,7 @@ from crashnlp.folders import folder_kind, read_result, read_simulation, read_stu
 from crashnlp.identified import Z95
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
 from crashnlp.result import Result
-from crashnlp.studies.table import PLOTTED, number
+from crashnlp.studies.table import PLOTTED, metric_column, number
 
 if TYPE_CHECKING:
     from crashnlp.prediction import PredictedTest
@@ -221,9 +221,7 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
     metrics in the console's units), its figures, and for a complete two-entry grid a map of
     the objective and of each metric it plots over the grid."""
     swept = [k for k in rows[0] if f"{k}_si" in rows[0]]
-    metrics = [
-        (k, f"{k.rpartition('.')[0]}: {label}", f) for k in rows[0] for key, label, f in METRIC_ROWS if k.endswith(f".{key}")
-    ]
+    metrics = [(k, *shown) for k in rows[0] if (shown := metric_column(k)) is not None]
     columns = ["case", *swept, "status", "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
     body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
