@@ -86,7 +86,7 @@ def shown_unit(unit: str) -> tuple[str, float]:
     return SHOWN_UNITS.get(unit, (unit, 1.0))
 
 
-def test_title(name: str, test: str) -> str:
+def named_test(name: str, test: str) -> str:
     """A problem's test as a figure names it: the problem alone where its name holds the test's
     ("pickup-56kph", test "56kph"; "v10146", test "v10146"), else both."""
     return name if name.endswith(test) else f"{name}, test {test}"

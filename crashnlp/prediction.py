@@ -44,7 +44,7 @@ from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
-from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT, test_title
+from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT, named_test
 from crashnlp.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
@@ -339,7 +339,7 @@ def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Pat
         model = {k: (r.time, r[k]) for k in MEASURABLE}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
         band = ", 95 % band" if bands else ""
-        title = f"{test_title(case.name, test.name)}: predicted at {test.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg{band}"
+        title = f"{named_test(case.name, test.name)}: predicted at {test.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg{band}"
         jobs.append(("response_figure", (out / test.name / "response.png", title, model, data_curves(test), bands)))
     return jobs
 

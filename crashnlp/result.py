@@ -20,7 +20,7 @@ import numpy as np
 from crashnlp.files import write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
-from crashnlp.outputs import MEASURABLE, OUTPUT, test_title
+from crashnlp.outputs import MEASURABLE, OUTPUT, named_test
 from crashnlp.response import Response, read_response, write_response_csv
 
 if TYPE_CHECKING:
@@ -251,11 +251,11 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     jobs: list[Job] = []
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
-        title = f"{test_title(result.name, name)}: {'fit to the data' if t.data else 'model'}"
+        title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model'}"
         jobs.append(("response_figure", (out / name / "fit.png", title, model, t.data)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
-            title = f"{test_title(result.name, name)}: residuals (model - data)"
+            title = f"{named_test(result.name, name)}: residuals (model - data)"
             jobs.append(("residual_figure", (out / name / "residuals.png", title, residuals)))
     if result.force_crush is not None:
         jobs.append(_force_crush_job(result, result.force_crush, out))

@@ -16,7 +16,7 @@ from builders import ROOT
 from crashnlp.cli import main
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.pendulum import build_model
-from crashnlp.outputs import shown_unit
+from crashnlp.outputs import named_test, shown_unit
 from crashnlp.result import Result
 from crashnlp.studies.store import CaseStore
 from crashnlp.units import G0
@@ -213,3 +213,8 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(folder) in err and message in err, err
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_figure_names_a_test_once():
+    assert named_test("v10146", "v10146") == "v10146" and named_test("pickup-56kph", "56kph") == "pickup-56kph"
+    assert named_test("pickup-joint", "40kph") == "pickup-joint, test 40kph"
