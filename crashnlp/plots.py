@@ -58,13 +58,21 @@ def response_figure(
 
 
 def force_crush_figure(
-    path: Path, curves: dict[str, tuple], points: tuple | None = None, title: str = "", measured: dict[str, tuple] | None = None
+    path: Path,
+    curves: dict[str, tuple],
+    points: tuple | None = None,
+    title: str = "",
+    measured: dict[str, tuple] | None = None,
+    band: tuple | None = None,
 ) -> None:
-    """Force against crush: named curves (x m, F N), optional breakpoint markers, and behind them
-    measured curves in grey."""
+    """Force against crush: named curves (x m, F N), optional breakpoint markers, the first curve's
+    95 % band (x, low, high) shaded, and behind them measured curves in grey."""
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
     for i, (label, (x, f)) in enumerate((measured or {}).items()):
         ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, lw=1.0, color=f"{0.55 + 0.1 * i:.2f}", label=label)
+    if band is not None:
+        x, low, high = (np.asarray(v) for v in band)
+        ax.fill_between(x * 1e3, low / 1e3, high / 1e3, color="C0", alpha=0.2, lw=0, label="95 %")
     for i, (label, (x, f)) in enumerate(curves.items()):
         style = "--" if label.startswith("unloading") else "-"
         ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, style, lw=1.6, color=f"C{i}", label=label)

@@ -88,7 +88,8 @@ class TestResult:
 @dataclass(frozen=True)
 class LoadingCurve:
     """The identified loading curve, its breakpoints, a reference curve if the problem has one,
-    and per test with data its measured m |a| (spring and damper) against CG travel while loading."""
+    per test with data its measured m |a| (spring and damper) against CG travel while loading,
+    and the curve's 95 % band (low, high: None without a covariance)."""
 
     crush: np.ndarray
     force: np.ndarray
@@ -96,6 +97,7 @@ class LoadingCurve:
     values: np.ndarray
     reference: tuple[np.ndarray, np.ndarray] | None = None
     measured: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    band: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -264,14 +266,13 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
 
 def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
     """The force-crush figure: the identified loading curve (to the tail's start, then the tail
-    predictions follow), the unloading from each test's largest crush, the reference, and behind
-    them each test's measured m |a| while loading."""
-    curves = {"identified loading curve": (fc.crush, fc.force)}
+    predictions follow) and its 95 % band, the unloading from each test's largest crush, the
+    reference, and behind them each test's measured m |a| while loading."""
     model = result.identified.model if result.identified is not None else {}
     tail = model.get("spring", {}).get("tail")
+    inside = fc.crush <= tail["start"] if isinstance(tail, dict) else np.ones(fc.crush.size, bool)
+    curves = {"identified loading curve": (fc.crush[inside], fc.force[inside])}
     if isinstance(tail, dict):
-        inside = fc.crush <= tail["start"]
-        curves["identified loading curve"] = (fc.crush[inside], fc.force[inside])
         x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
         at_start = np.interp(tail["start"], fc.crush, fc.force)
         curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
@@ -288,4 +289,5 @@ def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
     several = len(fc.measured) > 1
     measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
     title = f"{result.name}: identified loading curve"
-    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured))
+    band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
+    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))

@@ -67,9 +67,14 @@ def test_simulate_draws_its_figure_in_the_figure_process(tmp_path):
 
 
 @pytest.mark.integration
-def test_the_force_crush_figure_draws_the_measured_curve_and_the_unloading(result, tmp_path):
-    ((_, (_, curves, _, title, measured)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "force_crush_figure"]
+def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unloading(result, tmp_path):
+    ((_, (_, curves, _, title, measured, band)),) = [
+        job for job in figure_jobs(result, tmp_path) if job[0] == "force_crush_figure"
+    ]
     assert title == f"{result.name}: identified loading curve"
+    x, low, high = band
+    _, identified = curves["identified loading curve"]
+    assert np.all(low <= identified) and np.all(identified <= high) and np.max(high - low) > 0
     crush, force = measured["measured m|a| vs CG travel"]
     test = result.tests["56kph"]
     assert np.max(crush) == pytest.approx(test.data_metrics["max_crush_m"], rel=0.01)  # loading: to the largest crush
