@@ -65,11 +65,11 @@ def result_page(result: Result, folder: Path) -> str:
     """The page of a fit or design: the problem in brief, per test its figures, metrics and
     ratings, the estimates with their errors and intervals, their correlations, what sits at a
     bound or is not identified, and the notes."""
-    from crashnlp import plots  # matplotlib: only when a page draws
-
     figures = _figures(folder, ["force_crush.png"], "the identified loading curve")
     correlation = result.correlation
     if correlation.get("labels"):
+        from crashnlp import plots  # matplotlib: only when a page draws
+
         matrix = np.array([[np.nan if v is None else v for v in row] for row in correlation["matrix"]], dtype=float)
         png = plots.correlation_png(list(correlation["labels"]), matrix, f"{result.name}: correlation of the estimates")
         figures.append({"uri": _uri(png), "caption": "correlation of the estimates (sandwich covariance)"})
