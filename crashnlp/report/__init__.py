@@ -149,16 +149,23 @@ def _parameters(result: Result) -> list[dict[str, str]]:
         stds = result.std_errors.get(path)
         values = value if isinstance(value, list) else [value]
         std_list = stds if isinstance(stds, list) else [stds] * len(values)
+        without = "not identified" if path in result.std_errors else "no standard errors"  # a design has none
         for i, (v, s) in enumerate(zip(values, std_list)):
             label = f"{path}[{i}]" if isinstance(value, list) else path
-            rows.append(_parameter(result, label, v, s, bounds.get(label), (unit, factor)))
+            rows.append(_parameter(result, label, v, (s, without), bounds.get(label), (unit, factor)))
     return rows
 
 
 def _parameter(
-    result: Result, label: str, value: float, std: float | None, bounds: tuple[float, float] | None, unit: tuple[str, float]
+    result: Result,
+    label: str,
+    value: float,
+    error: tuple[float | None, str],
+    bounds: tuple[float, float] | None,
+    unit: tuple[str, float],
 ) -> dict[str, str]:
-    name, factor = unit
+    """One estimated value's row; `error`: its standard error (None: none) and why there is none."""
+    (std, without), (name, factor) = error, unit
     profile = result.profiles.get(label, {})
     if profile.get("lower") is not None and profile.get("upper") is not None:
         interval, how = (profile["lower"], profile["upper"]), "profile"
@@ -168,7 +175,7 @@ def _parameter(
         cut = interval != (value - Z95 * std, value + Z95 * std)
         how = "± 1.96 std" + (", cut at a bound" if cut else "")
     else:
-        interval, how = None, "not identified"
+        interval, how = None, without
     return {
         "label": label,
         "value": _cell(value, factor, 5),
