@@ -26,6 +26,11 @@ class Output:
     measurable: bool = False  # a test may measure it (a data channel)
 
     @property
+    def plot_unit(self) -> str:
+        """The unit of the figure's axis, as its label gives it."""
+        return self.label[self.label.rindex("(") + 1 : -1]
+
+    @property
     def key(self) -> str:
         """Name with its SI unit, as the Python API returns it: crush_m, accel_mps2."""
         return f"{self.name}_{SUFFIX[self.unit]}"

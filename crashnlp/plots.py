@@ -25,10 +25,16 @@ def draw(jobs: list[Job]) -> None:
 
 
 def response_figure(
-    path: Path, title: str, model: dict[str, tuple], data: dict[str, tuple] | None = None, bands: dict[str, tuple] | None = None
+    path: Path,
+    title: str,
+    model: dict[str, tuple],
+    data: dict[str, tuple] | None = None,
+    bands: dict[str, tuple] | None = None,
+    notes: dict[str, str] | None = None,
 ) -> None:
     """A panel per measurable output, two a row: model curves (t, y SI) with the measured ones
-    behind them, and where given the model's 95 % band (t, low, high SI) shaded."""
+    behind them, where given the model's 95 % band (t, low, high SI) shaded, and a panel's note
+    (its fit's RMSE and rating) above it."""
     rows = -(-len(PANELS) // 2)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 3.25 * rows), sharex=True)
     for ax in axes.flat[len(PANELS) :]:
@@ -48,6 +54,8 @@ def response_figure(
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="C0", lw=1.6, label="model")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
+        if notes and name in notes:
+            ax.set_title(notes[name], loc="right", fontsize=8, pad=2)
     for ax in axes.flat[len(PANELS) - 2 :]:
         ax.set_xlabel("time (ms)")
         ax.xaxis.set_tick_params(labelbottom=True)

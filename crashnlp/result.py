@@ -254,7 +254,7 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     for name, t in result.tests.items():
         model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
         title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model'}"
-        jobs.append(("response_figure", (out / name / "fit.png", title, model, t.data)))
+        jobs.append(("response_figure", (out / name / "fit.png", title, model, t.data, None, _fit_notes(t))))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
             title = f"{named_test(result.name, name)}: residuals (model - data)"
@@ -262,6 +262,16 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     if result.force_crush is not None:
         jobs.append(_force_crush_job(result, result.force_crush, out))
     return jobs
+
+
+def _fit_notes(t: TestResult) -> dict[str, str]:
+    """Each fitted channel's RMSE (in its panel's unit) and ISO 18571 rating, as its panel shows them."""
+    notes = {}
+    for c, f in t.fit.items():
+        out = OUTPUT[c]
+        rating = f", ISO 18571 {f.iso18571['overall']:.3f}" if f.iso18571 else ""
+        notes[c] = f"RMSE {f.rmse * out.plot_factor:.3g} {out.plot_unit}{rating}"
+    return notes
 
 
 def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:

@@ -82,3 +82,14 @@ def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unload
     top = float(np.max(test.response["crush"]))
     assert x[1] == pytest.approx(top) and f[0] == 0.0
     assert (f[1] - f[0]) / (x[1] - x[0]) == pytest.approx(result.identified.model["unloading"]["stiffness"])
+
+
+@pytest.mark.integration
+def test_the_fit_figure_names_each_channels_rmse_and_rating(result, tmp_path):
+    ((_, (_, title, _, _, _, notes)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    assert title == f"{result.name}: fit to the data"  # pickup-56kph names its test already
+    fit = result.tests["56kph"].fit
+    assert set(notes) == set(fit)
+    for channel, f in fit.items():
+        assert notes[channel].endswith(f"ISO 18571 {f.iso18571['overall']:.3f}")
+    assert notes["displacement"].startswith(f"RMSE {fit['displacement'].rmse * 1e3:.3g} mm")
