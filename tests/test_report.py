@@ -218,3 +218,35 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
 def test_a_figure_names_a_test_once():
     assert named_test("v10146", "v10146") == "v10146" and named_test("pickup-56kph", "56kph") == "pickup-56kph"
     assert named_test("pickup-joint", "40kph") == "pickup-joint, test 40kph"
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["report", "--out", "{tmp}"], "is a folder; name the HTML file to write"),
+        (["export", "--format", "pulse", "--test", "nope"], "--test nope: {fit} has tests 56kph"),
+        (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
+        (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
+        (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
+        (["export", "--format", "xml"], "--format: invalid choice"),
+    ],
+)
+def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, capsys, options, message):
+    before = sorted(fit.rglob("*"))
+    argv = [options[0], str(fit), *(o.format(tmp=tmp_path) for o in options[1:])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message.format(fit=fit) in err, err
+    assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
+
+
+@pytest.mark.integration
+def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
+    folder = tmp_path / "copy"
+    folder.mkdir()
+    (folder / "result.json").write_bytes((fit / "result.json").read_bytes())
+    assert main(["report", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert f"{folder / 'result.json'}: does not read as crashnlp writes it" in err and "response.csv" in err
+    assert not (folder / "report.html").exists()
