@@ -59,6 +59,7 @@ OUTPUT: dict[str, Output] = {o.name: o for o in OUTPUTS}
 NAMES: tuple[str, ...] = tuple(o.name for o in OUTPUTS)
 MEASURABLE: tuple[str, ...] = tuple(o.name for o in OUTPUTS if o.measurable)
 COLUMNS: tuple[Output, ...] = tuple(o for o in OUTPUTS if o.column)
+PANELS: tuple[str, ...] = (*MEASURABLE, "crush")  # a response figure's panels: what a test measures, and the crush
 
 # the crash metrics of a fit, as the console and the report show them: result.json key, label, factor
 METRIC_ROWS = (

@@ -11,9 +11,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from crashnlp.outputs import MEASURABLE, OUTPUT  # noqa: E402
+from crashnlp.outputs import OUTPUT, PANELS  # noqa: E402
 
-PANELS = MEASURABLE  # the outputs a test measures, each a panel
 DPI = 110
 Job = tuple[str, tuple]  # a figure: the name of a figure function of this module, its arguments
 
@@ -31,10 +30,11 @@ def response_figure(
     data: dict[str, tuple] | None = None,
     bands: dict[str, tuple] | None = None,
     notes: dict[str, str] | None = None,
+    limits: dict[str, tuple] | None = None,
 ) -> None:
-    """A panel per measurable output, two a row: model curves (t, y SI) with the measured ones
-    behind them, where given the model's 95 % band (t, low, high SI) shaded, and a panel's note
-    (its fit's RMSE and rating) above it."""
+    """A panel per output of PANELS, two a row: model curves (t, y SI) with the measured ones
+    behind them, where given the model's 95 % band (t, low, high SI) shaded, a panel's note (its
+    fit's RMSE and rating) above it, and the problem's bounds on it (low, high SI; None: open)."""
     rows = -(-len(PANELS) // 2)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 3.25 * rows), sharex=True)
     for ax in axes.flat[len(PANELS) :]:
@@ -52,6 +52,9 @@ def response_figure(
         if name in model:
             t, y = model[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="C0", lw=1.6, label="model")
+        for end in (limits or {}).get(name, ()):
+            if end is not None:
+                ax.axhline(end * f, color="C3", ls="--", lw=1.0, label="bound")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
         if notes and name in notes:

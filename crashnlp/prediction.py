@@ -44,7 +44,7 @@ from crashnlp.case import Case, TestCase
 from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
-from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT, named_test
+from crashnlp.outputs import COLUMNS, OUTPUT, PANELS, named_test
 from crashnlp.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
@@ -336,7 +336,7 @@ def simulation_figure_jobs(case: Case, tests: dict[str, PredictedTest], out: Pat
     for test in case.tests:
         predicted = tests[test.name]
         r = predicted.response
-        model = {k: (r.time, r[k]) for k in MEASURABLE}
+        model = {k: (r.time, r[k]) for k in PANELS}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
         band = ", 95 % band" if bands else ""
         title = f"{named_test(case.name, test.name)}: predicted at {test.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg{band}"

@@ -20,7 +20,7 @@ import numpy as np
 from crashnlp.files import write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
-from crashnlp.outputs import MEASURABLE, OUTPUT, named_test
+from crashnlp.outputs import OUTPUT, PANELS, named_test
 from crashnlp.response import Response, read_response, write_response_csv
 
 if TYPE_CHECKING:
@@ -124,6 +124,7 @@ class Result:
     z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
     identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
     regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
+    output_bounds: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)  # constraints.bounds, SI
 
     @property
     def ok(self) -> bool:
@@ -144,6 +145,7 @@ class Result:
             "profiles": self.profiles,
             "covariance": self.covariance,
             "regularization": self.regularization,
+            "output_bounds": {name: list(ends) for name, ends in self.output_bounds.items()},
             "at_bound": self.at_bound,
             "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
@@ -196,6 +198,7 @@ class Result:
             profiles=raw.get("profiles", {}),
             covariance=raw.get("covariance", {}),
             regularization=raw.get("regularization", {}),
+            output_bounds={name: (lo, hi) for name, (lo, hi) in raw.get("output_bounds", {}).items()},
             notes=tuple(raw.get("notes", ())),
             identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )
@@ -252,9 +255,11 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     imported matplotlib and nothing of the model draws (crashnlp.drawing)."""
     jobs: list[Job] = []
     for name, t in result.tests.items():
-        model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
-        title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model'}"
-        jobs.append(("response_figure", (out / name / "fit.png", title, model, t.data, None, _fit_notes(t))))
+        model = {k: (t.response.time, t.response[k]) for k in PANELS}
+        fit = result.kind == "identify"
+        title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model' if fit else 'design'}"
+        path = out / name / ("fit.png" if fit else "response.png")
+        jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), result.output_bounds)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
             title = f"{named_test(result.name, name)}: residuals (model - data)"

@@ -86,7 +86,7 @@ def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unload
 
 @pytest.mark.integration
 def test_the_fit_figure_names_each_channels_rmse_and_rating(result, tmp_path):
-    ((_, (_, title, _, _, _, notes)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    ((_, (_, title, _, _, _, notes, _)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
     assert title == f"{result.name}: fit to the data"  # pickup-56kph names its test already
     fit = result.tests["56kph"].fit
     assert set(notes) == set(fit)

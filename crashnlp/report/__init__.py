@@ -129,7 +129,7 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     return {
         "name": name,
         "speed": f"{t.speed * 3.6:.1f} km/h",
-        "figures": _figures(folder / name, ["fit.png", "residuals.png"], f"test {name}"),
+        "figures": _figures(folder / name, ["fit.png", "response.png", "residuals.png"], f"test {name}"),
         "metrics": metrics,
         "has_data": bool(t.data_metrics),
         "fits": fits,
