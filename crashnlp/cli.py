@@ -1,4 +1,4 @@
-"""The `crashnlp` command: simulate, identify, design, study, init, schema.
+"""The `crashnlp` command: simulate, identify, design, study, init, report, export, schema.
 
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
@@ -139,6 +139,8 @@ def cmd_simulate(args) -> int:
 def _print_prediction(test) -> None:
     """One line of metrics per simulated test (with their 95 % intervals when the identified model
     gave them), and one line for a test past the identified range."""
+    from crashnlp.prediction import extrapolation_line
+
     parts = []
     for key, label, factor, unit, digits in PREDICTED_ROWS:
         value = test.metrics.get(key)
@@ -149,8 +151,6 @@ def _print_prediction(test) -> None:
         if band is not None:
             text += f" [{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
         parts.append(f"{text} {unit}")
-    from crashnlp.prediction import extrapolation_line
-
     print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if test.intervals else ""))
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
@@ -342,6 +342,7 @@ def cmd_schema(args) -> int:
 
 
 def cmd_report(args) -> int:
+    """The page of a fit's, a simulation's or a study's folder (crashnlp.report)."""
     from crashnlp.report import write_report
 
     print(f"wrote {write_report(Path(args.folder), Path(args.out) if args.out else None)}")
@@ -361,6 +362,7 @@ def cmd_export(args) -> int:
 
 
 def _export_curves(args, folder: Path) -> int:
+    """The identified model's curves as LS-DYNA keywords or CSV files."""
     from crashnlp import export
     from crashnlp.folders import read_result
 
@@ -380,6 +382,7 @@ def _export_curves(args, folder: Path) -> int:
 
 
 def _export_pulse(args, folder: Path, kind: str) -> int:
+    """One test's fitted or predicted pulse, and its velocity-change check."""
     from crashnlp import export
     from crashnlp.folders import read_result, read_simulation
 

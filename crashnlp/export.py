@@ -18,7 +18,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Literal
 
 import casadi as ca
 import numpy as np
@@ -31,8 +30,6 @@ from crashnlp.model.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.response import Response
 from crashnlp.units import G0
 
-Format = Literal["ls-dyna", "csv", "pulse"]
-FORMATS: tuple[Format, ...] = ("ls-dyna", "csv", "pulse")
 EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
 BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
