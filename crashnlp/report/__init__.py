@@ -227,8 +227,9 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
     """The page of a study: its table (swept values as written, status, objective, iterations,
     metrics in the console's units), its figures, and for a complete two-entry grid a map of
     the objective and of each metric it plots over the grid."""
-    swept = [k for k in rows[0] if f"{k}_si" in rows[0]]
-    metrics = [(k, *shown) for k in rows[0] if (shown := metric_column(k)) is not None]
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # a failed case's row lacks the metrics
+    swept = [k for k in keys if f"{k}_si" in keys]
+    metrics = [(k, *shown) for k in keys if (shown := metric_column(k)) is not None]
     columns = ["case", *swept, "status", "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
     body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
