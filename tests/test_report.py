@@ -7,6 +7,8 @@ import base64
 import html
 import json
 import re
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -250,3 +252,9 @@ def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
     err = capsys.readouterr().err
     assert f"{folder / 'result.json'}: does not read as crashnlp writes it" in err and "response.csv" in err
     assert not (folder / "report.html").exists()
+
+
+@pytest.mark.integration  # a process of its own
+def test_the_report_and_a_result_read_back_import_neither_casadi_nor_matplotlib():
+    code = "import sys, crashnlp.report, crashnlp.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
