@@ -30,6 +30,10 @@ class Output:
         """The unit of the figure's axis, as its label gives it."""
         return self.label[self.label.rindex("(") + 1 : -1]
 
+    def shown(self, value: float) -> str:
+        """An SI value of this output as its figures show it: 3 significant digits, the axis's unit."""
+        return f"{value * self.plot_factor:.3g} {self.plot_unit}"
+
     @property
     def key(self) -> str:
         """Name with its SI unit, as the Python API returns it: crush_m, accel_mps2."""

@@ -273,9 +273,8 @@ def _fit_notes(t: TestResult) -> dict[str, str]:
     """Each fitted channel's RMSE (in its panel's unit) and ISO 18571 rating, as its panel shows them."""
     notes = {}
     for c, f in t.fit.items():
-        out = OUTPUT[c]
         rating = f", ISO 18571 {f.iso18571['overall']:.3f}" if f.iso18571 else ""
-        notes[c] = f"RMSE {f.rmse * out.plot_factor:.3g} {out.plot_unit}{rating}"
+        notes[c] = f"RMSE {OUTPUT[c].shown(f.rmse)}{rating}"
     return notes
 
 

@@ -120,8 +120,8 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     fits = [
         {
             "channel": c,
-            "rmse": f"{f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}",
-            "sigma": f"{f.sigma * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}",
+            "rmse": OUTPUT[c].shown(f.rmse),
+            "sigma": OUTPUT[c].shown(f.sigma),
             "ratings": [_cell((f.iso18571 or {}).get(k), 1.0, 3) for k in RATINGS],
         }
         for c, f in t.fit.items()
