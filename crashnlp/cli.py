@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
-from crashnlp.files import check_writable
+from crashnlp.files import check_writable, check_writable_file
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
 from crashnlp.studies.cli import add_parser as add_study_parser
 
@@ -374,8 +374,7 @@ def _export_curves(args, folder: Path) -> int:
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
-    out = Path(args.out) if args.out else folder / f"{result.name}.k"
-    check_writable(out.parent)
+    out = check_writable_file(Path(args.out) if args.out else folder / f"{result.name}.k")
     export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
     return 0
@@ -394,8 +393,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
-    out = Path(args.out) if args.out else folder / f"{test}-pulse.csv"
-    check_writable(out.parent)
+    out = check_writable_file(Path(args.out) if args.out else folder / f"{test}-pulse.csv")
     export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())
     print(f"wrote {out}")

@@ -81,3 +81,12 @@ def check_writable(out: str | Path, option: str = "--out") -> Path:
     except OSError as exc:
         raise InputError(f"{option} {out}: cannot write in {probe} ({exc.strerror or exc})") from None
     return out
+
+
+def check_writable_file(path: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any work, a file to write that is a folder or whose folder cannot be written."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder; name the file to write")
+    check_writable(path.parent, option)
+    return path

@@ -226,7 +226,8 @@ def test_a_figure_names_a_test_once():
 @pytest.mark.parametrize(
     ("options", "message"),
     [
-        (["report", "--out", "{tmp}"], "is a folder; name the HTML file to write"),
+        (["report", "--out", "{tmp}"], "is a folder; name the file to write"),
+        (["export", "--format", "ls-dyna", "--out", "{tmp}"], "is a folder; name the file to write"),
         (["export", "--format", "pulse", "--test", "nope"], "--test nope: {fit} has tests 56kph"),
         (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
         (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),

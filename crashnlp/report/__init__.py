@@ -19,8 +19,7 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
-from crashnlp.errors import InputError
-from crashnlp.files import atomic_open, check_writable
+from crashnlp.files import atomic_open, check_writable_file
 from crashnlp.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.identified import Z95
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
@@ -45,10 +44,7 @@ _templates = jinja2.Environment(
 def write_report(folder: Path, out: Path | None = None) -> Path:
     """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all."""
     kind = folder_kind(folder)
-    out = out or folder / REPORT
-    if out.is_dir():
-        raise InputError(f"--out {out}: is a folder; name the HTML file to write")
-    check_writable(out.parent)
+    out = check_writable_file(out or folder / REPORT)
     if kind == "result":
         page = result_page(read_result(folder), folder)
     elif kind == "simulation":
