@@ -130,6 +130,8 @@ def test_the_study_figure_reads_in_degrees_under_the_consoles_labels(shipped):
     pitch = job["series"]["56kph: max pitch (deg)"]
     assert pitch == pytest.approx([r["56kph.max_pitch_deg"] for r in rows])
     assert job["series"]["56kph: max dynamic crush (mm)"] == pytest.approx([1e3 * r["56kph.max_crush_m"] for r in rows])
+    per_degree = job["series"]["56kph: d objective / d pitch upper bound (1/deg)"]
+    assert per_degree == pytest.approx([np.radians(r["multiplier.56kph.bound.pitch.upper"]) for r in rows])
 
 
 @pytest.mark.integration

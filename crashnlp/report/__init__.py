@@ -24,7 +24,7 @@ from crashnlp.folders import folder_kind, read_result, read_simulation, read_stu
 from crashnlp.identified import Z95
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
 from crashnlp.result import Result
-from crashnlp.studies.table import PLOTTED, metric_column, number
+from crashnlp.studies.table import PLOTTED, number, shown_column
 
 if TYPE_CHECKING:
     from crashnlp.prediction import PredictedTest
@@ -221,11 +221,11 @@ def _extrapolation(test: PredictedTest) -> str:
 # --------------------------------------------------------------------------- a study
 def study_page(name: str, rows: list[dict], folder: Path) -> str:
     """The page of a study: its table (swept values as written, status, objective, iterations,
-    metrics in the console's units), its figures, and for a complete two-entry grid a map of
-    the objective and of each metric it plots over the grid."""
+    metrics and bound multipliers in the units a person reads), its figures, and for a complete
+    two-entry grid a map of the objective and of each metric it plots over the grid."""
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a failed case's row lacks the metrics
     swept = [k for k in keys if f"{k}_si" in keys]
-    metrics = [(k, *shown) for k in keys if (shown := metric_column(k)) is not None]
+    metrics = [(k, *shown) for k in keys if (shown := shown_column(k)) is not None]
     columns = ["case", *swept, "status", "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
     body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]

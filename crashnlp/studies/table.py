@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -11,7 +12,7 @@ import numpy as np
 
 from crashnlp.engine.schedule import map_all
 from crashnlp.files import atomic_open
-from crashnlp.outputs import METRIC_ROWS, shown_unit
+from crashnlp.outputs import METRIC_ROWS, OUTPUT, shown_unit
 from crashnlp.studies.plan import PlannedCase
 from crashnlp.studies.spec import Study, SweepEntry
 
@@ -19,6 +20,7 @@ if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
 PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
+MULTIPLIER = re.compile(r"multiplier\.(?:(?P<test>[^.]+)\.)?bound\.(?P<output>\w+)\.(?P<side>upper|lower)")  # of an output bound
 
 
 def show(value: Any) -> str:
@@ -83,13 +85,19 @@ def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> lis
     return jobs
 
 
-def metric_column(name: str) -> tuple[str, float] | None:
-    """A table column that is a crash metric ("56kph.peak_decel_g") as a person reads it: the
-    test and the console's label ("56kph: peak deceleration (g)"), and the factor from the
-    column's value to that unit; None for any other column."""
+def shown_column(name: str) -> tuple[str, float] | None:
+    """A table column that is a crash metric ("56kph.peak_decel_g") or the multiplier of an output
+    bound ("multiplier.56kph.bound.pitch.upper", per SI unit) as a person reads it: its label
+    ("56kph: peak deceleration (g)", "56kph: d objective / d pitch upper bound (1/deg)") and the
+    factor from the column's value to that unit; None for any other column."""
     for key, label, factor in METRIC_ROWS:
         if name.endswith(f".{key}"):
             return f"{name.removesuffix('.' + key)}: {label}", factor
+    bound = MULTIPLIER.fullmatch(name)
+    if bound is not None and bound["output"] in OUTPUT:
+        unit, factor = shown_unit(OUTPUT[bound["output"]].unit)
+        where = f"{bound['test']}: " if bound["test"] else ""
+        return f"{where}d objective / d {bound['output']} {bound['side']} bound (1/{unit})", 1.0 / factor
     return None
 
 
@@ -105,7 +113,7 @@ def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[
     order = np.argsort(x, kind="stable")
     series = {}
     for n in names:
-        label, scale = metric_column(n) or (n, 1.0)
+        label, scale = shown_column(n) or (n, 1.0)
         series[label] = np.array([number(r.get(n)) * scale for _, r in members])[order]
     return {"x": x[order], "series": series, "xlabel": xlabel}
 
