@@ -3,7 +3,7 @@
 - `ls-dyna`: a keyword file of *DEFINE_CURVE_TITLE cards in mm, ms, kg, kN: the loading curve
   with the tail the identified model extrapolates with (crashnlp.model.tail), the unloading and
   the damper, and a comment block saying what each curve is and which material field takes it
-  (docs/exports.md: a discrete spring, *MAT_SPRING_GENERAL_NONLINEAR for loading and unloading,
+  (docs/handing-on.md: a discrete spring, *MAT_SPRING_GENERAL_NONLINEAR for loading and unloading,
   *MAT_DAMPER_NONLINEAR_VISCOUS for the damper).
 - `csv`: the same curves in SI, one file each.
 - `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
