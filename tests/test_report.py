@@ -74,23 +74,17 @@ def test_a_result_read_back_keeps_each_channels_ratings(fit):
 
 
 def read_curves(path: Path) -> dict[str, np.ndarray]:
-    """The *DEFINE_CURVE_TITLE cards of a keyword file by their titles: points (n x 2) from the
-    fixed 20-column fields."""
+    """The *DEFINE_CURVE_TITLE cards of a keyword file by their titles' first word after the name:
+    points (n x 2) from the fixed 20-column fields, after the 80-column curve card."""
     lines = path.read_text().splitlines()
     assert lines[0] == "*KEYWORD" and lines[-1] == "*END"
-    curves, i = {}, 0
-    while i < len(lines):
-        if lines[i] == "*DEFINE_CURVE_TITLE":
-            title, card = lines[i + 1], [ln for ln in lines[i + 2 : i + 5] if not ln.startswith("$")][0]
-            assert len(card) == 80 and card[20:40].split() == ["1.0", "1.0"]  # sfa, sfo
-            i += 2
-            points = []
-            while not lines[i + 1].startswith("*"):
-                i += 1
-                if not lines[i].startswith("$") and lines[i] != card:
-                    points.append((float(lines[i][:20]), float(lines[i][20:40])))
-            curves[title.split(":")[0].split()[-1]] = np.array(points)
-        i += 1
+    curves = {}
+    for start in [i for i, line in enumerate(lines) if line == "*DEFINE_CURVE_TITLE"]:
+        end = next(i for i in range(start + 1, len(lines)) if lines[i].startswith("*"))
+        card, *points = [line for line in lines[start + 2 : end] if not line.startswith("$")]
+        assert len(card) == 80 and card[20:40].split() == ["1.0", "1.0"]  # sfa, sfo
+        name = lines[start + 1].split(":")[0].split()[-1]
+        curves[name] = np.array([(float(line[:20]), float(line[20:40])) for line in points])
     return curves
 
 
