@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test fuzz lint docs identify simulate study design bench readme-figures clean
+.PHONY: demo test fuzz lint docs identify simulate study design bench readme-figures report-check clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -44,6 +44,12 @@ readme-figures: demo identify study
 # two workers, each file's tests on one of them (a module's fixtures fit once); see tests/conftest.py
 test: $(STAMP)
 	$(BIN)/python -m pytest -n 2 --dist loadfile
+
+# the report of the shipped pickup's fit opened in headless Chromium (Debian's chromium, installed if
+# missing: as root), its DOM and a screenshot checked; the screenshot in results/report-check/
+report-check: $(STAMP)
+	@command -v chromium >/dev/null || { apt-get update -q && apt-get install -y -q chromium; }
+	$(BIN)/python scripts/report_check.py results/report-check
 
 # the fuzz test of tests/test_fuzz.py with more mutations (make test runs 30 s of it); FUZZ_SEED=n for others
 FUZZ_RUNS ?= 2000

@@ -22,7 +22,8 @@ from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.model.tail import Curve
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec
-from crashnlp.simulation import Response, simulate
+from crashnlp.response import Response
+from crashnlp.simulation import simulate
 from crashnlp.testcase import TestCase, check_data, check_speed, load_tests
 
 __all__ = ["Case", "TestCase", "case_of", "check_speed"]

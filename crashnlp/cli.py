@@ -1,4 +1,4 @@
-"""The `crashnlp` command: simulate, identify, design, study, init, schema.
+"""The `crashnlp` command: simulate, identify, design, study, init, report, export, schema.
 
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
@@ -27,8 +27,8 @@ import numpy as np
 
 from crashnlp.compile_job import stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
-from crashnlp.files import check_output, claim, run_name
-from crashnlp.outputs import OUTPUT
+from crashnlp.files import check_output, check_writable, check_writable_file, claim, run_name
+from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
@@ -142,19 +142,11 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-PREDICTED_ROWS = (  # metric key, what it is, factor to the printed unit, the unit, digits after the point
-    ("max_crush_m", "max crush", 1e3, "mm", 1),
-    ("time_zero_velocity_s", "zero velocity", 1e3, "ms", 2),
-    ("peak_decel_g", "peak decel", 1.0, "g", 1),
-    ("rebound_velocity_mps", "rebound", 1.0, "m/s", 2),
-    ("olc_g", "OLC", 1.0, "g", 1),
-    ("max_pitch_deg", "max pitch", 1.0, "deg", 2),
-)
-
-
 def _print_prediction(test) -> None:
     """One line of metrics per simulated test (with their 95 % intervals when the identified model
     gave them), and one line for a test past the identified range."""
+    from crashnlp.prediction import extrapolation_line
+
     parts = []
     for key, label, factor, unit, digits in PREDICTED_ROWS:
         value = test.metrics.get(key)
@@ -167,23 +159,9 @@ def _print_prediction(test) -> None:
         parts.append(f"{text} {unit}")
     print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if test.intervals else ""))
     if test.extrapolation:
-        print(f"{test.name}: {_extrapolation_line(test.extrapolation)}")
+        print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
     for note in test.notes:
         print(note)
-
-
-def _extrapolation_line(beyond: dict) -> str:
-    """How far a prediction lies past the identified range, in words."""
-    parts = []
-    if "crush_m" in beyond:
-        parts.append(f"max crush {beyond['crush_m'] * 1e3:.0f} mm ({beyond['crush_rel'] * 100:.0f} %) past the largest fitted")
-    if "speed_mps" in beyond:
-        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
-        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
-    if "mass_kg" in beyond:
-        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
-        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
-    return "extrapolates: " + "; ".join(parts)
 
 
 def _result_alone(path: str, params: str | None):
@@ -242,18 +220,6 @@ def _figure_process(args):
     from crashnlp.drawing import FigureProcess
 
     return nullcontext() if args.no_figures or getattr(args, "check", False) else FigureProcess()
-
-
-METRIC_ROWS = (  # result.json key, label, factor
-    ("max_crush_m", "max dynamic crush (mm)", 1e3),
-    ("max_front_end_crush_m", "max front-end crush (mm)", 1e3),
-    ("time_max_crush_s", "time of max crush (ms)", 1e3),
-    ("time_zero_velocity_s", "time of zero velocity (ms)", 1e3),
-    ("peak_decel_g", "peak deceleration (g)", 1.0),
-    ("rebound_velocity_mps", "rebound velocity (m/s)", 1.0),
-    ("olc_g", "OLC (g)", 1.0),
-    ("max_pitch_deg", "max pitch (deg)", 1.0),
-)
 
 
 def _numbers(value, digits: int) -> str:
@@ -341,6 +307,10 @@ def _solve(args, kind: str) -> int:
             result.save(out, figures=False)
             if figures is not None:
                 figures.draw(figure_jobs(result, out), out)
+            if args.report:
+                from crashnlp.report import write_report
+
+                write_report(out)
     _print_solution(result)
     print(f"wrote {out}/")
     if not result.ok:
@@ -403,6 +373,85 @@ def cmd_schema(args) -> int:
     return 0
 
 
+def cmd_report(args) -> int:
+    """The page of a fit's, a simulation's or a study's folder (crashnlp.report)."""
+    from crashnlp.report import write_report
+
+    print(f"wrote {write_report(Path(args.folder), Path(args.out) if args.out else None)}")
+    return 0
+
+
+def cmd_export(args) -> int:
+    """The identified curves (ls-dyna, csv) of a fit's folder, or a test's pulse (a fit's or a simulation's)."""
+    from crashnlp.folders import folder_kind
+
+    folder = Path(args.folder)
+    kind = folder_kind(folder)
+    if kind == "study" or (kind == "simulation" and args.format != "pulse"):
+        what = "the identified curves" if kind == "simulation" else "curves or pulses"
+        raise InputError(f"{folder}: a {kind}'s folder holds no {what}: export a fit's folder (result.json)")
+    return _export_pulse(args, folder, kind) if args.format == "pulse" else _export_curves(args, folder)
+
+
+def _export_curves(args, folder: Path) -> int:
+    """The identified model's curves as LS-DYNA keywords or CSV files."""
+    from crashnlp import export
+    from crashnlp.folders import read_result
+
+    result = read_result(folder)
+    if result.identified is None:
+        raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
+    curves = export.identified_curves(result.identified)
+    if args.format == "csv":
+        out = check_writable(Path(args.out) if args.out else folder / "curves")
+        print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
+        return 0
+    out = check_writable_file(Path(args.out) if args.out else folder / f"{result.name}.k")
+    export.write_keyword_file(out, result.name, folder, curves)
+    print(f"wrote {out}")
+    return 0
+
+
+def _export_pulse(args, folder: Path, kind: str) -> int:
+    """One test's fitted or predicted pulse, and its velocity-change check."""
+    from crashnlp import export
+    from crashnlp.folders import read_result, read_simulation
+
+    if kind == "result":
+        result = read_result(folder)
+        name, responses = result.name, {test: (t.response, t.speed) for test, t in result.tests.items()}
+    else:
+        name, tests = read_simulation(folder)
+        responses = {test: (t.response, t.speed) for test, t in tests.items()}
+    test = _chosen_test(folder, responses, args.test)
+    pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
+    out = check_writable_file(Path(args.out) if args.out else folder / f"{test}-pulse.csv")
+    export.write_pulse(out, name, test, pulse)
+    print(pulse.check_line())
+    print(f"wrote {out}")
+    return 0
+
+
+def _chosen_test(folder: Path, responses: dict, test: str | None) -> str:
+    """The test named by --test, or the folder's only one."""
+    if test is None and len(responses) == 1:
+        return next(iter(responses))
+    if test is not None and test in responses:
+        return test
+    names = ", ".join(responses)
+    raise InputError(f"--test {test}: {folder} has tests {names}" if test else f"{folder}: tests {names}: choose one with --test")
+
+
+def _rate(text: str) -> float:
+    """--rate as a number of Hz ("10 kHz", "10000")."""
+    from crashnlp.units import UnitError, to_si
+
+    try:
+        return to_si(text, "Hz")
+    except UnitError as exc:
+        raise InputError(f"--rate {text}: {exc}") from None
+
+
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
@@ -428,6 +477,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
+    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
     p.set_defaults(func=cmd_identify)
 
     p = sub.add_parser("design", help="choose spring and damper values for a design goal by an NLP (no data)")
@@ -435,6 +485,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="output folder (default results/<problem name>)")
     p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
+    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
     p.set_defaults(func=cmd_design)
 
     add_study_parser(sub)
@@ -455,6 +506,25 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, help="problem YAML file to write")
     p.set_defaults(func=cmd_init)
 
+    p = sub.add_parser("report", help="one self-contained HTML page of a fit's, a simulation's or a study's folder")
+    p.add_argument("folder", help="a folder crashnlp wrote: a fit or design (result.json), a simulation, a study")
+    p.add_argument("--out", help="HTML file to write (default FOLDER/report.html)")
+    p.set_defaults(func=cmd_report)
+
+    p = sub.add_parser("export", help="a fit's curves for LS-DYNA or as CSV, or a test's crash pulse for a sled test")
+    p.add_argument("folder", help="a fit's folder (result.json); for --format pulse also a simulation's")
+    p.add_argument(
+        "--format",
+        required=True,
+        choices=("ls-dyna", "csv", "pulse"),
+        help="ls-dyna: a .k file of *DEFINE_CURVE (mm, ms, kg, kN); csv: the curves in SI; pulse: acceleration against time",
+    )
+    p.add_argument("--out", help="file to write (csv: a folder; default in FOLDER: NAME.k, curves/, TEST-pulse.csv)")
+    p.add_argument("--rate", default="10 kHz", help="pulse: sample rate, e.g. '10 kHz' (default) or 20000 (Hz)")
+    p.add_argument("--cfc", type=int, default=60, choices=(60, 180, 600, 1000), help="pulse: SAE J211 filter class (default 60)")
+    p.add_argument("--test", help="pulse: the test (default the folder's only one)")
+    p.set_defaults(func=cmd_export)
+
     p = sub.add_parser("schema", help="print the JSON Schema of problem files")
     p.set_defaults(func=cmd_schema)
     _add_common(ap, sub)
@@ -462,10 +532,11 @@ def parser() -> argparse.ArgumentParser:
 
 
 def _add_common(ap: argparse.ArgumentParser, sub) -> None:
-    """Options every command has: --debug (anywhere on the line) and --check (all but schema and init)."""
+    """Options every command has: --debug (anywhere on the line) and --check (all but schema, init,
+    report and export)."""
     ap.add_argument("--debug", action="store_true", help="show the traceback of a failure (anywhere on the line)")
     for name, p in sub.choices.items():
-        if name not in ("schema", "init"):
+        if name not in ("schema", "init", "report", "export"):
             p.add_argument(
                 "--check",
                 action="store_true",

@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.simulation import Response
+from crashnlp.response import Response
 
 
 def energy_audit(response: Response, mass: float, speed: float) -> dict[str, float]:

@@ -65,9 +65,11 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
             os.unlink(tmp)
 
 
-def write_columns(path: Path, columns: dict[str, np.ndarray]) -> None:
-    """A CSV of numeric columns (header: their names), nine significant digits."""
+def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:
+    """A CSV of numeric columns (header: their names), nine significant digits; `comments` go
+    first, each a line starting with "# " (what the columns are, a check of them)."""
     with atomic_open(path) as fh:
+        fh.writelines(f"# {line}\n" for line in comments)
         writer = csv.writer(fh)
         writer.writerow(columns)
         for row in zip(*(np.asarray(c, dtype=float) for c in columns.values())):
@@ -236,3 +238,12 @@ def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path]) -> 
             folder.rmdir()
         except OSError:
             return
+
+
+def check_writable_file(path: str | Path, option: str = "--out") -> Path:
+    """Refuse, before any work, a file to write that is a folder or whose folder cannot be written."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(f"{option} {path}: is a folder; name the file to write")
+    check_writable(path.parent, option)
+    return path

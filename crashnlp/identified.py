@@ -32,6 +32,7 @@ STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rat
 SAME = 1e-9  # relative: values closer than this are the same
 # the crash metrics a prediction gives 95 % intervals for (result.json's metric keys)
 INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "olc_g", "max_pitch_deg")
+Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
 
 
 @dataclass(frozen=True)
@@ -141,6 +142,12 @@ class IdentifiedModel:
         if past:
             note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"
         return (note,)
+
+    def as_problem(self, name: str) -> Problem:
+        """The identified vehicle as a problem of one data-free test at its speed: what reads the
+        model without its data (the units of its entries, its model's functions) takes this."""
+        raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
+        return problem_from_dict(raw, Path("."), name)
 
     def std(self) -> np.ndarray:
         """Standard error of each labelled value; inf where the data do not determine it."""

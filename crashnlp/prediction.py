@@ -31,6 +31,7 @@ prediction says so in `notes`, instead of a band that only looks narrow.
 
 from __future__ import annotations
 
+import json
 from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
@@ -42,20 +43,19 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, applied
+from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, applied
 from crashnlp.jsonfile import write_json
 from crashnlp.model.tail import spacing, trend_misses
-from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
+from crashnlp.outputs import COLUMNS, OUTPUT, PANELS, named_test
 from crashnlp.problem import Problem
+from crashnlp.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.result import Result
-from crashnlp.simulation import Response, write_response_csv
 from crashnlp.summary import data_curves, response_metrics
 from crashnlp.units import G0
 
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
-Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
 DRIFT = 0.05  # m/s toward the barrier at the end of a record, without contact: not a stop
 # two-sided 95 % quantiles of Student's t for 1 to 30 degrees of freedom
 T95 = (
@@ -331,14 +331,56 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
     return summary
 
 
+def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
+    """The name and the predicted tests `write_simulation` wrote into `folder`, back in SI: the
+    responses and bands from each response.csv, the rest from simulation.json."""
+    raw = json.loads((folder / "simulation.json").read_text(encoding="utf-8"))
+    tests = {}
+    for name, entry in raw["tests"].items():
+        columns = read_columns(folder / name / "response.csv")
+        bands = {
+            o.name: (columns[f"{o.column}_low"] / o.factor, columns[f"{o.column}_high"] / o.factor)
+            for o in COLUMNS
+            if f"{o.column}_low" in columns
+        }
+        intervals = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in entry.get("intervals", {}).items()}
+        tests[name] = PredictedTest(
+            name,
+            float(entry["speed_mps"]),
+            float(entry["mass_kg"]),
+            response_of(columns),
+            entry["metrics"],
+            intervals,
+            bands,
+            dict(entry.get("extrapolation", {})),
+            tuple(entry.get("notes", ())),
+        )
+    return str(raw["name"]), tests
+
+
 def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
     """A response figure per simulated test, with its data behind it where it runs at their
     conditions (PredictedTest.data) and its 95 % band shaded, as crashnlp.plots jobs."""
     jobs: list[Job] = []
     for predicted in tests.values():
         r = predicted.response
-        model = {k: (r.time, r[k]) for k in MEASURABLE}
+        model = {k: (r.time, r[k]) for k in PANELS}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
-        title = f"{name}: {predicted.name}"
+        at = f"predicted at {predicted.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg" + (", 95 % band" if bands else "")
+        title = f"{named_test(name, predicted.name)}: {at}"
         jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs
+
+
+def extrapolation_line(beyond: dict[str, float]) -> str:
+    """How far a prediction lies past the identified range (`PredictedTest.extrapolation`), in words."""
+    parts = []
+    if "crush_m" in beyond:
+        parts.append(f"max crush {beyond['crush_m'] * 1e3:.0f} mm ({beyond['crush_rel'] * 100:.0f} %) past the largest fitted")
+    if "speed_mps" in beyond:
+        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
+        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
+    if "mass_kg" in beyond:
+        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
+        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
+    return "extrapolates: " + "; ".join(parts)

@@ -20,8 +20,8 @@ import numpy as np
 from crashnlp.files import claim, run_name, write_columns
 from crashnlp.identified import IdentifiedModel
 from crashnlp.jsonfile import write_json
-from crashnlp.outputs import COLUMNS, MEASURABLE, OUTPUT
-from crashnlp.simulation import Response, write_response_csv
+from crashnlp.outputs import OUTPUT, PANELS, named_test
+from crashnlp.response import Response, read_response, write_response_csv
 
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
@@ -87,13 +87,17 @@ class TestResult:
 
 @dataclass(frozen=True)
 class LoadingCurve:
-    """The identified loading curve, its breakpoints, and a reference curve if the problem has one."""
+    """The identified loading curve, its breakpoints, a reference curve if the problem has one,
+    per test with data its measured m |a| (spring and damper) against CG travel while loading,
+    and the curve's 95 % band (low, high: None without a covariance)."""
 
     crush: np.ndarray
     force: np.ndarray
     breakpoints: np.ndarray
     values: np.ndarray
     reference: tuple[np.ndarray, np.ndarray] | None = None
+    measured: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    band: tuple[np.ndarray, np.ndarray] | None = None
 
 
 @dataclass(frozen=True)
@@ -120,6 +124,7 @@ class Result:
     z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
     identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
     regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
+    output_bounds: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)  # constraints.bounds, SI
 
     @property
     def ok(self) -> bool:
@@ -140,6 +145,7 @@ class Result:
             "profiles": self.profiles,
             "covariance": self.covariance,
             "regularization": self.regularization,
+            "output_bounds": {name: list(ends) for name, ends in self.output_bounds.items()},
             "at_bound": self.at_bound,
             "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
@@ -155,7 +161,9 @@ class Result:
 
     @classmethod
     def load(cls, folder: str | Path) -> Result:
-        """A Result read back from a folder `save` wrote (responses from response.csv)."""
+        """A Result read back from a folder `save` wrote (responses from response.csv). The data
+        and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
+        ratings, its node arrays are empty."""
         folder = Path(folder)
         raw = json.loads((folder / "result.json").read_text())
         tests = {}
@@ -166,7 +174,7 @@ class Result:
                 t["speed_mps"],
                 response,
                 {},
-                {},
+                {c: _fit_from_json(c, f) for c, f in t.get("fit", {}).items()},
                 t["metrics"]["model"],
                 t["metrics"]["data"],
                 _number(t.get("loading_ends_s")),
@@ -192,6 +200,7 @@ class Result:
             profiles=raw.get("profiles", {}),
             covariance=raw.get("covariance", {}),
             regularization=raw.get("regularization", {}),
+            output_bounds={name: (lo, hi) for name, (lo, hi) in raw.get("output_bounds", {}).items()},
             notes=tuple(raw.get("notes", ())),
             identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )
@@ -218,11 +227,10 @@ def _fit_json(f: ChannelFit) -> dict[str, Any]:
     return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}
 
 
-def read_response(path: Path) -> Response:
-    """A response.csv back in SI (the registry's written outputs)."""
-    table = np.genfromtxt(path, delimiter=",", names=True)
-    outputs = {o.name: table[o.column] / o.factor for o in COLUMNS}
-    return Response(np.asarray(table["time_s"]), outputs, np.zeros((0, table.size)))
+def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
+    """A channel's fit as result.json keeps it (`_fit_json`), back in SI, without its nodes."""
+    factor, empty = OUTPUT[channel].factor, np.zeros(0)
+    return ChannelFit(channel, empty, empty, empty, raw["sigma"] / factor, raw["rmse"] / factor, raw["iso18571"])
 
 
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
@@ -252,22 +260,53 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
     imported matplotlib and nothing of the model draws (crashnlp.drawing)."""
     jobs: list[Job] = []
     for name, t in result.tests.items():
-        model = {k: (t.response.time, t.response[k]) for k in MEASURABLE}
-        jobs.append(("response_figure", (out / name / "fit.png", f"{result.name}: {name}", model, t.data)))
-        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items()}
+        model = {k: (t.response.time, t.response[k]) for k in PANELS}
+        fit = result.kind == "identify"
+        title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model' if fit else 'design'}"
+        path = out / name / ("fit.png" if fit else "response.png")
+        jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), result.output_bounds)))
+        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
-            jobs.append(("residual_figure", (out / name / "residuals.png", f"{result.name}: {name} residuals", residuals)))
-    fc = result.force_crush
-    if fc is not None:
-        curves = {"identified loading curve": (fc.crush, fc.force)}
-        tail = result.identified.model["spring"].get("tail") if result.identified is not None else None
-        if isinstance(tail, dict):  # the fitted curve to the tail's start, then the tail that predictions follow
-            inside = fc.crush <= tail["start"]
-            curves["identified loading curve"] = (fc.crush[inside], fc.force[inside])
-            x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
-            at_start = np.interp(tail["start"], fc.crush, fc.force)
-            curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
-        if fc.reference is not None:
-            curves["reference"] = fc.reference
-        jobs.append(("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), result.name)))
+            title = f"{named_test(result.name, name)}: residuals (model - data)"
+            jobs.append(("residual_figure", (out / name / "residuals.png", title, residuals)))
+    if result.force_crush is not None:
+        jobs.append(_force_crush_job(result, result.force_crush, out))
     return jobs
+
+
+def _fit_notes(t: TestResult) -> dict[str, str]:
+    """Each fitted channel's RMSE (in its panel's unit) and ISO 18571 rating, as its panel shows them."""
+    notes = {}
+    for c, f in t.fit.items():
+        rating = f", ISO 18571 {f.iso18571['overall']:.3f}" if f.iso18571 else ""
+        notes[c] = f"RMSE {OUTPUT[c].shown(f.rmse)}{rating}"
+    return notes
+
+
+def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
+    """The force-crush figure: the identified loading curve (to the tail's start, then the tail
+    predictions follow) and its 95 % band, the unloading from each test's largest crush, the
+    reference, and behind them each test's measured m |a| while loading."""
+    model = result.identified.model if result.identified is not None else {}
+    tail = model.get("spring", {}).get("tail")
+    inside = fc.crush <= tail["start"] if isinstance(tail, dict) else np.ones(fc.crush.size, bool)
+    curves = {"identified loading curve": (fc.crush[inside], fc.force[inside])}
+    if isinstance(tail, dict):
+        x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
+        at_start = np.interp(tail["start"], fc.crush, fc.force)
+        curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
+    unloading = model.get("unloading", {})
+    if unloading.get("law") == "plastic":
+        stiffness = float(unloading["stiffness"])
+        for name, t in result.tests.items():
+            top = float(np.max(t.response["crush"]))
+            force = float(np.interp(top, fc.crush, fc.force))
+            label = f"unloading at {stiffness / 1e6:.3g} kN/mm" + (f" ({name})" if len(result.tests) > 1 else "")
+            curves[label] = (np.array([top - force / stiffness, top]), np.array([0.0, force]))
+    if fc.reference is not None:
+        curves["reference"] = fc.reference
+    several = len(fc.measured) > 1
+    measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
+    title = f"{result.name}: identified loading curve"
+    band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
+    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))

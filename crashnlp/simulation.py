@@ -2,50 +2,17 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from pathlib import Path
 from typing import Any
 
 import casadi as ca
 import numpy as np
 
 from crashnlp.compiled import Evaluator, compiled
-from crashnlp.files import write_columns
 from crashnlp.integrators import rk4
 from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
-from crashnlp.outputs import COLUMNS
 from crashnlp.problem.schema import Simulation
+from crashnlp.response import Response
 from crashnlp.runtime import mapped
-
-
-@dataclass
-class Response:
-    """Named outputs (SI) on a time grid, plus the absorbed energies."""
-
-    time: np.ndarray
-    outputs: dict[str, np.ndarray]
-    states: np.ndarray  # rows: the model's STATES[, the ABSORBED works]
-
-    def __getitem__(self, name: str) -> np.ndarray:
-        return self.time if name == "time" else self.outputs[name]
-
-    @property
-    def loading_end(self) -> float:
-        """The model's own end of loading: where its crush rate first turns negative (s)."""
-        rate = self.outputs["crush_rate"]
-        k = int(np.argmax(rate < 0)) if np.any(rate < 0) else 0
-        if k == 0:
-            return float("nan")
-        return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.time[k - 1 : k + 1]))
-
-
-def write_response_csv(
-    path: Path, time: np.ndarray, outputs: dict[str, np.ndarray], extra: dict[str, np.ndarray] | None = None
-) -> None:
-    """response.csv: time and the registry's written outputs, in report units, then `extra`
-    columns (already in report units, e.g. a prediction's bands)."""
-    written = {str(o.column): outputs[o.name] * o.factor for o in COLUMNS}  # COLUMNS: the outputs with a column
-    write_columns(path, {"time_s": np.asarray(time), **written, **(extra or {})})
 
 
 def _key(grid: np.ndarray, options: Simulation) -> tuple:

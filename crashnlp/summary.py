@@ -6,7 +6,7 @@ import numpy as np
 
 from crashnlp.data.signal import integrate, resample
 from crashnlp.metrics import crash_metrics
-from crashnlp.simulation import Response
+from crashnlp.response import Response
 from crashnlp.testcase import TestCase
 from crashnlp.units import G0
 

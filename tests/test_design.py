@@ -12,6 +12,8 @@ from builders import (
 )
 
 from crashnlp.optimize.design import design
+from crashnlp.optimize.outcome import result_of
+from crashnlp.result import Result, figure_jobs
 
 V0, CRUSH_SPACE = 15.0, 0.5
 
@@ -62,6 +64,18 @@ def test_design_meets_every_constraint_at_every_grid_point(fine):
     assert_monotone_crush(sim)
     for r in (ts, sim):
         assert_contact_force_is_the_front_ends(case, r, p)
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_a_designs_figure_is_its_response_with_its_crush_space(fine, tmp_path):
+    _, sol = fine
+    result = result_of(sol)
+    ((_, (path, title, model, *_, limits)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    assert path.name == "response.png" and title == "design, test t: design"
+    assert "crush" in model and limits["crush"] == (None, pytest.approx(CRUSH_SPACE))
+    result.save(tmp_path, figures=False)
+    assert Result.load(tmp_path).output_bounds == result.output_bounds
 
 
 @pytest.mark.integration

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 
+import numpy as np
 import pytest
 from builders import small_pickup_problem
 
@@ -63,3 +64,32 @@ def test_simulate_draws_its_figure_in_the_figure_process(tmp_path):
     assert main(["simulate", str(small_pickup_problem(tmp_path)), "--out", str(tmp_path / "sim")]) == 0
     assert set(pngs(tmp_path / "sim")) == {"56kph/response.png"}
     assert pngs(tmp_path / "sim")["56kph/response.png"].startswith(b"\x89PNG")
+
+
+@pytest.mark.integration
+def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unloading(result, tmp_path):
+    ((_, (_, curves, _, title, measured, band)),) = [
+        job for job in figure_jobs(result, tmp_path) if job[0] == "force_crush_figure"
+    ]
+    assert title == f"{result.name}: identified loading curve"
+    x, low, high = band
+    _, identified = curves["identified loading curve"]
+    assert np.all(low <= identified) and np.all(identified <= high) and np.max(high - low) > 0
+    crush, force = measured["measured m|a| vs CG travel"]
+    test = result.tests["56kph"]
+    assert np.max(crush) == pytest.approx(test.data_metrics["max_crush_m"], rel=0.01)  # loading: to the largest crush
+    (x, f) = next(c for label, c in curves.items() if label.startswith("unloading"))
+    top = float(np.max(test.response["crush"]))
+    assert x[1] == pytest.approx(top) and f[0] == 0.0
+    assert (f[1] - f[0]) / (x[1] - x[0]) == pytest.approx(result.identified.model["unloading"]["stiffness"])
+
+
+@pytest.mark.integration
+def test_the_fit_figure_names_each_channels_rmse_and_rating(result, tmp_path):
+    ((_, (_, title, _, _, _, notes, _)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    assert title == f"{result.name}: fit to the data"  # pickup-56kph names its test already
+    fit = result.tests["56kph"].fit
+    assert set(notes) == set(fit)
+    for channel, f in fit.items():
+        assert notes[channel].endswith(f"ISO 18571 {f.iso18571['overall']:.3f}")
+    assert notes["displacement"].startswith(f"RMSE {fit['displacement'].rmse * 1e3:.3g} mm")

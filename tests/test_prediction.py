@@ -24,7 +24,7 @@ from crashnlp.optimize.prior import smoothness_prior
 from crashnlp.prediction import _drift, simulation_figure_jobs
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
-from crashnlp.simulation import Response
+from crashnlp.response import Response
 from crashnlp.testcase import Recorded
 from crashnlp.units import G0
 

@@ -25,6 +25,7 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
 from crashnlp.studies.plan import case_indices, case_problem, corners, lattice, plan_cases, warm_start_plan
+from crashnlp.studies.table import figure_jobs
 
 PITCH = "constraints.bounds.pitch"
 BOUNDS = [[None, "2 deg"], [None, "2.5 deg"], [None, "3 deg"], [None, "4 deg"]]  # the free fit pitches ~3.2 deg
@@ -120,6 +121,20 @@ def test_tighter_pitch_bound_never_fits_better(shipped):
     table = read_table(out / "table.csv")
     assert [t[PITCH] for t in table] == ["[null, 4 deg]", "[null, 6 deg]", "[null, 8 deg]", "[null, 10 deg]"]
     assert (out / "figures" / f"{PITCH}.png").is_file()
+
+
+@pytest.mark.integration
+def test_the_study_figure_reads_in_degrees_under_the_consoles_labels(shipped):
+    _, rows = shipped
+    study = load_study(ROOT / "problems/studies/pitch-bound.yaml")
+    (job,) = figure_jobs(study, plan_cases(study), rows)
+    assert job["xlabel"] == f"{PITCH} (deg)" and job["x"] == pytest.approx([4, 6, 8, 10])
+    assert job["title"] == f"pitch-bound: {PITCH}"
+    pitch = job["series"]["56kph: max pitch (deg)"]
+    assert pitch == pytest.approx([r["56kph.max_pitch_deg"] for r in rows])
+    assert job["series"]["56kph: max dynamic crush (mm)"] == pytest.approx([1e3 * r["56kph.max_crush_m"] for r in rows])
+    per_degree = job["series"]["56kph: d objective / d pitch upper bound (1/deg)"]
+    assert per_degree == pytest.approx([np.radians(r["multiplier.56kph.bound.pitch.upper"]) for r in rows])
 
 
 @pytest.mark.integration

@@ -20,7 +20,7 @@ from crashnlp.optimize.solve import SETTLE_OPTIONS, STEADY_OPTIONS, SolveResult,
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
-from crashnlp.simulation import Response
+from crashnlp.response import Response
 
 
 @dataclass

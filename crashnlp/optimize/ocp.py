@@ -18,7 +18,8 @@ from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.oracle import compilable
 from crashnlp.optimize.oracle import symbolic as is_symbolic
-from crashnlp.simulation import Response, simulate
+from crashnlp.response import Response
+from crashnlp.simulation import simulate
 from crashnlp.transcription import Trajectory, make_transcription
 
 MONOTONE_TOLERANCE = 1e-4  # m: reloading allowed between two nodes by monotone_crush

@@ -9,14 +9,14 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.case import Case, TestCase
-from crashnlp.completion import measured_pulses
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedModel, IdentifiedRange
+from crashnlp.completion import measured_pulse, measured_pulses
+from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, IdentifiedRange
 from crashnlp.model.tail import trend_tail
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
+from crashnlp.response import Response
 from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
-from crashnlp.simulation import Response
 from crashnlp.summary import channel_consistency, data_metrics, response_metrics
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
@@ -51,7 +51,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         at_bound={label: round(float(pull[i]), 3) for i, label in enumerate(labels) if at_bound[i]},
         active_constraints=tuple(active_constraints(solution)) + tuple(_parameter_bounds(solution)),
         tests=tests,
-        force_crush=_force_crush(case, solution.full_parameters(), tests),
+        force_crush=_force_crush(solution, tests),
         profiles=solution.profiles,
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
@@ -59,6 +59,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         notes=tuple(solution.notes) + _data_notes(case) + identified.tail_notes(),
         identified=identified,
         regularization=solution.regularization,
+        output_bounds={str(name): ends for name, ends in case.problem.constraints.bounds.items()},
     )
 
 
@@ -208,8 +209,10 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
     ]
 
 
-def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> LoadingCurve:
-    """The loading curve from zero to just past the largest crush reached, and its breakpoints."""
+def _force_crush(solution: Solution, tests: dict[str, TestResult]) -> LoadingCurve:
+    """The loading curve from zero to just past the largest crush reached, its breakpoints and 95 %
+    band, and each test's measured m |a| against CG travel while loading."""
+    case, p = solution.case, solution.full_parameters()
     x = np.linspace(0.0, max(model_reach(tests) * 1.05, 1e-3), 201)
     curve = case.loading_curve(p)
     bps = p[case.layout.index("model.spring.crush_breakpoints")]
@@ -217,4 +220,23 @@ def _force_crush(case: Case, p: np.ndarray, tests: dict[str, TestResult]) -> Loa
     f, values = curve(x), curve(inside) if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
-    return LoadingCurve(x, f, inside, values, reference)
+    pulses = {test.name: measured_pulse(case.problem, test) for test in case.tests}
+    measured = {name: (p.crush[p.loading], p.force[p.loading]) for name, p in pulses.items() if p is not None}
+    return LoadingCurve(x, f, inside, values, reference, measured, _curve_band(solution, x, f))
+
+
+def _curve_band(solution: Solution, x: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """The loading curve's 95 % band at the crushes `x` (N): the estimates' covariance pushed
+    through the curve's sensitivities, central differences over one standard error each way;
+    None without a covariance or where the data do not determine an estimate."""
+    cov = solution.covariance
+    if cov is None or not np.all(np.isfinite(cov.std)):
+        return None
+    free, theta = solution.ocp.free, solution.theta
+    g = np.zeros((theta.size, x.size))
+    for j, step in enumerate(cov.std):
+        if step > 0:
+            up, down = (theta + s * step * np.eye(theta.size)[j] for s in (1.0, -1.0))
+            g[j] = (solution.case.loading_curve(free.full(up))(x) - solution.case.loading_curve(free.full(down))(x)) / (2 * step)
+    half = Z95 * np.sqrt(np.maximum(np.einsum("it,ij,jt->t", g, cov.matrix, g), 0.0))
+    return f - half, f + half

@@ -4,15 +4,11 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
 from crashnlp.files import atomic_open, note_output
 from crashnlp.jsonfile import write_json
-
-if TYPE_CHECKING:
-    pass
 
 
 class CaseStore:
@@ -28,15 +24,10 @@ class CaseStore:
         .npy is missing, empty or corrupt marks the case unfinished: it is solved again.
         """
         path = self.folder / f"{case}.json"
-        try:
-            stored = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, ValueError):  # missing, unreadable, not UTF-8, not JSON
+        stored = _stored(path)
+        if stored is None or stored.get("key") != key:
             return None
-        if not isinstance(stored, dict) or stored.get("key") != key:
-            return None
-        row = stored.get("row")
-        if not isinstance(row, dict) or not isinstance(row.get("status"), str):
-            return None
+        row = stored["row"]
         if not self._whole(case, stored.get("vector", -1)):
             return None
         for kept in (path, self.folder / f"{case}.npy"):  # the study's output as much as a case it solves
@@ -53,6 +44,12 @@ class CaseStore:
         if size == -1:
             return z is not None or not (self.folder / f"{case}.npy").exists()
         return z is not None and z.size == size
+
+    def rows(self) -> list[dict]:
+        """The row of every case stored whole, in case order, whatever inputs it was computed
+        from: what the study's folder shows (its report)."""
+        stored = (_stored(path) for path in sorted(self.folder.glob("*.json")))
+        return [s["row"] for s in stored if s is not None]
 
     def vector(self, case: str) -> np.ndarray | None:
         """The stored solution vector, or None if there is none or it is not a whole finite vector."""
@@ -76,3 +73,15 @@ class CaseStore:
             npy.unlink(missing_ok=True)
         size = None if z is None else int(np.size(z))
         write_json(self.folder / f"{case}.json", {"key": key, "row": row, "vector": size})
+
+
+def _stored(path: Path) -> dict | None:
+    """A case's json, if it parses and holds a row with a status; else None (unfinished)."""
+    try:
+        stored = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):  # missing, unreadable, not UTF-8, not JSON
+        return None
+    if not isinstance(stored, dict):
+        return None
+    row = stored.get("row")
+    return stored if isinstance(row, dict) and isinstance(row.get("status"), str) else None

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import math
+import re
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -11,6 +12,7 @@ import numpy as np
 
 from crashnlp.engine.schedule import map_all
 from crashnlp.files import atomic_open
+from crashnlp.outputs import METRIC_ROWS, OUTPUT, shown_unit
 from crashnlp.studies.plan import PlannedCase
 from crashnlp.studies.spec import Study, SweepEntry
 
@@ -18,6 +20,7 @@ if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
 PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
+MULTIPLIER = re.compile(r"multiplier\.(?:(?P<test>[^.]+)\.)?bound\.(?P<output>\w+)\.(?P<side>upper|lower)")  # of an output bound
 
 
 def show(value: Any) -> str:
@@ -78,19 +81,40 @@ def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> lis
             suffix = f"-{k}" if len(groups) > 1 else ""
             where = ", ".join(f"{e.path} = {v}" for e, v in zip([e for j, e in enumerate(study.entries) if j != i], others))
             job = _curves(entry, i, members, names)
-            jobs.append({"file": f"{entry.path}{suffix}.png", "title": f"{study.name} {where}".strip(), **job})
+            jobs.append({"file": f"{entry.path}{suffix}.png", "title": f"{study.name}: {where or entry.path}", **job})
     return jobs
 
 
+def shown_column(name: str) -> tuple[str, float] | None:
+    """A table column that is a crash metric ("56kph.peak_decel_g") or the multiplier of an output
+    bound ("multiplier.56kph.bound.pitch.upper", per SI unit) as a person reads it: its label
+    ("56kph: peak deceleration (g)", "56kph: d objective / d pitch upper bound (1/deg)") and the
+    factor from the column's value to that unit; None for any other column."""
+    for key, label, factor in METRIC_ROWS:
+        if name.endswith(f".{key}"):
+            return f"{name.removesuffix('.' + key)}: {label}", factor
+    bound = MULTIPLIER.fullmatch(name)
+    if bound is not None and bound["output"] in OUTPUT:
+        unit, factor = shown_unit(OUTPUT[bound["output"]].unit)
+        where = f"{bound['test']}: " if bound["test"] else ""
+        return f"{where}d objective / d {bound['output']} {bound['side']} bound (1/{unit})", 1.0 / factor
+    return None
+
+
 def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[str, Any]:
-    """x (SI, else the value number), the series sorted along it, and the x label."""
-    x = np.array([entry.si(c.values[i]) for c, _ in members])
-    xlabel = f"{entry.path} ({entry.unit})" if entry.unit else entry.path
+    """x (in the unit a person reads the entry in, else the value number), the series sorted along
+    it (metrics in the console's units, under its labels), and the x label."""
+    unit, factor = shown_unit(entry.unit) if entry.unit else ("", 1.0)
+    x = np.array([entry.si(c.values[i]) for c, _ in members]) * factor
+    xlabel = f"{entry.path} ({unit})" if unit else entry.path
     if np.all(np.isnan(x)):
         x = np.array([float(c.index[0] if len(c.index) == 1 else c.index[i]) for c, _ in members])
         xlabel = f"{entry.path} (value number)"
     order = np.argsort(x, kind="stable")
-    series = {n: np.array([_number(r.get(n)) for _, r in members])[order] for n in names}
+    series = {}
+    for n in names:
+        label, scale = shown_column(n) or (n, 1.0)
+        series[label] = np.array([number(r.get(n)) * scale for _, r in members])[order]
     return {"x": x[order], "series": series, "xlabel": xlabel}
 
 
@@ -101,5 +125,6 @@ def draw_figure(job: dict[str, Any]) -> bytes:
     return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"])
 
 
-def _number(value: Any) -> float:
+def number(value: Any) -> float:
+    """A table cell as a number: NaN for an empty or non-numeric one."""
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.nan

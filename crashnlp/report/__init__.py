@@ -1,0 +1,293 @@
+"""`crashnlp report`: a folder crashnlp wrote, as one self-contained HTML page to hand on.
+
+A fit or design (result.json), a simulation (simulation.json) or a study (cases/) is read
+through its loaders (crashnlp.folders) and rendered by the Jinja2 templates shipped beside this
+module (templates/*.html.j2). Every figure is embedded as a base64 PNG: the folder's own
+figures, and the maps drawn here (the estimates' correlations; a two-entry grid study's
+objective and metrics). The style is inline and nothing is fetched, so the page reads offline,
+travels as one file and prints (its print stylesheet). Numbers are SI inside and shown in the
+units the console shows them in (crashnlp.outputs).
+"""
+
+from __future__ import annotations
+
+import base64
+import math
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import jinja2
+import numpy as np
+
+from crashnlp.files import atomic_open, check_writable_file
+from crashnlp.folders import folder_kind, read_result, read_simulation, read_study
+from crashnlp.identified import Z95
+from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
+from crashnlp.result import Result
+from crashnlp.studies.table import PLOTTED, number, shown_column
+
+if TYPE_CHECKING:
+    from crashnlp.prediction import PredictedTest
+
+REPORT = "report.html"
+RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
+
+_templates = jinja2.Environment(
+    loader=jinja2.PackageLoader("crashnlp.report", "templates"),
+    autoescape=True,
+    undefined=jinja2.StrictUndefined,  # a name the page uses and the context lacks fails here, not as a blank
+    trim_blocks=True,
+    lstrip_blocks=True,
+)
+
+
+def write_report(folder: Path, out: Path | None = None) -> Path:
+    """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all."""
+    kind = folder_kind(folder)
+    out = check_writable_file(out or folder / REPORT)
+    if kind == "result":
+        page = result_page(read_result(folder), folder)
+    elif kind == "simulation":
+        page = simulation_page(*read_simulation(folder), folder)
+    else:
+        page = study_page(folder.name, read_study(folder), folder)
+    with atomic_open(out) as fh:
+        fh.write(page)
+    return out
+
+
+# --------------------------------------------------------------------------- a fit or design
+def result_page(result: Result, folder: Path) -> str:
+    """The page of a fit or design: the problem in brief, per test its figures, metrics and
+    ratings, the estimates with their errors and intervals, their correlations, what sits at a
+    bound or is not identified, and the notes."""
+    figures = _figures(folder, ["force_crush.png"], "the identified loading curve")
+    correlation = result.correlation
+    if correlation.get("labels"):
+        from crashnlp import plots  # matplotlib: only when a page draws
+
+        matrix = np.array([[np.nan if v is None else v for v in row] for row in correlation["matrix"]], dtype=float)
+        png = plots.correlation_png(list(correlation["labels"]), matrix, f"{result.name}: correlation of the estimates")
+        figures.append({"uri": _uri(png), "caption": "correlation of the estimates (sandwich covariance)"})
+    return _templates.get_template("result.html.j2").render(
+        title=f"{result.name}: {'fit' if result.kind == 'identify' else result.kind}",
+        result=result,
+        brief=_brief(result),
+        tests=[_test(result, name, folder) for name in result.tests],
+        figures=figures,
+        parameters=_parameters(result),
+        not_identified=result.not_identified,
+        at_bound=result.at_bound,
+        active=result.active_constraints,
+        notes=result.notes,
+    )
+
+
+def _brief(result: Result) -> list[tuple[str, str]]:
+    """The problem and the solve in a few lines: (what, how)."""
+    s = result.solver
+    objective = "-" if s.objective is None else f"{s.objective:.6g}"
+    lines = [
+        ("status", f"{result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, objective {objective})"),
+        ("transcription", ", ".join(f"{k} {v}" for k, v in result.transcription.items())),
+        ("tests", ", ".join(f"{name} at {t.speed * 3.6:.1f} km/h" for name, t in result.tests.items())),
+        ("estimated", ", ".join(result.parameters) or "nothing"),
+    ]
+    if result.identified is not None:
+        vehicle, model = result.identified.vehicle, result.identified.model
+        spring, unloading, damper = model["spring"], model["unloading"], model.get("damper")
+        lines.insert(2, ("vehicle", f"{vehicle['mass']:.0f} kg, CG {vehicle['cg_to_impact']:.3g} m behind the impact point"))
+        front = (
+            f"{spring['law']} spring law over {len(spring['crush_breakpoints'])} breakpoints to "
+            f"{1e3 * spring['crush_breakpoints'][-1]:.0f} mm, {unloading['law']} unloading"
+        )
+        front += ", a damper" if damper else ", no damper"
+        lines.insert(3, ("front end", front))
+    if result.covariance.get("method"):
+        lines.append(("standard errors", str(result.covariance["method"])))
+    return lines
+
+
+def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
+    """One test: its figures, its metrics (model against test), RMSE and ISO 18571 ratings."""
+    t = result.tests[name]
+    data = t.data_metrics or {}
+    metrics = [(label, _cell(t.metrics.get(key), f), _cell(data.get(key), f)) for key, label, f in METRIC_ROWS]
+    fits = [
+        {
+            "channel": c,
+            "rmse": OUTPUT[c].shown(f.rmse),
+            "sigma": OUTPUT[c].shown(f.sigma),
+            "ratings": [_cell((f.iso18571 or {}).get(k), 1.0, 3) for k in RATINGS],
+        }
+        for c, f in t.fit.items()
+    ]
+    return {
+        "name": name,
+        "speed": f"{t.speed * 3.6:.1f} km/h",
+        "figures": _figures(folder / name, ["fit.png", "response.png", "residuals.png"], f"test {name}"),
+        "metrics": metrics,
+        "has_data": bool(t.data_metrics),
+        "fits": fits,
+        "ratings": RATINGS,
+    }
+
+
+def _parameters(result: Result) -> list[dict[str, str]]:
+    """Every estimated value, one number each: value, standard error and 95 % interval (the
+    profile's where the fit profiled it, else value ± 1.96 standard errors, cut at its bounds),
+    its bounds, in the unit it reads in."""
+    problem = result.identified.as_problem(result.name) if result.identified is not None else None
+    bounds = dict(zip(result.identified.labels, result.identified.bounds)) if result.identified is not None else {}
+    rows = []
+    for path, value in result.parameters.items():
+        unit, factor = shown_unit(problem.unit_at(path)) if problem is not None else ("", 1.0)
+        stds = result.std_errors.get(path)
+        values = value if isinstance(value, list) else [value]
+        std_list = stds if isinstance(stds, list) else [stds] * len(values)
+        without = "not identified" if path in result.std_errors else "no standard errors"  # a design has none
+        for i, (v, s) in enumerate(zip(values, std_list)):
+            label = f"{path}[{i}]" if isinstance(value, list) else path
+            rows.append(_parameter(result, label, v, (s, without), bounds.get(label), (unit, factor)))
+    return rows
+
+
+def _parameter(
+    result: Result,
+    label: str,
+    value: float,
+    error: tuple[float | None, str],
+    bounds: tuple[float, float] | None,
+    unit: tuple[str, float],
+) -> dict[str, str]:
+    """One estimated value's row; `error`: its standard error (None: none) and why there is none."""
+    (std, without), (name, factor) = error, unit
+    profile = result.profiles.get(label, {})
+    if profile.get("lower") is not None and profile.get("upper") is not None:
+        interval, how = (profile["lower"], profile["upper"]), "profile"
+    elif std is not None and math.isfinite(std):
+        lo, hi = bounds or (-math.inf, math.inf)
+        interval = (max(value - Z95 * std, lo), min(value + Z95 * std, hi))
+        cut = interval != (value - Z95 * std, value + Z95 * std)
+        how = "± 1.96 std" + (", cut at a bound" if cut else "")
+    else:
+        interval, how = None, without
+    return {
+        "label": label,
+        "value": _cell(value, factor, 5),
+        "std": _cell(std, factor, 2),
+        "interval": "-" if interval is None else f"[{_cell(interval[0], factor)}, {_cell(interval[1], factor)}]",
+        "how": how,
+        "bounds": "-" if bounds is None else f"[{_cell(bounds[0], factor)}, {_cell(bounds[1], factor)}]",
+        "unit": name,
+        "at_bound": f"{result.at_bound[label]:.2g} std past" if label in result.at_bound else "",
+    }
+
+
+# --------------------------------------------------------------------------- a simulation
+def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) -> str:
+    """The page of a simulation: per predicted test its metrics with their 95 % intervals, how far
+    it lies past the identified range, its notes and its figure with the bands."""
+    pages = []
+    for test in tests.values():
+        rows = []
+        for key, label, factor, unit, digits in PREDICTED_ROWS:
+            value, band = test.metrics.get(key), test.intervals.get(key)
+            if value is None:
+                continue
+            interval = "-" if band is None else f"[{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
+            rows.append((f"{label} ({unit})", f"{value * factor:.{digits}f}", interval))
+        pages.append(
+            {
+                "name": test.name,
+                "speed": f"{test.speed * 3.6:.1f} km/h",
+                "mass": f"{test.mass:.0f} kg",
+                "rows": rows,
+                "intervals": bool(test.intervals),
+                "extrapolation": _extrapolation(test),
+                "notes": test.notes,
+                "figures": _figures(folder / test.name, ["response.png"], f"test {test.name}, 95 % bands shaded"),
+            }
+        )
+    return _templates.get_template("simulation.html.j2").render(title=f"{name}: simulation", tests=pages)
+
+
+def _extrapolation(test: PredictedTest) -> str:
+    from crashnlp.prediction import extrapolation_line
+
+    return extrapolation_line(test.extrapolation) if test.extrapolation else ""
+
+
+# --------------------------------------------------------------------------- a study
+def study_page(name: str, rows: list[dict], folder: Path) -> str:
+    """The page of a study: its table (swept values as written, status, objective, iterations,
+    metrics and bound multipliers in the units a person reads), its figures, and for a complete
+    two-entry grid a map of the objective and of each metric it plots over the grid."""
+    keys = list(dict.fromkeys(k for r in rows for k in r))  # a failed case's row lacks the metrics
+    swept = [k for k in keys if f"{k}_si" in keys]
+    metrics = [(k, *shown) for k in keys if (shown := shown_column(k)) is not None]
+    columns = ["case", *swept, "status", "objective", "iterations"]
+    head = columns + [label for _, label, _ in metrics]
+    body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
+    figures = _figures(folder / "figures", sorted(p.name for p in (folder / "figures").glob("*.png")), "")
+    maps = _maps(name, rows, swept, metrics) if len(swept) == 2 else []
+    return _templates.get_template("study.html.j2").render(
+        title=f"{name}: study", head=head, body=body, figures=maps + figures, cases=len(rows), swept=swept
+    )
+
+
+def _maps(name: str, rows: list[dict], swept: list[str], metrics: list[tuple[str, str, float]]) -> list[dict[str, str]]:
+    """Maps over a complete grid of two swept entries: the objective and the metrics a study plots (PLOTTED),
+    a cell per case (empty where it failed); none when the cases do not fill the grid (zip)."""
+    from crashnlp import plots
+
+    axes = [_axis(rows, k) for k in swept]
+    if len(rows) != len(axes[0]) * len(axes[1]):
+        return []
+    cell = {(r[swept[0]], r[swept[1]]): r for r in rows}
+    shown = [("objective", "objective", 1.0)] + [m for m in metrics if m[0].endswith(PLOTTED)]
+    out = []
+    for key, label, factor in shown:
+        grid = np.array([[_oknumber(cell[(x, y)], key) * factor for x in axes[0]] for y in axes[1]])
+        png = plots.map_png(
+            [str(v) for v in axes[0]], [str(v) for v in axes[1]], grid, (swept[0], swept[1], label), f"{name}: {label}"
+        )
+        out.append({"uri": _uri(png), "caption": f"{label} over the grid"})
+    return out
+
+
+def _axis(rows: list[dict], key: str) -> list[Any]:
+    """The values a swept entry takes, as written, in the order of their SI values."""
+    si = {r[key]: number(r.get(f"{key}_si")) for r in rows}
+    return sorted(si, key=lambda value: si[value])
+
+
+def _oknumber(row: dict, key: str) -> float:
+    return number(row.get(key)) if row.get("status") == "ok" else math.nan
+
+
+# --------------------------------------------------------------------------- pieces
+def _figures(folder: Path, names: list[str], caption: str) -> list[dict[str, str]]:
+    """The named PNG files of `folder` that exist, as data URIs with a caption."""
+    return [
+        {"uri": _uri((folder / n).read_bytes()), "caption": f"{caption}: {n}" if caption else n}
+        for n in names
+        if (folder / n).is_file()
+    ]
+
+
+def _uri(png: bytes) -> str:
+    return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
+
+
+def _cell(value: float | None, factor: float, digits: int = 4) -> str:
+    """A number in the unit `factor` converts to, to `digits` significant digits; '-' if none."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value * factor:.{digits}g}"
+
+
+def _text(value: Any) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return "" if value is None else str(value)

@@ -1,0 +1,255 @@
+"""What an engineer hands on: the report of a fit, a simulation and a study, and the exports
+(LS-DYNA curves, CSV curves, a sled-test pulse), checked against the files and the model."""
+
+from __future__ import annotations
+
+import base64
+import html
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from builders import ROOT
+
+from crashnlp.cli import main
+from crashnlp.model.parameters import ParameterLayout
+from crashnlp.model.pendulum import build_model
+from crashnlp.outputs import named_test, shown_unit
+from crashnlp.result import Result
+from crashnlp.studies.store import CaseStore
+from crashnlp.units import G0
+
+EMBEDDED = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
+EXTERNAL = re.compile(r'(?:src|href)\s*=\s*"(?!data:)[^"]*"|url\(|@import|<link|<script', re.IGNORECASE)
+
+
+@pytest.fixture(scope="module")
+def fit(tmp_path_factory) -> Path:
+    """The shipped pickup fitted by the command line with --report (a few seconds)."""
+    out = tmp_path_factory.mktemp("fit") / "pickup"
+    assert main(["identify", str(ROOT / "problems/pickup-56kph.yaml"), "--out", str(out), "--report"]) == 0
+    return out
+
+
+def self_contained(page: str) -> list[bytes]:
+    """The page's embedded PNGs; fails on any resource it would fetch."""
+    assert not EXTERNAL.findall(page), EXTERNAL.findall(page)[:3]
+    pngs = [base64.b64decode(b) for b in EMBEDDED.findall(page)]
+    assert all(png.startswith(b"\x89PNG\r\n\x1a\n") for png in pngs)
+    return pngs
+
+
+@pytest.mark.integration
+def test_identify_report_is_one_page_with_the_figures_metrics_ratings_and_every_estimate(fit):
+    page = (fit / "report.html").read_text(encoding="utf-8")
+    assert len(self_contained(page)) >= 3  # the fit, its residuals, the loading curve, the correlations
+    raw = json.loads((fit / "result.json").read_text())
+    test = raw["tests"]["56kph"]
+    assert "peak deceleration (g)" in page
+    assert f"<td>{test['metrics']['model']['peak_decel_g']:.4g}</td>" in page
+    for channel, f in test["fit"].items():
+        assert re.search(rf"<td class=\"l\">{channel}</td>.*<td>{f['iso18571']['overall']:.3g}</td></tr>", page), channel
+    problem = Result.load(fit).identified.as_problem("pickup")
+    for path, std in raw["std_errors"].items():
+        unit, factor = shown_unit(problem.unit_at(path))
+        for i, s in enumerate(std if isinstance(std, list) else [std]):
+            label = f"{path}[{i}]" if isinstance(std, list) else path
+            shown = re.escape(f"{s * factor:.2g}")
+            assert re.search(rf"<td class=\"l\">{re.escape(label)}</td><td>[^<]+</td><td>{shown}</td>", page), label
+    assert "correlation of the estimates" in page
+    for note in raw["notes"]:
+        assert note in html.unescape(page)
+
+
+@pytest.mark.integration
+def test_a_result_read_back_keeps_each_channels_ratings(fit):
+    raw = json.loads((fit / "result.json").read_text())["tests"]["56kph"]["fit"]
+    back = Result.load(fit).tests["56kph"].fit
+    assert {c: f.iso18571 for c, f in back.items()} == {c: f["iso18571"] for c, f in raw.items()}
+    assert back["accel"].rmse * 1 / G0 == pytest.approx(raw["accel"]["rmse"])
+
+
+def read_curves(path: Path) -> dict[str, np.ndarray]:
+    """The *DEFINE_CURVE_TITLE cards of a keyword file by their titles' first word after the name:
+    points (n x 2) from the fixed 20-column fields, after the 80-column curve card."""
+    lines = path.read_text().splitlines()
+    assert lines[0] == "*KEYWORD" and lines[-1] == "*END"
+    curves = {}
+    for start in [i for i, line in enumerate(lines) if line == "*DEFINE_CURVE_TITLE"]:
+        end = next(i for i in range(start + 1, len(lines)) if lines[i].startswith("*"))
+        card, *points = [line for line in lines[start + 2 : end] if not line.startswith("$")]
+        assert len(card) == 80 and card[20:40].split() == ["1.0", "1.0"]  # sfa, sfo
+        name = lines[start + 1].split(":")[0].split()[-1]
+        curves[name] = np.array([(float(line[:20]), float(line[20:40])) for line in points])
+    return curves
+
+
+@pytest.mark.integration
+def test_the_ls_dyna_curves_reproduce_the_identified_model_in_stated_units(fit, tmp_path):
+    path = tmp_path / "pickup.k"
+    assert main(["export", str(fit), "--format", "ls-dyna", "--out", str(path)]) == 0
+    text = path.read_text()
+    assert "units: mm, ms, kg, kN" in text and "*MAT_SPRING_GENERAL_NONLINEAR" in text
+    curves = read_curves(path)
+    identified = Result.load(fit).identified
+    problem = identified.as_problem("pickup")
+    layout = ParameterLayout.of(problem)
+    model, p = build_model(problem.model, layout), layout.values(problem)
+    crush, force = curves["loading"][:, 0] / 1e3, curves["loading"][:, 1] * 1e3  # mm, kN -> m, N
+    tail = identified.model["spring"]["tail"]
+    assert crush[-1] > tail["start"] * 1.2  # the tail the identified model extrapolates with is in the curve
+    fine = np.linspace(0.0, crush[-1], 20001)
+    own = np.asarray(model.loading_curve(fine[None, :], p)).ravel()
+    assert np.max(np.abs(np.interp(fine, crush, force) - own)) <= 0.005 * np.max(own)
+    stiffness = identified.model["unloading"]["stiffness"]
+    recovered, back = curves["unloading"].T
+    assert np.diff(back) / np.diff(recovered) == pytest.approx(stiffness * 1e-6)  # kN/mm
+    rate, damping = curves["damper"].T  # mm/ms is m/s; kN
+    assert damping[rate > 0.1] / rate[rate > 0.1] == pytest.approx(identified.model["damper"]["values"][0] * 1e-3, rel=1e-3)
+
+
+@pytest.mark.integration
+def test_the_csv_export_writes_every_curve_in_si(fit, tmp_path):
+    assert main(["export", str(fit), "--format", "csv", "--out", str(tmp_path / "curves")]) == 0
+    loading = np.genfromtxt(tmp_path / "curves/loading.csv", delimiter=",", names=True)
+    assert loading.dtype.names == ("crush_m", "force_N") and loading["crush_m"][-1] > 0.8
+    assert {p.name for p in (tmp_path / "curves").iterdir()} == {"loading.csv", "unloading.csv", "damper.csv"}
+
+
+@pytest.mark.integration
+def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_path, capsys):
+    path = tmp_path / "pulse.csv"
+    assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "60", "--out", str(path)]) == 0
+    check = capsys.readouterr().out.splitlines()[0]
+    header = path.read_text().splitlines()[:4]
+    assert header[2] == f"# {check}" and header[3] == "time_s,accel_g"
+    table = np.loadtxt(path, delimiter=",", skiprows=4)
+    t, accel = table[:, 0], table[:, 1] * G0
+    assert np.diff(t) == pytest.approx(5e-5)
+    response = Result.load(fit).tests["56kph"].response
+    delta_v = -np.sum(np.diff(t) * (accel[1:] + accel[:-1]) / 2)
+    assert delta_v == pytest.approx(response["velocity"][0] - response["velocity"][-1], rel=0.005)  # the model's own
+    numbers = [float(x) for x in re.findall(r"(\d+\.\d+) m/s", check)]
+    assert numbers[0] == pytest.approx(delta_v, abs=1e-3) and numbers[3] == pytest.approx(numbers[1] + numbers[2], abs=2e-3)
+    rough = tmp_path / "cfc1000.csv"
+    assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "1000", "--out", str(rough)]) == 0
+    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=4)[:, 1]))) for f in (path, rough)]
+    assert steps[0] < 0.9 * steps[1]  # CFC 60 smooths the pulse more than CFC 1000
+
+
+@pytest.mark.integration
+def test_a_simulation_report_gives_the_intervals_and_the_extrapolation(fit, tmp_path):
+    sim = tmp_path / "sim"
+    problem = ROOT / "problems/pickup-40kph.yaml"
+    assert main(["simulate", str(problem), "--params", str(fit / "result.json"), "--out", str(sim)]) == 0
+    assert main(["report", str(sim)]) == 0
+    page = (sim / "report.html").read_text(encoding="utf-8")
+    assert len(self_contained(page)) == 1
+    raw = json.loads((sim / "simulation.json").read_text())
+    for test in raw["tests"].values():
+        low, high = test["intervals"]["peak_decel_g"]
+        assert f"<td>[{low:.1f}, {high:.1f}]</td>" in page
+        if test["extrapolation"]:
+            assert "extrapolates:" in page
+
+
+def study_row(case: int, pitch: str, k_front: str, ok: bool = True) -> dict:
+    si = {"4 deg": 0.0698, "8 deg": 0.1396, "50 kN/m": 5e4, "90 kN/m": 9e4}
+    row = {"case": f"case-{case:03d}", "constraints.bounds.pitch": f"[null, {pitch}]", "vehicle.suspension.k_front": k_front}
+    row |= {"constraints.bounds.pitch_si": si[pitch], "vehicle.suspension.k_front_si": si[k_front], "warm_start": ""}
+    row |= {"status": "ok" if ok else "error: failed", "objective": 1.0 + case, "iterations": 10 + case, "wall_s": 0.1}
+    return row | {"t.max_crush_m": 0.5 + 0.01 * case, "t.peak_decel_g": 30.0 + case} if ok else row
+
+
+def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
+    store = CaseStore(tmp_path / "grid" / "cases")
+    grid = [("8 deg", "90 kN/m"), ("4 deg", "50 kN/m"), ("8 deg", "50 kN/m"), ("4 deg", "90 kN/m")]
+    for case, (pitch, k) in enumerate(grid):
+        store.save(f"case-{case:03d}", "key", study_row(case, pitch, k, ok=case != 0), None)  # the first failed
+    assert main(["report", str(tmp_path / "grid")]) == 0
+    page = (tmp_path / "grid" / "report.html").read_text(encoding="utf-8")
+    assert len(self_contained(page)) == 3  # objective, max crush, peak deceleration over the grid
+    assert page.count("<tr>") == 1 + 4 and "t: peak deceleration (g)" in page and "<td>500</td>" not in page
+    assert "<td>510</td>" in page  # max crush 0.51 m in mm, as the console shows it
+
+
+def test_a_zip_study_has_no_map(tmp_path):
+    store = CaseStore(tmp_path / "zip" / "cases")
+    for case, (pitch, k) in enumerate([("4 deg", "50 kN/m"), ("8 deg", "90 kN/m")]):
+        store.save(f"case-{case:03d}", "key", study_row(case, pitch, k), None)
+    assert main(["report", str(tmp_path / "zip")]) == 0
+    assert len(self_contained((tmp_path / "zip" / "report.html").read_text())) == 0
+
+
+@pytest.mark.parametrize(
+    ("command", "make", "message"),
+    [
+        (["report"], None, "no such folder"),
+        (["report"], "empty", "holds no result.json, simulation.json or cases/"),
+        (["report"], "corrupt", "result.json: does not read as crashnlp writes it"),
+        (["export", "--format", "ls-dyna"], "corrupt", "result.json: does not read as crashnlp writes it"),
+        (["export", "--format", "pulse"], "empty", "holds no result.json"),
+        (["export", "--format", "csv"], "study", "a study's folder holds no curves or pulses"),
+    ],
+)
+def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, command, make, message):
+    folder = tmp_path / "folder"
+    if make is not None:
+        folder.mkdir()
+    if make == "corrupt":
+        (folder / "result.json").write_text('{"name": "x", "tests": {')
+    if make == "study":
+        (folder / "cases").mkdir()
+    before = sorted(tmp_path.rglob("*"))
+    assert main([command[0], str(folder), *command[1:]]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(folder) in err and message in err, err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_figure_names_a_test_once():
+    assert named_test("v10146", "v10146") == "v10146" and named_test("pickup-56kph", "56kph") == "pickup-56kph"
+    assert named_test("pickup-joint", "40kph") == "pickup-joint, test 40kph"
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize(
+    ("options", "message"),
+    [
+        (["report", "--out", "{tmp}"], "is a folder; name the file to write"),
+        (["export", "--format", "ls-dyna", "--out", "{tmp}"], "is a folder; name the file to write"),
+        (["export", "--format", "pulse", "--test", "nope"], "--test nope: {fit} has tests 56kph"),
+        (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
+        (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
+        (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
+        (["export", "--format", "xml"], "--format: invalid choice"),
+    ],
+)
+def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, capsys, options, message):
+    before = sorted(fit.rglob("*"))
+    argv = [options[0], str(fit), *(o.format(tmp=tmp_path) for o in options[1:])]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and message.format(fit=fit) in err, err
+    assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
+
+
+@pytest.mark.integration
+def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
+    folder = tmp_path / "copy"
+    folder.mkdir()
+    (folder / "result.json").write_bytes((fit / "result.json").read_bytes())
+    assert main(["report", str(folder)]) == 2
+    err = capsys.readouterr().err
+    assert f"{folder / 'result.json'}: does not read as crashnlp writes it" in err and "response.csv" in err
+    assert not (folder / "report.html").exists()
+
+
+@pytest.mark.integration  # a process of its own
+def test_the_report_and_a_result_read_back_import_neither_casadi_nor_matplotlib():
+    code = "import sys, crashnlp.report, crashnlp.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
+    assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
