@@ -253,6 +253,8 @@ def _consistency_line(c: dict) -> str:
 
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
+    from crashnlp.summary import still_moving
+
     s = result.solver
     how = " compiled" if s.compiled else ""
     timing = f"solve {s.wall_s:.2f} s{how} + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
@@ -279,6 +281,9 @@ def _print_solution(result) -> None:
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
         for key, label, f in METRIC_ROWS:
             print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
+        for who, m in (("the model", model), ("the test record", data)):
+            if m and (text := still_moving(m)):
+                print(f"    {who} {text}")
         if t.fit:
             print(
                 "    rmse      "

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import pytest
 import yaml
@@ -90,3 +91,51 @@ def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
     assert code == 2 and err.count("\n") == 1
     assert err == f"crashnlp: error: {path}: solver.ipopt.max_itr: no such IPOPT option (did you mean max_iter?)\n"
     assert not (tmp_path / "out").exists()
+
+
+def _cut_pickup(tmp_path, **test) -> tuple:
+    """A problem whose test reads the shipped pickup cut at 45 ms (still moving at 6.5 m/s)."""
+    rows = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()[:452]
+    csv = tmp_path / "cut45.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    data = {**DATA, "file": str(csv), **test.pop("data", {})}
+    path = tmp_path / "cut.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "cut", "data": data, **test}]})))
+    return path, tmp_path / "out"
+
+
+@pytest.mark.parametrize(
+    "command, test, key",
+    [
+        ("simulate", {"data": {"window": ["0 s", "0.2 s"]}}, "tests.0.data.window: runs to 200 ms"),
+        ("identify", {"duration": "0.1 s"}, "tests.0.duration: runs to 100 ms"),
+    ],
+)
+def test_a_span_past_the_data_is_refused(tmp_path, capsys, command, test, key):
+    path, out = _cut_pickup(tmp_path, **test)
+    assert main([command, str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    where = "the data of test cut end at 45 ms (cut45.csv, channel displacement)"
+    assert err == f"crashnlp: error: {path}: {key}, but {where}; shorten it to the data, or give the whole record\n"
+    assert not out.exists()
+
+
+@pytest.mark.integration
+def test_a_window_a_sample_past_the_data_is_taken(tmp_path):
+    path, out = _cut_pickup(tmp_path, data={"window": ["0 s", "0.0451 s"]})
+    assert main(["simulate", str(path), "--out", str(out), "--no-figures"]) == 0
+
+
+@pytest.mark.integration
+def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
+    channels = {"accel": {"column": "accel_x_g", "unit": "g"}, "velocity": {"column": "vel_x_mps"}, **DATA["channels"]}
+    path, out = _cut_pickup(tmp_path, data={"window": ["0 s", "0.045 s"], "channels": channels})
+    fit = merge(yaml.safe_load(path.read_text()), {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}})
+    path.write_text(yaml.safe_dump(merge(fit, {"transcription": {"method": "multiple-shooting", "intervals": 45}})))
+    assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"max dynamic crush \(mm\) +\d+\.\d +-\n", printed)  # the model's travel; the data's none
+    assert "the test record ends at 45.0 ms still moving toward the barrier at 6.5" in printed
+    assert "the model ends at 45.0 ms still moving toward the barrier at 6.5" in printed
+    notes = json.loads((out / "result.json").read_text())["notes"]
+    assert any(n.startswith("test cut: the record ends at 45.0 ms still moving") for n in notes)

@@ -266,3 +266,14 @@ def test_mme_sample_count_mismatch(tmp_path):
     f.write_text(f.read_text().replace("Number of samples           :600", "Number of samples           :601"))
     with pytest.raises(DataError, match=r"T001\.001: channel accel .*600 samples but the header says 601"):
         load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": CODE_X}}))
+
+
+def test_nhtsa_curve_file_shorter_than_its_header_is_refused(tmp_path):
+    header = _copy_ev5(tmp_path)
+    lines = (tmp_path / "v10146.094").read_text().splitlines()
+    (tmp_path / "v10146.094").write_text("\n".join(lines[:800]) + "\n")  # to 29.9 ms of 299.9 ms
+    with pytest.raises(
+        DataError,
+        match=r"v10146\.094: channel accel \(curve 94\): the file ends at 29\.9 ms, but the header says .* to 299\.9 ms",
+    ):
+        load_test_data(camry(file=header))
