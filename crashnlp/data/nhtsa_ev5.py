@@ -237,14 +237,14 @@ def read_ev5(spec: DataSpec) -> TestData:
             unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
             values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
             read.append((file, time, values))
-        channels[name] = _combine(read, name)
+        channels[name] = combine(read, name)
     for row in cards.get("VEHICLE", []):
         if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass
     return TestData(channels, meta, notes)
 
 
-def _combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
+def combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
     """Sum (a force, `SUMMED`) or mean of curves on one time base; refuse curves whose sampling
     or range differ."""
     file0, time, total = read[0]

@@ -388,19 +388,21 @@ ALL_BARRIER_FX: str = get_args(AllBarrierFx)[0]
 
 
 class TimeColumn(Strict):
-    column: str
+    column: str | int = Field(description="CSV column: its name in the header, or its number counted from 1")
     unit: str = "s"
 
 
 class ChannelSpec(Strict):
-    column: str | None = Field(None, description="CSV column")
+    column: str | int | None = Field(None, description="CSV column: its name in the header, or its number counted from 1")
     curves: list[int] | AllBarrierFx | None = Field(
         None,
-        description="NHTSA EV5 curve numbers, averaged (barrier_force: summed); all-valid-barrier-fx: every valid"
-        " barrier Fx load cell of the test",
+        description="NHTSA EV5 curve numbers, or the numbers CCC of NHTSA channel files vNNNNNtsv.CCC, averaged"
+        " (barrier_force: summed); all-valid-barrier-fx: every valid barrier Fx load cell of an EV5 test",
     )
     code: str | None = Field(None, description="ISO-MME channel code")
-    unit: str | None = Field(None, description="unit of the stored values; EV5 and MME files carry their own")
+    unit: str | None = Field(
+        None, description="unit of the stored values; EV5 and MME files carry their own, NHTSA channel files none"
+    )
     filter: CFC | None = Field(None, description="SAE J211 filter class; barrier_force: CFC60 unless given (null: none)")
     sign: Literal[1, -1] = Field(
         1,
@@ -416,7 +418,7 @@ class ChannelSpec(Strict):
 
 class DataSpec(Strict):
     file: Path
-    format: Literal["csv", "nhtsa-ev5", "iso-mme"] = "csv"
+    format: Literal["csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"] = "csv"
     time: TimeColumn = TimeColumn(column="time_s")
     window: tuple[Time, Time] | None = None
     bias_window: tuple[Time, Time] | None = Field(None, description="pre-impact samples whose mean is removed")
