@@ -13,7 +13,7 @@ from __future__ import annotations
 import re
 from pathlib import Path
 
-from crashnlp.data.channels import DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.nhtsa_ev5 import combine
 from crashnlp.problem.schema import ChannelSpec, DataSpec
@@ -21,9 +21,9 @@ from crashnlp.problem.schema import ChannelSpec, DataSpec
 CHANNEL_FILE = re.compile(r"v(\d+)tsv\.(\d{3})", re.IGNORECASE)
 
 
-def channel_files(path: Path) -> dict[int, Path]:
-    """The channel files of the test `path` names (one of its files, or a folder of one test's
-    files), by curve number."""
+def channel_files(path: Path) -> tuple[str, dict[int, Path]]:
+    """The test number NNNNN `path` names (one of its files, or a folder of one test's files),
+    and its channel files by curve number."""
     folder = path if path.is_dir() else path.parent
     named = CHANNEL_FILE.fullmatch(path.name)
     if not path.is_dir() and named is None:
@@ -34,7 +34,7 @@ def channel_files(path: Path) -> dict[int, Path]:
         what = f"channel files of tests {', '.join(tests)}" if tests else "no NHTSA channel files (vNNNNNtsv.CCC)"
         raise DataError(f"{path}: holds {what}; name one of the test's files")
     test = named.group(1) if named is not None else tests[0]
-    return {number: p for t, number, p in found if t == test}
+    return test, {number: p for t, number, p in found if t == test}
 
 
 def _numbers(path: Path, name: str, ch: ChannelSpec) -> list[int]:
@@ -51,8 +51,8 @@ def read_channel_files(spec: DataSpec) -> TestData:
     """Channels from the channel files `ChannelSpec.curves` (averaged when several, summed for a
     force), in SI from the channel's `unit`; combined files must share sample interval and time
     range. No meta: the files carry none."""
-    files = channel_files(spec.file)
-    channels = {}
+    _, files = channel_files(spec.file)
+    channels: dict[str, Channel] = {}
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
