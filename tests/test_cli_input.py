@@ -4,10 +4,13 @@ from __future__ import annotations
 
 import json
 import re
+from types import UnionType
+from typing import Annotated, Literal, Union, get_args, get_origin
 
 import pytest
 import yaml
 from builders import BASE, ROOT, merge
+from pydantic import BaseModel
 
 from crashnlp.cli import main
 
@@ -39,6 +42,23 @@ CASES = {
     "ipopt option type": ({"solver": {"ipopt": {"max_iter": 5.5}}}, "solver.ipopt.max_iter: 5.5 is not an integer"),
     "ipopt option range": ({"solver": {"ipopt": {"tol": -1}}}, "solver.ipopt.tol: -1 is outside IPOPT's range 0 < tol"),
     "ipopt option setting": ({"solver": {"ipopt": {"mu_strategy": "fast"}}}, "solver.ipopt.mu_strategy: 'fast' is none of"),
+    "breakpoint count": (
+        {"model": {"spring": {"crush_breakpoints": {"count": 50}, "values": None}}},
+        "model.spring.crush_breakpoints: a list of crush values, or {count: N} with N from 2 to 30 (count: Input should be"
+        " less than or equal to 30)\n",
+    ),
+    "breakpoints of no form": (
+        {"model": {"spring": {"crush_breakpoints": "many", "values": None}}},
+        "model.spring.crush_breakpoints: a list of crush values, or {count: N} with N from 2 to 30\n",
+    ),
+    "tail": (
+        {"model": {"spring": {"tail": "trnd"}}},
+        "model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}\n",
+    ),
+    "column": (
+        {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": 1.5}}}}]},
+        "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
+    ),
 }
 
 
@@ -139,3 +159,34 @@ def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
     assert "the model ends at 45.0 ms still moving toward the barrier at 6.5" in printed
     notes = json.loads((out / "result.json").read_text())["notes"]
     assert any(n.startswith("test cut: the record ends at 45.0 ms still moving") for n in notes)
+
+
+def _forms(annotation) -> list:
+    """The forms a field's type allows (Optional's None left out, Annotated's metadata looked through)."""
+    if get_origin(annotation) is Annotated:
+        return _forms(get_args(annotation)[0])
+    if get_origin(annotation) in (Union, UnionType):
+        return [form for arg in get_args(annotation) for form in _forms(arg)]
+    return [] if annotation is type(None) else [annotation]
+
+
+def _union_keys(model: type[BaseModel], seen: set) -> set[str]:
+    """The keys of a model and the models inside it whose type allows more than one form."""
+    keys = set()
+    for name, info in model.model_fields.items():
+        forms = _forms(info.annotation)
+        keys |= {name} if len(forms) > 1 and not all(get_origin(f) is Literal for f in forms) else set()
+        inner = [a for f in forms for a in (f, *get_args(f)) for a in _forms(a)]
+        for sub in inner:
+            if isinstance(sub, type) and issubclass(sub, BaseModel) and sub not in seen:
+                seen.add(sub)
+                keys |= _union_keys(sub, seen)
+    return keys
+
+
+def test_every_key_of_several_forms_says_them_in_words():
+    from crashnlp.problem.errors import UNION_FORMS
+    from crashnlp.problem.schema import Problem
+
+    named_by_pydantic = {"transcription"}  # its `method` picks the form, and pydantic names the methods
+    assert _union_keys(Problem, set()) - named_by_pydantic == set(UNION_FORMS)
