@@ -190,3 +190,17 @@ def test_every_key_of_several_forms_says_them_in_words():
 
     named_by_pydantic = {"transcription"}  # its `method` picks the form, and pydantic names the methods
     assert _union_keys(Problem, set()) - named_by_pydantic == set(UNION_FORMS)
+
+
+def test_a_blank_cell_names_its_column_and_line(tmp_path, capsys):
+    lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    cells = lines[300].split(",")
+    lines[300] = ",".join([*cells[:3], "", *cells[4:]])  # disp_x_m left blank
+    csv = tmp_path / "blank.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "a", "data": {**DATA, "file": str(csv)}}]})))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"crashnlp: error: {csv}: channel displacement (column disp_x_m): line 301: a blank cell\n"
+    assert not (tmp_path / "out").exists()
