@@ -365,3 +365,9 @@ def test_nhtsa_channel_folder_of_two_tests_asks_for_a_file(tmp_path):
     channel_export(tmp_path, (93,), test="10147")
     with pytest.raises(DataError, match=r"holds channel files of tests 10146, 10147; name one of the test's files"):
         load_test_data(spec(file=tmp_path, format="nhtsa-channel", channels={"accel": {"curves": [93], "unit": "g"}}))
+
+
+def test_csv_a_cell_past_the_csv_modules_limit_is_one_line(tmp_path):
+    path = _csv(tmp_path, f"0,1\n0.001,{'9' * 200_000}\n")
+    with pytest.raises(DataError, match=r"bad\.csv: cannot read as CSV \(field larger than field limit"):
+        load_test_data(pickup(file=path, channels=ACCEL))

@@ -48,7 +48,10 @@ class Table:
             raise DataError(f"{path}: empty file")
         delimiter = max(DELIMITERS, key=numbered[0][1].count)
         cells = csv.reader((line for _, line in numbered), delimiter=delimiter)
-        rows = [(n, [c.strip() for c in row]) for (n, _), row in zip(numbered, cells)]
+        try:
+            rows = [(n, [c.strip() for c in row]) for (n, _), row in zip(numbered, cells)]
+        except csv.Error as exc:
+            raise DataError(f"{path}: cannot read as CSV ({exc})") from None
         header = None if all(_is_number(c) for c in rows[0][1]) else rows.pop(0)[1]
         if not rows:
             raise DataError(f"{path}: no rows of data below the header")
