@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import ValidationError
 
 from crashnlp.completion import PITCH_LEVER
 from crashnlp.data.csv_reader import Table
@@ -35,6 +36,7 @@ from crashnlp.data.nhtsa_channel import CHANNEL_FILE, channel_files
 from crashnlp.errors import InputError
 from crashnlp.metrics import STOPPED, zero_crossing
 from crashnlp.problem import Problem, problem_from_dict
+from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 from crashnlp.units import unit_scale
 
@@ -227,6 +229,7 @@ UNIT_WORDS = {
     "m/s²": "m/s^2",
     "g": "g",
     "gs": "g",
+    "g's": "g",
     "ft/s2": "ft/s^2",
     "ft/s^2": "ft/s^2",
     "ft/s²": "ft/s^2",
@@ -236,6 +239,7 @@ UNIT_WORDS = {
     "kph": "km/h",
     "kmh": "km/h",
     "km/h": "km/h",
+    "km/hr": "km/h",
     "mph": "mph",
     "ft/s": "ft/s",
     "fps": "ft/s",
@@ -244,10 +248,12 @@ UNIT_WORDS = {
     "cm": "cm",
     "in": "in",
     "inch": "in",
+    "inches": "in",
     "ft": "ft",
     "s": "s",
     "ms": "ms",
     "sec": "s",
+    "msec": "ms",
     "deg": "deg",
     "rad": "rad",
 }
@@ -382,8 +388,6 @@ def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
     channels, comments = {}, {}
     for ch, (names, _, unit) in chosen.items():
         option = f"--column {ch}={names}"
-        if ch not in CHANNEL_UNITS:
-            raise InputError(f"{option}: no channel {ch!r} (one of {', '.join(CHANNEL_UNITS)})")
         numbers = _curve_numbers(names, option)
         if not unit:
             raise InputError(f"{option}: an NHTSA channel file carries no unit; give {option}:UNIT")
@@ -425,8 +429,8 @@ def _signs(draft: Draft, path: Path) -> None:
 def _data_spec(draft: Draft, path: Path) -> DataSpec:
     try:
         return DataSpec.model_validate({"file": str(path), **draft.data})
-    except ValueError as exc:
-        raise InputError(f"{path}: {exc}") from None
+    except ValidationError as exc:
+        raise InputError(f"{path}: {all_errors(exc)}") from None
 
 
 def _timing(draft: Draft, path: Path, speed: float) -> None:
@@ -505,6 +509,15 @@ def _draft(fmt: str, paths: list[Path], columns: dict[str, str]) -> Draft:
     return csv_draft(paths[0], columns) if fmt == "csv" else {"nhtsa-ev5": ev5_draft, "iso-mme": mme_draft}[fmt](paths[0])
 
 
+def _check_columns(fmt: str, columns: dict[str, str]) -> None:
+    """--column names channels of the formats whose files do not say what they hold."""
+    known = {"csv": ("time", *CHANNEL_UNITS), "nhtsa-channel": tuple(CHANNEL_UNITS)}.get(fmt, ())
+    for channel, given in columns.items():
+        if channel not in known:
+            what = f"{fmt} channels are {', '.join(known)}" if known else f"{fmt} data say what their channels hold"
+            raise InputError(f"--column {channel}={given}: {what}")
+
+
 def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
     """The draft of a data set (format, channels, vehicle values and comments) and its suspension;
     `paths[0]` is the file the problem names."""
@@ -512,6 +525,7 @@ def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
     fmt = options.format or guess_format(path)
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
+    _check_columns(fmt, options.columns)
     draft = _draft(fmt, paths, options.columns)
     draft.data = {"format": fmt, **draft.data}
     if options.name:

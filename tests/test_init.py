@@ -220,6 +220,7 @@ def test_init_reads_the_channels_named_in_a_folder(camry_channels, tmp_path):
         (["export/v10146tsv.093"], {"velocity": "95"}, "--column velocity=95: an NHTSA channel file carries no unit"),
         (["export/v10146tsv.093"], {"accel": "96:g"}, "--column accel=96: no channel file 096 of the test beside"),
         (["export/v10146tsv.093"], {"accel": "x.csv:g"}, "--column accel=x.csv: name channel files by their number CCC"),
+        (["export/v10146tsv.093"], {"time": "1:s"}, "--column time=1:s: nhtsa-channel channels are"),
         (["export/v10146tsv.093", "other/v10147tsv.094"], {}, "give one folder, or channel files vNNNNNtsv.CCC of one test"),
     ],
 )
@@ -227,3 +228,26 @@ def test_init_on_nhtsa_channel_files_refuses_what_it_cannot_read(camry_channels,
     channel_export(tmp_path / "other", (94,), test="10147")
     with pytest.raises(InputError, match=re.escape(message)):
         draft_for([tmp_path / p for p in paths], Options(mass=1719.0, speed=15.0, columns=columns))
+
+
+@pytest.mark.parametrize(
+    "data, column, message",
+    [
+        (
+            "problems/data/synthetic-pickup/pickup-56kph.csv",
+            "acel=accel_x_g:g",
+            "--column acel=accel_x_g:g: csv channels are time,",
+        ),
+        (
+            "problems/data/nhtsa-10146/v10146.EV5",
+            "accel=93:g",
+            "--column accel=93:g: nhtsa-ev5 data say what their channels hold",
+        ),
+    ],
+)
+def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data, column, message):
+    out = tmp_path / "p.yaml"
+    assert main(["init", str(ROOT / data), "--column", column, "--mass", "1 t", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {message}") and err.count("\n") == 1
+    assert not out.exists()

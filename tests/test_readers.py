@@ -289,7 +289,7 @@ def test_csv_without_a_header_reads_columns_by_number(tmp_path):
     np.testing.assert_allclose(data.channels["velocity"].time, raw[:, 0], atol=1e-7)
     assert data.channels["accel"].source == "plain.tsv:2"
     with pytest.raises(
-        DataError, match=r"plain\.tsv: channel pitch: no column 4 \(no header line: give its number, or a number from 1 to 3\)"
+        DataError, match=r"plain\.tsv: channel pitch: no column 4 \(no header line: give a number from 1 to 3\)"
     ):
         load_test_data(spec(file=path, time={"column": 1, "unit": "ms"}, channels={"pitch": {"column": 4}}))
 

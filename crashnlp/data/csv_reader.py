@@ -68,8 +68,8 @@ class Table:
         number = int(column) if isinstance(column, int) or column.isdigit() else None
         if number is not None and 1 <= number <= self.width:
             return number - 1
-        names = f"columns: {', '.join(self.header)}" if self.header is not None else "no header line: give its number"
-        raise DataError(f"{where(self.path, channel)}: no column {column!r} ({names}, or a number from 1 to {self.width})")
+        names = f"columns {', '.join(self.header)}, or" if self.header is not None else "no header line: give"
+        raise DataError(f"{where(self.path, channel)}: no column {column!r} ({names} a number from 1 to {self.width})")
 
     def label(self, k: int) -> str:
         """How a message names column k (0-based): its name, else its number."""
