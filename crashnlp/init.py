@@ -32,12 +32,12 @@ from pydantic import ValidationError
 from crashnlp.completion import PITCH_LEVER
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
-from crashnlp.data.nhtsa_channel import CHANNEL_FILE, channel_files
+from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.errors import InputError
 from crashnlp.metrics import STOPPED, zero_crossing
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
-from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
+from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
 from crashnlp.units import unit_scale
 
 FORMATS = ("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme")
@@ -79,21 +79,6 @@ class Options:
     speed: float | None = None
     columns: dict[str, str] = field(default_factory=dict)  # channel -> NAME[:UNIT]
     name: str | None = None
-
-
-def guess_format(path: Path) -> str:
-    """nhtsa-ev5 for .EV5; nhtsa-channel for a channel file vNNNNNtsv.CCC or a folder of them and no
-    .mme; iso-mme for .mme, another folder or a .zip; csv otherwise."""
-    suffix = path.suffix.lower()
-    if suffix == ".ev5":
-        return "nhtsa-ev5"
-    if CHANNEL_FILE.fullmatch(path.name) or (
-        path.is_dir() and any(CHANNEL_FILE.fullmatch(p.name) for p in path.iterdir()) and not any(path.glob("*.mme"))
-    ):
-        return "nhtsa-channel"
-    if suffix in (".mme", ".zip") or path.is_dir():
-        return "iso-mme"
-    return "csv"
 
 
 # ------------------------------------------------------------------ EV5
@@ -522,7 +507,7 @@ def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
     """The draft of a data set (format, channels, vehicle values and comments) and its suspension;
     `paths[0]` is the file the problem names."""
     path = paths[0]
-    fmt = options.format or guess_format(path)
+    fmt = options.format or format_of(path)
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
     _check_columns(fmt, options.columns)

@@ -288,9 +288,7 @@ def test_csv_without_a_header_reads_columns_by_number(tmp_path):
     np.testing.assert_allclose(data.channels["accel"].values, raw[:, 1] * G0)
     np.testing.assert_allclose(data.channels["velocity"].time, raw[:, 0], atol=1e-7)
     assert data.channels["accel"].source == "plain.tsv:2"
-    with pytest.raises(
-        DataError, match=r"plain\.tsv: channel pitch: no column 4 \(no header line: give a number from 1 to 3\)"
-    ):
+    with pytest.raises(DataError, match=r"plain\.tsv: channel pitch: no column 4 \(no header line: give a number from 1 to 3\)"):
         load_test_data(spec(file=path, time={"column": 1, "unit": "ms"}, channels={"pitch": {"column": 4}}))
 
 
@@ -371,3 +369,12 @@ def test_csv_a_cell_past_the_csv_modules_limit_is_one_line(tmp_path):
     path = _csv(tmp_path, f"0,1\n0.001,{'9' * 200_000}\n")
     with pytest.raises(DataError, match=r"bad\.csv: cannot read as CSV \(field larger than field limit"):
         load_test_data(pickup(file=path, channels=ACCEL))
+
+
+def test_a_data_format_left_out_comes_from_the_file_name(tmp_path):
+    first, _ = channel_export(tmp_path / "export")
+    given = {"channels": {"accel": {"curves": [93, 94], "unit": "g"}}}
+    assert spec(file=first, **given).format == "nhtsa-channel"
+    assert spec(file=tmp_path / "export", **given).format == "nhtsa-channel"
+    assert DataSpec.model_validate({"file": "v10146.EV5", **given}, context={"base_dir": EV5.parent}).format == "nhtsa-ev5"
+    assert spec(file=PICKUP, **given).format == "csv"

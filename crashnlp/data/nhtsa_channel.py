@@ -10,15 +10,12 @@ force), and a channel without `curves` reads `file` itself.
 
 from __future__ import annotations
 
-import re
 from pathlib import Path
 
 from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.nhtsa_ev5 import combine
-from crashnlp.problem.schema import ChannelSpec, DataSpec
-
-CHANNEL_FILE = re.compile(r"v(\d+)tsv\.(\d{3})", re.IGNORECASE)
+from crashnlp.problem.schema import CHANNEL_FILE, ChannelSpec, DataSpec
 
 
 def channel_files(path: Path) -> tuple[str, dict[int, Path]]:
