@@ -1,7 +1,8 @@
 """`crashnlp init`: a complete, commented problem file from one test's data.
 
 What the data's header gives (EV5: VEHTWT, closing speed, wheelbase, VEHCG; ISO-MME: mass and
-speed of test object 1) is used and said so; options (--mass, --speed) win over the header.
+speed of test object 1; CSV and NHTSA channel files: nothing) is used and said so; options
+(--mass, --speed) win over the header.
 Geometry no source gives takes typical values for the mass class (VEHICLE_CLASSES), each
 marked as an estimate:
 
@@ -242,8 +243,8 @@ UNIT_WORDS = {
     "deg": "deg",
     "rad": "rad",
 }
-SI_UNITS = {"time": "s", **CHANNEL_UNITS}
-UNIT_CHANNELS = ("time", "accel", "velocity", "displacement")
+# what a column holds when only its unit says so, by SI unit (an angle may be any rotation: pitch is found by its name)
+UNIT_CHANNELS = {"time": "s", **{ch: CHANNEL_UNITS[ch] for ch in ("accel", "velocity", "displacement")}}
 CHANNEL_SIGNS = {
     "accel": "the pulse decelerates",
     "velocity": "the impact speed is positive",
@@ -259,9 +260,8 @@ def unit_in_name(name: str) -> str | None:
 
 
 def _measures(unit: str) -> str | None:
-    """The channel (or time) a unit alone says a column holds; None for any other quantity, and
-    for angles (an angle may be any rotation: pitch is found by its name)."""
-    return next((ch for ch in UNIT_CHANNELS if _converts(unit, SI_UNITS[ch])), None)
+    """The channel (or time) a unit alone says a column holds (UNIT_CHANNELS); None for any other quantity."""
+    return next((ch for ch, si in UNIT_CHANNELS.items() if _converts(unit, si)), None)
 
 
 def _converts(unit: str, si: str) -> bool:
@@ -659,7 +659,7 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     channel files of one test) to `out`; return its problem and the notes the file's head gives."""
     from crashnlp.case import Case
 
-    paths = [Path(data)] if isinstance(data, (str, Path)) else [Path(p) for p in data]
+    paths = [data] if isinstance(data, Path) else data
     for path in paths:
         if not path.exists():
             raise InputError(f"{path}: file not found")
