@@ -264,7 +264,10 @@ def test_mme_sample_count_mismatch(tmp_path):
     _mme_set(tmp_path / "T001")
     f = tmp_path / "T001" / "Channel" / "T001.001"
     f.write_text(f.read_text().replace("Number of samples           :600", "Number of samples           :601"))
-    with pytest.raises(DataError, match=r"T001\.001: channel accel .*600 samples but the header says 601"):
+    with pytest.raises(
+        DataError,
+        match=r"T001\.001: channel accel .*600 samples but the header says 601 \(the data end at 49\.9 ms, the header.s at 50 ms",
+    ):
         load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": CODE_X}}))
 
 
