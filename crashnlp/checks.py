@@ -39,7 +39,7 @@ def check_keys(problem: Problem, source: str | None = None) -> None:
 
 
 def check_tests(problem: Problem, source: str | None = None) -> None:
-    """The tests' data read, and refused where they contradict the problem's speed, without
-    building the model (a study checks every case so before it solves any)."""
+    """The tests' data read, and refused where they contradict the problem's speed or end before
+    a fit's duration, without building the model (a study checks every case so before it solves any)."""
     with named(source or problem.name):
         check_data(load_tests(problem)[1])

@@ -247,6 +247,8 @@ def _consistency_line(c: dict) -> str:
 
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
+    from crashnlp.summary import still_moving
+
     s = result.solver
     how = " compiled" if s.compiled else ""
     timing = f"solve {s.wall_s:.2f} s{how} + build {s.build_s:.2f} s" if s.wall_s is not None else "not solved"
@@ -273,6 +275,9 @@ def _print_solution(result) -> None:
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
         for key, label, f in METRIC_ROWS:
             print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
+        for who, m in (("the model", model), ("the test record", data)):
+            if m and (words := still_moving(m)):
+                print(f"    {who} {words}")
         if t.fit:
             print(
                 "    rmse      "
@@ -358,11 +363,14 @@ def cmd_init(args) -> int:
         mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (args.speed, "m/s")))
     except UnitError as exc:
         raise InputError(f"--mass/--speed: {exc}") from None
-    problem = init_problem(Path(args.data), Path(args.out), Options(args.format, mass, speed, columns, args.name))
+    paths = [Path(p) for p in args.data]
+    problem, notes = init_problem(paths, Path(args.out), Options(args.format, mass, speed, columns, args.name))
     print(
         f"wrote {args.out}: {problem.name}, {len(problem.model.spring.known_values)} breakpoints to "
         f"{problem.model.spring.placed_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
     )
+    for note in notes:
+        print(f"  {note}")
     return 0
 
 
@@ -491,8 +499,13 @@ def parser() -> argparse.ArgumentParser:
     add_study_parser(sub)
 
     p = sub.add_parser("init", help="write a complete, commented problem file from one test's data")
-    p.add_argument("data", help="data file: CSV, NHTSA EV5 header (.EV5) or ISO-MME test (.mme, folder or .zip)")
-    p.add_argument("--format", choices=("csv", "nhtsa-ev5", "iso-mme"), help="default: from the file name")
+    p.add_argument(
+        "data",
+        nargs="+",
+        help="data file: CSV, NHTSA EV5 header (.EV5), ISO-MME test (.mme, folder or .zip), or one or more NHTSA"
+        " channel files vNNNNNtsv.CCC of one test (or their folder)",
+    )
+    p.add_argument("--format", choices=("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"), help="default: from the file name")
     p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
     p.add_argument("--speed", help='impact speed, e.g. "48 km/h" (default: the data header or velocity column)')
     p.add_argument(
@@ -500,7 +513,8 @@ def parser() -> argparse.ArgumentParser:
         action="append",
         default=[],
         metavar="CHANNEL=NAME[:UNIT]",
-        help="CSV column of a channel (time, accel, velocity, displacement, pitch), unit if its name has none",
+        help="a channel's (time, accel, velocity, displacement, pitch) CSV column, by name or number from 1, and its"
+        " unit if its name has none; NHTSA channel files: CHANNEL=CCC[,CCC...]:UNIT, the files' numbers or names",
     )
     p.add_argument("--name", help="problem name (default: the data file's stem)")
     p.add_argument("--out", required=True, help="problem YAML file to write")

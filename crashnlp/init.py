@@ -1,7 +1,8 @@
 """`crashnlp init`: a complete, commented problem file from one test's data.
 
 What the data's header gives (EV5: VEHTWT, closing speed, wheelbase, VEHCG; ISO-MME: mass and
-speed of test object 1) is used and said so; options (--mass, --speed) win over the header.
+speed of test object 1; CSV and NHTSA channel files: nothing) is used and said so; options
+(--mass, --speed) win over the header.
 Geometry no source gives takes typical values for the mass class (VEHICLE_CLASSES), each
 marked as an estimate:
 
@@ -27,15 +28,21 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from pydantic import ValidationError
 
 from crashnlp.completion import PITCH_LEVER
+from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
+from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.errors import InputError
 from crashnlp.metrics import STOPPED, zero_crossing
 from crashnlp.problem import Problem, problem_from_dict
-from crashnlp.problem.schema import DataSpec
+from crashnlp.problem.errors import all_errors
+from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
+from crashnlp.units import unit_scale
 
-FORMATS = ("csv", "nhtsa-ev5", "iso-mme")
+FORMATS = ("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme")
+UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
 # upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
 VEHICLE_CLASSES = (
     (1200.0, "city car", 2.45, 0.70, 0.08),
@@ -73,16 +80,6 @@ class Options:
     speed: float | None = None
     columns: dict[str, str] = field(default_factory=dict)  # channel -> NAME[:UNIT]
     name: str | None = None
-
-
-def guess_format(path: Path) -> str:
-    """nhtsa-ev5 for .EV5, iso-mme for .mme, a folder or a .zip, csv otherwise."""
-    suffix = path.suffix.lower()
-    if suffix == ".ev5":
-        return "nhtsa-ev5"
-    if suffix in (".mme", ".zip") or path.is_dir():
-        return "iso-mme"
-    return "csv"
 
 
 # ------------------------------------------------------------------ EV5
@@ -205,8 +202,8 @@ def mme_draft(path: Path) -> Draft:
 # ------------------------------------------------------------------ CSV
 CSV_PATTERNS = {
     "time": r"^(time|t)($|[^a-z])",
-    "accel": r"acc",
-    "velocity": r"vel|speed",
+    "accel": r"acc|decel",
+    "velocity": r"(?<!tra)vel|speed",  # not "travel"
     "displacement": r"disp|travel",
     "pitch": r"pitch",
 }
@@ -215,22 +212,39 @@ UNIT_WORDS = {
     "ms2": "m/s^2",
     "m/s2": "m/s^2",
     "m/s^2": "m/s^2",
+    "m/s²": "m/s^2",
     "g": "g",
     "gs": "g",
+    "g's": "g",
+    "ft/s2": "ft/s^2",
+    "ft/s^2": "ft/s^2",
+    "ft/s²": "ft/s^2",
+    "fps2": "ft/s^2",
     "mps": "m/s",
     "m/s": "m/s",
     "kph": "km/h",
     "kmh": "km/h",
     "km/h": "km/h",
+    "km/hr": "km/h",
+    "mph": "mph",
+    "ft/s": "ft/s",
+    "fps": "ft/s",
     "m": "m",
     "mm": "mm",
     "cm": "cm",
+    "in": "in",
+    "inch": "in",
+    "inches": "in",
+    "ft": "ft",
     "s": "s",
     "ms": "ms",
     "sec": "s",
+    "msec": "ms",
     "deg": "deg",
     "rad": "rad",
 }
+# what a column holds when only its unit says so, by SI unit (an angle may be any rotation: pitch is found by its name)
+UNIT_CHANNELS = {"time": "s", **{ch: CHANNEL_UNITS[ch] for ch in ("accel", "velocity", "displacement")}}
 CHANNEL_SIGNS = {
     "accel": "the pulse decelerates",
     "velocity": "the impact speed is positive",
@@ -245,48 +259,135 @@ def unit_in_name(name: str) -> str | None:
     return UNIT_WORDS.get(token.strip().lower())
 
 
-def _column(header: list[str], channel: str, given: str | None) -> tuple[str, str] | None:
-    """(column, unit) of a channel: the option NAME[:UNIT], else the first column whose name fits."""
-    if given:
-        name, _, unit = given.partition(":")
-        if name not in header:
-            raise InputError(f"--column {channel}={given}: no column {name!r} (columns: {', '.join(header)})")
-    else:
-        match = next((h for h in header if re.search(CSV_PATTERNS[channel], h.lower())), None)
-        if match is None:
-            return None
-        name, unit = match, ""
-    named = unit or unit_in_name(name)
-    if named is None:
-        raise InputError(f"column {name!r} ({channel}): no unit in its name; give --column {channel}={name}:UNIT")
-    return name, named
+def _measures(unit: str) -> str | None:
+    """The channel (or time) a unit alone says a column holds (UNIT_CHANNELS); None for any other quantity."""
+    return next((ch for ch, si in UNIT_CHANNELS.items() if _converts(unit, si)), None)
+
+
+def _converts(unit: str, si: str) -> bool:
+    try:
+        unit_scale(unit, si)
+    except Exception:  # pint and UnitError both land here
+        return False
+    return True
+
+
+def _recognised(name: str) -> str | None:
+    """The channel (or time) a column's name says it holds: by its words, else by its unit."""
+    by_name = next((ch for ch, pattern in CSV_PATTERNS.items() if re.search(pattern, name.lower())), None)
+    unit = unit_in_name(name)
+    return by_name or (_measures(unit) if unit else None)
+
+
+def _given(table: Table, channel: str, given: str) -> tuple[str | int, str | None]:
+    """(column, unit) of the option NAME[:UNIT], NAME a column's name or its number counted from 1."""
+    name, _, unit = given.partition(":")
+    k = table.index(name, channel)
+    column = table.header[k] if table.header is not None else k + 1
+    return column, unit or (unit_in_name(str(column)) if table.header is not None else None)
+
+
+def _csv_columns(table: Table, columns: dict[str, str]) -> tuple[dict[str, tuple[str | int, str]], list[str]]:
+    """(column, unit) of time and each channel found, and the header's columns none reads.
+
+    Given columns first; then, per channel, the first column whose name fits it. Every column
+    that fits a channel but has no unit in its name is named in one message."""
+    chosen = {ch: _given(table, ch, given) for ch, given in columns.items()}
+    unread = []
+    taken = {str(column) for column, _ in chosen.values()}
+    for name in [h for h in table.header or [] if h not in taken]:
+        channel = _recognised(name)
+        if channel is not None and channel not in chosen:
+            chosen[channel] = (name, unit_in_name(name))
+        else:
+            unread.append(name)
+    no_unit = [f"{column!r} ({ch})" for ch, (column, unit) in chosen.items() if not unit]
+    if no_unit:
+        options = " ".join(f"--column {ch}={column}:UNIT" for ch, (column, unit) in chosen.items() if not unit)
+        raise InputError(f"{table.path}: no unit in the column names {', '.join(no_unit)}; give {options}")
+    return {ch: (column, str(unit)) for ch, (column, unit) in chosen.items()}, unread
 
 
 def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
-    """Columns recognised by name (or given), units from the names (or given), signs from the data."""
-    try:
-        first = path.read_text(errors="replace").splitlines()[0]
-    except (OSError, IndexError):
-        raise InputError(f"{path}: cannot read a header line") from None
-    header = [h.strip() for h in first.split(max(",;\t", key=first.count))]  # as crashnlp.data.csv_reader
-    time = _column(header, "time", columns.get("time"))
-    if time is None:
-        raise InputError(f"{path}: no time column (give --column time=NAME:UNIT)")
-    given = {ch: _column(header, ch, columns.get(ch)) for ch in ("accel", "velocity", "displacement", "pitch")}
-    found = {ch: c for ch, c in given.items() if c is not None}
+    """Columns recognised by name or unit (or given), units from the names (or given), signs from
+    the data; a file without a header line needs its columns given by number."""
+    table = Table.read(path)
+    if table.header is None and "time" not in columns:
+        raise InputError(f"{path}: no header line; give the columns by number, e.g. --column time=1:s --column accel=2:g")
+    found, unread = _csv_columns(table, columns)
+    listed = f" among {', '.join(map(repr, unread))}" if unread else ""
+    if "time" not in found:
+        raise InputError(f"{path}: no time column{listed} (give --column time=NAME:UNIT)")
     if "accel" not in found and "velocity" not in found:
-        raise InputError(f"{path}: no accel or velocity column (give --column accel=NAME:UNIT)")
-    channels = {ch: {"column": name, "unit": unit} for ch, (name, unit) in found.items()}
+        raise InputError(f"{path}: no accel or velocity column{listed} (give --column accel=NAME:UNIT)")
+    time = found.pop("time")
+    channels: dict[str, dict] = {ch: {"column": name, "unit": unit} for ch, (name, unit) in found.items()}
     if "accel" in channels:
         channels["accel"]["filter"] = "CFC60"
     draft = Draft(path.stem, {"time": {"column": time[0], "unit": time[1]}, "channels": channels})
     draft.comments = {ch: f"column {name!r} in {unit}" for ch, (name, unit) in found.items()}
+    if unread:
+        draft.notes.append(f"Columns not read: {', '.join(map(repr, unread))} (--column CHANNEL=NAME:UNIT reads one).")
     if "pitch" in draft.comments:
         draft.comments["pitch"] += ", taken as nose-down positive"
+    _integrated(draft, "the accel column")
+    return draft
+
+
+def _integrated(draft: Draft, accel: str) -> None:
+    """Velocity and displacement integrated from the accelerometers where the data give neither."""
+    channels = draft.data["channels"]
     for ch in ("velocity", "displacement"):
         if ch not in channels and "accel" in channels:
             channels[ch] = {"derive": "integrate"}
-            draft.comments[ch] = "integrated from the accel column"
+            draft.comments[ch] = f"integrated from {accel}"
+
+
+# ------------------------------------------------------------------ NHTSA channel files
+def _curve_numbers(given: str, option: str) -> list[int]:
+    """Channel files named by number (93) or by name (v10146tsv.093), comma-separated."""
+    numbers = []
+    for item in given.split(","):
+        named = CHANNEL_FILE.fullmatch(Path(item.strip()).name)
+        if not (item.strip().isdigit() or named):
+            raise InputError(f"{option}: name channel files by their number CCC or their name vNNNNNtsv.CCC, not {item!r}")
+        numbers.append(int(named.group(2)) if named else int(item))
+    return numbers
+
+
+def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
+    """Channel files of one test: the channels --column names (CCC[,CCC][:UNIT]), else the files
+    given, taken as the vehicle's longitudinal accelerometers in g (the database's unit for them)."""
+    test, files = channel_files(paths[0])
+    named = [CHANNEL_FILE.fullmatch(p.name) for p in paths]
+    if len(paths) > 1 and any(m is None or m.group(1) != test or p.parent != paths[0].parent for p, m in zip(paths, named)):
+        raise InputError(
+            f"{', '.join(map(str, paths))}: give one folder, or channel files vNNNNNtsv.CCC of one test in one folder"
+        )
+    if not columns and paths[0].is_dir():
+        listed = ", ".join(f"{n:03d}" for n in files)
+        raise InputError(f"{paths[0]}: name its channels, e.g. --column accel=CCC,CCC:g (channel files {listed})")
+    chosen = {ch: given.partition(":") for ch, given in columns.items()}
+    if not chosen:
+        chosen = {"accel": (",".join(p.name for p in paths), ":", "g")}
+    channels, comments = {}, {}
+    for ch, (names, _, unit) in chosen.items():
+        option = f"--column {ch}={names}"
+        numbers = _curve_numbers(names, option)
+        if not unit:
+            raise InputError(f"{option}: an NHTSA channel file carries no unit; give {option}:UNIT")
+        missing = [f"{n:03d}" for n in numbers if n not in files]
+        if missing:
+            raise InputError(f"{option}: no channel file {', '.join(missing)} of the test beside {paths[0]}")
+        channels[ch] = {"curves": numbers, "unit": unit, **({"filter": "CFC60"} if ch == "accel" else {})}
+        comments[ch] = f"channel files {', '.join(files[n].name for n in numbers)} in {unit}" + (
+            ", averaged" if len(numbers) > 1 else ""
+        )
+    if not columns:
+        comments["accel"] += ", taken as the vehicle's X accelerometers (--column accel=CCC:UNIT says otherwise)"
+    draft = Draft(f"v{test}", {"channels": channels})
+    draft.comments = comments
+    _integrated(draft, "the accelerometers")
     return draft
 
 
@@ -299,11 +400,11 @@ def _direction(name: str, values: np.ndarray) -> float:
     return float(values[np.argmax(np.abs(values))])
 
 
-def _csv_signs(draft: Draft, path: Path) -> None:
-    """Flip channels read in the opposite frame (x toward the barrier)."""
+def _signs(draft: Draft, path: Path) -> None:
+    """Flip channels read in the opposite frame (x toward the barrier), for files that declare none."""
     data = load_test_data(_data_spec(draft, path), 1.0)
     for name, ch in data.channels.items():
-        if name in CHANNEL_SIGNS and "column" in draft.data["channels"][name]:
+        if name in CHANNEL_SIGNS and "derive" not in draft.data["channels"][name]:
             if _direction(name, ch.values[ch.time >= 0.0]) < 0:
                 draft.data["channels"][name]["sign"] = -1
                 draft.comments[name] += f", sign flipped so that {CHANNEL_SIGNS[name]}"
@@ -313,8 +414,8 @@ def _csv_signs(draft: Draft, path: Path) -> None:
 def _data_spec(draft: Draft, path: Path) -> DataSpec:
     try:
         return DataSpec.model_validate({"file": str(path), **draft.data})
-    except ValueError as exc:
-        raise InputError(f"{path}: {exc}") from None
+    except ValidationError as exc:
+        raise InputError(f"{path}: {all_errors(exc)}") from None
 
 
 def _timing(draft: Draft, path: Path, speed: float) -> None:
@@ -375,25 +476,47 @@ def _resolve(draft: Draft, options: Options, path: Path) -> None:
     for key, value in (("mass", options.mass), ("speed", options.speed)):
         if value is not None:
             draft.vehicle[key] = (value, "given (--" + key + ")")
-    if "speed" not in draft.vehicle and "column" in draft.data["channels"].get("velocity", {}):
+    velocity = draft.data["channels"].get("velocity")
+    if "speed" not in draft.vehicle and velocity is not None and "derive" not in velocity:
         v = load_test_data(_data_spec(draft, path), None).channels["velocity"]
-        draft.vehicle["speed"] = (float(np.interp(0.0, v.time, v.values)), "the velocity column at t = 0")
+        draft.vehicle["speed"] = (float(np.interp(0.0, v.time, v.values)), "the velocity data at t = 0")
     for key in ("mass", "speed"):
         if key not in draft.vehicle:
             raise InputError(f"{path}: no {key} in the data; give --{key}")
 
 
-def draft_for(path: Path, options: Options) -> tuple[Draft, dict]:
-    """The draft of a data set (format, channels, vehicle values and comments) and its suspension."""
-    fmt = options.format or guess_format(path)
+def _draft(fmt: str, paths: list[Path], columns: dict[str, str]) -> Draft:
+    """The format's draft: several data paths are channel files of one test, other formats read one."""
+    if fmt == "nhtsa-channel":
+        return channel_draft(paths, columns)
+    if len(paths) > 1:
+        raise InputError(f"{', '.join(map(str, paths))}: {fmt} reads one data set (several paths are NHTSA channel files)")
+    return csv_draft(paths[0], columns) if fmt == "csv" else {"nhtsa-ev5": ev5_draft, "iso-mme": mme_draft}[fmt](paths[0])
+
+
+def _check_columns(fmt: str, columns: dict[str, str]) -> None:
+    """--column names channels of the formats whose files do not say what they hold."""
+    known = {"csv": ("time", *CHANNEL_UNITS), "nhtsa-channel": tuple(CHANNEL_UNITS)}.get(fmt, ())
+    for channel, given in columns.items():
+        if channel not in known:
+            what = f"{fmt} channels are {', '.join(known)}" if known else f"{fmt} data say what their channels hold"
+            raise InputError(f"--column {channel}={given}: {what}")
+
+
+def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
+    """The draft of a data set (format, channels, vehicle values and comments) and its suspension;
+    `paths[0]` is the file the problem names."""
+    path = paths[0]
+    fmt = options.format or format_of(path)
     if fmt not in FORMATS:
         raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
-    draft = {"nhtsa-ev5": ev5_draft, "iso-mme": mme_draft}[fmt](path) if fmt != "csv" else csv_draft(path, options.columns)
+    _check_columns(fmt, options.columns)
+    draft = _draft(fmt, paths, options.columns)
     draft.data = {"format": fmt, **draft.data}
     if options.name:
         draft.name = options.name
-    if fmt == "csv":
-        _csv_signs(draft, path)
+    if fmt in UNFRAMED:
+        _signs(draft, path)
     _resolve(draft, options, path)
     _timing(draft, path, draft.vehicle["speed"][0])
     suspension = fill_geometry(draft)
@@ -531,17 +654,19 @@ def _test_lines(draft: Draft, data_file: str) -> list[str]:
     return lines
 
 
-def init_problem(data: Path, out: Path, options: Options) -> Problem:
-    """Write a complete, commented problem file for the data set `data` to `out`; return its problem."""
+def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[Problem, list[str]]:
+    """Write a complete, commented problem file for the data set `data` (a path; or several NHTSA
+    channel files of one test) to `out`; return its problem and the notes the file's head gives."""
     from crashnlp.case import Case
 
-    data = Path(data)
-    if not data.exists():
-        raise InputError(f"{data}: file not found")
-    draft, suspension = draft_for(data, options)
+    paths = [data] if isinstance(data, Path) else data
+    for path in paths:
+        if not path.exists():
+            raise InputError(f"{path}: file not found")
+    draft, suspension = draft_for(paths, options)
     out_dir = Path(out).resolve().parent
-    problem = Case(problem_from_dict(problem_dict(draft, suspension, data), out_dir, source=str(data))).problem
-    text = render(draft, problem, os.path.relpath(data.resolve(), out_dir))
+    problem = Case(problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0]))).problem
+    text = render(draft, problem, os.path.relpath(paths[0].resolve(), out_dir))
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
     Path(out).write_text(text)
-    return written
+    return written, draft.notes

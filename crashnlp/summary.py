@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from crashnlp.data.signal import integrate, resample
@@ -24,7 +26,8 @@ def metrics(
     Max dynamic crush is the crash-test quantity, the CG's largest displacement, for data and
     model alike, so the two compare. A model also reports its largest front-end crush
     (`max_front_end_crush_m`, the `crush` output along the crush force's line of action: what a
-    crush bound limits); the two differ by the pitch and the geometry.
+    crush bound limits); the two differ by the pitch and the geometry. `record_end_s` and
+    `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
     """
     m = crash_metrics(t, accel, velocity, displacement)
     out = {
@@ -38,9 +41,21 @@ def metrics(
         "esw_g": m.esw / G0,
         "tesw_g": m.tesw / G0,
         "olc_g": m.olc / G0,
+        "record_end_s": float(t[-1]),
+        "end_velocity_mps": m.end_velocity,
     }
     out["max_pitch_deg"] = float(np.degrees(np.max(pitch))) if pitch is not None else None
     return out
+
+
+def still_moving(metrics: Mapping[str, float | None]) -> str | None:
+    """The words for a record that ends before the vehicle stops (no time of zero velocity in
+    it); None for one that stops."""
+    stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
+    if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
+        return None
+    moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
+    return f"{moving} (no stop: its travel there is no max dynamic crush)"
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -50,14 +65,19 @@ def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def data_metrics(test: TestCase) -> dict | None:
-    """Metrics of the measured curves, on the accel channel's time base."""
+    """Metrics of the measured curves, on the accel channel's time base. A record that ends before
+    the vehicle stops has no max dynamic crush, and no ESW from it: its last sample is not one
+    (None; `still_moving` says where it ends)."""
     ch = test.data.channels if test.data is not None else {}
     if not {"accel", "velocity", "displacement"} <= set(ch):
         return None
     t = ch["accel"].time
     t = t[(t >= max(c.time[0] for c in ch.values())) & (t <= min(c.time[-1] for c in ch.values()))]
     pitch = resample(ch["pitch"], t) if "pitch" in ch else None
-    return metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
+    out = metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
+    if still_moving(out):
+        out.update(max_crush_m=None, time_max_crush_s=None, esw_g=None)
+    return out
 
 
 def response_metrics(r: Response) -> dict:

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.data import TestData, load_test_data
+from crashnlp.data.channels import END_TOLERANCE
 from crashnlp.errors import InputError
 from crashnlp.problem import Problem, Test
 
@@ -95,6 +96,9 @@ def _test_case(problem: Problem, i: int, test: Test, data: TestData | None) -> T
         speed = data.meta.get("speed")
     if speed is None:
         raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+    window = test.data.window if test.data is not None else None
+    if data is not None and window is not None:
+        check_end(f"tests.{i}.data.window", window[1], test, data)
     end = _data_end(test, data) if data is not None else None
     duration = test.duration if test.duration is not None else end if end is not None else problem.simulation.duration
     overrides = {"vehicle.mass": test.mass} if test.mass is not None else {}
@@ -123,11 +127,27 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 
 def check_data(tests: list[TestCase]) -> None:
-    """Refuse test data that contradict the problem's speed (check_speed). For fits: a
-    simulation may well ask what a test would do at another speed."""
+    """Refuse test data that contradict the problem's speed (check_speed), or end before a fit's
+    duration (check_end; a window is checked as the data load). For fits: a simulation may well
+    ask what a test would do at another speed, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_speed(i, test.speed, test.spec, test.data)
+            if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
+                check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
+
+
+def check_end(key: str, end: float, test: Test, data: TestData) -> None:
+    """Refuse a span (the data window, or a fit's duration) that runs past a channel's last
+    sample: the fit would take a record that ends early for the whole crash, and print "ok"."""
+    name, channel = min(data.channels.items(), key=lambda item: float(item[1].time[-1]))
+    last = float(channel.time[-1])
+    if end - last > END_TOLERANCE * float(np.median(np.diff(channel.time))):
+        file = test.data.file.name if test.data is not None else "the data"
+        raise InputError(
+            f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "
+            f"({file}, channel {name}); shorten it to the data, or give the whole record"
+        )
 
 
 def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
+from types import UnionType
+from typing import Annotated, Literal, Union, get_args, get_origin
 
 import pytest
 import yaml
 from builders import BASE, ROOT, merge
+from pydantic import BaseModel
 
 from crashnlp.cli import main
 from crashnlp.files import RECORD, claim
@@ -41,6 +45,23 @@ CASES = {
     "ipopt option type": ({"solver": {"ipopt": {"max_iter": 5.5}}}, "solver.ipopt.max_iter: 5.5 is not an integer"),
     "ipopt option range": ({"solver": {"ipopt": {"tol": -1}}}, "solver.ipopt.tol: -1 is outside IPOPT's range 0 < tol"),
     "ipopt option setting": ({"solver": {"ipopt": {"mu_strategy": "fast"}}}, "solver.ipopt.mu_strategy: 'fast' is none of"),
+    "breakpoint count": (
+        {"model": {"spring": {"crush_breakpoints": {"count": 50}, "values": None}}},
+        "model.spring.crush_breakpoints: a list of crush values, or {count: N} with N from 2 to 30 (count: Input should be"
+        " less than or equal to 30)\n",
+    ),
+    "breakpoints of no form": (
+        {"model": {"spring": {"crush_breakpoints": "many", "values": None}}},
+        "model.spring.crush_breakpoints: a list of crush values, or {count: N} with N from 2 to 30\n",
+    ),
+    "tail": (
+        {"model": {"spring": {"tail": "trnd"}}},
+        "model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}\n",
+    ),
+    "column": (
+        {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": 1.5}}}}]},
+        "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
+    ),
 }
 
 
@@ -180,3 +201,96 @@ def test_two_runs_into_one_folder_at_once_the_second_is_refused(tmp_path, capsys
         holder.kill()
         holder.wait()
     assert _simulated(tmp_path, "a", ["t1"], out) == 0  # the lock goes with the run that held it
+
+
+def _cut_pickup(tmp_path, **test) -> tuple:
+    """A problem whose test reads the shipped pickup cut at 45 ms (still moving at 6.5 m/s)."""
+    rows = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()[:452]
+    csv = tmp_path / "cut45.csv"
+    csv.write_text("\n".join(rows) + "\n")
+    data = {**DATA, "file": str(csv), **test.pop("data", {})}
+    path = tmp_path / "cut.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "cut", "data": data, **test}]})))
+    return path, tmp_path / "out"
+
+
+@pytest.mark.parametrize(
+    "command, test, key",
+    [
+        ("simulate", {"data": {"window": ["0 s", "0.2 s"]}}, "tests.0.data.window: runs to 200 ms"),
+        ("identify", {"duration": "0.1 s"}, "tests.0.duration: runs to 100 ms"),
+    ],
+)
+def test_a_span_past_the_data_is_refused(tmp_path, capsys, command, test, key):
+    path, out = _cut_pickup(tmp_path, **test)
+    assert main([command, str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    where = "the data of test cut end at 45 ms (cut45.csv, channel displacement)"
+    assert err == f"crashnlp: error: {path}: {key}, but {where}; shorten it to the data, or give the whole record\n"
+    assert not out.exists()
+
+
+@pytest.mark.integration
+def test_a_window_a_sample_past_the_data_is_taken(tmp_path):
+    path, out = _cut_pickup(tmp_path, data={"window": ["0 s", "0.0451 s"]})
+    assert main(["simulate", str(path), "--out", str(out), "--no-figures"]) == 0
+
+
+@pytest.mark.integration
+def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
+    channels = {"accel": {"column": "accel_x_g", "unit": "g"}, "velocity": {"column": "vel_x_mps"}, **DATA["channels"]}
+    path, out = _cut_pickup(tmp_path, data={"window": ["0 s", "0.045 s"], "channels": channels})
+    fit = merge(yaml.safe_load(path.read_text()), {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}})
+    path.write_text(yaml.safe_dump(merge(fit, {"transcription": {"method": "multiple-shooting", "intervals": 45}})))
+    assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"max dynamic crush \(mm\) +\d+\.\d +-\n", printed)  # the model's travel; the data's none
+    assert "the test record ends at 45.0 ms still moving toward the barrier at 6.5" in printed
+    assert "the model ends at 45.0 ms still moving toward the barrier at 6.5" in printed
+    notes = json.loads((out / "result.json").read_text())["notes"]
+    assert any(n.startswith("test cut: the record ends at 45.0 ms still moving") for n in notes)
+
+
+def _forms(annotation) -> list:
+    """The forms a field's type allows (Optional's None left out, Annotated's metadata looked through)."""
+    if get_origin(annotation) is Annotated:
+        return _forms(get_args(annotation)[0])
+    if get_origin(annotation) in (Union, UnionType):
+        return [form for arg in get_args(annotation) for form in _forms(arg)]
+    return [] if annotation is type(None) else [annotation]
+
+
+def _union_keys(model: type[BaseModel], seen: set) -> set[str]:
+    """The keys of a model and the models inside it whose type allows more than one form."""
+    keys = set()
+    for name, info in model.model_fields.items():
+        forms = _forms(info.annotation)
+        keys |= {name} if len(forms) > 1 and not all(get_origin(f) is Literal for f in forms) else set()
+        inner = [a for f in forms for a in (f, *get_args(f)) for a in _forms(a)]
+        for sub in inner:
+            if isinstance(sub, type) and issubclass(sub, BaseModel) and sub not in seen:
+                seen.add(sub)
+                keys |= _union_keys(sub, seen)
+    return keys
+
+
+def test_every_key_of_several_forms_says_them_in_words():
+    from crashnlp.problem.errors import UNION_FORMS
+    from crashnlp.problem.schema import Problem
+
+    named_by_pydantic = {"transcription"}  # its `method` picks the form, and pydantic names the methods
+    assert _union_keys(Problem, set()) - named_by_pydantic == set(UNION_FORMS)
+
+
+def test_a_blank_cell_names_its_column_and_line(tmp_path, capsys):
+    lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    cells = lines[300].split(",")
+    lines[300] = ",".join([*cells[:3], "", *cells[4:]])  # disp_x_m left blank
+    csv = tmp_path / "blank.csv"
+    csv.write_text("\n".join(lines) + "\n")
+    path = tmp_path / "p.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "a", "data": {**DATA, "file": str(csv)}}]})))
+    assert main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err
+    assert err == f"crashnlp: error: {csv}: channel displacement (column disp_x_m): line 301: a blank cell\n"
+    assert not (tmp_path / "out").exists()

@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
 import yaml
 from builders import ROOT
-from test_readers import CODE_X, _mme_set
+from test_readers import CODE_X, _mme_set, channel_export
 
 from bench.corpus import random_vehicle, simulate, write_csv
 from crashnlp.cli import _print_solution, main
-from crashnlp.init import Options, csv_draft, init_problem, unit_in_name
+from crashnlp.data.csv_reader import Table
+from crashnlp.data.load import load_test_data
+from crashnlp.errors import InputError
+from crashnlp.init import Options, _csv_columns, _data_spec, csv_draft, draft_for, init_problem, unit_in_name
 
 EV5 = ROOT / "problems" / "data" / "nhtsa-10146" / "v10146.EV5"
 CAMRY_DATA = {"crush_mm": 746.0, "stop_ms": 73.96}  # the data's own metrics (README)
@@ -87,13 +91,16 @@ def test_csv_without_units_asks_for_them(tmp_path, capsys):
     path = tmp_path / "plain.csv"
     path.write_text("time,accel\n0,0\n0.001,-1\n")
     assert main(["init", str(path), "--mass", "1000 kg", "--speed", "40 km/h", "--out", str(tmp_path / "p.yaml")]) == 2
-    assert "column 'time' (time): no unit in its name; give --column time=time:UNIT" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert err.endswith(
+        "no unit in the column names 'time' (time), 'accel' (accel); give --column time=time:UNIT --column accel=accel:UNIT\n"
+    )
     assert not (tmp_path / "p.yaml").exists()
 
 
 def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
     _mme_set(tmp_path / "T001", n=2000)
-    problem = init_problem(tmp_path / "T001", tmp_path / "mme.yaml", Options())
+    problem, _ = init_problem(tmp_path / "T001", tmp_path / "mme.yaml", Options())
     assert problem.vehicle.mass == 1500 and problem.vehicle.speed == 15.0
     assert problem.tests[0].data.channels["accel"].code == CODE_X
     assert problem.vehicle.cg_to_front_axle == pytest.approx(0.44 * 2.65)  # a 1500 kg compact's typical geometry
@@ -119,3 +126,128 @@ def test_print_solution_shows_a_solve_that_never_ran(capsys):
     _print_solution(result)
     out = capsys.readouterr().out
     assert "(IPOPT -, 0 iterations, objective -, not solved)" in out and "[1 nan]" in out
+
+
+def _pickup_columns(path, columns: dict) -> None:
+    """The shipped pickup's record written under other column names, in other units."""
+    raw = np.loadtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", skiprows=1)
+    t, a, v, x = raw[:, 0], raw[:, 1], raw[:, 2], raw[:, 3]
+    values = {"time_s": t, "Speed_mph": v / 0.44704, "Travel_in": x / 0.0254, "Decel_G": -a, "Belt_N": 0 * t}
+    values.update({"Speed_ft/s": v / 0.3048, "Accel_ft/s2": a * 9.80665 / 0.3048, "Travel_mm": x * 1e3})
+    write_csv(path, {name: values[name] for name in columns})
+
+
+def test_csv_columns_in_mph_inches_and_g_are_read_and_the_rest_named(tmp_path):
+    path = tmp_path / "us.csv"
+    _pickup_columns(path, ["time_s", "Speed_mph", "Travel_in", "Decel_G", "Belt_N", "Accel_ft/s2"])
+    draft, _ = draft_for([path], Options(mass=2550.0))
+    channels = draft.data["channels"]
+    assert (channels["accel"]["column"], channels["accel"]["unit"], channels["accel"]["sign"]) == ("Decel_G", "g", -1)
+    assert (channels["velocity"]["column"], channels["velocity"]["unit"]) == ("Speed_mph", "mph")
+    assert (channels["displacement"]["column"], channels["displacement"]["unit"]) == ("Travel_in", "in")
+    assert draft.vehicle["speed"][0] == pytest.approx(56 / 3.6, rel=1e-3)
+    assert "Columns not read: 'Belt_N', 'Accel_ft/s2' (--column CHANNEL=NAME:UNIT reads one)." in draft.notes
+    data = load_test_data(_data_spec(draft, path), None)
+    assert -data.channels["accel"].values.min() / 9.80665 == pytest.approx(29.8, rel=0.1)
+    assert data.channels["displacement"].values.max() == pytest.approx(0.593, abs=0.003)
+
+
+def test_csv_columns_found_by_their_unit(tmp_path):
+    path = tmp_path / "si.csv"
+    _pickup_columns(path, ["time_s", "Speed_ft/s", "Accel_ft/s2", "Travel_mm"])
+    found, unread = _csv_columns(Table.read(path), {})
+    assert found == {
+        "time": ("time_s", "s"),
+        "velocity": ("Speed_ft/s", "ft/s"),
+        "accel": ("Accel_ft/s2", "ft/s^2"),
+        "displacement": ("Travel_mm", "mm"),
+    }
+    assert unread == []
+    (tmp_path / "x.csv").write_text("t_ms,ax_g,vx_kph\n0,1,56\n")  # named by nothing but their units
+    assert _csv_columns(Table.read(tmp_path / "x.csv"), {})[0] == {
+        "time": ("t_ms", "ms"),
+        "accel": ("ax_g", "g"),
+        "velocity": ("vx_kph", "km/h"),
+    }
+
+
+def test_csv_without_a_header_line_takes_columns_by_number(tmp_path, capsys):
+    raw = np.loadtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", skiprows=1)
+    path = tmp_path / "plain.txt"
+    path.write_bytes(b"".join(b"%.4f\t%.6f\r\n" % (t, a) for t, a in raw[:, :2]))
+    draft = csv_draft(path, {"time": "1:s", "accel": "2:g"})
+    assert draft.data["time"] == {"column": 1, "unit": "s"} and draft.data["channels"]["accel"]["column"] == 2
+    out = str(tmp_path / "p.yaml")
+    assert main(["init", str(path), "--mass", "2550 kg", "--speed", "56 km/h", "--out", out]) == 2
+    assert capsys.readouterr().err.endswith(
+        "plain.txt: no header line; give the columns by number, e.g. --column time=1:s --column accel=2:g\n"
+    )
+    assert main(["init", str(path), "--column", "time=1:s", "--column", "accel=2", "--speed", "56 km/h", "--out", out]) == 2
+    assert capsys.readouterr().err.endswith("no unit in the column names 2 (accel); give --column accel=2:UNIT\n")
+    assert not (tmp_path / "p.yaml").exists()
+
+
+@pytest.fixture
+def camry_channels(tmp_path) -> list:
+    return channel_export(tmp_path / "export", (93, 94, 95))
+
+
+@pytest.mark.integration
+def test_init_on_nhtsa_channel_files_with_mass_and_speed_identifies(camry_channels, tmp_path, capsys):
+    out = tmp_path / "camry.yaml"
+    files = [str(f) for f in camry_channels[:2]]
+    assert main(["init", *files, "--mass", "1719 kg", "--speed", "57.09 km/h", "--out", str(out)]) == 0
+    text = out.read_text()
+    assert "format: nhtsa-channel" in text and "accel: {curves: [93, 94], unit: g, filter: CFC60}" in text
+    assert "file: export/v10146tsv.093" in text and 'name: "v10146"' in text
+    assert main(["identify", str(out), "--out", str(tmp_path / "res"), "--no-figures"]) == 0
+    assert "v10146: ok (IPOPT" in capsys.readouterr().out
+    (test,) = json.loads((tmp_path / "res" / "result.json").read_text())["tests"].values()
+    assert test["metrics"]["model"]["max_crush_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
+
+
+def test_init_reads_the_channels_named_in_a_folder(camry_channels, tmp_path):
+    options = Options(mass=1719.0, speed=57.09 / 3.6, columns={"accel": "93,v10146tsv.094:g"})
+    draft, _ = draft_for([camry_channels[0].parent], options)
+    assert draft.data["format"] == "nhtsa-channel" and draft.data["channels"]["accel"]["curves"] == [93, 94]
+    assert draft.data["window"] == [0.0, 0.15]
+
+
+@pytest.mark.parametrize(
+    "paths, columns, message",
+    [
+        (["export"], {}, "export: name its channels, e.g. --column accel=CCC,CCC:g (channel files 093, 094, 095)"),
+        (["export/v10146tsv.093"], {"velocity": "95"}, "--column velocity=95: an NHTSA channel file carries no unit"),
+        (["export/v10146tsv.093"], {"accel": "96:g"}, "--column accel=96: no channel file 096 of the test beside"),
+        (["export/v10146tsv.093"], {"accel": "x.csv:g"}, "--column accel=x.csv: name channel files by their number CCC"),
+        (["export/v10146tsv.093"], {"time": "1:s"}, "--column time=1:s: nhtsa-channel channels are"),
+        (["export/v10146tsv.093", "other/v10147tsv.094"], {}, "give one folder, or channel files vNNNNNtsv.CCC of one test"),
+    ],
+)
+def test_init_on_nhtsa_channel_files_refuses_what_it_cannot_read(camry_channels, tmp_path, paths, columns, message):
+    channel_export(tmp_path / "other", (94,), test="10147")
+    with pytest.raises(InputError, match=re.escape(message)):
+        draft_for([tmp_path / p for p in paths], Options(mass=1719.0, speed=15.0, columns=columns))
+
+
+@pytest.mark.parametrize(
+    "data, column, message",
+    [
+        (
+            "problems/data/synthetic-pickup/pickup-56kph.csv",
+            "acel=accel_x_g:g",
+            "--column acel=accel_x_g:g: csv channels are time,",
+        ),
+        (
+            "problems/data/nhtsa-10146/v10146.EV5",
+            "accel=93:g",
+            "--column accel=93:g: nhtsa-ev5 data say what their channels hold",
+        ),
+    ],
+)
+def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data, column, message):
+    out = tmp_path / "p.yaml"
+    assert main(["init", str(ROOT / data), "--column", column, "--mass", "1 t", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {message}") and err.count("\n") == 1
+    assert not out.exists()

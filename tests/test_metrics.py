@@ -3,8 +3,12 @@
 import numpy as np
 import pytest
 
+from crashnlp import testcase
+from crashnlp.data import Channel, TestData
 from crashnlp.data.signal import integrate
 from crashnlp.metrics import crash_metrics, olc
+from crashnlp.problem import schema
+from crashnlp.summary import data_metrics, metrics, still_moving
 from crashnlp.units import G0
 
 
@@ -64,3 +68,23 @@ def test_report_units_and_pre_impact_samples_ignored():
     assert r["t_zero_velocity_ms"] == pytest.approx(80, abs=0.1)
     assert r["peak_decel_g"] == pytest.approx(A / G0)
     assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "t_max_crush_ms"}
+
+
+def _recorded(t, a, v, x) -> testcase.TestCase:
+    channels = {name: Channel(t, y, "", name) for name, y in (("accel", a), ("velocity", v), ("displacement", x))}
+    return testcase.TestCase(schema.Test(name="half-sine"), float(v[0]), float(t[-1]), TestData(channels), {})
+
+
+def test_a_record_that_ends_moving_has_no_max_crush():
+    t, a, v, x, _ = half_sine(15.0, 0.08, end=0.05)
+    moving = data_metrics(_recorded(t, a, v, x))
+    assert moving["max_crush_m"] is None and moving["time_max_crush_s"] is None and moving["esw_g"] is None
+    assert moving["record_end_s"] == pytest.approx(0.05, abs=1e-4)
+    assert still_moving(moving) == (
+        f"ends at 50.0 ms still moving toward the barrier at {moving['end_velocity_mps']:.3g} m/s"
+        " (no stop: its travel there is no max dynamic crush)"
+    )
+    model = metrics(t, a, v, x, None)  # a model's response keeps its travel, and the words
+    assert model["max_crush_m"] == pytest.approx(x[-1]) and still_moving(model) == still_moving(moving)
+    stopped = data_metrics(_recorded(*half_sine(15.0, 0.08)[:4]))
+    assert stopped["max_crush_m"] == pytest.approx(0.6, rel=1e-3) and still_moving(stopped) is None

@@ -264,5 +264,120 @@ def test_mme_sample_count_mismatch(tmp_path):
     _mme_set(tmp_path / "T001")
     f = tmp_path / "T001" / "Channel" / "T001.001"
     f.write_text(f.read_text().replace("Number of samples           :600", "Number of samples           :601"))
-    with pytest.raises(DataError, match=r"T001\.001: channel accel .*600 samples but the header says 601"):
+    with pytest.raises(
+        DataError,
+        match=r"T001\.001: channel accel .*600 samples but the header says 601 \(the data end at 49\.9 ms, the header.s at 50 ms",
+    ):
         load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": CODE_X}}))
+
+
+def test_nhtsa_curve_file_shorter_than_its_header_is_refused(tmp_path):
+    header = _copy_ev5(tmp_path)
+    lines = (tmp_path / "v10146.094").read_text().splitlines()
+    (tmp_path / "v10146.094").write_text("\n".join(lines[:800]) + "\n")  # to 29.9 ms of 299.9 ms
+    with pytest.raises(
+        DataError,
+        match=r"v10146\.094: channel accel \(curve 94\): the file ends at 29\.9 ms, but the header says .* to 299\.9 ms",
+    ):
+        load_test_data(camry(file=header))
+
+
+def test_csv_without_a_header_reads_columns_by_number(tmp_path):
+    raw = np.loadtxt(PICKUP, delimiter=",", skiprows=1)
+    path = tmp_path / "plain.tsv"
+    path.write_bytes(b"".join(b"%.4f\t%.6f\t%.6f\r\n" % (t * 1e3, a, v) for t, a, v in raw[:, :3]))  # ms, g, m/s
+    channels = {"accel": {"column": 2, "unit": "g"}, "velocity": {"column": "3"}}
+    data = load_test_data(spec(file=path, time={"column": 1, "unit": "ms"}, channels=channels))
+    np.testing.assert_allclose(data.channels["accel"].values, raw[:, 1] * G0)
+    np.testing.assert_allclose(data.channels["velocity"].time, raw[:, 0], atol=1e-7)
+    assert data.channels["accel"].source == "plain.tsv:2"
+    with pytest.raises(DataError, match=r"plain\.tsv: channel pitch: no column 4 \(no header line: give a number from 1 to 3\)"):
+        load_test_data(spec(file=path, time={"column": 1, "unit": "ms"}, channels={"pitch": {"column": 4}}))
+
+
+@pytest.mark.parametrize(
+    "row, message",
+    [
+        ("0.002,", r"channel accel \(column accel_x_g\): line 4: a blank cell"),
+        ("0.002,n/a", r"channel accel \(column accel_x_g\): line 4: 'n/a' is not a number"),
+        ("0.002", r"channel accel \(column accel_x_g\): line 4 ends before this column \(1 of 2 cells\)"),
+        ("0.002 s,1", r"channel time \(column time_s\): line 4: '0.002 s' is not a number"),
+    ],
+)
+def test_csv_bad_cell_names_its_column_and_line(tmp_path, row, message):
+    path = _csv(tmp_path, f"0,1\n0.001,1\n{row}\n0.003,1\n")
+    with pytest.raises(DataError, match=message):
+        load_test_data(pickup(file=path, channels=ACCEL))
+
+
+# ---------------------------------------------------------------- NHTSA channel export
+def channel_export(folder: Path, curves=(93, 94), test: str = "10146") -> list[Path]:
+    """Curves of test 10146 written as the NHTSA database's channel files vNNNNNtsv.CCC (tab, CRLF, no header)."""
+    folder.mkdir(parents=True, exist_ok=True)
+    files = []
+    for n in curves:
+        curve = np.loadtxt(EV5.with_suffix(f".{n:03d}"))
+        files.append(folder / f"v{test}tsv.{n:03d}")
+        files[-1].write_bytes(b"".join(b"%.6f\t%.6f\r\n" % (t, y) for t, y in curve))
+    return files
+
+
+def test_nhtsa_channel_files_read_as_the_ev5_curves(tmp_path):
+    first, _ = channel_export(tmp_path)
+    integrated = {"derive": "integrate"}
+    channels = {"accel": {"curves": [93, 94], "unit": "g", "filter": "CFC60"}, "velocity": integrated, "displacement": integrated}
+    export = spec(file=first, format="nhtsa-channel", bias_window=(-0.05, 0.0), window=(0.0, 0.2), channels=channels)
+    for folder_or_file in (first, tmp_path):
+        data = load_test_data(export.model_copy(update={"file": folder_or_file}), 57.09 / 3.6)
+        reference = load_test_data(camry())
+        assert data.meta == {} and data.channels["accel"].source == "v10146tsv.093+v10146tsv.094"
+        for name in ("accel", "velocity", "displacement"):
+            np.testing.assert_allclose(data.channels[name].values, reference.channels[name].values, rtol=1e-6, atol=1e-6)
+    one = load_test_data(spec(file=first, format="nhtsa-channel", channels={"accel": {"unit": "g"}}))
+    assert one.channels["accel"].source == "v10146tsv.093"
+
+
+@pytest.mark.parametrize(
+    "file, channels, message",
+    [
+        (
+            "v10146tsv.093",
+            {"accel": {"curves": [93]}},
+            r"v10146tsv\.093: channel accel: no unit \(an NHTSA channel file carries none",
+        ),
+        (
+            "v10146tsv.093",
+            {"accel": {"curves": [95], "unit": "g"}},
+            r"channel accel \(curve 95\): no channel file of the test numbered 095",
+        ),
+        (".", {"accel": {"unit": "g"}}, r"channel accel: give `curves`"),
+        ("other.txt", {"accel": {"unit": "g"}}, r"other\.txt: not an NHTSA channel file \(named vNNNNNtsv\.CCC\)"),
+    ],
+)
+def test_nhtsa_channel_files_bad_input(tmp_path, file, channels, message):
+    channel_export(tmp_path)
+    (tmp_path / "other.txt").write_text("0\t1\r\n")
+    with pytest.raises(DataError, match=message):
+        load_test_data(spec(file=tmp_path / file, format="nhtsa-channel", channels=channels))
+
+
+def test_nhtsa_channel_folder_of_two_tests_asks_for_a_file(tmp_path):
+    channel_export(tmp_path)
+    channel_export(tmp_path, (93,), test="10147")
+    with pytest.raises(DataError, match=r"holds channel files of tests 10146, 10147; name one of the test's files"):
+        load_test_data(spec(file=tmp_path, format="nhtsa-channel", channels={"accel": {"curves": [93], "unit": "g"}}))
+
+
+def test_csv_a_cell_past_the_csv_modules_limit_is_one_line(tmp_path):
+    path = _csv(tmp_path, f"0,1\n0.001,{'9' * 200_000}\n")
+    with pytest.raises(DataError, match=r"bad\.csv: cannot read as CSV \(field larger than field limit"):
+        load_test_data(pickup(file=path, channels=ACCEL))
+
+
+def test_a_data_format_left_out_comes_from_the_file_name(tmp_path):
+    first, _ = channel_export(tmp_path / "export")
+    given = {"channels": {"accel": {"curves": [93, 94], "unit": "g"}}}
+    assert spec(file=first, **given).format == "nhtsa-channel"
+    assert spec(file=tmp_path / "export", **given).format == "nhtsa-channel"
+    assert DataSpec.model_validate({"file": "v10146.EV5", **given}, context={"base_dir": EV5.parent}).format == "nhtsa-ev5"
+    assert spec(file=PICKUP, **given).format == "csv"

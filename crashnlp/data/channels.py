@@ -78,6 +78,7 @@ def sample_interval(time: np.ndarray, at: str, rtol: float = 0.01) -> float:
     return float(dt)
 
 
+END_TOLERANCE = 2  # samples by which a record may end before the end it is to reach (a window rounded, a header's NLP)
 SAMPLE_INTERVALS = (5e-7, 5e-3)  # s: 2 MHz to 200 Hz; crash data are sampled at about 10 kHz
 RECORD_SPANS = (1e-3, 100.0)  # s: a crash lasts about 0.1 s
 

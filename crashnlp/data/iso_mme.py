@@ -158,7 +158,8 @@ def _channel(text: str, unit: str | None, name: str, at: str, source: str) -> Ch
     except ValueError as exc:
         raise DataError(f"{at}: bad sample ({exc})") from None
     if values.size != count:
-        raise DataError(f"{at}: {values.size} samples but the header says {count}")
+        ends = f"the data end at {(t0 + dt * (values.size - 1)) * 1e3:g} ms, the header's at {(t0 + dt * (count - 1)) * 1e3:g} ms"
+        raise DataError(f"{at}: {values.size} samples but the header says {count} ({ends})")
     unit = unit or header.get("unit", "")
     if not unit or unit.upper() == "NOVALUE":
         raise DataError(f"{at}: no unit in the channel file (give `unit`)")

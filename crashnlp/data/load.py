@@ -13,6 +13,7 @@ import numpy as np
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, sample_interval, where
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
+from crashnlp.data.nhtsa_channel import read_channel_files
 from crashnlp.data.nhtsa_ev5 import read_ev5
 from crashnlp.data.signal import CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
 from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
@@ -21,6 +22,7 @@ Reader = Callable[[DataSpec], TestData]
 READERS: dict[str, Reader] = {
     "csv": read_csv,
     "nhtsa-ev5": read_ev5,
+    "nhtsa-channel": read_channel_files,
     "iso-mme": read_mme,
 }
 BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an offset, removed over `bias_window`

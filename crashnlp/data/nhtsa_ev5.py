@@ -10,7 +10,8 @@ Header cards used (fields counted from 1, as in the NHTSA Test Reference Guide):
 Curve NNN lives next to the header as <stem>.NNN (time [s] TAB value).
 
 A curve is read only as far as the header says its data are valid (`valid_until`): status NO
-(not installed) or CF ("No valid data") never, "No valid data after 67ms" up to 67 ms.
+(not installed) or CF ("No valid data") never, "No valid data after 67ms" up to 67 ms. A curve
+file that ends before that (by more than END_TOLERANCE samples) is cut short, and refused.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, TestData, check_samples, si_factor, where
 from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
 # EV5 unit codes -> pint units
@@ -163,7 +164,13 @@ def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[n
         if abs(dt - curve.interval) > 0.01 * curve.interval:
             raise DataError(f"{at}: sample interval {dt:g} s differs from the header's {curve.interval:g} s")
         tol = 0.5 * curve.interval
-        valid = (time >= curve.first * curve.interval - tol) & (time <= min(curve.last * curve.interval, until) + tol)
+        end = min(curve.last * curve.interval, until)
+        if time[-1] < end - END_TOLERANCE * curve.interval:
+            raise DataError(
+                f"{at}: the file ends at {time[-1] * 1e3:g} ms, but the header says the curve runs to {end * 1e3:g} ms"
+                f" (NLP {curve.last}): the file is cut short"
+            )
+        valid = (time >= curve.first * curve.interval - tol) & (time <= end + tol)
         time, values = time[valid], values[valid]
     else:
         time, values = time[time <= until], values[time <= until]
@@ -230,14 +237,14 @@ def read_ev5(spec: DataSpec) -> TestData:
             unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
             values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
             read.append((file, time, values))
-        channels[name] = _combine(read, name)
+        channels[name] = combine(read, name)
     for row in cards.get("VEHICLE", []):
         if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass
     return TestData(channels, meta, notes)
 
 
-def _combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
+def combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Channel:
     """Sum (a force, `SUMMED`) or mean of curves on one time base; refuse curves whose sampling
     or range differ."""
     file0, time, total = read[0]

@@ -17,7 +17,7 @@ from crashnlp.optimize.identify import Solution
 from crashnlp.rating import iso18571
 from crashnlp.response import Response
 from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
-from crashnlp.summary import channel_consistency, data_metrics, response_metrics
+from crashnlp.summary import channel_consistency, data_metrics, response_metrics, still_moving
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
@@ -56,7 +56,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
-        notes=tuple(solution.notes) + _data_notes(case) + identified.tail_notes(),
+        notes=tuple(solution.notes) + _data_notes(case) + _moving_notes(tests) + identified.tail_notes(),
         identified=identified,
         regularization=solution.regularization,
         output_bounds={str(name): ends for name, ends in case.problem.constraints.bounds.items()},
@@ -122,6 +122,16 @@ def _channel_rmse(tests: dict[str, TestResult]) -> dict[str, float]:
 def _data_notes(case: Case) -> tuple[str, ...]:
     """What the readers chose from each test's data, one line each, naming the test."""
     return tuple(f"test {t.name}: {n}" for t in case.tests if t.data is not None for n in t.data.notes)
+
+
+def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
+    """A test whose record (or whose model over it) ends before the vehicle stops, said so."""
+    notes = []
+    for name, t in tests.items():
+        for who, metrics in (("record", t.data_metrics), ("model", t.metrics)):
+            text = still_moving(metrics) if metrics is not None else None
+            notes += [f"test {name}: the {who} {text}"] if text else []
+    return tuple(notes)
 
 
 def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import copy
 import math
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -403,19 +404,21 @@ ALL_BARRIER_FX: str = get_args(AllBarrierFx)[0]
 
 
 class TimeColumn(Strict):
-    column: str
+    column: str | int = Field(description="CSV column: its name in the header, or its number counted from 1")
     unit: str = "s"
 
 
 class ChannelSpec(Strict):
-    column: str | None = Field(None, description="CSV column")
+    column: str | int | None = Field(None, description="CSV column: its name in the header, or its number counted from 1")
     curves: list[int] | AllBarrierFx | None = Field(
         None,
-        description="NHTSA EV5 curve numbers, averaged (barrier_force: summed); all-valid-barrier-fx: every valid"
-        " barrier Fx load cell of the test",
+        description="NHTSA EV5 curve numbers, or the numbers CCC of NHTSA channel files vNNNNNtsv.CCC, averaged"
+        " (barrier_force: summed); all-valid-barrier-fx: every valid barrier Fx load cell of an EV5 test",
     )
     code: str | None = Field(None, description="ISO-MME channel code")
-    unit: str | None = Field(None, description="unit of the stored values; EV5 and MME files carry their own")
+    unit: str | None = Field(
+        None, description="unit of the stored values; EV5 and MME files carry their own, NHTSA channel files none"
+    )
     filter: CFC | None = Field(None, description="SAE J211 filter class; barrier_force: CFC60 unless given (null: none)")
     sign: Literal[1, -1] = Field(
         1,
@@ -429,13 +432,46 @@ class ChannelSpec(Strict):
     _positive = field_validator("sigma")(lambda v: _positive(v))
 
 
+CHANNEL_FILE = re.compile(r"v(\d+)tsv\.(\d{3})", re.IGNORECASE)  # an NHTSA channel file: test NNNNN, curve CCC
+
+
+def format_of(path: Path) -> str:
+    """The data format a path's name says: nhtsa-ev5 for .EV5; nhtsa-channel for a channel file
+    vNNNNNtsv.CCC, or a folder of them and no .mme; iso-mme for .mme, another folder or a .zip;
+    csv otherwise."""
+    suffix = path.suffix.lower()
+    if suffix == ".ev5":
+        return "nhtsa-ev5"
+    if CHANNEL_FILE.fullmatch(path.name) or (
+        path.is_dir() and any(CHANNEL_FILE.fullmatch(p.name) for p in path.iterdir()) and not any(path.glob("*.mme"))
+    ):
+        return "nhtsa-channel"
+    if suffix in (".mme", ".zip") or path.is_dir():
+        return "iso-mme"
+    return "csv"
+
+
 class DataSpec(Strict):
     file: Path
-    format: Literal["csv", "nhtsa-ev5", "iso-mme"] = "csv"
+    format: Literal["csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"] = Field(
+        "csv", description="omitted: from the file's name (crashnlp.problem.schema.format_of), csv for a name no other format has"
+    )
     time: TimeColumn = TimeColumn(column="time_s")
     window: tuple[Time, Time] | None = None
     bias_window: tuple[Time, Time] | None = Field(None, description="pre-impact samples whose mean is removed")
     channels: dict[ChannelName, ChannelSpec]
+
+    @model_validator(mode="before")
+    @classmethod
+    def _format_from_name(cls, data: Any, info: ValidationInfo) -> Any:
+        """A format the file's name says, where the problem names none."""
+        if not isinstance(data, dict) or "format" in data or not isinstance(data.get("file"), (str, Path)):
+            return data
+        path = Path(data["file"])
+        return {
+            **data,
+            "format": format_of(path if path.is_absolute() else Path((info.context or {}).get("base_dir", ".")) / path),
+        }
 
     @model_validator(mode="before")
     @classmethod
