@@ -147,6 +147,16 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     for split in ("interpolation", "extrapolation"):
         summary = cross["summary"][split]
         out[f"bench.{split}_within"], out[f"bench.{split}_fits"] = str(summary["within_targets"]), str(summary["fits"])
+    grid, speedup = bench["studies"]["grid_16"], bench["studies"]["speedup_16"]
+    for name, run_ in (("1", "1 worker"), ("2", "2 workers"), ("dask", "dask LocalCluster, 2 workers")):
+        out[f"bench.study_{name}_s"] = f"{grid[run_]['wall_s']:.1f}"
+    out["bench.study_dask_speedup"] = f"{speedup['dask LocalCluster, 2 workers']:.2f}"
+    consistency = bench["self_consistency"]
+    geometry = [e for k, e in consistency["all channels"]["relative_errors"].items() if k.startswith("vehicle.")]
+    out["bench.recovery_geometry_pct"] = f"{max(geometry) * 100:.1f}"
+    for name, run_ in (("all", "all channels"), ("no_velocity", "without velocity")):
+        out[f"bench.recovery_spring_{name}_pct"] = f"{consistency[run_]['relative_errors']['model.spring.values'] * 100:.1f}"
+    out["bench.replicates_rms_z"] = f"{coverage['rms_z']:.2f}"
     out["bench.cross_predictions"] = str(sum(cross["summary"][split]["fits"] for split in ("interpolation", "extrapolation")))
     return out
 
