@@ -74,8 +74,8 @@ docs: $(DOCS_STAMP)
 	CRASHNLP_COMPILE=model NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
-	$(BIN)/ruff check crashnlp tests bench examples docs/hooks.py
-	$(BIN)/ruff format --check crashnlp tests bench examples docs/hooks.py
+	$(BIN)/ruff check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
+	$(BIN)/ruff format --check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
 	$(BIN)/mypy
 
 clean:
