@@ -1,9 +1,10 @@
 """The numbers the documentation quotes, from the shipped problems run now (`make docs-numbers`).
 
 `python scripts/docs_numbers.py` runs the shipped problems through the command line in a scratch
-folder, as a user runs them from the repository root, and writes results/docs-numbers.json:
-`blocks`, console excerpts by name, and `numbers`, values as the pages print them by dotted
-name. Then it rewrites every place of QUOTING that quotes them, through two markers:
+folder, as a user runs them from the repository root, reads results/bench.json as `make bench`
+left it, and writes results/docs-numbers.json: `blocks`, console excerpts by name, and `numbers`,
+values as the pages print them by dotted name. Then it rewrites every place of QUOTING that
+quotes them, through two markers:
 
     <!-- numbers: BLOCK -->     the line before a fenced block: the block's lines are blocks[BLOCK]
     VALUE<!--n:KEY-->           an inline value (in prose, a table, a YAML comment): VALUE is numbers[KEY]
@@ -11,7 +12,8 @@ name. Then it rewrites every place of QUOTING that quotes them, through two mark
 Nothing here is typed by hand: a page quotes a run only through a marker, `drift` lists every
 marker whose text differs from the file (tests/test_docs_numbers.py holds every quoting file
 to it; docs/hooks.py fails `make docs` on it), and `make docs-numbers` brings the pages back in
-line after a change of the code moves a number.
+line after a change of the code moves a number. Reading and checking the pages imports nothing
+of crashnlp; only the runs do.
 """
 
 from __future__ import annotations
@@ -20,9 +22,8 @@ import io
 import json
 import os
 import re
-import sys
 import tempfile
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from contextlib import chdir, redirect_stdout
 from pathlib import Path
 from typing import Any
@@ -66,12 +67,6 @@ def fitted_test(folder: str, test: str) -> dict[str, Any]:
     return dict(json.loads(Path(folder, "result.json").read_text())["tests"][test])
 
 
-def model_metrics(folder: str, test: str) -> tuple[dict[str, Any], dict[str, Any]]:
-    """A fit's metrics of one test, model and data, from its result.json."""
-    raw = fitted_test(folder, test)["metrics"]
-    return raw["model"], raw["data"]
-
-
 def table_row(prefix: str, test: dict[str, Any]) -> dict[str, str]:
     """A fit's row of docs/barrier.md's table: each channel's ISO 18571 rating, stop, crush, rebound."""
     model = test["metrics"]["model"]
@@ -95,11 +90,11 @@ def channels_apart(consistency: dict[str, Any]) -> dict[str, str]:
     return out
 
 
-def crush_and_stop(prefix: str, metrics: dict[str, Any], digits: Callable[[float], str]) -> dict[str, str]:
-    """Max crush (mm) and time of zero velocity (ms) as a page quotes them."""
+def crush_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
+    """Max crush (mm) and time of zero velocity (ms) as the console's metric table prints them."""
     return {
-        f"{prefix}.max_crush_mm": digits(metrics["max_crush_m"] * 1e3),
-        f"{prefix}.stop_ms": digits(metrics["time_zero_velocity_s"] * 1e3),
+        f"{prefix}.max_crush_mm": console_digits(metrics["max_crush_m"] * 1e3),
+        f"{prefix}.stop_ms": console_digits(metrics["time_zero_velocity_s"] * 1e3),
     }
 
 
@@ -241,46 +236,68 @@ def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:
     return out
 
 
+Quoted = tuple[dict[str, str], dict[str, str]]  # blocks, numbers
+
+
 def generate() -> dict[str, dict[str, str]]:
     """Run the shipped problems in a scratch folder; the blocks and numbers the docs quote, with
-    make bench's (bench_numbers)."""
+    make bench's (bench_numbers). The runs go in order: a later one reads an earlier one's result."""
     blocks, numbers = {}, bench_numbers(json.loads(BENCH.read_text()))
     with tempfile.TemporaryDirectory(prefix="docs-numbers-") as scratch, chdir(scratch):
         os.symlink(ROOT / "problems", "problems")
-        camry = run("identify", "problems/nhtsa-10146.yaml", "--no-figures")
-        blocks["identify-nhtsa-10146"] = without_wrote(camry)
-        blocks["identify-nhtsa-10146-brief"] = "\n".join(line for line in camry if line.lstrip().startswith(BRIEF))
-        model, data = model_metrics("results/nhtsa-10146", "10146")
-        numbers |= crush_and_stop("camry", model, console_digits) | crush_and_stop("camry.data", data, console_digits)
-        numbers |= table_row("camry", fitted_test("results/nhtsa-10146", "10146"))
-
-        run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
-        barrier = fitted_test("results/nhtsa-10146-barrier", "10146")
-        numbers |= table_row("barrier", barrier)
-        numbers["barrier.stop_ms"] = console_digits(barrier["metrics"]["model"]["time_zero_velocity_s"] * 1e3)
-        numbers |= channels_apart(barrier["consistency"])
-
-        run("identify", "problems/pickup-56kph.yaml", "--no-figures")
-        pickup, _ = model_metrics("results/pickup-56kph", "56kph")
-        numbers["pickup.max_pitch_deg"] = f"{pickup['max_pitch_deg']:.1f}"
-        prediction = run("simulate", "problems/pickup-40kph.yaml", "--params", "results/pickup-56kph/result.json", "--no-figures")
-        blocks["simulate-pickup-40kph"] = "\n".join(prediction)
-        camry_64 = ("problems/nhtsa-10146.yaml", "--params", "results/nhtsa-10146/result.json", "--speed", "64 km/h")
-        faster = run("simulate", *camry_64, "--out", "camry-64", "--no-figures")
-        blocks["camry-64-data-not-shown"] = "\n".join(line for line in faster if "data not shown" in line)
-
-        run("identify", "problems/pickup-joint.yaml", "--no-figures")
-        Path("what-ifs.yaml").write_text(WHAT_IF)
-        joint = run("simulate", "what-ifs.yaml", "--params", "results/pickup-joint/result.json", "--no-figures")
-        blocks["pickup-joint-64-extrapolates"] = "\n".join(line for line in joint if "extrapolates" in line)
-
-        run("init", "problems/data/nhtsa-10146/v10146.EV5", "--out", "camry.yaml")
-        run("identify", "camry.yaml", "--no-figures")
-        init, _ = model_metrics("results/v10146", "v10146")
-        numbers |= crush_and_stop("camry.init", init, console_digits)
+        for runs in (_camry, _barrier, _pickup, _joint, _init):
+            more_blocks, more_numbers = runs()
+            blocks |= more_blocks
+            numbers |= more_numbers
     if empty := [name for name, text in blocks.items() if not text]:
         raise SystemExit(f"no console line for block {', '.join(empty)}: the command's words changed; change the excerpt")
     return {"blocks": blocks, "numbers": numbers}
+
+
+def _camry() -> Quoted:
+    """The Camry's fit (getting-started, the README, the barrier page), and at 64 km/h (predictions)."""
+    camry = run("identify", "problems/nhtsa-10146.yaml", "--no-figures")
+    test = fitted_test("results/nhtsa-10146", "10146")
+    fitted = ("--params", "results/nhtsa-10146/result.json")
+    faster = run("simulate", "problems/nhtsa-10146.yaml", *fitted, "--speed", "64 km/h", "--out", "camry-64", "--no-figures")
+    blocks = {
+        "identify-nhtsa-10146": without_wrote(camry),
+        "identify-nhtsa-10146-brief": "\n".join(line for line in camry if line.lstrip().startswith(BRIEF)),
+        "camry-64-data-not-shown": "\n".join(line for line in faster if "data not shown" in line),
+    }
+    numbers = crush_and_stop("camry", test["metrics"]["model"]) | crush_and_stop("camry.data", test["metrics"]["data"])
+    return blocks, numbers | table_row("camry", test)
+
+
+def _barrier() -> Quoted:
+    """The Camry fitted to its wall force and accelerometers (the barrier page)."""
+    run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
+    test = fitted_test("results/nhtsa-10146-barrier", "10146")
+    stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
+    return {}, table_row("barrier", test) | stop | channels_apart(test["consistency"])
+
+
+def _pickup() -> Quoted:
+    """The pickup's fit (pitch-bound.yaml's comment) and its 40 km/h prediction (getting-started)."""
+    run("identify", "problems/pickup-56kph.yaml", "--no-figures")
+    pitch = fitted_test("results/pickup-56kph", "56kph")["metrics"]["model"]["max_pitch_deg"]
+    prediction = run("simulate", "problems/pickup-40kph.yaml", "--params", "results/pickup-56kph/result.json", "--no-figures")
+    return {"simulate-pickup-40kph": "\n".join(prediction)}, {"pickup.max_pitch_deg": f"{pitch:.1f}"}
+
+
+def _joint() -> Quoted:
+    """The pickup fitted at 40 and 56 km/h, predicted at 64 km/h (predictions' extrapolation line)."""
+    run("identify", "problems/pickup-joint.yaml", "--no-figures")
+    Path("what-ifs.yaml").write_text(WHAT_IF)
+    joint = run("simulate", "what-ifs.yaml", "--params", "results/pickup-joint/result.json", "--no-figures")
+    return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, {}
+
+
+def _init() -> Quoted:
+    """The Camry's problem written by crashnlp init from its EV5 file, then fitted (any-vehicle)."""
+    run("init", "problems/data/nhtsa-10146/v10146.EV5", "--out", "camry.yaml")
+    run("identify", "camry.yaml", "--no-figures")
+    return {}, crush_and_stop("camry.init", fitted_test("results/v10146", "v10146")["metrics"]["model"])
 
 
 # --------------------------------------------------------------------------- the pages
@@ -333,5 +350,4 @@ def main() -> None:
 
 
 if __name__ == "__main__":
-    sys.path.insert(0, str(ROOT))
     main()
