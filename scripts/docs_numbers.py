@@ -34,7 +34,7 @@ BENCH = ROOT / "results/bench.json"  # make bench's numbers, read as they are: t
 QUOTING = ("README.md", "docs/*.md", "problems/studies/*.yaml")  # the files that quote the runs, as globs from ROOT
 
 BLOCK = re.compile(r"^<!-- numbers: (?P<key>[\w.-]+) -->\n(?P<fence>```[^\n]*\n)(?P<body>.*?)^```", re.MULTILINE | re.DOTALL)
-INLINE = re.compile(r"(?P<value>-?[\d.,]+)<!--n:(?P<key>[\w.-]+)-->")
+INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+)<!--n:(?P<key>[\w.-]+)-->")
 
 # a prediction of the pickup fitted at 40 and 56 km/h, at 64 km/h (docs/predictions.md's extrapolation)
 WHAT_IF = "name: pickup-what-ifs\ntests:\n  - {name: 64kph, speed: 64 km/h, duration: 0.2 s}\n"
@@ -106,7 +106,7 @@ def console_digits(value: float) -> str:
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     """The numbers of results/bench.json the pages quote ("bench.<name>"), each formatted as the
     pages print it; the sections of make bench one function each."""
-    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _self_consistency)
+    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _families, _self_consistency)
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
 
@@ -219,6 +219,40 @@ def _cross_speed(bench: dict[str, Any]) -> dict[str, str]:
         summary = cross["summary"][split]
         out[f"{split}_within"], out[f"{split}_fits"] = str(summary["within_targets"]), str(summary["fits"])
     return out | {"cross_predictions": str(int(out["interpolation_fits"]) + int(out["extrapolation_fits"]))}
+
+
+def _families(bench: dict[str, Any]) -> dict[str, str]:
+    """The cross-speed benchmark by family (family<seed>, family_pickup for the shared pickup), and
+    over the usual families (the shared pickup's included) against the tall vans and SUVs."""
+    cross, out = bench["cross_speed"], {}
+    families = cross["summary"]["families"]
+    for name, family in families.items():
+        i = seed[1] if (seed := re.search(r"seed (\d+)", name)) else "_pickup"
+        for split in ("extrapolation", "interpolation"):
+            out[f"family{i}_{split}_within"] = str(family[split]["within_targets"])
+            out[f"family{i}_{split}_fits"] = str(family[split]["fits"])
+        out[f"family{i}_covered"], out[f"family{i}_pairs"] = (
+            str(round(family["coverage"] * family["pairs"])),
+            str(family["pairs"]),
+        )
+    for group in ("usual", "tall"):
+        chosen = [f for name, f in families.items() if ("tall" in name) == (group == "tall")]
+        for split in ("extrapolation", "interpolation"):
+            parts = [f[split] for f in chosen]
+            out[f"{group}_{split}_crush_pct"] = f"{max(p['crush_rel_max'] for p in parts) * 100:.1f}"
+            out[f"{group}_{split}_peak_pct"] = f"{max(p['peak_rel_max'] for p in parts) * 100:.1f}"
+            out[f"{group}_{split}_within"] = str(sum(p["within_targets"] for p in parts))
+            out[f"{group}_{split}_fits"] = str(sum(p["fits"] for p in parts))
+            out[f"{group}_{split}_iterations"] = str(max(p["iterations_max"] for p in parts))
+    usual = [f for name, f in families.items() if "tall" not in name]
+    out["usual_covered"] = str(round(sum(f["coverage"] * f["pairs"] for f in usual)))
+    out["usual_pairs"] = str(sum(f["pairs"] for f in usual))
+    out["cross_covered"] = str(round(cross["summary"]["coverage"] * cross["summary"]["pairs"]))
+    out["family_coverage_lowest_pct"] = f"{min(f['coverage'] for f in families.values()) * 100:.0f}"
+    out["family_coverage_highest_pct"] = f"{max(f['coverage'] for f in families.values()) * 100:.0f}"
+    minimal = next(f for f in cross["fits"] if f["vehicle"] == "pickup" and f["split"] == "extrapolation")
+    out["minimal_crush_pct"], out["minimal_peak_pct"] = f"{minimal['crush_rel'] * 100:+.1f}", f"{minimal['peak_rel'] * 100:+.1f}"
+    return out
 
 
 def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:
