@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test fuzz lint docs identify simulate study design bench readme-figures report-check clean
+.PHONY: demo test fuzz lint docs docs-numbers identify simulate study design bench readme-figures report-check clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -38,6 +38,12 @@ study: $(STAMP)
 bench: $(STAMP)
 	$(BIN)/python bench/run.py
 
+# the numbers the README and the docs quote (console blocks, crush and stop times), from the shipped
+# problems run now in a scratch folder: results/docs-numbers.json, and every marked place of the pages
+# rewritten from it (scripts/docs_numbers.py); tests/test_docs_numbers.py and make docs hold the pages to it
+docs-numbers: $(STAMP)
+	$(BIN)/python scripts/docs_numbers.py
+
 readme-figures: demo identify study
 	$(BIN)/python scripts/readme_figures.py
 
@@ -68,10 +74,10 @@ docs: $(DOCS_STAMP)
 	CRASHNLP_COMPILE=model NO_MKDOCS_2_WARNING=1 $(BIN)/mkdocs build --strict
 
 lint: $(STAMP)
-	$(BIN)/ruff check crashnlp tests bench examples docs/hooks.py
-	$(BIN)/ruff format --check crashnlp tests bench examples docs/hooks.py
+	$(BIN)/ruff check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
+	$(BIN)/ruff format --check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
 	$(BIN)/mypy
 
 clean:
 	rm -rf $(VENV) .pytest_cache site
-	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.md' ! -name 'bench.json' ! -name 'bench-scaling.png' -exec rm -rf {} +
+	find results -mindepth 1 -maxdepth 1 ! -name readme ! -name 'bench.md' ! -name 'bench.json' ! -name 'docs-numbers.json' ! -name 'bench-scaling.png' -exec rm -rf {} +

@@ -1,4 +1,4 @@
-"""The `crashnlp` command: simulate, identify, design, study, init, report, export, schema.
+"""The `crashnlp` command: simulate, identify, design, study, init, report, compare-results, export, schema.
 
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
@@ -389,6 +389,21 @@ def cmd_report(args) -> int:
     return 0
 
 
+def cmd_compare(args) -> int:
+    """Fits and simulations side by side (crashnlp.report.compare): figures, metrics, a page."""
+    from crashnlp.report.compare import PAGE, compare, metric_table
+
+    out = Path(args.out) if args.out else RESULTS / "compare"
+    head, rows = metric_table(compare([Path(f) for f in args.folders], out))
+    for i, label in enumerate(head[1:]):
+        print(f"[{i + 1}] {label}")
+    print(f"  {'':<24}" + "".join(f"{f'[{i + 1}]':>24}" for i in range(len(head) - 1)))
+    for row in rows:
+        print(f"  {row[0]:<24}" + "".join(f"{cell:>24}" for cell in row[1:]))
+    print(f"wrote {out}/ ({PAGE}, metrics.csv, a figure per quantity)")
+    return 0
+
+
 def cmd_export(args) -> int:
     """The identified curves (ls-dyna, csv) of a fit's folder, or a test's pulse (a fit's or a simulation's)."""
     from crashnlp.folders import folder_kind
@@ -525,6 +540,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--out", help="HTML file to write (default FOLDER/report.html)")
     p.set_defaults(func=cmd_report)
 
+    p = sub.add_parser("compare-results", help="fits and simulations on one set of axes with their bands, metrics side by side")
+    p.add_argument("folders", nargs="+", help="two or more folders of fits (result.json) or simulations (simulation.json)")
+    p.add_argument("--out", help="output folder (default results/compare)")
+    p.set_defaults(func=cmd_compare)
+
     p = sub.add_parser("export", help="a fit's curves for LS-DYNA or as CSV, or a test's crash pulse for a sled test")
     p.add_argument("folder", help="a fit's folder (result.json); for --format pulse also a simulation's")
     p.add_argument(
@@ -547,10 +567,10 @@ def parser() -> argparse.ArgumentParser:
 
 def _add_common(ap: argparse.ArgumentParser, sub) -> None:
     """Options every command has: --debug (anywhere on the line) and --check (all but schema, init,
-    report and export)."""
+    report, compare-results and export)."""
     ap.add_argument("--debug", action="store_true", help="show the traceback of a failure (anywhere on the line)")
     for name, p in sub.choices.items():
-        if name not in ("schema", "init", "report", "export"):
+        if name not in ("schema", "init", "report", "compare-results", "export"):
             p.add_argument(
                 "--check",
                 action="store_true",

@@ -118,6 +118,26 @@ def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None
     _save(fig, path)
 
 
+def overlay_figure(path: Path, title: str, xlabel: str, ylabel: str, series: list[tuple]) -> None:
+    """Curves of several fits or predictions on one axis (crashnlp compare-results), each in its
+    own colour with its band shaded in it and a legend naming it; every value already in the
+    axes' units. series: (label, x, y, the band's outline as a polygon (x, y) or None)."""
+    fig, ax = plt.subplots(figsize=(8, 4.8))
+    for i, (label, x, y, band) in enumerate(series):
+        colour = f"C{i % 10}"
+        if band is not None:
+            ax.fill(*band, color=colour, alpha=0.18, lw=0)
+        ax.plot(x, y, color=colour, lw=1.6, label=label + (", 95 % band" if band is not None else ""))
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel(ylabel)
+    ax.ticklabel_format(useOffset=False)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title)
+    _layout(fig)
+    _save(fig, path)
+
+
 FIGURES = {f.__name__: f for f in (response_figure, force_crush_figure, residual_figure)}
 
 

@@ -5,6 +5,10 @@
   `crashnlp.problem.Problem`): every key by dotted path, its type, SI unit, default and
   description. Only the JSON Schema is read, never the schema module's class names, so the page
   follows any refactoring of the pydantic models.
+- The numbers a page quotes from the shipped runs (console blocks, a fit's crush and stop time)
+  are those of results/docs-numbers.json, which `make docs-numbers` writes
+  (scripts/docs_numbers.py): a page whose marked block or number differs from the file fails
+  the build, naming it.
 - The figures under results/readme/ and results/bench-scaling.png, CHANGELOG.md and
   results/bench.md live outside docs/; they are added to the site as generated files, so the
   pages link them by their site paths (figures/..., changelog.md, bench-results.md).
@@ -12,15 +16,19 @@
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 import subprocess
 import sys
 from collections.abc import Callable
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
+from mkdocs.exceptions import PluginError
 from mkdocs.structure.files import File, Files
+from mkdocs.structure.pages import Page
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -43,6 +51,26 @@ def on_files(files: Files, config: Any) -> Files:
         files.append(File.generated(config, uri, content=_page(path)))
     files.append(File.generated(config, "reference/problem-file.md", content=problem_reference()))
     return files
+
+
+def _docs_numbers() -> ModuleType:
+    """scripts/docs_numbers.py, which writes the quoted numbers and reads the pages' markers."""
+    spec = importlib.util.spec_from_file_location("docs_numbers", ROOT / "scripts/docs_numbers.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+NUMBERS = _docs_numbers()
+
+
+def on_page_markdown(markdown: str, page: Page, config: Any, files: Files) -> str:
+    """A page quotes the shipped runs as results/docs-numbers.json says, or the build fails."""
+    drift = NUMBERS.drift(markdown, NUMBERS.load())
+    if drift:
+        raise PluginError(f"{page.file.src_uri}: {'; '.join(drift)}: run make docs-numbers")
+    return markdown
 
 
 def _page(path: Path) -> str:

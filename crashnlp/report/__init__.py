@@ -32,7 +32,7 @@ if TYPE_CHECKING:
 REPORT = "report.html"
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
 
-_templates = jinja2.Environment(
+TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp compare-results
     loader=jinja2.PackageLoader("crashnlp.report", "templates"),
     autoescape=True,
     undefined=jinja2.StrictUndefined,  # a name the page uses and the context lacks fails here, not as a blank
@@ -61,15 +61,15 @@ def result_page(result: Result, folder: Path) -> str:
     """The page of a fit or design: the problem in brief, per test its figures, metrics and
     ratings, the estimates with their errors and intervals, their correlations, what sits at a
     bound or is not identified, and the notes."""
-    figures = _figures(folder, ["force_crush.png"], "the identified loading curve")
+    figures = embedded_figures(folder, ["force_crush.png"], "the identified loading curve")
     correlation = result.correlation
     if correlation.get("labels"):
         from crashnlp import plots  # matplotlib: only when a page draws
 
         matrix = np.array([[np.nan if v is None else v for v in row] for row in correlation["matrix"]], dtype=float)
         png = plots.correlation_png(list(correlation["labels"]), matrix, f"{result.name}: correlation of the estimates")
-        figures.append({"uri": _uri(png), "caption": "correlation of the estimates (sandwich covariance)"})
-    return _templates.get_template("result.html.j2").render(
+        figures.append({"uri": data_uri(png), "caption": "correlation of the estimates (sandwich covariance)"})
+    return TEMPLATES.get_template("result.html.j2").render(
         title=f"{result.name}: {'fit' if result.kind == 'identify' else result.kind}",
         result=result,
         brief=_brief(result),
@@ -125,7 +125,7 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     return {
         "name": name,
         "speed": f"{t.speed * 3.6:.1f} km/h",
-        "figures": _figures(folder / name, ["fit.png", "response.png", "residuals.png"], f"test {name}"),
+        "figures": embedded_figures(folder / name, ["fit.png", "response.png", "residuals.png"], f"test {name}"),
         "metrics": metrics,
         "has_data": bool(t.data_metrics),
         "fits": fits,
@@ -206,10 +206,10 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
                 "intervals": bool(test.intervals),
                 "extrapolation": _extrapolation(test),
                 "notes": test.notes,
-                "figures": _figures(folder / test.name, ["response.png"], f"test {test.name}, 95 % bands shaded"),
+                "figures": embedded_figures(folder / test.name, ["response.png"], f"test {test.name}, 95 % bands shaded"),
             }
         )
-    return _templates.get_template("simulation.html.j2").render(title=f"{name}: simulation", tests=pages)
+    return TEMPLATES.get_template("simulation.html.j2").render(title=f"{name}: simulation", tests=pages)
 
 
 def _extrapolation(test: PredictedTest) -> str:
@@ -229,9 +229,9 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
     columns = ["case", *swept, "status", "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
     body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
-    figures = _figures(folder / "figures", sorted(p.name for p in (folder / "figures").glob("*.png")), "")
+    figures = embedded_figures(folder / "figures", sorted(p.name for p in (folder / "figures").glob("*.png")), "")
     maps = _maps(name, rows, swept, metrics) if len(swept) == 2 else []
-    return _templates.get_template("study.html.j2").render(
+    return TEMPLATES.get_template("study.html.j2").render(
         title=f"{name}: study", head=head, body=body, figures=maps + figures, cases=len(rows), swept=swept
     )
 
@@ -252,7 +252,7 @@ def _maps(name: str, rows: list[dict], swept: list[str], metrics: list[tuple[str
         png = plots.map_png(
             [str(v) for v in axes[0]], [str(v) for v in axes[1]], grid, (swept[0], swept[1], label), f"{name}: {label}"
         )
-        out.append({"uri": _uri(png), "caption": f"{label} over the grid"})
+        out.append({"uri": data_uri(png), "caption": f"{label} over the grid"})
     return out
 
 
@@ -267,16 +267,16 @@ def _oknumber(row: dict, key: str) -> float:
 
 
 # --------------------------------------------------------------------------- pieces
-def _figures(folder: Path, names: list[str], caption: str) -> list[dict[str, str]]:
+def embedded_figures(folder: Path, names: list[str], caption: str) -> list[dict[str, str]]:
     """The named PNG files of `folder` that exist, as data URIs with a caption."""
     return [
-        {"uri": _uri((folder / n).read_bytes()), "caption": f"{caption}: {n}" if caption else n}
+        {"uri": data_uri((folder / n).read_bytes()), "caption": f"{caption}: {n}" if caption else n}
         for n in names
         if (folder / n).is_file()
     ]
 
 
-def _uri(png: bytes) -> str:
+def data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
 
 

@@ -1,0 +1,180 @@
+"""`crashnlp compare-results`: fits and simulations on one set of axes, with their bands.
+
+Two or more folders crashnlp wrote, fits (result.json) or simulations (simulation.json) in any
+mix, read through their loaders (crashnlp.folders): each test of each folder is one curve in its
+own colour, named by its problem, its test and its speed (a pickup predicted at 48, 56 and
+64 km/h; fit A against fit B of the same vehicle). A simulation's 95 % bands are shaded; a fit's
+folder holds none (its curve is the fit; `crashnlp simulate RESULT_DIR` gives its own tests'
+bands). Written into the output folder: a figure per quantity (QUANTITIES, and the barrier force
+against the crush), the crash metrics side by side (metrics.csv, with the intervals), and the
+page of both (compare.html, through the report's templates). Every folder is read before
+anything is written: a bad one is an InputError naming it, and nothing is written.
+"""
+
+from __future__ import annotations
+
+import csv
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from crashnlp.errors import InputError
+from crashnlp.files import atomic_open, check_writable
+from crashnlp.folders import folder_kind, read_result, read_simulation
+from crashnlp.outputs import OUTPUT, PREDICTED_ROWS, named_test
+from crashnlp.report import TEMPLATES, embedded_figures
+from crashnlp.response import Response
+
+PAGE = "compare.html"
+METRICS = "metrics.csv"
+QUANTITIES = ("accel", "velocity", "crush", "pitch")  # against time, one figure each
+FORCE_CRUSH = "force_crush.png"
+
+
+@dataclass(frozen=True)
+class Curve:
+    """One test of one folder as the comparison shows it: its legend, its response (SI), its 95 %
+    bands (output -> (low, high) SI; none for a fit), its crash metrics and their intervals."""
+
+    label: str
+    folder: Path
+    response: Response
+    bands: dict[str, tuple[np.ndarray, np.ndarray]]
+    metrics: dict[str, float | None]
+    intervals: dict[str, tuple[float, float] | None]
+
+
+def compare(folders: list[Path], out: Path) -> list[Curve]:
+    """The comparison of `folders` written into `out`; InputError, with nothing written, for fewer
+    than two folders, or one that is not a fit's or a simulation's."""
+    if len(folders) < 2:
+        raise InputError(f"compare-results: {len(folders)} folder given: give two or more (fits or simulations)")
+    out = check_writable(out)
+    curves = distinct([curve for folder in folders for curve in read_curves(folder)])
+    from crashnlp import plots  # matplotlib: only once every folder has read
+
+    for name in QUANTITIES:
+        plots.overlay_figure(out / f"{name}.png", *_over_time(name, curves))
+    plots.overlay_figure(out / FORCE_CRUSH, *_force_crush(curves))
+    write_metrics(out / METRICS, curves)
+    with atomic_open(out / PAGE) as fh:
+        fh.write(page(curves, out))
+    return curves
+
+
+def read_curves(folder: Path) -> list[Curve]:
+    """The curves of a fit's or a simulation's folder, one per test."""
+    kind = folder_kind(folder)
+    if kind == "study":
+        raise InputError(f"{folder}: a study's folder: compare fits or simulations (a study's report maps its cases)")
+    if kind == "result":
+        result = read_result(folder)
+        what = "fit" if result.kind == "identify" else result.kind
+        return [
+            Curve(_label(result.name, name, what, t.speed), folder, t.response, {}, t.metrics, {})
+            for name, t in result.tests.items()
+        ]
+    name, tests = read_simulation(folder)
+    return [
+        Curve(_label(name, t.name, "predicted", t.speed), folder, t.response, t.bands, t.metrics, t.intervals)
+        for t in tests.values()
+    ]
+
+
+def _label(name: str, test: str, what: str, speed: float) -> str:
+    return f"{named_test(name, test)}, {what} at {speed * 3.6:.1f} km/h"
+
+
+def distinct(curves: list[Curve]) -> list[Curve]:
+    """The curves, each label that two share told apart by its folder."""
+    labels = [c.label for c in curves]
+    return [replace(c, label=f"{c.label} ({c.folder})") if labels.count(c.label) > 1 else c for c in curves]
+
+
+Series = tuple[str, np.ndarray, np.ndarray, tuple[np.ndarray, np.ndarray] | None]  # label, x, y, band's outline
+
+
+def _outline(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The outline of the band from `low` to `high` over `x`, as a polygon (x, y)."""
+    return np.concatenate([x, x[::-1]]), np.concatenate([low, high[::-1]])
+
+
+def _over_time(name: str, curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
+    """One output against time for every curve, in its figure's unit: (title, x label, y label, series)."""
+    output = OUTPUT[name]
+    f = output.plot_factor
+    series: list[Series] = []
+    for c in curves:
+        t = c.response.time * 1e3
+        band = c.bands.get(name)
+        series.append((c.label, t, c.response[name] * f, None if band is None else _outline(t, band[0] * f, band[1] * f)))
+    return f"{output.label.split(' (')[0]} against time", "time (ms)", output.label, series
+
+
+def _force_crush(curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
+    """The barrier force against the crush for every curve (kN, mm), and while the crush grows
+    (to its max: a band that turns back would cover itself) the force's band along the crush,
+    else the crush's band across the force, whichever the prediction has."""
+    series: list[Series] = []
+    for c in curves:
+        crush, force = c.response["crush"] * 1e3, c.response["barrier_force"] * 1e-3
+        loading = slice(0, int(np.argmax(crush)) + 1)
+        band: tuple[np.ndarray, np.ndarray] | None = None
+        if "barrier_force" in c.bands:
+            low, high = (b[loading] * 1e-3 for b in c.bands["barrier_force"])
+            band = _outline(crush[loading], low, high)
+        elif "crush" in c.bands:
+            low, high = (b[loading] * 1e3 for b in c.bands["crush"])
+            band = _outline(force[loading], low, high)[::-1]
+        series.append((c.label, crush, force, band))
+    return "barrier force against crush", "crush (mm)", OUTPUT["barrier_force"].label, series
+
+
+def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
+    """The crash metrics side by side, as the console prints a prediction's: (head, rows), a cell
+    "value [low, high]" where the curve has a 95 % interval, "-" where it has no value."""
+    head = ["metric", *(c.label for c in curves)]
+    rows = []
+    for key, label, factor, unit, digits in PREDICTED_ROWS:
+        cells = []
+        for c in curves:
+            value, band = c.metrics.get(key), c.intervals.get(key)
+            text = "-" if value is None else f"{value * factor:.{digits}f}"
+            if value is not None and band is not None:
+                text += f" [{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
+            cells.append(text)
+        rows.append([f"{label} ({unit})", *cells])
+    return head, rows
+
+
+def write_metrics(path: Path, curves: list[Curve]) -> None:
+    """metrics.csv: a row per curve, its folder, then each metric in the console's unit with its
+    interval's ends (empty where there is none)."""
+    head = ["curve", "folder"]
+    for key, _, _, unit, _ in PREDICTED_ROWS:
+        name = f"{key.rsplit('_', 1)[0]}_{unit.replace('/', 'p')}"
+        head += [name, f"{name}_low", f"{name}_high"]
+    with atomic_open(path) as fh:
+        writer = csv.writer(fh)
+        writer.writerow(head)
+        for c in curves:
+            row = [c.label, str(c.folder)]
+            for key, _, factor, _, _ in PREDICTED_ROWS:
+                value, band = c.metrics.get(key), c.intervals.get(key)
+                row += [_number(value, factor), *(_number(end, factor) for end in (band or (None, None)))]
+            writer.writerow(row)
+
+
+def _number(value: float | None, factor: float) -> str:
+    return "" if value is None else f"{value * factor:.9g}"
+
+
+def page(curves: list[Curve], out: Path) -> str:
+    """compare.html: the folders, the metrics side by side and the figures written into `out`, embedded."""
+    head, rows = metric_table(curves)
+    names = [f"{name}.png" for name in QUANTITIES] + [FORCE_CRUSH]
+    figures = embedded_figures(out, names, "")
+    return TEMPLATES.get_template("compare.html.j2").render(
+        title=f"comparison of {len(curves)} curves", curves=curves, head=head, rows=rows, figures=figures
+    )

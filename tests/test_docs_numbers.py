@@ -1,0 +1,96 @@
+"""The README and the docs quote the shipped runs as results/docs-numbers.json says (written by
+`make docs-numbers`, scripts/docs_numbers.py), and never by hand: fast, no fit is run here."""
+
+from __future__ import annotations
+
+import importlib.util
+import re
+
+import pytest
+import yaml
+from builders import ROOT
+
+from crashnlp.problem import load_problem, problem_from_dict
+
+spec = importlib.util.spec_from_file_location("docs_numbers", ROOT / "scripts/docs_numbers.py")
+assert spec is not None and spec.loader is not None
+numbers = importlib.util.module_from_spec(spec)
+spec.loader.exec_module(numbers)
+
+QUOTED = numbers.load()
+PAGES = {str(p.relative_to(ROOT)): p for p in numbers.quoting()}
+
+
+@pytest.mark.parametrize("page", sorted(PAGES))
+def test_every_marked_block_and_number_is_the_runs(page):
+    assert numbers.drift(PAGES[page].read_text(), QUOTED) == []
+
+
+def test_the_pages_quote_every_block_and_number_the_runs_give():
+    text = "".join(p.read_text() for p in PAGES.values())
+    used = {m["key"] for m in numbers.BLOCK.finditer(text)} | {m["key"] for m in numbers.INLINE.finditer(text)}
+    assert used == set(QUOTED["blocks"]) | set(QUOTED["numbers"])
+
+
+def unmarked(text: str) -> str:
+    """`text` without its marked blocks and numbers: what was typed by hand."""
+    return numbers.INLINE.sub("", numbers.BLOCK.sub("", text))
+
+
+@pytest.mark.parametrize("page", sorted(PAGES))
+def test_no_quoted_number_is_typed_outside_a_marker(page):
+    typed = unmarked(PAGES[page].read_text())
+    for key, value in QUOTED["numbers"].items():
+        if len(re.sub(r"\D", "", value)) >= 4:  # "2.45" may be an input (a CG's height); "745.7" is the Camry's crush
+            assert not re.search(rf"(?<![\d.]){re.escape(value)}(?![\d])", typed), f"{key} = {value} typed by hand"
+
+
+def test_a_drifted_number_or_block_is_named_and_refresh_brings_it_back():
+    readme = PAGES["README.md"].read_text()
+    crush = QUOTED["numbers"]["camry.max_crush_mm"]
+    block = QUOTED["blocks"]["identify-nhtsa-10146-brief"]
+    stale = readme.replace(f"{crush}<!--n:camry.max_crush_mm-->", "745.8<!--n:camry.max_crush_mm-->")
+    stale = stale.replace(block, block.replace("11 iterations", "12 iterations"))
+    assert numbers.drift(stale, QUOTED) == [
+        "block identify-nhtsa-10146-brief: differs from the run",
+        f"camry.max_crush_mm: 745.8, the run gives {crush}",
+    ]
+    assert numbers.refresh(stale, QUOTED) == readme
+    assert numbers.drift("1.0<!--n:no.such-->", QUOTED) == ["no.such: no such number"]
+
+
+# what the README's example shows beyond the shipped pickup: more keys, as its text says
+SHOWN_BEYOND = ("constraints.bounds", "objective", "solver", "transcription", "reference", "tests.0.speed")
+
+
+def flat(value, path: str = "") -> dict[str, object]:
+    if isinstance(value, dict):
+        return {k: v for key, item in value.items() for k, v in flat(item, f"{path}.{key}" if path else key).items()}
+    if isinstance(value, list) and value and isinstance(value[0], dict):
+        return {k: v for i, item in enumerate(value) for k, v in flat(item, f"{path}.{i}").items()}
+    return {path: value}
+
+
+def test_the_readme_problem_is_the_shipped_pickup_with_more_keys_shown():
+    text = PAGES["README.md"].read_text()
+    example = yaml.safe_load(re.search(r"```yaml\n(.*?)```", text, re.DOTALL)[1])
+    shipped = load_problem(ROOT / "problems/pickup-56kph.yaml")
+    shown = problem_from_dict(example, base_dir=ROOT / "problems")
+    a, b = flat(shipped.model_dump()), flat(shown.model_dump())
+    differ = sorted(k for k in a.keys() | b.keys() if a.get(k) != b.get(k))
+    assert [k for k in differ if not k.startswith(SHOWN_BEYOND)] == []
+
+
+def test_the_docs_build_fails_on_a_drifted_page():
+    PluginError = pytest.importorskip("mkdocs.exceptions", reason="the docs extra (make docs)").PluginError
+    hooks = importlib.util.spec_from_file_location("hooks", ROOT / "docs/hooks.py")
+    assert hooks is not None and hooks.loader is not None
+    module = importlib.util.module_from_spec(hooks)
+    hooks.loader.exec_module(module)
+
+    class Page:  # what the hook reads of mkdocs' page
+        class file:
+            src_uri = "index.md"
+
+    with pytest.raises(PluginError, match=r"index.md: camry.stop_ms: 1.0, the run gives .*: run make docs-numbers"):
+        module.on_page_markdown("stop 1.0<!--n:camry.stop_ms--> ms", Page, None, None)
