@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test fuzz lint docs identify simulate study design bench readme-figures clean
+.PHONY: demo test fuzz lint docs identify simulate study design bench calibrate readme-figures clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -37,6 +37,11 @@ study: $(STAMP)
 
 bench: $(STAMP)
 	$(BIN)/python bench/run.py
+
+# the intervals' out-of-sample form term: crashnlp/calibration.json from held-out predictions of a
+# corpus of two generator forms (bench/calibration.py), and the intervals section of results/bench.*
+calibrate: $(STAMP)
+	$(BIN)/python bench/calibration.py
 
 readme-figures: demo identify study
 	$(BIN)/python scripts/readme_figures.py

@@ -33,13 +33,15 @@ INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebo
 @dataclass(frozen=True)
 class IdentifiedRange:
     """What the fitted tests covered: the largest measured crush (CG travel), the speeds and
-    masses of the tests, and the largest front-end crush the model went through in them, how far
-    the data determine its loading curve (SI). A prediction beyond it extrapolates."""
+    masses of the tests, the largest front-end crush the model went through in them, how far
+    the data determine its loading curve, and each test's impact energy, m v^2 / 2 (SI; none in
+    a result written before they were kept). A prediction beyond it extrapolates."""
 
     max_crush: float
     speeds: tuple[float, float]
     masses: tuple[float, float]
     model_crush: float
+    energies: tuple[float, ...] = ()
 
     def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
         """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
@@ -60,11 +62,14 @@ class IdentifiedRange:
             "speeds_mps": list(self.speeds),
             "masses_kg": list(self.masses),
             "model_crush_m": self.model_crush,
+            "energies_j": list(self.energies),
         }
 
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
-        return cls(float(raw["max_crush_m"]), _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), float(raw["model_crush_m"]))
+        energies = tuple(float(e) for e in raw.get("energies_j", ()))
+        crush, model_crush = float(raw["max_crush_m"]), float(raw["model_crush_m"])
+        return cls(crush, _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), model_crush, energies)
 
 
 def _pair(values: Any) -> tuple[float, float]:

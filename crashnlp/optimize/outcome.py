@@ -85,7 +85,13 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         labels=tuple(free.labels()),
         covariance=None if cov is None else cov.matrix,
         bounds=tuple(zip(free.lower.tolist(), free.upper.tolist())),
-        range=IdentifiedRange(measured, _span([t.speed for t in case.tests]), _span(masses), reach),
+        range=IdentifiedRange(
+            measured,
+            _span([t.speed for t in case.tests]),
+            _span(masses),
+            reach,
+            tuple(0.5 * m * t.speed**2 for m, t in zip(masses, case.tests)),
+        ),
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
     )
