@@ -87,11 +87,10 @@ METRIC_CHANNEL = {
 @dataclass(frozen=True)
 class PredictedTest(Mapping[str, np.ndarray]):
     """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.outputs
-    names them), its crash metrics, and with an identified model their 95 % intervals, each
-    metric's interval parts (also where its form term is not calibrated) and the calibrated q of
-    the form terms, the
-    response bands (output name -> (low, high)), how far it lies past the identified range, and
-    the calibration its form terms came from (crashnlp.calibration.Calibration.named)."""
+    names them), its crash metrics, and with an identified model their 95 % intervals, the
+    response bands (output name -> (low, high)), how far it lies past the identified range, each
+    metric's interval parts (also where its form term is not calibrated), the calibrated q of each
+    form term, and the calibration they came from (crashnlp.calibration.Calibration.named)."""
 
     name: str
     speed: float
@@ -262,7 +261,7 @@ def _bands(
     v0 = float(response["velocity"][0])
     for name, key in BAND_METRIC.items():
         part = parts.get(key)
-        if part is None or key not in qs or name not in response.outputs:
+        if part is None or key not in qs:
             continue
         y = response[name]
         g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
