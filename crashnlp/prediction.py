@@ -74,6 +74,13 @@ BAND_METRIC = {
     "barrier_force": "peak_decel_g",
     "pitch": "max_pitch_deg",
 }
+# metric -> the response column it is the extreme of, and the extreme's sign (max: +1, min: -1)
+INSTANT = {
+    "max_crush_m": ("displacement", 1.0),
+    "peak_decel_g": ("accel", -1.0),
+    "rebound_velocity_mps": ("velocity", -1.0),
+    "max_pitch_deg": ("pitch", 1.0),
+}
 # the fitted channel each metric is read from (its report unit is the metric's)
 METRIC_CHANNEL = {
     "max_crush_m": "displacement",
@@ -221,7 +228,7 @@ def _uncertainty(
             continue
         parts[key] = IntervalParts(
             value,
-            Z95 * float(np.sqrt(gm[:, i] @ cov @ gm[:, i])),
+            _parameter_half(key, gm[:, i], gy, cov, response),
             Z95 * float(np.hypot(miss * value, _curve_miss(identified, key))),
             past.get(key, 0.0),
             scale(key, value, test.speed) * distance,
@@ -233,6 +240,18 @@ def _uncertainty(
         intervals[key] = parts[key].interval(q)
     notes += _dominated(test.name, parts, qs)
     return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+
+
+def _parameter_half(key: str, gm: np.ndarray, gy: dict[str, np.ndarray], cov: np.ndarray, response: Response) -> float:
+    """The parameters' 95 % half-width of a metric: from its own sensitivities, or from its curve's
+    at the metric's instant where that is wider (a central difference of an extreme moves its
+    instant), so that the band there lies within the interval."""
+    var = float(gm @ cov @ gm)
+    column, sign = INSTANT.get(key, ("", 0.0))
+    if column in gy:
+        g = gy[column][:, int(np.argmax(sign * response[column]))] * OUTPUT[column].factor
+        var = max(var, float(g @ cov @ g))
+    return Z95 * float(np.sqrt(var))
 
 
 def _dominated(name: str, parts: dict[str, IntervalParts], qs: dict[str, float]) -> list[str]:
