@@ -77,3 +77,17 @@ def test_the_shipped_table_calibrates_every_metric_of_every_class_and_names_its_
     named = cal.named()
     assert named["file"] == "crashnlp/calibration.json" and named["version"] >= 1 and named["corpus"]["seed"]
     assert Calibration.from_json(cal.to_json()) == cal
+
+
+def test_the_fitted_miss_leaves_out_a_test_where_model_or_data_do_not_reach_the_metric():
+    """A fitted test whose model does not stop in its record has no stop time (NaN): its miss is left
+    out of the discrepancy, which the prediction's interval is built on, rather than making it NaN."""
+    from types import SimpleNamespace
+
+    from crashnlp.optimize.outcome import _discrepancy
+
+    tests = {
+        "a": SimpleNamespace(metrics={"time_zero_velocity_s": 0.066}, data_metrics={"time_zero_velocity_s": 0.060}),
+        "b": SimpleNamespace(metrics={"time_zero_velocity_s": math.nan}, data_metrics={"time_zero_velocity_s": 0.070}),
+    }
+    assert _discrepancy(tests)["time_zero_velocity_s"] == pytest.approx(0.1)
