@@ -10,9 +10,9 @@ problem files, as a user would, at 56 km/h alone and at 40 + 56 km/h, and each f
 speeds it was not fitted at (SCENARIOS). A prediction's interval parts
 (crashnlp.calibration.IntervalParts) and the generator's noise-free metrics make one record per
 metric. The corpus of one seed (SET_SEED) sets the table: per class of prediction and metric,
-the split-conformal 95 % quantile of the records' scores; the corpus of another (CHECK_SEED),
+the split-conformal quantile (LEVEL) of the records' scores; the corpus of another (CHECK_SEED),
 which the table never saw, checks it: coverage, median half-width and accuracy per scenario and
-metric, and per form.
+metric, and per form; and so does a population of another form (HIDDEN, HIDDEN_SEED).
 """
 
 from __future__ import annotations
