@@ -5,7 +5,7 @@ BIN     := $(VENV)/bin
 STAMP   := $(VENV)/.installed
 CLI     := $(BIN)/crashnlp
 
-.PHONY: demo test fuzz lint docs docs-numbers identify simulate study design bench readme-figures report-check clean
+.PHONY: demo test fuzz lint docs docs-numbers identify simulate study design bench calibrate readme-figures report-check clean
 
 $(STAMP): pyproject.toml
 	$(PY) -m venv $(VENV)
@@ -43,6 +43,11 @@ bench: $(STAMP)
 # rewritten from it (scripts/docs_numbers.py); tests/test_docs_numbers.py and make docs hold the pages to it
 docs-numbers: $(STAMP)
 	$(BIN)/python scripts/docs_numbers.py
+
+# the intervals' out-of-sample form term: crashnlp/calibration.json from held-out predictions of a
+# corpus of two generator forms (bench/calibration.py), and the intervals section of results/bench.*
+calibrate: $(STAMP)
+	$(BIN)/python bench/calibration.py
 
 readme-figures: demo identify study
 	$(BIN)/python scripts/readme_figures.py

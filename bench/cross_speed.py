@@ -121,12 +121,15 @@ def prediction_problem(fit_path: Path, kmh: float, folder: Path) -> crashnlp.Pro
 
 
 def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
+    """The generator's noise-free crash metrics at `kmh`, under the keys predictions report them."""
     truth = simulate(at_speed(v, kmh))
     m = crash_metrics(truth["time"], truth["accel"], truth["velocity"], truth["displacement"])
     return {
         "max_crush_m": m.max_crush,
         "peak_decel_g": m.peak_decel / G0,
         "time_zero_velocity_s": m.t_zero_velocity,
+        "rebound_velocity_mps": m.rebound_velocity,
+        "olc_g": m.olc / G0,
         "max_pitch_deg": float(np.degrees(np.max(truth["pitch"]))),
     }
 

@@ -6,7 +6,7 @@ import json
 import statistics
 from pathlib import Path
 
-from bench import convergence
+from bench import calibration, convergence
 
 
 def _met(ok: bool | None) -> str:
@@ -101,6 +101,7 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
             )
         )
     rows += cross_speed_targets(results.get("cross_speed"))
+    rows += calibration.targets(results.get("intervals"))
     if "convergence" in results:
         rows += convergence_targets(convergence.summary(results))
     wp = results.get("whole_process")
@@ -741,6 +742,7 @@ SECTIONS = {
     "corpus": corpus_md,
     "self_consistency": self_consistency_md,
     "cross_speed": cross_speed_md,
+    "intervals": calibration.markdown,
     "whole_process": whole_process_md,
 }
 

@@ -16,6 +16,7 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import (  # noqa: E402
+    calibration,
     convergence,
     cross_speed,
     identification,
@@ -38,6 +39,7 @@ SECTIONS = {
     "corpus": robustness,
     "self_consistency": self_consistency,
     "cross_speed": cross_speed,
+    "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
     "convergence": convergence,  # reads the corpus, scaling and studies sections' fits: bench/report.py
 }

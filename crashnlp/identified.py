@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.special import ndtri
 
 from crashnlp.errors import InputError
 from crashnlp.problem.load import problem_from_dict, read_yaml
@@ -32,19 +33,21 @@ STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rat
 SAME = 1e-9  # relative: values closer than this are the same
 # the crash metrics a prediction gives 95 % intervals for (result.json's metric keys)
 INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "olc_g", "max_pitch_deg")
-Z95 = 1.959964  # two-sided 95 % quantile of the normal distribution
+Z95 = float(ndtri(0.975))  # two-sided 95 % quantile of the normal distribution
 
 
 @dataclass(frozen=True)
 class IdentifiedRange:
     """What the fitted tests covered: the largest measured crush (CG travel), the speeds and
-    masses of the tests, and the largest front-end crush the model went through in them, how far
-    the data determine its loading curve (SI). A prediction beyond it extrapolates."""
+    masses of the tests, the largest front-end crush the model went through in them, how far
+    the data determine its loading curve, and each test's impact energy, m v^2 / 2 (SI; none in
+    a result written before they were kept). A prediction beyond it extrapolates."""
 
     max_crush: float
     speeds: tuple[float, float]
     masses: tuple[float, float]
     model_crush: float
+    energies: tuple[float, ...] = ()
 
     def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
         """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
@@ -65,11 +68,14 @@ class IdentifiedRange:
             "speeds_mps": list(self.speeds),
             "masses_kg": list(self.masses),
             "model_crush_m": self.model_crush,
+            "energies_j": list(self.energies),
         }
 
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
-        return cls(float(raw["max_crush_m"]), _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), float(raw["model_crush_m"]))
+        energies = tuple(float(e) for e in raw.get("energies_j", ()))
+        crush, model_crush = float(raw["max_crush_m"]), float(raw["model_crush_m"])
+        return cls(crush, _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), model_crush, energies)
 
 
 def _pair(values: Any) -> tuple[float, float]:

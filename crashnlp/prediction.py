@@ -1,25 +1,34 @@
 """Predictions: an identified vehicle simulated at new speeds, masses or durations, with 95 % intervals.
 
-The intervals propagate three sources of error to every crash metric and response curve:
+Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.calibration.IntervalParts):
 
 - the parameters: their covariance (the fit's sandwich, with the smoothness prior as the
   information it adds) pushed through the output's sensitivities, taken as central
   differences of the forward simulation over one standard error each way (one-sided at a
   bound), so a metric that bends within that span is not linearised at a point;
-- the model's form: on the fitted tests, the model missed each metric of the data by some
-  relative amount, root mean square over the tests, scaled to the predicted value; and the
-  curve the metric is read from by its RMSE. The fit tunes the metrics it was fitted at (two
-  peaks, two crushes), so their miss there understates the miss at another speed, where the
-  metric falls on another part of the curve; the curve's RMSE is how far the model's form is
-  from the data at any instant. Both are added in quadrature; each channel's band adds its RMSE;
+- the model's form: its miss on the fitted tests (each metric's relative miss, root mean square
+  over the tests, scaled to the predicted value, and the RMSE of the curve the metric is read
+  from), and the out-of-sample term calibrated on held-out predictions of a corpus of vehicles
+  of two generator forms (crashnlp.calibration): the fit tunes the metrics of the tests it was
+  fitted at, so their miss there understates the miss at another speed or mass. The calibrated
+  term grows with the distance in impact energy from the nearest fitted test, and is zero at a
+  fitted test's own;
 - the force past the crush the model reached in the fitted tests, which no test measured: the
   identified loading curve follows its trend there (crashnlp.model.tail), and how well that
   rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
   the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
-  the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes)
-  and the peak deceleration (where the peak lies past the reach); and since the force there
-  may rise above the peak predicted inside the reach, the peak's interval reaches up to what
-  the tail's force may be, 95 %, at the deepest crush.
+  the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes),
+  the stop with it, and the peak deceleration where the peak lies past the reach. A peak the
+  force past the reach raises beyond the predicted one is the calibrated form term's to cover.
+
+Each interval reports its parts, and the dominant one; an interval the force past the reach
+dominates says so in a note. The response bands are pointwise 95 %: at each instant the
+parameters' half-width of the curve, and the non-parameter half-width of the metric read from
+that curve (the peak deceleration for the acceleration and the barrier force, the max crush for
+displacement and crush, the rebound for the velocity, the max pitch for the pitch) in proportion
+to how far the curve has moved from what the model knows exactly (zero force, the initial
+state): so the band at a metric's instant is that metric's interval, and there is no band after
+the vehicle has left the barrier or at t = 0.
 
 A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
 interval, nor does anything when an estimated value is not determined by the data: the
@@ -39,7 +48,9 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from scipy.stats import t as student
 
+from crashnlp.calibration import Calibration, IntervalParts, reach, scale, shipped
 from crashnlp.case import Case, TestCase
 from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
@@ -57,22 +68,22 @@ if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
 DRIFT = 0.05  # m/s toward the barrier at the end of a record, without contact: not a stop
-# two-sided 95 % quantiles of Student's t for 1 to 30 degrees of freedom
-T95 = (
-    *(12.706, 4.303, 3.182, 2.776, 2.571, 2.447, 2.365, 2.306, 2.262, 2.228, 2.201, 2.179, 2.160, 2.145, 2.131),
-    *(2.120, 2.110, 2.101, 2.093, 2.086, 2.080, 2.074, 2.069, 2.064, 2.060, 2.056, 2.052, 2.048, 2.045, 2.042),
-)
-# response columns and the fitted channel whose RMSE measures the model's miss of them
-BAND_CHANNEL = {
-    "displacement": "displacement",
-    "velocity": "velocity",
-    "accel": "accel",
-    "pitch": "pitch",
-    "crush": "displacement",
-    "barrier_force": "barrier_force",
+# response columns and the metric whose non-parameter half-width their band carries
+BAND_METRIC = {
+    "displacement": "max_crush_m",
+    "crush": "max_crush_m",
+    "velocity": "rebound_velocity_mps",
+    "accel": "peak_decel_g",
+    "barrier_force": "peak_decel_g",
+    "pitch": "max_pitch_deg",
 }
-
-
+# metric -> the response column it is the extreme of, and the extreme's sign (max: +1, min: -1)
+INSTANT = {
+    "max_crush_m": ("displacement", 1.0),
+    "peak_decel_g": ("accel", -1.0),
+    "rebound_velocity_mps": ("velocity", -1.0),
+    "max_pitch_deg": ("pitch", 1.0),
+}
 # the fitted channel each metric is read from (its report unit is the metric's)
 METRIC_CHANNEL = {
     "max_crush_m": "displacement",
@@ -87,7 +98,9 @@ METRIC_CHANNEL = {
 class PredictedTest(Mapping[str, np.ndarray]):
     """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.outputs
     names them), its crash metrics, and with an identified model their 95 % intervals, the
-    response bands (output name -> (low, high)) and how far it lies past the identified range.
+    response bands (output name -> (low, high)), how far it lies past the identified range, each
+    metric's interval parts (also where its form term is not calibrated), the calibrated q of each
+    form term, and the calibration they came from (crashnlp.calibration.Calibration.named).
     `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
     conditions they were recorded at; empty otherwise, with a note saying why."""
 
@@ -101,6 +114,9 @@ class PredictedTest(Mapping[str, np.ndarray]):
     extrapolation: dict[str, float] = field(default_factory=dict)
     notes: tuple[str, ...] = ()
     data: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    parts: dict[str, IntervalParts] = field(default_factory=dict)
+    form_q: dict[str, float] = field(default_factory=dict)
+    calibration: dict[str, Any] = field(default_factory=dict)
 
     @cached_property
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -116,6 +132,14 @@ class PredictedTest(Mapping[str, np.ndarray]):
     def __len__(self) -> int:
         return len(self._arrays)
 
+    def shares(self) -> dict[str, dict[str, float | str]]:
+        """Per metric with an interval: each part's 95 % half-width, and which part dominates."""
+        out: dict[str, dict[str, float | str]] = {}
+        for key, q in self.form_q.items():
+            shares = self.parts[key].shares(q)
+            out[key] = {**shares, "dominant": max(shares, key=lambda k: shares[k])}
+        return out
+
 
 def own_tests(result: Result, source: str) -> Problem:
     """The problem a result's own tests make, with its identified vehicle (crashnlp.identified):
@@ -130,11 +154,14 @@ def own_tests(result: Result, source: str) -> Problem:
     return applied({"name": result.name, "tests": tests}, Path("."), result.identified, source, source)
 
 
-def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | None = None) -> dict[str, PredictedTest]:
+def predict(
+    case: Case, identified: IdentifiedModel | None = None, dt: float | None = None, calibration: Calibration | None = None
+) -> dict[str, PredictedTest]:
     """Every test of `case` simulated (`case` built from a problem the identified model was
-    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too.
-    A test's data come with it only where it runs at the speed, mass and duration they were
-    recorded at (TestCase.other_conditions); otherwise a note says which test and why."""
+    applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too,
+    their form terms from `calibration` (the shipped one by default). A test's data come with it
+    only where it runs at the speed, mass and duration they were recorded at
+    (TestCase.other_conditions); otherwise a note says which test and why."""
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)
@@ -148,10 +175,23 @@ def predict(case: Case, identified: IdentifiedModel | None = None, dt: float | N
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
-        intervals, bands, notes = _uncertainty(case, test, p, mass, response, metrics, identified, dt)
+        chosen = calibration or shipped()
+        u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
-            test.name, test.speed, mass, response, metrics, intervals, bands, beyond, first + drift + notes, data
+            test.name,
+            test.speed,
+            mass,
+            response,
+            metrics,
+            u.intervals,
+            u.bands,
+            beyond,
+            first + drift + u.notes,
+            data,
+            u.parts,
+            u.q,
+            chosen.named(),
         )
     return out
 
@@ -169,6 +209,17 @@ def _drift(name: str, response: Response) -> tuple[str, ...]:
     )
 
 
+@dataclass(frozen=True)
+class Uncertainty:
+    """A predicted test's intervals, their parts and form q, its bands and notes."""
+
+    intervals: dict[str, tuple[float, float] | None]
+    parts: dict[str, IntervalParts] = field(default_factory=dict)
+    q: dict[str, float] = field(default_factory=dict)
+    bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
 def _uncertainty(
     case: Case,
     test: TestCase,
@@ -178,38 +229,92 @@ def _uncertainty(
     metrics: dict[str, float | None],
     identified: IdentifiedModel,
     dt: float | None,
-) -> tuple[dict[str, tuple[float, float] | None], dict[str, tuple[np.ndarray, np.ndarray]], tuple[str, ...]]:
+    calibration: Calibration,
+) -> Uncertainty:
     """95 % intervals of the metrics and bands of the response columns (module docstring)."""
     std = identified.std()
     undetermined = [label for label, s in zip(identified.labels, std) if not np.isfinite(s)]
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
-        return {k: None for k in INTERVAL_METRICS}, {}, (note,)
+        return Uncertainty({k: None for k in INTERVAL_METRICS}, notes=(note,))
     gm, gy = _sensitivities(case, test, p, identified, std, dt)
     cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
+    past = past_the_reach(case, p, response, identified, mass, metrics)
+    klass, distance = reach(identified.range, test.speed, mass)
     intervals: dict[str, tuple[float, float] | None] = {}
-    notes = []
-    past = past_the_reach(case, p, response, identified, mass)
+    parts, qs, notes = {}, {}, []
     for i, key in enumerate(INTERVAL_METRICS):
         value, miss = metrics.get(key), identified.discrepancy.get(key)
-        if value is None or not np.isfinite(value) or miss is None:
-            intervals[key] = None
+        q = calibration.q(klass, key) if distance > 0 else 0.0
+        intervals[key] = None
+        if miss is None or value is None or not np.isfinite(value):
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue
-        form = (miss * value) ** 2 + _curve_miss(identified, key) ** 2
-        half = Z95 * np.sqrt(gm[:, i] @ cov @ gm[:, i] + form + past.std.get(key, 0.0) ** 2)
-        high = max(value + half, past.peak_ceiling or 0.0) if key == "peak_decel_g" else value + half
-        intervals[key] = (float(value - half), float(high))
-    bands = {}
-    for name, channel in BAND_CHANNEL.items():
-        rmse = identified.channel_rmse.get(channel)
-        if rmse is None:
+        parts[key] = IntervalParts(
+            value,
+            _parameter_half(key, gm[:, i], gy, cov, response),
+            Z95 * float(np.hypot(miss * value, _curve_miss(identified, key))),
+            past.get(key, 0.0),
+            scale(key, value, test.speed) * distance,
+        )
+        if q is None or not np.isfinite(q):
+            notes.append(f"{test.name}: no interval for {key}: its form term is not calibrated for a prediction of class {klass}")
             continue
-        g = gy.get(name, np.zeros((len(std), response.time.size)))  # values x times
-        half = Z95 * np.sqrt(np.einsum("it,ij,jt->t", g, cov, g) + rmse**2)
-        bands[name] = (response[name] - half, response[name] + half)
-    return intervals, bands, tuple(notes)
+        qs[key] = q
+        intervals[key] = parts[key].interval(q)
+    notes += _dominated(test.name, parts, qs)
+    return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+
+
+def _parameter_half(key: str, gm: np.ndarray, gy: dict[str, np.ndarray], cov: np.ndarray, response: Response) -> float:
+    """The parameters' 95 % half-width of a metric: from its own sensitivities, or from its curve's
+    at the metric's instant where that is wider (a central difference of an extreme moves its
+    instant), so that the band there lies within the interval."""
+    var = float(gm @ cov @ gm)
+    column, sign = INSTANT.get(key, ("", 0.0))
+    if column in gy:
+        g = gy[column][:, int(np.argmax(sign * response[column]))] * OUTPUT[column].factor
+        var = max(var, float(g @ cov @ g))
+    return Z95 * float(np.sqrt(var))
+
+
+def _dominated(name: str, parts: dict[str, IntervalParts], qs: dict[str, float]) -> list[str]:
+    """A note for each interval that the force past the reach dominates."""
+    notes = []
+    for key, q in qs.items():
+        shares = parts[key].shares(q)
+        if shares["past_the_reach"] > max(shares["parameters"], shares["form"]):
+            notes.append(
+                f"{name}: {key}'s interval is mostly the force past the crush the fitted tests reached (no test measured it)"
+            )
+    return notes
+
+
+def _bands(
+    response: Response,
+    gy: dict[str, np.ndarray],
+    cov: np.ndarray,
+    parts: dict[str, IntervalParts],
+    qs: dict[str, float],
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Pointwise 95 % bands: the parameters' half-width of the curve at each instant, and its
+    metric's non-parameter half-width in proportion to how far the curve has moved from what
+    the model knows exactly (zero, or for the velocity the impact speed)."""
+    bands = {}
+    v0 = float(response["velocity"][0])
+    for name, key in BAND_METRIC.items():
+        part = parts.get(key)
+        if part is None or key not in qs:
+            continue
+        y = response[name]
+        g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
+        moved = np.abs(v0 - y) if name == "velocity" else np.abs(y)
+        reference = v0 + part.value if name == "velocity" else abs(part.value)
+        rest = np.hypot(part.form(qs[key]), part.past_the_reach) / reference if reference > 0 else 0.0
+        half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + (rest * moved) ** 2)
+        bands[name] = (y - half, y + half)
+    return bands
 
 
 def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
@@ -220,46 +325,38 @@ def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
     return 0.0 if rmse is None or channel is None else rmse * OUTPUT[channel].factor
 
 
-@dataclass(frozen=True)
-class PastTheReach:
-    """What the force past the model's reach in the fitted tests adds to a prediction: one
-    standard error of max crush (m) and peak deceleration (g), widened to Student's t for the few
-    misses it is measured from, and the deceleration (g) the tail's force may reach at the
-    deepest crush, 95 % (a faster impact's peak may lie there though the predicted one lies
-    inside the reach)."""
+def past_the_reach(
+    case: Case, p: np.ndarray, response: Response, identified: IdentifiedModel, mass: float, metrics: dict[str, float | None]
+) -> dict[str, float]:
+    """The 95 % half-widths the force past the model's reach in the fitted tests adds to max crush
+    (m), time of zero velocity (s) and peak deceleration (g); nothing inside the reach.
 
-    std: dict[str, float] = field(default_factory=dict)
-    peak_ceiling: float | None = None
-
-
-def past_the_reach(case: Case, p: np.ndarray, response: Response, identified: IdentifiedModel, mass: float) -> PastTheReach:
-    """The force past the reach is the trend rule's guess: its miss per breakpoint spacing
-    (crashnlp.model.tail.trend_misses), times the distance d past the reach, is the force's
-    standard error there; the crush moves by the energy that error adds over d, the peak by the
-    error where the peak lies. Nothing inside the reach."""
-    crush, reach = response["crush"], identified.range.model_crush
+    The force there is the trend rule's guess: its miss per breakpoint spacing
+    (crashnlp.model.tail.trend_misses), with Student's t for the few misses it is measured from,
+    times the distance d past the reach, is the force's error there. The crush moves by the
+    energy that error adds over d, the stop in proportion to the crush (the mean speed to the stop
+    unchanged), and the peak by the error where the peak lies, if past the reach."""
+    crush, reach_m = response["crush"], identified.range.model_crush
     deepest = float(np.max(crush))
-    beyond = deepest - reach
+    beyond = deepest - reach_m
     if beyond <= 0:
-        return PastTheReach()
+        return {}
     curve = case.loading_curve(p)
     breakpoints = np.asarray(identified.model["spring"]["crush_breakpoints"], float)
-    misses = trend_misses(curve, breakpoints, reach)
+    misses = trend_misses(curve, breakpoints, reach_m)
     if misses.size == 0:
-        return PastTheReach()
-    quantile = student_t95(misses.size)  # a root mean square of few misses: Student's t, not the normal's 1.96
-    rate = float(np.sqrt(np.mean(misses**2))) * quantile / Z95 / spacing(breakpoints)  # N of force error per m past the reach
+        return {}
+    quantile = float(student.ppf(0.975, misses.size))  # a root mean square of few misses: Student's t
+    rate = float(np.sqrt(np.mean(misses**2))) * quantile / spacing(breakpoints)  # N of force error per m past the reach, 95 %
     at_deepest = max(float(curve(np.array([deepest]))[0]), 1.0)
-    std = {"max_crush_m": rate * beyond**2 / 2 / at_deepest}
+    half = {"max_crush_m": rate * beyond**2 / 2 / at_deepest}
+    stop, max_crush = metrics.get("time_zero_velocity_s"), metrics.get("max_crush_m")
+    if stop is not None and np.isfinite(stop) and max_crush:
+        half["time_zero_velocity_s"] = stop * half["max_crush_m"] / max_crush
     peak = int(np.argmax(-response["accel"]))
-    if crush[peak] > reach:
-        std["peak_decel_g"] = rate * (crush[peak] - reach) / mass / G0
-    return PastTheReach(std, (at_deepest + Z95 * rate * beyond) / mass / G0)
-
-
-def student_t95(dof: int) -> float:
-    """The two-sided 95 % quantile of Student's t with `dof` degrees of freedom (the normal's past 30)."""
-    return T95[dof - 1] if dof <= len(T95) else Z95
+    if crush[peak] > reach_m:
+        half["peak_decel_g"] = rate * (crush[peak] - reach_m) / mass / G0
+    return half
 
 
 def _sensitivities(
@@ -279,7 +376,7 @@ def _sensitivities(
         r_up, r_down = (case.simulate_test(test, _with(p, k, value), dt) for value in (up, down))
         m_up, m_down = response_metrics(r_up), response_metrics(r_down)
         gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in INTERVAL_METRICS]
-        for name in BAND_CHANNEL:
+        for name in BAND_METRIC:
             gy.setdefault(name, np.zeros((len(identified.labels), r_up.time.size)))[j] = (r_up[name] - r_down[name]) / (up - down)
     return gm, gy
 
@@ -323,7 +420,9 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
             entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
             if test.intervals:
                 entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+                entry["interval_parts"] = test.shares()
                 entry["extrapolation"] = test.extrapolation
+                summary["calibration"] = test.calibration
             if test.notes:
                 entry["notes"] = list(test.notes)
             summary["tests"][test.name] = entry

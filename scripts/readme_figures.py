@@ -3,6 +3,7 @@
 The crush-space figure is drawn here: best peak deceleration of the design study
 against the crush space, beside the square-wave floor v0^2 / (2 C).
 """
+
 from __future__ import annotations
 
 import csv

@@ -11,11 +11,14 @@ import pytest
 import yaml
 
 import crashnlp
-from bench.corpus import PICKUP, measured, random_vehicle, simulate, write_csv
-from bench.cross_speed import Family, judge, within_targets
+from bench.calibration import CHECK_SEED, FORMS, SCENARIOS, held_out, judged
+from bench.corpus import PICKUP, engine_vehicle, measured, random_vehicle, simulate, write_csv
+from bench.cross_speed import Family, fit_problem, judge, prediction_problem, within_targets
 from bench.robustness import minimal_problem
+from crashnlp.calibration import shipped
 from crashnlp.cli import main
 from crashnlp.errors import InputError
+from crashnlp.identified import INTERVAL_METRICS
 from crashnlp.metrics import crash_metrics
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
@@ -400,3 +403,80 @@ def test_a_bad_tail_is_refused_in_one_line_naming_its_key(tail, detail):
     message = str(err.value)
     accepts = "bad.yaml: model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}"
     assert message.startswith(accepts + detail) and "\n" not in message
+
+
+@pytest.fixture(scope="module")
+def engine_fit(tmp_path_factory):
+    """A vehicle of the second generator form (an engine on mounts that meets the barrier late),
+    from the calibration's check seed, fitted at 56 km/h from a minimal problem file."""
+    folder = tmp_path_factory.mktemp("engine")
+    v = engine_vehicle(1, CHECK_SEED, speed=64 / 3.6)
+    path = fit_problem(v, (56.0,), folder, SMALL)
+    result = crashnlp.identify(path)
+    assert result.ok
+    return folder, path, result
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("kmh", [40.0, 64.0])
+def test_bands_are_pointwise_95_and_at_a_metric_s_instant_its_interval(engine_fit, kmh):
+    folder, path, result = engine_fit
+    test = crashnlp.simulate(prediction_problem(path, kmh, folder), params=result)[f"{kmh:.0f}kph"]
+    r, bands = test.response, test.bands
+    width = {name: high - low for name, (low, high) in bands.items()}
+    # where the model's quantity is exact there is no band: the initial state, and the barrier
+    # force once every simulation the band is taken from has left the barrier
+    for name in ("displacement", "crush", "pitch"):
+        assert width[name][0] == pytest.approx(0.0, abs=1e-12), name
+    assert r["contact_force"][-1] == 0.0 and width["barrier_force"][-1] == 0.0
+    # the band at a metric's instant lies within that metric's interval
+    instants = {
+        "max_crush_m": ("displacement", int(np.argmax(r["displacement"])), 1.0),
+        "peak_decel_g": ("accel", int(np.argmax(-r["accel"])), -1 / G0),
+        "rebound_velocity_mps": ("velocity", int(np.argmin(r["velocity"])), -1.0),
+        "max_pitch_deg": ("pitch", int(np.argmax(r["pitch"])), np.degrees(1.0)),
+    }
+    for metric, (name, i, factor) in instants.items():
+        low, high = test.intervals[metric]
+        ends = sorted(factor * band[i] for band in bands[name])
+        slack = 1e-3 * (high - low)
+        assert low - slack <= ends[0] and ends[1] <= high + slack, (metric, ends, (low, high))
+
+
+@pytest.mark.integration
+def test_an_extrapolated_interval_names_its_parts_and_the_force_past_the_reach_when_it_dominates(engine_fit):
+    folder, path, result = engine_fit
+    test = crashnlp.simulate(prediction_problem(path, 64.0, folder), params=result)["64kph"]
+    shares = test.shares()
+    assert set(shares) == set(INTERVAL_METRICS)
+    for metric, part in shares.items():
+        assert {"parameters", "form", "past_the_reach", "dominant"} <= set(part)
+        low, high = test.intervals[metric]
+        # the parts add in quadrature to the interval's half-width
+        half = np.sqrt(sum(part[k] ** 2 for k in ("parameters", "form", "past_the_reach")))
+        assert (high - low) / 2 == pytest.approx(half, rel=1e-9)
+    assert shares["max_crush_m"]["past_the_reach"] > 0 and test.extrapolation["crush_m"] > 0
+    for metric, part in shares.items():
+        said = any(f"{metric}'s interval is mostly the force past the crush" in n for n in test.notes)
+        assert said == (part["dominant"] == "past_the_reach"), metric
+    inside = crashnlp.simulate(prediction_problem(path, 56.0, folder), params=result)["56kph"]
+    # at the fitted test's own speed the calibrated form term is zero: the fit's own miss remains
+    assert all(p.unit == 0.0 for p in inside.parts.values())
+
+
+@pytest.mark.integration
+@pytest.mark.slow
+def test_the_shipped_intervals_hold_held_out_predictions_of_both_generator_forms(tmp_path):
+    """The benchmark of the intervals, small: a vehicle of each form of the unseen check seed,
+    fitted at 56 km/h as the calibration corpus was (at the small transcription, as the module's
+    other single-test fits), predicting 40, 48 and 64 km/h; the two-speed fits above check theirs."""
+    one = tuple(s for s, (fitted, _) in SCENARIOS.items() if len(fitted) == 1)
+    rows = []
+    for form, make in FORMS.items():
+        folder = tmp_path / make.__name__
+        folder.mkdir()
+        rows += held_out(form, make(0, CHECK_SEED, speed=56 / 3.6), folder, SMALL, one)
+    assert len(rows) == 2 * len(one) and all(r["status"] == "ok" for r in rows)
+    judgements = {(r["vehicle"], r["scenario"], m): judged(r, m, shipped()) for r in rows for m in INTERVAL_METRICS}
+    missed = [k for k, j in judgements.items() if j is None or not j["covered"]]
+    assert len(missed) <= 0.1 * len(judgements), missed

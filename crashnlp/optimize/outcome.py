@@ -86,7 +86,13 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         labels=tuple(free.labels()),
         covariance=None if cov is None else cov.matrix,
         bounds=tuple(zip(free.lower.tolist(), free.upper.tolist())),
-        range=IdentifiedRange(measured, _span([t.speed for t in case.tests]), _span(masses), reach),
+        range=IdentifiedRange(
+            measured,
+            _span([t.speed for t in case.tests]),
+            _span(masses),
+            reach,
+            tuple(0.5 * m * t.speed**2 for m, t in zip(masses, case.tests)),
+        ),
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
     )
@@ -103,11 +109,12 @@ def _span(values: list[float]) -> tuple[float, float]:
 
 
 def _discrepancy(tests: dict[str, TestResult]) -> dict[str, float]:
-    """Per metric, the root mean square over tests of the model's relative miss of the data's value."""
+    """Per metric, the root mean square over tests of the model's relative miss of the data's value,
+    over the tests where both reach it (a model that does not stop in the record has no stop time)."""
     out = {}
     for key in INTERVAL_METRICS:
         pairs = [(t.metrics.get(key), (t.data_metrics or {}).get(key)) for t in tests.values()]
-        misses = [model / data - 1.0 for model, data in pairs if model is not None and data]
+        misses = [model / data - 1.0 for model, data in pairs if model is not None and data and np.isfinite(model / data)]
         if misses:
             out[key] = float(np.sqrt(np.mean(np.square(misses))))
     return out
