@@ -9,6 +9,7 @@ import signal
 import subprocess
 import sys
 import time
+import types
 from concurrent.futures.process import BrokenProcessPool
 from pathlib import Path
 
@@ -18,9 +19,10 @@ import yaml
 from builders import BASE, ROOT, die_always, die_once, merge, parents, worker_pid
 
 from crashnlp.case import Case
-from crashnlp.engine.executors import WORKER_DEATHS, DaskExecutor, LocalExecutor
+from crashnlp.engine import executors
+from crashnlp.engine.executors import NO_WORKERS_WAIT, WORKER_DEATHS, DaskExecutor, LocalExecutor
 from crashnlp.engine.schedule import map_all, run_tree
-from crashnlp.errors import InputError
+from crashnlp.errors import InputError, RunError
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
@@ -315,14 +317,29 @@ def test_a_task_whose_worker_is_killed_runs_again_on_a_fresh_worker(tmp_path):
 @pytest.mark.integration
 @pytest.mark.slow
 def test_a_dask_task_whose_worker_is_lost_runs_on_another(tmp_path):
-    """On a LocalCluster, tasks bound to workers that die under them run again elsewhere."""
+    """On a LocalCluster, a task bound to a worker that dies under it runs again on the other."""
     executor = DaskExecutor(2)
-    items = [str(tmp_path / f"ran-{n}") for n in range(3)]
     try:
-        pid = dict(map_all(executor, die_once, items))
+        done = dict(run_tree(executor, die_once, {0: None}, lambda n: str(tmp_path / "ran")))
+        others = dict(map_all(executor, worker_pid, [None, None]))
     finally:
         executor.close()
-    assert all(isinstance(p, int) for p in pid.values()) and len(pid) == 3
+    assert isinstance(done[0], int) and (tmp_path / "ran").exists()
+    assert all(isinstance(p, int) for p in others.values())
+
+
+def test_a_dask_cluster_left_without_workers_ends_the_run_in_one_line(monkeypatch):
+    """No worker seen for NO_WORKERS_WAIT seconds is a RunError; a worker seen again starts the wait anew."""
+    clock = iter([0.0, 50.0, 60.0, 100.0, 61.0 + NO_WORKERS_WAIT])
+    monkeypatch.setattr(executors.time, "monotonic", lambda: next(clock))
+    state = types.SimpleNamespace(empty_since=None, running={1: None})
+    check = DaskExecutor._check_not_empty
+    check(state, False)  # t = 0: the wait starts
+    check(state, True)  # t = 50: a worker again
+    check(state, False)  # t = 60: the wait starts anew
+    check(state, False)  # t = 100: 40 s without one
+    with pytest.raises(RunError, match=f"no worker for {NO_WORKERS_WAIT:g} s; 1 cases left"):
+        check(state, False)  # just past NO_WORKERS_WAIT without one
 
 
 def _workers_of(pid: int) -> set[int]:

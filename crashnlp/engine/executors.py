@@ -22,6 +22,7 @@ import os
 import signal
 import sys
 import threading
+import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -35,6 +36,7 @@ from crashnlp.errors import InputError, RunError
 
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
+NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
 
 
 class Executor(Protocol):
@@ -193,7 +195,8 @@ class DaskExecutor:
     A task is sent to its lane's worker, other workers allowed. dask keeps a task bound to the
     address of a worker that has left the cluster until a worker of that address returns
     (dask/distributed#7346), so a task whose worker is gone is sent again, to any worker, once
-    `wait` sees it missing (every LOST_WORKER_POLL seconds while nothing finishes)."""
+    `wait` sees it missing (every LOST_WORKER_POLL seconds while nothing finishes). A cluster left
+    without any worker for NO_WORKERS_WAIT seconds ends the run with a RunError, not a wait for ever."""
 
     def __init__(self, workers: int | None = None, address: str | None = None, timeout: float = CONNECT_TIMEOUT):
         self.distributed = require_dask()
@@ -218,6 +221,7 @@ class DaskExecutor:
         self.addresses: list[str | None] = [a for a in sorted(threads) for _ in range(threads[a])] or [None]
         self.lanes = len(self.addresses)
         self.running: dict[Any, _Task] = {}  # future -> its task
+        self.empty_since: float | None = None  # when the cluster was last seen without workers
 
     def _workers(self) -> dict[str, int]:
         """The cluster's workers now: address -> threads."""
@@ -244,8 +248,10 @@ class DaskExecutor:
             return task.lane, exc if exc is not None else future.result()
 
     def _resend_lost(self) -> None:
-        """Send again, to any worker, the tasks bound to a worker that has left the cluster."""
+        """Send again, to any worker, the tasks bound to a worker that has left the cluster; a
+        RunError once the cluster has had no worker for NO_WORKERS_WAIT seconds."""
         alive = self._workers()
+        self._check_not_empty(bool(alive))
         for lane, where in enumerate(self.addresses):
             if where is not None and where not in alive:
                 self.addresses[lane] = None
@@ -254,6 +260,12 @@ class DaskExecutor:
                         del self.running[future]
                         future.cancel()
                         self._start(task, None)
+
+    def _check_not_empty(self, has_workers: bool) -> None:
+        now = time.monotonic()
+        self.empty_since = None if has_workers else self.empty_since or now
+        if self.empty_since is not None and now - self.empty_since > NO_WORKERS_WAIT:
+            raise RunError(f"the dask cluster has had no worker for {NO_WORKERS_WAIT:g} s; {len(self.running)} cases left")
 
     def close(self) -> None:
         self.client.close()
