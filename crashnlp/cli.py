@@ -39,8 +39,8 @@ def _out(args, name: str) -> Path:
 
 
 def _read_params(path: str) -> dict:
-    """The content of a result.json: a mapping with a 'parameters' mapping."""
-    p = Path(path)
+    """The content of a result.json (or of a fit's folder's): a mapping with a 'parameters' mapping."""
+    p = Path(path) / "result.json" if Path(path).is_dir() else Path(path)
     try:
         raw = json.loads(p.read_text(encoding="utf-8"))
         params = raw["parameters"]
@@ -107,6 +107,18 @@ def _with_params(file: str, source: str):
         raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
     except InputError as exc:
         raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
+
+
+def _speed_option(text: str | None) -> str | None:
+    """--speed as given, refused without a unit: a plain 64 would be 64 m/s (230 km/h), and no
+    data stand against a what-if's speed or init's to catch it (a fit's data do, crashnlp.testcase)."""
+    try:
+        number = float(text or "")
+    except ValueError:
+        return text
+    if not math.isfinite(number):
+        return text
+    raise InputError(f'--speed {text}: give its unit, e.g. "{number:g} km/h" or "{number:g} m/s"')
 
 
 MAX_STEPS = 1_000_000  # output steps a simulation may ask for
@@ -190,8 +202,10 @@ def _simulation(args):
     from crashnlp.problem.schema import what_if
 
     _check_dt(args.dt, 0.0)
-    speed, mass = what_if(args.speed, args.mass, prefix="--")
+    speed, mass = what_if(_speed_option(args.speed), args.mass, prefix="--")
     folder = Path(args.problem) / "result.json"
+    if Path(args.problem).is_dir() and not folder.is_file():
+        raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
     if args.problem.endswith(".json") or folder.is_file():
         problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
     elif args.params:
@@ -353,14 +367,16 @@ def cmd_init(args) -> int:
     from crashnlp.init import Options, init_problem
     from crashnlp.units import UnitError, to_si
 
-    columns = {}
+    columns: dict[str, str] = {}
     for item in args.column:
         channel, sep, name = item.partition("=")
         if not sep or not name:
             raise InputError(f"--column {item}: expected CHANNEL=NAME[:UNIT]")
+        if channel in columns:
+            raise InputError(f"--column {item}: {channel} is given twice (--column {channel}={columns[channel]})")
         columns[channel] = name
     try:
-        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (args.speed, "m/s")))
+        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (_speed_option(args.speed), "m/s")))
     except UnitError as exc:
         raise InputError(f"--mass/--speed: {exc}") from None
     paths = [Path(p) for p in args.data]
@@ -396,7 +412,7 @@ def cmd_export(args) -> int:
     folder = Path(args.folder)
     kind = folder_kind(folder)
     if kind == "study" or (kind == "simulation" and args.format != "pulse"):
-        what = "the identified curves" if kind == "simulation" else "curves or pulses"
+        what = "identified curves" if kind == "simulation" else "curves or pulses"
         raise InputError(f"{folder}: a {kind}'s folder holds no {what}: export a fit's folder (result.json)")
     return _export_pulse(args, folder, kind) if args.format == "pulse" else _export_curves(args, folder)
 
