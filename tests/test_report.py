@@ -194,6 +194,7 @@ def test_a_zip_study_has_no_map(tmp_path):
         (["export", "--format", "ls-dyna"], "corrupt", "result.json: does not read as crashnlp writes it"),
         (["export", "--format", "pulse"], "empty", "holds no result.json"),
         (["export", "--format", "csv"], "study", "a study's folder holds no curves or pulses"),
+        (["export", "--format", "csv"], "simulation", "a simulation's folder holds no identified curves"),
     ],
 )
 def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, command, make, message):
@@ -204,6 +205,8 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
         (folder / "result.json").write_text('{"name": "x", "tests": {')
     if make == "study":
         (folder / "cases").mkdir()
+    if make == "simulation":
+        (folder / "simulation.json").write_text("{}")
     before = sorted(tmp_path.rglob("*"))
     assert main([command[0], str(folder), *command[1:]]) == 2
     err = capsys.readouterr().err
@@ -226,6 +229,7 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
         (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
+        (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
     ],
 )
