@@ -430,7 +430,8 @@ def _export_curves(args, folder: Path) -> int:
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
-    out = check_writable_file(Path(args.out) if args.out else folder / f"{result.name}.k")
+    own = folder / f"{result.name}.k"
+    out = check_writable_file(Path(args.out) if args.out else own, own=own)
     export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
     return 0
@@ -449,7 +450,8 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
-    out = check_writable_file(Path(args.out) if args.out else folder / f"{test}-pulse.csv")
+    own = folder / f"{test}-pulse.csv"
+    out = check_writable_file(Path(args.out) if args.out else own, own=own)
     export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())
     print(f"wrote {out}")

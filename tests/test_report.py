@@ -231,11 +231,13 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
         (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
+        (["report", "--out", "{fit}/result.json"], "--out {fit}/result.json: is a file of the run identify "),
+        (["export", "--format", "pulse", "--out", "{fit}/56kph/response.csv"], "response.csv: is a file of the run identify "),
     ],
 )
 def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, capsys, options, message):
     before = sorted(fit.rglob("*"))
-    argv = [options[0], str(fit), *(o.format(tmp=tmp_path) for o in options[1:])]
+    argv = [options[0], str(fit), *(o.format(tmp=tmp_path, fit=fit) for o in options[1:])]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message.format(fit=fit) in err, err
