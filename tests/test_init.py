@@ -283,3 +283,11 @@ def test_init_writes_into_a_folder_it_makes_and_the_file_names_the_data(tmp_path
     data = ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"
     assert main(["init", str(data), "--mass", "2550 kg", "--out", str(out)]) == 0
     assert load_problem(out).tests[0].data.file.resolve() == data.resolve()
+
+
+def test_init_on_a_folder_of_other_files_names_them(tmp_path, capsys):
+    for name in ("a.csv", "b.csv", "notes.txt"):
+        (tmp_path / name).write_text("time_s,accel_g\n")
+    assert main(["init", str(tmp_path), "--mass", "1 t", "--out", str(tmp_path / "p.yaml")]) == 2
+    expected = f"{tmp_path}: no .mme file (not an ISO-MME test?); it holds a.csv, b.csv, notes.txt: name the data file"
+    assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
