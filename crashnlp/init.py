@@ -296,7 +296,7 @@ def _csv_columns(table: Table, columns: dict[str, str]) -> tuple[dict[str, tuple
     chosen = {ch: _given(table, ch, given) for ch, given in columns.items()}
     unread = []
     taken = {str(column) for column, _ in chosen.values()}
-    for name in [h for h in table.header or [] if h not in taken]:
+    for name in [h for h in table.header or [] if h and h not in taken]:  # a blank name: a trailing delimiter
         channel = _recognised(name)
         if channel is not None and channel not in chosen:
             chosen[channel] = (name, unit_in_name(name))

@@ -291,3 +291,10 @@ def test_init_on_a_folder_of_other_files_names_them(tmp_path, capsys):
     assert main(["init", str(tmp_path), "--mass", "1 t", "--out", str(tmp_path / "p.yaml")]) == 2
     expected = f"{tmp_path}: no .mme file (not an ISO-MME test?); it holds a.csv, b.csv, notes.txt: name the data file"
     assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
+
+
+def test_a_trailing_delimiter_is_no_column_to_name(tmp_path):
+    path = tmp_path / "excel.csv"
+    path.write_text("time_s,accel_g,note,\n0,1,a,\n0.0001,2,b,\n")
+    found, unread = _csv_columns(Table.read(path), {})
+    assert found == {"time": ("time_s", "s"), "accel": ("accel_g", "g")} and unread == ["note"]
