@@ -97,6 +97,10 @@ def test_initial_value_outside_its_bounds_is_refused(tmp_path, capsys):
     refused(tmp_path, capsys, raw, "estimate.vehicle.cg_above_impact: initial 0.9 is outside the bounds")
     raw = pickup({"vehicle": {"pitch_inertia": "20000 kg*m^2"}})
     refused(tmp_path, capsys, raw, "estimate.vehicle.pitch_inertia: the problem's value")
+    raw = pickup({"estimate": {"model.spring.values": {"initial": ["100 kN", "200 kN"]}}})
+    expected = f"{tmp_path / 'p.yaml'}: estimate.model.spring.values.initial: 2 values for an entry of size 7"
+    refused(tmp_path, capsys, raw, expected)
+    assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 2  # --check sees it too
 
 
 # --------------------------------------------------------------------------- data that contradict the problem
