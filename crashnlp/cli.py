@@ -490,8 +490,8 @@ def parser() -> argparse.ArgumentParser:
         "problem",
         help="problem YAML file, or a fit's result.json (or its folder) alone: its own tests, with its identified vehicle",
     )
-    p.add_argument("--params", help="result.json whose parameters replace the problem's values")
-    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
+    p.add_argument("--params", help="a fit's result.json (or its folder) whose parameters replace the problem's values")
+    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (with its unit)')
     p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
@@ -525,7 +525,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--format", choices=("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"), help="default: from the file name")
     p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
-    p.add_argument("--speed", help='impact speed, e.g. "48 km/h" (default: the data header or velocity column)')
+    p.add_argument("--speed", help='impact speed, e.g. "48 km/h", with its unit (default: the data header or velocity column)')
     p.add_argument(
         "--column",
         action="append",
