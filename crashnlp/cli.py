@@ -39,8 +39,8 @@ def _out(args, name: str) -> Path:
 
 
 def _read_params(path: str) -> dict:
-    """The content of a result.json: a mapping with a 'parameters' mapping."""
-    p = Path(path)
+    """The content of a result.json (or of a fit's folder's): a mapping with a 'parameters' mapping."""
+    p = Path(path) / "result.json" if Path(path).is_dir() else Path(path)
     try:
         raw = json.loads(p.read_text(encoding="utf-8"))
         params = raw["parameters"]
@@ -107,6 +107,18 @@ def _with_params(file: str, source: str):
         raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
     except InputError as exc:
         raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
+
+
+def _speed_option(text: str | None) -> str | None:
+    """--speed as given, refused without a unit: a plain 64 would be 64 m/s (230 km/h), and no
+    data stand against a what-if's speed or init's to catch it (a fit's data do, crashnlp.testcase)."""
+    try:
+        number = float(text or "")
+    except ValueError:
+        return text
+    if not math.isfinite(number):
+        return text
+    raise InputError(f'--speed {text}: give its unit, e.g. "{number:g} km/h" or "{number:g} m/s"')
 
 
 MAX_STEPS = 1_000_000  # output steps a simulation may ask for
@@ -190,8 +202,10 @@ def _simulation(args):
     from crashnlp.problem.schema import what_if
 
     _check_dt(args.dt, 0.0)
-    speed, mass = what_if(args.speed, args.mass, prefix="--")
+    speed, mass = what_if(_speed_option(args.speed), args.mass, prefix="--")
     folder = Path(args.problem) / "result.json"
+    if Path(args.problem).is_dir() and not folder.is_file():
+        raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
     if args.problem.endswith(".json") or folder.is_file():
         problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
     elif args.params:
@@ -353,14 +367,16 @@ def cmd_init(args) -> int:
     from crashnlp.init import Options, init_problem
     from crashnlp.units import UnitError, to_si
 
-    columns = {}
+    columns: dict[str, str] = {}
     for item in args.column:
         channel, sep, name = item.partition("=")
         if not sep or not name:
             raise InputError(f"--column {item}: expected CHANNEL=NAME[:UNIT]")
+        if channel in columns:
+            raise InputError(f"--column {item}: {channel} is given twice (--column {channel}={columns[channel]})")
         columns[channel] = name
     try:
-        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (args.speed, "m/s")))
+        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (_speed_option(args.speed), "m/s")))
     except UnitError as exc:
         raise InputError(f"--mass/--speed: {exc}") from None
     paths = [Path(p) for p in args.data]
@@ -411,7 +427,7 @@ def cmd_export(args) -> int:
     folder = Path(args.folder)
     kind = folder_kind(folder)
     if kind == "study" or (kind == "simulation" and args.format != "pulse"):
-        what = "the identified curves" if kind == "simulation" else "curves or pulses"
+        what = "identified curves" if kind == "simulation" else "curves or pulses"
         raise InputError(f"{folder}: a {kind}'s folder holds no {what}: export a fit's folder (result.json)")
     return _export_pulse(args, folder, kind) if args.format == "pulse" else _export_curves(args, folder)
 
@@ -429,7 +445,8 @@ def _export_curves(args, folder: Path) -> int:
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
-    out = check_writable_file(Path(args.out) if args.out else folder / f"{result.name}.k")
+    own = folder / f"{result.name}.k"
+    out = check_writable_file(Path(args.out) if args.out else own, own=own)
     export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
     return 0
@@ -448,7 +465,8 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
-    out = check_writable_file(Path(args.out) if args.out else folder / f"{test}-pulse.csv")
+    own = folder / f"{test}-pulse.csv"
+    out = check_writable_file(Path(args.out) if args.out else own, own=own)
     export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())
     print(f"wrote {out}")
@@ -487,8 +505,8 @@ def parser() -> argparse.ArgumentParser:
         "problem",
         help="problem YAML file, or a fit's result.json (or its folder) alone: its own tests, with its identified vehicle",
     )
-    p.add_argument("--params", help="result.json whose parameters replace the problem's values")
-    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (a plain number is m/s)')
+    p.add_argument("--params", help="a fit's result.json (or its folder) whose parameters replace the problem's values")
+    p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (with its unit)')
     p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
     p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
@@ -522,7 +540,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--format", choices=("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"), help="default: from the file name")
     p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
-    p.add_argument("--speed", help='impact speed, e.g. "48 km/h" (default: the data header or velocity column)')
+    p.add_argument("--speed", help='impact speed, e.g. "48 km/h", with its unit (default: the data header or velocity column)')
     p.add_argument(
         "--column",
         action="append",

@@ -22,6 +22,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.signal import cfc_filter, cumtrapz
 from crashnlp.errors import InputError
 from crashnlp.files import atomic_open, write_columns
@@ -209,6 +210,8 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     record and CFC-filtered (J211)."""
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"--rate {rate:g}: must be a positive number of Hz")
+    if rate * SAMPLE_INTERVALS[0] > 1:
+        raise InputError(f"--rate {rate:g}: faster than any crash record is sampled (at most {1 / SAMPLE_INTERVALS[0]:g} Hz)")
     try:
         time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
         time = time[time <= response.time[-1] + 1e-12]

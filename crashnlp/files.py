@@ -240,10 +240,27 @@ def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path]) -> 
             return
 
 
-def check_writable_file(path: str | Path, option: str = "--out") -> Path:
-    """Refuse, before any work, a file to write that is a folder or whose folder cannot be written."""
+def check_writable_file(path: str | Path, option: str = "--out", own: Path | None = None) -> Path:
+    """Refuse, before any work, a file to write that is a folder, whose folder cannot be written,
+    or that a run's record lists (a fit's result.json, a test's response.csv: written over, that
+    run's folder no longer reads); `own`, the file the command writes when not told otherwise,
+    may be written again."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{option} {path}: is a folder; name the file to write")
     check_writable(path.parent, option)
+    listed = None if own is not None and path.resolve() == own.resolve() else _listed_by(path)
+    if listed is not None:
+        raise InputError(f"{option} {path}: is a file of the run {listed[0]} in {listed[1]}; name another file")
     return path
+
+
+def _listed_by(path: Path) -> tuple[str, Path] | None:
+    """The run whose record lists `path` (or is `path`), and its folder; None for no run's file."""
+    path = path.resolve()
+    for folder in path.parents:
+        record = _read_record(folder / RECORD)
+        name = path.relative_to(folder).as_posix()
+        if record and (name == RECORD or name in record.get("entries", ())):
+            return record["run"], folder
+    return None

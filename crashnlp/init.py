@@ -35,6 +35,7 @@ from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.errors import InputError
+from crashnlp.files import atomic_open, check_writable_file
 from crashnlp.metrics import STOPPED, zero_crossing
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
@@ -295,7 +296,7 @@ def _csv_columns(table: Table, columns: dict[str, str]) -> tuple[dict[str, tuple
     chosen = {ch: _given(table, ch, given) for ch, given in columns.items()}
     unread = []
     taken = {str(column) for column, _ in chosen.values()}
-    for name in [h for h in table.header or [] if h not in taken]:
+    for name in [h for h in table.header or [] if h and h not in taken]:  # a blank name: a trailing delimiter
         channel = _recognised(name)
         if channel is not None and channel not in chosen:
             chosen[channel] = (name, unit_in_name(name))
@@ -478,7 +479,7 @@ def _resolve(draft: Draft, options: Options, path: Path) -> None:
             draft.vehicle[key] = (value, "given (--" + key + ")")
     velocity = draft.data["channels"].get("velocity")
     if "speed" not in draft.vehicle and velocity is not None and "derive" not in velocity:
-        v = load_test_data(_data_spec(draft, path), None).channels["velocity"]
+        v = load_test_data(_data_spec(draft, path), 1.0).channels["velocity"]  # any speed: the channel is measured
         draft.vehicle["speed"] = (float(np.interp(0.0, v.time, v.values)), "the velocity data at t = 0")
     for key in ("mass", "speed"):
         if key not in draft.vehicle:
@@ -663,10 +664,20 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     for path in paths:
         if not path.exists():
             raise InputError(f"{path}: file not found")
+    _check_out(Path(out), paths)
     draft, suspension = draft_for(paths, options)
     out_dir = Path(out).resolve().parent
     problem = Case(problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0]))).problem
     text = render(draft, problem, os.path.relpath(paths[0].resolve(), out_dir))
+    out_dir.mkdir(parents=True, exist_ok=True)  # the data file is named from here
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
-    Path(out).write_text(text)
+    with atomic_open(Path(out)) as fh:
+        fh.write(text)
     return written, draft.notes
+
+
+def _check_out(out: Path, paths: list[Path]) -> None:
+    """Refuse, before any work, an --out that cannot be written or is one of the data files."""
+    check_writable_file(out)
+    if out.exists() and any(out.resolve() == p.resolve() for p in paths):
+        raise InputError(f"--out {out}: is the data file; name the problem file to write")

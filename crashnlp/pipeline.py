@@ -18,6 +18,7 @@ from crashnlp.case import Case, case_of
 from crashnlp.checks import check_keys, named
 from crashnlp.engine.executors import make_executor
 from crashnlp.optimize.design import design
+from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.identify import Solution, identify
 from crashnlp.optimize.outcome import result_of
 from crashnlp.optimize.profile import profiles
@@ -26,13 +27,15 @@ from crashnlp.result import Result
 
 
 def prepare_case(problem: Problem, source: str | None = None) -> Case:
-    """The Case of a problem to solve, after every check: its keys (crashnlp.checks), and the tests'
+    """The Case of a problem to solve, after every check: its keys (crashnlp.checks), the tests'
     data against its speed (Case.check_data: a fit to data that contradict the problem is
-    refused, not run)."""
+    refused, not run), and the estimate as the solve lays it out (FreeParameters: an initial
+    value of another size than its entry is refused here, not once the output folder is held)."""
     check_keys(problem, source)
     case = case_of(problem, source)
     with named(source or problem.name):
         case.check_data()
+        FreeParameters(case.layout, case.base, case.problem.estimate)
     return case
 
 

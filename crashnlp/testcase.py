@@ -165,8 +165,10 @@ def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
         )
     start = _velocity_start(test, data)
     if start is not None and test.data is not None and abs(start - speed) > SPEED_TOLERANCE * abs(speed):
+        begins = float(data.channels["velocity"].time[0])
+        late = f" at {begins * 1e3:g} ms, where the record begins after impact" if begins > 0 else ""
         raise InputError(
-            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s "
+            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s{late} "
             f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
         )
 

@@ -62,6 +62,15 @@ CASES = {
         {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": 1.5}}}}]},
         "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
     ),
+    "column true": (
+        {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": True}}}}]},
+        "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
+    ),
+    "curves true": (
+        {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"curves": [93, False]}}}}]},
+        "tests.0.data.channels.accel.curves: a list of curve numbers, or all-valid-barrier-fx (1: Input should be a number,"
+        " not true or false)\n",
+    ),
 }
 
 
@@ -80,11 +89,22 @@ def test_bad_problem_file(name, tmp_path, capsys):
     assert not out.exists()
 
 
-def test_bad_yaml_and_missing_problem(tmp_path, capsys):
+@pytest.mark.parametrize(
+    ("text", "expected"),
+    [
+        ("name: [unclosed\n", "line 2 not valid YAML: expected ',' or ']', but got '<stream end>'"),
+        ("name: x\nvehicle:\n\tmass: 1 kg\n", "line 3 not valid YAML: a tab, where YAML indents and separates with spaces"),
+        ("name: x\nname: y\n", "line 2 not valid YAML: duplicate key 'name'"),
+    ],
+)
+def test_bad_yaml_says_where_and_what(tmp_path, capsys, text, expected):
     path = tmp_path / "broken.yaml"
-    path.write_text("name: [unclosed\n")
+    path.write_text(text)
     assert main(["simulate", str(path)]) == 2
-    assert "not valid YAML" in capsys.readouterr().err
+    assert capsys.readouterr().err == f"crashnlp: error: {path}: {expected}\n"
+
+
+def test_bad_yaml_and_missing_problem(tmp_path, capsys):
     assert main(["identify", str(tmp_path / "none.yaml")]) == 2
     assert "file not found" in capsys.readouterr().err
 
@@ -94,8 +114,21 @@ def test_bad_params_file(tmp_path, capsys):
     problem.write_text(yaml.safe_dump(BASE))
     params = tmp_path / "result.json"
     params.write_text(json.dumps({"parameters": {"model.spring.colour": 1}}))
-    assert main(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / "o")]) == 2
-    assert "parameters.model.spring.colour" in capsys.readouterr().err
+    for given in (params, tmp_path):  # the file, or the fit's folder holding it
+        assert main(["simulate", str(problem), "--params", str(given), "--out", str(tmp_path / "o")]) == 2
+        assert "parameters.model.spring.colour" in capsys.readouterr().err
+        assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("holds", [(), ("simulation.json",), ("cases/",)])
+def test_simulate_of_a_folder_without_a_result_says_so(tmp_path, capsys, holds):
+    folder = tmp_path / "folder"
+    folder.mkdir()
+    for name in holds:
+        (folder / name).mkdir() if name.endswith("/") else (folder / name).write_text("{}")
+    assert main(["simulate", str(folder), "--out", str(tmp_path / "o")]) == 2
+    expected = f"{folder}: a folder without result.json; simulate a problem file, or a fit's folder"
+    assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
     assert not (tmp_path / "o").exists()
 
 
@@ -124,6 +157,8 @@ def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
         ("--speed", "-3 m/s", "--speed -3 m/s: must not be negative"),
         ("--speed", "nan", "--speed nan: not a finite number"),
         ("--mass", "3 g", "--mass 3 g: 0.003 kg is no vehicle's mass"),
+        ("--speed", "64", '--speed 64: give its unit, e.g. "64 km/h" or "64 m/s"'),
+        ("--speed", "0 km/h", "--speed 0 km/h: 0 m/s is no impact"),
     ],
 )
 def test_a_bad_what_if_is_refused_in_one_line_naming_the_option(option, value, expected, tmp_path, capsys):

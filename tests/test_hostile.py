@@ -97,6 +97,10 @@ def test_initial_value_outside_its_bounds_is_refused(tmp_path, capsys):
     refused(tmp_path, capsys, raw, "estimate.vehicle.cg_above_impact: initial 0.9 is outside the bounds")
     raw = pickup({"vehicle": {"pitch_inertia": "20000 kg*m^2"}})
     refused(tmp_path, capsys, raw, "estimate.vehicle.pitch_inertia: the problem's value")
+    raw = pickup({"estimate": {"model.spring.values": {"initial": ["100 kN", "200 kN"]}}})
+    expected = f"{tmp_path / 'p.yaml'}: estimate.model.spring.values.initial: 2 values for an entry of size 7"
+    refused(tmp_path, capsys, raw, expected)
+    assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 2  # --check sees it too
 
 
 # --------------------------------------------------------------------------- data that contradict the problem
@@ -104,6 +108,23 @@ def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
     raw = pickup({"vehicle": {"speed": 56}, "tests": [{**pickup()["tests"][0], "speed": 56}]})
     err = refused(tmp_path, capsys, raw, "tests.0.speed: 56 m/s, but the velocity data")
     assert "15.5" in err and "5 %" in err
+
+
+@pytest.mark.parametrize(
+    ("rows", "expected"),
+    [
+        (slice(0, 1), "channel accel (column accel_x_g): fewer than two samples"),
+        (slice(0, 451), "tests.0.data.window: runs to 200 ms, but the data of test 56kph end at 45 ms (cut.csv, channel"),
+        (slice(300, None), "start at 10.1812 m/s at 30 ms, where the record begins after impact (cut.csv)"),
+    ],
+    ids=["one-row", "mid-crush", "head-cut"],
+)
+def test_a_record_cut_short_is_refused_saying_where_it_ends_or_begins(tmp_path, capsys, rows, expected):
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines(keepends=True)
+    cut = tmp_path / "cut.csv"
+    cut.write_text(header + "".join(lines[rows]))
+    test = pickup()["tests"][0]
+    refused(tmp_path, capsys, pickup({"tests": [{**test, "data": {**test["data"], "file": str(cut)}}]}), expected)
 
 
 def test_a_header_speed_the_problem_contradicts_is_refused(tmp_path, capsys):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import re
+import shutil
 
 import numpy as np
 import pytest
@@ -17,6 +18,7 @@ from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
 from crashnlp.errors import InputError
 from crashnlp.init import Options, _csv_columns, _data_spec, csv_draft, draft_for, init_problem, unit_in_name
+from crashnlp.problem import load_problem
 
 EV5 = ROOT / "problems" / "data" / "nhtsa-10146" / "v10146.EV5"
 CAMRY_DATA = {"crush_mm": 746.0, "stop_ms": 73.96}  # the data's own metrics (README)
@@ -251,3 +253,48 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
     err = capsys.readouterr().err
     assert err.startswith(f"crashnlp: error: {message}") and err.count("\n") == 1
     assert not out.exists()
+
+
+@pytest.mark.parametrize(
+    "out, options, message",
+    [
+        ("pickup.csv", [], "--out {tmp}/pickup.csv: is the data file; name the problem file to write"),
+        (".", [], "--out {tmp}: is a folder; name the file to write"),
+        ("pickup.csv/p.yaml", [], "--out {tmp}/pickup.csv: exists and is not a folder"),
+        (
+            "p.yaml",
+            ["--column", "accel=accel_x_g:g", "--column", "accel=2:g"],
+            "--column accel=2:g: accel is given twice (--column accel=accel_x_g:g)",
+        ),
+        ("p.yaml", ["--speed", "56"], '--speed 56: give its unit, e.g. "56 km/h" or "56 m/s"'),
+    ],
+)
+def test_init_refuses_a_careless_out_or_option_before_any_work(tmp_path, capsys, out, options, message):
+    data = tmp_path / "pickup.csv"
+    shutil.copy(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", data)
+    before = {p: p.read_bytes() for p in tmp_path.iterdir()}
+    assert main(["init", str(data), "--mass", "2550 kg", *options, "--out", f"{tmp_path}/{out}"]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {message.format(tmp=tmp_path)}\n"
+    assert {p: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+def test_init_writes_into_a_folder_it_makes_and_the_file_names_the_data(tmp_path, capsys):
+    out = tmp_path / "new" / "deeper" / "p.yaml"
+    data = ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"
+    assert main(["init", str(data), "--mass", "2550 kg", "--out", str(out)]) == 0
+    assert load_problem(out).tests[0].data.file.resolve() == data.resolve()
+
+
+def test_init_on_a_folder_of_other_files_names_them(tmp_path, capsys):
+    for name in ("a.csv", "b.csv", "notes.txt"):
+        (tmp_path / name).write_text("time_s,accel_g\n")
+    assert main(["init", str(tmp_path), "--mass", "1 t", "--out", str(tmp_path / "p.yaml")]) == 2
+    expected = f"{tmp_path}: no .mme file (not an ISO-MME test?); it holds a.csv, b.csv, notes.txt: name the data file"
+    assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
+
+
+def test_a_trailing_delimiter_is_no_column_to_name(tmp_path):
+    path = tmp_path / "excel.csv"
+    path.write_text("time_s,accel_g,note,\n0,1,a,\n0.0001,2,b,\n")
+    found, unread = _csv_columns(Table.read(path), {})
+    assert found == {"time": ("time_s", "s"), "accel": ("accel_g", "g")} and unread == ["note"]

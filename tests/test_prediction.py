@@ -391,7 +391,7 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
         ("foo", ""),
         ({"start": "-1 m", "slope": "1 MN/m"}, " (start: must not be negative)"),
         ({"start": "0.5 m"}, " (slope: missing key)"),
-        ({"start": "0.5 m", "slope": "-2 kN/m"}, " (slope: "),
+        ({"start": "0.5 m", "slope": "-2 kN/m"}, " (slope: must not be negative)"),
     ],
 )
 def test_a_bad_tail_is_refused_in_one_line_naming_its_key(tail, detail):

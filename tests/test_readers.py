@@ -381,3 +381,76 @@ def test_a_data_format_left_out_comes_from_the_file_name(tmp_path):
     assert spec(file=tmp_path / "export", **given).format == "nhtsa-channel"
     assert DataSpec.model_validate({"file": "v10146.EV5", **given}, context={"base_dir": EV5.parent}).format == "nhtsa-ev5"
     assert spec(file=PICKUP, **given).format == "csv"
+
+
+# ---------------------------------------------------------------- what careless exports look like
+DIALECT_TIME = np.arange(21) * 1e-4
+DIALECT_ACCEL = np.round(np.sin(np.arange(21)), 4)
+
+
+def _dialect(sep: str = ",", comma: bool = False, end: str = "\n", header: str = "time_s{s}accel_x_g") -> str:
+    """DIALECT_TIME and DIALECT_ACCEL as a text file: a separator, decimal commas or points, line ends."""
+    cells = [(f"{t:.4f}", f"{a:.4f}") for t, a in zip(DIALECT_TIME, DIALECT_ACCEL)]
+    rows = [sep.join(c.replace(".", ",") if comma else c for c in row) for row in cells]
+    return end.join([header.format(s=sep), *rows]) + end
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        pytest.param(_dialect(end="\r\n") + "\r\n\r\n", id="crlf-trailing-blank-lines"),
+        pytest.param("\ufeff" + _dialect(), id="byte-order-mark"),
+        pytest.param("# exported by crashnlp\n# sampled at 10 kHz\n" + _dialect(), id="comment-lines"),
+        pytest.param(_dialect(";", comma=True), id="semicolons-decimal-commas"),
+        pytest.param(_dialect("\t", comma=True), id="tabs-decimal-commas"),
+        pytest.param(_dialect("   "), id="runs-of-spaces"),
+        pytest.param(_dialect(header="time_s{s}accel_x_g{s}note").replace("\n", ",ok\n").replace("note,ok", "note"), id="text"),
+    ],
+)
+def test_csv_dialects_read_as_the_plain_file(tmp_path, text):
+    path = tmp_path / "export.csv"
+    path.write_bytes(text.encode("utf-8"))
+    accel = load_test_data(pickup(file=path, channels=ACCEL)).channels["accel"]
+    np.testing.assert_allclose(accel.time, DIALECT_TIME, atol=1e-12)
+    np.testing.assert_allclose(accel.values, DIALECT_ACCEL * G0)
+
+
+def test_csv_a_header_naming_a_column_twice_asks_for_its_number(tmp_path):
+    path = tmp_path / "twice.csv"
+    path.write_text(_dialect(header="time_s{s}accel_x_g{s}accel_x_g").replace("\n", ",0\n").replace("accel_x_g,0", "accel_x_g"))
+    with pytest.raises(DataError, match=r"twice\.csv: channel accel: the header names columns 2, 3 'accel_x_g': give the one"):
+        load_test_data(pickup(file=path, channels=ACCEL))
+    data = load_test_data(pickup(file=path, channels={"accel": {"column": 3, "unit": "g"}}))
+    assert np.all(data.channels["accel"].values == 0)
+
+
+CURVE_94 = r"v10146\.094: channel accel \(column 2\): line "
+
+
+@pytest.mark.parametrize(
+    "change, message",
+    [
+        (lambda text: text[: text.index("\n", 20000) + 6], CURVE_94 + r"\d+ ends before this column"),
+        (lambda text: "", r"v10146\.094: empty file"),
+        (lambda text: text.replace("\n0.150000\t", "\n0.150000\tN/A "), CURVE_94 + r"2001: 'N/A \S+' is not a number"),
+    ],
+    ids=["cut-mid-line", "empty", "text-cell"],
+)
+def test_nhtsa_curve_files_cut_or_spoilt_are_one_line(tmp_path, change, message):
+    for f in EV5.parent.glob("v10146.*"):
+        shutil.copy(f, tmp_path / f.name)
+    curve = tmp_path / "v10146.094"
+    curve.write_text(change(curve.read_text()))
+    with pytest.raises(DataError, match=message) as err:
+        load_test_data(camry(file=tmp_path / "v10146.EV5"))
+    assert "\n" not in str(err.value) and "usecols" not in str(err.value)
+
+
+def test_nhtsa_curve_files_with_a_header_line_spaces_and_crlf_read_as_shipped(tmp_path):
+    for f in EV5.parent.glob("v10146.*"):
+        shutil.copy(f, tmp_path / f.name)
+    for n in ("093", "094"):
+        curve = tmp_path / f"v10146.{n}"
+        curve.write_text("Time (s)    Accel (g)\r\n" + curve.read_text().replace("\t", "    ").replace("\n", "\r\n"))
+    shipped, spoilt = (load_test_data(camry(file=f)).channels["accel"] for f in (EV5, tmp_path / "v10146.EV5"))
+    np.testing.assert_array_equal(shipped.values, spoilt.values)

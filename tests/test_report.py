@@ -194,6 +194,7 @@ def test_a_zip_study_has_no_map(tmp_path):
         (["export", "--format", "ls-dyna"], "corrupt", "result.json: does not read as crashnlp writes it"),
         (["export", "--format", "pulse"], "empty", "holds no result.json"),
         (["export", "--format", "csv"], "study", "a study's folder holds no curves or pulses"),
+        (["export", "--format", "csv"], "simulation", "a simulation's folder holds no identified curves"),
     ],
 )
 def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, command, make, message):
@@ -204,6 +205,8 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
         (folder / "result.json").write_text('{"name": "x", "tests": {')
     if make == "study":
         (folder / "cases").mkdir()
+    if make == "simulation":
+        (folder / "simulation.json").write_text("{}")
     before = sorted(tmp_path.rglob("*"))
     assert main([command[0], str(folder), *command[1:]]) == 2
     err = capsys.readouterr().err
@@ -226,12 +229,15 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
         (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
+        (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
+        (["report", "--out", "{fit}/result.json"], "--out {fit}/result.json: is a file of the run identify "),
+        (["export", "--format", "pulse", "--out", "{fit}/56kph/response.csv"], "response.csv: is a file of the run identify "),
     ],
 )
 def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, capsys, options, message):
     before = sorted(fit.rglob("*"))
-    argv = [options[0], str(fit), *(o.format(tmp=tmp_path) for o in options[1:])]
+    argv = [options[0], str(fit), *(o.format(tmp=tmp_path, fit=fit) for o in options[1:])]
     assert main(argv) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message.format(fit=fit) in err, err

@@ -1,7 +1,9 @@
 """CSV reader: one time column and one column per channel, named in the problem file or counted from 1.
 
-`Table` reads any delimited text file of numbers (comma, semicolon or tab; a header line or
-none), for this reader and for NHTSA channel files (crashnlp.data.nhtsa_channel) alike.
+`Table` reads any delimited text file of numbers (comma, semicolon, tab or runs of spaces; a
+header line or none; "#" comment lines and a UTF-8 byte order mark skipped; decimal commas where
+the cells are not comma-separated), for this reader, NHTSA channel files
+(crashnlp.data.nhtsa_channel) and EV5 curve files (crashnlp.data.nhtsa_ev5) alike.
 """
 
 from __future__ import annotations
@@ -16,7 +18,7 @@ from crashnlp.data.channels import Channel, DataError, TestData, check_samples, 
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 from crashnlp.units import unit_scale
 
-DELIMITERS = ",;\t"  # the most frequent on the first line splits the file
+DELIMITERS = ",;\t"  # the most frequent on the first line splits the file; with none of them, runs of spaces do
 
 
 def _is_number(cell: str) -> bool:
@@ -27,35 +29,45 @@ def _is_number(cell: str) -> bool:
     return True
 
 
+def _split(lines: list[str], path: Path) -> tuple[str, list[list[str]]]:
+    """The delimiter (" " for runs of spaces) and the cells of each line: split on the delimiter
+    the first line has most of, else on spaces."""
+    delimiter = max(DELIMITERS, key=lines[0].count)
+    if delimiter not in lines[0]:
+        return " ", [line.split() for line in lines]
+    try:
+        return delimiter, [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+    except csv.Error as exc:
+        raise DataError(f"{path}: cannot read as CSV ({exc})") from None
+
+
 @dataclass(frozen=True)
 class Table:
     """The cells of a delimited text file: its header (None when the first line is all numbers)
-    and its rows, each with its line number in the file (blank lines left out)."""
+    and its rows, each with its line number in the file (blank and comment lines left out)."""
 
     path: Path
     header: list[str] | None
     rows: list[tuple[int, list[str]]]
+    decimal_comma: bool = False  # cells not split on commas, so 0,5 is a half
 
     @classmethod
     def read(cls, path: Path) -> Table:
         """The file's cells; a file that cannot be read, or holds no row of data, is refused."""
         try:
-            lines = Path(path).read_text(errors="replace").splitlines()
+            lines = Path(path).read_text(encoding="utf-8-sig", errors="replace").splitlines()
         except OSError as exc:
             raise DataError(f"{path}: cannot read ({exc.strerror})") from None
-        numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip()]
+        numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")]
         if not numbered:
             raise DataError(f"{path}: empty file")
-        delimiter = max(DELIMITERS, key=numbered[0][1].count)
-        cells = csv.reader((line for _, line in numbered), delimiter=delimiter)
-        try:
-            rows = [(n, [c.strip() for c in row]) for (n, _), row in zip(numbered, cells)]
-        except csv.Error as exc:
-            raise DataError(f"{path}: cannot read as CSV ({exc})") from None
-        header = None if all(_is_number(c) for c in rows[0][1]) else rows.pop(0)[1]
+        delimiter, cells = _split([line for _, line in numbered], path)
+        rows = list(zip((n for n, _ in numbered), cells))
+        decimal_comma = delimiter != ","
+        header = None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in rows[0][1]) else rows.pop(0)[1]
         if not rows:
             raise DataError(f"{path}: no rows of data below the header")
-        return cls(Path(path), header, rows)
+        return cls(Path(path), header, rows, decimal_comma)
 
     @property
     def width(self) -> int:
@@ -64,7 +76,13 @@ class Table:
     def index(self, column: str | int, channel: str) -> int:
         """Where a column is, 0-based: by its name in the header, else by its number counted from 1."""
         if self.header is not None and str(column) in self.header:
-            return self.header.index(str(column))
+            found = [k + 1 for k, name in enumerate(self.header) if name == str(column)]
+            if len(found) > 1:
+                raise DataError(
+                    f"{where(self.path, channel)}: the header names columns {', '.join(map(str, found))} {column!r}: "
+                    "give the one meant by its number"
+                )
+            return found[0] - 1
         number = int(column) if isinstance(column, int) or column.isdigit() else None
         if number is not None and 1 <= number <= self.width:
             return number - 1
@@ -79,12 +97,15 @@ class Table:
         """Column k (0-based) as numbers; a blank, missing or non-numeric cell is refused, naming
         the column and the line."""
         at = where(self.path, channel, f"column {self.label(k)}")
+        column = []
         for n, cells in self.rows:
             if k >= len(cells):
                 raise DataError(f"{at}: line {n} ends before this column ({len(cells)} of {self.width} cells)")
-            if not _is_number(cells[k]):
+            cell = cells[k].replace(",", ".") if self.decimal_comma else cells[k]
+            if not _is_number(cell):
                 raise DataError(f"{at}: line {n}: {repr(cells[k]) + ' is not a number' if cells[k] else 'a blank cell'}")
-        return np.array([cells[k] for _, cells in self.rows], dtype=float)
+            column.append(cell)
+        return np.array(column, dtype=float)
 
 
 def read_csv(spec: DataSpec) -> TestData:

@@ -83,7 +83,10 @@ def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
     store = _Store(path)
     mme_files = [path.name] if path.suffix.lower() == ".mme" else store.find(".mme")
     if not mme_files:
-        raise DataError(f"{path}: no .mme file (not an ISO-MME test?)")
+        held = sorted(p.name for p in path.iterdir()) if path.is_dir() else []
+        names = ", ".join(held[:4]) + (", ..." if len(held) > 4 else "")
+        hint = f"; it holds {names}: name the data file" if held else ""
+        raise DataError(f"{path}: no .mme file (not an ISO-MME test?){hint}")
     mme_name = mme_files[0]
     root = str(PurePosixPath(mme_name).parent)
     prefix = "" if root == "." else root + "/"

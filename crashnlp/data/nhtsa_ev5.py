@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.csv_reader import Table
 from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
 # EV5 unit codes -> pint units
@@ -151,13 +152,8 @@ def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[n
         raise DataError(f"{at}: the header marks the curve's data as not valid ({curve.status}: {curve.comment})")
     if not path.is_file():
         raise DataError(f"{at}: curve file missing (listed in {header.name})")
-    try:
-        table = np.loadtxt(path, ndmin=2)
-    except ValueError as exc:
-        raise DataError(f"{at}: cannot read ({str(exc).splitlines()[0]})") from None
-    if table.shape[1] < 2:
-        raise DataError(f"{at}: expected two columns, time and value")
-    time, values = table[:, 0], table[:, 1]
+    table = Table.read(path)
+    time, values = table.values(0, channel), table.values(1, channel)
     check_samples(time, values, at)
     if curve.interval > 0:
         dt = float(np.median(np.diff(time)))

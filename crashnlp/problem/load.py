@@ -61,7 +61,7 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         mark = getattr(exc, "problem_mark", None)
         where = f" line {mark.line + 1}" if mark else ""
         problem = getattr(exc, "problem", None) or ""
-        why = f": {problem}" if problem.startswith(("duplicate key", "more than")) else ""
+        why = ": a tab, where YAML indents and separates with spaces" if "'\\t'" in problem else f": {problem}" if problem else ""
         raise ProblemError(f"{path}:{where} not valid YAML{why}") from None
     except RecursionError:
         raise ProblemError(f"{path}: not valid YAML (nested too deeply)") from None

@@ -23,6 +23,7 @@ from typing import Annotated, Any, Literal, TypeVar, cast, get_args
 from pydantic import (
     AfterValidator,
     BaseModel,
+    BeforeValidator,
     ConfigDict,
     Discriminator,
     Field,
@@ -107,11 +108,18 @@ def _speed(v: float | None) -> float | None:
     return v
 
 
+def _impact_speed(v: float | None) -> float | None:
+    """A what-if's speed: a crash's, so above 0."""
+    if v == 0:
+        raise ValueError("0 m/s is no impact")
+    return _speed(v)
+
+
 def what_if(speed: QuantityIn | None, mass: QuantityIn | None, prefix: str = "") -> tuple[float | None, float | None]:
     """A speed and a mass given outside a problem file ("64 km/h", "1650 kg"; a plain number is
     SI), in SI and checked as a file's are; a ProblemError names `prefix` + speed or mass."""
     out = []
-    for name, value, unit, check in (("speed", speed, "m/s", _speed), ("mass", mass, "kg", _mass)):
+    for name, value, unit, check in (("speed", speed, "m/s", _impact_speed), ("mass", mass, "kg", _mass)):
         try:
             si = None if value is None else to_si(value, unit)
             if si is not None and not math.isfinite(si):
@@ -399,18 +407,28 @@ assert set(get_args(ChannelName)) == set(MEASURABLE), "the channels a problem na
 CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
 DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
 SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
+
+
+def _not_bool(v: Any) -> Any:
+    """Refuse true and false where a number counts: pydantic would read them as 1 and 0."""
+    if isinstance(v, bool):
+        raise PydanticCustomError("int_type", "Input should be a number, not true or false")
+    return v
+
+
+Index = Annotated[int, BeforeValidator(_not_bool)]  # a column's or a curve's number
 AllBarrierFx = Literal["all-valid-barrier-fx"]  # EV5: every load cell (sensor LC, axis XG, a force) the header marks valid
 ALL_BARRIER_FX: str = get_args(AllBarrierFx)[0]
 
 
 class TimeColumn(Strict):
-    column: str | int = Field(description="CSV column: its name in the header, or its number counted from 1")
+    column: str | Index = Field(description="CSV column: its name in the header, or its number counted from 1")
     unit: str = "s"
 
 
 class ChannelSpec(Strict):
-    column: str | int | None = Field(None, description="CSV column: its name in the header, or its number counted from 1")
-    curves: list[int] | AllBarrierFx | None = Field(
+    column: str | Index | None = Field(None, description="CSV column: its name in the header, or its number counted from 1")
+    curves: list[Index] | AllBarrierFx | None = Field(
         None,
         description="NHTSA EV5 curve numbers, or the numbers CCC of NHTSA channel files vNNNNNtsv.CCC, averaged"
         " (barrier_force: summed); all-valid-barrier-fx: every valid barrier Fx load cell of an EV5 test",

@@ -44,7 +44,7 @@ TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp com
 def write_report(folder: Path, out: Path | None = None) -> Path:
     """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all."""
     kind = folder_kind(folder)
-    out = check_writable_file(out or folder / REPORT)
+    out = check_writable_file(out or folder / REPORT, own=folder / REPORT)
     if kind == "result":
         page = result_page(read_result(folder), folder)
     elif kind == "simulation":
