@@ -106,7 +106,7 @@ def console_digits(value: float) -> str:
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     """The numbers of results/bench.json the pages quote ("bench.<name>"), each formatted as the
     pages print it; the sections of make bench one function each."""
-    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _families, _self_consistency)
+    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _families, _self_consistency, _intervals)
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
 
@@ -253,6 +253,20 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
     minimal = next(f for f in cross["fits"] if f["vehicle"] == "pickup" and f["split"] == "extrapolation")
     out["minimal_crush_pct"], out["minimal_peak_pct"] = f"{minimal['crush_rel'] * 100:+.1f}", f"{minimal['peak_rel'] * 100:+.1f}"
     return out
+
+
+def _intervals(bench: dict[str, Any]) -> dict[str, str]:
+    """The calibrated intervals on the check seed, the vehicles their table was not set on: the
+    lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h."""
+    intervals = bench["intervals"]
+    check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
+    down = check["one test down, 56 -> 48"]
+    return {
+        "intervals_vehicles": str(down["max_crush_m"]["n"]),
+        "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
+        "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
+        "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
+    }
 
 
 def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:

@@ -113,6 +113,14 @@ def parents() -> dict[int, int]:
     return found
 
 
+def command(pid: int) -> str:
+    """A process's command line, from /proc (Linux); empty for one that has ended."""
+    try:
+        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
+    except OSError:
+        return ""
+
+
 def descendants(pid: int) -> set[int]:
     """Every process below `pid`, from /proc (Linux)."""
     parent = parents()
@@ -133,8 +141,10 @@ def die_once(marker: str) -> int:
     return os.getpid()
 
 
-def die_always(_) -> int:
-    """A task whose worker is killed every time it runs."""
+def die_always(tally: str) -> int:
+    """A task whose worker is killed every time it runs; each run adds a line to the file `tally`."""
+    with open(tally, "a") as fh:
+        fh.write("ran\n")
     os.kill(os.getpid(), signal.SIGKILL)
     return os.getpid()
 

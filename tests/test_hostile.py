@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, descendants, merge
+from builders import BASE, ROOT, command, descendants, merge
 
 from crashnlp.cli import main
 from crashnlp.jsonfile import write_json
@@ -337,13 +337,6 @@ def test_killing_a_study_leaves_no_process_and_the_rerun_resumes(tmp_path):
     assert len(table) == 5 and all(",ok," in row for row in table[1:])
 
 
-def _command(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
-
-
 @pytest.mark.integration
 @pytest.mark.skipif(not Path("/proc").is_dir() or shutil.which("cc") is None, reason="needs /proc and a C compiler")
 def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_path):
@@ -356,18 +349,18 @@ def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_pat
     argv = [*CLI, "study", str(ROOT / "problems/studies/pitch-bound.yaml"), "--out", str(out), "--workers", "2", "--no-progress"]
     proc = subprocess.Popen(argv, cwd=ROOT, env=env, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     deadline, started = time.monotonic() + 60, set()
-    while time.monotonic() < deadline and not any("cc1" in _command(p) for p in started):
+    while time.monotonic() < deadline and not any("cc1" in command(p) for p in started):
         time.sleep(0.1)
         started |= descendants(proc.pid)
     started |= descendants(proc.pid)
-    assert any("cc1" in _command(p) for p in started), "no background compile was started"
+    assert any("cc1" in command(p) for p in started), "no background compile was started"
     proc.send_signal(signal.SIGTERM)
     _, err = proc.communicate(timeout=30)
     assert proc.returncode == 143, err
     deadline = time.monotonic() + 5
     while time.monotonic() < deadline and any(_alive(p) for p in started):
         time.sleep(0.1)
-    assert not [_command(p) for p in started if _alive(p)], "processes left behind"
+    assert not [command(p) for p in started if _alive(p)], "processes left behind"
     assert not [p.name for p in cache.iterdir() if p.suffix in (".c", ".tmp", ".so")], "a compile's files left behind"
     line = err.strip().splitlines()[-1]
     assert line.startswith("crashnlp: interrupted (SIGTERM)"), err
@@ -385,13 +378,13 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
     source.write_text("".join(f"double f{i}(double x) {{ return x * {i} + x * x / {i + 1}; }}\n" for i in range(100_000)))
     job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
     deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not any("cc1" in _command(p) for p in descendants(job.pid)):
+    while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
         time.sleep(0.05)
     group = descendants(job.pid) | {job.pid}
-    assert any("cc1" in _command(p) for p in group)
+    assert any("cc1" in command(p) for p in group)
     compile_job.stop_compiles()
     time.sleep(0.2)
-    assert not [_command(p) for p in group if _alive(p)]
+    assert not [command(p) for p in group if _alive(p)]
     assert list(tmp_path.iterdir()) == []
 
 

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, die_always, die_once, merge, parents, worker_pid
+from builders import BASE, ROOT, command, die_always, die_once, merge, parents, worker_pid
 
 from crashnlp.case import Case
 from crashnlp.engine import executors
@@ -305,13 +305,13 @@ def test_a_task_whose_worker_is_killed_runs_again_on_a_fresh_worker(tmp_path):
     items = [str(tmp_path / f"ran-{n}") for n in range(3)]
     try:
         pid = dict(map_all(executor, die_once, items))
-        last = dict(map_all(executor, die_always, [None]))
+        last = dict(map_all(executor, die_always, [str(tmp_path / "tally")]))
     finally:
         executor.close()
     assert all(isinstance(p, int) for p in pid.values()) and len(pid) == 3
     assert all(Path(item).exists() for item in items)
     assert isinstance(last[0], BrokenProcessPool)
-    assert WORKER_DEATHS >= 1
+    assert (tmp_path / "tally").read_text().count("ran") == WORKER_DEATHS + 1
 
 
 @pytest.mark.integration
@@ -346,14 +346,7 @@ def _workers_of(pid: int) -> set[int]:
     """The pool workers below a crashnlp process: the children of its fork server's process."""
     parent = parents()
     below = {p for p, pp in parent.items() if pp == pid}
-    return {p for p, pp in parent.items() if pp in below and "forkserver" in _cmdline(pp)}
-
-
-def _cmdline(pid: int) -> str:
-    try:
-        return Path(f"/proc/{pid}/cmdline").read_bytes().replace(b"\0", b" ").decode()
-    except OSError:
-        return ""
+    return {p for p, pp in parent.items() if pp in below and "forkserver" in command(pp)}
 
 
 @pytest.mark.integration
