@@ -121,19 +121,6 @@ def _speed_option(text: str | None) -> str | None:
     raise InputError(f'--speed {text}: give its unit, e.g. "{number:g} km/h" or "{number:g} m/s"')
 
 
-MAX_STEPS = 1_000_000  # output steps a simulation may ask for
-
-
-def _check_dt(dt: float | None, duration: float) -> None:
-    """Refuse a --dt that is not a positive number of seconds, or asks for absurdly many steps."""
-    if dt is None:
-        return
-    if not (math.isfinite(dt) and dt > 0):
-        raise InputError(f"--dt {dt:g}: must be a positive number of seconds")
-    if duration / dt > MAX_STEPS:
-        raise InputError(f"--dt {dt:g}: more than {MAX_STEPS:,} output steps over {duration:g} s")
-
-
 def cmd_simulate(args) -> int:
     with _figure_process(args) as figures:
         prepared = _simulation(args)
@@ -198,10 +185,11 @@ def _simulation(args):
     """(case, identified model or None, output folder) of the problem file, every check made and
     the folder checked (crashnlp.files.check_output), or None after `--check`."""
     from crashnlp.case import case_of
+    from crashnlp.prediction import check_steps
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
 
-    _check_dt(args.dt, 0.0)
+    check_steps(None, args.dt, "--dt")
     speed, mass = what_if(_speed_option(args.speed), args.mass, prefix="--")
     folder = Path(args.problem) / "result.json"
     if Path(args.problem).is_dir() and not folder.is_file():
@@ -213,13 +201,7 @@ def _simulation(args):
     else:
         problem, identified = load_problem(args.problem), None
     case = case_of(problem, args.problem).at(speed, mass)
-    longest = max(t.duration for t in case.tests)
-    _check_dt(args.dt, longest)
-    if args.dt is None and longest / case.problem.simulation.dt > MAX_STEPS:
-        raise InputError(
-            f"{args.problem}: simulation.dt {case.problem.simulation.dt:g} s: more than {MAX_STEPS:,} "
-            f"output steps over {longest:g} s (tests' duration)"
-        )
+    check_steps(case, args.dt, "--dt", args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):

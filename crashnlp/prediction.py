@@ -154,6 +154,23 @@ def own_tests(result: Result, source: str) -> Problem:
     return applied({"name": result.name, "tests": tests}, Path("."), result.identified, source, source)
 
 
+MAX_STEPS = 1_000_000  # output steps a simulation may ask for
+
+
+def check_steps(case: Case | None, dt: float | None, name: str = "dt", source: str = "simulate") -> None:
+    """Refuse an output step `dt` (called `name` where the user gave it) that is not a positive
+    number of seconds, or a simulation of `case` that asks for more than MAX_STEPS output steps
+    (with `dt`, or the problem's simulation.dt from `source`). No case: `dt` alone."""
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"{name} {dt:g}: must be a positive number of seconds")
+    if case is None:
+        return
+    longest = max(t.duration for t in case.tests)
+    step, where = (dt, name) if dt is not None else (case.problem.simulation.dt, f"{source}: simulation.dt")
+    if longest / step > MAX_STEPS:
+        raise InputError(f"{where} {step:g} s: more than {MAX_STEPS:,} output steps over {longest:g} s (tests' duration)")
+
+
 def predict(
     case: Case, identified: IdentifiedModel | None = None, dt: float | None = None, calibration: Calibration | None = None
 ) -> dict[str, PredictedTest]:
@@ -161,7 +178,9 @@ def predict(
     applied to, crashnlp.identified.apply); with `identified`, intervals and extrapolation too,
     their form terms from `calibration` (the shipped one by default). A test's data come with it
     only where it runs at the speed, mass and duration they were recorded at
-    (TestCase.other_conditions); otherwise a note says which test and why."""
+    (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
+    positive step, or too many steps, is refused (check_steps)."""
+    check_steps(case, dt)
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)

@@ -118,6 +118,16 @@ def test_simulate_takes_a_what_if_speed_and_mass_for_every_test(small_problem):
         crashnlp.simulate(small_problem, speed="fast")
 
 
+@pytest.mark.parametrize(
+    "dt, message", [(0.0, "dt 0: must be a positive"), (float("nan"), "dt nan: must be"), (1e-12, "dt 1e-12 s: more than")]
+)
+def test_simulate_refuses_the_steps_the_command_refuses(small_problem, dt, message):
+    """One check (crashnlp.prediction.check_steps) for `crashnlp.simulate` and `crashnlp simulate
+    --dt`: a step that is not positive, or a million output steps and more, before any run."""
+    with pytest.raises(InputError, match=message):
+        crashnlp.simulate(small_problem, dt=dt)
+
+
 @pytest.mark.integration
 @pytest.mark.slow
 def test_the_example_runs_as_written(tmp_path):

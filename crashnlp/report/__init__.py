@@ -135,7 +135,7 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
 
 def _parameters(result: Result) -> list[dict[str, str]]:
     """Every estimated value, one number each: value, standard error and 95 % interval (the
-    profile's where the fit profiled it, else value ± 1.96 standard errors, cut at its bounds),
+    profile's where the fit profiled it, else value ± Z95 standard errors, cut at its bounds),
     its bounds, in the unit it reads in."""
     problem = result.identified.as_problem(result.name) if result.identified is not None else None
     bounds = dict(zip(result.identified.labels, result.identified.bounds)) if result.identified is not None else {}
@@ -169,7 +169,7 @@ def _parameter(
         lo, hi = bounds or (-math.inf, math.inf)
         interval = (max(value - Z95 * std, lo), min(value + Z95 * std, hi))
         cut = interval != (value - Z95 * std, value + Z95 * std)
-        how = "± 1.96 std" + (", cut at a bound" if cut else "")
+        how = f"± {Z95:.2f} std" + (", cut at a bound" if cut else "")
     else:
         interval, how = None, without
     return {
