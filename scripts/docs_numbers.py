@@ -18,6 +18,7 @@ of crashnlp; only the runs do.
 
 from __future__ import annotations
 
+import ast
 import io
 import json
 import os
@@ -27,6 +28,8 @@ from collections.abc import Iterator
 from contextlib import chdir, redirect_stdout
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 ROOT = Path(__file__).resolve().parent.parent
 FILE = ROOT / "results/docs-numbers.json"
@@ -106,7 +109,8 @@ def console_digits(value: float) -> str:
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     """The numbers of results/bench.json the pages quote ("bench.<name>"), each formatted as the
     pages print it; the sections of make bench one function each."""
-    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _families, _self_consistency, _intervals)
+    parts = (_identification, _process, _simulation, _studies, _scale_out, _scaling, _corpus, _cross_speed, _families)
+    parts += (_self_consistency, _intervals)
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
 
@@ -187,12 +191,60 @@ def _studies(bench: dict[str, Any]) -> dict[str, str]:
     out["study_solves_s"], out["study_chain_s"] = f"{one['solves_s']:.1f}", f"{one['longest_chain_s']:.1f}"
     dask = "dask LocalCluster, 2 workers"
     out["study_dask_s"] = f"{studies['grid_16'][dask]['wall_s']:.1f}"
+    out["grid64_iterations"] = str(max(int(row["iterations"]) for row in studies["grid_64_rows"]))
     out["study_dask_speedup"] = f"{studies['speedup_16'][dask]:.2f}"
     return out
 
 
+PLANS = {"corners": ("corners", (2, 32, 128, 512)), "max_depth 2": ("depth2", (8, 32, 128, 512))}  # the quoted workers
+
+
+def _scale_out(bench: dict[str, Any]) -> dict[str, str]:
+    """A 10,000-case study replayed on a virtual clock (docs/studies.md): what one case ships and
+    costs, and the projected wall time and efficiency of two warm-start plans on N workers."""
+    studies = bench["studies"]
+    case, setup, dask, local = studies["case"], studies["setup"], studies["scheduler"]["dask"], studies["scheduler"]["local"]
+    out = {
+        "scale_check_s": f"{setup['wall_s']:.1f}",
+        "scale_job_kb": f"{case['job_bytes'] / 1e3:.0f}",
+        "scale_warm_start_kb": f"{case['warm_start_bytes'] / 1e3:.0f}",
+        "scale_result_kb": f"{case['result_bytes'] / 1e3:.0f}",
+        "scale_shipped_mb": f"{(case['job_bytes'] + case['result_bytes']) * setup['cases'] / 1e6:.0f}",
+        "scale_store_ms": f"{studies['store_ms']:.1f}",
+        "scale_dask_ms": f"{dask['per_task_ms']:.0f}",
+        "scale_dask_start_s": f"{dask['start_s']:.1f}",
+        "scale_local_ms": f"{local['per_task_ms']:.1f}",
+        "scale_warm_case_s": f"{case['warm_s']:.2f}",
+        "scale_workers_per_scheduler": f"{case['warm_s'] / (studies['store_ms'] * 1e-3):.0f}",
+    }
+    for row in studies["projection"]:
+        plan, lanes = PLANS.get(row["plan"], ("", ()))
+        if row["lanes"] not in lanes:
+            continue
+        out[f"scale_{plan}_seeds"], out[f"scale_{plan}_chain_s"] = str(row["seeds"]), f"{row['chain_s']:.1f}"
+        out |= {"scale_corners_depth": str(row["depth"])} if plan == "corners" else {}
+        out[f"scale_{plan}_{row['lanes']}_min"] = f"{row['makespan_h'] * 60:.1f}"
+        out[f"scale_{plan}_{row['lanes']}_efficiency"] = f"{row['efficiency']:.2f}"
+    return out
+
+
+def _scaling(bench: dict[str, Any]) -> dict[str, str]:
+    """Fits at 800 intervals and joint fits of 2 and 4 tests (docs/benchmarks.md's last rows)."""
+    scaling, out = bench["scaling"], {}
+    for row in scaling["intervals"]:
+        if row["intervals"] == max(r["intervals"] for r in scaling["intervals"]):
+            out[f"scaling_{row['method']}_s"], out[f"scaling_{row['method']}_iterations"] = f"{row['wall_s']:.2f}", str(row["iterations"])
+    for row in scaling["tests"]:
+        if row["tests"] > 1:
+            out[f"joint{row['tests']}_{row['method']}_s"] = f"{row['wall_s']:.2f}"
+            out[f"joint{row['tests']}_{row['method']}_iterations"] = str(row["iterations"])
+    for method, slopes in scaling["slopes"].items():
+        out[f"scaling_{method}_slope"] = f"{slopes['wall_s']:.2f}"
+    return out
+
+
 def _corpus(bench: dict[str, Any]) -> dict[str, str]:
-    corpus = bench["corpus"]["summary"]
+    corpus, vehicles = bench["corpus"]["summary"], bench["corpus"]["vehicles"]
     return {
         "corpus_ok": str(corpus["succeeded"]),
         "corpus_vehicles": str(corpus["vehicles"]),
@@ -202,7 +254,15 @@ def _corpus(bench: dict[str, Any]) -> dict[str, str]:
         "corpus_stop_median_ms": f"{corpus['stop_err_median_s'] * 1e3:.2f}",
         "corpus_rating": f"{corpus['force_rating_median']:.3f}",
         "corpus_rating_min": f"{corpus['force_rating_min']:.3f}",
-        "corpus_iterations": str(max(v["iterations"] for v in bench["corpus"]["vehicles"])),
+        "corpus_iterations": str(max(v["iterations"] for v in vehicles)),
+        "corpus_iterations_median": f"{np.median([v['iterations'] for v in vehicles]):.0f}",
+        "corpus_stop_rest_ms": f"{sorted(v['stop_err_s'] for v in vehicles)[-2] * 1e3:.1f}",
+        "corpus_mass_min_kg": f"{min(v['mass_kg'] for v in vehicles):.0f}",
+        "corpus_mass_max_kg": f"{max(v['mass_kg'] for v in vehicles):.0f}",
+        "corpus_speed_min_kmh": f"{min(v['speed_kmh'] for v in vehicles):.0f}",
+        "corpus_speed_max_kmh": f"{max(v['speed_kmh'] for v in vehicles):.0f}",
+        "corpus_crush_min_mm": f"{min(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
+        "corpus_crush_max_mm": f"{max(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
     }
 
 
@@ -314,15 +374,71 @@ def _camry() -> Quoted:
         "camry-64-data-not-shown": "\n".join(line for line in faster if "data not shown" in line),
     }
     numbers = crush_and_stop("camry", test["metrics"]["model"]) | crush_and_stop("camry.data", test["metrics"]["data"])
+    data = test["metrics"]["data"]  # as the data set's reference values are given (getting-started)
+    numbers |= {
+        "camry.data.stop_rounded_ms": f"{data['time_zero_velocity_s'] * 1e3:.1f}",
+        "camry.data.peak_g": f"{data['peak_decel_g']:.1f}",
+        "camry.data.olc_g": f"{data['olc_g']:.1f}",
+    }
     return blocks, numbers | table_row("camry", test)
 
 
 def _barrier() -> Quoted:
-    """The Camry fitted to its wall force and accelerometers (the barrier page)."""
-    run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
+    """The Camry fitted to its wall force and accelerometers (the barrier page), after _camry."""
+    console = run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
     test = fitted_test("results/nhtsa-10146-barrier", "10146")
+    blocks = {"barrier-consistency": "\n".join(line for line in console if "channel consistency" in line)}
     stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
-    return {}, table_row("barrier", test) | stop | channels_apart(test["consistency"])
+    return blocks, table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
+
+
+CRUSH_TABLE = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.65)  # m: the columns of docs/barrier.md's force-crush table
+BARRIER_FITS = {"accel_fit": "results/nhtsa-10146", "both_fit": "results/nhtsa-10146-barrier"}
+
+
+def walls_and_fits() -> dict[str, str]:
+    """docs/barrier.md's force against crush (kN): the wall's force and the accelerometers' m|a|,
+    each against its own one-mass travel from the impact speed while loading, and each fit's
+    loading curve; the wall's and the accelerometers' peaks; and what each fit's simulation rates against the channel it was not fitted to
+    (ISO 18571 over the data's window): the accelerometer fit's wall force, the barrier fit's
+    displacement."""
+    import numpy as np
+
+    from crashnlp.api import load
+    from crashnlp.data.signal import integrate
+    from crashnlp.rating import iso18571
+    from crashnlp.testcase import load_tests
+
+    problem, (test, *_) = load_tests(load("problems/nhtsa-10146-barrier.yaml"))
+    channels, mass, crush = test.data.channels, problem.vehicle.mass, np.array(CRUSH_TABLE)
+
+    def loading(t: np.ndarray, accel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        start = max(0.0, float(t[0]))
+        _, travel = integrate(t, accel, test.speed, start)
+        k = (t >= start) & (t <= t[np.argmax(travel)])
+        return np.interp(crush, travel[k], force[k])
+
+    def rating(folder: str, channel: str, column: str) -> str:
+        response, data = np.genfromtxt(f"{folder}/10146/response.csv", delimiter=",", names=True), channels[channel]
+        t = data.time[(data.time >= 0) & (data.time <= test.duration)]
+        return f"{iso18571(t, np.interp(t, data.time, data.values), np.interp(t, response['time_s'], response[column]))['overall']:.3f}"
+
+    wall, accel = channels["barrier_force"], channels["accel"]
+    rows = {
+        "wall": loading(wall.time, -wall.values / mass, wall.values),
+        "accelerometers": loading(accel.time, accel.values, mass * np.abs(accel.values)),
+    }
+    for row, folder in BARRIER_FITS.items():
+        curve = np.genfromtxt(f"{folder}/force_crush.csv", delimiter=",", names=True)
+        rows[row] = np.interp(crush, curve["crush_m"], curve["spring_force_N"])
+    out = {f"barrier.force.{row}.{c:g}": f"{f / 1e3:.0f}" for row, forces in rows.items() for c, f in zip(CRUSH_TABLE, forces)}
+    peaks = {name: float(ch.time[np.argmax(np.abs(ch.values))]) for name, ch in (("wall", wall), ("accelerometers", accel))}
+    out |= {f"barrier.{name}.peak_ms": f"{t * 1e3:.0f}" for name, t in peaks.items()}
+    out["barrier.wall.peak_kn"] = f"{np.max(np.abs(wall.values)) / 1e3:.0f}"
+    out["barrier.peaks_apart_ms"] = f"{(peaks['accelerometers'] - peaks['wall']) * 1e3:.0f}"
+    out["barrier.rating.accel_fit.barrier_force"] = rating(BARRIER_FITS["accel_fit"], "barrier_force", "barrier_force_N")
+    out["barrier.rating.both_fit.displacement"] = rating(BARRIER_FITS["both_fit"], "displacement", "displacement_m")
+    return out
 
 
 def _pickup() -> Quoted:
@@ -349,6 +465,85 @@ def _init() -> Quoted:
 
 
 # --------------------------------------------------------------------------- the pages
+EXEMPT = ("docs/design-notes.md",)  # history: what was measured when a choice was made, as the changelog
+
+# what a page shows that is no prose: fenced code and inline code (commands, keys, YAML as typed:
+# inputs), link targets, HTML comments, web addresses; marked blocks and values are taken out first
+NOT_PROSE = re.compile(r"^```.*?^```|`[^`\n]*`|\]\([^)]*\)|<!--.*?-->|https?://\S+", re.MULTILINE | re.DOTALL)
+NUMBER = re.compile(r"(?<![\w.^])[-+]?\d(?:[\d,]*\d)?(?:\.\d+)?(?:e[-+]?\d+)?(?![\w]|\.\d)")
+# a number that names something: a standard, a filter class, an equation, a table, an issue, a
+# data set's test, a benchmark's seed, a version, a NHTSA channel (of a test, the EV5 curve)
+NAMED = re.compile(
+    r"(?:ISO(?:/TS)?|J211-|CFC|Eqs?\.|Eq\. \(|\)-\(|Table|issues?|seeds?|seed \d+ and|test|NHTSA|>=|accelerometers|"
+    r"and \d+ of test)\s*$"
+)
+SCALES = (1e-6, 1e-3, 1e-2, 1.0, 1e2, 1e3, 1e6)  # SI prefixes and percent: 20 kN is 20e3 N
+
+
+def typed(text: str, definitions: frozenset[float]) -> list[str]:
+    """Every number of `text`'s prose and tables that no build writes, as "line N: NUMBER": not
+    marked, not in a generated block, not code, and not a definition. A definition is an integer
+    below 10 (a count of a setup, an exit code, a formula's coefficient), a year or a benchmark's
+    seed (an integer 1900 to 2100), a number naming something (NAMED), or a value of
+    `definitions` at any SI prefix or as a percentage (a constant of the code, an input of a
+    shipped problem)."""
+    text = INLINE.sub(lambda m: " " * len(m[0]), BLOCK.sub(lambda m: "\n" * m[0].count("\n"), text))
+    text = NOT_PROSE.sub(lambda m: re.sub(r"[^\n]", " ", m[0]), text)
+    out = []
+    for number, line in ((m, text.count("\n", 0, m.start()) + 1) for m in NUMBER.finditer(text)):
+        value = abs(float(number[0].replace(",", "")))
+        if value < 10 and value.is_integer() or 1900 <= value <= 2100 and value.is_integer():
+            continue
+        if NAMED.search(text[max(0, number.start() - 20) : number.start()]):
+            continue
+        if any(_key(value * scale) in definitions for scale in SCALES):
+            continue
+        out.append(f"line {line}: {number[0]}")
+    return out
+
+
+def _key(value: float) -> float:
+    return float(f"{value:.10g}")
+
+
+def definitions() -> frozenset[float]:
+    """The numbers the docs may state without a marker: the constants and defaults the crashnlp
+    package, the benchmarks and these scripts declare (`constants`: tolerances, limits, a
+    benchmark's speeds and seeds) and every number written in a shipped problem or study file
+    outside its comments (the inputs a run is given)."""
+    code = [p for folder in ("crashnlp", "bench", "scripts") for p in (ROOT / folder).rglob("*.py")]
+    values = {_key(v) for path in code for v in constants(ast.parse(path.read_text()))}
+    for path in (ROOT / "problems").rglob("*.yaml"):
+        for line in path.read_text().splitlines():
+            values |= {_key(abs(float(n.replace(",", "")))) for n in NUMBER.findall(INLINE.sub("", line.split(" #")[0]))}
+    return frozenset(values)
+
+
+BOUNDS = ("default", "ge", "gt", "le", "lt")  # pydantic Field's default and limits
+
+
+def constants(tree: ast.Module) -> Iterator[float]:
+    """The numbers a module declares as definitions: the values of its UPPER_CASE names, its
+    functions' defaults, its schema fields' defaults and limits (not the numbers inside its code,
+    which may be anything)."""
+
+    def numbers(node: ast.AST | None) -> Iterator[float]:
+        for n in ast.walk(node) if node is not None else ():
+            if isinstance(n, ast.Constant) and type(n.value) in (int, float):
+                yield abs(n.value)
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and all(isinstance(t, ast.Name) and t.id.isupper() for t in node.targets):
+            yield from numbers(node.value)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            yield from numbers(node.value) if node.target.id.isupper() or isinstance(node.value, ast.Constant) else ()
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for default in (*node.args.defaults, *node.args.kw_defaults):
+                yield from numbers(default)
+        elif isinstance(node, ast.keyword) and node.arg in BOUNDS:
+            yield from numbers(node.value)
+
+
 def quoting() -> Iterator[Path]:
     """The files that quote the runs."""
     for pattern in QUOTING:
