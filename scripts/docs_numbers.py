@@ -37,7 +37,7 @@ BENCH = ROOT / "results/bench.json"  # make bench's numbers, read as they are: t
 QUOTING = ("README.md", "docs/*.md", "problems/studies/*.yaml")  # the files that quote the runs, as globs from ROOT
 
 BLOCK = re.compile(r"^<!-- numbers: (?P<key>[\w.-]+) -->\n(?P<fence>```[^\n]*\n)(?P<body>.*?)^```", re.MULTILINE | re.DOTALL)
-INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+)<!--n:(?P<key>[\w.-]+)-->")
+INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+(?:e[-+]?\d+)?)<!--n:(?P<key>[\w.-]+)-->")
 
 # a prediction of the pickup fitted at 40 and 56 km/h, at 64 km/h (docs/predictions.md's extrapolation)
 WHAT_IF = "name: pickup-what-ifs\ntests:\n  - {name: 64kph, speed: 64 km/h, duration: 0.2 s}\n"
@@ -124,6 +124,7 @@ def _identification(bench: dict[str, Any]) -> dict[str, str]:
         "identify_iterations": str(shooting["iterations"]),
         "identify_ms_per_iteration": f"{shooting['ms_per_iteration']:.1f}",
         "identify_objective": f"{shooting['objective']:.5g}",
+        "transcriptions_apart_pct": f"{abs(collocation['objective'] / shooting['objective'] - 1) * 100:.2f}",
         "identify_speedup": f"{ratios['multiple-shooting']['speedup']:.1f}",
         "baseline_s": f"{baseline['wall_s']:.1f}",
         "baseline_simulations": str(baseline["simulations"]),
@@ -304,6 +305,7 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
             out[f"{group}_{split}_within"] = str(sum(p["within_targets"] for p in parts))
             out[f"{group}_{split}_fits"] = str(sum(p["fits"] for p in parts))
             out[f"{group}_{split}_iterations"] = str(max(p["iterations_max"] for p in parts))
+        out[f"{group}_iterations"] = str(max(p["iterations_max"] for f in chosen for p in (f["extrapolation"], f["interpolation"])))
     usual = [f for name, f in families.items() if "tall" not in name]
     out["usual_covered"] = str(round(sum(f["coverage"] * f["pairs"] for f in usual)))
     out["usual_pairs"] = str(sum(f["pairs"] for f in usual))
@@ -321,12 +323,79 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down = check["one test down, 56 -> 48"]
-    return {
+    out = {
         "intervals_vehicles": str(down["max_crush_m"]["n"]),
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
         "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
     }
+    return out | _interval_table(intervals) | _interval_misses(intervals)
+
+
+SCENARIOS = {  # bench.json's scenario -> the key docs/predictions.md's table names it by
+    "one test down, 56 -> 40": "down40",
+    "one test down, 56 -> 48": "down48",
+    "one test up, 56 -> 64": "up64",
+    "interpolation, 40 + 56 -> 48": "between48",
+    "extrapolation, 40 + 56 -> 64": "beyond64",
+}
+METRICS = {
+    "max_crush_m": "crush",
+    "time_zero_velocity_s": "stop",
+    "peak_decel_g": "peak",
+    "rebound_velocity_mps": "rebound",
+    "olc_g": "olc",
+    "max_pitch_deg": "pitch",
+}
+
+
+def _pct(share: float) -> str:
+    """A share as a percentage: one decimal below 20 %, none above."""
+    return f"{share * 100:.1f}" if share < 0.2 else f"{share * 100:.0f}"
+
+
+def _interval_table(intervals: dict[str, Any]) -> dict[str, str]:
+    """docs/predictions.md's table of the check seed: each scenario's and metric's coverage and
+    median half-width (relative)."""
+    check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
+    out = {}
+    for scenario, sid in SCENARIOS.items():
+        for metric, mid in METRICS.items():
+            cell = check[scenario][metric]
+            out[f"intervals.{sid}.{mid}.coverage_pct"] = f"{cell['coverage'] * 100:.0f}"
+            out[f"intervals.{sid}.{mid}.half_pct"] = _pct(cell["half_width_median"])
+    return out
+
+
+def _interval_misses(intervals: dict[str, Any]) -> dict[str, str]:
+    """What the prose under the table says: each form's lowest coverage, the model's misses that
+    widen the intervals, and the tall vehicles of the hidden seed, which no calibration saw."""
+    evaluation = intervals["evaluation"]
+    check, hidden = evaluation[str(intervals["check_seed"])], evaluation[str(intervals["hidden_seed"])]["all"]
+    forms = [form for name, form in check.items() if name != "all"]
+    cells = [m for form in forms for scenario in form.values() for m in scenario.values()]
+    rebound = [s["rebound_velocity_mps"]["error_median"] for s in check["all"].values()]
+    pitch = [s["max_pitch_deg"]["error_median"] for s in check["engine on mounts"].values()]
+    down40, beyond64 = check["all"]["one test down, 56 -> 40"], check["all"]["extrapolation, 40 + 56 -> 64"]
+    out = {
+        "intervals_form_coverage_lowest_pct": f"{min(c['coverage'] for c in cells) * 100:.0f}",
+        "intervals_down40_crush_error_median_pct": _pct(down40["max_crush_m"]["error_median"]),
+        "intervals_down40_crush_error_max_pct": _pct(down40["max_crush_m"]["error_max"]),
+        "intervals_beyond64_peak_error_max_pct": _pct(beyond64["peak_decel_g"]["error_max"]),
+        "intervals_rebound_error_low_pct": _pct(min(rebound)),
+        "intervals_rebound_error_high_pct": _pct(max(rebound)),
+        "intervals_engine_pitch_error_low_pct": _pct(min(pitch)),
+        "intervals_engine_pitch_error_high_pct": _pct(max(pitch)),
+        "intervals_tall_vehicles": str(max(s["max_crush_m"]["n"] for s in hidden.values())),
+    }
+    for metric in ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps"):
+        coverage = [s[metric]["coverage"] for s in hidden.values()]
+        out[f"intervals_tall_{METRICS[metric]}_lowest_pct"] = f"{min(coverage) * 100:.0f}"
+        out[f"intervals_tall_{METRICS[metric]}_highest_pct"] = f"{max(coverage) * 100:.0f}"
+    stop = hidden["one test down, 56 -> 48"]["time_zero_velocity_s"]
+    out["intervals_tall_down48_stop_error_pct"] = _pct(stop["error_median"])
+    out["intervals_tall_down48_stop_half_pct"] = _pct(stop["half_width_median"])
+    return out
 
 
 def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:
@@ -444,17 +513,78 @@ def walls_and_fits() -> dict[str, str]:
 def _pickup() -> Quoted:
     """The pickup's fit (pitch-bound.yaml's comment) and its 40 km/h prediction (getting-started)."""
     run("identify", "problems/pickup-56kph.yaml", "--no-figures")
-    pitch = fitted_test("results/pickup-56kph", "56kph")["metrics"]["model"]["max_pitch_deg"]
+    test = fitted_test("results/pickup-56kph", "56kph")
     prediction = run("simulate", "problems/pickup-40kph.yaml", "--params", "results/pickup-56kph/result.json", "--no-figures")
-    return {"simulate-pickup-40kph": "\n".join(prediction)}, {"pickup.max_pitch_deg": f"{pitch:.1f}"}
+    numbers = {"pickup.max_pitch_deg": f"{test['metrics']['model']['max_pitch_deg']:.1f}"} | pickup_fit(test)
+    return {"simulate-pickup-40kph": "\n".join(prediction)}, numbers
+
+
+RMSE_SHOWN = {"accel": (1.0, 2), "velocity": (1.0, 3), "displacement": (1e3, 1), "pitch": (1.0, 2)}  # result.json's g, m/s, m, deg
+ENERGY = (  # docs/identification.md's energy table, in its order
+    "impact_kinetic",
+    "impact_loss",
+    "front_end_spring",
+    "front_end_damper",
+    "suspension_damping",
+    "final_kinetic",
+    "final_potential_change",
+    "barrier_work_on_vehicle",
+)
+
+
+def pickup_fit(test: dict[str, Any]) -> dict[str, str]:
+    """The pickup's fit at 56 km/h as docs/identification.md gives it: each channel's RMSE and
+    rating, the spring values at the breakpoints the data were made with, the pitch lever, and
+    where the impact energy goes (kJ)."""
+    result = json.loads(Path("results/pickup-56kph/result.json").read_text())
+    out = {}
+    for channel, fit in test["fit"].items():
+        factor, digits = RMSE_SHOWN[channel]
+        out[f"pickup.rmse.{channel}"] = f"{fit['rmse'] * factor:.{digits}f}"
+        out[f"pickup.rating.{channel}"] = f"{fit['iso18571']['overall']:.3f}"
+    values = result["parameters"]["model.spring.values"]
+    out |= {f"pickup.spring.{i}_kn": f"{v / 1e3:.0f}" for i, v in enumerate(values[1:-1], start=1)}
+    out["pickup.lever_m"] = f"{result['parameters']['vehicle.crush_offset']:.2f}"
+    energy = test["energy"]
+    out |= {f"pickup.energy.{term}_kj": f"{energy[term] / 1e3:.1f}" for term in ENERGY}
+    out["pickup.energy.balance_error_kj"] = f"{energy['balance_error'] / 1e3:.0e}"
+    out["pickup.energy.balance_error_relative"] = f"{energy['balance_error_relative']:.0e}"
+    return out
 
 
 def _joint() -> Quoted:
-    """The pickup fitted at 40 and 56 km/h, predicted at 64 km/h (predictions' extrapolation line)."""
+    """The pickup fitted at 40 and 56 km/h, predicted at 64 km/h (predictions' extrapolation line),
+    with the identified tail (the trend) and with the law as fitted (`tail: segment`), against
+    the generator's 64 km/h test as make bench's cross-speed section recorded it."""
     run("identify", "problems/pickup-joint.yaml", "--no-figures")
     Path("what-ifs.yaml").write_text(WHAT_IF)
-    joint = run("simulate", "what-ifs.yaml", "--params", "results/pickup-joint/result.json", "--no-figures")
-    return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, {}
+    Path("what-ifs-segment.yaml").write_text(WHAT_IF.replace("tests:", "model: {spring: {tail: segment}}\ntests:", 1))
+    fitted = ("--params", "results/pickup-joint/result.json", "--no-figures")
+    joint = run("simulate", "what-ifs.yaml", *fitted)
+    run("simulate", "what-ifs-segment.yaml", *fitted, "--out", "segment")
+    identified = json.loads(Path("results/pickup-joint/result.json").read_text())["identified_model"]
+    spring, reach = identified["model"]["spring"], identified["range"]["model_crush_m"]
+    last = max(i for i, c in enumerate(spring["crush_breakpoints"]) if c <= reach)
+    breakpoints, values = spring["crush_breakpoints"], spring["values"]
+    truth = next(f for f in json.loads(BENCH.read_text())["cross_speed"]["fits"] if f["vehicle"] == "pickup-joint.yaml")["truth"]
+    damper = identified["model"]["damper"]["values"]
+    numbers = {
+        "joint.reach_m": f"{reach:.3f}",
+        "joint.reach_mm": f"{reach * 1e3:.0f}",
+        "joint.trend_mn_per_m": f"{spring['tail']['slope'] / 1e6:.2f}",
+        "joint.damper_low_kns_per_m": f"{damper[0] / 1e3:.1f}",
+        "joint.damper_high_kns_per_m": f"{damper[-1] / 1e3:.1f}",
+        "joint.reach_past_breakpoint_mm": f"{(reach - breakpoints[last]) * 1e3:.0f}",
+        "joint.last_segment_mn_per_m": f"{(values[last + 1] - values[last]) / (breakpoints[last + 1] - breakpoints[last]) / 1e6:.0f}",
+        "joint.generator.peak_g": f"{truth['peak_decel_g']:.1f}",
+    }
+    for tail, folder in (("trend", "results/pickup-what-ifs/simulation"), ("segment", "segment")):
+        metrics, intervals = (json.loads(Path(folder, "simulation.json").read_text())["tests"]["64kph"][k] for k in ("metrics", "intervals"))
+        (low, high), peak = intervals["peak_decel_g"], metrics["peak_decel_g"]
+        numbers |= {f"joint.{tail}.peak_g": f"{peak:.1f}", f"joint.{tail}.peak_low_g": f"{low:.0f}", f"joint.{tail}.peak_high_g": f"{high:.0f}"}
+    numbers["joint.segment.peak_pct"] = f"{(peak / truth['peak_decel_g'] - 1) * 100:+.1f}"  # the last of the loop: segment
+    numbers["joint.segment.crush_pct"] = f"{(metrics['max_crush_m'] / truth['max_crush_m'] - 1) * 100:+.1f}"
+    return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, numbers
 
 
 def _init() -> Quoted:
