@@ -114,3 +114,5 @@ def test_the_docs_build_fails_on_a_drifted_page():
 
     with pytest.raises(PluginError, match=r"index.md: camry.stop_ms: 1.0, the run gives .*: run make docs-numbers"):
         module.on_page_markdown("stop 1.0<!--n:camry.stop_ms--> ms", Page, None, None)
+    with pytest.raises(PluginError, match=r"index.md: typed by hand, not from a build: line 2: 745.7"):
+        module.on_page_markdown("The Camry\ncrushes 745.7 mm.", Page, None, None)
