@@ -12,8 +12,9 @@ quotes them, through two markers:
 Nothing here is typed by hand: a page quotes a run only through a marker, `drift` lists every
 marker whose text differs from the file (tests/test_docs_numbers.py holds every quoting file
 to it; docs/hooks.py fails `make docs` on it), and `make docs-numbers` brings the pages back in
-line after a change of the code moves a number. Reading and checking the pages imports nothing
-of crashnlp; only the runs do.
+line after a change of the code moves a number. `typed` lists every other number of a page's
+prose that is no definition (docs/development.md gives the rules); the same test and hook
+fail on it. Reading and checking the pages imports nothing of crashnlp; only the runs do.
 """
 
 from __future__ import annotations
@@ -109,8 +110,10 @@ def console_digits(value: float) -> str:
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     """The numbers of results/bench.json the pages quote ("bench.<name>"), each formatted as the
     pages print it; the sections of make bench one function each."""
-    parts = (_identification, _process, _simulation, _studies, _scale_out, _scaling, _corpus, _cross_speed, _families)
-    parts += (_self_consistency, _intervals)
+    parts = (
+        *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals),
+    )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
 
@@ -234,7 +237,10 @@ def _scaling(bench: dict[str, Any]) -> dict[str, str]:
     scaling, out = bench["scaling"], {}
     for row in scaling["intervals"]:
         if row["intervals"] == max(r["intervals"] for r in scaling["intervals"]):
-            out[f"scaling_{row['method']}_s"], out[f"scaling_{row['method']}_iterations"] = f"{row['wall_s']:.2f}", str(row["iterations"])
+            out[f"scaling_{row['method']}_s"], out[f"scaling_{row['method']}_iterations"] = (
+                f"{row['wall_s']:.2f}",
+                str(row["iterations"]),
+            )
     for row in scaling["tests"]:
         if row["tests"] > 1:
             out[f"joint{row['tests']}_{row['method']}_s"] = f"{row['wall_s']:.2f}"
@@ -305,7 +311,9 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
             out[f"{group}_{split}_within"] = str(sum(p["within_targets"] for p in parts))
             out[f"{group}_{split}_fits"] = str(sum(p["fits"] for p in parts))
             out[f"{group}_{split}_iterations"] = str(max(p["iterations_max"] for p in parts))
-        out[f"{group}_iterations"] = str(max(p["iterations_max"] for f in chosen for p in (f["extrapolation"], f["interpolation"])))
+        out[f"{group}_iterations"] = str(
+            max(p["iterations_max"] for f in chosen for p in (f["extrapolation"], f["interpolation"]))
+        )
     usual = [f for name, f in families.items() if "tall" not in name]
     out["usual_covered"] = str(round(sum(f["coverage"] * f["pairs"] for f in usual)))
     out["usual_pairs"] = str(sum(f["pairs"] for f in usual))
@@ -468,17 +476,16 @@ BARRIER_FITS = {"accel_fit": "results/nhtsa-10146", "both_fit": "results/nhtsa-1
 def walls_and_fits() -> dict[str, str]:
     """docs/barrier.md's force against crush (kN): the wall's force and the accelerometers' m|a|,
     each against its own one-mass travel from the impact speed while loading, and each fit's
-    loading curve; the wall's and the accelerometers' peaks; and what each fit's simulation rates against the channel it was not fitted to
-    (ISO 18571 over the data's window): the accelerometer fit's wall force, the barrier fit's
-    displacement."""
-    import numpy as np
-
+    loading curve; the wall's and the accelerometers' peaks; and what each fit's simulation rates
+    against the channel it was not fitted to (ISO 18571 over the data's window): the accelerometer
+    fit's wall force, the barrier fit's displacement."""
     from crashnlp.api import load
     from crashnlp.data.signal import integrate
     from crashnlp.rating import iso18571
     from crashnlp.testcase import load_tests
 
     problem, (test, *_) = load_tests(load("problems/nhtsa-10146-barrier.yaml"))
+    assert test.data is not None  # the problem's test reads its EV5 file
     channels, mass, crush = test.data.channels, problem.vehicle.mass, np.array(CRUSH_TABLE)
 
     def loading(t: np.ndarray, accel: np.ndarray, force: np.ndarray) -> np.ndarray:
@@ -490,7 +497,8 @@ def walls_and_fits() -> dict[str, str]:
     def rating(folder: str, channel: str, column: str) -> str:
         response, data = np.genfromtxt(f"{folder}/10146/response.csv", delimiter=",", names=True), channels[channel]
         t = data.time[(data.time >= 0) & (data.time <= test.duration)]
-        return f"{iso18571(t, np.interp(t, data.time, data.values), np.interp(t, response['time_s'], response[column]))['overall']:.3f}"
+        model = np.interp(t, response["time_s"], response[column])
+        return f"{iso18571(t, np.interp(t, data.time, data.values), model)['overall']:.3f}"
 
     wall, accel = channels["barrier_force"], channels["accel"]
     rows = {
@@ -519,7 +527,8 @@ def _pickup() -> Quoted:
     return {"simulate-pickup-40kph": "\n".join(prediction)}, numbers
 
 
-RMSE_SHOWN = {"accel": (1.0, 2), "velocity": (1.0, 3), "displacement": (1e3, 1), "pitch": (1.0, 2)}  # result.json's g, m/s, m, deg
+# a channel's RMSE as docs/identification.md shows it: factor from result.json's unit (g, m/s, m, deg), digits
+RMSE_SHOWN = {"accel": (1.0, 2), "velocity": (1.0, 3), "displacement": (1e3, 1), "pitch": (1.0, 2)}
 ENERGY = (  # docs/identification.md's energy table, in its order
     "impact_kinetic",
     "impact_loss",
@@ -564,8 +573,9 @@ def _joint() -> Quoted:
     run("simulate", "what-ifs-segment.yaml", *fitted, "--out", "segment")
     identified = json.loads(Path("results/pickup-joint/result.json").read_text())["identified_model"]
     spring, reach = identified["model"]["spring"], identified["range"]["model_crush_m"]
-    last = max(i for i, c in enumerate(spring["crush_breakpoints"]) if c <= reach)
     breakpoints, values = spring["crush_breakpoints"], spring["values"]
+    last = max(i for i, c in enumerate(breakpoints) if c <= reach)  # the segment the reach lies in starts here
+    segment_slope = (values[last + 1] - values[last]) / (breakpoints[last + 1] - breakpoints[last])
     truth = next(f for f in json.loads(BENCH.read_text())["cross_speed"]["fits"] if f["vehicle"] == "pickup-joint.yaml")["truth"]
     damper = identified["model"]["damper"]["values"]
     numbers = {
@@ -575,16 +585,25 @@ def _joint() -> Quoted:
         "joint.damper_low_kns_per_m": f"{damper[0] / 1e3:.1f}",
         "joint.damper_high_kns_per_m": f"{damper[-1] / 1e3:.1f}",
         "joint.reach_past_breakpoint_mm": f"{(reach - breakpoints[last]) * 1e3:.0f}",
-        "joint.last_segment_mn_per_m": f"{(values[last + 1] - values[last]) / (breakpoints[last + 1] - breakpoints[last]) / 1e6:.0f}",
+        "joint.last_segment_mn_per_m": f"{segment_slope / 1e6:.0f}",
         "joint.generator.peak_g": f"{truth['peak_decel_g']:.1f}",
     }
-    for tail, folder in (("trend", "results/pickup-what-ifs/simulation"), ("segment", "segment")):
-        metrics, intervals = (json.loads(Path(folder, "simulation.json").read_text())["tests"]["64kph"][k] for k in ("metrics", "intervals"))
-        (low, high), peak = intervals["peak_decel_g"], metrics["peak_decel_g"]
-        numbers |= {f"joint.{tail}.peak_g": f"{peak:.1f}", f"joint.{tail}.peak_low_g": f"{low:.0f}", f"joint.{tail}.peak_high_g": f"{high:.0f}"}
-    numbers["joint.segment.peak_pct"] = f"{(peak / truth['peak_decel_g'] - 1) * 100:+.1f}"  # the last of the loop: segment
-    numbers["joint.segment.crush_pct"] = f"{(metrics['max_crush_m'] / truth['max_crush_m'] - 1) * 100:+.1f}"
+    predicted = {
+        tail: _predicted_64(folder) for tail, folder in (("trend", "results/pickup-what-ifs/simulation"), ("segment", "segment"))
+    }
+    for tail, test in predicted.items():
+        (low, high), peak = test["intervals"]["peak_decel_g"], test["metrics"]["peak_decel_g"]
+        numbers[f"joint.{tail}.peak_g"] = f"{peak:.1f}"
+        numbers[f"joint.{tail}.peak_low_g"], numbers[f"joint.{tail}.peak_high_g"] = f"{low:.0f}", f"{high:.0f}"
+    segment = predicted["segment"]["metrics"]
+    numbers["joint.segment.peak_pct"] = f"{(segment['peak_decel_g'] / truth['peak_decel_g'] - 1) * 100:+.1f}"
+    numbers["joint.segment.crush_pct"] = f"{(segment['max_crush_m'] / truth['max_crush_m'] - 1) * 100:+.1f}"
     return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, numbers
+
+
+def _predicted_64(folder: str) -> dict[str, Any]:
+    """The 64 km/h test of a simulation's folder (simulation.json)."""
+    return dict(json.loads(Path(folder, "simulation.json").read_text())["tests"]["64kph"])
 
 
 def _init() -> Quoted:
@@ -602,11 +621,8 @@ EXEMPT = ("docs/design-notes.md",)  # history: what was measured when a choice w
 NOT_PROSE = re.compile(r"^```.*?^```|`[^`\n]*`|\]\([^)]*\)|<!--.*?-->|https?://\S+", re.MULTILINE | re.DOTALL)
 NUMBER = re.compile(r"(?<![\w.^])[-+]?\d(?:[\d,]*\d)?(?:\.\d+)?(?:e[-+]?\d+)?(?![\w]|\.\d)")
 # a number that names something: a standard, a filter class, an equation, a table, an issue, a
-# data set's test, a benchmark's seed, a version, a NHTSA channel (of a test, the EV5 curve)
-NAMED = re.compile(
-    r"(?:ISO(?:/TS)?|J211-|CFC|Eqs?\.|Eq\. \(|\)-\(|Table|issues?|seeds?|seed \d+ and|test|NHTSA|>=|accelerometers|"
-    r"and \d+ of test)\s*$"
-)
+# benchmark's seed, a data set's test, a version
+NAMED = re.compile(r"(?:ISO(?:/TS)?|J211-|CFC|Eqs?\.|Eq\. \(|\)-\(|Table|issues?|seeds?|test|NHTSA|>=)\s*$")
 SCALES = (1e-6, 1e-3, 1e-2, 1.0, 1e2, 1e3, 1e6)  # SI prefixes and percent: 20 kN is 20e3 N
 
 
@@ -659,8 +675,8 @@ def constants(tree: ast.Module) -> Iterator[float]:
 
     def numbers(node: ast.AST | None) -> Iterator[float]:
         for n in ast.walk(node) if node is not None else ():
-            if isinstance(n, ast.Constant) and type(n.value) in (int, float):
-                yield abs(n.value)
+            if isinstance(n, ast.Constant) and isinstance(n.value, (int, float)) and not isinstance(n.value, bool):
+                yield abs(float(n.value))
 
     for node in ast.walk(tree):
         if isinstance(node, ast.Assign) and all(isinstance(t, ast.Name) and t.id.isupper() for t in node.targets):
