@@ -66,9 +66,10 @@ NUMBERS = _docs_numbers()
 
 
 DEFINITIONS = NUMBERS.definitions()
-PROSE = {str(p.relative_to(ROOT / "docs")) for p in NUMBERS.quoting() if p.parent == ROOT / "docs"} - {
-    str(Path(p).relative_to("docs")) for p in NUMBERS.EXEMPT
-}  # the guide's own pages, history aside: generated pages (the changelog, bench results) are not held to it
+# the guide's own pages, history aside, by their site paths; generated pages (the changelog, bench results) are not held to it
+GUIDE = [p.relative_to(ROOT) for p in NUMBERS.quoting() if p.suffix == ".md"]
+PROSE = {p.relative_to("docs").as_posix() for p in GUIDE if p.parts[0] == "docs"}
+PROSE -= {Path(p).relative_to("docs").as_posix() for p in NUMBERS.EXEMPT}
 
 
 def on_page_markdown(markdown: str, page: Page, config: Any, files: Files) -> str:

@@ -35,7 +35,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parent.parent
 FILE = ROOT / "results/docs-numbers.json"
 BENCH = ROOT / "results/bench.json"  # make bench's numbers, read as they are: the benchmarks are not run here
-QUOTING = ("README.md", "docs/*.md", "problems/studies/*.yaml")  # the files that quote the runs, as globs from ROOT
+# the files that quote the runs, as globs from ROOT
+QUOTING = ("README.md", "docs/*.md", "docs/reference/*.md", "problems/studies/*.yaml")
 
 BLOCK = re.compile(r"^<!-- numbers: (?P<key>[\w.-]+) -->\n(?P<fence>```[^\n]*\n)(?P<body>.*?)^```", re.MULTILINE | re.DOTALL)
 INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+(?:e[-+]?\d+)?)<!--n:(?P<key>[\w.-]+)-->")
