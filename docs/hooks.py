@@ -7,8 +7,8 @@
   follows any refactoring of the pydantic models.
 - The numbers a page quotes from the shipped runs (console blocks, a fit's crush and stop time)
   are those of results/docs-numbers.json, which `make docs-numbers` writes
-  (scripts/docs_numbers.py): a page whose marked block or number differs from the file fails
-  the build, naming it.
+  (scripts/docs_numbers.py): a page whose marked block or number differs from the file, or that
+  types a number that is neither marked nor a definition, fails the build, naming it.
 - The figures under results/readme/ and results/bench-scaling.png, CHANGELOG.md and
   results/bench.md live outside docs/; they are added to the site as generated files, so the
   pages link them by their site paths (figures/..., changelog.md, bench-results.md).
@@ -65,11 +65,21 @@ def _docs_numbers() -> ModuleType:
 NUMBERS = _docs_numbers()
 
 
+DEFINITIONS = NUMBERS.definitions()
+# the guide's own pages, history aside, by their site paths; generated pages (the changelog, bench results) are not held to it
+GUIDE = [p.relative_to(ROOT) for p in NUMBERS.quoting() if p.suffix == ".md"]
+PROSE = {p.relative_to("docs").as_posix() for p in GUIDE if p.parts[0] == "docs"}
+PROSE -= {Path(p).relative_to("docs").as_posix() for p in NUMBERS.EXEMPT}
+
+
 def on_page_markdown(markdown: str, page: Page, config: Any, files: Files) -> str:
-    """A page quotes the shipped runs as results/docs-numbers.json says, or the build fails."""
+    """A page quotes the shipped runs as results/docs-numbers.json says, and types no other
+    number than a definition (docs/development.md), or the build fails."""
     drift = NUMBERS.drift(markdown, NUMBERS.load())
     if drift:
         raise PluginError(f"{page.file.src_uri}: {'; '.join(drift)}: run make docs-numbers")
+    if page.file.src_uri in PROSE and (typed := NUMBERS.typed(markdown, DEFINITIONS)):
+        raise PluginError(f"{page.file.src_uri}: typed by hand, not from a build: {'; '.join(typed)}")
     return markdown
 
 

@@ -12,12 +12,14 @@ quotes them, through two markers:
 Nothing here is typed by hand: a page quotes a run only through a marker, `drift` lists every
 marker whose text differs from the file (tests/test_docs_numbers.py holds every quoting file
 to it; docs/hooks.py fails `make docs` on it), and `make docs-numbers` brings the pages back in
-line after a change of the code moves a number. Reading and checking the pages imports nothing
-of crashnlp; only the runs do.
+line after a change of the code moves a number. `typed` lists every other number of a page's
+prose that is no definition (docs/development.md gives the rules); the same test and hook
+fail on it. Reading and checking the pages imports nothing of crashnlp; only the runs do.
 """
 
 from __future__ import annotations
 
+import ast
 import io
 import json
 import os
@@ -28,13 +30,16 @@ from contextlib import chdir, redirect_stdout
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 ROOT = Path(__file__).resolve().parent.parent
 FILE = ROOT / "results/docs-numbers.json"
 BENCH = ROOT / "results/bench.json"  # make bench's numbers, read as they are: the benchmarks are not run here
-QUOTING = ("README.md", "docs/*.md", "problems/studies/*.yaml")  # the files that quote the runs, as globs from ROOT
+# the files that quote the runs, as globs from ROOT
+QUOTING = ("README.md", "docs/*.md", "docs/reference/*.md", "problems/studies/*.yaml")
 
 BLOCK = re.compile(r"^<!-- numbers: (?P<key>[\w.-]+) -->\n(?P<fence>```[^\n]*\n)(?P<body>.*?)^```", re.MULTILINE | re.DOTALL)
-INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+)<!--n:(?P<key>[\w.-]+)-->")
+INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+(?:e[-+]?\d+)?)<!--n:(?P<key>[\w.-]+)-->")
 
 # a prediction of the pickup fitted at 40 and 56 km/h, at 64 km/h (docs/predictions.md's extrapolation)
 WHAT_IF = "name: pickup-what-ifs\ntests:\n  - {name: 64kph, speed: 64 km/h, duration: 0.2 s}\n"
@@ -106,7 +111,10 @@ def console_digits(value: float) -> str:
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     """The numbers of results/bench.json the pages quote ("bench.<name>"), each formatted as the
     pages print it; the sections of make bench one function each."""
-    parts = (_identification, _process, _simulation, _studies, _corpus, _cross_speed, _families, _self_consistency, _intervals)
+    parts = (
+        *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals),
+    )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
 
@@ -120,6 +128,7 @@ def _identification(bench: dict[str, Any]) -> dict[str, str]:
         "identify_iterations": str(shooting["iterations"]),
         "identify_ms_per_iteration": f"{shooting['ms_per_iteration']:.1f}",
         "identify_objective": f"{shooting['objective']:.5g}",
+        "transcriptions_apart_pct": f"{abs(collocation['objective'] / shooting['objective'] - 1) * 100:.2f}",
         "identify_speedup": f"{ratios['multiple-shooting']['speedup']:.1f}",
         "baseline_s": f"{baseline['wall_s']:.1f}",
         "baseline_simulations": str(baseline["simulations"]),
@@ -187,12 +196,63 @@ def _studies(bench: dict[str, Any]) -> dict[str, str]:
     out["study_solves_s"], out["study_chain_s"] = f"{one['solves_s']:.1f}", f"{one['longest_chain_s']:.1f}"
     dask = "dask LocalCluster, 2 workers"
     out["study_dask_s"] = f"{studies['grid_16'][dask]['wall_s']:.1f}"
+    out["grid64_iterations"] = str(max(int(row["iterations"]) for row in studies["grid_64_rows"]))
     out["study_dask_speedup"] = f"{studies['speedup_16'][dask]:.2f}"
     return out
 
 
+PLANS = {"corners": ("corners", (2, 32, 128, 512)), "max_depth 2": ("depth2", (8, 32, 128, 512))}  # the quoted workers
+
+
+def _scale_out(bench: dict[str, Any]) -> dict[str, str]:
+    """A 10,000-case study replayed on a virtual clock (docs/studies.md): what one case ships and
+    costs, and the projected wall time and efficiency of two warm-start plans on N workers."""
+    studies = bench["studies"]
+    case, setup, dask, local = studies["case"], studies["setup"], studies["scheduler"]["dask"], studies["scheduler"]["local"]
+    out = {
+        "scale_check_s": f"{setup['wall_s']:.1f}",
+        "scale_job_kb": f"{case['job_bytes'] / 1e3:.0f}",
+        "scale_warm_start_kb": f"{case['warm_start_bytes'] / 1e3:.0f}",
+        "scale_result_kb": f"{case['result_bytes'] / 1e3:.0f}",
+        "scale_shipped_mb": f"{(case['job_bytes'] + case['result_bytes']) * setup['cases'] / 1e6:.0f}",
+        "scale_store_ms": f"{studies['store_ms']:.1f}",
+        "scale_dask_ms": f"{dask['per_task_ms']:.0f}",
+        "scale_dask_start_s": f"{dask['start_s']:.1f}",
+        "scale_local_ms": f"{local['per_task_ms']:.1f}",
+        "scale_warm_case_s": f"{case['warm_s']:.2f}",
+        "scale_workers_per_scheduler": f"{case['warm_s'] / (studies['store_ms'] * 1e-3):.0f}",
+    }
+    for row in studies["projection"]:
+        plan, lanes = PLANS.get(row["plan"], ("", ()))
+        if row["lanes"] not in lanes:
+            continue
+        out[f"scale_{plan}_seeds"], out[f"scale_{plan}_chain_s"] = str(row["seeds"]), f"{row['chain_s']:.1f}"
+        out |= {"scale_corners_depth": str(row["depth"])} if plan == "corners" else {}
+        out[f"scale_{plan}_{row['lanes']}_min"] = f"{row['makespan_h'] * 60:.1f}"
+        out[f"scale_{plan}_{row['lanes']}_efficiency"] = f"{row['efficiency']:.2f}"
+    return out
+
+
+def _scaling(bench: dict[str, Any]) -> dict[str, str]:
+    """Fits at 800 intervals and joint fits of 2 and 4 tests (docs/benchmarks.md's last rows)."""
+    scaling, out = bench["scaling"], {}
+    for row in scaling["intervals"]:
+        if row["intervals"] == max(r["intervals"] for r in scaling["intervals"]):
+            out[f"scaling_{row['method']}_s"], out[f"scaling_{row['method']}_iterations"] = (
+                f"{row['wall_s']:.2f}",
+                str(row["iterations"]),
+            )
+    for row in scaling["tests"]:
+        if row["tests"] > 1:
+            out[f"joint{row['tests']}_{row['method']}_s"] = f"{row['wall_s']:.2f}"
+            out[f"joint{row['tests']}_{row['method']}_iterations"] = str(row["iterations"])
+    for method, slopes in scaling["slopes"].items():
+        out[f"scaling_{method}_slope"] = f"{slopes['wall_s']:.2f}"
+    return out
+
+
 def _corpus(bench: dict[str, Any]) -> dict[str, str]:
-    corpus = bench["corpus"]["summary"]
+    corpus, vehicles = bench["corpus"]["summary"], bench["corpus"]["vehicles"]
     return {
         "corpus_ok": str(corpus["succeeded"]),
         "corpus_vehicles": str(corpus["vehicles"]),
@@ -202,7 +262,15 @@ def _corpus(bench: dict[str, Any]) -> dict[str, str]:
         "corpus_stop_median_ms": f"{corpus['stop_err_median_s'] * 1e3:.2f}",
         "corpus_rating": f"{corpus['force_rating_median']:.3f}",
         "corpus_rating_min": f"{corpus['force_rating_min']:.3f}",
-        "corpus_iterations": str(max(v["iterations"] for v in bench["corpus"]["vehicles"])),
+        "corpus_iterations": str(max(v["iterations"] for v in vehicles)),
+        "corpus_iterations_median": f"{np.median([v['iterations'] for v in vehicles]):.0f}",
+        "corpus_stop_rest_ms": f"{sorted(v['stop_err_s'] for v in vehicles)[-2] * 1e3:.1f}",
+        "corpus_mass_min_kg": f"{min(v['mass_kg'] for v in vehicles):.0f}",
+        "corpus_mass_max_kg": f"{max(v['mass_kg'] for v in vehicles):.0f}",
+        "corpus_speed_min_kmh": f"{min(v['speed_kmh'] for v in vehicles):.0f}",
+        "corpus_speed_max_kmh": f"{max(v['speed_kmh'] for v in vehicles):.0f}",
+        "corpus_crush_min_mm": f"{min(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
+        "corpus_crush_max_mm": f"{max(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
     }
 
 
@@ -244,6 +312,9 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
             out[f"{group}_{split}_within"] = str(sum(p["within_targets"] for p in parts))
             out[f"{group}_{split}_fits"] = str(sum(p["fits"] for p in parts))
             out[f"{group}_{split}_iterations"] = str(max(p["iterations_max"] for p in parts))
+        out[f"{group}_iterations"] = str(
+            max(p["iterations_max"] for f in chosen for p in (f["extrapolation"], f["interpolation"]))
+        )
     usual = [f for name, f in families.items() if "tall" not in name]
     out["usual_covered"] = str(round(sum(f["coverage"] * f["pairs"] for f in usual)))
     out["usual_pairs"] = str(sum(f["pairs"] for f in usual))
@@ -261,12 +332,79 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down = check["one test down, 56 -> 48"]
-    return {
+    out = {
         "intervals_vehicles": str(down["max_crush_m"]["n"]),
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
         "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
     }
+    return out | _interval_table(intervals) | _interval_misses(intervals)
+
+
+SCENARIOS = {  # bench.json's scenario -> the key docs/predictions.md's table names it by
+    "one test down, 56 -> 40": "down40",
+    "one test down, 56 -> 48": "down48",
+    "one test up, 56 -> 64": "up64",
+    "interpolation, 40 + 56 -> 48": "between48",
+    "extrapolation, 40 + 56 -> 64": "beyond64",
+}
+METRICS = {
+    "max_crush_m": "crush",
+    "time_zero_velocity_s": "stop",
+    "peak_decel_g": "peak",
+    "rebound_velocity_mps": "rebound",
+    "olc_g": "olc",
+    "max_pitch_deg": "pitch",
+}
+
+
+def _pct(share: float) -> str:
+    """A share as a percentage: one decimal below 20 %, none above."""
+    return f"{share * 100:.1f}" if share < 0.2 else f"{share * 100:.0f}"
+
+
+def _interval_table(intervals: dict[str, Any]) -> dict[str, str]:
+    """docs/predictions.md's table of the check seed: each scenario's and metric's coverage and
+    median half-width (relative)."""
+    check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
+    out = {}
+    for scenario, sid in SCENARIOS.items():
+        for metric, mid in METRICS.items():
+            cell = check[scenario][metric]
+            out[f"intervals.{sid}.{mid}.coverage_pct"] = f"{cell['coverage'] * 100:.0f}"
+            out[f"intervals.{sid}.{mid}.half_pct"] = _pct(cell["half_width_median"])
+    return out
+
+
+def _interval_misses(intervals: dict[str, Any]) -> dict[str, str]:
+    """What the prose under the table says: each form's lowest coverage, the model's misses that
+    widen the intervals, and the tall vehicles of the hidden seed, which no calibration saw."""
+    evaluation = intervals["evaluation"]
+    check, hidden = evaluation[str(intervals["check_seed"])], evaluation[str(intervals["hidden_seed"])]["all"]
+    forms = [form for name, form in check.items() if name != "all"]
+    cells = [m for form in forms for scenario in form.values() for m in scenario.values()]
+    rebound = [s["rebound_velocity_mps"]["error_median"] for s in check["all"].values()]
+    pitch = [s["max_pitch_deg"]["error_median"] for s in check["engine on mounts"].values()]
+    down40, beyond64 = check["all"]["one test down, 56 -> 40"], check["all"]["extrapolation, 40 + 56 -> 64"]
+    out = {
+        "intervals_form_coverage_lowest_pct": f"{min(c['coverage'] for c in cells) * 100:.0f}",
+        "intervals_down40_crush_error_median_pct": _pct(down40["max_crush_m"]["error_median"]),
+        "intervals_down40_crush_error_max_pct": _pct(down40["max_crush_m"]["error_max"]),
+        "intervals_beyond64_peak_error_max_pct": _pct(beyond64["peak_decel_g"]["error_max"]),
+        "intervals_rebound_error_low_pct": _pct(min(rebound)),
+        "intervals_rebound_error_high_pct": _pct(max(rebound)),
+        "intervals_engine_pitch_error_low_pct": _pct(min(pitch)),
+        "intervals_engine_pitch_error_high_pct": _pct(max(pitch)),
+        "intervals_tall_vehicles": str(max(s["max_crush_m"]["n"] for s in hidden.values())),
+    }
+    for metric in ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps"):
+        coverage = [s[metric]["coverage"] for s in hidden.values()]
+        out[f"intervals_tall_{METRICS[metric]}_lowest_pct"] = f"{min(coverage) * 100:.0f}"
+        out |= {f"intervals_tall_{METRICS[metric]}_highest_pct": f"{max(coverage) * 100:.0f}"} if metric != "max_crush_m" else {}
+    stop = hidden["one test down, 56 -> 48"]["time_zero_velocity_s"]
+    out["intervals_tall_down48_stop_error_pct"] = _pct(stop["error_median"])
+    out["intervals_tall_down48_stop_half_pct"] = _pct(stop["half_width_median"])
+    return out
 
 
 def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:
@@ -314,31 +452,159 @@ def _camry() -> Quoted:
         "camry-64-data-not-shown": "\n".join(line for line in faster if "data not shown" in line),
     }
     numbers = crush_and_stop("camry", test["metrics"]["model"]) | crush_and_stop("camry.data", test["metrics"]["data"])
+    data = test["metrics"]["data"]  # as the data set's reference values are given (getting-started)
+    numbers |= {
+        "camry.data.stop_rounded_ms": f"{data['time_zero_velocity_s'] * 1e3:.1f}",
+        "camry.data.peak_g": f"{data['peak_decel_g']:.1f}",
+        "camry.data.olc_g": f"{data['olc_g']:.1f}",
+    }
     return blocks, numbers | table_row("camry", test)
 
 
 def _barrier() -> Quoted:
-    """The Camry fitted to its wall force and accelerometers (the barrier page)."""
-    run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
+    """The Camry fitted to its wall force and accelerometers (the barrier page), after _camry."""
+    console = run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
     test = fitted_test("results/nhtsa-10146-barrier", "10146")
+    blocks = {"barrier-consistency": "\n".join(line for line in console if "channel consistency" in line)}
     stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
-    return {}, table_row("barrier", test) | stop | channels_apart(test["consistency"])
+    return blocks, table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
+
+
+CRUSH_TABLE = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.65)  # m: the columns of docs/barrier.md's force-crush table
+BARRIER_FITS = {"accel_fit": "results/nhtsa-10146", "both_fit": "results/nhtsa-10146-barrier"}
+
+
+def walls_and_fits() -> dict[str, str]:
+    """docs/barrier.md's force against crush (kN): the wall's force and the accelerometers' m|a|,
+    each against its own one-mass travel from the impact speed while loading, and each fit's
+    loading curve; the wall's and the accelerometers' peaks; and what each fit's simulation rates
+    against the channel it was not fitted to (ISO 18571 over the data's window): the accelerometer
+    fit's wall force, the barrier fit's displacement."""
+    from crashnlp.api import load
+    from crashnlp.data.signal import integrate
+    from crashnlp.rating import iso18571
+    from crashnlp.testcase import load_tests
+
+    problem, (test, *_) = load_tests(load("problems/nhtsa-10146-barrier.yaml"))
+    assert test.data is not None  # the problem's test reads its EV5 file
+    channels, mass, crush = test.data.channels, problem.vehicle.mass, np.array(CRUSH_TABLE)
+
+    def loading(t: np.ndarray, accel: np.ndarray, force: np.ndarray) -> np.ndarray:
+        start = max(0.0, float(t[0]))
+        _, travel = integrate(t, accel, test.speed, start)
+        k = (t >= start) & (t <= t[np.argmax(travel)])
+        return np.interp(crush, travel[k], force[k])
+
+    def rating(folder: str, channel: str, column: str) -> str:
+        response, data = np.genfromtxt(f"{folder}/10146/response.csv", delimiter=",", names=True), channels[channel]
+        t = data.time[(data.time >= 0) & (data.time <= test.duration)]
+        model = np.interp(t, response["time_s"], response[column])
+        return f"{iso18571(t, np.interp(t, data.time, data.values), model)['overall']:.3f}"
+
+    wall, accel = channels["barrier_force"], channels["accel"]
+    rows = {
+        "wall": loading(wall.time, -wall.values / mass, wall.values),
+        "accelerometers": loading(accel.time, accel.values, mass * np.abs(accel.values)),
+    }
+    for row, folder in BARRIER_FITS.items():
+        curve = np.genfromtxt(f"{folder}/force_crush.csv", delimiter=",", names=True)
+        rows[row] = np.interp(crush, curve["crush_m"], curve["spring_force_N"])
+    out = {f"barrier.force.{row}.{c:g}": f"{f / 1e3:.0f}" for row, forces in rows.items() for c, f in zip(CRUSH_TABLE, forces)}
+    peaks = {name: float(ch.time[np.argmax(np.abs(ch.values))]) for name, ch in (("wall", wall), ("accelerometers", accel))}
+    out |= {f"barrier.{name}.peak_ms": f"{t * 1e3:.0f}" for name, t in peaks.items()}
+    out["barrier.wall.peak_kn"] = f"{np.max(np.abs(wall.values)) / 1e3:.0f}"
+    out["barrier.peaks_apart_ms"] = f"{(peaks['accelerometers'] - peaks['wall']) * 1e3:.0f}"
+    out["barrier.rating.accel_fit.barrier_force"] = rating(BARRIER_FITS["accel_fit"], "barrier_force", "barrier_force_N")
+    out["barrier.rating.both_fit.displacement"] = rating(BARRIER_FITS["both_fit"], "displacement", "displacement_m")
+    return out
 
 
 def _pickup() -> Quoted:
     """The pickup's fit (pitch-bound.yaml's comment) and its 40 km/h prediction (getting-started)."""
     run("identify", "problems/pickup-56kph.yaml", "--no-figures")
-    pitch = fitted_test("results/pickup-56kph", "56kph")["metrics"]["model"]["max_pitch_deg"]
+    test = fitted_test("results/pickup-56kph", "56kph")
     prediction = run("simulate", "problems/pickup-40kph.yaml", "--params", "results/pickup-56kph/result.json", "--no-figures")
-    return {"simulate-pickup-40kph": "\n".join(prediction)}, {"pickup.max_pitch_deg": f"{pitch:.1f}"}
+    numbers = {"pickup.max_pitch_deg": f"{test['metrics']['model']['max_pitch_deg']:.1f}"} | pickup_fit(test)
+    return {"simulate-pickup-40kph": "\n".join(prediction)}, numbers
+
+
+# a channel's RMSE as docs/identification.md shows it: factor from result.json's unit (g, m/s, m, deg), digits
+RMSE_SHOWN = {"accel": (1.0, 2), "velocity": (1.0, 3), "displacement": (1e3, 1), "pitch": (1.0, 2)}
+ENERGY = (  # docs/identification.md's energy table, in its order
+    "impact_kinetic",
+    "impact_loss",
+    "front_end_spring",
+    "front_end_damper",
+    "suspension_damping",
+    "final_kinetic",
+    "final_potential_change",
+    "barrier_work_on_vehicle",
+)
+
+
+def pickup_fit(test: dict[str, Any]) -> dict[str, str]:
+    """The pickup's fit at 56 km/h as docs/identification.md gives it: each channel's RMSE and
+    rating, the spring values at the breakpoints the data were made with, the pitch lever, and
+    where the impact energy goes (kJ)."""
+    result = json.loads(Path("results/pickup-56kph/result.json").read_text())
+    out = {}
+    for channel, fit in test["fit"].items():
+        factor, digits = RMSE_SHOWN[channel]
+        out[f"pickup.rmse.{channel}"] = f"{fit['rmse'] * factor:.{digits}f}"
+        out[f"pickup.rating.{channel}"] = f"{fit['iso18571']['overall']:.3f}"
+    values = result["parameters"]["model.spring.values"]
+    out |= {f"pickup.spring.{i}_kn": f"{v / 1e3:.0f}" for i, v in enumerate(values[1:-1], start=1)}
+    out["pickup.lever_m"] = f"{result['parameters']['vehicle.crush_offset']:.2f}"
+    energy = test["energy"]
+    out |= {f"pickup.energy.{term}_kj": f"{energy[term] / 1e3:.1f}" for term in ENERGY}
+    out["pickup.energy.balance_error_kj"] = f"{energy['balance_error'] / 1e3:.0e}"
+    out["pickup.energy.balance_error_relative"] = f"{energy['balance_error_relative']:.0e}"
+    return out
 
 
 def _joint() -> Quoted:
-    """The pickup fitted at 40 and 56 km/h, predicted at 64 km/h (predictions' extrapolation line)."""
+    """The pickup fitted at 40 and 56 km/h, predicted at 64 km/h (predictions' extrapolation line),
+    with the identified tail (the trend) and with the law as fitted (`tail: segment`), against
+    the generator's 64 km/h test as make bench's cross-speed section recorded it."""
     run("identify", "problems/pickup-joint.yaml", "--no-figures")
     Path("what-ifs.yaml").write_text(WHAT_IF)
-    joint = run("simulate", "what-ifs.yaml", "--params", "results/pickup-joint/result.json", "--no-figures")
-    return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, {}
+    Path("what-ifs-segment.yaml").write_text(WHAT_IF.replace("tests:", "model: {spring: {tail: segment}}\ntests:", 1))
+    fitted = ("--params", "results/pickup-joint/result.json", "--no-figures")
+    joint = run("simulate", "what-ifs.yaml", *fitted)
+    run("simulate", "what-ifs-segment.yaml", *fitted, "--out", "segment")
+    identified = json.loads(Path("results/pickup-joint/result.json").read_text())["identified_model"]
+    spring, reach = identified["model"]["spring"], identified["range"]["model_crush_m"]
+    breakpoints, values = spring["crush_breakpoints"], spring["values"]
+    last = max(i for i, c in enumerate(breakpoints) if c <= reach)  # the segment the reach lies in starts here
+    segment_slope = (values[last + 1] - values[last]) / (breakpoints[last + 1] - breakpoints[last])
+    truth = next(f for f in json.loads(BENCH.read_text())["cross_speed"]["fits"] if f["vehicle"] == "pickup-joint.yaml")["truth"]
+    damper = identified["model"]["damper"]["values"]
+    numbers = {
+        "joint.reach_m": f"{reach:.3f}",
+        "joint.reach_mm": f"{reach * 1e3:.0f}",
+        "joint.trend_mn_per_m": f"{spring['tail']['slope'] / 1e6:.2f}",
+        "joint.damper_low_kns_per_m": f"{damper[0] / 1e3:.1f}",
+        "joint.damper_high_kns_per_m": f"{damper[-1] / 1e3:.1f}",
+        "joint.reach_past_breakpoint_mm": f"{(reach - breakpoints[last]) * 1e3:.0f}",
+        "joint.last_segment_mn_per_m": f"{segment_slope / 1e6:.0f}",
+        "joint.generator.peak_g": f"{truth['peak_decel_g']:.1f}",
+    }
+    predicted = {
+        tail: _predicted_64(folder) for tail, folder in (("trend", "results/pickup-what-ifs/simulation"), ("segment", "segment"))
+    }
+    for tail, test in predicted.items():
+        (low, high), peak = test["intervals"]["peak_decel_g"], test["metrics"]["peak_decel_g"]
+        numbers[f"joint.{tail}.peak_g"] = f"{peak:.1f}"
+        numbers[f"joint.{tail}.peak_low_g"], numbers[f"joint.{tail}.peak_high_g"] = f"{low:.0f}", f"{high:.0f}"
+    segment = predicted["segment"]["metrics"]
+    numbers["joint.segment.peak_pct"] = f"{(segment['peak_decel_g'] / truth['peak_decel_g'] - 1) * 100:+.1f}"
+    numbers["joint.segment.crush_pct"] = f"{(segment['max_crush_m'] / truth['max_crush_m'] - 1) * 100:+.1f}"
+    return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, numbers
+
+
+def _predicted_64(folder: str) -> dict[str, Any]:
+    """The 64 km/h test of a simulation's folder (simulation.json)."""
+    return dict(json.loads(Path(folder, "simulation.json").read_text())["tests"]["64kph"])
 
 
 def _init() -> Quoted:
@@ -349,6 +615,82 @@ def _init() -> Quoted:
 
 
 # --------------------------------------------------------------------------- the pages
+EXEMPT = ("docs/design-notes.md",)  # history: what was measured when a choice was made, as the changelog
+
+# what a page shows that is no prose: fenced code and inline code (commands, keys, YAML as typed:
+# inputs), link targets, HTML comments, web addresses; marked blocks and values are taken out first
+NOT_PROSE = re.compile(r"^```.*?^```|`[^`\n]*`|\]\([^)]*\)|<!--.*?-->|https?://\S+", re.MULTILINE | re.DOTALL)
+NUMBER = re.compile(r"(?<![\w.^])[-+]?\d(?:[\d,]*\d)?(?:\.\d+)?(?:e[-+]?\d+)?(?![\w]|\.\d)")
+# a number that names something: a standard, a filter class, an equation, a table, an issue, a
+# benchmark's seed, a data set's test, a version
+NAMED = re.compile(r"(?:ISO(?:/TS)?|J211-|CFC|Eqs?\.|Eq\. \(|\)-\(|Table|issues?|seeds?|test|NHTSA|>=)\s*$")
+SCALES = (1e-6, 1e-3, 1e-2, 1.0, 1e2, 1e3, 1e6)  # SI prefixes and percent: 20 kN is 20e3 N
+
+
+def typed(text: str, definitions: frozenset[float]) -> list[str]:
+    """Every number of `text`'s prose and tables that no build writes, as "line N: NUMBER": not
+    marked, not in a generated block, not code, and not a definition. A definition is an integer
+    below 10 (a count of a setup, an exit code, a formula's coefficient), a year or a benchmark's
+    seed (an integer 1900 to 2100), a number naming something (NAMED), or a value of
+    `definitions` at any SI prefix or as a percentage (a constant of the code, an input of a
+    shipped problem)."""
+    text = INLINE.sub(lambda m: " " * len(m[0]), BLOCK.sub(lambda m: "\n" * m[0].count("\n"), text))
+    text = NOT_PROSE.sub(lambda m: re.sub(r"[^\n]", " ", m[0]), text)
+    out = []
+    for number, line in ((m, text.count("\n", 0, m.start()) + 1) for m in NUMBER.finditer(text)):
+        value = abs(float(number[0].replace(",", "")))
+        if value < 10 and value.is_integer() or 1900 <= value <= 2100 and value.is_integer():
+            continue
+        if NAMED.search(text[max(0, number.start() - 20) : number.start()]):
+            continue
+        if any(_key(value * scale) in definitions for scale in SCALES):
+            continue
+        out.append(f"line {line}: {number[0]}")
+    return out
+
+
+def _key(value: float) -> float:
+    return float(f"{value:.10g}")
+
+
+def definitions() -> frozenset[float]:
+    """The numbers the docs may state without a marker: the constants and defaults the crashnlp
+    package, the benchmarks and these scripts declare (`constants`: tolerances, limits, a
+    benchmark's speeds and seeds) and every number written in a shipped problem or study file
+    outside its comments (the inputs a run is given)."""
+    code = [p for folder in ("crashnlp", "bench", "scripts") for p in (ROOT / folder).rglob("*.py")]
+    values = {_key(v) for path in code for v in constants(ast.parse(path.read_text()))}
+    for path in (ROOT / "problems").rglob("*.yaml"):
+        for line in path.read_text().splitlines():
+            values |= {_key(abs(float(n.replace(",", "")))) for n in NUMBER.findall(INLINE.sub("", line.split(" #")[0]))}
+    return frozenset(values)
+
+
+BOUNDS = ("default", "ge", "gt", "le", "lt")  # pydantic Field's default and limits
+
+
+def constants(tree: ast.Module) -> Iterator[float]:
+    """The numbers a module declares as definitions: the values of its UPPER_CASE names, its
+    functions' defaults, its schema fields' defaults and limits (not the numbers inside its code,
+    which may be anything)."""
+
+    def numbers(node: ast.AST | None) -> Iterator[float]:
+        for n in ast.walk(node) if node is not None else ():
+            if isinstance(n, ast.Constant) and isinstance(n.value, (int, float)) and not isinstance(n.value, bool):
+                yield abs(float(n.value))
+
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Assign) and all(isinstance(t, ast.Name) and t.id.isupper() for t in node.targets):
+            yield from numbers(node.value)
+        elif isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name):
+            yield from numbers(node.value) if node.target.id.isupper() or isinstance(node.value, ast.Constant) else ()
+        elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            for default in (*node.args.defaults, *node.args.kw_defaults):
+                yield from numbers(default)
+        elif isinstance(node, ast.keyword) and node.arg in BOUNDS:
+            yield from numbers(node.value)
+
+
 def quoting() -> Iterator[Path]:
     """The files that quote the runs."""
     for pattern in QUOTING:

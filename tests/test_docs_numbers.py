@@ -45,6 +45,26 @@ def test_no_quoted_number_is_typed_outside_a_marker(page):
             assert not re.search(rf"(?<![\d.]){re.escape(value)}(?![\d])", typed), f"{key} = {value} typed by hand"
 
 
+DEFINITIONS = numbers.definitions()
+PROSE = sorted(page for page in PAGES if page.endswith(".md") and page not in numbers.EXEMPT)
+
+
+@pytest.mark.parametrize("page", PROSE)
+def test_every_number_of_the_prose_is_marked_generated_or_a_definition(page):
+    assert numbers.typed(PAGES[page].read_text(), DEFINITIONS) == []
+
+
+def test_a_typed_result_is_caught_and_definitions_are_not():
+    text = (
+        "The fit crushes 745.7 mm in 23 iterations (ISO 18571, CFC 60, issue 41, seed 2030, test 10146).\n"
+        "At 56 km/h (a problem's input) and 1e-8 (a tolerance of the code) with 3 workers, exit 2.\n"
+        "Marked 745.7<!--n:camry.max_crush_mm--> and `crashnlp simulate --speed '73.5 km/h'`.\n"
+        "<!-- numbers: identify-nhtsa-10146-brief -->\n```\n11 iterations, objective 4.66465\n```\n"
+    )
+    assert numbers.typed(text, DEFINITIONS) == ["line 1: 745.7", "line 1: 23"]
+    assert numbers.typed("the pickup rated 0.955 at 20 kN", frozenset({20e3})) == ["line 1: 0.955"]
+
+
 def test_a_drifted_number_or_block_is_named_and_refresh_brings_it_back():
     readme = PAGES["README.md"].read_text()
     crush = QUOTED["numbers"]["camry.max_crush_mm"]
@@ -94,3 +114,5 @@ def test_the_docs_build_fails_on_a_drifted_page():
 
     with pytest.raises(PluginError, match=r"index.md: camry.stop_ms: 1.0, the run gives .*: run make docs-numbers"):
         module.on_page_markdown("stop 1.0<!--n:camry.stop_ms--> ms", Page, None, None)
+    with pytest.raises(PluginError, match=r"index.md: typed by hand, not from a build: line 2: 745.7"):
+        module.on_page_markdown("The Camry\ncrushes 745.7 mm.", Page, None, None)
