@@ -56,6 +56,7 @@ from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
 from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, applied
 from crashnlp.jsonfile import write_json
+from crashnlp.metrics import DRIFT
 from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, OUTPUT, PANELS, named_test
 from crashnlp.problem import Problem
@@ -67,7 +68,6 @@ from crashnlp.units import G0
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
-DRIFT = 0.05  # m/s toward the barrier at the end of a record, without contact: not a stop
 # response columns and the metric whose non-parameter half-width their band carries
 BAND_METRIC = {
     "displacement": "max_crush_m",
@@ -198,7 +198,7 @@ def predict(
 
 def _drift(name: str, response: Response) -> tuple[str, ...]:
     """A note when the vehicle ends its record still moving toward the barrier without touching
-    it: the pendulum's pitch lifted its front end off, and its max crush is its travel at the end,
+    it: the model's pitch lifted its front end off (crashnlp.metrics.lift_off), and its max crush is its travel at the end,
     not where it stopped."""
     velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
     if velocity <= DRIFT or contact > 0:

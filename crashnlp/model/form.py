@@ -77,8 +77,8 @@ class Mechanics:
     kinetic: Expr  # T
     potential: Expr  # V: gravity and suspension, zero at rest
     dissipation: Expr  # D: the suspension dampers' Rayleigh function
-    travel: Expr  # the CG's horizontal coordinate toward the barrier (its rates: velocity, accel)
-    displacement: Expr  # the CG's travel since impact
+    displacement: Expr  # the CG's travel toward the barrier since impact
+    velocity: Expr  # its rate, of q and qdot (its own rate is the acceleration)
     pitch: Expr  # nose-down positive, zero at rest
     crush: Expr  # the front end's shortening along its line of action
     barrier_share: Expr  # cosine of the line of action to the horizontal: barrier force / contact force
@@ -187,7 +187,7 @@ class CrashModel(ABC):
         q, qd, p = self.q, self.qd, self.p
         mech = self.mechanics()
         T, V, D = mech.kinetic, mech.potential, mech.dissipation
-        Xd = ca.jtimes(mech.travel, q, qd)
+        Xd = mech.velocity
         crush = mech.crush
         crush_rate = ca.jtimes(crush, q, qd)
         x_max = self.x[self.nx - 1]

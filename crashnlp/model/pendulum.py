@@ -99,7 +99,7 @@ class PendulumModel(CrashModel):
         crush = -r - self._par("vehicle.crush_offset") * pitch
         displacement = X + self._par("vehicle.cg_to_impact")
         # the line of action is parallel to pivot-CG
-        return Mechanics(T, V, D, X, displacement, pitch, crush, ca.cos(theta))
+        return Mechanics(T, V, D, displacement, Xd, pitch, crush, ca.cos(theta))
 
     def initial_state_after_impact(self, v0: Expr) -> Expr:
         """State just after impact at horizontal speed v0.

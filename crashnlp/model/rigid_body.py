@@ -50,7 +50,7 @@ class RigidBodyModel(CrashModel):
             D += 0.5 * c * rate**2
         T = 0.5 * m * (qd[0] ** 2 + qd[1] ** 2) + 0.5 * inertia * qd[2] ** 2
         crush = x + L * (ca.cos(phi) - 1) - h * ca.sin(phi)
-        return Mechanics(T, V, D, x, x, phi, crush, 1)
+        return Mechanics(T, V, D, x, qd[0], phi, crush, 1)
 
     def initial_state_after_impact(self, v0: Expr) -> Expr:
         """At rest on its suspension, moving at v0: the element takes no impulse."""
