@@ -126,6 +126,19 @@ def test_another_vehicle_is_refused_in_one_line(fitted, capsys):
 
 
 @pytest.mark.integration
+def test_another_model_form_is_refused_in_one_line(fitted, capsys):
+    """A pendulum's fit predicts a pendulum: a problem that asks for the rigid body is another model."""
+    folder, _, raw, _, _ = fitted
+    other = {**raw, "model": {**(raw.get("model") or {}), "form": "rigid-body"}}
+    path = folder / "other-form.yaml"
+    path.write_text(yaml.safe_dump(other))
+    code = main(["simulate", str(path), "--params", str(folder / "fit" / "result.json"), "--out", str(folder / "f")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "model.form is rigid-body" in err and "pendulum" in err
+    assert not (folder / "f").exists()
+
+
+@pytest.mark.integration
 def test_a_breakpoint_count_predicts_where_it_is_the_count_the_fit_placed(fitted):
     folder, _, raw, result, _ = fitted
     placed = len(result.identified.model["spring"]["crush_breakpoints"])
