@@ -540,7 +540,7 @@ def _rate(text: str) -> float:
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
-        description="Models of frontal rigid-barrier crashes (the elastic pendulum, a rigid body): simulate, identify, design, compare, study.",
+        description="Frontal rigid-barrier crash models (pendulum, rigid body): simulate, identify, compare, design, study.",
     )
     sub = ap.add_subparsers(dest="command", required=True)
 
