@@ -131,6 +131,8 @@ def compare(problem: Problem, source: str | None = None, progress: TextIO | None
     if problem.kind != "identify":
         raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
+    # the profiles the problem asks for are its chosen form's business, not the comparison's
+    problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     scores = []
     for form in FORMS:
         _say(progress, f"{problem.name}: fitting {form}")
