@@ -13,9 +13,10 @@ from builders import BASE, ROOT, merge
 import crashnlp
 from crashnlp.case import Case
 from crashnlp.cli import main
-from crashnlp.comparison import BIC_TIE, TIE, FormScore, HeldOut, choose, with_form
+from crashnlp.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
 from crashnlp.model.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem import problem_from_dict
+from crashnlp.response import Response
 
 BASE_DIR = ROOT / "problems"
 
@@ -38,6 +39,17 @@ def test_a_failed_fit_or_a_front_end_lifted_off_is_not_chosen_while_another_form
     choice, reason = choose([_score("pendulum", held=0.01, off=0.05), _score("rigid-body", held=0.10)], "held-out")
     assert choice == "rigid-body" and "lift" in reason
     assert choose([_score("pendulum", held=None), _score("rigid-body", held=None)], "held-out")[0] is None
+
+
+def test_a_lift_off_counts_against_a_form_only_where_the_measured_vehicle_was_still_pushed():
+    t = np.linspace(0.0, 0.1, 101)
+    velocity, contact = np.maximum(5 - 60 * t, 0.3), np.where(t < 0.07, 1e5, 0.0)
+    response = Response(t, {"velocity": velocity, "contact_force": contact}, np.zeros((0, t.size)))
+    pushed = {"accel": (t, np.full(t.size, -3 * PUSHED))}
+    free = {"accel": (t, np.where(t < 0.07, -3 * PUSHED, 0.0))}
+    assert _lift_off(response, pushed) == pytest.approx(0.07)
+    assert _lift_off(response, free) is None  # the data came free too: the form is not at fault
+    assert _lift_off(response, {}) is None  # nothing to judge by
 
 
 def test_a_form_fits_only_the_estimate_entries_its_equations_read():
