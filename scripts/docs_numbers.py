@@ -269,6 +269,8 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
             f"forms.{form}.lift_offs": str(s["lift_offs"]),
+            f"forms.{form}.fitted_lift_offs": str(s["fitted_lift_offs"]),
+            f"forms.{form}.fitted_not_in_truth": str(s["fitted_lift_offs_not_in_truth"]),
         }
     return out
 
