@@ -18,6 +18,7 @@ import numpy as np
 from crashnlp.checks import named
 from crashnlp.completion import complete, measured_pulses
 from crashnlp.model.form import CrashModel, build_model
+from crashnlp.model.forms import form_class
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import Curve
 from crashnlp.problem import Problem, load_problem
@@ -43,6 +44,7 @@ class Case:
         self.tests = [dataclasses.replace(test, spec=spec) for test, spec in zip(tests, self.problem.tests)]
         self.layout = ParameterLayout.of(self.problem)
         self.base = self.layout.values(self.problem)
+        form_class(self.problem.model.form).check(self.problem)
         self.model: CrashModel = build_model(self.problem.model, self.layout)
 
     def with_start(self, values: dict[str, Any]) -> Case:

@@ -395,10 +395,13 @@ def cmd_compare_forms(args) -> int:
             comparison = compare(problem, args.problem, progress=sys.stdout)
         write_json(out / "compare.json", comparison.to_json())
     print(f"  {'':<24}" + "".join(f"{f.form:>14}" for f in comparison.forms))
-    print(f"  {'status':<24}" + "".join(f"{f.status[:13]:>14}" for f in comparison.forms))
+    print(f"  {'status':<24}" + "".join(f"{f.status.split(':')[0][:13]:>14}" for f in comparison.forms))
     for label, key, factor, fmt in FORM_ROWS:
         cells = [getattr(f, key) for f in comparison.forms]
         print(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
+    for f in comparison.forms:
+        if not f.ok:
+            print(f"  {f.form}: {f.status}")
     print(f"choice ({comparison.criterion}): {comparison.reason}")
     print(f"wrote {out}/compare.json")
     if comparison.choice is None:

@@ -39,7 +39,7 @@ from crashnlp.errors import InputError, RunError
 from crashnlp.identified import apply
 from crashnlp.metrics import lift_off
 from crashnlp.model.forms import DEFAULT_FORM, FORMS
-from crashnlp.pipeline import solve_problem
+from crashnlp.pipeline import prepare_case, solve_problem
 from crashnlp.prediction import predict
 from crashnlp.problem import Problem
 from crashnlp.response import Response
@@ -119,9 +119,9 @@ def with_form(problem: Problem, form: str) -> Problem:
     """The problem with `model.form` set to `form`, less the estimate entries the form's
     equations do not read (its outputs, right-hand side and initial state)."""
     changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
+    model = case_of(changed).model  # refuses a problem the form cannot model
     if not changed.estimate:
         return changed
-    model = case_of(changed).model
     v0 = ca.SX.sym("v0")
     reads = ca.vertcat(model.outputs(model.x, model.p), model.rhs(model.x, model.p), model.initial_state(model.p, v0))
     slices = model.layout.slices()
@@ -137,10 +137,16 @@ def compare(problem: Problem, source: str | None = None, progress: TextIO | None
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     # the profiles the problem asks for are its chosen form's business, not the comparison's
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
+    prepare_case(problem, source)  # the problem's own errors are the caller's, before any form's
     scores = []
     for form in FORMS:
         _say(progress, f"{problem.name}: fitting {form}")
-        scores.append(_score(with_form(problem, form), form, source, criterion, progress))
+        try:
+            formed = with_form(problem, form)
+        except InputError as exc:  # a problem this form cannot model (CrashModel.check)
+            scores.append(FormScore(form, f"refused: {exc}"))
+            continue
+        scores.append(_score(formed, form, source, criterion, progress))
     choice, reason = choose(scores, criterion)
     return Comparison(problem.name, criterion, tuple(scores), choice, reason)
 

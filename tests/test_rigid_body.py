@@ -14,6 +14,7 @@ from builders import BASE, ROOT, assert_contact_force_is_the_front_ends, make_ca
 
 from crashnlp.case import Case
 from crashnlp.energy import energy_audit
+from crashnlp.errors import InputError
 from crashnlp.metrics import lift_off
 from crashnlp.model.form import OUTPUTS, Structure
 from crashnlp.model.forms import FORMS
@@ -69,6 +70,13 @@ def _sympy_accelerations(v: dict, state: np.ndarray, contact: float) -> np.ndarr
 def test_the_schema_offers_every_registered_form():
     assert set(Model.model_json_schema()["properties"]["form"]["enum"]) == set(FORMS)
     assert Model().form == "pendulum"  # the paper's form stays the default
+
+
+def test_the_point_mass_is_refused_in_one_line_naming_the_entry():
+    """The paper's point mass (pitch_inertia 0) gives a body pitching about its CG no inertia to pitch with."""
+    with pytest.raises(InputError, match=r"^vehicle.pitch_inertia: 0 .*rigid-body") as err:
+        rigid_case({"vehicle": {"pitch_inertia": 0}})
+    assert "\n" not in str(err.value)
 
 
 def test_equations_match_an_independent_sympy_derivation():

@@ -11,8 +11,8 @@ so the front-end force F does work only through the crush and the barrier none. 
 (spring law, damper, unloading, tail) and its history state (the largest crush so far, the
 last state of every form) are the same element in every form. What the rest of the package
 uses is the same for every form: `rhs`, `outputs` (crashnlp.outputs' registry, in its order),
-`initial_state`, `loading_curve`, `states` and `state_floor`, and `pitch_estimate`, the
-pitch entries a fit estimates by default. A new form is a subclass in one module and one
+`initial_state`, `loading_curve`, `states` and `state_floor`, `pitch_estimate`, the pitch
+entries a fit estimates by default, and `check`, what the form refuses to model. A new form is a subclass in one module and one
 entry of crashnlp.model.forms.FORMS.
 """
 
@@ -124,6 +124,12 @@ class CrashModel(ABC):
     @abstractmethod
     def initial_state_after_impact(self, v0: Expr) -> Expr:
         """The state just after impact at horizontal speed v0 (a column of length nx)."""
+
+    @classmethod
+    def check(cls, problem: Problem) -> None:
+        """Refuse (InputError naming the entry) a problem this form cannot model; every form
+        models every valid problem unless it says otherwise."""
+        return None
 
     @classmethod
     def pitch_estimate(cls, problem: Problem, several_speeds: bool) -> dict[str, EstimateSpec]:

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import casadi as ca
 
+from crashnlp.errors import InputError
 from crashnlp.model.form import CrashModel, Expr, Mechanics
+from crashnlp.problem.schema import Problem
 
 
 class RigidBodyModel(CrashModel):
@@ -51,6 +53,16 @@ class RigidBodyModel(CrashModel):
         T = 0.5 * m * (qd[0] ** 2 + qd[1] ** 2) + 0.5 * inertia * qd[2] ** 2
         crush = x + L * (ca.cos(phi) - 1) - h * ca.sin(phi)
         return Mechanics(T, V, D, x, qd[0], phi, crush, 1)
+
+    @classmethod
+    def check(cls, problem: Problem) -> None:
+        """A body that pitches about its CG needs an inertia about it: the paper's point mass
+        (pitch_inertia 0) leaves its pitch without one."""
+        if problem.vehicle.pitch_inertia <= 0:
+            raise InputError(
+                "vehicle.pitch_inertia: 0 (the paper's point mass); model.form rigid-body pitches about the CG "
+                "and needs the pitch inertia about it (> 0)"
+            )
 
     def initial_state_after_impact(self, v0: Expr) -> Expr:
         """At rest on its suspension, moving at v0: the element takes no impulse."""
