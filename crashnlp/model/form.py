@@ -72,7 +72,12 @@ class Structure:
 
 @dataclass(frozen=True)
 class Mechanics:
-    """A form's energies and kinematics, expressions of the coordinates q and their rates."""
+    """A form's energies and kinematics, expressions of the coordinates q and their rates.
+
+    The form gives the CG's velocity itself (the node its T is made of) rather than the base
+    class differentiating the displacement again: reverse-mode derivatives sum over a node's
+    uses in graph order, so a second, equal node would move the NLP's derivatives, and a fit's
+    numbers, in their last bits."""
 
     kinetic: Expr  # T
     potential: Expr  # V: gravity and suspension, zero at rest

@@ -74,7 +74,7 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
     pulses = measured_pulses(case.problem, case.tests)
     measured = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
     reach = model_reach(tests)
-    # the paper's form goes without saying, so a pendulum's result reads as it did before forms
+    # a result names its form where it is not the default one: the pendulum's files carry no form entry
     model = fitted.model.model_dump(mode="json", exclude={"form"} if fitted.model.form == DEFAULT_FORM else None)
     if case.problem.kind == "identify" and fitted.model.spring.tail == "trend":
         curve = case.loading_curve(solution.full_parameters())
