@@ -162,3 +162,10 @@ def test_compare_refuses_a_design_problem_in_one_line(capsys):
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "design-crush-space.yaml" in err[0] and "kind is 'design'" in err[0]
     assert main(["compare", "no-such-problem.yaml"]) == 2
+
+
+def test_compare_check_reads_the_problem_and_writes_nothing(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["compare", str(BASE_DIR / "pickup-joint.yaml"), "--out", str(out), "--check"]) == 0
+    assert "pickup-joint.yaml: ok (2 tests; would write" in capsys.readouterr().out
+    assert not out.exists()
