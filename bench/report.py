@@ -734,6 +734,34 @@ def whole_process_md(r: dict) -> list[str]:
     ]
 
 
+def forms_md(r: dict) -> list[str]:
+    """The pendulum against the rigid body on the tall vehicles (bench/forms.py)."""
+    rows = [
+        [
+            form,
+            f"{s['ok']}/{s['fits']}",
+            f"{s['within_targets']}/{s['ok']}",
+            f"{s['pitch_rmse_median_deg']:.2f}",
+            f"{s['pitch_rmse_max_deg']:.2f}",
+            f"{100 * s['crush_rel_max']:.1f} %",
+            f"{100 * s['peak_rel_max']:.1f} %",
+            f"{1e3 * s['stop_err_max_s']:.2f}",
+            s["lift_offs"],
+            f"{s['fitted_lift_offs']} ({s['fitted_lift_offs_not_in_truth']})",
+        ]
+        for form, s in r["summary"].items()
+    ]
+    head = ["form", "converged", "within targets", "pitch RMSE median (deg)", "worst (deg)", "worst crush", "worst peak"]
+    return [
+        "## Model forms on tall vehicles",
+        "",
+        f"Vans and tall SUVs fitted at 40 + 64 km/h with each form, 56 km/h predicted (targets, crush / peak: {_goal(r['targets'])}).",
+        "",
+        *_table([*head, "worst stop (ms)", "predictions lifting off", "fits lifting off (not in the generator)"], rows),
+        "",
+    ]
+
+
 SECTIONS = {
     "identification": identification_md,
     "simulation": simulation_md,
@@ -742,6 +770,7 @@ SECTIONS = {
     "corpus": corpus_md,
     "self_consistency": self_consistency_md,
     "cross_speed": cross_speed_md,
+    "forms": forms_md,
     "intervals": calibration.markdown,
     "whole_process": whole_process_md,
 }

@@ -19,6 +19,7 @@ from bench import (  # noqa: E402
     calibration,
     convergence,
     cross_speed,
+    forms,
     identification,
     report,
     robustness,
@@ -39,6 +40,7 @@ SECTIONS = {
     "corpus": robustness,
     "self_consistency": self_consistency,
     "cross_speed": cross_speed,
+    "forms": forms,  # the pendulum against the rigid body on the tall vehicles: docs/model.md's "Which form when"
     "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
     "convergence": convergence,  # reads the corpus, scaling and studies sections' fits: bench/report.py

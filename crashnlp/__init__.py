@@ -1,7 +1,7 @@
-"""crashnlp: elastic-pendulum frontal-crash models, identified and designed by NLP.
+"""crashnlp: frontal-crash models (the elastic pendulum, a rigid body), identified and designed by NLP.
 
 The Python API (crashnlp.api): `load`, `identify`, `design`, `simulate`,
-`study`, and the plain `Result` they return. They are imported on first use,
+`compare`, `study`, and the plain `Result` they return. They are imported on first use,
 so the command line starts without them.
 """
 
@@ -10,10 +10,10 @@ from __future__ import annotations
 from typing import TYPE_CHECKING, Any
 
 __version__ = "0.1.0"
-__all__ = ["Result", "design", "identify", "load", "simulate", "study"]
+__all__ = ["Result", "compare", "design", "identify", "load", "simulate", "study"]
 
 if TYPE_CHECKING:
-    from crashnlp.api import design, identify, load, simulate, study
+    from crashnlp.api import compare, design, identify, load, simulate, study
     from crashnlp.result import Result
 
 

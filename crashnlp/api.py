@@ -24,6 +24,7 @@ from crashnlp.problem import Problem, load_problem
 from crashnlp.result import Result
 
 if TYPE_CHECKING:
+    from crashnlp.comparison import Comparison
     from crashnlp.prediction import PredictedTest
 
 
@@ -127,6 +128,15 @@ def simulate(
         values = params.parameters if isinstance(params, Result) else params
         problem = problem.with_values(values) if values else problem
     return predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
+
+
+def compare(problem: Problem | str | Path, progress: TextIO | None = None) -> Comparison:
+    """Fit every model form (crashnlp.model.forms) to the problem's tests and choose one by
+    what the fits did not see: leave-one-test-out prediction with two or more tests, BIC with
+    one (crashnlp.comparison); `progress`: a stream for a line per fit."""
+    from crashnlp.comparison import compare as compare_forms
+
+    return compare_forms(_problem(problem), _source(problem), progress)
 
 
 def study(

@@ -17,8 +17,9 @@ import numpy as np
 
 from crashnlp.checks import named
 from crashnlp.completion import complete, measured_pulses
+from crashnlp.model.form import CrashModel, build_model
+from crashnlp.model.forms import form_class
 from crashnlp.model.parameters import ParameterLayout
-from crashnlp.model.pendulum import PendulumModel, build_model
 from crashnlp.model.tail import Curve
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec
@@ -43,7 +44,8 @@ class Case:
         self.tests = [dataclasses.replace(test, spec=spec) for test, spec in zip(tests, self.problem.tests)]
         self.layout = ParameterLayout.of(self.problem)
         self.base = self.layout.values(self.problem)
-        self.model: PendulumModel = build_model(self.problem.model, self.layout)
+        form_class(self.problem.model.form).check(self.problem)
+        self.model: CrashModel = build_model(self.problem.model, self.layout)
 
     def with_start(self, values: dict[str, Any]) -> Case:
         """The same case, its start (`base`) with `values` (dotted paths, SI) in place of the problem's."""

@@ -1,4 +1,4 @@
-"""The `crashnlp` command: simulate, identify, design, study, init, report, compare-results, export, schema.
+"""The `crashnlp` command: simulate, identify, design, compare, study, init, report, compare-results, export, schema.
 
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
@@ -345,6 +345,53 @@ def cmd_design(args) -> int:
     return _solve(args, "design")
 
 
+FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute, factor, format
+    ("objective", "objective", 1.0, ".4g"),
+    ("pitch RMSE (deg)", "pitch_rmse", 180 / math.pi, ".3f"),
+    ("max crush error (mm)", "crush_error", 1e3, ".1f"),
+    ("identified parameters", "parameters", 1, "d"),
+    ("held-out rel. RMSE", "held_out_score", 1.0, ".4f"),
+    ("BIC", "bic", 1.0, ".1f"),
+    ("lifts off at (ms)", "lift_off_s", 1e3, ".1f"),
+)
+
+
+def cmd_compare_forms(args) -> int:
+    """Every model form fitted and scored (crashnlp.comparison): compare.json and a table."""
+    from crashnlp.comparison import compare
+    from crashnlp.jsonfile import write_json
+    from crashnlp.pipeline import prepare_case
+    from crashnlp.problem import load_problem
+
+    problem = load_problem(args.problem)
+    if problem.kind != "identify":
+        raise InputError(f"{args.problem}: kind is {problem.kind!r}; compare fits an identify problem's forms")
+    prepare_case(problem, args.problem)
+    run = run_name("compare", problem.name)
+    out = check_output(_out(args, f"{problem.name}-compare"), run)
+    if args.check:
+        print(f"{args.problem}: ok ({len(problem.tests)} tests; would write {out}/compare.json)")
+        return 0
+    with claim(out, run):
+        with _computing(args):
+            comparison = compare(problem, args.problem, progress=sys.stdout)
+        write_json(out / "compare.json", comparison.to_json())
+    print(f"  {'':<24}" + "".join(f"{f.form:>14}" for f in comparison.forms))
+    print(f"  {'status':<24}" + "".join(f"{f.status.split(':')[0][:13]:>14}" for f in comparison.forms))
+    for label, key, factor, fmt in FORM_ROWS:
+        cells = [getattr(f, key) for f in comparison.forms]
+        print(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
+    for f in comparison.forms:
+        if not f.ok:
+            print(f"  {f.form}: {f.status}")
+    print(f"choice ({comparison.criterion}): {comparison.reason}")
+    print(f"wrote {out}/compare.json")
+    if comparison.choice is None:
+        print(f"crashnlp: {problem.name}: {comparison.reason}", file=sys.stderr)
+        return 1
+    return 0
+
+
 def cmd_init(args) -> int:
     from crashnlp.init import Options, init_problem
     from crashnlp.units import UnitError, to_si
@@ -478,7 +525,7 @@ def _rate(text: str) -> float:
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
-        description="Elastic-pendulum models of frontal rigid-barrier crashes: simulate, identify, design, study.",
+        description="Frontal rigid-barrier crash models (pendulum, rigid body): simulate, identify, compare, design, study.",
     )
     sub = ap.add_subparsers(dest="command", required=True)
 
@@ -510,6 +557,11 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
     p.set_defaults(func=cmd_design)
+
+    p = sub.add_parser("compare", help="fit every model form (model.form) and choose one by held-out prediction or BIC")
+    p.add_argument("problem", help="problem YAML file with data (kind: identify)")
+    p.add_argument("--out", help="output folder (default results/<problem name>-compare)")
+    p.set_defaults(func=cmd_compare_forms)
 
     add_study_parser(sub)
 

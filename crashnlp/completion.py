@@ -25,8 +25,9 @@ The given problem is never changed. What is filled, and how:
   without a measured rebound the nominal 30 MN/m.
 - `estimate` omitted (identification): the spring values within [0, 5 times the largest
   initial value, at least 2 MN], the plastic unloading stiffness within UNLOADING_BOUNDS,
-  and where a test has a pitch channel the CG height above the impact point and the pitch
-  inertia within physical bounds and the pitch lever within `pitch_lever_bounds`; with tests at
+  and where a test has a pitch channel what the model's form estimates of its pitch (its
+  `pitch_estimate`: the CG height above the impact point and the pitch inertia within physical
+  bounds, and the pendulum's pitch lever); with tests at
   speeds more than SPEED_SPREAD apart also the damper, within [0, DAMPER_BOUND_FACTOR times
   the nominal one], since two speeds separate it from the spring.
 """
@@ -42,6 +43,7 @@ import numpy as np
 from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
+from crashnlp.model.forms import form_class
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem, with_fields
 from crashnlp.segmentation import bends
 from crashnlp.testcase import TestCase
@@ -54,18 +56,6 @@ SPEED_SPREAD = 0.1  # relative: tests at speeds further apart are at several spe
 NOMINAL_UNLOADING = 3.0e7  # N/m
 UNLOADING_BOUNDS = (2.0e6, 2.0e8)  # N/m
 SPRING_BOUND_FACTOR, SPRING_BOUND_FLOOR = 5.0, 2.0e6  # upper bound of spring forces: 5 x the start, >= 2 MN
-
-# The pitch lever: the offset of the crush force's line of action from the pivot-CG line (m),
-# positive nose-down; its moment about the CG is the lever times the force. The bounds of an
-# effective lever (PITCH_LEVER_BOUNDS): the pendulum's body pitches with the pivot-CG line, so it
-# needs a larger lever than the rails' height below the CG; fitted at several speeds, the
-# physical one (`pitch_lever_bounds`).
-PITCH_LEVER = "vehicle.crush_offset"
-PITCH_LEVER_BOUNDS = (-0.5, 1.0)  # m
-# CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
-# gyration in pitch (0.9 m for a city car to 1.8 m for a long van; sqrt(I / m)).
-CG_ABOVE_IMPACT_BOUNDS = (-0.1, 0.5)  # m
-PITCH_GYRATION_BOUNDS = (0.9, 1.8)  # m
 
 
 @dataclass(frozen=True)
@@ -179,7 +169,7 @@ def unloading_stiffness(pulses: list[Pulse]) -> float:
 def several_speeds(pulses: list[Pulse]) -> bool:
     """Whether the tests' impact speeds lie far enough apart (SPEED_SPREAD) to count as several:
     they tell the crush-rate damper from the crush spring (at one speed crush and crush rate move
-    together), and they ask one loading curve to serve several pitches (`pitch_lever_bounds`)."""
+    together), and they ask one loading curve to serve several pitches (crashnlp.model.pendulum.pitch_lever_bounds)."""
     speeds = [p.speed for p in pulses]
     return len(speeds) > 1 and max(speeds) > (1 + SPEED_SPREAD) * min(speeds)
 
@@ -194,29 +184,8 @@ def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, Estimat
     if problem.model.damper is not None and several_speeds(pulses):
         out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * mass))
     if any(p.has_pitch for p in pulses):
-        lo, hi = PITCH_GYRATION_BOUNDS
-        out["vehicle.cg_above_impact"] = EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS)
-        out["vehicle.pitch_inertia"] = EstimateSpec(bounds=(mass * lo**2, mass * hi**2))
-        out[PITCH_LEVER] = EstimateSpec(bounds=pitch_lever_bounds(problem, pulses))
+        out.update(form_class(problem.model.form).pitch_estimate(problem, several_speeds(pulses)))
     return out
-
-
-def pitch_lever_bounds(problem: Problem, pulses: list[Pulse]) -> tuple[float, float]:
-    """The estimated pitch lever's bounds (m): PITCH_LEVER_BOUNDS, but with tests at several speeds
-    up to the CG's height above the impact point as the problem gives it (not below zero).
-
-    The wall pushes the front end back where it meets the barrier, so the crush force's moment
-    about the CG is at most the force times that height; the lever's moment is the lever times the
-    force. The pendulum's body turns about the impact point, with inertia m l0^2 + I, not about
-    its CG, so a larger lever fits the measured pitch closer (about h m l0^2 / I, two to four
-    times h), and the crush pays for the lever's moment: the model's front end gives up that many
-    times the crush a real one gives up to the same pitch. A fit of one test absorbs that into its
-    loading curve and predicts other speeds as well with either bound. Fitted at two speeds, one
-    curve has to serve two pitches, and with the larger lever it predicts a third speed wrong
-    (docs/design-notes.md, "The pitch lever")."""
-    if not several_speeds(pulses):
-        return PITCH_LEVER_BOUNDS
-    return PITCH_LEVER_BOUNDS[0], max(float(problem.vehicle.cg_above_impact), 0.0)
 
 
 def _required(pulses: list[Pulse], what: str) -> list[Pulse]:

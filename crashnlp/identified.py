@@ -20,6 +20,7 @@ import numpy as np
 from scipy.special import ndtri
 
 from crashnlp.errors import InputError
+from crashnlp.model.forms import DEFAULT_FORM
 from crashnlp.problem.load import problem_from_dict, read_yaml
 from crashnlp.problem.schema import BreakpointCount, Problem
 
@@ -237,6 +238,12 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
                 f"{source}: vehicle.{key} is {mine:g} m, but the identified vehicle's is {theirs:g} m: "
                 "another vehicle (a result predicts the vehicle it was fitted to)"
             )
+    theirs_form = identified.model.get("form", DEFAULT_FORM)
+    if "form" in problem.model.model_fields_set and problem.model.form != theirs_form:
+        raise InputError(
+            f"{source}: model.form is {problem.model.form}, but the identified vehicle's is {theirs_form}: "
+            "another model (a result predicts the model it was fitted with)"
+        )
     for section, key in STRUCTURE:
         node = getattr(problem.model, section)
         theirs = (identified.model.get(section) or {}).get(key)

@@ -30,13 +30,13 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
-from crashnlp.completion import PITCH_LEVER
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.errors import InputError
 from crashnlp.files import atomic_open, check_writable_file
 from crashnlp.metrics import STOPPED, zero_crossing
+from crashnlp.model.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of

@@ -29,6 +29,7 @@ from crashnlp.units import G0
 OLC_FREE = 0.065  # m, free flight of the virtual occupant
 OLC_RESTRAINED = 0.235  # m, restrained travel until it moves with the vehicle
 STOPPED = 1e-6  # fraction of v0 below which the vehicle counts as stopped
+DRIFT = 0.05  # m/s toward the barrier without contact: still moving, not stopped
 
 
 @dataclass(frozen=True)
@@ -65,6 +66,16 @@ class CrashMetrics:
             "olc": ("olc_g", 1 / G0),
         }
         return {scale[k][0]: v * scale[k][1] for k, v in asdict(self).items()}
+
+
+def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
+    """The first time the front end lets go of the barrier (contact force back to zero after it
+    was positive) while the CG still moves toward it faster than DRIFT; None when it never does.
+    A model whose pitch lifts the front end off stops late or not at all: its crush and stop are
+    then the pitch's, not the structure's."""
+    touched = np.cumsum(contact > 0) > 0
+    off = np.flatnonzero(touched & (contact <= 0) & (velocity > DRIFT))
+    return float(t[off[0]]) if off.size else None
 
 
 def zero_crossing(t: np.ndarray, v: np.ndarray, level: float = 0.0) -> float:

@@ -56,6 +56,7 @@ from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
 from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, applied
 from crashnlp.jsonfile import write_json
+from crashnlp.metrics import DRIFT, lift_off
 from crashnlp.model.tail import spacing, trend_misses
 from crashnlp.outputs import COLUMNS, OUTPUT, PANELS, named_test
 from crashnlp.problem import Problem
@@ -67,7 +68,6 @@ from crashnlp.units import G0
 if TYPE_CHECKING:
     from crashnlp.plots import Job  # not at run time: matplotlib
 
-DRIFT = 0.05  # m/s toward the barrier at the end of a record, without contact: not a stop
 # response columns and the metric whose non-parameter half-width their band carries
 BAND_METRIC = {
     "displacement": "max_crush_m",
@@ -190,7 +190,7 @@ def predict(
         other = test.other_conditions(mass)
         data = data_curves(test) if other is None else {}
         first = (other,) if other is not None else ()
-        drift = _drift(test.name, response)
+        drift = _drift(test.name, response) or _let_go(test.name, response)
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
@@ -217,7 +217,7 @@ def predict(
 
 def _drift(name: str, response: Response) -> tuple[str, ...]:
     """A note when the vehicle ends its record still moving toward the barrier without touching
-    it: the pendulum's pitch lifted its front end off, and its max crush is its travel at the end,
+    it: the model's pitch lifted its front end off (crashnlp.metrics.lift_off), and its max crush is its travel at the end,
     not where it stopped."""
     velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
     if velocity <= DRIFT or contact > 0:
@@ -225,6 +225,20 @@ def _drift(name: str, response: Response) -> tuple[str, ...]:
     return (
         f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
         "lifted the front end off): its max crush is its travel at the end of the record, not a stop",
+    )
+
+
+def _let_go(name: str, response: Response) -> tuple[str, ...]:
+    """A note when the front end lets go of the barrier while the CG still moves toward it
+    (crashnlp.metrics.lift_off): what the response does from then on is the pitch's, not the
+    structure's."""
+    t = lift_off(response.time, response["velocity"], response["contact_force"])
+    if t is None:
+        return ()
+    v = float(np.interp(t, response.time, response["velocity"]))
+    return (
+        f"{name}: the front end lets go of the barrier at {t * 1e3:.1f} ms while the CG still moves toward it at "
+        f"{v:.2f} m/s (its pitch lifted it off): its crush and stop from then on are the pitch's",
     )
 
 

@@ -20,7 +20,7 @@ class Response:
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
-    states: np.ndarray  # rows: the model's STATES[, the ABSORBED works]
+    states: np.ndarray  # rows: the model's states()[, the ABSORBED works]
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.time if name == "time" else self.outputs[name]

@@ -9,7 +9,7 @@ import numpy as np
 
 from crashnlp.compiled import Evaluator, compiled
 from crashnlp.integrators import rk4
-from crashnlp.model.pendulum import ABSORBED, NX, OUTPUTS, PendulumModel
+from crashnlp.model.form import ABSORBED, OUTPUTS, CrashModel
 from crashnlp.problem.schema import Simulation
 from crashnlp.response import Response
 from crashnlp.runtime import mapped
@@ -19,14 +19,14 @@ def _key(grid: np.ndarray, options: Simulation) -> tuple:
     return (options.integrator, options.substeps, options.rtol, options.atol, np.asarray(grid, dtype=float).tobytes())
 
 
-def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> ca.Function:
+def integrator(model: CrashModel, grid: np.ndarray, options: Simulation) -> ca.Function:
     """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options.
 
     Its right-hand side is the model's, compiled (crashnlp.compiled)."""
 
     def build() -> ca.Function:
         rhs = model.cached(("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
-        x, p = ca.MX.sym("x", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
+        x, p = ca.MX.sym("x", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
         dae = {"x": x, "p": p, "ode": rhs(x, p)}
         if options.integrator == "cvodes":
             # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
@@ -45,7 +45,7 @@ def integrator(model: PendulumModel, grid: np.ndarray, options: Simulation) -> c
     return model.cached(("integrator", _key(grid, options)), build)
 
 
-def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
+def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
     """n simulations at once, one parameter set each: (X0 augmented x n, P np x n) -> outputs.
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
@@ -53,10 +53,10 @@ def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bo
     what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
     columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
     simulation to C (crashnlp.compiled: about a second, once per machine)."""
-    x, p = ca.SX.sym("x", NX + len(ABSORBED)), model.p
+    x, p = ca.SX.sym("x", model.nx + len(ABSORBED)), model.p
     step = rk4(model.augmented_rhs, dt)
-    outputs = ca.Function("y", [x, p], [model.outputs(x[:NX], p)])
-    x0, pm = ca.MX.sym("x0", NX + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
+    outputs = ca.Function("y", [x, p], [model.outputs(x[: model.nx], p)])
+    x0, pm = ca.MX.sym("x0", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
     y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
     one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
@@ -64,7 +64,7 @@ def batch_simulator(model: PendulumModel, steps: int, dt: float, n: int, jit: bo
 
 
 def simulate_batch(
-    model: PendulumModel, P: np.ndarray, speed: float, duration: float, dt: float, jit: bool = False
+    model: CrashModel, P: np.ndarray, speed: float, duration: float, dt: float, jit: bool = False
 ) -> dict[str, np.ndarray]:
     """Simulate every column of P (full parameter vectors) by fixed-step RK4 of step dt.
 
@@ -77,7 +77,7 @@ def simulate_batch(
     return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
 
 
-def simulate(model: PendulumModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
+def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
     """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
     x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), np.zeros(len(ABSORBED))])
     (xf,) = model.cached(("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
@@ -87,24 +87,24 @@ def simulate(model: PendulumModel, p: np.ndarray, speed: float, grid: np.ndarray
     return response_from_states(model, p, grid, states)
 
 
-def _outputs_on_grid(model: PendulumModel, n: int) -> Evaluator:
+def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
     """The compiled outputs at n points of one simulation (the parameters shared)."""
 
     def build() -> Evaluator:
         outputs = model.cached(("outputs",), lambda: compiled(model.outputs))
-        x, p = ca.MX.sym("x", NX, n), ca.MX.sym("p", model.layout.size)
+        x, p = ca.MX.sym("x", model.nx, n), ca.MX.sym("p", model.layout.size)
         y = outputs.map(n)(x, ca.repmat(p, 1, n))  # serial: threads cost more than they save here
         return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
 
     return model.cached(("outputs", n), build)
 
 
-def response_from_states(model: PendulumModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
-    """Outputs on a grid from states (rows: the model's STATES[, the ABSORBED works])."""
-    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[:NX], p=p)
+def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
+    """Outputs on a grid from states (rows: the model's states()[, the ABSORBED works])."""
+    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[: model.nx], p=p)
     outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
-    if states.shape[0] > NX:  # the works, and what was absorbed less what the front end still stores
-        work = dict(zip(ABSORBED, states[NX:]))
+    if states.shape[0] > model.nx:  # the works, and what was absorbed less what the front end still stores
+        work = dict(zip(ABSORBED, states[model.nx :]))
         outputs["front_work"], outputs["front_damper_work"] = work["barrier_power"], work["front_damper_power"]
         outputs["suspension_work"] = work["damper_power"]
         outputs["absorbed"] = outputs["front_work"] + outputs["suspension_work"]

@@ -113,7 +113,7 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     pages print it; the sections of make bench one function each."""
     parts = (
         *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
-        *(_corpus, _cross_speed, _families, _self_consistency, _intervals),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms),
     )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
@@ -323,6 +323,25 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
     out["family_coverage_highest_pct"] = f"{max(f['coverage'] for f in families.values()) * 100:.0f}"
     minimal = next(f for f in cross["fits"] if f["vehicle"] == "pickup" and f["split"] == "extrapolation")
     out["minimal_crush_pct"], out["minimal_peak_pct"] = f"{minimal['crush_rel'] * 100:+.1f}", f"{minimal['peak_rel'] * 100:+.1f}"
+    return out
+
+
+def _forms(bench: dict[str, Any]) -> dict[str, str]:
+    """The forms on the tall vehicles (bench/forms.py), per form (forms.<form>.<what>)."""
+    out = {}
+    for form, s in bench["forms"]["summary"].items():
+        out |= {
+            f"forms.{form}.pitch_median": f"{s['pitch_rmse_median_deg']:.2f}",
+            f"forms.{form}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
+            f"forms.{form}.within": str(s["within_targets"]),
+            f"forms.{form}.ok": str(s["ok"]),
+            f"forms.{form}.crush": f"{s['crush_rel_max'] * 100:.1f}",
+            f"forms.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
+            f"forms.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
+            f"forms.{form}.lift_offs": str(s["lift_offs"]),
+            f"forms.{form}.fitted_lift_offs": str(s["fitted_lift_offs"]),
+            f"forms.{form}.fitted_not_in_truth": str(s["fitted_lift_offs_not_in_truth"]),
+        }
     return out
 
 

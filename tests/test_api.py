@@ -165,7 +165,6 @@ def test_nlp_builder_scales_variables_and_types_constraints():
 @pytest.mark.parametrize("method, per_interval", [("multiple-shooting", 0), ("collocation", 3)])
 def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_interval):
     from crashnlp.case import Case
-    from crashnlp.model.pendulum import NX
     from crashnlp.optimize.ocp import OptimalControl
 
     n = 40
@@ -173,11 +172,11 @@ def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_in
     ocp = OptimalControl(
         Case(problem_from_dict(merge(BASE, {"transcription": spec, "estimate": {"vehicle.crush_offset": {}}}), ROOT))
     )
-    states = ocp.nlp.blocks["t56.x"]
-    assert states.shape == (NX, n)  # the first node is the state just after impact, not a variable
+    states, nx = ocp.nlp.blocks["t56.x"], ocp.case.model.nx
+    assert states.shape == (nx, n)  # the first node is the state just after impact, not a variable
     dynamics = sum(c.size for c in ocp.nlp.constraints if c.kind == DYNAMICS)
     # impact interval + the other n - 1 intervals (and their collocation points)
-    assert dynamics == NX * (1 + (n - 1) * (1 + per_interval))
+    assert dynamics == nx * (1 + (n - 1) * (1 + per_interval))
     # at the initial guess (a forward simulation) the dynamics nearly hold
     (g,) = ocp.nlp.evaluate([ca.vertcat(*ocp.nlp.g)], ocp.nlp.bounds()["x0"])
     assert np.max(np.abs(np.asarray(g).ravel()[:dynamics])) < 0.05

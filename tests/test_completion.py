@@ -12,17 +12,16 @@ from scipy.interpolate import PchipInterpolator
 from crashnlp.case import Case
 from crashnlp.completion import (
     DEFAULT_COUNT,
-    PITCH_LEVER,
-    PITCH_LEVER_BOUNDS,
     REACH,
     breakpoints,
     complete,
     measured_pulses,
-    pitch_lever_bounds,
     repaired_start,
+    several_speeds,
     spring_values,
     unloading_stiffness,
 )
+from crashnlp.model.pendulum import PITCH_LEVER, PITCH_LEVER_BOUNDS, pitch_lever_bounds
 from crashnlp.optimize.identify import repair_start
 from crashnlp.problem import ProblemError, load_problem, problem_from_dict
 from crashnlp.problem.load import read_yaml
@@ -111,11 +110,12 @@ def test_at_several_speeds_the_pitch_lever_reaches_up_to_the_cg_height_above_the
     problem = problem_from_dict(pickup(vehicle={"cg_above_impact": height}, estimate=None), PICKUP.parent)
     (measured,) = measured_pulses(pickup_case.problem, pickup_case.tests)
     slower = dataclasses.replace(measured, speed=40 / 3.6)
-    assert pitch_lever_bounds(problem, [measured, slower]) == (PITCH_LEVER_BOUNDS[0], pytest.approx(top))
+    assert pitch_lever_bounds(problem, several_speeds([measured, slower])) == (PITCH_LEVER_BOUNDS[0], pytest.approx(top))
     assert (
-        pitch_lever_bounds(problem, [measured, dataclasses.replace(measured, speed=0.95 * measured.speed)]) == PITCH_LEVER_BOUNDS
+        pitch_lever_bounds(problem, several_speeds([measured, dataclasses.replace(measured, speed=0.95 * measured.speed)]))
+        == PITCH_LEVER_BOUNDS
     )
-    assert pitch_lever_bounds(problem, [measured]) == PITCH_LEVER_BOUNDS
+    assert pitch_lever_bounds(problem, several_speeds([measured])) == PITCH_LEVER_BOUNDS
 
 
 def test_no_pitch_channel_estimates_the_front_end_only():

@@ -8,7 +8,7 @@ import pytest
 import sympy as sp
 from builders import assert_contact_force_is_the_front_ends, make_case
 
-from crashnlp.model.pendulum import OUTPUTS
+from crashnlp.model.form import OUTPUTS
 from crashnlp.simulation import simulate_batch
 
 LAWS = ("plastic", "elastic")

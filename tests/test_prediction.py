@@ -24,7 +24,7 @@ from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
-from crashnlp.prediction import _drift, simulation_figure_jobs
+from crashnlp.prediction import _drift, _let_go, simulation_figure_jobs
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
 from crashnlp.response import Response
@@ -123,6 +123,19 @@ def test_another_vehicle_is_refused_in_one_line(fitted, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "vehicle.cg_to_impact" in err and "Traceback" not in err
     assert not (folder / "o").exists()
+
+
+@pytest.mark.integration
+def test_another_model_form_is_refused_in_one_line(fitted, capsys):
+    """A pendulum's fit predicts a pendulum: a problem that asks for the rigid body is another model."""
+    folder, _, raw, _, _ = fitted
+    other = {**raw, "model": {**(raw.get("model") or {}), "form": "rigid-body"}}
+    path = folder / "other-form.yaml"
+    path.write_text(yaml.safe_dump(other))
+    code = main(["simulate", str(path), "--params", str(folder / "fit" / "result.json"), "--out", str(folder / "f")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "model.form is rigid-body" in err and "pendulum" in err
+    assert not (folder / "f").exists()
 
 
 @pytest.mark.integration
@@ -383,6 +396,19 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
     assert note.startswith("t1:") and "0.30 m/s" in note
     assert _drift("t1", ending(-0.1, 0.0)) == ()  # rebounded: a stop
     assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
+
+
+def test_a_front_end_that_lets_go_while_the_cg_moves_on_is_said_so():
+    t = np.linspace(0.0, 0.1, 6)
+    touched = Response(
+        t, {"velocity": np.array([5, 4, 3, 2, 1, -0.5]), "contact_force": np.array([0, 1e5, 2e5, 0, 0, 0])}, np.zeros((0, 6))
+    )
+    (note,) = _let_go("t1", touched)
+    assert note.startswith("t1:") and "60.0 ms" in note and "2.00 m/s" in note
+    stopped = Response(
+        t, {"velocity": np.array([5, 4, 3, 0, -0.2, -0.5]), "contact_force": np.array([0, 1e5, 2e5, 0, 0, 0])}, np.zeros((0, 6))
+    )
+    assert _let_go("t1", stopped) == ()  # let go as it rebounds: a stop
 
 
 @pytest.mark.parametrize(

@@ -16,8 +16,8 @@ import pytest
 from builders import ROOT
 
 from crashnlp.cli import main
+from crashnlp.model.form import build_model
 from crashnlp.model.parameters import ParameterLayout
-from crashnlp.model.pendulum import build_model
 from crashnlp.outputs import named_test, shown_unit
 from crashnlp.result import Result
 from crashnlp.studies.store import CaseStore

@@ -12,7 +12,7 @@ import numpy as np
 from crashnlp.case import Case
 from crashnlp.completion import measured_pulse, repaired_start
 from crashnlp.errors import InputError
-from crashnlp.model.pendulum import OUTPUTS
+from crashnlp.model.form import OUTPUTS
 from crashnlp.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl

@@ -13,7 +13,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.case import Case, TestCase
-from crashnlp.model.pendulum import NX, OUTPUTS, STATES
+from crashnlp.model.form import OUTPUTS
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.oracle import compilable
@@ -37,14 +37,14 @@ class Transcript:
         """A named output at every node (row)."""
         return self.outputs[OUTPUTS.index(name), :]
 
-    def state(self, name: str) -> ca.MX:
-        """A named state at every node (row)."""
-        return self.trajectory.states[STATES.index(name), :]
+    def history(self) -> ca.MX:
+        """The front end's history state, the largest crush so far, at every node (the last row)."""
+        return self.trajectory.states[-1, :]
 
 
-def _interpolator(response: Response):
+def _interpolator(response: Response, nx: int):
     def guess(t: np.ndarray) -> np.ndarray:
-        return np.vstack([np.interp(t, response.time, response.states[i]) for i in range(NX)])
+        return np.vstack([np.interp(t, response.time, response.states[i]) for i in range(nx)])
 
     return guess
 
@@ -85,8 +85,8 @@ class OptimalControl:
         start = ca.Function("start", [q_sx, v0], [model.initial_state(p_sx, v0)])
         speed = self.nlp.parameter(f"{test.name}.speed", test.speed)
         rhs = self.transcription.dynamics(q_sx, p_sx)
-        traj = self.transcription.discretize(self.nlp, test.name, rhs, q, start, speed, horizon, _interpolator(guess))
-        x = ca.SX.sym("x", NX)
+        traj = self.transcription.discretize(self.nlp, test.name, rhs, q, start, speed, horizon, _interpolator(guess, model.nx))
+        x = ca.SX.sym("x", model.nx)
         outputs = ca.Function("outputs", [x, q_sx], [model.outputs(x, p_sx)])
         at_start = ca.Function("outputs_at_start", [q_sx, v0], [model.outputs(start(q_sx, v0), p_sx)])
         (y0,) = self.nlp.mapped(at_start, 1, q, speed)
@@ -120,7 +120,7 @@ class OptimalControl:
         node (m). Bounded below by -MONOTONE_TOLERANCE: once the front end has begun to
         unload it does not load again, and while it loads the depth stays ~0 (the crush
         is its own largest value). The switch stays the model's own; no node is fixed."""
-        return ca.diff(tr.state("x_max") - tr.output("crush"), 1, 1)
+        return ca.diff(tr.history() - tr.output("crush"), 1, 1)
 
     def set_guess(self, z: np.ndarray) -> bool:
         """Warm start from a solution vector of an NLP of the same shape; False if it is not."""

@@ -11,6 +11,7 @@ import numpy as np
 from crashnlp.case import Case, TestCase
 from crashnlp.completion import measured_pulse, measured_pulses
 from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, IdentifiedRange
+from crashnlp.model.forms import DEFAULT_FORM
 from crashnlp.model.tail import trend_tail
 from crashnlp.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
@@ -73,7 +74,8 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
     pulses = measured_pulses(case.problem, case.tests)
     measured = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
     reach = model_reach(tests)
-    model = fitted.model.model_dump(mode="json")
+    # a result names its form where it is not the default one: the pendulum's files carry no form entry
+    model = fitted.model.model_dump(mode="json", exclude={"form"} if fitted.model.form == DEFAULT_FORM else None)
     if case.problem.kind == "identify" and fitted.model.spring.tail == "trend":
         curve = case.loading_curve(solution.full_parameters())
         breakpoints = np.asarray(fitted.model.spring.placed_breakpoints)

@@ -39,6 +39,7 @@ from pydantic import (
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
 
+from crashnlp.model.forms import DEFAULT_FORM, FORMS
 from crashnlp.outputs import MEASURABLE, OUTPUT
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.ipopt import check_ipopt
@@ -393,7 +394,11 @@ class Smoothing(Strict):
     _not_negative = field_validator("crush", "rate")(lambda v: _not_negative(v))
 
 
+FormName = Literal[tuple(FORMS)]  # type: ignore[valid-type]  # the registry's keys (crashnlp.model.forms)
+
+
 class Model(Strict):
+    form: FormName = Field(DEFAULT_FORM, description="the model's form: " + ", ".join(FORMS))  # type: ignore[valid-type]
     spring: Spring = Spring()
     damper: Damper | None = Field(None, description="omitted: none, or a nominal one when the spring values come from the data")
     unloading: Unloading = Unloading()

@@ -16,10 +16,9 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.integrators import rk4
-from crashnlp.model.pendulum import NX, PendulumModel
+from crashnlp.model.form import CrashModel
 from crashnlp.nlp import DYNAMICS, NLPBuilder
 
-STATE_FLOOR = np.array([0.01, 0.01, 0.1, 0.01, 0.01])  # smallest state scales: m, rad, m/s, rad/s, m
 IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
 
 
@@ -29,8 +28,8 @@ class Trajectory:
     are fitted and constraints enforced, whatever the transcription does inside."""
 
     times: np.ndarray
-    states: ca.MX  # NX x (N+1): the initial state, then the node variables
-    nodes: ca.MX  # NX x N: the node variables after the initial state
+    states: ca.MX  # states x (N+1): the initial state, then the node variables
+    nodes: ca.MX  # states x N: the node variables after the initial state
 
 
 def per_row(scale: ca.MX, cols: int) -> ca.MX:
@@ -41,14 +40,14 @@ def per_row(scale: ca.MX, cols: int) -> ca.MX:
 class Transcription(ABC):
     """Adds a test's state variables and dynamics constraints to an NLP."""
 
-    def __init__(self, model: PendulumModel, spec):
+    def __init__(self, model: CrashModel, spec):
         self.model = model
         self.spec = spec
 
     def dynamics(self, q: ca.SX, p: ca.SX) -> ca.Function:
         """The model's right-hand side rhs(x, q), with p the full parameter vector as an
         expression of the column q (free parameters and the test's fixed values)."""
-        x = ca.SX.sym("x", NX)
+        x = ca.SX.sym("x", self.model.nx)
         return ca.Function("rhs", [x, q], [ca.cse(self.model.rhs(x, p))])
 
     @property
@@ -78,8 +77,8 @@ class Transcription(ABC):
         n = self.intervals
         times = np.linspace(0.0, horizon, n + 1)
         initial = guess(times)
-        numeric = np.maximum(np.abs(initial).max(axis=1), STATE_FLOOR)
-        X = nlp.variable(f"{name}.x", (NX, n), initial[:, 1:], scale=numeric[:, None])
+        numeric = np.maximum(np.abs(initial).max(axis=1), self.model.state_floor)
+        X = nlp.variable(f"{name}.x", (self.model.nx, n), initial[:, 1:], scale=numeric[:, None])
         scale = nlp.parameter(f"{name}.state_scale", numeric)
         h = float(times[1] - times[0])
         # the first interval, by fine RK4 steps whatever the transcription: the front end

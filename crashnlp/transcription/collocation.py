@@ -5,7 +5,6 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from crashnlp.model.pendulum import NX
 from crashnlp.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
@@ -27,7 +26,8 @@ class Collocation(Transcription):
         d = self.spec.degree
         tau = ca.collocation_points(d, self.spec.scheme)
         C, D, _ = ca.collocation_coeff(tau)
-        x0, xc = ca.SX.sym("x0", NX), ca.SX.sym("xc", NX, d)
+        nx = self.model.nx
+        x0, xc = ca.SX.sym("x0", nx), ca.SX.sym("xc", nx, d)
         p = rhs.sx_in(1)
         Z = ca.horzcat(x0, xc)
         slopes = ca.horzcat(*[rhs(xc[:, j], p) for j in range(d)])
@@ -38,7 +38,7 @@ class Collocation(Transcription):
         h = float(times[1] - times[0])
         tau = np.asarray(ca.collocation_points(d, self.spec.scheme))
         inner = (times[:-1, None] + h * tau[None, :]).ravel()
-        Xc = nlp.variable(f"{name}.xc", (NX, n * d), guess(inner), scale=scale_values[:, None])
+        Xc = nlp.variable(f"{name}.xc", (self.model.nx, n * d), guess(inner), scale=scale_values[:, None])
         defects, end = nlp.mapped(self._interval(h, rhs), n, X[:, :-1], Xc, theta)
         nlp.constrain(DYNAMICS, defects / per_row(scale, n * d), test=name, detail="collocation")
         nlp.constrain(DYNAMICS, (end - X[:, 1:]) / per_row(scale, n), test=name, detail="continuity")
