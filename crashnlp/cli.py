@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.compile_job import stop_compiles
+from crashnlp.compile_job import release_compiles, stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
 from crashnlp.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
@@ -692,7 +692,10 @@ def main(argv: list[str] | None = None) -> int:
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
         return _fail(f"error: {describe(exc)}", 1, debug)
     finally:
-        stop_compiles()  # none outlives the command unless CRASHNLP_KEEP_COMPILING=1 asked for that
+        if _received:  # an interrupted command leaves nothing running
+            stop_compiles()
+        else:  # one that ended lets its compiles finish at nice 19, with a line (CRASHNLP_KEEP_COMPILING=0: stopped)
+            release_compiles()
 
 
 if __name__ == "__main__":
