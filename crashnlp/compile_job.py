@@ -3,7 +3,7 @@ killed, finished after one that ends, in the background at the lowest priority.
 
 `start` runs one; at the end of a command `release_compiles` lets those still running finish for
 the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so on the console, `stop_compiles` ends
-them (a signal, a study worker's end, KEEP_ENV=0). A compile is `python -m crashnlp.compile_job
+them (a signal, a study worker's end, KEEP_ENV=0). A compile is `python -I .../compile_job.py
 LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it compiles SOURCE into a temporary file beside
 LIBRARY and renames that in place when the compiler succeeds, so that no reader sees half a
 library. It reads its standard input until end of file, which comes when its starter closes the
@@ -29,6 +29,9 @@ RELEASE = b"release\n"  # what a starter writes to a watched compile that is to 
 BACKGROUND_NICE = 19
 TIME_LIMIT_S = 900.0  # a compile still running after this ends itself (and its lock is taken for dead: crashnlp.optimize.oracle)
 STOP_WAIT_S = 10.0  # how long a stopped compile may take to remove its files before its group is killed
+# this file, run isolated (-I: no current folder or PYTHON* variables on its path; it needs only the
+# standard library): `-m crashnlp.compile_job` ran the crashnlp of the folder a command was started in
+JOB = (sys.executable, "-I", str(Path(__file__).resolve()))
 _compiles: list[subprocess.Popen] = []  # the compiles this process started and has not stopped
 
 
@@ -38,7 +41,7 @@ def start(
     """Start compiling the file `source` into `library` (crashnlp.compile_job: through a temporary
     name, `cleanup` removed at the end). It ends with this process unless released (`release_compiles`)."""
     compile = subprocess.Popen(
-        [sys.executable, "-m", "crashnlp.compile_job", str(library), str(source), *map(str, cleanup), "--", cc, *flags],
+        [*JOB, str(library), str(source), *map(str, cleanup), "--", cc, *flags],
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
