@@ -667,8 +667,23 @@ def _fail(message: str, code: int, debug: bool) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; every ending is an exit status and at most one line on stderr."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Run one command; every ending is an exit status and at most one line on stderr. A command
+    that succeeded lets the compiles it started finish for the next run, at nice 19 and saying so
+    on a line of its own (crashnlp.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
+    them); any other ending stops them, its one line the only one."""
+    code = 1
+    try:
+        code = _command(list(sys.argv[1:] if argv is None else argv))
+        return code
+    finally:
+        if code == 0:
+            release_compiles()
+        else:
+            stop_compiles()
+
+
+def _command(argv: list[str]) -> int:
+    """The command's exit status, any failure turned into its one line."""
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     _received.clear()
@@ -691,11 +706,6 @@ def main(argv: list[str] | None = None) -> int:
         if _received:  # a signal that arrived inside compiled code comes back as another exception
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
         return _fail(f"error: {describe(exc)}", 1, debug)
-    finally:
-        if _received:  # an interrupted command leaves nothing running
-            stop_compiles()
-        else:  # one that ended lets its compiles finish at nice 19, with a line (CRASHNLP_KEEP_COMPILING=0: stopped)
-            release_compiles()
 
 
 if __name__ == "__main__":

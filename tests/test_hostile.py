@@ -453,6 +453,19 @@ def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_pat
     assert capsys.readouterr().err == ""
 
 
+def test_a_command_that_succeeds_releases_its_compiles_and_any_other_ending_stops_them(monkeypatch, capsys):
+    """Only exit 0 lets a compile finish after the command: a failed one's line stays its only one."""
+    import crashnlp.cli as cli
+
+    endings: list[str] = []
+    monkeypatch.setattr(cli, "release_compiles", lambda: endings.append("released"))
+    monkeypatch.setattr(cli, "stop_compiles", lambda: endings.append("stopped"))
+    assert main(["schema"]) == 0
+    assert main(["identify", "no-such-problem.yaml"]) == 2
+    assert endings == ["released", "stopped"]
+    capsys.readouterr()
+
+
 def test_a_yaml_bomb_is_refused(tmp_path, capsys):
     levels = ["a0: &a0 [1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1, 1]"]
     for k in range(1, 10):
