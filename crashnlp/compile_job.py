@@ -1,9 +1,9 @@
-"""C compiles in process groups of their own: stopped with a command that is interrupted or
-killed, finished after one that ends, in the background at the lowest priority.
+"""C compiles in process groups of their own: stopped with a command that fails, is interrupted
+or is killed; finished after one that succeeds, in the background at the lowest priority.
 
-`start` runs one; at the end of a command `release_compiles` lets those still running finish for
-the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so on the console, `stop_compiles` ends
-them (a signal, a study worker's end, KEEP_ENV=0). A compile is `python -I .../compile_job.py
+`start` runs one; at the end of a command that succeeded `release_compiles` lets those still
+running finish for the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so on the console,
+`stop_compiles` ends them (any other ending, a study worker's end, KEEP_ENV=0). A compile is `python -I .../compile_job.py
 LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it compiles SOURCE into a temporary file beside
 LIBRARY and renames that in place when the compiler succeeds, so that no reader sees half a
 library. It reads its standard input until end of file, which comes when its starter closes the
