@@ -10,7 +10,6 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 
 from crashnlp.data.channels import DataError
-from crashnlp.engine.executors import require_dask
 from crashnlp.errors import InputError
 from crashnlp.problem import Problem
 from crashnlp.problem.load import check_fit_keys
@@ -34,6 +33,8 @@ def check_keys(problem: Problem, source: str | None = None) -> None:
     source = source or problem.name
     check_fit_keys(problem, source)
     if problem.uncertainty.profile and problem.uncertainty.executor == "dask":
+        from crashnlp.engine.executors import require_dask  # the process pool's modules: only here
+
         with named(source):
             require_dask("uncertainty.executor")
 

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.compile_job import stop_compiles
+from crashnlp.compile_job import release_compiles, stop_compiles
 from crashnlp.errors import InputError, Interrupted, RunError
 from crashnlp.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
@@ -701,8 +701,23 @@ def _fail(message: str, code: int, debug: bool) -> int:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run one command; every ending is an exit status and at most one line on stderr."""
-    argv = list(sys.argv[1:] if argv is None else argv)
+    """Run one command; every ending is an exit status and at most one line on stderr. A command
+    that succeeded lets the compiles it started finish for the next run, at nice 19 and saying so
+    on a line of its own (crashnlp.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
+    them); any other ending stops them, its one line the only one."""
+    code = 1
+    try:
+        code = _command(list(sys.argv[1:] if argv is None else argv))
+        return code
+    finally:
+        if code == 0:
+            release_compiles()
+        else:
+            stop_compiles()
+
+
+def _command(argv: list[str]) -> int:
+    """The command's exit status, any failure turned into its one line."""
     debug = "--debug" in argv
     argv = [a for a in argv if a != "--debug"]
     _received.clear()
@@ -725,8 +740,6 @@ def main(argv: list[str] | None = None) -> int:
         if _received:  # a signal that arrived inside compiled code comes back as another exception
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
         return _fail(f"error: {describe(exc)}", 1, debug)
-    finally:
-        stop_compiles()  # none outlives the command unless CRASHNLP_KEEP_COMPILING=1 asked for that
 
 
 if __name__ == "__main__":

@@ -7,9 +7,9 @@ two, so each library is kept under the cache folder (CRASHNLP_CACHE, default
 function is compiled once per machine, whatever the process. Without a C
 compiler the Function itself is returned, so results never depend on it.
 
-A compile runs in a process group of its own (crashnlp.compile_job) and ends with
-the process that started it, on exit as on a signal, leaving no half-written
-library; only CRASHNLP_KEEP_COMPILING=1 lets a background compile outlive it.
+A compile runs in a process group of its own (crashnlp.compile_job), waited for here,
+and ends with the process that started it, on exit as on a signal, leaving no
+half-written library.
 """
 
 from __future__ import annotations
@@ -83,7 +83,7 @@ def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -
     with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
         src = Path(tmp) / "fn.c"
         src.write_text(source)
-        compile = compile_job.start(cc, src, library, flags, keep=False)
+        compile = compile_job.start(cc, src, library, flags)
         try:
             code = compile.wait()
         finally:

@@ -16,12 +16,10 @@ import numpy as np
 
 from crashnlp.case import Case, case_of
 from crashnlp.checks import check_keys, named
-from crashnlp.engine.executors import make_executor
 from crashnlp.optimize.design import design
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.identify import Solution, identify
 from crashnlp.optimize.outcome import result_of
-from crashnlp.optimize.profile import profiles
 from crashnlp.problem import Problem
 from crashnlp.result import Result
 
@@ -64,6 +62,9 @@ def profile(solution: Solution) -> None:
     spec = solution.case.problem.uncertainty
     if not spec.profile or solution.covariance is None or solution.result is None or not solution.result.converged:
         return
+    from crashnlp.engine.executors import make_executor  # the process pool's modules: only for profiles
+    from crashnlp.optimize.profile import profiles
+
     executor = make_executor(spec.executor, spec.workers)
     try:
         solution.profiles = profiles(solution, executor)

@@ -163,11 +163,18 @@ def _process(bench: dict[str, Any]) -> dict[str, str]:
     }
     out = {f"{name}_s": f"{whole[run]['wall_s']:.2f}" for name, run in runs.items()}
     out |= {f"{name}_mb": f"{whole[run]['peak_rss_mb']:.0f}" for name, run in runs.items()}
-    return out | {
+    out |= {
         "process_first_s": f"{whole['first_run_fresh_cache']['wall_s']:.1f}",
         "process_speedup": f"{whole['speedup']:.1f}",
         "process_no_figures_speedup": f"{whole['speedup_no_figures']:.1f}",
     }
+    if "new_problem" in whole:  # a new problem's runs and the pickup's, as ratios to the import floor
+        new = whole["new_problem"]
+        out |= {f"new_problem_run{n}_x": f"{new[f'run_{n}']['vs_floor']:.1f}" for n in (1, 2, 3)}
+        out |= {f"new_problem_run{n}_s": f"{new[f'run_{n}']['wall_s']:.2f}" for n in (1, 2, 3)}
+        out["new_problem_compile_s"] = f"{new['compile_after_run_2_s']:.0f}"
+        out["process_no_figures_x"] = f"{whole['vs_floor']['warm_no_figures']:.1f}"
+    return out
 
 
 def _simulation(bench: dict[str, Any]) -> dict[str, str]:
@@ -198,6 +205,10 @@ def _studies(bench: dict[str, Any]) -> dict[str, str]:
     out["study_dask_s"] = f"{studies['grid_16'][dask]['wall_s']:.1f}"
     out["grid64_iterations"] = str(max(int(row["iterations"]) for row in studies["grid_64_rows"]))
     out["study_dask_speedup"] = f"{studies['speedup_16'][dask]:.2f}"
+    if dask in studies["speedup_64"]:
+        out["grid64_dask_speedup"] = f"{studies['speedup_64'][dask]:.2f}"
+    if "warm_vs_ipopt" in studies["case"]:
+        out["study_case_vs_ipopt"] = f"{studies['case']['warm_vs_ipopt']:.2f}"
     return out
 
 

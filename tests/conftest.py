@@ -25,6 +25,8 @@ that take the `compiled_nlp` fixture turn it on, into the run's cache: the shipp
 problem (tests/test_shipped.py), a small identification by the API and the command line
 (tests/test_api.py) and a study (tests/test_study.py) each compile their shape and are
 compared with the virtual machine's solve; tests/test_oracle.py compiles into caches of its own.
+No background compile outlives its command (CRASHNLP_KEEP_COMPILING=0), so none is left running
+after the run; tests/test_hostile.py checks the default, a released compile, on a compile of its own.
 """
 
 from __future__ import annotations
@@ -37,11 +39,13 @@ import casadi as ca
 import pytest
 
 from crashnlp.cache import CACHE_ENV
+from crashnlp.compile_job import KEEP_ENV
 from crashnlp.compiled import SWITCH_ENV, compiler
 
 RUN_CACHE_ENV = "CRASHNLP_TEST_RUN_CACHE"  # set by the run's first process: the folder every process shares
 
 os.environ.setdefault(SWITCH_ENV, "model")
+os.environ.setdefault(KEEP_ENV, "0")  # no compile outlives the command that started it: none is left after the run
 
 
 def pytest_configure(config: pytest.Config) -> None:

@@ -374,8 +374,7 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
-    source = tmp_path / "big.c"
-    source.write_text("".join(f"double f{i}(double x) {{ return x * {i} + x * x / {i + 1}; }}\n" for i in range(100_000)))
+    source = _big_source(tmp_path / "big.c")
     job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
     deadline = time.monotonic() + 10
     while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
@@ -386,6 +385,85 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
     time.sleep(0.2)
     assert not [command(p) for p in group if _alive(p)]
     assert list(tmp_path.iterdir()) == []
+
+
+def _big_source(path: Path) -> Path:
+    """C that takes cc several seconds: a compile that is still running when it is looked at."""
+    path.write_text("".join(f"double f{i}(double x) {{ return x * {i} + x * x / {i + 1}; }}\n" for i in range(100_000)))
+    return path
+
+
+def _nice(pid: int) -> int:
+    return os.getpriority(os.PRIO_PROCESS, pid)
+
+
+@pytest.mark.integration
+def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path, capsys, monkeypatch):
+    """The end of a command (the default): the compile's whole group, cc1 too, goes on at nice 19
+    after its starter let go of it, and one line on stderr says so and how to turn it off."""
+    from crashnlp import compile_job
+
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    monkeypatch.delenv(compile_job.KEEP_ENV, raising=False)
+    source = _big_source(tmp_path / "big.c")
+    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
+            time.sleep(0.05)
+        assert _nice(job.pid) < compile_job.BACKGROUND_NICE  # the command's own priority while it runs
+        assert compile_job.release_compiles() == [job.pid]
+        deadline = time.monotonic() + 5
+        while time.monotonic() < deadline and _nice(job.pid) != compile_job.BACKGROUND_NICE:
+            time.sleep(0.05)
+        group = descendants(job.pid) | {job.pid}
+        assert any("cc1" in command(p) for p in group)
+        assert {_nice(p) for p in group} == {compile_job.BACKGROUND_NICE}
+        assert job.poll() is None, "the released compile was stopped"
+    finally:
+        os.killpg(job.pid, signal.SIGTERM)
+        job.wait(timeout=30)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "in the background" in err[0] and f"{compile_job.KEEP_ENV}=0" in err[0], err
+    assert list(tmp_path.iterdir()) == [], "a stopped compile left files"
+
+
+@pytest.mark.integration
+def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_path, capsys, monkeypatch):
+    """Released, a compile outlives its starter's letting go and leaves the library (its source, the
+    lock, removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
+    from crashnlp import compile_job
+
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    monkeypatch.delenv(compile_job.KEEP_ENV, raising=False)
+    source = tmp_path / "small.c"
+    source.write_text("double twice(double x) { return 2 * x; }\n")
+    job = compile_job.start("cc", source, tmp_path / "small.so", ("-O1", "-fPIC", "-shared"), cleanup=(source,))
+    compile_job.release_compiles()
+    assert job.wait(timeout=60) == 0
+    assert [p.name for p in tmp_path.iterdir()] == ["small.so"]
+    monkeypatch.setenv(compile_job.KEEP_ENV, "0")
+    capsys.readouterr()
+    source = _big_source(tmp_path / "big.c")
+    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    assert compile_job.release_compiles() == []
+    assert job.poll() is not None and not (tmp_path / "big.so").exists() and not source.exists()
+    assert capsys.readouterr().err == ""
+
+
+def test_a_command_that_succeeds_releases_its_compiles_and_any_other_ending_stops_them(monkeypatch, capsys):
+    """Only exit 0 lets a compile finish after the command: a failed one's line stays its only one."""
+    import crashnlp.cli as cli
+
+    endings: list[str] = []
+    monkeypatch.setattr(cli, "release_compiles", lambda: endings.append("released"))
+    monkeypatch.setattr(cli, "stop_compiles", lambda: endings.append("stopped"))
+    assert main(["schema"]) == 0
+    assert main(["identify", "no-such-problem.yaml"]) == 2
+    assert endings == ["released", "stopped"]
+    capsys.readouterr()
 
 
 def test_a_yaml_bomb_is_refused(tmp_path, capsys):

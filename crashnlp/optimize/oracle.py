@@ -11,8 +11,9 @@ Hessian kind and the compiler:
 
 - `compile: auto` (default): a cached library when there is one; otherwise this
   solve runs in CasADi's virtual machine and the library is compiled in the
-  background, for the later study cases of the same shape; the compile ends with
-  the command (CRASHNLP_KEEP_COMPILING=1 lets it finish for the next run).
+  background, for the later study cases of the same shape; when the command ends
+  the compile finishes at nice 19 for the next run, with a line that says so
+  (crashnlp.compile_job; CRASHNLP_KEEP_COMPILING=0 stops it with the command).
 - `compile: now`: compile before solving and wait (before a large study).
 - `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
 
@@ -44,7 +45,7 @@ from crashnlp.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
 NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
-STALE_S = 900.0  # a background compile older than this is taken for dead
+STALE_S = compile_job.TIME_LIMIT_S  # a background compile older than this is taken for dead (it ends itself by then)
 COMPILE_ERRORS = (OSError, RuntimeError, subprocess.CalledProcessError)  # an unusable cache or compiler: stay in the VM
 SOLVER_FUNCTIONS = ("nlp", "grad_f", "jac_g", "hess_lag")
 SOLVER_OPTIONS = {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
@@ -181,8 +182,8 @@ def compiles_running(cache: Path) -> list[Path]:
 
 
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
-    """Start compiling the library beside this process (crashnlp.compile_job: it ends with
-    the command unless CRASHNLP_KEEP_COMPILING=1); the source file is the lock (one compile per
+    """Start compiling the library beside this process (crashnlp.compile_job: stopped with an
+    interrupted command, finished at nice 19 after one that ends); the source file is the lock (one compile per
     library at a time, a stale one restarted). No more compiles at once than cores: a batch of
     many shapes compiles the rest on later runs."""
     source = library.with_suffix(".c")
