@@ -255,18 +255,51 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
     return out
 
 
+# scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
+SCENARIO_KEYS = {
+    "one test down, 56 -> 40": "down40",
+    "one test down, 56 -> 48": "down48",
+    "one test up, 56 -> 64": "up64",
+    "interpolation, 40 + 56 -> 48": "between48",
+    "interpolation, 40 + 64 -> 56": "between56",
+    "extrapolation, 40 + 56 -> 64": "extrap64",
+    "one test, mass +20 %, 56 -> 56": "mass120",
+    "one test, mass -15 %, 56 -> 56": "mass85",
+}
+METRIC_KEYS = {
+    "max_crush_m": "crush",
+    "time_zero_velocity_s": "stop",
+    "peak_decel_g": "peak",
+    "rebound_velocity_mps": "rebound",
+    "olc_g": "olc",
+    "max_pitch_deg": "pitch",
+}
+
+
 def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     """The calibrated intervals on the check seed, the vehicles their table was not set on: the
-    lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h."""
+    lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h;
+    and on the check seed and the hidden population, each scenario's coverage and median
+    half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>)."""
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down = check["one test down, 56 -> 48"]
-    return {
+    out = {
         "intervals_vehicles": str(down["max_crush_m"]["n"]),
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
         "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
     }
+    calibration = intervals["calibration"]
+    for metric, short in METRIC_KEYS.items():
+        out[f"iv.power.{short}"] = f"{calibration['power'][metric]:g}"
+    for label, seed in (("check", intervals["check_seed"]), ("hidden", intervals["hidden_seed"])):
+        for scenario, by in intervals["evaluation"][str(seed)]["all"].items():
+            for metric, e in by.items():
+                key = f"iv.{label}.{SCENARIO_KEYS[scenario]}.{METRIC_KEYS[metric]}"
+                out[f"{key}.cov"] = f"{e['coverage'] * 100:.0f}"
+                out[f"{key}.hw"] = f"{e['half_width_median'] * 100:.{1 if e['half_width_median'] < 0.1 else 0}f}"
+    return out
 
 
 def _self_consistency(bench: dict[str, Any]) -> dict[str, str]:
