@@ -280,7 +280,8 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     """The calibrated intervals on the check seed, the vehicles their table was not set on: the
     lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h;
     and on the check seed and the hidden population, each scenario's coverage and median
-    half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>)."""
+    half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>), and the largest
+    miss of the crush from one test down to 40 km/h and of the extrapolated peak."""
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down = check["one test down, 56 -> 48"]
@@ -289,6 +290,8 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
         "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
+        "intervals_down40_crush_miss_pct": f"{check['one test down, 56 -> 40']['max_crush_m']['error_max'] * 100:.0f}",
+        "intervals_extrap_peak_miss_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['error_max'] * 100:.0f}",
     }
     calibration = intervals["calibration"]
     for metric, short in METRIC_KEYS.items():
