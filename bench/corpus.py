@@ -173,12 +173,22 @@ def tall_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle:
 
 
 def engine_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle:
-    """A random vehicle of the second form: random_vehicle's body with 12-20 % of its mass in an
-    engine on 8-15 Hz mounts (damping ratio 0.5), whose gap to the barrier closes at 55-90 % of the
-    crush the vehicle is built for; the barrier stops it over 8-15 cm at about the body's mean crush
-    force, its contact damped at a ratio of 0.4-0.7."""
-    rng = np.random.default_rng([seed, index, 2])
-    v = random_vehicle(index, seed, speed=speed)
+    """A random vehicle of the second form: random_vehicle's body with an engine on mounts (with_engine)."""
+    return replace(
+        with_engine(random_vehicle(index, seed, speed=speed), np.random.default_rng([seed, index, 2])), name=f"e{index:02d}"
+    )
+
+
+def tall_engine_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle:
+    """A van or a tall SUV (tall_vehicle) with an engine on mounts (with_engine)."""
+    v = with_engine(tall_vehicle(index, seed, speed=speed), np.random.default_rng([seed, index, 3]))
+    return replace(v, name=f"te{index:02d}")
+
+
+def with_engine(v: Vehicle, rng: np.random.Generator) -> Vehicle:
+    """The vehicle with 12-20 % of its mass in an engine on 8-15 Hz mounts (damping ratio 0.5), whose
+    gap to the barrier closes at 55-90 % of the crush the vehicle is built for; the barrier stops
+    it over 8-15 cm at about the body's mean crush force, its contact damped at a ratio of 0.4-0.7."""
     mass = v.mass * rng.uniform(0.12, 0.2)
     mount = mass * (2 * np.pi * rng.uniform(8.0, 15.0)) ** 2
     mean_force = float(np.mean(v.load_force[1:8]))
@@ -191,7 +201,7 @@ def engine_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle
         contact_stiffness=float(2 * mean_force / stop),
         contact_damping=float(rng.uniform(0.4, 0.7) * 2 * np.sqrt(2 * mean_force / stop * mass)),
     )
-    return replace(v, name=f"e{index:02d}", engine=engine)
+    return replace(v, engine=engine)
 
 
 def corpus(count: int = 30, seed: int = 2024) -> list[Vehicle]:

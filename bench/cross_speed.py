@@ -110,12 +110,13 @@ def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path, transcripti
     return path
 
 
-def prediction_problem(fit_path: Path, kmh: float, folder: Path) -> crashnlp.Problem:
-    """The fitted problem with one test at a new speed and no data, written into `folder`: what a
-    user predicts with."""
+def prediction_problem(fit_path: Path, kmh: float, folder: Path, mass: float | None = None) -> crashnlp.Problem:
+    """The fitted problem with one test at a new speed (and with `mass`, a new mass, kg) and no
+    data, written into `folder`: what a user predicts with."""
     raw = yaml.safe_load(fit_path.read_text())
-    raw["tests"] = [test_entry(kmh)]
-    path = folder / f"{fit_path.stem}-predict-{kmh:.0f}.yaml"
+    entry = test_entry(kmh)
+    raw["tests"] = [entry if mass is None else {**entry, "mass": f"{mass:.1f} kg"}]
+    path = folder / f"{fit_path.stem}-predict-{kmh:.0f}{'' if mass is None else f'-{mass:.0f}kg'}.yaml"
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
     return crashnlp.load(path)
 

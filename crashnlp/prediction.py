@@ -11,15 +11,16 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
   from), and the out-of-sample term calibrated on held-out predictions of a corpus of vehicles
   of two generator forms (crashnlp.calibration): the fit tunes the metrics of the tests it was
   fitted at, so their miss there understates the miss at another speed or mass. The calibrated
-  term grows with the distance in impact energy from the nearest fitted test, and is zero at a
-  fitted test's own;
+  term grows with the distance in impact energy from the nearest fitted test (to a power the
+  calibration sets per metric), and is zero at a fitted test's own;
 - the force past the crush the model reached in the fitted tests, which no test measured: the
   identified loading curve follows its trend there (crashnlp.model.tail), and how well that
   rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
   the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
   the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes),
-  the stop with it, and the peak deceleration where the peak lies past the reach. A peak the
-  force past the reach raises beyond the predicted one is the calibrated form term's to cover.
+  the stop with it, and the peak deceleration where the peak lies past the reach. That is a
+  rule's guess, so the calibrated q scales it as it scales the form term; a peak the force past
+  the reach raises beyond the predicted one is the calibrated form term's to cover.
 
 Each interval reports its parts, and the dominant one; an interval the force past the reach
 dominates says so in a note. The response bands are pointwise 95 %: at each instant the
@@ -50,7 +51,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from scipy.stats import t as student
 
-from crashnlp.calibration import Calibration, IntervalParts, reach, scale, shipped
+from crashnlp.calibration import Calibration, IntervalParts, reach, shipped
 from crashnlp.case import Case, TestCase
 from crashnlp.errors import InputError
 from crashnlp.files import claim, run_name
@@ -289,7 +290,7 @@ def _uncertainty(
             _parameter_half(key, gm[:, i], gy, cov, response),
             Z95 * float(np.hypot(miss * value, _curve_miss(identified, key))),
             past.get(key, 0.0),
-            scale(key, value, test.speed) * distance,
+            calibration.unit(key, value, test.speed, distance),
         )
         if q is None or not np.isfinite(q):
             notes.append(f"{test.name}: no interval for {key}: its form term is not calibrated for a prediction of class {klass}")
@@ -344,7 +345,7 @@ def _bands(
         g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
         moved = np.abs(v0 - y) if name == "velocity" else np.abs(y)
         reference = v0 + part.value if name == "velocity" else abs(part.value)
-        rest = np.hypot(part.form(qs[key]), part.past_the_reach) / reference if reference > 0 else 0.0
+        rest = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference if reference > 0 else 0.0
         half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + (rest * moved) ** 2)
         bands[name] = (y - half, y + half)
     return bands

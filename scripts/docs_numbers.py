@@ -354,31 +354,18 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.fitted_not_in_truth": str(s["fitted_lift_offs_not_in_truth"]),
         }
     return out
-
-
-def _intervals(bench: dict[str, Any]) -> dict[str, str]:
-    """The calibrated intervals on the check seed, the vehicles their table was not set on: the
-    lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h."""
-    intervals = bench["intervals"]
-    check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
-    down = check["one test down, 56 -> 48"]
-    out = {
-        "intervals_vehicles": str(down["max_crush_m"]["n"]),
-        "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
-        "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
-        "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
-    }
-    return out | _interval_table(intervals) | _interval_misses(intervals)
-
-
-SCENARIOS = {  # bench.json's scenario -> the key docs/predictions.md's table names it by
+# scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
+SCENARIO_KEYS = {
     "one test down, 56 -> 40": "down40",
     "one test down, 56 -> 48": "down48",
     "one test up, 56 -> 64": "up64",
     "interpolation, 40 + 56 -> 48": "between48",
-    "extrapolation, 40 + 56 -> 64": "beyond64",
+    "interpolation, 40 + 64 -> 56": "between56",
+    "extrapolation, 40 + 56 -> 64": "extrap64",
+    "one test, mass +20 %, 56 -> 56": "mass120",
+    "one test, mass -15 %, 56 -> 56": "mass85",
 }
-METRICS = {
+METRIC_KEYS = {
     "max_crush_m": "crush",
     "time_zero_velocity_s": "stop",
     "peak_decel_g": "peak",
@@ -388,52 +375,32 @@ METRICS = {
 }
 
 
-def _pct(share: float) -> str:
-    """A share as a percentage: one decimal below 20 %, none above."""
-    return f"{share * 100:.1f}" if share < 0.2 else f"{share * 100:.0f}"
-
-
-def _interval_table(intervals: dict[str, Any]) -> dict[str, str]:
-    """docs/predictions.md's table of the check seed: each scenario's and metric's coverage and
-    median half-width (relative)."""
+def _intervals(bench: dict[str, Any]) -> dict[str, str]:
+    """The calibrated intervals on the check seed, the vehicles their table was not set on: the
+    lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h;
+    and on the check seed and the hidden population, each scenario's coverage and median
+    half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>), and the largest
+    miss of the crush from one test down to 40 km/h and of the extrapolated peak."""
+    intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
-    out = {}
-    for scenario, sid in SCENARIOS.items():
-        for metric, mid in METRICS.items():
-            cell = check[scenario][metric]
-            out[f"intervals.{sid}.{mid}.coverage_pct"] = f"{cell['coverage'] * 100:.0f}"
-            out[f"intervals.{sid}.{mid}.half_pct"] = _pct(cell["half_width_median"])
-    return out
-
-
-def _interval_misses(intervals: dict[str, Any]) -> dict[str, str]:
-    """What the prose under the table says: each form's lowest coverage, the model's misses that
-    widen the intervals, and the tall vehicles of the hidden seed, which no calibration saw."""
-    evaluation = intervals["evaluation"]
-    check, hidden = evaluation[str(intervals["check_seed"])], evaluation[str(intervals["hidden_seed"])]["all"]
-    forms = [form for name, form in check.items() if name != "all"]
-    cells = [m for form in forms for scenario in form.values() for m in scenario.values()]
-    rebound = [s["rebound_velocity_mps"]["error_median"] for s in check["all"].values()]
-    pitch = [s["max_pitch_deg"]["error_median"] for s in check["engine on mounts"].values()]
-    down40, beyond64 = check["all"]["one test down, 56 -> 40"], check["all"]["extrapolation, 40 + 56 -> 64"]
+    down = check["one test down, 56 -> 48"]
     out = {
-        "intervals_form_coverage_lowest_pct": f"{min(c['coverage'] for c in cells) * 100:.0f}",
-        "intervals_down40_crush_error_median_pct": _pct(down40["max_crush_m"]["error_median"]),
-        "intervals_down40_crush_error_max_pct": _pct(down40["max_crush_m"]["error_max"]),
-        "intervals_beyond64_peak_error_max_pct": _pct(beyond64["peak_decel_g"]["error_max"]),
-        "intervals_rebound_error_low_pct": _pct(min(rebound)),
-        "intervals_rebound_error_high_pct": _pct(max(rebound)),
-        "intervals_engine_pitch_error_low_pct": _pct(min(pitch)),
-        "intervals_engine_pitch_error_high_pct": _pct(max(pitch)),
-        "intervals_tall_vehicles": str(max(s["max_crush_m"]["n"] for s in hidden.values())),
+        "intervals_vehicles": str(down["max_crush_m"]["n"]),
+        "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
+        "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
+        "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
+        "intervals_down40_crush_miss_pct": f"{check['one test down, 56 -> 40']['max_crush_m']['error_max'] * 100:.0f}",
+        "intervals_extrap_peak_miss_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['error_max'] * 100:.0f}",
     }
-    for metric in ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps"):
-        coverage = [s[metric]["coverage"] for s in hidden.values()]
-        out[f"intervals_tall_{METRICS[metric]}_lowest_pct"] = f"{min(coverage) * 100:.0f}"
-        out |= {f"intervals_tall_{METRICS[metric]}_highest_pct": f"{max(coverage) * 100:.0f}"} if metric != "max_crush_m" else {}
-    stop = hidden["one test down, 56 -> 48"]["time_zero_velocity_s"]
-    out["intervals_tall_down48_stop_error_pct"] = _pct(stop["error_median"])
-    out["intervals_tall_down48_stop_half_pct"] = _pct(stop["half_width_median"])
+    calibration = intervals["calibration"]
+    for metric, short in METRIC_KEYS.items():
+        out[f"iv.power.{short}"] = f"{calibration['power'][metric]:g}"
+    for label, seed in (("check", intervals["check_seed"]), ("hidden", intervals["hidden_seed"])):
+        for scenario, by in intervals["evaluation"][str(seed)]["all"].items():
+            for metric, e in by.items():
+                key = f"iv.{label}.{SCENARIO_KEYS[scenario]}.{METRIC_KEYS[metric]}"
+                out[f"{key}.cov"] = f"{e['coverage'] * 100:.0f}"
+                out[f"{key}.hw"] = f"{e['half_width_median'] * 100:.{1 if e['half_width_median'] < 0.1 else 0}f}"
     return out
 
 
