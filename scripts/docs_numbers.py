@@ -338,9 +338,10 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
 
 
 def _forms(bench: dict[str, Any]) -> dict[str, str]:
-    """The forms on the tall vehicles (bench/forms.py), per form (forms.<form>.<what>)."""
+    """The forms on the tall vehicles (bench/forms.py), per form (forms.<form>.<what>): the
+    interpolation split, and the extrapolation split's under extrapolation_<what>."""
     out = {}
-    for form, s in bench["forms"]["summary"].items():
+    for form, s in bench["forms"]["summary"]["interpolation"].items():
         out |= {
             f"forms.{form}.pitch_median": f"{s['pitch_rmse_median_deg']:.2f}",
             f"forms.{form}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
@@ -352,6 +353,14 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.lift_offs": str(s["lift_offs"]),
             f"forms.{form}.fitted_lift_offs": str(s["fitted_lift_offs"]),
             f"forms.{form}.fitted_not_in_truth": str(s["fitted_lift_offs_not_in_truth"]),
+        }
+    for form, s in bench["forms"]["summary"]["extrapolation"].items():
+        out |= {
+            f"forms.{form}.extrapolation_within": str(s["within_targets"]),
+            f"forms.{form}.extrapolation_ok": str(s["ok"]),
+            f"forms.{form}.extrapolation_crush": f"{s['crush_rel_max'] * 100:.1f}",
+            f"forms.{form}.extrapolation_peak": f"{s['peak_rel_max'] * 100:.1f}",
+            f"forms.{form}.extrapolation_lift_offs": str(s["lift_offs"]),
         }
     return out
 # scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
