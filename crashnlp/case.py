@@ -17,8 +17,7 @@ import numpy as np
 
 from crashnlp.checks import named
 from crashnlp.completion import complete, measured_pulses
-from crashnlp.model.form import CrashModel, build_model
-from crashnlp.model.forms import form_class
+from crashnlp.model.form import CrashModel, build_model, form_class
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.model.tail import Curve
 from crashnlp.problem import Problem, load_problem

@@ -43,7 +43,7 @@ import numpy as np
 from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.errors import InputError
-from crashnlp.model.forms import form_class
+from crashnlp.model.form import form_class
 from crashnlp.problem.schema import Damper, EstimateSpec, Problem, with_fields
 from crashnlp.segmentation import bends
 from crashnlp.testcase import TestCase

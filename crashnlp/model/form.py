@@ -18,6 +18,7 @@ entry of crashnlp.model.forms.FORMS.
 
 from __future__ import annotations
 
+import importlib
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -27,7 +28,7 @@ from typing import Any, ClassVar
 import casadi as ca
 import numpy as np
 
-from crashnlp.model.forms import form_class
+from crashnlp.model.forms import FORMS
 from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, hinge, with_tail
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.outputs import NAMES
@@ -253,6 +254,13 @@ class CrashModel(ABC):
         work = [y[OUTPUTS.index(name)] for name in ABSORBED]
         ode = ca.vertcat(self.rhs(state, self.p), *work)
         return ca.Function("aug_rhs", [x, self.p], [ode], ["x", "p"], ["xdot"])
+
+
+def form_class(name: str) -> type[CrashModel]:
+    """The class of the form `name` (a key of crashnlp.model.forms.FORMS)."""
+    module, _, cls = FORMS[name].partition(":")
+    found: type[CrashModel] = getattr(importlib.import_module(module), cls)
+    return found
 
 
 def build_model(spec: ModelSpec, layout: ParameterLayout) -> CrashModel:

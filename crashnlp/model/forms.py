@@ -2,26 +2,14 @@
 
 A form is one module holding a `crashnlp.model.form.CrashModel` subclass; registering it is one
 entry here. The entries name the class by import path, so the problem schema can take its
-`model.form` choice from this registry without importing CasADi; `form_class` imports it.
+`model.form` choice from this registry without importing CasADi;
+`crashnlp.model.form.form_class` imports it.
 """
 
 from __future__ import annotations
-
-import importlib
-from typing import TYPE_CHECKING
-
-if TYPE_CHECKING:
-    from crashnlp.model.form import CrashModel
 
 FORMS: dict[str, str] = {
     "pendulum": "crashnlp.model.pendulum:PendulumModel",  # the paper: pitches about the impact point
     "rigid-body": "crashnlp.model.rigid_body:RigidBodyModel",  # pitches about its CG on the suspension
 }
 DEFAULT_FORM = "pendulum"
-
-
-def form_class(name: str) -> type[CrashModel]:
-    """The class of the form `name` (a key of FORMS)."""
-    module, _, cls = FORMS[name].partition(":")
-    found: type[CrashModel] = getattr(importlib.import_module(module), cls)
-    return found
