@@ -19,9 +19,9 @@ from scipy.integrate import solve_ivp
 from scipy.optimize import least_squares
 
 from bench.common import Target, node_times, residual_vector
-from crashnlp.case import Case
+from crashnlp.case.case import Case
+from crashnlp.models.simulation import response_from_states
 from crashnlp.optimize.free import FreeParameters
-from crashnlp.simulation import response_from_states
 
 METHOD, RTOL, ATOL, MAX_STEP = "LSODA", 1e-6, 1e-8, 1e-3
 DIFF_STEP = 1e-3  # relative finite-difference step ~ sqrt(rtol): scipy's default (1.5e-8) drowns in integrator error

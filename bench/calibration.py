@@ -1,6 +1,6 @@
 """Held-out predictions: the calibration of the intervals' form term, and the benchmark of the intervals.
 
-`make calibrate` (`python bench/calibration.py`) writes crashnlp/calibration.json and the bench
+`make calibrate` (`python bench/calibration.py`) writes crashnlp/analysis/calibration.json and the bench
 section `intervals`; `make bench` runs the section too.
 
 Each vehicle comes from bench/corpus.py in one of two generator forms, neither crashnlp's
@@ -9,7 +9,7 @@ late (engine_vehicle); each is built for 56, 64 or 72 km/h in turn. It is fitted
 problem files, as a user would, at 56 km/h alone, at 40 + 56 and at 40 + 64 km/h, and each fit
 predicts the speeds it was not fitted at, and the 56 km/h fit the same vehicle heavier and
 lighter (SCENARIOS, MASS_RATIOS). A prediction's interval parts
-(crashnlp.calibration.IntervalParts), its fit's range and the generator's noise-free metrics make
+(crashnlp.analysis.calibration.IntervalParts), its fit's range and the generator's noise-free metrics make
 one record. The corpus of one seed (SET_SEED) sets the calibration: per metric the power of the
 distance (power), then per class of prediction and metric the split-conformal quantile (LEVEL)
 of the records' scores, its rank from the number of vehicles; the corpus of
@@ -40,8 +40,8 @@ import crashnlp  # noqa: E402
 from bench.common import RESULTS, ROOT  # noqa: E402
 from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
-from crashnlp.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedRange  # noqa: E402
+from crashnlp.analysis.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
+from crashnlp.results.identified import INTERVAL_METRICS, IdentifiedRange  # noqa: E402
 
 VERSION = 2
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
@@ -195,7 +195,7 @@ def _parts(row: dict, metric: str, power: float = 1.0) -> IntervalParts | None:
 
 
 def klass(row: dict) -> str:
-    """A record's class, from its fit's range as crashnlp.calibration.reach finds it now."""
+    """A record's class, from its fit's range as crashnlp.analysis.calibration.reach finds it now."""
     return reach(IdentifiedRange.from_json(row["fit"]["range"]), row["speed_mps"], row["mass_kg"])[0]
 
 
@@ -241,7 +241,7 @@ def _about_mean(points: list[tuple[float, float, int]]) -> tuple[np.ndarray, np.
 
 def _table(rows: list[dict], metric: str, grown: float) -> dict[str, tuple[float, int]]:
     """q per class of one metric, and the records it came from: the conformal quantile of the
-    class's scores, its rank from the number of vehicles (crashnlp.calibration.conformal_quantile)."""
+    class's scores, its rank from the number of vehicles (crashnlp.analysis.calibration.conformal_quantile)."""
     scores: dict[str, list[float]] = {}
     units: dict[str, set[tuple[str, str]]] = {}
     for row, parts, truth in _scored(rows, metric, grown):
@@ -437,7 +437,7 @@ def markdown(section: dict) -> list[str]:
         f"{', '.join(f'{n} {form}' for form, n in cal['corpus']['vehicles'].items())}; on the check seed {checked} vehicles. "
         "Each is fitted from minimal problem files at 56 km/h, at 40 + 56 and at 40 + 64 km/h, and predicts the speeds "
         "it was not fitted at, and at 56 km/h with 20 % more and 15 % less mass. The form term's table "
-        f"(crashnlp/calibration.json, version {cal['version']}) is set on seed {section['set_seed']} (conformal level "
+        f"(crashnlp/analysis/calibration.json, version {cal['version']}) is set on seed {section['set_seed']} (conformal level "
         f"{cal['coverage']}) and checked on seed {section['check_seed']}, which it never saw, and on a population of a "
         f"form the corpus does not hold, {', '.join(HIDDEN)} (seed {HIDDEN_SEED}). Per metric: the share "
         "of predictions whose 95 % interval holds the generator's value (a failed fit counts as a miss), the median "
@@ -446,7 +446,7 @@ def markdown(section: dict) -> list[str]:
         *(
             []
             if section["shipped"]
-            else ["**This run's table is not the shipped one (crashnlp/calibration.json): `make calibrate`.**", ""]
+            else ["**This run's table is not the shipped one (crashnlp/analysis/calibration.json): `make calibrate`.**", ""]
         ),
         "q per class and metric, and per metric the power of the distance in the form term's unit:",
         "",
@@ -466,11 +466,11 @@ def markdown(section: dict) -> list[str]:
 
 
 def write(section: dict, populations: dict[int, list[dict]]) -> None:
-    """The section's table into crashnlp/calibration.json, the check seed's and the hidden
+    """The section's table into crashnlp/analysis/calibration.json, the check seed's and the hidden
     population's records into CHECK_RECORDS (compact), the section into results/bench.*."""
     from bench import report
 
-    path = ROOT / "crashnlp" / FILE
+    path = ROOT / "crashnlp" / "analysis" / FILE
     path.write_text(json.dumps(section["calibration"], indent=1) + "\n")
     held = {str(seed): compact(populations[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)}
     CHECK_RECORDS.write_bytes(gzip.compress(json.dumps(held, separators=(",", ":")).encode(), mtime=0))

@@ -20,14 +20,14 @@ from typing import Any
 
 import numpy as np
 
-from crashnlp.case import Case, TestCase
+from crashnlp.base.units import G0
+from crashnlp.case.case import Case, TestCase
 from crashnlp.data.signal import resample
+from crashnlp.models.simulation import simulate
 from crashnlp.optimize.fit import DEFAULT_SIGMA
 from crashnlp.optimize.oracle import compiles_running
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec, Problem
-from crashnlp.simulation import simulate
-from crashnlp.units import G0
 
 ROOT = Path(__file__).resolve().parents[1]
 PROBLEMS = ROOT / "problems"
@@ -55,7 +55,7 @@ def load(
 ) -> Problem:
     """A fresh problem, optionally with another transcription, interval count, IPOPT iteration cap
     or NLP compilation (solver.compile); `from_data`: the spring values left out, so that both
-    fits start from the measured force-crush curve (crashnlp.completion), not the problem's guess."""
+    fits start from the measured force-crush curve (crashnlp.case.completion), not the problem's guess."""
     problem = load_problem(path)
     changes: dict[str, Any] = {}
     if from_data:

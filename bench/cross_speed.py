@@ -9,7 +9,7 @@ structure is built for (56 km/h: the 64 km/h test crushes into the stiffening th
 past the crush a vehicle is built for; 64 km/h: it ends where that stiffening begins; 72 km/h: it
 stays inside the built structure), and two of vans and tall SUVs, whose CG sits higher above the
 impact point than the corpus's (0.30-0.45 m against 0.04-0.26 m), so that they pitch more. Two
-fits per vehicle, from minimal problem files (crashnlp.completion fills in the front end):
+fits per vehicle, from minimal problem files (crashnlp.case.completion fills in the front end):
 
 - extrapolation: fit 40 + 56 km/h, predict 64 km/h (8 km/h past the fastest fitted test);
 - interpolation: fit 40 + 64 km/h, predict 56 km/h.
@@ -36,8 +36,8 @@ import crashnlp
 from bench.common import PROBLEMS
 from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, tall_vehicle, write_csv
 from bench.robustness import WINDOW, minimal_problem
-from crashnlp.metrics import crash_metrics
-from crashnlp.units import G0
+from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.base.units import G0
 
 SPEEDS_KMH = (40.0, 56.0, 64.0)
 SPLITS = {"extrapolation": ((40.0, 56.0), 64.0), "interpolation": ((40.0, 64.0), 56.0)}

@@ -2,13 +2,13 @@
 
 The vehicles are the cross-speed benchmark's vans and tall SUVs (bench/cross_speed.py's tall
 families; bench.corpus.tall_vehicle: a planar rigid body on its suspension, CG 0.30-0.45 m above
-the impact point). Each is fitted with each form of crashnlp.model.forms (model.form set,
+the impact point). Each is fitted with each form of crashnlp.problem.forms (model.form set,
 nothing else changed) from the minimal problem of two of its tests, the third predicted, as the
 cross-speed benchmark splits them: interpolation, 40 + 64 km/h fitted and 56 predicted;
 extrapolation, 40 + 56 fitted and 64 predicted. Per fit: the fitted pitch's RMSE over the two tests, the prediction's max crush and
 peak deceleration against the generator's (relative) and its stop (ms), and where the prediction,
 the fitted responses and the generator's own responses at the fitted speeds let the front end go
-while the CG still moves toward the barrier (crashnlp.metrics.lift_off): a fitted lift-off the
+while the CG still moves toward the barrier (crashnlp.analysis.metrics.lift_off): a fitted lift-off the
 generator shows too is the vehicle's, not the form's. docs/model.md's "Which form when" quotes the summary.
 """
 
@@ -25,8 +25,8 @@ import yaml
 import crashnlp
 from bench.corpus import simulate
 from bench.cross_speed import FAMILIES, SPLITS, TARGETS, at_speed, fit_problem, prediction_problem, truth_metrics
-from crashnlp.metrics import lift_off
-from crashnlp.model.forms import FORMS
+from crashnlp.analysis.metrics import lift_off
+from crashnlp.problem.forms import FORMS
 
 COUNT = 6  # vehicles per tall family, as the cross-speed benchmark has them
 

@@ -102,7 +102,7 @@ def run(quick: bool = False) -> dict:
 
 def run_from_data(intervals: int | None, quick: bool) -> dict:
     """Both fits again from the measured force-crush curve (the spring values left to
-    crashnlp.completion, as a problem without a guess gets them): from the problem's flat guess the
+    crashnlp.case.completion, as a problem without a guess gets them): from the problem's flat guess the
     baseline stops at a fit 8 times worse than crashnlp's; from here it goes on to fit."""
     method = TRANSCRIPTIONS[0]
     r = run_crashnlp(method, intervals, from_data=True)

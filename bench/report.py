@@ -131,7 +131,9 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
         rows.append(("whole process: peak RSS <= 400 MB", f"{peak:.0f} MB", peak <= 400))
     if wp and "new_problem" in wp:
         third = wp["new_problem"]["run_3"]["vs_floor"]
-        rows.append(("whole process: a new problem (init), empty cache, run 3 <= 4x the import floor", f"{third:.1f}x", third <= 4))
+        rows.append(
+            ("whole process: a new problem (init), empty cache, run 3 <= 4x the import floor", f"{third:.1f}x", third <= 4)
+        )
         bare = wp["vs_floor"]["warm_no_figures"]
         rows.append(("whole process: the pickup warm, --no-figures, <= 3.5x the import floor", f"{bare:.1f}x", bare <= 3.5))
     return rows
@@ -471,7 +473,7 @@ def _from_data_md(d: dict | None) -> list[str]:
         return []
     c, b = d["crashnlp"], d["baseline"]
     return [
-        "From the measured force-crush curve instead (the spring values left to crashnlp.completion, for both): "
+        "From the measured force-crush curve instead (the spring values left to crashnlp.case.completion, for both): "
         f"crashnlp {d['method']} {c['wall_s']:.2f} s, {c['iterations']} it, objective {c['objective']:.5g}; "
         f"the baseline {b['wall_s']:.1f} s, {b['iterations']} it, {b['simulations']} simulations, objective "
         f"{b['objective']:.5g} ({'converged' if b['converged'] else 'not converged'}): {d['speedup']:.1f}x. From the "
@@ -760,7 +762,8 @@ def whole_process_md(r: dict) -> list[str]:
         "scipy_baseline": "scipy least_squares + solve_ivp fit (same model), as a process",
     }
     rows = [[label, f"{r[k]['wall_s']:.2f}", f"{r[k]['peak_rss_mb']:.0f}", r[k]["exit"]] for k, label in labels.items() if k in r]
-    return [*new_problem_md(r.get("new_problem")), 
+    return [
+        *new_problem_md(r.get("new_problem")),
         "## Whole process",
         "",
         f"`{r['command']}` as a process (median of {r['repeats']} runs, the commands taking turns), what a user waits for:",

@@ -1,7 +1,7 @@
 """Robustness corpus: identify random vehicles from bench/corpus.py with minimal problem files.
 
 Each vehicle's test is written as a CSV, and a problem file that gives only the vehicle and
-its test (no breakpoints, no spring values, no estimate: crashnlp.completion fills them in).
+its test (no breakpoints, no spring values, no estimate: crashnlp.case.completion fills them in).
 The identified model is simulated (CVODES, 10 kHz) and judged against the generator's
 noise-free response: maximum crush, time of zero velocity, and the ISO/TS 18571 rating of
 the barrier force over the pulse (impact to the generator's separation from the wall).
@@ -17,11 +17,11 @@ import numpy as np
 import yaml
 
 from bench.corpus import Vehicle, corpus, measured, simulate, write_csv
-from crashnlp.case import Case
-from crashnlp.metrics import crash_metrics
+from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.analysis.rating import iso18571
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
-from crashnlp.rating import iso18571
 
 COUNT, SEED = 30, 2024
 TARGETS = {"crush_rel": 0.02, "stop_s": 0.002, "force_rating_median": 0.9}

@@ -30,7 +30,7 @@ from bench import (  # noqa: E402
     whole_process,
 )
 from bench.common import RESULTS, machine, wait_for_compiles  # noqa: E402
-from crashnlp.cache import cache_dir  # noqa: E402
+from crashnlp.base.cache import cache_dir  # noqa: E402
 
 SECTIONS = {
     "identification": identification,

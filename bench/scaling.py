@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 
 from bench.common import PICKUP_40, PICKUP_56, RESULTS, TRANSCRIPTIONS, load, timed
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem.schema import Problem
 

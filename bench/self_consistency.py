@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import PICKUP_56
-from crashnlp.case import Case
+from crashnlp.base.units import G0
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
-from crashnlp.units import G0
 
 NOISE = {"accel_x_g": 1.0, "vel_x_mps": 0.02, "disp_x_m": 1e-3, "pitch_deg": 0.1}
 

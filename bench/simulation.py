@@ -16,9 +16,9 @@ import numpy as np
 
 from bench.baseline import shoot
 from bench.common import PICKUP_56, load_case, timed
-from crashnlp.case import Case
-from crashnlp.simulation import integrator, simulate, simulate_batch
-from crashnlp.units import G0
+from crashnlp.base.units import G0
+from crashnlp.case.case import Case
+from crashnlp.models.simulation import integrator, simulate, simulate_batch
 
 SCIPY_METHODS = ("LSODA", "RK45", "DOP853")
 BATCH_DT = 5e-4
@@ -72,7 +72,7 @@ def batch(case: Case, n: int, members: tuple[int, ...]) -> dict:
     test = case.tests[0]
     steps = int(round(test.duration / BATCH_DT))
     P = parameter_sets(case, n)
-    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.simulation.simulate_batch)"}
+    out = {"n": n, "dt": BATCH_DT, "steps": steps, "integrator": "RK4 fixed step (crashnlp.models.simulation.simulate_batch)"}
     for mode, jit in (("vm", False), ("compiled", True)):
         run = lambda jit=jit: simulate_batch(case.model, P, test.speed, test.duration, BATCH_DT, jit)
         first_s, _ = timed(run)

@@ -33,9 +33,9 @@ import numpy as np
 import yaml
 
 from bench.common import PROBLEMS, ROOT, wait_for_compiles
-from crashnlp.cache import cache_dir
-from crashnlp.compile_job import KEEP_ENV
-from crashnlp.runtime import THREADS_ENV
+from crashnlp.base.cache import cache_dir
+from crashnlp.numerics.compile_job import KEEP_ENV
+from crashnlp.numerics.runtime import THREADS_ENV
 
 CLI = [sys.executable, "-m", "crashnlp.cli", "study"]
 # the crashnlp of this checkout; the warm-up runs' background compiles finish after them (the default), for the timed runs

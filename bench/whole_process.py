@@ -34,8 +34,8 @@ import tempfile
 from pathlib import Path
 
 from bench.common import PICKUP_56, ROOT, wait_for_compiles
-from crashnlp.compile_job import KEEP_ENV
-from crashnlp.compiled import SWITCH_ENV
+from crashnlp.numerics.compile_job import KEEP_ENV
+from crashnlp.numerics.compiled import SWITCH_ENV
 
 CLI = str(Path(sys.executable).with_name("crashnlp"))
 BASELINE = "from bench.identification import run_baseline; run_baseline(None, 100)"
@@ -116,7 +116,10 @@ def new_problem(folder: Path) -> dict:
     compile_s = wait_for_compiles(folder / "cache")
     runs.append(identified())
     floor = {k: statistics.median(f[k] for f in floors) for k in ("wall_s", "cpu_s")}
-    out = {f"run_{n + 1}": {**r, "vs_floor": r["wall_s"] / floor["wall_s"], "cpu_vs_floor": r["cpu_s"] / floor["cpu_s"]} for n, r in enumerate(runs)}
+    out = {
+        f"run_{n + 1}": {**r, "vs_floor": r["wall_s"] / floor["wall_s"], "cpu_vs_floor": r["cpu_s"] / floor["cpu_s"]}
+        for n, r in enumerate(runs)
+    }
     out |= {"floor_s": floor["wall_s"], "floor_cpu_s": floor["cpu_s"], "floors_s": [f["wall_s"] for f in floors]}
     out["compile_after_run_2_s"] = compile_s
     for n in range(1, 4):

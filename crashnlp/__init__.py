@@ -14,12 +14,12 @@ __all__ = ["Result", "compare", "design", "identify", "load", "simulate", "study
 
 if TYPE_CHECKING:
     from crashnlp.api import compare, design, identify, load, simulate, study
-    from crashnlp.result import Result
+    from crashnlp.results.result import Result
 
 
 def __getattr__(name: str) -> Any:
     if name == "Result":
-        from crashnlp.result import Result
+        from crashnlp.results.result import Result
 
         return Result
     if name in __all__:

@@ -8,7 +8,7 @@
     sims["56kph"].intervals["peak_decel_g"]; sims["56kph"].extrapolation
     crashnlp.simulate(problem, params=result, speed="64 km/h", mass="2700 kg")   # a what-if, every test
 
-Every solve goes through crashnlp.pipeline (every check, then the steps), as the
+Every solve goes through crashnlp.optimize.pipeline (every check, then the steps), as the
 command line's and a study's do; the command line is a thin layer for arguments,
 console and exit codes over that pipeline.
 """
@@ -21,11 +21,11 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from crashnlp.problem import Problem, load_problem
-from crashnlp.result import Result
+from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
-    from crashnlp.comparison import Comparison
-    from crashnlp.prediction import PredictedTest
+    from crashnlp.analysis.prediction import PredictedTest
+    from crashnlp.optimize.comparison import Comparison
 
 
 def load(path: str | Path) -> Problem:
@@ -49,7 +49,7 @@ def solve(
     warm: np.ndarray | None = None,
     ratings: bool = True,
 ) -> Result:
-    """Identify or design, as the problem's `kind` says (crashnlp.pipeline.solve_problem: a problem
+    """Identify or design, as the problem's `kind` says (crashnlp.optimize.pipeline.solve_problem: a problem
     it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
     iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
     return _solve(problem, None, verbose, progress, warm, ratings)
@@ -63,9 +63,9 @@ def _solve(
     warm: np.ndarray | None = None,
     ratings: bool = True,
 ) -> Result:
-    """crashnlp.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
+    """crashnlp.optimize.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
     for; its input errors name the file when it is given as one."""
-    from crashnlp.pipeline import solve_problem
+    from crashnlp.optimize.pipeline import solve_problem
 
     validated = _problem(problem)
     if kind is not None and validated.kind != kind:
@@ -92,23 +92,23 @@ def simulate(
     mass: float | str | None = None,
 ) -> dict[str, PredictedTest]:
     """Forward simulation of every test: test name -> PredictedTest, a mapping of output key ->
-    array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.outputs
+    array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.base.outputs
     lists them), with the test's crash metrics.
 
     `params` a Result: the identified vehicle it carries is put into the problem first
-    (crashnlp.identified.apply: the problem may be the minimal one it was fitted from, or name
+    (crashnlp.results.identified.apply: the problem may be the minimal one it was fitted from, or name
     only a new speed, mass or duration; a problem file may leave out its vehicle and model, which
     then come from the result), and each test also gets 95 % intervals of its metrics, bands of
-    its curves and how far it lies past the identified range (crashnlp.prediction).
+    its curves and how far it lies past the identified range (crashnlp.analysis.prediction).
     `params` a dict of dotted paths: those values replace the problem's.
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
     data (PredictedTest.data) and a note saying why."""
-    from crashnlp.case import case_of
-    from crashnlp.identified import apply, load_applied
-    from crashnlp.prediction import own_tests, predict
+    from crashnlp.analysis.prediction import own_tests, predict
+    from crashnlp.case.case import case_of
     from crashnlp.problem.schema import what_if
+    from crashnlp.results.identified import apply, load_applied
 
     new_speed, new_mass = what_if(speed, mass)
     if isinstance(problem, Result):
@@ -131,10 +131,10 @@ def simulate(
 
 
 def compare(problem: Problem | str | Path, progress: TextIO | None = None) -> Comparison:
-    """Fit every model form (crashnlp.model.forms) to the problem's tests and choose one by
+    """Fit every model form (crashnlp.problem.forms) to the problem's tests and choose one by
     what the fits did not see: leave-one-test-out prediction with two or more tests, BIC with
-    one (crashnlp.comparison); `progress`: a stream for a line per fit."""
-    from crashnlp.comparison import compare as compare_forms
+    one (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
+    from crashnlp.optimize.comparison import compare as compare_forms
 
     return compare_forms(_problem(problem), _source(problem), progress)
 

@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.compile_job import release_compiles, stop_compiles
-from crashnlp.errors import InputError, Interrupted, RunError
-from crashnlp.files import check_output, check_writable, check_writable_file, claim, run_name
-from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
+from crashnlp.base.errors import InputError, Interrupted, RunError
+from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
+from crashnlp.numerics.compile_job import release_compiles, stop_compiles
+from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
@@ -57,7 +57,7 @@ def _read_params(path: str) -> dict:
 
 def _identified(source: str, raw: dict):
     """The identified vehicle of a result.json, or None for one that carries only parameters."""
-    from crashnlp.identified import IdentifiedModel
+    from crashnlp.results.identified import IdentifiedModel
 
     entry = raw.get("identified_model")
     if entry is None:
@@ -73,9 +73,9 @@ def _with_params(file: str, source: str):
     into the problem (what the file leaves out of vehicle and model comes from it), or for a result
     that carries only parameters, its values entry by entry, refusing what does not fit (the
     identified model is then None)."""
-    from crashnlp.identified import load_applied
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import LARGEST
+    from crashnlp.results.identified import load_applied
 
     raw = _read_params(source)
     identified = _identified(source, raw)
@@ -111,7 +111,7 @@ def _with_params(file: str, source: str):
 
 def _speed_option(text: str | None) -> str | None:
     """--speed as given, refused without a unit: a plain 64 would be 64 m/s (230 km/h), and no
-    data stand against a what-if's speed or init's to catch it (a fit's data do, crashnlp.testcase)."""
+    data stand against a what-if's speed or init's to catch it (a fit's data do, crashnlp.case.testcase)."""
     try:
         number = float(text or "")
     except ValueError:
@@ -127,7 +127,7 @@ def cmd_simulate(args) -> int:
         if prepared is None:
             return 0
         case, identified, out = prepared
-        from crashnlp.prediction import predict, simulation_figure_jobs, write_simulation
+        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, write_simulation
 
         with claim(out, run_name("simulate", case.name)):
             with _computing(args):
@@ -144,7 +144,7 @@ def cmd_simulate(args) -> int:
 def _print_prediction(test) -> None:
     """One line of metrics per simulated test (with their 95 % intervals when the identified model
     gave them), and one line for a test past the identified range."""
-    from crashnlp.prediction import extrapolation_line
+    from crashnlp.analysis.prediction import extrapolation_line
 
     parts = []
     for key, label, factor, unit, digits in PREDICTED_ROWS:
@@ -165,9 +165,9 @@ def _print_prediction(test) -> None:
 
 def _result_alone(path: str, params: str | None):
     """(problem, identified model) of a result.json given in place of a problem: its own tests
-    with its identified vehicle (crashnlp.prediction.own_tests)."""
-    from crashnlp.prediction import own_tests
-    from crashnlp.result import Result
+    with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
+    from crashnlp.analysis.prediction import own_tests
+    from crashnlp.results.result import Result
 
     if params is not None:
         raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
@@ -183,9 +183,9 @@ def _result_alone(path: str, params: str | None):
 
 def _simulation(args):
     """(case, identified model or None, output folder) of the problem file, every check made and
-    the folder checked (crashnlp.files.check_output), or None after `--check`."""
-    from crashnlp.case import case_of
-    from crashnlp.prediction import check_steps
+    the folder checked (crashnlp.results.files.check_output), or None after `--check`."""
+    from crashnlp.analysis.prediction import check_steps
+    from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
 
@@ -211,9 +211,9 @@ def _simulation(args):
 
 
 def _figure_process(args):
-    """The process that draws the command's figures (crashnlp.drawing), started now so that
+    """The process that draws the command's figures (crashnlp.results.drawing), started now so that
     matplotlib loads while this one works; none with --no-figures or --check."""
-    from crashnlp.drawing import FigureProcess
+    from crashnlp.results.drawing import FigureProcess
 
     return nullcontext() if args.no_figures or getattr(args, "check", False) else FigureProcess()
 
@@ -231,7 +231,7 @@ def _cell(value, factor: float) -> str:
 
 
 def _consistency_line(c: dict) -> str:
-    """The one printed line of a channel consistency (crashnlp.summary.channel_consistency)."""
+    """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency)."""
     parts = [
         f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {s['time_zero_velocity_s'] * 1e3:.1f} ms"
         f" after {s['max_crush_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
@@ -243,7 +243,7 @@ def _consistency_line(c: dict) -> str:
 
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
-    from crashnlp.summary import still_moving
+    from crashnlp.analysis.summary import still_moving
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -293,14 +293,14 @@ def _print_solution(result) -> None:
 def _solve(args, kind: str) -> int:
     """identify and design: one NLP solve, its result files and a summary. The figure process
     starts first, so that matplotlib loads while this one reads the problem and solves; the
-    output folder is claimed (crashnlp.files.claim) from the solve to the last figure."""
+    output folder is claimed (crashnlp.results.files.claim) from the solve to the last figure."""
     with _figure_process(args) as figures:
         prepared = _prepared_case(args, kind)
         if prepared is None:
             return 0
         case, out = prepared
-        from crashnlp.pipeline import solve_case
-        from crashnlp.result import figure_jobs
+        from crashnlp.optimize.pipeline import solve_case
+        from crashnlp.results.result import figure_jobs
 
         with claim(out, run_name(kind, case.name)):
             with _computing(args):
@@ -321,9 +321,9 @@ def _solve(args, kind: str) -> int:
 
 
 def _prepared_case(args, kind: str):
-    """(Case, output folder) of the problem file, or None after `--check`: crashnlp.pipeline's
+    """(Case, output folder) of the problem file, or None after `--check`: crashnlp.optimize.pipeline's
     checks, as crashnlp.api's solve runs them, its errors naming the file, and the folder's."""
-    from crashnlp.pipeline import prepare_case
+    from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
 
     problem = load_problem(args.problem)
@@ -357,11 +357,11 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 
 
 def cmd_compare_forms(args) -> int:
-    """Every model form fitted and scored (crashnlp.comparison): compare.json and a table."""
-    from crashnlp.comparison import compare
-    from crashnlp.jsonfile import write_json
-    from crashnlp.pipeline import prepare_case
+    """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
+    from crashnlp.optimize.comparison import compare
+    from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
+    from crashnlp.results.jsonfile import write_json
 
     problem = load_problem(args.problem)
     if problem.kind != "identify":
@@ -393,8 +393,8 @@ def cmd_compare_forms(args) -> int:
 
 
 def cmd_init(args) -> int:
+    from crashnlp.base.units import UnitError, to_si
     from crashnlp.init import Options, init_problem
-    from crashnlp.units import UnitError, to_si
 
     columns: dict[str, str] = {}
     for item in args.column:
@@ -451,7 +451,7 @@ def cmd_compare(args) -> int:
 
 def cmd_export(args) -> int:
     """The identified curves (ls-dyna, csv) of a fit's folder, or a test's pulse (a fit's or a simulation's)."""
-    from crashnlp.folders import folder_kind
+    from crashnlp.report.folders import folder_kind
 
     folder = Path(args.folder)
     kind = folder_kind(folder)
@@ -463,8 +463,8 @@ def cmd_export(args) -> int:
 
 def _export_curves(args, folder: Path) -> int:
     """The identified model's curves as LS-DYNA keywords or CSV files."""
-    from crashnlp import export
-    from crashnlp.folders import read_result
+    from crashnlp.report import export
+    from crashnlp.report.folders import read_result
 
     result = read_result(folder)
     if result.identified is None:
@@ -483,8 +483,8 @@ def _export_curves(args, folder: Path) -> int:
 
 def _export_pulse(args, folder: Path, kind: str) -> int:
     """One test's fitted or predicted pulse, and its velocity-change check."""
-    from crashnlp import export
-    from crashnlp.folders import read_result, read_simulation
+    from crashnlp.report import export
+    from crashnlp.report.folders import read_result, read_simulation
 
     if kind == "result":
         result = read_result(folder)
@@ -514,7 +514,7 @@ def _chosen_test(folder: Path, responses: dict, test: str | None) -> str:
 
 def _rate(text: str) -> float:
     """--rate as a number of Hz ("10 kHz", "10000")."""
-    from crashnlp.units import UnitError, to_si
+    from crashnlp.base.units import UnitError, to_si
 
     try:
         return to_si(text, "Hz")
@@ -703,7 +703,7 @@ def _fail(message: str, code: int, debug: bool) -> int:
 def main(argv: list[str] | None = None) -> int:
     """Run one command; every ending is an exit status and at most one line on stderr. A command
     that succeeded lets the compiles it started finish for the next run, at nice 19 and saying so
-    on a line of its own (crashnlp.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
+    on a line of its own (crashnlp.numerics.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
     them); any other ending stops them, its one line the only one."""
     code = 1
     try:

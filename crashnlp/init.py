@@ -13,7 +13,7 @@ marked as an estimate:
 - suspension: each axle's static load at a ride frequency of 1.2 Hz, damping ratio 0.25.
 
 The breakpoints, spring values, damper, unloading stiffness and estimate are then filled in
-from the data (crashnlp.completion) and written out, so the file identifies as it stands and
+from the data (crashnlp.case.completion) and written out, so the file identifies as it stands and
 every entry can be edited.
 """
 
@@ -30,17 +30,17 @@ import numpy as np
 import yaml
 from pydantic import ValidationError
 
+from crashnlp.analysis.metrics import STOPPED, zero_crossing
+from crashnlp.base.errors import InputError
+from crashnlp.base.units import unit_scale
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
-from crashnlp.errors import InputError
-from crashnlp.files import atomic_open, check_writable_file
-from crashnlp.metrics import STOPPED, zero_crossing
-from crashnlp.model.pendulum import PITCH_LEVER
+from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
-from crashnlp.units import unit_scale
+from crashnlp.results.files import atomic_open, check_writable_file
 
 FORMATS = ("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme")
 UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
@@ -166,8 +166,8 @@ def ev5_draft(path: Path) -> Draft:
 # ------------------------------------------------------------------ ISO-MME
 def mme_draft(path: Path) -> Draft:
     """Mass and speed of test object 1; its vehicle X accelerometers, at the CG if there are any."""
+    from crashnlp.base.units import to_si
     from crashnlp.data.iso_mme import read_header
-    from crashnlp.units import to_si
 
     header, codes = read_header(path)
     accels = [c for c in codes if len(c) == 16 and c[0] == "1" and c[2:6] == "VEHC" and c[12:15] == "ACX"]
@@ -578,7 +578,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
         f"# Written by `crashnlp init` from {data_file} ({draft.data['format']}).",
         *(f"# {n}" for n in draft.notes),
         "# Front end: breakpoints over the data's crush range, values from the measured force-crush curve",
-        "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/completion.py).",
+        "# (m |a| while loading), unloading stiffness from the rebound, nominal damper (crashnlp/case/completion.py).",
         f"name: {json.dumps(draft.name)}",
         "vehicle:",
     ]
@@ -595,7 +595,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
         )
     )
     bps = [round(b, 4) for b in m.spring.placed_breakpoints]
-    assert m.damper is not None  # spring values from the data come with a nominal damper (crashnlp.completion.complete)
+    assert m.damper is not None  # spring values from the data come with a nominal damper (crashnlp.case.completion.complete)
     lines += [
         "model:",
         "  spring:",
@@ -624,7 +624,7 @@ def render(draft: Draft, problem: Problem, data_file: str) -> str:
     for path, spec in problem.estimate.items():
         unit, scale, fmt = ESTIMATE_UNITS[path]
         lo, hi = spec.bounds or (None, None)
-        assert lo is not None and hi is not None  # crashnlp.completion.default_estimate bounds each entry on both sides
+        assert lo is not None and hi is not None  # crashnlp.case.completion.default_estimate bounds each entry on both sides
         bounds = ", ".join(_q(b, unit, scale, fmt) for b in (lo, hi))
         lines.append(_line(2, f"{path}: {{bounds: [{bounds}]}}", "pitch lever" if path == PITCH_LEVER else ""))
     lines += ["constraints:", "  monotone_crush: true", "transcription: " + _flow(problem.transcription.model_dump())]
@@ -658,7 +658,7 @@ def _test_lines(draft: Draft, data_file: str) -> list[str]:
 def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[Problem, list[str]]:
     """Write a complete, commented problem file for the data set `data` (a path; or several NHTSA
     channel files of one test) to `out`; return its problem and the notes the file's head gives."""
-    from crashnlp.case import Case
+    from crashnlp.case.case import Case
 
     paths = [data] if isinstance(data, Path) else data
     for path in paths:

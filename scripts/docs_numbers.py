@@ -363,6 +363,8 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.extrapolation_lift_offs": str(s["lift_offs"]),
         }
     return out
+
+
 # scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
 SCENARIO_KEYS = {
     "one test down, 56 -> 40": "down40",
@@ -486,10 +488,10 @@ def walls_and_fits() -> dict[str, str]:
     loading curve; the wall's and the accelerometers' peaks; and what each fit's simulation rates
     against the channel it was not fitted to (ISO 18571 over the data's window): the accelerometer
     fit's wall force, the barrier fit's displacement."""
+    from crashnlp.analysis.rating import iso18571
     from crashnlp.api import load
+    from crashnlp.case.testcase import load_tests
     from crashnlp.data.signal import integrate
-    from crashnlp.rating import iso18571
-    from crashnlp.testcase import load_tests
 
     problem, (test, *_) = load_tests(load("problems/nhtsa-10146-barrier.yaml"))
     assert test.data is not None  # the problem's test reads its EV5 file

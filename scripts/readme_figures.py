@@ -16,8 +16,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from crashnlp.base.units import G0  # noqa: E402
 from crashnlp.problem import load_problem  # noqa: E402
-from crashnlp.units import G0  # noqa: E402
 
 RESULTS = Path("results")
 OUT = RESULTS / "readme"

@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import yaml
 
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.problem import problem_from_dict
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -82,7 +82,7 @@ def assert_monotone_crush(ts) -> None:
 
 
 def assert_exact_hessian_is_casadis(nlp, z: np.ndarray, lam_f: float, seed: int) -> None:
-    """The structured exact Hessian of an NLP (crashnlp.derivatives) against CasADi's own Hessian
+    """The structured exact Hessian of an NLP (crashnlp.numerics.derivatives) against CasADi's own Hessian
     of the whole Lagrangian, at z with random constraint multipliers (every constraint's
     curvature counts): the same values, and a pattern that holds every nonzero CasADi finds."""
     import casadi as ca

@@ -38,9 +38,9 @@ import tempfile
 import casadi as ca
 import pytest
 
-from crashnlp.cache import CACHE_ENV
-from crashnlp.compile_job import KEEP_ENV
-from crashnlp.compiled import SWITCH_ENV, compiler
+from crashnlp.base.cache import CACHE_ENV
+from crashnlp.numerics.compile_job import KEEP_ENV
+from crashnlp.numerics.compiled import SWITCH_ENV, compiler
 
 RUN_CACHE_ENV = "CRASHNLP_TEST_RUN_CACHE"  # set by the run's first process: the folder every process shares
 

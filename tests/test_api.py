@@ -14,11 +14,11 @@ import yaml
 from builders import BASE, ROOT, merge, small_pickup_problem
 
 import crashnlp
+from crashnlp.base.errors import InputError
 from crashnlp.cli import main
-from crashnlp.errors import InputError
-from crashnlp.nlp import DYNAMICS, NLPBuilder
+from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.problem import problem_from_dict
-from crashnlp.result import VOLATILE
+from crashnlp.results.result import VOLATILE
 
 
 @pytest.fixture(scope="module")
@@ -81,7 +81,7 @@ def test_with_values_returns_a_new_problem_and_leaves_the_old_one(small_problem)
 
 
 def test_the_api_refuses_what_the_command_line_refuses(tmp_path, capsys):
-    """One pipeline (crashnlp.pipeline): a test duration that the data window would override is
+    """One pipeline (crashnlp.optimize.pipeline): a test duration that the data window would override is
     refused by crashnlp.identify as by `crashnlp identify`, before anything is solved."""
     raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
     raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
@@ -122,7 +122,7 @@ def test_simulate_takes_a_what_if_speed_and_mass_for_every_test(small_problem):
     "dt, message", [(0.0, "dt 0: must be a positive"), (float("nan"), "dt nan: must be"), (1e-12, "dt 1e-12 s: more than")]
 )
 def test_simulate_refuses_the_steps_the_command_refuses(small_problem, dt, message):
-    """One check (crashnlp.prediction.check_steps) for `crashnlp.simulate` and `crashnlp simulate
+    """One check (crashnlp.analysis.prediction.check_steps) for `crashnlp.simulate` and `crashnlp simulate
     --dt`: a step that is not positive, or a million output steps and more, before any run."""
     with pytest.raises(InputError, match=message):
         crashnlp.simulate(small_problem, dt=dt)
@@ -164,7 +164,7 @@ def test_nlp_builder_scales_variables_and_types_constraints():
 
 @pytest.mark.parametrize("method, per_interval", [("multiple-shooting", 0), ("collocation", 3)])
 def test_transcription_adds_states_and_dynamics_of_the_right_size(method, per_interval):
-    from crashnlp.case import Case
+    from crashnlp.case.case import Case
     from crashnlp.optimize.ocp import OptimalControl
 
     n = 40

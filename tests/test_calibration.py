@@ -19,8 +19,8 @@ from bench.calibration import (
     evaluate,
     held_out_records,
 )
-from crashnlp.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
-from crashnlp.identified import INTERVAL_METRICS, IdentifiedRange
+from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
+from crashnlp.results.identified import INTERVAL_METRICS, IdentifiedRange
 
 
 def _range(*tests: tuple[float, float]) -> IdentifiedRange:
@@ -140,7 +140,7 @@ def test_the_shipped_table_calibrates_every_metric_of_every_class_and_names_its_
             assert q is not None and np.isfinite(q) and q >= 0, (klass, metric)
     assert set(cal.power) == set(INTERVAL_METRICS)
     named = cal.named()
-    assert named["file"] == "crashnlp/calibration.json" and named["version"] >= 2 and named["corpus"]["seed"]
+    assert named["file"] == "crashnlp/analysis/calibration.json" and named["version"] >= 2 and named["corpus"]["seed"]
     assert Calibration.from_json(cal.to_json()) == cal
 
 

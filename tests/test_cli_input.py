@@ -15,7 +15,7 @@ from builders import BASE, ROOT, merge
 from pydantic import BaseModel
 
 from crashnlp.cli import main
-from crashnlp.files import RECORD, claim
+from crashnlp.results.files import RECORD, claim
 
 DATA = {
     "file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"),
@@ -214,7 +214,7 @@ def test_a_run_that_fails_leaves_no_folder_it_made(tmp_path):
 HOLD = """
 import sys, time
 from pathlib import Path
-from crashnlp.files import claim
+from crashnlp.results.files import claim
 with claim(Path(sys.argv[1]), "simulate a"):
     print("held", flush=True)
     time.sleep(60)

@@ -11,12 +11,12 @@ import yaml
 from builders import BASE, ROOT, merge
 
 import crashnlp
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.cli import main
-from crashnlp.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
-from crashnlp.model.forms import DEFAULT_FORM, FORMS
+from crashnlp.optimize.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
 from crashnlp.problem import problem_from_dict
-from crashnlp.response import Response
+from crashnlp.problem.forms import DEFAULT_FORM, FORMS
+from crashnlp.results.response import Response
 
 BASE_DIR = ROOT / "problems"
 

@@ -9,8 +9,8 @@ import pytest
 from builders import ROOT, merge
 from scipy.interpolate import PchipInterpolator
 
-from crashnlp.case import Case
-from crashnlp.completion import (
+from crashnlp.case.case import Case
+from crashnlp.case.completion import (
     DEFAULT_COUNT,
     REACH,
     breakpoints,
@@ -21,11 +21,11 @@ from crashnlp.completion import (
     spring_values,
     unloading_stiffness,
 )
-from crashnlp.model.pendulum import PITCH_LEVER, PITCH_LEVER_BOUNDS, pitch_lever_bounds
+from crashnlp.case.segmentation import MIN_SPACING
+from crashnlp.models.pendulum import PITCH_LEVER, PITCH_LEVER_BOUNDS, pitch_lever_bounds
 from crashnlp.optimize.identify import repair_start
 from crashnlp.problem import ProblemError, load_problem, problem_from_dict
 from crashnlp.problem.load import read_yaml
-from crashnlp.segmentation import MIN_SPACING
 
 PICKUP = ROOT / "problems" / "pickup-56kph.yaml"
 

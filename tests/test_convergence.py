@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from builders import ROOT, make_case
 
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.optimize import solve as solve_module
 from crashnlp.optimize.identify import identify
 from crashnlp.optimize.ocp import OptimalControl

@@ -12,7 +12,7 @@ from builders import ROOT
 
 from bench.corpus import random_vehicle
 from bench.robustness import SEED, judge, write_test
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 from crashnlp.problem.load import read_yaml

@@ -13,7 +13,7 @@ from builders import (
 
 from crashnlp.optimize.design import design
 from crashnlp.optimize.outcome import result_of
-from crashnlp.result import Result, figure_jobs
+from crashnlp.results.result import Result, figure_jobs
 
 V0, CRUSH_SPACE = 15.0, 0.5
 

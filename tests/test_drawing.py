@@ -9,8 +9,8 @@ import pytest
 from builders import ROOT, small_pickup_problem
 
 from crashnlp import api
-from crashnlp.drawing import FigureProcess
-from crashnlp.result import figure_jobs, write_figures
+from crashnlp.results.drawing import FigureProcess
+from crashnlp.results.result import figure_jobs, write_figures
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="drawn in place where there is no fork")
 

@@ -10,10 +10,10 @@ import pytest
 import yaml
 from builders import ROOT
 
+from crashnlp.base.errors import InputError
 from crashnlp.cli import main
 from crashnlp.engine import DASK_EXTRA
-from crashnlp.errors import InputError
-from crashnlp.pipeline import prepare_case
+from crashnlp.optimize.pipeline import prepare_case
 from crashnlp.problem import problem_from_dict
 
 STUDY = ROOT / "problems/studies/pitch-bound.yaml"

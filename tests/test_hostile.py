@@ -18,7 +18,7 @@ import yaml
 from builders import BASE, ROOT, command, descendants, merge
 
 from crashnlp.cli import main
-from crashnlp.jsonfile import write_json
+from crashnlp.results.jsonfile import write_json
 from crashnlp.studies.store import CaseStore
 
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
@@ -228,7 +228,7 @@ def test_the_readme_example_problem_runs_as_written(tmp_path, capsys):
 
 # --------------------------------------------------------------------------- failures the input did not cause
 def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
-    from crashnlp.case import Case
+    from crashnlp.case.case import Case
 
     def fail(self, *a, **k):
         raise RuntimeError(
@@ -246,12 +246,12 @@ def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypa
 
 
 def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
-    import crashnlp.prediction
+    import crashnlp.analysis.prediction
 
     def fail(*a, **k):
         raise OSError(28, "No space left on device", str(tmp_path / "o/simulation.json"))
 
-    monkeypatch.setattr(crashnlp.prediction, "write_simulation", fail)
+    monkeypatch.setattr(crashnlp.analysis.prediction, "write_simulation", fail)
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": 0.05}]})))
     code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)
@@ -370,7 +370,7 @@ def test_sigterm_stops_a_study_its_workers_and_their_background_compiles(tmp_pat
 
 @pytest.mark.integration
 def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
-    from crashnlp import compile_job
+    from crashnlp.numerics import compile_job
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
@@ -401,7 +401,7 @@ def _nice(pid: int) -> int:
 def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path, capsys, monkeypatch):
     """The end of a command (the default): the compile's whole group, cc1 too, goes on at nice 19
     after its starter let go of it, and one line on stderr says so and how to turn it off."""
-    from crashnlp import compile_job
+    from crashnlp.numerics import compile_job
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
@@ -433,7 +433,7 @@ def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path,
 def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_path, capsys, monkeypatch):
     """Released, a compile outlives its starter's letting go and leaves the library (its source, the
     lock, removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
-    from crashnlp import compile_job
+    from crashnlp.numerics import compile_job
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")

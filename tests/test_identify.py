@@ -10,11 +10,11 @@ import pytest
 import yaml
 from builders import BASE, ROOT, assert_exact_hessian_is_casadis, assert_monotone_crush, merge, small_pickup_problem
 
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.cli import main
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem, problem_from_dict
-from crashnlp.result import VOLATILE
+from crashnlp.results.result import VOLATILE
 
 TRUTH = {"values": [0.0, 380e3, 520e3, 900e3], "offset": 0.2}
 NOISE = {"accel_g": 0.5, "vel_mps": 0.02, "disp_m": 0.001, "pitch_deg": 0.05}

@@ -120,17 +120,17 @@ def test_api_is_imported_by_the_command_line_only():
 @pytest.mark.parametrize(
     ("source", "expected"),
     [
-        ("from crashnlp.case import Case\n", {"crashnlp.case"}),
-        ("def f():\n    from crashnlp import case\n", {"crashnlp.case"}),
-        ("import crashnlp.case as c\n", {"crashnlp.case"}),
-        ("from .case import Case\n", {"crashnlp.case"}),
-        ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from crashnlp.case import Case\n", set()),
+        ("from crashnlp.case.case import Case\n", {"crashnlp.case.case"}),
+        ("def f():\n    from crashnlp.case import case\n", {"crashnlp.case.case"}),
+        ("import crashnlp.case.case as c\n", {"crashnlp.case.case"}),
+        ("from .case import Case\n", {"crashnlp.case.case"}),
+        ("from typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from crashnlp.case.case import Case\n", set()),
     ],
 )
 def test_the_graph_sees_every_kind_of_import(tmp_path, source, expected):
     path = tmp_path / "mod.py"
     path.write_text(source)
-    assert imported("crashnlp.mod", path, {"crashnlp", "crashnlp.case", "crashnlp.mod"}) == expected
+    assert imported("crashnlp.mod", path, {"crashnlp", "crashnlp.case.case", "crashnlp.mod"}) == expected
 
 
 def test_a_cycle_is_found():

@@ -13,10 +13,10 @@ from builders import ROOT
 from test_readers import CODE_X, _mme_set, channel_export
 
 from bench.corpus import random_vehicle, simulate, write_csv
+from crashnlp.base.errors import InputError
 from crashnlp.cli import _print_solution, main
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
-from crashnlp.errors import InputError
 from crashnlp.init import Options, _csv_columns, _data_spec, csv_draft, draft_for, init_problem, unit_in_name
 from crashnlp.problem import load_problem
 
@@ -109,7 +109,7 @@ def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
 
 
 def test_print_solution_shows_a_solve_that_never_ran(capsys):
-    from crashnlp.result import Result, SolverStats
+    from crashnlp.results.result import Result, SolverStats
 
     result = Result(
         "x",

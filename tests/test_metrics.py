@@ -3,13 +3,13 @@
 import numpy as np
 import pytest
 
-from crashnlp import testcase
+from crashnlp.analysis.metrics import crash_metrics, olc
+from crashnlp.analysis.summary import data_metrics, metrics, still_moving
+from crashnlp.base.units import G0
+from crashnlp.case import testcase
 from crashnlp.data import Channel, TestData
 from crashnlp.data.signal import integrate
-from crashnlp.metrics import crash_metrics, olc
 from crashnlp.problem import schema
-from crashnlp.summary import data_metrics, metrics, still_moving
-from crashnlp.units import G0
 
 
 def half_sine(v0=15.0, T=0.08, rebound_accel=0.0, dt=1e-5, end=0.15):

@@ -8,8 +8,8 @@ import pytest
 import sympy as sp
 from builders import assert_contact_force_is_the_front_ends, make_case
 
-from crashnlp.model.form import OUTPUTS
-from crashnlp.simulation import simulate_batch
+from crashnlp.models.form import OUTPUTS
+from crashnlp.models.simulation import simulate_batch
 
 LAWS = ("plastic", "elastic")
 TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}
@@ -220,8 +220,8 @@ def test_batch_simulation_matches_single_simulations():
 
 def test_compiled_evaluation_equals_the_virtual_machine(monkeypatch, tmp_path):
     """Simulation and batches give the same numbers compiled to C or in CasADi's VM."""
-    from crashnlp import compiled
-    from crashnlp.compiled import CACHE_ENV, SWITCH_ENV, compiler
+    from crashnlp.numerics import compiled
+    from crashnlp.numerics.compiled import CACHE_ENV, SWITCH_ENV, compiler
 
     if compiler() is None:
         pytest.skip("no C compiler: crashnlp evaluates in the VM anyway")
@@ -247,7 +247,7 @@ def test_a_tail_bends_the_law_into_its_line_and_stores_the_work_of_its_force(law
     """Before the tail's start the law is untouched; past it the force is the line from the law's
     force there; the energy's derivative is the force (exactly with exact kinks, to first order in
     the smoothing width otherwise, as the laws' own)."""
-    from crashnlp.model.laws import SPRING_LAWS, with_tail
+    from crashnlp.models.laws import SPRING_LAWS, with_tail
 
     bps, vals = [0.0, 0.2, 0.4, 0.6], {"force": [0.0, 4e5, 3e5, 9e5], "secant": [2e6, 2e6, 1e6, 1.5e6]}[law]
     start, slope = 0.45, 2e5

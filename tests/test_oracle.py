@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 from builders import ROOT
 
-from crashnlp.case import Case
-from crashnlp.compiled import compiler
+from crashnlp.case.case import Case
+from crashnlp.numerics.compiled import compiler
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 

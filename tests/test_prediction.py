@@ -15,21 +15,21 @@ from bench.calibration import CHECK_SEED, FORMS, SCENARIOS, held_out, judged
 from bench.corpus import PICKUP, engine_vehicle, measured, random_vehicle, simulate, write_csv
 from bench.cross_speed import Family, fit_problem, judge, prediction_problem, within_targets
 from bench.robustness import minimal_problem
-from crashnlp.calibration import shipped
+from crashnlp.analysis.calibration import shipped
+from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
+from crashnlp.base.errors import InputError
+from crashnlp.base.units import G0
+from crashnlp.case.testcase import Recorded
 from crashnlp.cli import main
-from crashnlp.errors import InputError
-from crashnlp.identified import INTERVAL_METRICS
-from crashnlp.metrics import crash_metrics
-from crashnlp.model.parameters import ParameterLayout
-from crashnlp.model.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
+from crashnlp.models.parameters import ParameterLayout
+from crashnlp.models.tail import CLEARANCE, trend_misses, trend_slope, trend_tail, trend_window
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
-from crashnlp.prediction import _drift, _let_go, simulation_figure_jobs
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
-from crashnlp.response import Response
-from crashnlp.testcase import Recorded
-from crashnlp.units import G0
+from crashnlp.results.identified import INTERVAL_METRICS
+from crashnlp.results.response import Response
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
 WINDOW = 0.12  # s: past the stop and a little rebound

@@ -6,9 +6,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from crashnlp import rating
-from crashnlp.compiled import cache_dir
-from crashnlp.rating import iso18571
+from crashnlp.analysis import rating
+from crashnlp.analysis.rating import iso18571
+from crashnlp.numerics.compiled import cache_dir
 
 T = np.arange(0, 0.1, 1e-4)
 SHIPPED = Path(__file__).parents[1] / "problems/data/synthetic-pickup/pickup-56kph.csv"

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.base.units import G0
 from crashnlp.data import DataError, load_test_data
-from crashnlp.metrics import crash_metrics
 from crashnlp.problem.schema import DataSpec
-from crashnlp.units import G0
 
 ROOT = Path(__file__).resolve().parents[1] / "problems" / "data"
 EV5 = ROOT / "nhtsa-10146" / "v10146.EV5"

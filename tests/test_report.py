@@ -15,13 +15,13 @@ import numpy as np
 import pytest
 from builders import ROOT
 
+from crashnlp.base.outputs import named_test, shown_unit
+from crashnlp.base.units import G0
 from crashnlp.cli import main
-from crashnlp.model.form import build_model
-from crashnlp.model.parameters import ParameterLayout
-from crashnlp.outputs import named_test, shown_unit
-from crashnlp.result import Result
+from crashnlp.models.form import build_model
+from crashnlp.models.parameters import ParameterLayout
+from crashnlp.results.result import Result
 from crashnlp.studies.store import CaseStore
-from crashnlp.units import G0
 
 EMBEDDED = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
 EXTERNAL = re.compile(r'(?:src|href)\s*=\s*"(?!data:)[^"]*"|url\(|@import|<link|<script', re.IGNORECASE)
@@ -257,5 +257,5 @@ def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
 
 @pytest.mark.integration  # a process of its own
 def test_the_report_and_a_result_read_back_import_neither_casadi_nor_matplotlib():
-    code = "import sys, crashnlp.report, crashnlp.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
+    code = "import sys, crashnlp.report, crashnlp.report.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"

@@ -12,16 +12,16 @@ import pytest
 import sympy as sp
 from builders import BASE, ROOT, assert_contact_force_is_the_front_ends, make_case, merge
 
-from crashnlp.case import Case
-from crashnlp.energy import energy_audit
-from crashnlp.errors import InputError
-from crashnlp.metrics import lift_off
-from crashnlp.model.form import OUTPUTS, Structure
-from crashnlp.model.forms import FORMS
+from crashnlp.analysis.energy import energy_audit
+from crashnlp.analysis.metrics import lift_off
+from crashnlp.base.errors import InputError
+from crashnlp.case.case import Case
+from crashnlp.models.form import OUTPUTS, Structure
+from crashnlp.models.simulation import simulate
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
+from crashnlp.problem.forms import FORMS
 from crashnlp.problem.schema import Model
-from crashnlp.simulation import simulate
 
 RIGID = {"model": {"form": "rigid-body"}}
 TIGHT = {"simulation": {"rtol": 1e-11, "atol": 1e-12, "dt": 2e-4}}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crashnlp.segmentation import BANDS, MIN_SPACING, bends, line_misfits
+from crashnlp.case.segmentation import BANDS, MIN_SPACING, bends, line_misfits
 
 
 def test_line_misfits_are_the_least_squares_residuals():

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 from builders import BASE, merge
 
-from crashnlp.case import Case
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
-from crashnlp.pipeline import profile
+from crashnlp.optimize.pipeline import profile
 from crashnlp.problem import problem_from_dict
 
 pytestmark = pytest.mark.integration

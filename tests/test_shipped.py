@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 from builders import ROOT
 
-from crashnlp.case import Case
+from crashnlp.base.units import G0
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
-from crashnlp.units import G0
 
 pytestmark = pytest.mark.integration
 

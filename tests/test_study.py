@@ -18,11 +18,11 @@ import pytest
 import yaml
 from builders import BASE, ROOT, command, die_always, die_once, merge, parents, worker_pid
 
-from crashnlp.case import Case
+from crashnlp.base.errors import InputError, RunError
+from crashnlp.case.case import Case
 from crashnlp.engine import executors
 from crashnlp.engine.executors import NO_WORKERS_WAIT, WORKER_DEATHS, DaskExecutor, LocalExecutor
 from crashnlp.engine.schedule import map_all, run_tree
-from crashnlp.errors import InputError, RunError
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
@@ -437,9 +437,9 @@ def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp
 
 
 def test_a_study_refuses_a_folder_holding_another_run_s_results(small, tmp_path, capsys):
-    """The output rule of every command (crashnlp.files.claim): a fit's folder is not a study's."""
+    """The output rule of every command (crashnlp.results.files.claim): a fit's folder is not a study's."""
     from crashnlp.cli import main
-    from crashnlp.files import RECORD
+    from crashnlp.results.files import RECORD
 
     out = tmp_path / "out"
     out.mkdir()

@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from crashnlp import units
-from crashnlp.units import G0, UnitError, to_si
+from crashnlp.base import units
+from crashnlp.base.units import G0, UnitError, to_si
 
 
 @pytest.fixture

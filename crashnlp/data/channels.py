@@ -7,9 +7,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from crashnlp.errors import InputError
+from crashnlp.base.errors import InputError
+from crashnlp.base.units import unit_scale
 from crashnlp.problem.schema import CHANNEL_UNITS
-from crashnlp.units import unit_scale
 
 
 class DataError(InputError):

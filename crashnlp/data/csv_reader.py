@@ -14,9 +14,9 @@ from pathlib import Path
 
 import numpy as np
 
+from crashnlp.base.units import unit_scale
 from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
-from crashnlp.units import unit_scale
 
 DELIMITERS = ",;\t"  # the most frequent on the first line splits the file; with none of them, runs of spaces do
 

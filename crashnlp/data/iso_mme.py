@@ -15,9 +15,9 @@ from pathlib import Path, PurePosixPath
 
 import numpy as np
 
+from crashnlp.base.units import to_si
 from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
-from crashnlp.units import to_si
 
 _CHANNEL_LINE = re.compile(r"name of channel\s+(\d+)", re.IGNORECASE)
 

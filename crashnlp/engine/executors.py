@@ -30,9 +30,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Any, Protocol
 
-from crashnlp.compile_job import stop_compiles
+from crashnlp.base.errors import InputError, RunError
 from crashnlp.engine import CONNECT_TIMEOUT, DASK_EXTRA, EXECUTORS
-from crashnlp.errors import InputError, RunError
+from crashnlp.numerics.compile_job import stop_compiles
 
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
@@ -61,8 +61,8 @@ def default_workers() -> int:
 PRELOAD = [
     "crashnlp.studies.run",
     "crashnlp.studies.worker",
-    "crashnlp.pipeline",
-    "crashnlp.result",
+    "crashnlp.optimize.pipeline",
+    "crashnlp.results.result",
 ]
 
 
@@ -88,7 +88,7 @@ def start_early() -> None:
 def _worker_init() -> None:
     """Workers leave Ctrl-C to the main process, which stops them (a terminal sends SIGINT to all),
     and stop the C compiles they started when they end (a worker ended by a signal stops them
-    too: crashnlp.compile_job watches its starter)."""
+    too: crashnlp.numerics.compile_job watches its starter)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     multiprocessing.util.Finalize(None, stop_compiles, exitpriority=0)
 

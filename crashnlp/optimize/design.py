@@ -16,9 +16,9 @@ from typing import TextIO
 import casadi as ca
 import numpy as np
 
-from crashnlp.case import Case
-from crashnlp.errors import InputError
-from crashnlp.metrics import OLC_FREE, OLC_RESTRAINED
+from crashnlp.analysis.metrics import OLC_FREE, OLC_RESTRAINED
+from crashnlp.base.errors import InputError
+from crashnlp.case.case import Case
 from crashnlp.optimize.identify import Solution, finish
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.solve import solve

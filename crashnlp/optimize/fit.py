@@ -12,11 +12,11 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from crashnlp.base.units import G0
 from crashnlp.data.signal import resample
-from crashnlp.nlp import NLPBuilder
+from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.prior import SmoothnessPrior, smoothness_prior
-from crashnlp.units import G0
 
 DEFAULT_SIGMA = {
     "accel": 2.0 * G0,

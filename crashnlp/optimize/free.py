@@ -8,8 +8,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from crashnlp.errors import InputError
-from crashnlp.model.parameters import ParameterLayout
+from crashnlp.base.errors import InputError
+from crashnlp.models.parameters import ParameterLayout
 from crashnlp.problem.schema import EstimateSpec
 
 

@@ -9,18 +9,18 @@ from typing import TextIO
 
 import numpy as np
 
-from crashnlp.case import Case
-from crashnlp.completion import measured_pulse, repaired_start
-from crashnlp.errors import InputError
-from crashnlp.model.form import OUTPUTS
-from crashnlp.nlp import ACCEPTABLE
+from crashnlp.base.errors import InputError
+from crashnlp.case.case import Case
+from crashnlp.case.completion import measured_pulse, repaired_start
+from crashnlp.models.form import OUTPUTS
+from crashnlp.numerics.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.solve import SETTLE_OPTIONS, STEADY_OPTIONS, SolveResult, after, solve
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
-from crashnlp.response import Response
+from crashnlp.results.response import Response
 
 
 @dataclass
@@ -115,7 +115,7 @@ def finish(case: Case, ocp: OptimalControl, result: SolveResult, theta0: np.ndar
 
 def repair_start(case: Case) -> tuple[Case, str | None]:
     """A start that leaves spring values with a zero derivative although the data reach them,
-    replaced by crashnlp.completion.repaired_start: the case from the new start (Case.with_start),
+    replaced by crashnlp.case.completion.repaired_start: the case from the new start (Case.with_start),
     and the one line that says so; the case itself and None when its start serves.
 
     A breakpoint value moves the force from the breakpoint before it on, so it has a zero
@@ -154,7 +154,7 @@ REFINE, MAX_SUBSTEPS = 4, 16
 
 def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
     """Build and solve the identification NLP of a case; a start that falls short of the
-    measured crush is repaired from the data first (crashnlp.completion), and says so; a solve
+    measured crush is repaired from the data first (crashnlp.case.completion), and says so; a solve
     whose iterates cycle is refined (REFINE above), and says so."""
     case, note = repair_start(case) if warm is None else (case, None)
     notes = [note] if note else []

@@ -12,14 +12,14 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from crashnlp.case import Case, TestCase
-from crashnlp.model.form import OUTPUTS
-from crashnlp.nlp import NLPBuilder
+from crashnlp.case.case import Case, TestCase
+from crashnlp.models.form import OUTPUTS
+from crashnlp.models.simulation import simulate
+from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.oracle import compilable
 from crashnlp.optimize.oracle import symbolic as is_symbolic
-from crashnlp.response import Response
-from crashnlp.simulation import simulate
+from crashnlp.results.response import Response
 from crashnlp.transcription import Trajectory, make_transcription
 
 MONOTONE_TOLERANCE = 1e-4  # m: reloading allowed between two nodes by monotone_crush

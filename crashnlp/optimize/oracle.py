@@ -2,9 +2,9 @@
 
 IPOPT asks for five things at every iteration: f and g, the gradient of f, the
 constraint Jacobian and the Hessian of the Lagrangian. crashnlp builds them as
-CasADi Functions of (x, p) (crashnlp.derivatives for the structured Jacobian
+CasADi Functions of (x, p) (crashnlp.numerics.derivatives for the structured Jacobian
 and the Gauss-Newton Hessian) and, since every number that changes between runs
-is in p (crashnlp.nlp), they depend on the problem's structure only. So they
+is in p (crashnlp.numerics.nlp), they depend on the problem's structure only. So they
 are compiled to C once per structure and machine and kept in the crashnlp cache,
 under a hash of the serialized NLP, the code that derives the compiled functions from it, the
 Hessian kind and the compiler:
@@ -13,12 +13,12 @@ Hessian kind and the compiler:
   solve runs in CasADi's virtual machine and the library is compiled in the
   background, for the later study cases of the same shape; when the command ends
   the compile finishes at nice 19 for the next run, with a line that says so
-  (crashnlp.compile_job; CRASHNLP_KEEP_COMPILING=0 stops it with the command).
+  (crashnlp.numerics.compile_job; CRASHNLP_KEEP_COMPILING=0 stops it with the command).
 - `compile: now`: compile before solving and wait (before a large study).
 - `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
 
 The exact Hessian (designs, and fits that Gauss-Newton cannot finish) is the
-structured one of crashnlp.derivatives, compiled like the rest: derived by
+structured one of crashnlp.numerics.derivatives, compiled like the rest: derived by
 nlpsol through the whole graph, its C code ran to tens of megabytes.
 
 The virtual machine and the compiled code run the same operations in the same
@@ -40,8 +40,8 @@ from pathlib import Path
 
 import casadi as ca
 
-from crashnlp import compile_job, compiled, derivatives
-from crashnlp.nlp import NLPBuilder
+from crashnlp.numerics import compile_job, compiled, derivatives
+from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
 NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
@@ -115,8 +115,8 @@ def _library(nlp: NLPBuilder, tag: str, cc: str) -> Path:
 
 
 def _makers(nlp: NLPBuilder) -> tuple[str, ...]:
-    """The modules whose code turns the NLP's f and g into what is compiled: crashnlp.derivatives
-    and crashnlp.nlp (the solver's functions), the module of each extra's maker (a function or a
+    """The modules whose code turns the NLP's f and g into what is compiled: crashnlp.numerics.derivatives
+    and crashnlp.numerics.nlp (the solver's functions), the module of each extra's maker (a function or a
     functools.partial of one), and this one."""
     extras = [getattr(make, "func", make).__module__ for _, make in sorted(nlp.extras.items())]
     return (derivatives.__name__, NLPBuilder.__module__, *extras, __name__)
@@ -182,7 +182,7 @@ def compiles_running(cache: Path) -> list[Path]:
 
 
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
-    """Start compiling the library beside this process (crashnlp.compile_job: stopped with an
+    """Start compiling the library beside this process (crashnlp.numerics.compile_job: stopped with an
     interrupted command, finished at nice 19 after one that ends); the source file is the lock (one compile per
     library at a time, a stale one restarted). No more compiles at once than cores: a batch of
     many shapes compiles the rest on later runs."""

@@ -1,4 +1,4 @@
-"""The one place a solved NLP becomes a plain `Result` (crashnlp.result).
+"""The one place a solved NLP becomes a plain `Result` (crashnlp.results.result).
 
 Everything that needs the NLP (multipliers, constraint blocks, the parameter
 layout) is read here, once; nothing downstream touches the optimizer.
@@ -8,17 +8,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.case import Case, TestCase
-from crashnlp.completion import measured_pulse, measured_pulses
-from crashnlp.identified import INTERVAL_METRICS, Z95, IdentifiedModel, IdentifiedRange
-from crashnlp.model.forms import DEFAULT_FORM
-from crashnlp.model.tail import trend_tail
-from crashnlp.nlp import NOT_REPORTED
+from crashnlp.analysis.rating import iso18571
+from crashnlp.analysis.summary import channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.case.case import Case, TestCase
+from crashnlp.case.completion import measured_pulse, measured_pulses
+from crashnlp.models.tail import trend_tail
+from crashnlp.numerics.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
-from crashnlp.rating import iso18571
-from crashnlp.response import Response
-from crashnlp.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
-from crashnlp.summary import channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.problem.forms import DEFAULT_FORM
+from crashnlp.results.identified import INTERVAL_METRICS, Z95, IdentifiedModel, IdentifiedRange
+from crashnlp.results.response import Response
+from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 
 COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
@@ -65,8 +65,8 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
 
 
 def identified_model(solution: Solution, tests: dict[str, TestResult]) -> IdentifiedModel:
-    """The fitted vehicle, complete, with what a prediction needs (crashnlp.identified); a fit's
-    loading curve bends into its trend just past the crush the model reached (crashnlp.model.tail)."""
+    """The fitted vehicle, complete, with what a prediction needs (crashnlp.results.identified); a fit's
+    loading curve bends into its trend just past the crush the model reached (crashnlp.models.tail)."""
     case, free, cov = solution.case, solution.ocp.free, solution.covariance
     fitted = case.problem.with_values(solution.parameters)
     mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in

@@ -13,8 +13,8 @@ from typing import Any, Literal, TextIO
 import casadi as ca
 import numpy as np
 
-from crashnlp.errors import InputError
-from crashnlp.nlp import SUCCESS, NLPBuilder
+from crashnlp.base.errors import InputError
+from crashnlp.numerics.nlp import SUCCESS, NLPBuilder
 from crashnlp.optimize.oracle import SOLVER_OPTIONS, oracle
 from crashnlp.problem.schema import Solver
 

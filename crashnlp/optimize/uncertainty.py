@@ -29,7 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from crashnlp.nlp import DYNAMICS, NLPBuilder
+from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.ocp import OptimalControl
 

@@ -15,10 +15,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crashnlp.case import Case
-from crashnlp.energy import energy_audit
+from crashnlp.analysis.energy import energy_audit
+from crashnlp.case.case import Case
+from crashnlp.models.simulation import simulate
 from crashnlp.optimize.fit import DEFAULT_SIGMA
-from crashnlp.simulation import simulate
 
 CHECKED = ("displacement", "velocity", "pitch", "crush")  # states; the acceleration jumps at separation
 SCALE = {**DEFAULT_SIGMA, "crush": DEFAULT_SIGMA["displacement"]}

@@ -6,7 +6,7 @@ from typing import Any
 
 from pydantic import ValidationError
 
-from crashnlp.errors import InputError
+from crashnlp.base.errors import InputError
 
 # What a key of several forms (a union in crashnlp.problem.schema) accepts, in plain words: said in
 # place of pydantic's error per form, which names the forms by their types.

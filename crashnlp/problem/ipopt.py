@@ -23,7 +23,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
-from crashnlp.cache import cache_dir
+from crashnlp.base.cache import cache_dir
 
 Kind = Literal["real", "integer", "string"]
 

@@ -39,11 +39,11 @@ from pydantic import (
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
 
-from crashnlp.model.forms import DEFAULT_FORM, FORMS
-from crashnlp.outputs import MEASURABLE, OUTPUT
+from crashnlp.base.outputs import MEASURABLE, OUTPUT
+from crashnlp.base.units import to_si
 from crashnlp.problem.errors import ProblemError, all_errors
+from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
-from crashnlp.units import to_si
 
 QuantityIn = float | str  # what a file may give for a quantity: a number (SI) or a string with units
 QUANTITY_IN_SCHEMA: JsonSchemaValue = {"anyOf": [{"type": "number"}, {"type": "string"}]}
@@ -183,7 +183,7 @@ _T = TypeVar("_T")
 
 
 def _filled_in(value: _T | None, path: str) -> _T:
-    """A value a Case fills in from the data when the file leaves it out (crashnlp.completion), once filled in."""
+    """A value a Case fills in from the data when the file leaves it out (crashnlp.case.completion), once filled in."""
     if value is None:
         raise RuntimeError(f"{path}: not filled in from the data yet (a Case does that)")
     return value
@@ -268,7 +268,7 @@ SPRING_UNITS = {"force": "N", "secant": "N/m"}
 
 
 class BreakpointCount(Strict):
-    """Breakpoints to be placed over the data's crush range (crashnlp.completion)."""
+    """Breakpoints to be placed over the data's crush range (crashnlp.case.completion)."""
 
     count: int = Field(ge=2, le=30, description="number of breakpoints, 0 included")
 
@@ -304,7 +304,7 @@ class Spring(Strict):
         "trend",
         description="past the last breakpoint the law continues its last segment; {start, slope}: a straight line from"
         " start on, in fits and simulations alike; trend: a fit's identified model gets that line from the largest crush"
-        " the model reached in the fitted tests, along the curve's trend there (crashnlp.model.tail); segment: it keeps"
+        " the model reached in the fitted tests, along the curve's trend there (crashnlp.models.tail); segment: it keeps"
         " the law as fitted",
     )
 
@@ -341,7 +341,7 @@ class Spring(Strict):
     @property
     def placed_breakpoints(self) -> list[float]:
         """The crush breakpoints, once placed: a Case places them over the data's crush range when the
-        file gives none or a count (crashnlp.completion)."""
+        file gives none or a count (crashnlp.case.completion)."""
         if not isinstance(self.crush_breakpoints, list):
             raise RuntimeError("model.spring.crush_breakpoints: not placed yet (a Case places them from the data)")
         return self.crush_breakpoints
@@ -394,7 +394,7 @@ class Smoothing(Strict):
     _not_negative = field_validator("crush", "rate")(lambda v: _not_negative(v))
 
 
-FormName = Literal[tuple(FORMS)]  # type: ignore[valid-type]  # the registry's keys (crashnlp.model.forms)
+FormName = Literal[tuple(FORMS)]  # type: ignore[valid-type]  # the registry's keys (crashnlp.problem.forms)
 
 
 class Model(Strict):

@@ -1,12 +1,12 @@
 """`crashnlp report`: a folder crashnlp wrote, as one self-contained HTML page to hand on.
 
 A fit or design (result.json), a simulation (simulation.json) or a study (cases/) is read
-through its loaders (crashnlp.folders) and rendered by the Jinja2 templates shipped beside this
+through its loaders (crashnlp.report.folders) and rendered by the Jinja2 templates shipped beside this
 module (templates/*.html.j2). Every figure is embedded as a base64 PNG: the folder's own
 figures, and the maps drawn here (the estimates' correlations; a two-entry grid study's
 objective and metrics). The style is inline and nothing is fetched, so the page reads offline,
 travels as one file and prints (its print stylesheet). Numbers are SI inside and shown in the
-units the console shows them in (crashnlp.outputs).
+units the console shows them in (crashnlp.base.outputs).
 """
 
 from __future__ import annotations
@@ -19,15 +19,15 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
-from crashnlp.files import atomic_open, check_writable_file
-from crashnlp.folders import folder_kind, read_result, read_simulation, read_study
-from crashnlp.identified import Z95
-from crashnlp.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
-from crashnlp.result import Result
+from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
+from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
+from crashnlp.results.files import atomic_open, check_writable_file
+from crashnlp.results.identified import Z95
+from crashnlp.results.result import Result
 from crashnlp.studies.table import PLOTTED, number, shown_column
 
 if TYPE_CHECKING:
-    from crashnlp.prediction import PredictedTest
+    from crashnlp.analysis.prediction import PredictedTest
 
 REPORT = "report.html"
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
@@ -64,7 +64,7 @@ def result_page(result: Result, folder: Path) -> str:
     figures = embedded_figures(folder, ["force_crush.png"], "the identified loading curve")
     correlation = result.correlation
     if correlation.get("labels"):
-        from crashnlp import plots  # matplotlib: only when a page draws
+        from crashnlp.results import plots  # matplotlib: only when a page draws
 
         matrix = np.array([[np.nan if v is None else v for v in row] for row in correlation["matrix"]], dtype=float)
         png = plots.correlation_png(list(correlation["labels"]), matrix, f"{result.name}: correlation of the estimates")
@@ -213,7 +213,7 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
 
 
 def _extrapolation(test: PredictedTest) -> str:
-    from crashnlp.prediction import extrapolation_line
+    from crashnlp.analysis.prediction import extrapolation_line
 
     return extrapolation_line(test.extrapolation) if test.extrapolation else ""
 
@@ -239,7 +239,7 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
 def _maps(name: str, rows: list[dict], swept: list[str], metrics: list[tuple[str, str, float]]) -> list[dict[str, str]]:
     """Maps over a complete grid of two swept entries: the objective and the metrics a study plots (PLOTTED),
     a cell per case (empty where it failed); none when the cases do not fill the grid (zip)."""
-    from crashnlp import plots
+    from crashnlp.results import plots
 
     axes = [_axis(rows, k) for k in swept]
     if len(rows) != len(axes[0]) * len(axes[1]):

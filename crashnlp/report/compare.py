@@ -1,7 +1,7 @@
 """`crashnlp compare-results`: fits and simulations on one set of axes, with their bands.
 
 Two or more folders crashnlp wrote, fits (result.json) or simulations (simulation.json) in any
-mix, read through their loaders (crashnlp.folders): each test of each folder is one curve in its
+mix, read through their loaders (crashnlp.report.folders): each test of each folder is one curve in its
 own colour, named by its problem, its test and its speed (a pickup predicted at 48, 56 and
 64 km/h; fit A against fit B of the same vehicle). A simulation's 95 % bands are shaded; a fit's
 folder holds none (its curve is the fit; `crashnlp simulate RESULT_DIR` gives its own tests'
@@ -19,12 +19,12 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.errors import InputError
-from crashnlp.files import atomic_open, check_writable
-from crashnlp.folders import folder_kind, read_result, read_simulation
-from crashnlp.outputs import OUTPUT, PREDICTED_ROWS, named_test
+from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import OUTPUT, PREDICTED_ROWS, named_test
 from crashnlp.report import TEMPLATES, embedded_figures
-from crashnlp.response import Response
+from crashnlp.report.folders import folder_kind, read_result, read_simulation
+from crashnlp.results.files import atomic_open, check_writable
+from crashnlp.results.response import Response
 
 PAGE = "compare.html"
 METRICS = "metrics.csv"
@@ -52,7 +52,7 @@ def compare(folders: list[Path], out: Path) -> list[Curve]:
         raise InputError(f"compare-results: {len(folders)} folder given: give two or more (fits or simulations)")
     out = check_writable(out)
     curves = distinct([curve for folder in folders for curve in read_curves(folder)])
-    from crashnlp import plots  # matplotlib: only once every folder has read
+    from crashnlp.results import plots  # matplotlib: only once every folder has read
 
     for name in QUANTITIES:
         plots.overlay_figure(out / f"{name}.png", *_over_time(name, curves))

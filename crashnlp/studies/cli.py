@@ -67,9 +67,9 @@ def add_parser(subparsers) -> argparse.ArgumentParser:
 
 def cmd_study(args) -> int:
     """Run the study; print where the table is and which cases failed."""
+    from crashnlp.base.errors import InputError, Interrupted
     from crashnlp.engine.executors import require_dask, start_early
-    from crashnlp.errors import InputError, Interrupted
-    from crashnlp.files import check_output, run_name
+    from crashnlp.results.files import check_output, run_name
 
     check = getattr(args, "check", False)
     if args.executor == "dask":

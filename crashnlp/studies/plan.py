@@ -34,7 +34,7 @@ from typing import Any
 
 import numpy as np
 
-from crashnlp.errors import InputError
+from crashnlp.base.errors import InputError
 from crashnlp.studies.spec import Study, set_path
 
 

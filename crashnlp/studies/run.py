@@ -20,14 +20,14 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from tqdm import tqdm
 
-from crashnlp.checks import check_keys, check_tests
+from crashnlp.base.errors import InputError
+from crashnlp.case.checks import check_keys, check_tests
 from crashnlp.engine import CONNECT_TIMEOUT
 from crashnlp.engine.executors import default_workers, make_executor, start_early
 from crashnlp.engine.schedule import run_tree
-from crashnlp.errors import InputError
-from crashnlp.files import claim, run_name
-from crashnlp.jsonfile import clean
 from crashnlp.problem import problem_from_dict
+from crashnlp.results.files import claim, run_name
+from crashnlp.results.jsonfile import clean
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
 from crashnlp.studies.spec import Study, load_study
 from crashnlp.studies.store import CaseStore
@@ -156,7 +156,7 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
 
 
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
-    """Refuse a case whose problem is not valid, or whose data contradict it (crashnlp.checks:
+    """Refuse a case whose problem is not valid, or whose data contradict it (crashnlp.case.checks:
     those of a solve, short of building the model), naming the study file, the case and its
     values. Data are read once per distinct set of tests (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))

@@ -16,11 +16,11 @@ from typing import Annotated, Any, Literal, Union, get_args, get_origin
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
-from crashnlp.errors import InputError
+from crashnlp.base.errors import InputError
+from crashnlp.base.units import to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.load import read_yaml
 from crashnlp.problem.schema import OUTPUT_UNITS, FolderName, Problem, problem_from_dict
-from crashnlp.units import to_si
 
 Key = str | int
 

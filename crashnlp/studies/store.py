@@ -7,8 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.files import atomic_open, note_output
-from crashnlp.jsonfile import write_json
+from crashnlp.results.files import atomic_open, note_output
+from crashnlp.results.jsonfile import write_json
 
 
 class CaseStore:

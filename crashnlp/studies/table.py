@@ -10,9 +10,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, shown_unit
 from crashnlp.engine.schedule import map_all
-from crashnlp.files import atomic_open
-from crashnlp.outputs import METRIC_ROWS, OUTPUT, shown_unit
+from crashnlp.results.files import atomic_open
 from crashnlp.studies.plan import PlannedCase
 from crashnlp.studies.spec import Study, SweepEntry
 
@@ -120,7 +120,7 @@ def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[
 
 def draw_figure(job: dict[str, Any]) -> bytes:
     """A figure job as PNG bytes (in a worker, where matplotlib is imported on first use)."""
-    from crashnlp import plots
+    from crashnlp.results import plots
 
     return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"])
 

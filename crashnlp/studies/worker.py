@@ -10,12 +10,12 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.errors import InputError
+from crashnlp.base.errors import InputError
+from crashnlp.numerics.runtime import THREADS_ENV
 from crashnlp.problem import problem_from_dict
-from crashnlp.runtime import THREADS_ENV
 
 if TYPE_CHECKING:
-    from crashnlp.result import Result
+    from crashnlp.results.result import Result
 
 METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")
 
@@ -26,7 +26,7 @@ def solve_job(job: dict[str, Any]) -> dict[str, Any]:
     Returns {"record": table columns of the outcome, "z": solution vector or None};
     bad input and any exception become a record with that status.
     """
-    from crashnlp.pipeline import solve_problem  # the solver stack: loaded by the workers, not by the study's planner
+    from crashnlp.optimize.pipeline import solve_problem  # the solver stack: loaded by the workers, not by the study's planner
 
     if job["threads"] is not None:
         os.environ[THREADS_ENV] = str(job["threads"])

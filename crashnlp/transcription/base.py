@@ -15,9 +15,9 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from crashnlp.integrators import rk4
-from crashnlp.model.form import CrashModel
-from crashnlp.nlp import DYNAMICS, NLPBuilder
+from crashnlp.models.form import CrashModel
+from crashnlp.numerics.integrators import rk4
+from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 
 IMPACT_SUBSTEPS = 4  # RK4 steps across the first interval, where the front end engages
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import casadi as ca
 import numpy as np
 
-from crashnlp.nlp import DYNAMICS
+from crashnlp.numerics.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
 # The KKT systems of a collocation fit are ill-conditioned (condition 2e11 for the pickup at 56 and

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-from crashnlp.integrators import rk4
-from crashnlp.nlp import DYNAMICS
+from crashnlp.numerics.integrators import rk4
+from crashnlp.numerics.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
 

@@ -1,0 +1,200 @@
+"""The out-of-sample model-form term of a prediction's intervals, calibrated on held-out predictions.
+
+A fit tunes the metrics of the tests it was fitted at, so the model's miss there says little of
+its miss at another speed or mass. That miss is calibrated instead on a corpus of vehicles of
+more than one generator form (bench/corpus.py), each fitted as a user would (minimal problem
+files) and asked to predict tests it was not fitted at (bench/calibration.py, `make calibrate`).
+
+Each prediction falls into a class by where it goes against the fitted tests: further in mass
+than in speed, `mass-up` or `mass-down` (the same vehicle heavier or lighter: a payload, another
+trim); otherwise by its impact energy (m v^2 / 2) against theirs, `down`, `between` or `up`. Its
+distance is |ln(E / E_nearest)|, E_nearest the fitted test's energy closest to its own: a speed
+ratio and a mass ratio in one number. A metric's 95 % half-width adds in quadrature the
+parameters' half-width, the model's miss on the fitted tests, and what q scales:
+
+    q[class][metric] * scale(metric) * distance ** power[metric]    (the out-of-sample form term)
+    q[class][metric] * past_the_reach                                (the force past the reach)
+
+scale is the predicted value (the rebound: the impact speed; the max pitch: at least 1 deg);
+past_the_reach is crashnlp.analysis.prediction's estimate of what the force past the crush the fitted
+tests reached adds, a rule's guess that the calibration scales like the form term. q is the
+split-conformal quantile of the scores of the calibration corpus: the smallest q with which each
+held-out interval, its other parts as they were, would have covered the generator's value
+(`IntervalParts.score`), its rank from the number of vehicles (one vehicle's predictions of a
+class miss alike). The power says how the miss grows with the distance, set from the corpus per
+metric (bench/calibration.py). At a fitted test's own energy the terms are zero, and the
+interval is what the fitted tests say of themselves.
+
+The table ships as crashnlp/analysis/calibration.json with its method, corpus seeds and version;
+simulation.json names it.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass
+from functools import cache
+from importlib import resources
+from typing import Any
+
+import numpy as np
+
+from crashnlp.results.identified import IdentifiedRange
+
+FILE = "calibration.json"
+PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
+SAME_ENERGY = 1e-3  # relative: fitted tests closer than this in energy count as one
+CLASSES = ("down", "between", "up", "mass-down", "mass-up")
+
+
+@dataclass(frozen=True)
+class IntervalParts:
+    """A metric's 95 % interval, part by part, in the metric's unit: the parameters' half-width,
+    the model's miss on the fitted tests, the force past the reach as crashnlp.analysis.prediction
+    estimates it, and `unit`, the calibrated form term per unit of q (scale times distance to the
+    calibrated power)."""
+
+    value: float
+    parameters: float
+    fitted: float
+    past_the_reach: float
+    unit: float
+
+    def form(self, q: float) -> float:
+        """The model form's half-width: its miss on the fitted tests and the calibrated out-of-sample term."""
+        return math.hypot(self.fitted, q * self.unit)
+
+    def past(self, q: float) -> float:
+        """The force past the reach's half-width: its estimate, scaled by q as calibrated."""
+        return q * self.past_the_reach
+
+    def half(self, q: float) -> float:
+        return math.sqrt(self.parameters**2 + self.form(q) ** 2 + self.past(q) ** 2)
+
+    def interval(self, q: float) -> tuple[float, float]:
+        half = self.half(q)
+        return self.value - half, self.value + half
+
+    def shares(self, q: float) -> dict[str, float]:
+        """Each part's half-width."""
+        return {"parameters": self.parameters, "form": self.form(q), "past_the_reach": self.past(q)}
+
+    def score(self, truth: float) -> float:
+        """The smallest q whose interval covers `truth` (0 when the parameters and the fitted miss
+        do; inf where nothing q scales can)."""
+        rest = (truth - self.value) ** 2 - self.parameters**2 - self.fitted**2
+        if rest <= 0.0:
+            return 0.0
+        per_q = math.hypot(self.unit, self.past_the_reach)
+        return math.sqrt(rest) / per_q if per_q > 0 else math.inf
+
+    def to_json(self) -> dict[str, float]:
+        return {k: getattr(self, k) for k in ("value", "parameters", "fitted", "past_the_reach", "unit")}
+
+    @classmethod
+    def from_json(cls, raw: dict[str, float]) -> IntervalParts:
+        return cls(**raw)
+
+
+def energies(fitted: IdentifiedRange) -> tuple[float, ...]:
+    """The fitted tests' impact energies (J), from the range where an older result lacks them."""
+    if fitted.energies:
+        return fitted.energies
+    return tuple(sorted({0.5 * m * v**2 for m, v in zip(fitted.masses, fitted.speeds)}))
+
+
+def _outside(value: float, bounds: tuple[float, float]) -> float:
+    """|ln| of how far `value` lies outside [low, high] (0 inside)."""
+    low, high = bounds
+    return abs(math.log(value / min(max(value, low), high)))
+
+
+def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[str, float]:
+    """The class of a prediction at `speed` and `mass` against the fitted tests, and its distance
+    |ln(E / E_nearest)|. A prediction that goes further in mass than in speed (|ln| of the mass
+    ratio past the fitted masses against twice the speed ratio's) is `mass-up` or `mass-down`;
+    any other is `down`, `between` or `up` by its energy against the fitted tests'."""
+    known = np.asarray(energies(fitted))
+    energy = 0.5 * mass * speed**2
+    distance = float(np.min(np.abs(np.log(energy / known))))
+    if _outside(mass, fitted.masses) > 2 * _outside(speed, fitted.speeds):
+        return ("mass-up" if mass > fitted.masses[1] else "mass-down"), distance
+    if energy < known.min() * (1 - SAME_ENERGY):
+        return "down", distance
+    if energy > known.max() * (1 + SAME_ENERGY):
+        return "up", distance
+    return "between", distance
+
+
+def scale(metric: str, value: float, speed: float) -> float:
+    """What a metric's form term is relative to: its value, the rebound's impact speed, the max
+    pitch's value but at least PITCH_FLOOR degrees."""
+    if metric == "rebound_velocity_mps":
+        return speed
+    if metric == "max_pitch_deg":
+        return max(abs(value), PITCH_FLOOR)
+    return abs(value)
+
+
+def conformal_quantile(scores: list[float], coverage: float, units: int | None = None) -> float:
+    """Split-conformal: of n scores from `units` exchangeable units (each unit's scores alike: one
+    vehicle's predictions; n units by default), the score at the share ceil((units + 1) coverage)
+    / units of them, the ceil((n + 1) coverage)-th smallest for n units (inf when too few)."""
+    n = len(scores)
+    units = units or n
+    share = math.ceil((units + 1) * coverage) / units
+    rank = math.ceil(round(n * share, 9))
+    return float(np.sort(scores)[rank - 1]) if share <= 1 and rank >= 1 else math.inf
+
+
+@dataclass(frozen=True)
+class Calibration:
+    """The calibrated form term: q per class and metric, per metric the power of the distance in
+    the form term's unit, and what it was calibrated on."""
+
+    version: int
+    method: str
+    coverage: float
+    corpus: dict[str, Any]
+    table: dict[str, dict[str, float]]
+    power: dict[str, float]
+
+    def q(self, klass: str, metric: str) -> float | None:
+        """The class's q for a metric; None where it was not calibrated."""
+        return self.table.get(klass, {}).get(metric)
+
+    def unit(self, metric: str, value: float, speed: float, distance: float) -> float:
+        """The form term per unit of q: the metric's scale times the distance to its power."""
+        return scale(metric, value, speed) * distance ** self.power[metric] if distance > 0 else 0.0
+
+    def named(self) -> dict[str, Any]:
+        """What simulation.json says of the calibration its intervals used."""
+        return {"file": f"crashnlp/analysis/{FILE}", "version": self.version, "method": self.method, "corpus": self.corpus}
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "version": self.version,
+            "method": self.method,
+            "coverage": self.coverage,
+            "corpus": self.corpus,
+            "table": self.table,
+            "power": self.power,
+        }
+
+    @classmethod
+    def from_json(cls, raw: dict[str, Any]) -> Calibration:
+        return cls(
+            int(raw["version"]),
+            raw["method"],
+            float(raw["coverage"]),
+            raw["corpus"],
+            raw["table"],
+            {k: float(v) for k, v in raw["power"].items()},
+        )
+
+
+@cache
+def shipped() -> Calibration:
+    """The calibration shipped with the package (crashnlp/analysis/calibration.json)."""
+    return Calibration.from_json(json.loads(resources.files("crashnlp.analysis").joinpath(FILE).read_text()))

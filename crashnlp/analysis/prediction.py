@@ -1,0 +1,519 @@
+"""Predictions: an identified vehicle simulated at new speeds, masses or durations, with 95 % intervals.
+
+Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.analysis.calibration.IntervalParts):
+
+- the parameters: their covariance (the fit's sandwich, with the smoothness prior as the
+  information it adds) pushed through the output's sensitivities, taken as central
+  differences of the forward simulation over one standard error each way (one-sided at a
+  bound), so a metric that bends within that span is not linearised at a point;
+- the model's form: its miss on the fitted tests (each metric's relative miss, root mean square
+  over the tests, scaled to the predicted value, and the RMSE of the curve the metric is read
+  from), and the out-of-sample term calibrated on held-out predictions of a corpus of vehicles
+  of two generator forms (crashnlp.analysis.calibration): the fit tunes the metrics of the tests it was
+  fitted at, so their miss there understates the miss at another speed or mass. The calibrated
+  term grows with the distance in impact energy from the nearest fitted test (to a power the
+  calibration sets per metric), and is zero at a fitted test's own;
+- the force past the crush the model reached in the fitted tests, which no test measured: the
+  identified loading curve follows its trend there (crashnlp.models.tail), and how well that
+  rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
+  the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
+  the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes),
+  the stop with it, and the peak deceleration where the peak lies past the reach. That is a
+  rule's guess, so the calibrated q scales it as it scales the form term; a peak the force past
+  the reach raises beyond the predicted one is the calibrated form term's to cover.
+
+Each interval reports its parts, and the dominant one; an interval the force past the reach
+dominates says so in a note. The response bands are pointwise 95 %: at each instant the
+parameters' half-width of the curve, and the non-parameter half-width of the metric read from
+that curve (the peak deceleration for the acceleration and the barrier force, the max crush for
+displacement and crush, the rebound for the velocity, the max pitch for the pitch) in proportion
+to how far the curve has moved from what the model knows exactly (zero force, the initial
+state): so the band at a metric's instant is that metric's interval, and there is no band after
+the vehicle has left the barrier or at t = 0.
+
+A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
+interval, nor does anything when an estimated value is not determined by the data: the
+prediction says so in `notes`, instead of a band that only looks narrow.
+
+`write_simulation` writes what `crashnlp simulate` writes of the predicted tests, and
+`simulation_figure_jobs` are their figures.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass, field
+from functools import cached_property
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from scipy.stats import t as student
+
+from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
+from crashnlp.analysis.metrics import DRIFT, lift_off
+from crashnlp.analysis.summary import data_curves, response_metrics
+from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import COLUMNS, OUTPUT, PANELS, named_test
+from crashnlp.base.units import G0
+from crashnlp.case.case import Case, TestCase
+from crashnlp.models.tail import spacing, trend_misses
+from crashnlp.problem import Problem
+from crashnlp.results.files import claim, run_name
+from crashnlp.results.identified import INTERVAL_METRICS, Z95, IdentifiedModel, applied
+from crashnlp.results.jsonfile import write_json
+from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
+from crashnlp.results.result import Result
+
+if TYPE_CHECKING:
+    from crashnlp.results.plots import Job  # not at run time: matplotlib
+
+# response columns and the metric whose non-parameter half-width their band carries
+BAND_METRIC = {
+    "displacement": "max_crush_m",
+    "crush": "max_crush_m",
+    "velocity": "rebound_velocity_mps",
+    "accel": "peak_decel_g",
+    "barrier_force": "peak_decel_g",
+    "pitch": "max_pitch_deg",
+}
+# metric -> the response column it is the extreme of, and the extreme's sign (max: +1, min: -1)
+INSTANT = {
+    "max_crush_m": ("displacement", 1.0),
+    "peak_decel_g": ("accel", -1.0),
+    "rebound_velocity_mps": ("velocity", -1.0),
+    "max_pitch_deg": ("pitch", 1.0),
+}
+# the fitted channel each metric is read from (its report unit is the metric's)
+METRIC_CHANNEL = {
+    "max_crush_m": "displacement",
+    "peak_decel_g": "accel",
+    "rebound_velocity_mps": "velocity",
+    "olc_g": "accel",
+    "max_pitch_deg": "pitch",
+}
+
+
+@dataclass(frozen=True)
+class PredictedTest(Mapping[str, np.ndarray]):
+    """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.base.outputs
+    names them), its crash metrics, and with an identified model their 95 % intervals, the
+    response bands (output name -> (low, high)), how far it lies past the identified range, each
+    metric's interval parts (also where its form term is not calibrated), the calibrated q of each
+    form term, and the calibration they came from (crashnlp.analysis.calibration.Calibration.named).
+    `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
+    conditions they were recorded at; empty otherwise, with a note saying why."""
+
+    name: str
+    speed: float
+    mass: float
+    response: Response
+    metrics: dict[str, float | None]
+    intervals: dict[str, tuple[float, float] | None] = field(default_factory=dict)
+    bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    extrapolation: dict[str, float] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+    data: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    parts: dict[str, IntervalParts] = field(default_factory=dict)
+    form_q: dict[str, float] = field(default_factory=dict)
+    calibration: dict[str, Any] = field(default_factory=dict)
+
+    @cached_property
+    def _arrays(self) -> dict[str, np.ndarray]:
+        r = self.response
+        return {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}}
+
+    def __getitem__(self, key: str) -> np.ndarray:
+        return self._arrays[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._arrays)
+
+    def __len__(self) -> int:
+        return len(self._arrays)
+
+    def shares(self) -> dict[str, dict[str, float | str]]:
+        """Per metric with an interval: each part's 95 % half-width, and which part dominates."""
+        out: dict[str, dict[str, float | str]] = {}
+        for key, q in self.form_q.items():
+            shares = self.parts[key].shares(q)
+            out[key] = {**shares, "dominant": max(shares, key=lambda k: shares[k])}
+        return out
+
+
+def own_tests(result: Result, source: str) -> Problem:
+    """The problem a result's own tests make, with its identified vehicle (crashnlp.results.identified):
+    each test at its speed over its fitted window, at the identified vehicle's mass; what
+    `crashnlp simulate RESULT_DIR/result.json` simulates. InputError for a result without an
+    identified model."""
+    if result.identified is None:
+        raise InputError(
+            f"{source}: identified_model: none (a design's or a hand-written result); give a problem file and --params"
+        )
+    tests = [{"name": name, "speed": t.speed, "duration": float(t.response.time[-1])} for name, t in result.tests.items()]
+    return applied({"name": result.name, "tests": tests}, Path("."), result.identified, source, source)
+
+
+MAX_STEPS = 1_000_000  # output steps a simulation may ask for
+
+
+def check_steps(case: Case | None, dt: float | None, name: str = "dt", source: str = "simulate") -> None:
+    """Refuse an output step `dt` (called `name` where the user gave it) that is not a positive
+    number of seconds, or a simulation of `case` that asks for more than MAX_STEPS output steps
+    (with `dt`, or the problem's simulation.dt from `source`). No case: `dt` alone."""
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise InputError(f"{name} {dt:g}: must be a positive number of seconds")
+    if case is None:
+        return
+    longest = max(t.duration for t in case.tests)
+    step, where = (dt, name) if dt is not None else (case.problem.simulation.dt, f"{source}: simulation.dt")
+    if longest / step > MAX_STEPS:
+        raise InputError(f"{where} {step:g} s: more than {MAX_STEPS:,} output steps over {longest:g} s (tests' duration)")
+
+
+def predict(
+    case: Case, identified: IdentifiedModel | None = None, dt: float | None = None, calibration: Calibration | None = None
+) -> dict[str, PredictedTest]:
+    """Every test of `case` simulated (`case` built from a problem the identified model was
+    applied to, crashnlp.results.identified.apply); with `identified`, intervals and extrapolation too,
+    their form terms from `calibration` (the shipped one by default). A test's data come with it
+    only where it runs at the speed, mass and duration they were recorded at
+    (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
+    positive step, or too many steps, is refused (check_steps)."""
+    check_steps(case, dt)
+    out = {}
+    for test in case.tests:
+        p = case.test_parameters(test)
+        response = case.simulate_test(test, p, dt)
+        metrics = response_metrics(response)
+        mass = float(p[case.layout.index("vehicle.mass")][0])
+        other = test.other_conditions(mass)
+        data = data_curves(test) if other is None else {}
+        first = (other,) if other is not None else ()
+        drift = _drift(test.name, response) or _let_go(test.name, response)
+        if identified is None:
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
+            continue
+        chosen = calibration or shipped()
+        u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
+        beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
+        out[test.name] = PredictedTest(
+            test.name,
+            test.speed,
+            mass,
+            response,
+            metrics,
+            u.intervals,
+            u.bands,
+            beyond,
+            first + drift + u.notes,
+            data,
+            u.parts,
+            u.q,
+            chosen.named(),
+        )
+    return out
+
+
+def _drift(name: str, response: Response) -> tuple[str, ...]:
+    """A note when the vehicle ends its record still moving toward the barrier without touching
+    it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off), and its max crush is its travel at the end,
+    not where it stopped."""
+    velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
+    if velocity <= DRIFT or contact > 0:
+        return ()
+    return (
+        f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
+        "lifted the front end off): its max crush is its travel at the end of the record, not a stop",
+    )
+
+
+def _let_go(name: str, response: Response) -> tuple[str, ...]:
+    """A note when the front end lets go of the barrier while the CG still moves toward it
+    (crashnlp.analysis.metrics.lift_off): what the response does from then on is the pitch's, not the
+    structure's."""
+    t = lift_off(response.time, response["velocity"], response["contact_force"])
+    if t is None:
+        return ()
+    v = float(np.interp(t, response.time, response["velocity"]))
+    return (
+        f"{name}: the front end lets go of the barrier at {t * 1e3:.1f} ms while the CG still moves toward it at "
+        f"{v:.2f} m/s (its pitch lifted it off): its crush and stop from then on are the pitch's",
+    )
+
+
+@dataclass(frozen=True)
+class Uncertainty:
+    """A predicted test's intervals, their parts and form q, its bands and notes."""
+
+    intervals: dict[str, tuple[float, float] | None]
+    parts: dict[str, IntervalParts] = field(default_factory=dict)
+    q: dict[str, float] = field(default_factory=dict)
+    bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    notes: tuple[str, ...] = ()
+
+
+def _uncertainty(
+    case: Case,
+    test: TestCase,
+    p: np.ndarray,
+    mass: float,
+    response: Response,
+    metrics: dict[str, float | None],
+    identified: IdentifiedModel,
+    dt: float | None,
+    calibration: Calibration,
+) -> Uncertainty:
+    """95 % intervals of the metrics and bands of the response columns (module docstring)."""
+    std = identified.std()
+    undetermined = [label for label, s in zip(identified.labels, std) if not np.isfinite(s)]
+    if undetermined:
+        note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
+        return Uncertainty({k: None for k in INTERVAL_METRICS}, notes=(note,))
+    gm, gy = _sensitivities(case, test, p, identified, std, dt)
+    cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
+    past = past_the_reach(case, p, response, identified, mass, metrics)
+    klass, distance = reach(identified.range, test.speed, mass)
+    intervals: dict[str, tuple[float, float] | None] = {}
+    parts, qs, notes = {}, {}, []
+    for i, key in enumerate(INTERVAL_METRICS):
+        value, miss = metrics.get(key), identified.discrepancy.get(key)
+        q = calibration.q(klass, key) if distance > 0 else 0.0
+        intervals[key] = None
+        if miss is None or value is None or not np.isfinite(value):
+            why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
+            notes.append(f"{test.name}: no interval for {key}: {why}")
+            continue
+        parts[key] = IntervalParts(
+            value,
+            _parameter_half(key, gm[:, i], gy, cov, response),
+            Z95 * float(np.hypot(miss * value, _curve_miss(identified, key))),
+            past.get(key, 0.0),
+            calibration.unit(key, value, test.speed, distance),
+        )
+        if q is None or not np.isfinite(q):
+            notes.append(f"{test.name}: no interval for {key}: its form term is not calibrated for a prediction of class {klass}")
+            continue
+        qs[key] = q
+        intervals[key] = parts[key].interval(q)
+    notes += _dominated(test.name, parts, qs)
+    return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+
+
+def _parameter_half(key: str, gm: np.ndarray, gy: dict[str, np.ndarray], cov: np.ndarray, response: Response) -> float:
+    """The parameters' 95 % half-width of a metric: from its own sensitivities, or from its curve's
+    at the metric's instant where that is wider (a central difference of an extreme moves its
+    instant), so that the band there lies within the interval."""
+    var = float(gm @ cov @ gm)
+    column, sign = INSTANT.get(key, ("", 0.0))
+    if column in gy:
+        g = gy[column][:, int(np.argmax(sign * response[column]))] * OUTPUT[column].factor
+        var = max(var, float(g @ cov @ g))
+    return Z95 * float(np.sqrt(var))
+
+
+def _dominated(name: str, parts: dict[str, IntervalParts], qs: dict[str, float]) -> list[str]:
+    """A note for each interval that the force past the reach dominates."""
+    notes = []
+    for key, q in qs.items():
+        shares = parts[key].shares(q)
+        if shares["past_the_reach"] > max(shares["parameters"], shares["form"]):
+            notes.append(
+                f"{name}: {key}'s interval is mostly the force past the crush the fitted tests reached (no test measured it)"
+            )
+    return notes
+
+
+def _bands(
+    response: Response,
+    gy: dict[str, np.ndarray],
+    cov: np.ndarray,
+    parts: dict[str, IntervalParts],
+    qs: dict[str, float],
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """Pointwise 95 % bands: the parameters' half-width of the curve at each instant, and its
+    metric's non-parameter half-width in proportion to how far the curve has moved from what
+    the model knows exactly (zero, or for the velocity the impact speed)."""
+    bands = {}
+    v0 = float(response["velocity"][0])
+    for name, key in BAND_METRIC.items():
+        part = parts.get(key)
+        if part is None or key not in qs:
+            continue
+        y = response[name]
+        g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
+        moved = np.abs(v0 - y) if name == "velocity" else np.abs(y)
+        reference = v0 + part.value if name == "velocity" else abs(part.value)
+        rest = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference if reference > 0 else 0.0
+        half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + (rest * moved) ** 2)
+        bands[name] = (y - half, y + half)
+    return bands
+
+
+def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
+    """The fitted tests' RMSE of the channel `metric` is read from, in the metric's unit (0 when
+    none is fitted)."""
+    channel = METRIC_CHANNEL.get(metric)
+    rmse = identified.channel_rmse.get(channel) if channel else None
+    return 0.0 if rmse is None or channel is None else rmse * OUTPUT[channel].factor
+
+
+def past_the_reach(
+    case: Case, p: np.ndarray, response: Response, identified: IdentifiedModel, mass: float, metrics: dict[str, float | None]
+) -> dict[str, float]:
+    """The 95 % half-widths the force past the model's reach in the fitted tests adds to max crush
+    (m), time of zero velocity (s) and peak deceleration (g); nothing inside the reach.
+
+    The force there is the trend rule's guess: its miss per breakpoint spacing
+    (crashnlp.models.tail.trend_misses), with Student's t for the few misses it is measured from,
+    times the distance d past the reach, is the force's error there. The crush moves by the
+    energy that error adds over d, the stop in proportion to the crush (the mean speed to the stop
+    unchanged), and the peak by the error where the peak lies, if past the reach."""
+    crush, reach_m = response["crush"], identified.range.model_crush
+    deepest = float(np.max(crush))
+    beyond = deepest - reach_m
+    if beyond <= 0:
+        return {}
+    curve = case.loading_curve(p)
+    breakpoints = np.asarray(identified.model["spring"]["crush_breakpoints"], float)
+    misses = trend_misses(curve, breakpoints, reach_m)
+    if misses.size == 0:
+        return {}
+    quantile = float(student.ppf(0.975, misses.size))  # a root mean square of few misses: Student's t
+    rate = float(np.sqrt(np.mean(misses**2))) * quantile / spacing(breakpoints)  # N of force error per m past the reach, 95 %
+    at_deepest = max(float(curve(np.array([deepest]))[0]), 1.0)
+    half = {"max_crush_m": rate * beyond**2 / 2 / at_deepest}
+    stop, max_crush = metrics.get("time_zero_velocity_s"), metrics.get("max_crush_m")
+    if stop is not None and np.isfinite(stop) and max_crush:
+        half["time_zero_velocity_s"] = stop * half["max_crush_m"] / max_crush
+    peak = int(np.argmax(-response["accel"]))
+    if crush[peak] > reach_m:
+        half["peak_decel_g"] = rate * (crush[peak] - reach_m) / mass / G0
+    return half
+
+
+def _sensitivities(
+    case: Case, test: TestCase, p: np.ndarray, identified: IdentifiedModel, std: np.ndarray, dt: float | None
+) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """d metric / d value (values x metrics) and d output / d value (output -> values x times):
+    central differences over one standard error each way, clipped to the estimate's bounds."""
+    slices = case.layout.slices()
+    gm = np.zeros((len(identified.labels), len(INTERVAL_METRICS)))
+    gy: dict[str, np.ndarray] = {}
+    for j, label in enumerate(identified.labels):
+        k = _position(slices, label)
+        lo, hi = identified.bounds[j]
+        up, down = min(p[k] + std[j], hi), max(p[k] - std[j], lo)
+        if up <= down:
+            continue
+        r_up, r_down = (case.simulate_test(test, _with(p, k, value), dt) for value in (up, down))
+        m_up, m_down = response_metrics(r_up), response_metrics(r_down)
+        gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in INTERVAL_METRICS]
+        for name in BAND_METRIC:
+            gy.setdefault(name, np.zeros((len(identified.labels), r_up.time.size)))[j] = (r_up[name] - r_down[name]) / (up - down)
+    return gm, gy
+
+
+def _with(p: np.ndarray, k: int, value: float) -> np.ndarray:
+    q = p.copy()
+    q[k] = value
+    return q
+
+
+def _difference(a: float | None, b: float | None) -> float:
+    return 0.0 if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) else a - b
+
+
+def _position(slices: dict[str, slice], label: str) -> int:
+    """Index in the full parameter vector of a label ("vehicle.mass", "model.spring.values[3]")."""
+    path, _, rest = label.partition("[")
+    return slices[path].start + (int(rest.rstrip("]")) if rest else 0)
+
+
+def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
+    """response.csv's columns beyond the response: <column>_low and <column>_high of every band."""
+    out = {}
+    for o in COLUMNS:
+        band = test.bands.get(o.name)
+        if band is not None:
+            out[f"{o.column}_low"], out[f"{o.column}_high"] = band[0] * o.factor, band[1] * o.factor
+    return out
+
+
+def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
+    """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
+    simulated test, and simulation.json, into a folder that then holds this simulation only
+    (crashnlp.results.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
+    (crashnlp.results.drawing)."""
+    summary: dict[str, Any] = {"name": name, "tests": {}}
+    with claim(out, run_name("simulate", name), option=None):
+        for test in tests.values():
+            r = test.response
+            write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+            entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+            if test.intervals:
+                entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
+                entry["interval_parts"] = test.shares()
+                entry["extrapolation"] = test.extrapolation
+                summary["calibration"] = test.calibration
+            if test.notes:
+                entry["notes"] = list(test.notes)
+            summary["tests"][test.name] = entry
+        write_json(out / "simulation.json", summary)
+    return summary
+
+
+def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
+    """The name and the predicted tests `write_simulation` wrote into `folder`, back in SI: the
+    responses and bands from each response.csv, the rest from simulation.json."""
+    raw = json.loads((folder / "simulation.json").read_text(encoding="utf-8"))
+    tests = {}
+    for name, entry in raw["tests"].items():
+        columns = read_columns(folder / name / "response.csv")
+        bands = {
+            o.name: (columns[f"{o.column}_low"] / o.factor, columns[f"{o.column}_high"] / o.factor)
+            for o in COLUMNS
+            if f"{o.column}_low" in columns
+        }
+        intervals = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in entry.get("intervals", {}).items()}
+        tests[name] = PredictedTest(
+            name,
+            float(entry["speed_mps"]),
+            float(entry["mass_kg"]),
+            response_of(columns),
+            entry["metrics"],
+            intervals,
+            bands,
+            dict(entry.get("extrapolation", {})),
+            tuple(entry.get("notes", ())),
+        )
+    return str(raw["name"]), tests
+
+
+def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
+    """A response figure per simulated test, with its data behind it where it runs at their
+    conditions (PredictedTest.data) and its 95 % band shaded, as crashnlp.results.plots jobs."""
+    jobs: list[Job] = []
+    for predicted in tests.values():
+        r = predicted.response
+        model = {k: (r.time, r[k]) for k in PANELS}
+        bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
+        at = f"predicted at {predicted.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg" + (", 95 % band" if bands else "")
+        title = f"{named_test(name, predicted.name)}: {at}"
+        jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
+    return jobs
+
+
+def extrapolation_line(beyond: dict[str, float]) -> str:
+    """How far a prediction lies past the identified range (`PredictedTest.extrapolation`), in words."""
+    parts = []
+    if "crush_m" in beyond:
+        parts.append(f"max crush {beyond['crush_m'] * 1e3:.0f} mm ({beyond['crush_rel'] * 100:.0f} %) past the largest fitted")
+    if "speed_mps" in beyond:
+        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
+        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
+    if "mass_kg" in beyond:
+        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
+        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
+    return "extrapolates: " + "; ".join(parts)

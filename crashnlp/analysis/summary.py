@@ -1,0 +1,114 @@
+"""The crash metrics the result files and tables report, for test data and model responses alike."""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import numpy as np
+
+from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.base.units import G0
+from crashnlp.case.testcase import TestCase
+from crashnlp.data.signal import integrate, resample
+from crashnlp.results.response import Response
+
+
+def metrics(
+    t: np.ndarray,
+    accel: np.ndarray,
+    velocity: np.ndarray,
+    displacement: np.ndarray,
+    pitch: np.ndarray | None,
+    crush: np.ndarray | None = None,
+) -> dict:
+    """The crash metrics result.json reports, in the units their names say.
+
+    Max dynamic crush is the crash-test quantity, the CG's largest displacement, for data and
+    model alike, so the two compare. A model also reports its largest front-end crush
+    (`max_front_end_crush_m`, the `crush` output along the crush force's line of action: what a
+    crush bound limits); the two differ by the pitch and the geometry. `record_end_s` and
+    `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
+    """
+    m = crash_metrics(t, accel, velocity, displacement)
+    out = {
+        "max_crush_m": m.max_crush,
+        "time_max_crush_s": m.t_max_crush,
+        "max_front_end_crush_m": float(np.max(crush)) if crush is not None else None,
+        "time_zero_velocity_s": m.t_zero_velocity,
+        "peak_decel_g": m.peak_decel / G0,
+        "rebound_velocity_mps": m.rebound_velocity,
+        "delta_v_mps": m.delta_v,
+        "esw_g": m.esw / G0,
+        "tesw_g": m.tesw / G0,
+        "olc_g": m.olc / G0,
+        "record_end_s": float(t[-1]),
+        "end_velocity_mps": m.end_velocity,
+    }
+    out["max_pitch_deg"] = float(np.degrees(np.max(pitch))) if pitch is not None else None
+    return out
+
+
+def still_moving(metrics: Mapping[str, float | None]) -> str | None:
+    """The words for a record that ends before the vehicle stops (no time of zero velocity in
+    it); None for one that stops."""
+    stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
+    if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
+        return None
+    moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
+    return f"{moving} (no stop: its travel there is no max dynamic crush)"
+
+
+def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    if test.data is None:
+        return {}
+    return {name: (ch.time, ch.values) for name, ch in test.data.channels.items()}
+
+
+def data_metrics(test: TestCase) -> dict | None:
+    """Metrics of the measured curves, on the accel channel's time base. A record that ends before
+    the vehicle stops has no max dynamic crush, and no ESW from it: its last sample is not one
+    (None; `still_moving` says where it ends)."""
+    ch = test.data.channels if test.data is not None else {}
+    if not {"accel", "velocity", "displacement"} <= set(ch):
+        return None
+    t = ch["accel"].time
+    t = t[(t >= max(c.time[0] for c in ch.values())) & (t <= min(c.time[-1] for c in ch.values()))]
+    pitch = resample(ch["pitch"], t) if "pitch" in ch else None
+    out = metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
+    if still_moving(out):
+        out.update(max_crush_m=None, time_max_crush_s=None, esw_g=None)
+    return out
+
+
+def response_metrics(r: Response) -> dict:
+    y = r.outputs
+    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+
+
+def channel_consistency(test: TestCase, mass: float) -> dict | None:
+    """What the wall force and the accelerometers each say of the crash, when a test has both.
+
+    Each is integrated as one mass from the impact speed (the wall force as -F / m): its impulse
+    m (v0 - v_end) over the data [N s], time of zero velocity [s], largest travel [m] and rebound
+    [m/s]. A one-mass model meets both only as far as these agree (docs/barrier.md)."""
+    ch = test.data.channels if test.data is not None else {}
+    if not {"accel", "barrier_force"} <= set(ch):
+        return None
+    wall = ch["barrier_force"]
+    sets = {
+        "wall": _one_mass(wall.time, -wall.values / mass, test.speed, mass),
+        "accelerometers": _one_mass(ch["accel"].time, ch["accel"].values, test.speed, mass),
+    }
+    return {**sets, "impulse_ratio": sets["wall"]["impulse_Ns"] / sets["accelerometers"]["impulse_Ns"]}
+
+
+def _one_mass(t: np.ndarray, accel: np.ndarray, v0: float, mass: float) -> dict[str, float]:
+    """Impulse, stop time, travel and rebound of one mass decelerated by `accel` from v0."""
+    velocity, displacement = integrate(t, accel, v0, max(0.0, float(t[0])))
+    m = crash_metrics(t, accel, velocity, displacement)
+    return {
+        "impulse_Ns": mass * (m.v0 - m.end_velocity),
+        "time_zero_velocity_s": m.t_zero_velocity,
+        "max_crush_m": m.max_crush,
+        "rebound_velocity_mps": m.rebound_velocity,
+    }

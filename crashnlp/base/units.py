@@ -1,0 +1,119 @@
+"""Unit conversion at the edges: strings such as "56 km/h" become SI floats.
+
+Plain numbers are taken as SI. In crash work "g" next to an acceleration means
+standard gravity, not gram, so that one case is resolved by the dimension asked for.
+
+pint converts. Building its registry costs a quarter of a second in every process,
+more than the rest of reading a problem, so each conversion pint has made is
+remembered in the crashnlp cache (units-<pint version>.json: text and target unit
+-> SI value), and pint is loaded only for a text it has not converted before. The
+remembered value is pint's own, to the last bit; failures are never remembered.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from contextlib import suppress
+from functools import cache
+from importlib.metadata import version
+from pathlib import Path
+from typing import Any
+
+from crashnlp.base.cache import cache_dir
+
+G0 = 9.80665  # standard gravity, m/s^2
+
+_G_TOKEN = re.compile(r"(?<![A-Za-z_])g(?![A-Za-z_0-9])")
+
+
+class UnitError(ValueError):
+    """A quantity that cannot be read or converted."""
+
+
+@cache
+def registry() -> Any:
+    """pint's unit registry, built on first use."""
+    import pint
+
+    return pint.UnitRegistry()
+
+
+@cache
+def _dimensionality(unit: str):
+    ureg = registry()
+    return ureg.parse_units(unit).dimensionality if unit else ureg.dimensionless.dimensionality
+
+
+def to_si(value: float | int | str, unit: str) -> float:
+    """Convert a number (already SI) or a string with units into SI `unit`."""
+    if isinstance(value, bool):
+        raise UnitError(f"expected a quantity in {unit or 'no unit'}, got {value!r}")
+    if isinstance(value, (int, float)):
+        return float(value)
+    if not isinstance(value, str):
+        raise UnitError(f"expected a number or a string with units, got {value!r}")
+    text = value.strip()
+    try:  # a plain number written as a string (YAML reads 1e6 as text) is SI too
+        return float(text)
+    except ValueError:
+        pass
+    known = _remembered()
+    key = f"{text}\t{unit}"
+    if key not in known:
+        known[key] = _convert(value, text, unit)
+        _remember(known)
+    return known[key]
+
+
+def _convert(value: str, text: str, unit: str) -> float:
+    """pint's conversion of `text` into `unit`."""
+    import pint
+
+    ureg = registry()
+    target = ureg.parse_units(unit) if unit else ureg.dimensionless
+    if _dimensionality(unit) == _dimensionality("m/s^2"):
+        text = _G_TOKEN.sub("g_0", text)
+    try:
+        quantity: Any = ureg.Quantity(text)
+    except Exception as exc:  # pint raises several unrelated types
+        raise UnitError(f"cannot read {value!r} as a quantity") from exc
+    if not isinstance(quantity, ureg.Quantity):
+        return float(quantity)
+    try:
+        return float(quantity.to(target).magnitude)
+    except pint.DimensionalityError:
+        raise UnitError(f"{value!r} does not convert to {unit or 'a plain number'}") from None
+
+
+def _table() -> Path:
+    return cache_dir() / f"units-pint-{version('pint')}.json"
+
+
+@cache
+def _remembered() -> dict[str, float]:
+    """The conversions pint made in earlier processes (empty when the table is unreadable)."""
+    try:
+        known = json.loads(_table().read_text())
+    except (OSError, ValueError):
+        return {}
+    return {k: float(v) for k, v in known.items()} if isinstance(known, dict) else {}
+
+
+def _remember(known: dict[str, float]) -> None:
+    """Write the table (whole, atomically; a lost race only costs a conversion later)."""
+    path = _table()
+    partial = path.with_suffix(f".{os.getpid()}.tmp")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        partial.write_text(json.dumps(known, sort_keys=True))
+        os.replace(partial, path)
+    except OSError:
+        with suppress(OSError):
+            partial.unlink()
+
+
+def unit_scale(unit: str, si_unit: str) -> float:
+    """Factor that turns a value in `unit` into `si_unit` (e.g. 'g' -> 'm/s^2': 9.80665)."""
+    return to_si(f"1 {unit}", si_unit)

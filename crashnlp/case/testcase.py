@@ -1,0 +1,184 @@
+"""The first step of a Case: a problem's tests with their data loaded, impact speeds and horizons.
+
+problem -> load_tests -> (problem with its vehicle mass, tests); crashnlp.case.completion then
+completes the problem from the tests' data, and crashnlp.case.case lays out its parameters and
+builds the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from crashnlp.base.errors import InputError
+from crashnlp.data import TestData, load_test_data
+from crashnlp.data.channels import END_TOLERANCE
+from crashnlp.problem import Problem, Test
+
+SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
+SAME_CONDITIONS = 0.01  # relative: a simulated test this close to its data's speed, mass and end runs as they were recorded
+
+
+@dataclass(frozen=True)
+class Recorded:
+    """The conditions a test's data were recorded at, SI, each with where it comes from: the speed
+    from the data header, else the start of a measured velocity channel, else the test's own speed
+    as the problem gives it (a derived velocity is integrated from it, so the data say nothing
+    else); the mass from the header, else the test's mass as the problem gives it; and the time
+    the data end (their window's end, else their last sample)."""
+
+    speed: tuple[float, str]
+    mass: tuple[float, str]
+    end: float
+
+    def other(self, speed: float, mass: float, duration: float) -> str | None:
+        """Why a test simulated at `speed`, `mass` and `duration` is not the test its data recorded
+        (None: it is, within SAME_CONDITIONS)."""
+        why = []
+        (v, v_from), (m, m_from) = self.speed, self.mass
+        if _apart(speed, v):
+            why.append(f"at {v * 3.6:.1f} km/h ({v_from}), simulated at {speed * 3.6:.1f} km/h")
+        if _apart(mass, m):
+            why.append(f"at {m:.0f} kg ({m_from}), simulated at {mass:.0f} kg")
+        if _apart(duration, self.end):
+            why.append(f"to {self.end * 1e3:.0f} ms, simulated to {duration * 1e3:.0f} ms")
+        return "; ".join(why) or None
+
+
+def _apart(a: float, b: float) -> bool:
+    return abs(a - b) > SAME_CONDITIONS * max(abs(a), abs(b))
+
+
+@dataclass
+class TestCase:
+    """One test of a problem: its impact speed, horizon, data (with the conditions they were
+    recorded at) and parameter overrides."""
+
+    spec: Test
+    speed: float
+    duration: float
+    data: TestData | None
+    overrides: dict[str, float]
+    recorded: Recorded | None = None
+
+    @property
+    def name(self) -> str:
+        return self.spec.name
+
+    def other_conditions(self, mass: float) -> str | None:
+        """Why this test, at its speed, duration and `mass`, is not the test its data recorded, in
+        words naming the test; None where it is (or it has no data)."""
+        why = self.recorded.other(self.speed, mass, self.duration) if self.recorded is not None else None
+        return None if why is None else f"{self.name}: data not shown: recorded {why}"
+
+
+def load_tests(problem: Problem) -> tuple[Problem, list[TestCase]]:
+    """The problem (with the vehicle mass from a test or a data header when it gives none) and
+    its tests, their data read."""
+    loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
+    problem = _with_vehicle_mass(problem, loaded)
+    return problem, [_test_case(problem, i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
+
+
+def _with_vehicle_mass(problem: Problem, loaded: list[TestData | None]) -> Problem:
+    if problem.vehicle.mass is not None:
+        return problem
+    masses = [t.mass for t in problem.tests if t.mass] + [d.meta["mass"] for d in loaded if d and "mass" in d.meta]
+    if not masses:
+        raise InputError("vehicle.mass: not given and no data header gives it")
+    return problem.with_values({"vehicle.mass": masses[0]})
+
+
+def _test_case(problem: Problem, i: int, test: Test, data: TestData | None) -> TestCase:
+    speed = problem.speed(test)
+    if speed is None and data is not None:
+        speed = data.meta.get("speed")
+    if speed is None:
+        raise InputError(f"tests.{i}.speed: no impact speed (give vehicle.speed, the test's speed or a data header)")
+    window = test.data.window if test.data is not None else None
+    if data is not None and window is not None:
+        check_end(f"tests.{i}.data.window", window[1], test, data)
+    end = _data_end(test, data) if data is not None else None
+    duration = test.duration if test.duration is not None else end if end is not None else problem.simulation.duration
+    overrides = {"vehicle.mass": test.mass} if test.mass is not None else {}
+    mass = test.mass if test.mass is not None else problem.vehicle.known_mass
+    recorded = _recorded(test, data, float(speed), mass, end) if data is not None and end is not None else None
+    return TestCase(test, float(speed), float(duration), data, overrides, recorded)
+
+
+def _data_end(test: Test, data: TestData) -> float:
+    """When a test's data end: its window's end, else its last sample."""
+    window = test.data.window if test.data is not None else None
+    return window[1] if window is not None else max(float(ch.time[-1]) for ch in data.channels.values())
+
+
+def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float) -> Recorded:
+    """The conditions the data were recorded at (Recorded), from the data where they say them."""
+    header, start = data.meta.get("speed"), _velocity_start(test, data)
+    if header:
+        recorded_speed = (float(header), "the data header")
+    elif start is not None:
+        recorded_speed = (start, "its velocity data")
+    else:
+        recorded_speed = (speed, "the problem")
+    weighed = data.meta.get("mass")
+    return Recorded(recorded_speed, (float(weighed), "the data header") if weighed else (mass, "the problem"), end)
+
+
+def check_data(tests: list[TestCase]) -> None:
+    """Refuse test data that contradict the problem's speed (check_speed), or end before a fit's
+    duration (check_end; a window is checked as the data load). For fits: a simulation may well
+    ask what a test would do at another speed, or for longer."""
+    for i, test in enumerate(tests):
+        if test.data is not None:
+            check_speed(i, test.speed, test.spec, test.data)
+            if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
+                check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
+
+
+def check_end(key: str, end: float, test: Test, data: TestData) -> None:
+    """Refuse a span (the data window, or a fit's duration) that runs past a channel's last
+    sample: the fit would take a record that ends early for the whole crash, and print "ok"."""
+    name, channel = min(data.channels.items(), key=lambda item: float(item[1].time[-1]))
+    last = float(channel.time[-1])
+    if end - last > END_TOLERANCE * float(np.median(np.diff(channel.time))):
+        file = test.data.file.name if test.data is not None else "the data"
+        raise InputError(
+            f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "
+            f"({file}, channel {name}); shorten it to the data, or give the whole record"
+        )
+
+
+def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a test speed the data contradict: the header's speed, or a measured velocity at impact.
+
+    A plain number is m/s, so `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs
+    into the iteration limit without ever saying why.
+    """
+    where = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+    header = data.meta.get("speed")
+    if header and abs(speed - header) > SPEED_TOLERANCE * header:
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the data header of test {test.name} says {header:g} m/s "
+            f"(more than 5 % apart; a plain number is m/s)"
+        )
+    start = _velocity_start(test, data)
+    if start is not None and test.data is not None and abs(start - speed) > SPEED_TOLERANCE * abs(speed):
+        begins = float(data.channels["velocity"].time[0])
+        late = f" at {begins * 1e3:g} ms, where the record begins after impact" if begins > 0 else ""
+        raise InputError(
+            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s{late} "
+            f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
+        )
+
+
+def _velocity_start(test: Test, data: TestData) -> float | None:
+    """A measured velocity channel's value at impact (t = 0, or its first sample after it); None
+    without one, or where the velocity is derived from the speed."""
+    spec = test.data.channels.get("velocity") if test.data is not None else None
+    velocity = data.channels.get("velocity")
+    if velocity is None or spec is None or spec.derive is not None:
+        return None
+    t0 = min(max(0.0, float(velocity.time[0])), float(velocity.time[-1]))
+    return float(np.interp(t0, velocity.time, velocity.values))

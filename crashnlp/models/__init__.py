@@ -1,0 +1,2 @@
+"""The crash models: force laws, the parameter vector, the model forms and the forward
+simulation."""

@@ -1,0 +1,268 @@
+"""The seam between a crash model's form and everything that uses it: `CrashModel`.
+
+A form says how the body moves: its coordinates q, their scales, and its kinetic energy T,
+potential V (gravity and the preloaded suspension, zero at rest), Rayleigh function D and the
+front end's crush c(q), written once as CasADi expressions (`Mechanics`). The base class forms
+Lagrange's equations from them by AD,
+
+    d/dt dL/dqdot - dL/dq + dD/dqdot = Q,   L = T - V,   Q = -F dc/dq,
+
+so the front-end force F does work only through the crush and the barrier none. The front end
+(spring law, damper, unloading, tail) and its history state (the largest crush so far, the
+last state of every form) are the same element in every form. What the rest of the package
+uses is the same for every form: `rhs`, `outputs` (crashnlp.base.outputs' registry, in its order),
+`initial_state`, `loading_curve`, `states` and `state_floor`, `pitch_estimate`, the pitch
+entries a fit estimates by default, and `check`, what the form refuses to model. A new form is a subclass in one module and one
+entry of crashnlp.problem.forms.FORMS.
+"""
+
+from __future__ import annotations
+
+import importlib
+from abc import ABC, abstractmethod
+from collections.abc import Callable
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Any, ClassVar
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.base.outputs import NAMES
+from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, hinge, with_tail
+from crashnlp.models.parameters import ParameterLayout
+from crashnlp.problem.forms import FORMS
+from crashnlp.problem.schema import EstimateSpec, Problem
+from crashnlp.problem.schema import Model as ModelSpec
+from crashnlp.problem.schema import Tail as TailSpec
+
+HISTORY = "x_max"  # every form's last state: the largest crush so far (m)
+ABSORBED = ("barrier_power", "front_damper_power", "damper_power")  # integrated by the simulator
+HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush this far below it
+OUTPUTS = NAMES  # the registry's order (crashnlp.base.outputs)
+# CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
+# gyration in pitch (0.9 m for a city car to 1.8 m for a long van; sqrt(I / m)).
+CG_ABOVE_IMPACT_BOUNDS = (-0.1, 0.5)  # m
+PITCH_GYRATION_BOUNDS = (0.9, 1.8)  # m
+
+
+@dataclass(frozen=True)
+class Structure:
+    """What fixes the shape of the symbolic model (not its numbers)."""
+
+    spring_law: str
+    unloading_law: str
+    n_spring: int
+    n_damper: int
+    eps_crush: float
+    eps_rate: float
+    tail: bool = False  # the spring law bends into the line of model.spring.tail
+
+    @classmethod
+    def of(cls, spec: ModelSpec) -> Structure:
+        return cls(
+            spec.spring.law,
+            spec.unloading.law,
+            len(spec.spring.placed_breakpoints),
+            0 if spec.damper is None else len(spec.damper.rate_breakpoints),
+            spec.smoothing.crush,
+            spec.smoothing.rate,
+            isinstance(spec.spring.tail, TailSpec),
+        )
+
+
+@dataclass(frozen=True)
+class Mechanics:
+    """A form's energies and kinematics, expressions of the coordinates q and their rates.
+
+    The form gives the CG's velocity itself (the node its T is made of) rather than the base
+    class differentiating the displacement again: reverse-mode derivatives sum over a node's
+    uses in graph order, so a second, equal node would move the NLP's derivatives, and a fit's
+    numbers, in their last bits."""
+
+    kinetic: Expr  # T
+    potential: Expr  # V: gravity and suspension, zero at rest
+    dissipation: Expr  # D: the suspension dampers' Rayleigh function
+    displacement: Expr  # the CG's travel toward the barrier since impact
+    velocity: Expr  # its rate, of q and qdot (its own rate is the acceleration)
+    pitch: Expr  # nose-down positive, zero at rest
+    crush: Expr  # the front end's shortening along its line of action
+    barrier_share: Expr  # cosine of the line of action to the horizontal: barrier force / contact force
+
+
+class CrashModel(ABC):
+    """Symbolic crash model of one form; CasADi Functions of (state, parameters).
+
+    The state is (q, qdot, x_max): a form's coordinates, their rates and the front end's history."""
+
+    COORDINATES: ClassVar[tuple[str, ...]]
+    STATE_FLOOR: ClassVar[tuple[float, ...]]  # smallest scale of each state, in SI (NLP scaling)
+
+    def __init__(self, structure: Structure, layout: ParameterLayout):
+        self.structure = structure
+        self.layout = layout
+        n = len(self.COORDINATES)
+        self.x = ca.SX.sym("x", self.nx)
+        self.q, self.qd = self.x[:n], self.x[n : 2 * n]
+        self.p = ca.SX.sym("p", layout.size)
+        self._functions: dict[tuple, Any] = {}
+        self._parameters = layout.split(self.p)
+        self._build()
+
+    # ---------------------------------------------------------------- what a form says
+    @classmethod
+    def states(cls) -> tuple[str, ...]:
+        """The state's names: the coordinates, their rates, the history."""
+        return (*cls.COORDINATES, *(f"{c}dot" for c in cls.COORDINATES), HISTORY)
+
+    @property
+    def nx(self) -> int:
+        return len(self.states())
+
+    @property
+    def state_floor(self) -> np.ndarray:
+        return np.asarray(self.STATE_FLOOR, dtype=float)
+
+    @abstractmethod
+    def mechanics(self) -> Mechanics:
+        """T, V, D, the crush and the kinematics the outputs read, of self.q and self.qd."""
+
+    @abstractmethod
+    def initial_state_after_impact(self, v0: Expr) -> Expr:
+        """The state just after impact at horizontal speed v0 (a column of length nx)."""
+
+    @classmethod
+    def check(cls, problem: Problem) -> None:
+        """Refuse (InputError naming the entry) a problem this form cannot model; every form
+        models every valid problem unless it says otherwise."""
+        return None
+
+    @classmethod
+    def pitch_estimate(cls, problem: Problem, several_speeds: bool) -> dict[str, EstimateSpec]:
+        """What a fit estimates by default when a test measures pitch: the CG's height above the
+        impact point and the pitch inertia, within physical bounds (CG_ABOVE_IMPACT_BOUNDS,
+        PITCH_GYRATION_BOUNDS)."""
+        mass = problem.vehicle.known_mass
+        lo, hi = PITCH_GYRATION_BOUNDS
+        return {
+            "vehicle.cg_above_impact": EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS),
+            "vehicle.pitch_inertia": EstimateSpec(bounds=(mass * lo**2, mass * hi**2)),
+        }
+
+    # ---------------------------------------------------------------- pieces
+    def _par(self, path: str) -> ca.SX:
+        return self._parameters[path]
+
+    def _front_end(self, crush, rate, x_max):
+        """Contact force (never tensile, zero once separated), its damper part, and stored energy."""
+        s = self.structure
+        bps = [self._par("model.spring.crush_breakpoints")[i] for i in range(s.n_spring)]
+        vals = [self._par("model.spring.values")[i] for i in range(s.n_spring)]
+        law = SPRING_LAWS[s.spring_law]
+        if s.tail:
+            law = with_tail(law, self._par("model.spring.tail.start"), self._par("model.spring.tail.slope"))
+
+        def load(x):
+            return law(x, bps, vals, s.eps_crush)[0]
+
+        stiffness = self._par("model.unloading.stiffness")
+        c = ca.SX.sym("crush")
+        self.loading_curve = ca.Function("loading_curve", [c, self.p], [load(c)], ["crush", "p"], ["force"])
+        spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness, s.eps_crush)
+        if stored is None:
+            stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
+        force, damper = spring, 0
+        if s.n_damper:
+            dbps = [self._par("model.damper.rate_breakpoints")[i] for i in range(s.n_damper)]
+            dvals = [self._par("model.damper.values")[i] for i in range(s.n_damper)]
+            # the damper engages over the first eps of crush, so the contact force
+            # starts from zero at impact instead of jumping to c * v0
+            engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
+            damper = engaged * damper_force(rate, dbps, dvals, s.eps_rate)
+        contact = ca.if_else(crush >= 0, ca.fmax(force + damper, 0), 0)
+        return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
+
+    def _history_rate(self, crush, rate, x_max):
+        """d x_max / dt: the crush rate while loading (a smoothed max(rate, 0)), zero while
+        unloading; a reloading crush moves x_max again within HISTORY_GATE of it. No feedback
+        acts while the crush follows x_max, so the state adds no stiffness to the ODE.
+
+        The gate acts only where x_max lies above the crush. A simulation never puts it below
+        (the rate's hinge is at least the crush rate), but a shooting node's states are free
+        variables: there x_max keeps growing with the crush instead of stalling behind it, so
+        that the node's defect can close (a gate on both sides makes corpus vehicles 13 and 17
+        wander for hundreds of iterations: docs/design-notes.md)."""
+        gap = ca.fmax(x_max - crush, 0) / HISTORY_GATE
+        return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
+
+    def _build(self):
+        q, qd, p = self.q, self.qd, self.p
+        mech = self.mechanics()
+        T, V, D = mech.kinetic, mech.potential, mech.dissipation
+        Xd = mech.velocity
+        crush = mech.crush
+        crush_rate = ca.jtimes(crush, q, qd)
+        x_max = self.x[self.nx - 1]
+        contact, front_damper, stored = self._front_end(crush, crush_rate, x_max)
+        Q = -contact * ca.jacobian(crush, q).T
+
+        Lag = T - V
+        dL_dqd = ca.gradient(Lag, qd)
+        M = ca.jacobian(dL_dqd, qd)
+        rhs = ca.gradient(Lag, q) - ca.jacobian(dL_dqd, q) @ qd - ca.gradient(D, qd) + Q
+        qdd = ca.solve(M, rhs)
+        Xdd = ca.jtimes(Xd, ca.vertcat(q, qd), ca.vertcat(qd, qdd))
+
+        values = {
+            "displacement": mech.displacement,
+            "velocity": Xd,
+            "accel": Xdd,
+            "pitch": mech.pitch,
+            "crush": crush,
+            "crush_rate": crush_rate,
+            "barrier_force": contact * mech.barrier_share,
+            "contact_force": contact,
+            "kinetic": T,
+            "potential": V + stored,
+            "front_energy": stored,
+            "barrier_power": -ca.dot(Q, qd),
+            "front_damper_power": front_damper * crush_rate,
+            "damper_power": 2 * D,
+        }
+        xdot = ca.vertcat(qd, qdd, self._history_rate(crush, crush_rate, x_max))
+        args, names = [self.x, p], ["x", "p"]
+        self.rhs = ca.Function("rhs", args, [xdot], names, ["xdot"])
+        self.outputs = ca.Function("outputs", args, [ca.vertcat(*[values[k] for k in OUTPUTS])], names, ["y"])
+        v0 = ca.SX.sym("v0")
+        self.initial_state = ca.Function("x0", [self.p, v0], [self.initial_state_after_impact(v0)], ["p", "v0"], ["x0"])
+
+    def cached(self, key: tuple, build: Callable[[], Any]) -> Any:
+        """What `build` makes, built once per model and key: the simulator's integrators and
+        compiled functions, which repeat with the same shapes."""
+        if key not in self._functions:
+            self._functions[key] = build()
+        return self._functions[key]
+
+    # ---------------------------------------------------------------- simulation form
+    @cached_property
+    def augmented_rhs(self) -> ca.Function:
+        """ODE for simulation: the state followed by the work absorbed by the front end,
+        by its damper, and by the suspension dampers (the energy audit's integrals)."""
+        x = ca.SX.sym("x", self.nx + len(ABSORBED))
+        state = x[: self.nx]
+        y = self.outputs(state, self.p)
+        work = [y[OUTPUTS.index(name)] for name in ABSORBED]
+        ode = ca.vertcat(self.rhs(state, self.p), *work)
+        return ca.Function("aug_rhs", [x, self.p], [ode], ["x", "p"], ["xdot"])
+
+
+def form_class(name: str) -> type[CrashModel]:
+    """The class of the form `name` (a key of crashnlp.problem.forms.FORMS)."""
+    module, _, cls = FORMS[name].partition(":")
+    found: type[CrashModel] = getattr(importlib.import_module(module), cls)
+    return found
+
+
+def build_model(spec: ModelSpec, layout: ParameterLayout) -> CrashModel:
+    """The symbolic model of a problem's model section (its `form`) and parameter layout."""
+    return form_class(spec.form)(Structure.of(spec), layout)

@@ -1,0 +1,112 @@
+"""Forward simulation with a CasADi integrator, separate from any NLP transcription."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.models.form import ABSORBED, OUTPUTS, CrashModel
+from crashnlp.numerics.compiled import Evaluator, compiled
+from crashnlp.numerics.integrators import rk4
+from crashnlp.numerics.runtime import mapped
+from crashnlp.problem.schema import Simulation
+from crashnlp.results.response import Response
+
+
+def _key(grid: np.ndarray, options: Simulation) -> tuple:
+    return (options.integrator, options.substeps, options.rtol, options.atol, np.asarray(grid, dtype=float).tobytes())
+
+
+def integrator(model: CrashModel, grid: np.ndarray, options: Simulation) -> ca.Function:
+    """A CasADi integrator from grid[0] over the output grid, built once per model, grid and options.
+
+    Its right-hand side is the model's, compiled (crashnlp.numerics.compiled)."""
+
+    def build() -> ca.Function:
+        rhs = model.cached(("rhs",), lambda: compiled(model.augmented_rhs, jacobian=True))
+        x, p = ca.MX.sym("x", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
+        dae = {"x": x, "p": p, "ode": rhs(x, p)}
+        if options.integrator == "cvodes":
+            # the crash ODE is not stiff: Adams with fixed-point iteration needs no Jacobian
+            opts: dict[str, Any] = {
+                "reltol": options.rtol,
+                "abstol": options.atol,
+                "max_num_steps": 100000,
+                "disable_internal_warnings": True,  # a failure reaches the user as one line (cli.describe)
+                "linear_multistep_method": "adams",
+                "nonlinear_solver_iteration": "functional",
+            }
+        else:
+            opts = {"number_of_finite_elements": options.substeps}
+        return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
+
+    return model.cached(("integrator", _key(grid, options)), build)
+
+
+def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool = False) -> ca.Function:
+    """n simulations at once, one parameter set each: (X0 augmented x n, P np x n) -> outputs.
+
+    Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
+    the named outputs at every step, all mapped over the parameter sets, as a
+    what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
+    columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
+    simulation to C (crashnlp.numerics.compiled: about a second, once per machine)."""
+    x, p = ca.SX.sym("x", model.nx + len(ABSORBED)), model.p
+    step = rk4(model.augmented_rhs, dt)
+    outputs = ca.Function("y", [x, p], [model.outputs(x[: model.nx], p)])
+    x0, pm = ca.MX.sym("x0", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
+    states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
+    y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
+    one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
+    return mapped(compiled(one) if jit else one, n)
+
+
+def simulate_batch(
+    model: CrashModel, P: np.ndarray, speed: float, duration: float, dt: float, jit: bool = False
+) -> dict[str, np.ndarray]:
+    """Simulate every column of P (full parameter vectors) by fixed-step RK4 of step dt.
+
+    Returns "time" and each named output as an array of shape (simulations, times)."""
+    n, steps = P.shape[1], int(round(duration / dt))
+    X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
+    batch = model.cached(("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
+    (y,) = batch(x0=X0, p=P)
+    y = y.reshape(len(OUTPUTS), n, steps + 1)
+    return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
+
+
+def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
+    """Simulate one impact at `speed` with parameter vector `p` on `grid` (starts at 0)."""
+    x0 = np.concatenate([np.asarray(model.initial_state(p, speed)).ravel(), np.zeros(len(ABSORBED))])
+    (xf,) = model.cached(("integration", _key(grid, options)), lambda: Evaluator(integrator(model, grid, options), ("xf",)))(
+        x0=x0, p=p
+    )
+    states = np.column_stack([x0, xf])
+    return response_from_states(model, p, grid, states)
+
+
+def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
+    """The compiled outputs at n points of one simulation (the parameters shared)."""
+
+    def build() -> Evaluator:
+        outputs = model.cached(("outputs",), lambda: compiled(model.outputs))
+        x, p = ca.MX.sym("x", model.nx, n), ca.MX.sym("p", model.layout.size)
+        y = outputs.map(n)(x, ca.repmat(p, 1, n))  # serial: threads cost more than they save here
+        return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
+
+    return model.cached(("outputs", n), build)
+
+
+def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
+    """Outputs on a grid from states (rows: the model's states()[, the ABSORBED works])."""
+    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[: model.nx], p=p)
+    outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
+    if states.shape[0] > model.nx:  # the works, and what was absorbed less what the front end still stores
+        work = dict(zip(ABSORBED, states[model.nx :]))
+        outputs["front_work"], outputs["front_damper_work"] = work["barrier_power"], work["front_damper_power"]
+        outputs["suspension_work"] = work["damper_power"]
+        outputs["absorbed"] = outputs["front_work"] + outputs["suspension_work"]
+        outputs["dissipated"] = outputs["absorbed"] - outputs["front_energy"]
+    return Response(np.asarray(grid, dtype=float), outputs, states)

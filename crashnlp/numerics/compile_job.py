@@ -1,0 +1,127 @@
+"""C compiles in process groups of their own: stopped with a command that fails, is interrupted
+or is killed; finished after one that succeeds, in the background at the lowest priority.
+
+`start` runs one; at the end of a command that succeeded `release_compiles` lets those still
+running finish for the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so on the console,
+`stop_compiles` ends them (any other ending, a study worker's end, KEEP_ENV=0). A compile is `python -I .../compile_job.py
+LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it compiles SOURCE into a temporary file beside
+LIBRARY and renames that in place when the compiler succeeds, so that no reader sees half a
+library. It reads its standard input until end of file, which comes when its starter closes the
+pipe or dies, however it dies; the whole group (compiler driver, cc1, as) is then stopped, unless
+the starter wrote RELEASE first: then the group goes on at nice 19, so that it takes only cores
+nothing else wants. Any compile ends itself after TIME_LIMIT_S. Whatever the ending, the
+temporary file and the CLEANUP files (the source, which is a background compile's lock) are
+removed.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import threading
+from contextlib import suppress
+from pathlib import Path
+
+KEEP_ENV = "CRASHNLP_KEEP_COMPILING"  # "0": a background compile ends with the command (default: it finishes, at nice 19)
+RELEASE = b"release\n"  # what a starter writes to a watched compile that is to finish without it
+BACKGROUND_NICE = 19
+TIME_LIMIT_S = 900.0  # a compile still running after this ends itself (and its lock is taken for dead: crashnlp.optimize.oracle)
+STOP_WAIT_S = 10.0  # how long a stopped compile may take to remove its files before its group is killed
+# this file, run isolated (-I: no current folder or PYTHON* variables on its path; it needs only the
+# standard library): `-m crashnlp.numerics.compile_job` ran the crashnlp of the folder a command was started in
+JOB = (sys.executable, "-I", str(Path(__file__).resolve()))
+_compiles: list[subprocess.Popen] = []  # the compiles this process started and has not stopped
+
+
+def start(cc: str, source: Path, library: Path, flags: tuple[str, ...], cleanup: tuple[Path, ...] = ()) -> subprocess.Popen:
+    """Start compiling the file `source` into `library` (crashnlp.numerics.compile_job: through a temporary
+    name, `cleanup` removed at the end). It ends with this process unless released (`release_compiles`)."""
+    compile = subprocess.Popen(
+        [*JOB, str(library), str(source), *map(str, cleanup), "--", cc, *flags],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        start_new_session=True,
+    )
+    _compiles.append(compile)
+    return compile
+
+
+def stop_compiles(compiles: list[subprocess.Popen] | None = None) -> None:
+    """Stop `compiles` (default: every one this process started) and wait until their files are
+    removed: the end of a command. One that does not end within STOP_WAIT_S is killed with its group."""
+    for compile in list(_compiles if compiles is None else compiles):
+        if compile.stdin is not None:
+            compile.stdin.close()  # its end of input: it stops its group and removes its files
+        try:
+            compile.wait(timeout=STOP_WAIT_S)
+        except subprocess.TimeoutExpired:
+            with suppress(ProcessLookupError):
+                os.killpg(compile.pid, signal.SIGKILL)
+            compile.wait()
+        if compile in _compiles:
+            _compiles.remove(compile)
+
+
+def release_compiles() -> list[int]:
+    """At the end of a command: the compiles this process started and that still run finish in
+    the background at nice BACKGROUND_NICE, for the next run, and one line says so; with
+    KEEP_ENV=0 they are stopped instead. Returns the released compiles' process ids."""
+    if os.environ.get(KEEP_ENV) == "0":
+        stop_compiles()
+        return []
+    released = []
+    for compile in list(_compiles):
+        if compile.poll() is None and compile.stdin is not None:
+            with suppress(BrokenPipeError):  # it ended meanwhile
+                compile.stdin.write(RELEASE)
+                compile.stdin.close()
+                released.append(compile.pid)
+                _compiles.remove(compile)
+    stop_compiles()  # those that ended: waited for
+    if released:
+        print(
+            f"crashnlp: compiling this problem's NLP in the background for the next run (pid {', '.join(map(str, released))}, "
+            f"nice {BACKGROUND_NICE}, ends within {TIME_LIMIT_S / 60:.0f} min); {KEEP_ENV}=0 turns this off",
+            file=sys.stderr,
+        )
+    return released
+
+
+def _watch_starter() -> None:
+    """Stop the group at the end of input, unless the starter released it first: then lower the
+    group's priority (the compiler's processes, and those the driver starts later) and go on."""
+    received = b""
+    while chunk := os.read(0, 4096):  # the raw descriptor: a daemon thread must hold no lock of sys.stdin at exit
+        received += chunk
+    if received == RELEASE:
+        os.setpriority(os.PRIO_PGRP, 0, BACKGROUND_NICE)
+        return
+    os.killpg(0, signal.SIGTERM)  # this process only notes it (its handler); the compiler's processes end
+
+
+def main(argv: list[str]) -> int:
+    files, command = argv[: argv.index("--")], argv[argv.index("--") + 1 :]
+    library, source, *cleanup = (Path(f) for f in files)
+    partial = library.with_name(f".{library.name}.{os.getpid()}.tmp")
+    signal.signal(signal.SIGTERM, lambda signum, frame: None)  # a handler, not SIG_IGN: the compiler gets the default
+    try:
+        compiler = subprocess.Popen([*command, str(source), "-o", str(partial), "-lm"], stdin=subprocess.DEVNULL)
+        threading.Thread(target=_watch_starter, daemon=True).start()
+        try:
+            code = compiler.wait(timeout=TIME_LIMIT_S)
+        except subprocess.TimeoutExpired:
+            os.killpg(0, signal.SIGTERM)
+            code = compiler.wait()
+        if code == 0:
+            os.replace(partial, library)
+        return 0 if code == 0 else 1
+    finally:
+        for path in (partial, *cleanup):
+            path.unlink(missing_ok=True)
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

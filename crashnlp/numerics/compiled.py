@@ -1,0 +1,122 @@
+"""CasADi Functions compiled to C once and cached on disk.
+
+The virtual machine costs a few nanoseconds per instruction; the same
+instructions compiled run several times faster. Compiling takes a second or
+two, so each library is kept under the cache folder (CRASHNLP_CACHE, default
+~/.cache/crashnlp), named by a hash of its C source and flags: the same
+function is compiled once per machine, whatever the process. Without a C
+compiler the Function itself is returned, so results never depend on it.
+
+A compile runs in a process group of its own (crashnlp.numerics.compile_job), waited for here,
+and ends with the process that started it, on exit as on a signal, leaving no
+half-written library.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
+from functools import cache
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.base.cache import CACHE_ENV, cache_dir
+from crashnlp.numerics import compile_job
+
+__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler"]
+
+SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": the model's functions, not the NLPs
+FLAGS = ("-O2", "-fPIC", "-shared")
+_loaded: dict[str, ca.Function] = {}
+
+
+def compiler(nlp: bool = False) -> str | None:
+    """The C compiler on PATH (CC, else cc or gcc), or None: always with CRASHNLP_COMPILE=0,
+    and for an NLP's functions (`nlp`) with CRASHNLP_COMPILE=model too (the tests: every test
+    NLP has a shape of its own, and a compile costs more than its solve)."""
+    switch = os.environ.get(SWITCH_ENV)
+    if switch == "0" or (nlp and switch == "model"):
+        return None
+    return _on_path(os.environ.get("CC"), os.environ.get("PATH"))
+
+
+@cache
+def _on_path(cc: str | None, path: str | None) -> str | None:
+    """The first of CC, cc and gcc on `path` (searched once per process and PATH: a search
+    costs half a millisecond, and a solve asks several times)."""
+    return next((name for name in (cc, "cc", "gcc") if name and shutil.which(name, path=path)), None)
+
+
+def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
+    """`fn` as a compiled external Function with the same inputs and outputs.
+
+    It has no derivatives, except its Jacobian with `jacobian` (which
+    CasADi's integrators ask for when they are built, even when unused)."""
+    cc = compiler()
+    if cc is None:
+        return fn
+    gen = ca.CodeGenerator(f"{fn.name()}.c", {"with_header": False, "casadi_real": "double"})
+    gen.add(fn)
+    if jacobian:
+        gen.add(fn.jacobian())
+    source = gen.dump()
+    key = hashlib.sha256("\0".join([source, cc, *FLAGS]).encode()).hexdigest()[:20]
+    if key not in _loaded:
+        library = cache_dir() / f"{fn.name()}-{key}.so"
+        try:
+            if not library.exists():
+                build(cc, source, library)
+            _loaded[key] = ca.external(fn.name(), str(library))
+        except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
+            return fn
+    return _loaded[key]
+
+
+def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:
+    """Compile `source` into `library` and wait; a signal meanwhile stops the compile."""
+    library.parent.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
+        src = Path(tmp) / "fn.c"
+        src.write_text(source)
+        compile = compile_job.start(cc, src, library, flags)
+        try:
+            code = compile.wait()
+        finally:
+            compile_job.stop_compiles([compile])
+        if code != 0:
+            raise subprocess.CalledProcessError(code, compile.args)
+
+
+class Evaluator:
+    """Evaluates a Function on numpy arrays through a FunctionBuffer, with no conversion to
+    and from CasADi matrices (which costs more than the evaluation for long outputs)."""
+
+    def __init__(self, fn: ca.Function, outputs: tuple[str, ...] | None = None):
+        self.fn = fn
+        self.buffer, self._evaluate = fn.buffer()
+        self.outputs = [fn.index_out(name) for name in outputs] if outputs else list(range(fn.n_out()))
+
+    def __call__(self, **inputs: np.ndarray) -> list[np.ndarray]:
+        """Outputs (dense, the Function's shapes) for named inputs; unnamed inputs are zero."""
+        held = []
+        for name, value in inputs.items():
+            i = self.fn.index_in(name)
+            a = np.ravel(np.asarray(value, dtype=float), order="F")  # column-major, as CasADi stores
+            if a.size != self.fn.nnz_in(i):
+                raise ValueError(f"{self.fn.name()}: input {name} has {a.size} values, expected {self.fn.nnz_in(i)}")
+            held.append(a)
+            self.buffer.set_arg(i, memoryview(a))  # type: ignore[call-arg, arg-type]  # the stub asks a size the binding takes from the buffer
+        results = []
+        for i in self.outputs:
+            r = np.empty(self.fn.size_out(i)[::-1])
+            results.append(r)
+            self.buffer.set_res(i, memoryview(r.ravel()))  # type: ignore[call-arg, arg-type]  # as set_arg
+        self._evaluate()
+        if self.buffer.ret() != 0:
+            raise RuntimeError(f"{self.fn.name()}: evaluation failed")
+        return [r.T for r in results]

@@ -1,0 +1,300 @@
+"""Which model form the data choose: every form fitted, and scored on what its fit did not see.
+
+`compare(problem)` fits the problem once with every form of crashnlp.problem.forms.FORMS and
+reports per form the objective, the fitted pitch and crush misfit, the number of identified
+parameters, and a held-out score:
+
+- with two or more tests, leave-one-test-out: each test predicted by the form fitted to the
+  others (crashnlp.results.identified.apply, crashnlp.analysis.prediction.predict: the trend tail, as any
+  prediction). The score is the prediction's relative RMSE, each measured channel's RMSE over
+  the RMS of its data on the test's duration, averaged over channels and held-out tests; with
+  the errors of max crush, peak deceleration and stop time beside it;
+- with one test, the Bayesian information criterion of the fit's Gaussian likelihood, each
+  channel with its own variance: BIC = sum_c n_c ln(RSS_c / n_c) + k ln n, k the identified
+  parameters (the estimated entries less those the fit leaves unidentified). AIC beside it.
+
+The choice is the form with the lowest held-out score (BIC), among the forms whose fit
+converged and whose held-out predictions keep the front end on the barrier while the CG moves
+toward it (crashnlp.analysis.metrics.lift_off) where the measured test was still being decelerated, if
+any does (a vehicle whose front end really comes free is no form's fault). The default form (the paper's pendulum) stays the
+choice unless another is better by more than a tie: TIE relative in the held-out score, BIC_TIE
+in BIC (a difference below 2 is not worth more than a mention: Kass and Raftery, 1995). A fit
+alone never chooses: a form with more freedom fits at least as well.
+
+An estimate entry that a form's equations do not read (the pendulum's `vehicle.crush_offset` in
+the rigid body) is left out of that form's fit, so that it counts no parameter it does not have.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+from typing import TextIO
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.analysis.metrics import lift_off
+from crashnlp.analysis.prediction import predict
+from crashnlp.analysis.summary import data_metrics
+from crashnlp.base.errors import InputError, RunError
+from crashnlp.base.units import G0
+from crashnlp.case.case import case_of
+from crashnlp.optimize.pipeline import prepare_case, solve_problem
+from crashnlp.problem import Problem
+from crashnlp.problem.forms import DEFAULT_FORM, FORMS
+from crashnlp.results.identified import apply
+from crashnlp.results.response import Response
+from crashnlp.results.result import Result
+
+HELD_OUT_TESTS = 2  # tests from which on a form is scored by leave-one-test-out prediction
+TIE = 0.05  # relative difference of held-out scores within which the default form stays
+BIC_TIE = 2.0  # BIC difference within which the default form stays
+PUSHED = G0  # m/s^2: a measured deceleration above this says the front end still pushed on the barrier
+LIFT_WINDOW = 2e-3  # s: the measured deceleration's median over this either side of a predicted lift-off
+
+
+@dataclass(frozen=True)
+class HeldOut:
+    """One test predicted by a form fitted to the other tests (SI; errors relative where named)."""
+
+    test: str
+    status: str
+    score: float | None = None  # relative RMSE, mean over the measured channels
+    channels: dict[str, float] = field(default_factory=dict)  # relative RMSE per channel
+    max_crush_error: float | None = None  # relative
+    peak_decel_error: float | None = None  # relative
+    stop_error_s: float | None = None
+    lift_off_s: float | None = None  # the front end lets go while the CG moves on, and the data say it did not
+
+
+@dataclass(frozen=True)
+class FormScore:
+    """One form's fit of every test and its held-out score."""
+
+    form: str
+    status: str
+    objective: float | None = None
+    pitch_rmse: float | None = None  # rad, over the fitted tests' pitch channels
+    crush_error: float | None = None  # m, worst |model - measured| max crush (the CG's travel)
+    parameters: int = 0  # identified
+    samples: int = 0  # fitted data points
+    aic: float | None = None
+    bic: float | None = None
+    held_out: tuple[HeldOut, ...] = ()
+    lift_off_s: float | None = None  # the first held-out prediction's lift-off the measured test does not show
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    @property
+    def held_out_score(self) -> float | None:
+        """The mean held-out score, None unless every held-out prediction has one."""
+        scores = [h.score for h in self.held_out if h.score is not None]
+        return float(np.mean(scores)) if self.held_out and len(scores) == len(self.held_out) else None
+
+
+@dataclass(frozen=True)
+class Comparison:
+    """Every form's score, the criterion the choice used, the choice and why."""
+
+    name: str
+    criterion: str  # "held-out" or "bic"
+    forms: tuple[FormScore, ...]
+    choice: str | None
+    reason: str
+
+    def to_json(self) -> dict:
+        return {
+            "name": self.name,
+            "criterion": self.criterion,
+            "choice": self.choice,
+            "reason": self.reason,
+            "forms": {f.form: {**asdict(f), "held_out_score": f.held_out_score} for f in self.forms},
+        }
+
+
+def with_form(problem: Problem, form: str) -> Problem:
+    """The problem with `model.form` set to `form`, less the estimate entries the form's
+    equations do not read (its outputs, right-hand side and initial state)."""
+    changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
+    model = case_of(changed).model  # refuses a problem the form cannot model
+    if not changed.estimate:
+        return changed
+    v0 = ca.SX.sym("v0")
+    reads = ca.vertcat(model.outputs(model.x, model.p), model.rhs(model.x, model.p), model.initial_state(model.p, v0))
+    slices = model.layout.slices()
+    used = {path: spec for path, spec in changed.estimate.items() if ca.depends_on(reads, model.p[slices[path]])}
+    return changed.model_copy(update={"estimate": used})
+
+
+def compare(problem: Problem, source: str | None = None, progress: TextIO | None = None) -> Comparison:
+    """Every form fitted to the problem's tests and scored (see the module notes); `source`
+    the file its input errors name, `progress` a stream for a line per fit."""
+    if problem.kind != "identify":
+        raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
+    criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
+    # the profiles the problem asks for are its chosen form's business, not the comparison's
+    problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
+    prepare_case(problem, source)  # the problem's own errors are the caller's, before any form's
+    scores = []
+    for form in FORMS:
+        _say(progress, f"{problem.name}: fitting {form}")
+        try:
+            formed = with_form(problem, form)
+        except InputError as exc:  # a problem this form cannot model (CrashModel.check)
+            scores.append(FormScore(form, f"refused: {exc}"))
+            continue
+        scores.append(_score(formed, form, source, criterion, progress))
+    choice, reason = choose(scores, criterion)
+    return Comparison(problem.name, criterion, tuple(scores), choice, reason)
+
+
+def _say(progress: TextIO | None, line: str) -> None:
+    if progress is not None:
+        print(line, file=progress, flush=True)
+
+
+def _fit(problem: Problem, source: str | None) -> tuple[Result | None, str]:
+    """The problem's fit and its status; a fit that raised a run error has its one line as status."""
+    try:
+        result = solve_problem(problem, source, ratings=False)
+    except (RunError, RuntimeError) as exc:
+        return None, f"failed: {exc}"
+    return result, result.status
+
+
+def _score(problem: Problem, form: str, source: str | None, criterion: str, progress: TextIO | None) -> FormScore:
+    fit, status = _fit(problem, source)
+    if fit is None:
+        return FormScore(form, status)
+    fitted = [t for t in fit.tests.values() if t.fit]
+    channels = [c for t in fitted for c in t.fit.values()]
+    samples = sum(c.data.size for c in channels)
+    k = sum(np.size(v) for v in fit.parameters.values()) - len(fit.not_identified)
+    aic = bic = None
+    if samples > 0:
+        # per channel: n ln(RSS / n); the channels' own variances, estimated (constants dropped)
+        deviance = sum(c.data.size * math.log(max(float(np.mean((c.model - c.data) ** 2)), 1e-300)) for c in channels)
+        aic, bic = deviance + 2 * k, deviance + k * math.log(samples)
+    held = (
+        tuple(_held_out(problem, name, source, progress) for name in (t.name for t in problem.tests))
+        if criterion == "held-out"
+        else ()
+    )
+    offs = [h.lift_off_s for h in held if h.lift_off_s is not None]
+    return FormScore(
+        form,
+        status,
+        fit.solver.objective,
+        _pitch_rmse(fitted),
+        _crush_error(fit),
+        int(k),
+        int(samples),
+        aic,
+        bic,
+        held,
+        min(offs) if offs else None,
+    )
+
+
+def _pitch_rmse(tests: list) -> float | None:
+    """The fitted pitch's RMSE over every test's pitch samples (rad); None without pitch data."""
+    fits = [t.fit["pitch"] for t in tests if "pitch" in t.fit]
+    if not fits:
+        return None
+    return float(np.sqrt(np.sum([np.sum((f.model - f.data) ** 2) for f in fits]) / np.sum([f.data.size for f in fits])))
+
+
+def _crush_error(fit: Result) -> float | None:
+    """The worst |model - measured| max crush (the CG's travel) over the tests that measure it (m)."""
+    errors = [
+        abs(t.metrics["max_crush_m"] - t.data_metrics["max_crush_m"])  # type: ignore[operator]
+        for t in fit.tests.values()
+        if t.data_metrics and t.data_metrics.get("max_crush_m") is not None and t.metrics.get("max_crush_m") is not None
+    ]
+    return max(errors) if errors else None
+
+
+def _lift_off(response: Response, data: dict[str, tuple[np.ndarray, np.ndarray]]) -> float | None:
+    """The time the response's front end lets go of the barrier while the CG still moves toward
+    it (crashnlp.analysis.metrics.lift_off), where the measured test was still being decelerated then (by
+    more than PUSHED over LIFT_WINDOW): a vehicle whose front end really comes free (its pitch
+    outruns its travel) is no model's fault. None without such a time, or without data to say."""
+    t = lift_off(response.time, response["velocity"], response["contact_force"])
+    if t is None:
+        return None
+    if "accel" in data:
+        time, accel = data["accel"]
+    elif "velocity" in data:
+        time, velocity = data["velocity"]
+        accel = np.gradient(velocity, time)
+    else:
+        return None
+    near = np.abs(time - t) <= LIFT_WINDOW
+    return t if near.any() and -float(np.median(accel[near])) > PUSHED else None
+
+
+def _held_out(problem: Problem, name: str, source: str | None, progress: TextIO | None) -> HeldOut:
+    """Test `name` predicted by the problem's form fitted to the other tests."""
+    _say(progress, f"  {problem.model.form}: predicting {name} from the other tests")
+    others = problem.model_copy(update={"tests": [t for t in problem.tests if t.name != name]})
+    fit, status = _fit(others, source)
+    if fit is None or not fit.ok or fit.identified is None:
+        return HeldOut(name, status)
+    alone = problem.model_copy(update={"tests": [t for t in problem.tests if t.name == name], "estimate": {}})
+    case = case_of(apply(alone, fit.identified, source or problem.name), source)
+    (predicted,) = predict(case).values()
+    response, data = predicted.response, predicted.data
+    channels = {}
+    for channel, (t, values) in data.items():
+        inside = (t >= 0.0) & (t <= response.time[-1])
+        if channel not in response.outputs or np.count_nonzero(inside) < 2:
+            continue
+        model = np.interp(t[inside], response.time, response[channel])
+        scale = float(np.sqrt(np.mean(values[inside] ** 2)))
+        if scale > 0:
+            channels[channel] = float(np.sqrt(np.mean((model - values[inside]) ** 2)) / scale)
+    measured = data_metrics(case.tests[0]) or {}
+
+    def error(key: str, relative: bool) -> float | None:
+        mine, theirs = predicted.metrics.get(key), measured.get(key)
+        if mine is None or theirs is None or (relative and theirs == 0):
+            return None
+        return (mine - theirs) / abs(theirs) if relative else mine - theirs
+
+    return HeldOut(
+        name,
+        "ok",
+        float(np.mean(list(channels.values()))) if channels else None,
+        channels,
+        error("max_crush_m", True),
+        error("peak_decel_g", True),
+        error("time_zero_velocity_s", False),
+        _lift_off(response, data),
+    )
+
+
+def choose(scores: list[FormScore], criterion: str) -> tuple[str | None, str]:
+    """The chosen form and why (see the module notes)."""
+    value: dict[str, float] = {}
+    for f in scores:
+        v = f.held_out_score if criterion == "held-out" else f.bic
+        if f.ok and v is not None:
+            value[f.form] = v
+    if not value:
+        return None, "no form's fit converged with a score"
+    kept = [form for form in value if _of(scores, form).lift_off_s is None] or list(value)
+    best = min(kept, key=lambda form: value[form])
+    what = "held-out relative RMSE" if criterion == "held-out" else "BIC"
+    if DEFAULT_FORM in kept and best != DEFAULT_FORM:
+        margin = value[DEFAULT_FORM] - value[best]
+        if margin <= (TIE * abs(value[best]) if criterion == "held-out" else BIC_TIE):
+            return DEFAULT_FORM, f"{DEFAULT_FORM}: the default, within a tie of {best}'s {what}"
+    lifted = " (the others lift the front end off while the CG moves on)" if len(kept) < len(value) else ""
+    return best, f"{best}: the lowest {what}{lifted}"
+
+
+def _of(scores: list[FormScore], form: str) -> FormScore:
+    return next(f for f in scores if f.form == form)

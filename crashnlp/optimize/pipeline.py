@@ -1,0 +1,84 @@
+"""From a validated problem to a Result, the one way: every check, then the steps.
+
+    problem -> prepare_case: the checks a solve needs, then the Case (data, layout, model)
+            -> solve_case: identification or design (one NLP), profile intervals, the Result
+
+crashnlp.api, the command line and a study's workers all call these, so what one of them
+refuses, all refuse. An input error names its `source` (a problem file, a study case; the
+problem's name when none is given).
+"""
+
+from __future__ import annotations
+
+from typing import TextIO
+
+import numpy as np
+
+from crashnlp.case.case import Case, case_of
+from crashnlp.case.checks import check_keys, named
+from crashnlp.optimize.design import design
+from crashnlp.optimize.free import FreeParameters
+from crashnlp.optimize.identify import Solution, identify
+from crashnlp.optimize.outcome import result_of
+from crashnlp.problem import Problem
+from crashnlp.results.result import Result
+
+
+def prepare_case(problem: Problem, source: str | None = None) -> Case:
+    """The Case of a problem to solve, after every check: its keys (crashnlp.case.checks), the tests'
+    data against its speed (Case.check_data: a fit to data that contradict the problem is
+    refused, not run), and the estimate as the solve lays it out (FreeParameters: an initial
+    value of another size than its entry is refused here, not once the output folder is held)."""
+    check_keys(problem, source)
+    case = case_of(problem, source)
+    with named(source or problem.name):
+        case.check_data()
+        FreeParameters(case.layout, case.base, case.problem.estimate)
+    return case
+
+
+def solve_case(
+    case: Case,
+    verbose: bool = False,
+    progress: TextIO | None = None,
+    warm: np.ndarray | None = None,
+    ratings: bool = True,
+) -> Result:
+    """Identify or design, as the problem's `kind` says, then the profile intervals it asks for.
+
+    `progress`: a stream for a line every ten IPOPT iterations; `warm`: a Result.z of the same
+    shape; `ratings`: ISO/TS 18571 ratings of the fits."""
+    if case.problem.kind == "design":
+        solution = design(case, verbose=verbose, progress=progress, warm=warm)
+    else:
+        solution = identify(case, verbose=verbose, progress=progress, warm=warm)
+        profile(solution)
+    return result_of(solution, ratings)
+
+
+def profile(solution: Solution) -> None:
+    """The profile intervals the problem's `uncertainty.profile` names, put into the solution, on
+    the executor its `uncertainty` section says; none for a solve that did not converge."""
+    spec = solution.case.problem.uncertainty
+    if not spec.profile or solution.covariance is None or solution.result is None or not solution.result.converged:
+        return
+    from crashnlp.engine.executors import make_executor  # the process pool's modules: only for profiles
+    from crashnlp.optimize.profile import profiles
+
+    executor = make_executor(spec.executor, spec.workers)
+    try:
+        solution.profiles = profiles(solution, executor)
+    finally:
+        executor.close()
+
+
+def solve_problem(
+    problem: Problem,
+    source: str | None = None,
+    verbose: bool = False,
+    progress: TextIO | None = None,
+    warm: np.ndarray | None = None,
+    ratings: bool = True,
+) -> Result:
+    """prepare_case, then solve_case: a validated problem in, its Result out."""
+    return solve_case(prepare_case(problem, source), verbose, progress, warm, ratings)

@@ -1,0 +1,15 @@
+"""The registry of model forms: `model.form` -> the class that builds it.
+
+A form is one module holding a `crashnlp.models.form.CrashModel` subclass; registering it is one
+entry here. The entries name the class by import path, so the problem schema can take its
+`model.form` choice from this registry without importing CasADi;
+`crashnlp.models.form.form_class` imports it.
+"""
+
+from __future__ import annotations
+
+FORMS: dict[str, str] = {
+    "pendulum": "crashnlp.models.pendulum:PendulumModel",  # the paper: pitches about the impact point
+    "rigid-body": "crashnlp.models.rigid_body:RigidBodyModel",  # pitches about its CG on the suspension
+}
+DEFAULT_FORM = "pendulum"

@@ -1,0 +1,232 @@
+"""`crashnlp export`: the identified front end and the crash pulse, for the tools that come next.
+
+- `ls-dyna`: a keyword file of *DEFINE_CURVE_TITLE cards in mm, ms, kg, kN: the loading curve
+  with the tail the identified model extrapolates with (crashnlp.models.tail), the unloading and
+  the damper, and a comment block saying what each curve is and which material field takes it
+  (docs/handing-on.md: a discrete spring, *MAT_SPRING_GENERAL_NONLINEAR for loading and unloading,
+  *MAT_DAMPER_NONLINEAR_VISCOUS for the damper).
+- `csv`: the same curves in SI, one file each.
+- `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
+  (SAE J211, crashnlp.data.signal), as a sled-test input, with a check of its velocity change.
+
+The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
+smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
+at a fixed spacing elsewhere, so that straight lines between the points follow the law.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import casadi as ca
+import numpy as np
+
+from crashnlp.base.errors import InputError
+from crashnlp.base.units import G0
+from crashnlp.data.channels import SAMPLE_INTERVALS
+from crashnlp.data.signal import cfc_filter, cumtrapz
+from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
+from crashnlp.results.files import atomic_open, write_columns
+from crashnlp.results.identified import IdentifiedModel
+from crashnlp.results.response import Response
+
+EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
+SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
+BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
+FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
+# LS-DYNA's consistent units mm, ms, kg, kN: factors from SI
+MM, KN, MM_PER_MS, KN_PER_MM = 1e3, 1e-3, 1.0, 1e-6
+
+
+@dataclass(frozen=True)
+class Curves:
+    """The identified front end's curves, SI. `loading`: force against crush, with the tail;
+    `unloading`: force against the crush recovered from the permanent set (a straight line at
+    the unloading stiffness; the loading curve for an elastic front end); `damper`: force
+    against crush rate (None without a damper)."""
+
+    loading: tuple[np.ndarray, np.ndarray]
+    unloading: tuple[np.ndarray, np.ndarray]
+    damper: tuple[np.ndarray, np.ndarray] | None
+    unloading_law: str
+    unloading_stiffness: float
+    tail: dict[str, float] | None
+
+
+def identified_curves(identified: IdentifiedModel) -> Curves:
+    """The curves of an identified model, sampled from its own laws."""
+    model = identified.model
+    spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
+    bps, values = list(spring["crush_breakpoints"]), list(spring["values"])
+    law = SPRING_LAWS[spring["law"]]
+    tail = spring.get("tail") if isinstance(spring.get("tail"), dict) else None
+    bends = bps + ([tail["start"]] if tail else [])
+    if tail:
+        law = with_tail(law, tail["start"], tail["slope"])
+    crush = _samples(0.0, EXTENT * max(bends), bends, smoothing["crush"])
+    force = _evaluated(law(ca.DM(crush), bps, values, smoothing["crush"])[0])
+    stiffness = float(unloading.get("stiffness") or 0.0)
+    if unloading["law"] == "plastic":
+        top = float(np.max(force))
+        recovered = np.array([0.0, top / stiffness])
+        unloading_curve = (recovered, stiffness * recovered)
+    else:
+        unloading_curve = (crush, force)
+    speed = float(identified.vehicle.get("speed") or 0.0)
+    return Curves((crush, force), unloading_curve, _damper(model, speed), unloading["law"], stiffness, tail)
+
+
+def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """The damper's force against crush rate, from 0 to the impact speed or its last breakpoint."""
+    damper = model.get("damper")
+    if not damper:
+        return None
+    bps, values, eps = list(damper["rate_breakpoints"]), list(damper["values"]), model["smoothing"]["rate"]
+    rate = _samples(0.0, max(speed, bps[-1]), bps, eps)
+    return rate, _evaluated(damper_force(ca.DM(rate), bps, values, eps))
+
+
+def _samples(start: float, end: float, bends: list[float], eps: float) -> np.ndarray:
+    """Points from `start` to `end`: SPACING at a fixed spacing, and BENDS smoothing widths around each bend."""
+    near = (np.asarray(bends, dtype=float)[:, None] + max(eps, 1e-9) * BENDS[None, :]).ravel()
+    points = np.unique(np.concatenate([np.linspace(start, end, SPACING + 1), near]))
+    points = points[(points >= start) & (points <= end)]
+    distinct = np.concatenate([[True], np.diff(points) > 1e-9 * (end - start)])  # 0.042 once, not twice in rounding
+    return points[distinct]
+
+
+def _evaluated(expr: ca.DM) -> np.ndarray:
+    return np.asarray(ca.DM(expr)).ravel()
+
+
+# --------------------------------------------------------------------------- ls-dyna
+def keyword_file(name: str, source: Path, curves: Curves) -> str:
+    """The .k text: *KEYWORD, the comment block, a *DEFINE_CURVE_TITLE per curve, *END."""
+    lines = ["*KEYWORD", *(f"$ {line}" for line in _keyword_comments(name, source, curves))]
+    crush, force = curves.loading
+    lines += _curve(FIRST_ID, f"{name} loading: force (kN) against crush (mm)", crush * MM, force * KN)
+    recovered, back = curves.unloading
+    lines += _curve(FIRST_ID + 1, f"{name} unloading: force (kN) against crush (mm) from the set", recovered * MM, back * KN)
+    if curves.damper is not None:
+        rate, damping = curves.damper
+        lines += _curve(FIRST_ID + 2, f"{name} damper: force (kN) against crush rate (mm/ms)", rate * MM_PER_MS, damping * KN)
+    return "\n".join([*lines, "*END", ""])
+
+
+def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
+    """What each curve is, in which units, and which material field takes it."""
+    tail = curves.tail
+    lines = [
+        f"crashnlp export of {name} ({source}): the identified front end as curves",
+        "units: mm, ms, kg, kN (consistent: 1 kN = 1 kg mm/ms^2); crush in mm, crush rate in mm/ms (= m/s), force in kN",
+        "signs: crush and crush rate positive in compression, force positive resisting it; for a discrete",
+        "  element whose compression is a negative displacement, set SFA = SFO = -1.0 on each curve",
+        f"curve {FIRST_ID}: loading, force against crush (LCDL of *MAT_SPRING_GENERAL_NONLINEAR, MAT_S06)",
+    ]
+    if tail:
+        lines.append(
+            f"  past {tail['start'] * MM:.1f} mm the fitted tests did not reach: the identified model's tail,"
+            f" a straight line at {tail['slope'] * KN_PER_MM:.4g} kN/mm"
+        )
+    lines.append("  past the last point, continue the last segment (as the identified model does)")
+    if curves.unloading_law == "plastic":
+        lines.append(
+            f"curve {FIRST_ID + 1}: unloading, a line at the unloading stiffness {curves.unloading_stiffness * KN_PER_MM:.4g}"
+            " kN/mm, force against crush from the permanent set (LCDU of MAT_S06)"
+        )
+    else:
+        lines.append(f"curve {FIRST_ID + 1}: unloading retraces loading (elastic front end): the loading curve (LCDU of MAT_S06)")
+    if curves.damper is not None:
+        lines += [
+            f"curve {FIRST_ID + 2}: damper, force against crush rate (LCDR of *MAT_DAMPER_NONLINEAR_VISCOUS, MAT_S05),",
+            "  on a discrete damper beside the spring; the identified model engages it over its first millimetre of crush",
+        ]
+    else:
+        lines.append("no damper: the identified model has none")
+    return lines
+
+
+def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
+    """One *DEFINE_CURVE_TITLE card: fixed fields (10 columns on the first card, 20 for the points)."""
+    head = f"{lcid:>10d}{0:>10d}{1.0:>10.1f}{1.0:>10.1f}{0.0:>10.1f}{0.0:>10.1f}{0:>10d}{0:>10d}"
+    points = [f"{a:>20.10g}{o:>20.10g}" for a, o in zip(x, y)]
+    names = "$#    lcid      sidr       sfa       sfo      offa      offo    dattyp     lcint"
+    return ["*DEFINE_CURVE_TITLE", title[:80], names, head, "$#                a1                  o1", *points]
+
+
+def write_keyword_file(path: Path, name: str, source: Path, curves: Curves) -> None:
+    with atomic_open(path) as fh:
+        fh.write(keyword_file(name, source, curves))
+
+
+def write_curves_csv(folder: Path, curves: Curves) -> list[Path]:
+    """loading.csv, unloading.csv and (with a damper) damper.csv in `folder`, SI; the paths written."""
+    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
+    if curves.damper is not None:
+        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    for file, (x_name, (x, y)) in tables.items():
+        write_columns(folder / file, {x_name: x, "force_N": y})
+    return [folder / f for f in tables]
+
+
+# --------------------------------------------------------------------------- pulse
+@dataclass(frozen=True)
+class Pulse:
+    """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc`, and what its velocity
+    change is checked against (m/s): the impact speed, the model's velocity just after impact
+    (the pivot's impulse at impact takes the difference, which no acceleration sample holds)
+    and the rebound at the record's end."""
+
+    time: np.ndarray
+    accel: np.ndarray
+    rate: float
+    cfc: float
+    speed: float
+    after_impact: float
+    rebound: float
+
+    @property
+    def delta_v(self) -> float:
+        """The velocity change the pulse integrates to (m/s, negative: it slows the vehicle)."""
+        return float(cumtrapz(self.time, self.accel)[-1])
+
+    @property
+    def miss(self) -> float:
+        """The pulse's velocity change against the impact speed plus the rebound, relative."""
+        return -self.delta_v / (self.speed + self.rebound) - 1.0
+
+    def check_line(self) -> str:
+        return (
+            f"delta-v: the pulse integrates to {-self.delta_v:.3f} m/s; impact speed {self.speed:.3f} m/s + rebound"
+            f" {self.rebound:.3f} m/s at the end of the record = {self.speed + self.rebound:.3f} m/s ({100 * self.miss:+.2f} %);"
+            f" the model's velocity just after impact is {self.after_impact:.3f} m/s"
+            f" (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
+        )
+
+
+def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
+    """The acceleration of a response to an impact at `speed`, resampled at `rate` Hz over its
+    record and CFC-filtered (J211)."""
+    if not (np.isfinite(rate) and rate > 0):
+        raise InputError(f"--rate {rate:g}: must be a positive number of Hz")
+    if rate * SAMPLE_INTERVALS[0] > 1:
+        raise InputError(f"--rate {rate:g}: faster than any crash record is sampled (at most {1 / SAMPLE_INTERVALS[0]:g} Hz)")
+    try:
+        time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
+        time = time[time <= response.time[-1] + 1e-12]
+        accel = cfc_filter(np.interp(time, response.time, response["accel"]), 1.0 / rate, cfc)
+    except ValueError as exc:
+        raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
+    velocity = response["velocity"]
+    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(-velocity[-1]))
+
+
+def write_pulse(path: Path, name: str, test: str, p: Pulse) -> None:
+    """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is."""
+    comments = (
+        f"crashnlp export of {name}, test {test}: the model's acceleration, sled-test input",
+        f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
+        p.check_line(),
+    )
+    write_columns(path, {"time_s": p.time, "accel_g": p.accel / G0}, comments)

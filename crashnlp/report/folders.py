@@ -1,0 +1,66 @@
+"""What a folder crashnlp wrote holds, read back through the loaders that wrote it.
+
+A fit or a design (result.json: `Result.load`), a simulation (simulation.json:
+crashnlp.analysis.prediction.read_simulation) or a study (cases/: crashnlp.studies.store.CaseStore).
+The report and the exports read folders here; a folder that is none of these, or whose files
+do not read as crashnlp writes them, is an InputError naming it (one line, exit 2).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import TYPE_CHECKING, Literal
+
+from crashnlp.base.errors import InputError
+from crashnlp.results.result import Result
+from crashnlp.studies.store import CaseStore
+
+if TYPE_CHECKING:
+    from crashnlp.analysis.prediction import PredictedTest
+
+Kind = Literal["result", "simulation", "study"]
+MARKERS: tuple[tuple[Kind, str], ...] = (("result", "result.json"), ("simulation", "simulation.json"), ("study", "cases"))
+
+
+def folder_kind(folder: Path) -> Kind:
+    """Which of crashnlp's folders `folder` is, by the file that marks it."""
+    if not folder.is_dir():
+        raise InputError(f"{folder}: not a folder" if folder.exists() else f"{folder}: no such folder")
+    for kind, marker in MARKERS:
+        if (folder / marker).exists():
+            return kind
+    raise InputError(f"{folder}: holds no result.json, simulation.json or cases/: not a folder crashnlp wrote")
+
+
+def read_result(folder: Path) -> Result:
+    """The fit or design in `folder`."""
+    with _reading(folder / "result.json"):
+        return Result.load(folder)
+
+
+def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
+    """The name and the predicted tests of the simulation in `folder`."""
+    from crashnlp.analysis.prediction import read_simulation as read  # CasADi: only a simulation's folder needs it
+
+    with _reading(folder / "simulation.json"):
+        return read(folder)
+
+
+def read_study(folder: Path) -> list[dict]:
+    """The rows of the study's finished cases in `folder`, in case order."""
+    rows = CaseStore(folder / "cases").rows()
+    if not rows:
+        raise InputError(f"{folder / 'cases'}: no finished case")
+    return rows
+
+
+@contextmanager
+def _reading(path: Path) -> Iterator[None]:
+    """Any failure to read a folder's files becomes one line naming `path`, the file that marks it."""
+    try:
+        yield
+    except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
+        why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+        raise InputError(f"{path}: does not read as crashnlp writes it ({why})") from None

@@ -1,0 +1,273 @@
+"""The identified vehicle a fit hands on: its complete model, its uncertainty and its range.
+
+A fit completes its problem from the data (crashnlp.case.completion) and then estimates some of its
+entries. `IdentifiedModel` keeps all of it: every vehicle and model entry in SI with the
+fitted values in place, the covariance of the estimated ones, the range of crush, speed and
+mass the fitted tests covered, and how far the model's own crash metrics missed the data's on
+those tests. result.json stores it under `identified_model`; `apply` puts it into another
+problem of the same vehicle (a new speed, mass or duration), so that a prediction needs no
+more than the fit's result and a problem that names what is new.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from statistics import NormalDist
+from typing import Any
+
+import numpy as np
+
+from crashnlp.base.errors import InputError
+from crashnlp.problem.forms import DEFAULT_FORM
+from crashnlp.problem.load import problem_from_dict, read_yaml
+from crashnlp.problem.schema import BreakpointCount, Problem
+
+# the vehicle's geometry: a problem that gives other values describes another vehicle
+GEOMETRY = ("cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
+# relative: geometry this close is the same vehicle, given in other units (8.0381 ft for 2.45 m is 5e-6
+# apart, five significant digits of feet); 0.1 mm in a metre is finer than a vehicle is measured
+SAME_GEOMETRY = 1e-4
+# the model's structure (section, field): given otherwise by a problem, it is another model
+STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
+SAME = 1e-9  # relative: values closer than this are the same
+# the crash metrics a prediction gives 95 % intervals for (result.json's metric keys)
+INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "olc_g", "max_pitch_deg")
+Z95 = NormalDist().inv_cdf(
+    0.975
+)  # two-sided 95 % quantile of the normal distribution (the standard library's: scipy.special costs a command 0.2 s to import)
+
+
+@dataclass(frozen=True)
+class IdentifiedRange:
+    """What the fitted tests covered: the largest measured crush (CG travel), the speeds and
+    masses of the tests, the largest front-end crush the model went through in them, how far
+    the data determine its loading curve, and each test's impact energy, m v^2 / 2 (SI; none in
+    a result written before they were kept). A prediction beyond it extrapolates."""
+
+    max_crush: float
+    speeds: tuple[float, float]
+    masses: tuple[float, float]
+    model_crush: float
+    energies: tuple[float, ...] = ()
+
+    def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
+        """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
+        mass in kg, each only where it is past; empty inside the range."""
+        out: dict[str, float] = {}
+        if max_crush > self.max_crush * (1 + 1e-3):
+            out["crush_m"] = max_crush - self.max_crush
+            out["crush_rel"] = max_crush / self.max_crush - 1.0
+        for key, value, (lo, hi) in (("speed_mps", speed, self.speeds), ("mass_kg", mass, self.masses)):
+            past = value - hi if value > hi * (1 + 1e-6) else value - lo if value < lo * (1 - 1e-6) else 0.0
+            if past:
+                out[key] = past
+        return out
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "max_crush_m": self.max_crush,
+            "speeds_mps": list(self.speeds),
+            "masses_kg": list(self.masses),
+            "model_crush_m": self.model_crush,
+            "energies_j": list(self.energies),
+        }
+
+    @classmethod
+    def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
+        energies = tuple(float(e) for e in raw.get("energies_j", ()))
+        crush, model_crush = float(raw["max_crush_m"]), float(raw["model_crush_m"])
+        return cls(crush, _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), model_crush, energies)
+
+
+def _pair(values: Any) -> tuple[float, float]:
+    lo, hi = (float(v) for v in values)
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class IdentifiedModel:
+    """A fitted vehicle, complete (see the module's docstring). SI throughout.
+
+    `labels` name the estimated entries one number each ("model.spring.values[3]"), in the
+    order of `covariance` (None where the data do not determine a value) and `bounds`.
+    `discrepancy`: per crash metric, the root mean square over the fitted tests of the model's
+    relative miss of the data's value; a metric no fitted test measured is absent."""
+
+    vehicle: dict[str, Any]
+    model: dict[str, Any]
+    parameters: dict[str, float | list[float]]
+    labels: tuple[str, ...]
+    covariance: np.ndarray | None
+    bounds: tuple[tuple[float, float], ...]
+    range: IdentifiedRange
+    discrepancy: dict[str, float] = field(default_factory=dict)
+    channel_rmse: dict[str, float] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        cov = None if self.covariance is None else [[_finite(x) for x in row] for row in self.covariance]
+        return {
+            "vehicle": self.vehicle,
+            "model": self.model,
+            "parameters": self.parameters,
+            "labels": list(self.labels),
+            "covariance": cov,
+            "bounds": [[_finite(lo), _finite(hi)] for lo, hi in self.bounds],
+            "range": self.range.to_json(),
+            "discrepancy": self.discrepancy,
+            "channel_rmse": self.channel_rmse,
+        }
+
+    @classmethod
+    def from_json(cls, raw: dict[str, Any]) -> IdentifiedModel:
+        cov = raw.get("covariance")
+        matrix = None if cov is None else np.array([[np.inf if x is None else x for x in row] for row in cov], dtype=float)
+        bounds = tuple((-np.inf if lo is None else lo, np.inf if hi is None else hi) for lo, hi in raw["bounds"])
+        return cls(
+            raw["vehicle"],
+            raw["model"],
+            raw["parameters"],
+            tuple(raw["labels"]),
+            matrix,
+            bounds,
+            IdentifiedRange.from_json(raw["range"]),
+            dict(raw.get("discrepancy", {})),
+            dict(raw.get("channel_rmse", {})),
+        )
+
+    def tail_notes(self) -> tuple[str, ...]:
+        """What a prediction's loading curve does past the crush the fit reached, and which fitted
+        values lie past it (none without a tail)."""
+        spring = self.model["spring"]
+        tail = spring.get("tail")
+        if not isinstance(tail, dict):
+            return ()
+        note = (
+            f"past {1e3 * tail['start']:.0f} mm of crush (the model reached {1e3 * self.range.model_crush:.0f} mm in the"
+            f" fitted tests) a prediction's loading curve follows its trend, {1e-3 * tail['slope']:.0f} kN/m"
+        )
+        past = [f"model.spring.values[{i}]" for i, x in enumerate(spring["crush_breakpoints"]) if x > tail["start"]]
+        if past:
+            note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"
+        return (note,)
+
+    def as_problem(self, name: str) -> Problem:
+        """The identified vehicle as a problem of one data-free test at its speed: what reads the
+        model without its data (the units of its entries, its model's functions) takes this."""
+        raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
+        return problem_from_dict(raw, Path("."), name)
+
+    def std(self) -> np.ndarray:
+        """Standard error of each labelled value; inf where the data do not determine it."""
+        if self.covariance is None:
+            return np.full(len(self.labels), np.inf)
+        return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+
+
+def _finite(x: float) -> float | None:
+    return float(x) if math.isfinite(x) else None
+
+
+def load_applied(path: str | Path, identified: IdentifiedModel, source: str) -> Problem:
+    """A problem file with the identified vehicle in it (`applied`)."""
+    path = Path(path)
+    return applied(read_yaml(path), path.resolve().parent, identified, source, str(path))
+
+
+def applied(raw: Any, base_dir: Path, identified: IdentifiedModel, source: str, name: str) -> Problem:
+    """A problem given as a plain dict (`name` its file, which its errors name) with the identified
+    vehicle in it (`apply`). What it leaves out comes from the identified vehicle before it is
+    validated: every vehicle entry, and every section of the model (spring, damper, ...; a section
+    it gives is its own, whole), so that a prediction of only `name` and `tests` is a problem."""
+    if isinstance(raw, dict):
+        vehicle, model = ({} if raw.get(key) is None else raw[key] for key in ("vehicle", "model"))
+        raw = {**raw, "vehicle": _filled(vehicle, identified.vehicle), "model": _filled(model, identified.model, deep=False)}
+    return apply(problem_from_dict(raw, base_dir, source=name), identified, source)
+
+
+def _filled(given: Any, theirs: dict[str, Any], deep: bool = True) -> Any:
+    """A section of a problem file with the entries it leaves out taken from `theirs`, and with
+    `deep`, those of the mappings inside it too (what the file gives wins; a section that is not a
+    mapping is left for the schema to refuse)."""
+    if not isinstance(given, dict):
+        return given
+    inner = {k: _filled(v, theirs[k]) for k, v in given.items() if deep and isinstance(theirs.get(k), dict)}
+    return {**theirs, **given, **inner}
+
+
+def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
+    """`problem` with the identified vehicle in it: the whole model section (but a tail the
+    problem gives), the estimated vehicle entries, and every vehicle entry the problem leaves out.
+    The problem's own speeds, masses, durations and tests stay; a problem whose geometry or model
+    structure differs from the identified vehicle's is refused (InputError naming `source` and
+    the entry)."""
+    _refuse_another_vehicle(problem, identified, source)
+    raw = problem.model_dump(mode="python", exclude_unset=True)
+    given = problem.vehicle.model_fields_set
+    vehicle = dict(raw.get("vehicle", {}))
+    for key, value in identified.vehicle.items():
+        if key not in given or _estimated(identified, f"vehicle.{key}"):
+            vehicle[key] = value
+    raw["vehicle"] = vehicle
+    raw["model"] = _model(problem, identified)
+    raw["estimate"] = {}
+    return problem_from_dict(raw, problem.base_dir, source)
+
+
+def _model(problem: Problem, identified: IdentifiedModel) -> dict[str, Any]:
+    """The identified model section, with the problem's own `model.spring.tail` where it gives a
+    line or `segment`: the user's word on the force past the fitted crush wins (`trend` is what
+    the identified model holds already)."""
+    spring = problem.model.spring
+    if "tail" not in spring.model_fields_set or spring.tail == "trend":
+        return identified.model
+    tail = spring.tail if isinstance(spring.tail, str) else spring.tail.model_dump()
+    return {**identified.model, "spring": {**identified.model["spring"], "tail": tail}}
+
+
+def _estimated(identified: IdentifiedModel, path: str) -> bool:
+    """Whether the fit estimated the entry at `path` or one inside it (vehicle.suspension.k_front)."""
+    return any(p == path or p.startswith(path + ".") for p in identified.parameters)
+
+
+def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, source: str) -> None:
+    given = problem.vehicle.model_fields_set
+    for key in GEOMETRY:
+        mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
+        if key in given and theirs is not None and not _same(mine, theirs, SAME_GEOMETRY):
+            raise InputError(
+                f"{source}: vehicle.{key} is {mine:g} m, but the identified vehicle's is {theirs:g} m: "
+                "another vehicle (a result predicts the vehicle it was fitted to)"
+            )
+    theirs_form = identified.model.get("form", DEFAULT_FORM)
+    if "form" in problem.model.model_fields_set and problem.model.form != theirs_form:
+        raise InputError(
+            f"{source}: model.form is {problem.model.form}, but the identified vehicle's is {theirs_form}: "
+            "another model (a result predicts the model it was fitted with)"
+        )
+    for section, key in STRUCTURE:
+        node = getattr(problem.model, section)
+        theirs = (identified.model.get(section) or {}).get(key)
+        if node is None or key not in node.model_fields_set or theirs is None:
+            continue
+        mine = getattr(node, key)
+        if _differs(mine, theirs):
+            raise InputError(
+                f"{source}: model.{section}.{key} is {mine}, but the identified vehicle's is {theirs}: "
+                "another model (a result predicts the model it was fitted with)"
+            )
+
+
+def _differs(mine: Any, theirs: Any) -> bool:
+    """Whether the problem's structure entry names another model than the identified one's: a list
+    differs in length or a value, a count (`{count: N}`, which the fit placed as N breakpoints) in N."""
+    if isinstance(mine, BreakpointCount):
+        return not isinstance(theirs, list) or mine.count != len(theirs)
+    if isinstance(mine, list) or isinstance(theirs, list):
+        return not isinstance(mine, list) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+    return mine != theirs
+
+
+def _same(a: float, b: float, tolerance: float = SAME) -> bool:
+    return abs(a - b) <= tolerance * max(abs(a), abs(b), 1e-12)

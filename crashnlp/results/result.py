@@ -1,0 +1,312 @@
+"""The plain outcome of an identification or a design: frozen dataclasses, and its files.
+
+A `Result` is built once, by the optimizer (crashnlp.optimize.outcome), from
+the solved NLP; everything downstream (result files, figures, the console,
+study tables, the Python API) reads it and nothing else. `Result.save(dir)`
+writes what the command line writes (result.json, response and force-crush
+tables, figures); `Result.load(dir)` reads it back. Everything is SI inside and
+converted to report units (g, deg, ms) only as it is written.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from crashnlp.base.outputs import OUTPUT, PANELS, named_test
+from crashnlp.results.files import claim, run_name, write_columns
+from crashnlp.results.identified import IdentifiedModel
+from crashnlp.results.jsonfile import write_json
+from crashnlp.results.response import Response, read_response, write_response_csv
+
+if TYPE_CHECKING:
+    from crashnlp.results.plots import Job  # not at run time: matplotlib
+
+# ignored by reproducibility checks: the only entries that change from run to run
+VOLATILE = ("wall_s", "build_s", "compiled")  # how long and by which evaluator, not what: same bits either way
+TAIL_SHOWN = 1.25  # the force-crush figure draws a fit's tail to this times its start
+
+
+@dataclass(frozen=True)
+class ChannelFit:
+    """One measured channel against the model at the fitted nodes (SI)."""
+
+    channel: str
+    times: np.ndarray
+    data: np.ndarray
+    model: np.ndarray
+    sigma: float
+    rmse: float
+    iso18571: dict[str, float] | None
+
+
+@dataclass(frozen=True)
+class ActiveConstraint:
+    """An inequality at its bound: its kind, its test (None for shared), where and what it is worth.
+
+    `multiplier` sums |lambda| over the points: d objective / d bound (objective units per SI unit)."""
+
+    kind: str  # "bound", "monotone_crush", "monotone_spring", "design", "parameter_bound", ...
+    name: str
+    test: str | None
+    points: int
+    multiplier: float
+    max_multiplier: float
+
+
+@dataclass(frozen=True)
+class SolverStats:
+    return_status: str | None
+    iterations: int
+    objective: float | None
+    wall_s: float | None
+    build_s: float | None
+    compiled: bool | None = None  # IPOPT called the compiled NLP functions
+
+
+@dataclass(frozen=True)
+class TestResult:
+    """One test: the model's response on the NLP grid, the data, the fit and the audits."""
+
+    name: str
+    speed: float
+    response: Response
+    data: dict[str, tuple[np.ndarray, np.ndarray]]
+    fit: dict[str, ChannelFit]
+    metrics: dict[str, float | None]
+    data_metrics: dict[str, float | None] | None
+    loading_end: float
+    energy: dict[str, float] | None = None
+    forward_check: dict[str, Any] | None = None
+    consistency: dict[str, Any] | None = None  # wall force against accelerometers (summary.channel_consistency)
+
+
+@dataclass(frozen=True)
+class LoadingCurve:
+    """The identified loading curve, its breakpoints, a reference curve if the problem has one,
+    per test with data its measured m |a| (spring and damper) against CG travel while loading,
+    and the curve's 95 % band (low, high: None without a covariance)."""
+
+    crush: np.ndarray
+    force: np.ndarray
+    breakpoints: np.ndarray
+    values: np.ndarray
+    reference: tuple[np.ndarray, np.ndarray] | None = None
+    measured: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    band: tuple[np.ndarray, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class Result:
+    """What a solve produced, judged honestly, in SI."""
+
+    name: str
+    kind: str
+    status: str
+    solver: SolverStats
+    transcription: dict[str, Any]
+    parameters: dict[str, float | list[float]]
+    std_errors: dict[str, float | list[float | None] | None]
+    correlation: dict[str, Any]
+    not_identified: tuple[str, ...]
+    at_bound: dict[str, float]
+    active_constraints: tuple[ActiveConstraint, ...]
+    tests: dict[str, TestResult]
+    force_crush: LoadingCurve | None = None
+    profiles: dict[str, dict] = field(default_factory=dict)
+    covariance: dict[str, Any] = field(default_factory=dict)
+    inequalities: tuple[str, ...] = ()  # every inequality block of the NLP, active or not
+    notes: tuple[str, ...] = ()  # what was done to the problem on the way, e.g. a repaired start
+    z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
+    identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
+    regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
+    output_bounds: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)  # constraints.bounds, SI
+
+    @property
+    def ok(self) -> bool:
+        return self.status == "ok"
+
+    def to_json(self) -> dict[str, Any]:
+        """The content of result.json (SI; metrics in the units their names say)."""
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "status": self.status,
+            "solver": {"name": "ipopt", **vars(self.solver)},
+            "transcription": self.transcription,
+            "parameters": self.parameters,
+            "std_errors": self.std_errors,
+            "correlation": self.correlation,
+            "not_identified": list(self.not_identified),
+            "profiles": self.profiles,
+            "covariance": self.covariance,
+            "regularization": self.regularization,
+            "output_bounds": {name: list(ends) for name, ends in self.output_bounds.items()},
+            "at_bound": self.at_bound,
+            "notes": list(self.notes),
+            "tests": {name: _test_json(t) for name, t in self.tests.items()},
+            "active_constraints": [vars(c) for c in self.active_constraints],
+            "identified_model": self.identified.to_json() if self.identified is not None else None,
+        }
+
+    def save(self, folder: str | Path, figures: bool = True) -> None:
+        """result.json, responses, force-crush table and figures: what the command line writes,
+        into a folder that then holds this result only (crashnlp.results.files.claim: InputError for a
+        folder holding another run's results, or being written by another run)."""
+        write_result(self, Path(folder), figures=figures)
+
+    @classmethod
+    def load(cls, folder: str | Path) -> Result:
+        """A Result read back from a folder `save` wrote (responses from response.csv). The data
+        and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
+        ratings, its node arrays are empty."""
+        folder = Path(folder)
+        raw = json.loads((folder / "result.json").read_text())
+        tests = {}
+        for name, t in raw["tests"].items():
+            response = read_response(folder / name / "response.csv")
+            tests[name] = TestResult(
+                name,
+                t["speed_mps"],
+                response,
+                {},
+                {c: _fit_from_json(c, f) for c, f in t.get("fit", {}).items()},
+                t["metrics"]["model"],
+                t["metrics"]["data"],
+                _number(t.get("loading_ends_s")),
+                t.get("energy"),
+                t.get("forward_check"),
+                t.get("consistency"),
+            )
+        return cls(
+            raw["name"],
+            raw["kind"],
+            raw["status"],
+            SolverStats(
+                *(raw["solver"].get(k) for k in ("return_status", "iterations", "objective", "wall_s", "build_s", "compiled"))
+            ),
+            raw["transcription"],
+            raw["parameters"],
+            raw["std_errors"],
+            raw["correlation"],
+            tuple(raw["not_identified"]),
+            raw["at_bound"],
+            tuple(ActiveConstraint(**c) for c in raw["active_constraints"]),
+            tests,
+            profiles=raw.get("profiles", {}),
+            covariance=raw.get("covariance", {}),
+            regularization=raw.get("regularization", {}),
+            output_bounds={name: (lo, hi) for name, (lo, hi) in raw.get("output_bounds", {}).items()},
+            notes=tuple(raw.get("notes", ())),
+            identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
+        )
+
+
+def _number(value: Any) -> float:
+    return float("nan") if value is None else float(value)
+
+
+def _test_json(t: TestResult) -> dict[str, Any]:
+    out = {
+        "speed_mps": t.speed,
+        "loading_ends_s": t.loading_end,
+        "forward_check": t.forward_check,
+        "energy": t.energy,
+        "metrics": {"model": t.metrics, "data": t.data_metrics},
+        "fit": {c: _fit_json(f) for c, f in t.fit.items()},
+    }
+    return out | ({"consistency": t.consistency} if t.consistency is not None else {})
+
+
+def _fit_json(f: ChannelFit) -> dict[str, Any]:
+    out = OUTPUT[f.channel]
+    return {"rmse": f.rmse * out.factor, "unit": out.report_unit, "sigma": f.sigma * out.factor, "iso18571": f.iso18571}
+
+
+def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
+    """A channel's fit as result.json keeps it (`_fit_json`), back in SI, without its nodes."""
+    factor, empty = OUTPUT[channel].factor, np.zeros(0)
+    return ChannelFit(channel, empty, empty, empty, raw["sigma"] / factor, raw["rmse"] / factor, raw["iso18571"])
+
+
+def write_result(result: Result, out: Path, figures: bool = True) -> None:
+    """result.json, per-test responses, the force-crush table, and the figures after them, into a
+    folder that then holds this result only (crashnlp.results.files.claim: refused where it holds another
+    run's)."""
+    with claim(out, run_name(result.kind, result.name), option=None):
+        for name, t in result.tests.items():
+            write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
+        fc = result.force_crush
+        if fc is not None:
+            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
+        write_json(out / "result.json", result.to_json())
+        if figures:
+            write_figures(result, out)
+
+
+def write_figures(result: Result, out: Path) -> None:
+    """Fit and residual figures per test, and the force-crush figure."""
+    from crashnlp.results import plots  # matplotlib: a third of a second, only when drawing
+
+    plots.draw(figure_jobs(result, out))
+
+
+def figure_jobs(result: Result, out: Path) -> list[Job]:
+    """The figures of a result as crashnlp.results.plots jobs: plain data, which a process that has
+    imported matplotlib and nothing of the model draws (crashnlp.results.drawing)."""
+    jobs: list[Job] = []
+    for name, t in result.tests.items():
+        model = {k: (t.response.time, t.response[k]) for k in PANELS}
+        fit = result.kind == "identify"
+        title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model' if fit else 'design'}"
+        path = out / name / ("fit.png" if fit else "response.png")
+        jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), result.output_bounds)))
+        residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
+        if residuals:
+            title = f"{named_test(result.name, name)}: residuals (model - data)"
+            jobs.append(("residual_figure", (out / name / "residuals.png", title, residuals)))
+    if result.force_crush is not None:
+        jobs.append(_force_crush_job(result, result.force_crush, out))
+    return jobs
+
+
+def _fit_notes(t: TestResult) -> dict[str, str]:
+    """Each fitted channel's RMSE (in its panel's unit) and ISO 18571 rating, as its panel shows them."""
+    notes = {}
+    for c, f in t.fit.items():
+        rating = f", ISO 18571 {f.iso18571['overall']:.3f}" if f.iso18571 else ""
+        notes[c] = f"RMSE {OUTPUT[c].shown(f.rmse)}{rating}"
+    return notes
+
+
+def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
+    """The force-crush figure: the identified loading curve (to the tail's start, then the tail
+    predictions follow) and its 95 % band, the unloading from each test's largest crush, the
+    reference, and behind them each test's measured m |a| while loading."""
+    model = result.identified.model if result.identified is not None else {}
+    tail = model.get("spring", {}).get("tail")
+    inside = fc.crush <= tail["start"] if isinstance(tail, dict) else np.ones(fc.crush.size, bool)
+    curves = {"identified loading curve": (fc.crush[inside], fc.force[inside])}
+    if isinstance(tail, dict):
+        x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
+        at_start = np.interp(tail["start"], fc.crush, fc.force)
+        curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
+    unloading = model.get("unloading", {})
+    if unloading.get("law") == "plastic":
+        stiffness = float(unloading["stiffness"])
+        for name, t in result.tests.items():
+            top = float(np.max(t.response["crush"]))
+            force = float(np.interp(top, fc.crush, fc.force))
+            label = f"unloading at {stiffness / 1e6:.3g} kN/mm" + (f" ({name})" if len(result.tests) > 1 else "")
+            curves[label] = (np.array([top - force / stiffness, top]), np.array([0.0, force]))
+    if fc.reference is not None:
+        curves["reference"] = fc.reference
+    several = len(fc.measured) > 1
+    measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
+    title = f"{result.name}: identified loading curve"
+    band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
+    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))
