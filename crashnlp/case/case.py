@@ -83,7 +83,8 @@ class Case:
         return self.problem.name
 
     def check_data(self) -> None:
-        """Refuse test data that contradict the problem's speed or end before a fit's duration (crashnlp.case.testcase.check_data)."""
+        """Refuse test data that contradict the problem's speed or end before a fit's duration
+        (crashnlp.case.testcase.check_data)."""
         check_data(self.tests)
 
     def test_parameters(self, test: TestCase, p: np.ndarray | None = None) -> np.ndarray:
