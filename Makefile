@@ -82,6 +82,7 @@ lint: $(STAMP)
 	$(BIN)/ruff check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
 	$(BIN)/ruff format --check crashnlp tests bench examples docs/hooks.py scripts/docs_numbers.py
 	$(BIN)/mypy
+	$(BIN)/lint-imports --no-cache  # the layers of pyproject.toml's [tool.importlinter]
 
 clean:
 	rm -rf $(VENV) .pytest_cache site
