@@ -15,6 +15,8 @@ __init__ is the package's module.
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 import tomllib
 from pathlib import Path
 
@@ -154,3 +156,17 @@ def test_the_graph_sees_every_kind_of_import(tmp_path, source, expected):
 
 def test_a_cycle_is_found():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
+
+
+@pytest.mark.integration  # a process of its own
+def test_a_result_imports_with_numpy_alone():
+    """`crashnlp.Result` and the plain types in it load without CasADi, pydantic or matplotlib: a
+    result read back, a report or a table of results pays for none of them."""
+    code = (
+        "import sys; before = set(sys.modules); import crashnlp; from crashnlp import Result; Result.load;"
+        " print(sorted({m.partition('.')[0] for m in set(sys.modules) - before}))"
+    )
+    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    loaded = set(ast.literal_eval(printed))
+    assert "crashnlp" in loaded and "numpy" in loaded
+    assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)

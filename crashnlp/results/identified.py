@@ -7,6 +7,9 @@ mass the fitted tests covered, and how far the model's own crash metrics missed 
 those tests. result.json stores it under `identified_model`; `apply` puts it into another
 problem of the same vehicle (a new speed, mass or duration), so that a prediction needs no
 more than the fit's result and a problem that names what is new.
+
+The dataclasses need numpy only, as a Result read back does (crashnlp.results); the functions
+that make problems import the problem schema (pydantic) when they are called.
 """
 
 from __future__ import annotations
@@ -15,14 +18,14 @@ import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from statistics import NormalDist
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.problem.forms import DEFAULT_FORM
-from crashnlp.problem.load import problem_from_dict, read_yaml
-from crashnlp.problem.schema import BreakpointCount, Problem
+
+if TYPE_CHECKING:
+    from crashnlp.problem.schema import Problem
 
 # the vehicle's geometry: a problem that gives other values describes another vehicle
 GEOMETRY = ("cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle")
@@ -155,6 +158,8 @@ class IdentifiedModel:
     def as_problem(self, name: str) -> Problem:
         """The identified vehicle as a problem of one data-free test at its speed: what reads the
         model without its data (the units of its entries, its model's functions) takes this."""
+        from crashnlp.problem.schema import problem_from_dict  # pydantic: not for a result read back
+
         raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
         return problem_from_dict(raw, Path("."), name)
 
@@ -171,6 +176,8 @@ def _finite(x: float) -> float | None:
 
 def load_applied(path: str | Path, identified: IdentifiedModel, source: str) -> Problem:
     """A problem file with the identified vehicle in it (`applied`)."""
+    from crashnlp.problem.load import read_yaml
+
     path = Path(path)
     return applied(read_yaml(path), path.resolve().parent, identified, source, str(path))
 
@@ -180,6 +187,8 @@ def applied(raw: Any, base_dir: Path, identified: IdentifiedModel, source: str, 
     vehicle in it (`apply`). What it leaves out comes from the identified vehicle before it is
     validated: every vehicle entry, and every section of the model (spring, damper, ...; a section
     it gives is its own, whole), so that a prediction of only `name` and `tests` is a problem."""
+    from crashnlp.problem.schema import problem_from_dict
+
     if isinstance(raw, dict):
         vehicle, model = ({} if raw.get(key) is None else raw[key] for key in ("vehicle", "model"))
         raw = {**raw, "vehicle": _filled(vehicle, identified.vehicle), "model": _filled(model, identified.model, deep=False)}
@@ -202,6 +211,8 @@ def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem
     The problem's own speeds, masses, durations and tests stay; a problem whose geometry or model
     structure differs from the identified vehicle's is refused (InputError naming `source` and
     the entry)."""
+    from crashnlp.problem.schema import problem_from_dict
+
     _refuse_another_vehicle(problem, identified, source)
     raw = problem.model_dump(mode="python", exclude_unset=True)
     given = problem.vehicle.model_fields_set
@@ -232,6 +243,8 @@ def _estimated(identified: IdentifiedModel, path: str) -> bool:
 
 
 def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, source: str) -> None:
+    from crashnlp.problem.forms import DEFAULT_FORM  # the problem layer: not for a result read back
+
     given = problem.vehicle.model_fields_set
     for key in GEOMETRY:
         mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
@@ -262,6 +275,8 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
 def _differs(mine: Any, theirs: Any) -> bool:
     """Whether the problem's structure entry names another model than the identified one's: a list
     differs in length or a value, a count (`{count: N}`, which the fit placed as N breakpoints) in N."""
+    from crashnlp.problem.schema import BreakpointCount
+
     if isinstance(mine, BreakpointCount):
         return not isinstance(theirs, list) or mine.count != len(theirs)
     if isinstance(mine, list) or isinstance(theirs, list):
