@@ -218,8 +218,8 @@ def predict(
 
 def _drift(name: str, response: Response) -> tuple[str, ...]:
     """A note when the vehicle ends its record still moving toward the barrier without touching
-    it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off), and its max crush is its travel at the end,
-    not where it stopped."""
+    it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off), and its
+    max crush is its travel at the end, not where it stopped."""
     velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
     if velocity <= DRIFT or contact > 0:
         return ()
