@@ -41,7 +41,8 @@ from bench.common import RESULTS, ROOT  # noqa: E402
 from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
-from crashnlp.results.identified import INTERVAL_METRICS, IdentifiedRange  # noqa: E402
+from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
+from crashnlp.results.identified import IdentifiedRange  # noqa: E402
 
 VERSION = 2
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
@@ -253,10 +254,10 @@ def _table(rows: list[dict], metric: str, grown: float) -> dict[str, tuple[float
 def calibrate(rows: list[dict], seed: int) -> Calibration:
     """The calibration from the records of one seed: per metric the power of the distance (power),
     then q per class (the conformal quantile of the class's scores)."""
-    grown = {m: power(rows, m) for m in INTERVAL_METRICS}
-    per_metric = {m: _table(rows, m, grown[m]) for m in INTERVAL_METRICS}
+    grown = {m: power(rows, m) for m in PREDICTED_KEYS}
+    per_metric = {m: _table(rows, m, grown[m]) for m in PREDICTED_KEYS}
     classes = sorted({k for t in per_metric.values() for k in t})
-    table = {k: {m: per_metric[m][k][0] for m in INTERVAL_METRICS if k in per_metric[m]} for k in classes}
+    table = {k: {m: per_metric[m][k][0] for m in PREDICTED_KEYS if k in per_metric[m]} for k in classes}
     corpus = {
         "seed": seed,
         "vehicles": {
@@ -268,7 +269,7 @@ def calibrate(rows: list[dict], seed: int) -> Calibration:
             name: {"fitted_kmh": list(f), "predicted_kmh": t, "mass_ratio": MASS_RATIOS.get(name, 1.0)}
             for name, (f, t) in SCENARIOS.items()
         },
-        "records": {k: {m: per_metric[m][k][1] for m in INTERVAL_METRICS if k in per_metric[m]} for k in classes},
+        "records": {k: {m: per_metric[m][k][1] for m in PREDICTED_KEYS if k in per_metric[m]} for k in classes},
     }
     return Calibration(VERSION, METHOD, LEVEL, corpus, table, grown)
 
@@ -298,7 +299,7 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     out: dict = {}
     for scenario in SCENARIOS:
         out[scenario] = {}
-        for metric in INTERVAL_METRICS:
+        for metric in PREDICTED_KEYS:
             mine = [r for r in rows if r["scenario"] == scenario and np.isfinite(r.get("truth", {}).get(metric, 0.0))]
             got = [judged(r, metric, calibration) for r in mine]
             seen = [g for g in got if g is not None]
@@ -415,7 +416,7 @@ SHORT = {
 
 
 def _evaluation_table(evaluation: dict) -> list[str]:
-    head = ["scenario", *(f"{SHORT[m]}: covered / half-width / error median, max" for m in INTERVAL_METRICS)]
+    head = ["scenario", *(f"{SHORT[m]}: covered / half-width / error median, max" for m in PREDICTED_KEYS)]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for scenario, by in evaluation.items():
         cells = [
@@ -450,13 +451,13 @@ def markdown(section: dict) -> list[str]:
         ),
         "q per class and metric, and per metric the power of the distance in the form term's unit:",
         "",
-        "| class | " + " | ".join(SHORT[m] for m in INTERVAL_METRICS) + " |",
-        "|---|" + "---|" * len(INTERVAL_METRICS),
+        "| class | " + " | ".join(SHORT[m] for m in PREDICTED_KEYS) + " |",
+        "|---|" + "---|" * len(PREDICTED_KEYS),
         *(
-            f"| {k} | " + " | ".join(f"{row.get(m, float('nan')):.3g}" for m in INTERVAL_METRICS) + " |"
+            f"| {k} | " + " | ".join(f"{row.get(m, float('nan')):.3g}" for m in PREDICTED_KEYS) + " |"
             for k, row in cal["table"].items()
         ),
-        "| power of the distance | " + " | ".join(f"{cal['power'][m]:g}" for m in INTERVAL_METRICS) + " |",
+        "| power of the distance | " + " | ".join(f"{cal['power'][m]:g}" for m in PREDICTED_KEYS) + " |",
         "",
     ]
     for seed in (CHECK_SEED, HIDDEN_SEED, SET_SEED):

@@ -26,8 +26,9 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS
+from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
+from crashnlp.problem.choices import DATA_FORMATS
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 
@@ -147,15 +148,15 @@ def _print_prediction(test) -> None:
     from crashnlp.analysis.prediction import extrapolation_line
 
     parts = []
-    for key, label, factor, unit, digits in PREDICTED_ROWS:
-        value = test.metrics.get(key)
+    for m in PREDICTED:
+        value = test.metrics.get(m.key)
         if value is None:
             continue
-        text = f"{label} {value * factor:.{digits}f}"
-        band = test.intervals.get(key)
+        text = f"{m.short} {m.shown(value)}"
+        band = test.intervals.get(m.key)
         if band is not None:
-            text += f" [{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
-        parts.append(f"{text} {unit}")
+            text += f" {m.band(band)}"
+        parts.append(f"{text} {m.unit}")
     print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if test.intervals else ""))
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
@@ -269,8 +270,9 @@ def _print_solution(result) -> None:
     for name, t in result.tests.items():
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
-        for key, label, f in METRIC_ROWS:
-            print(f"    {label:<26}{_cell(model.get(key), f):>10}{_cell(data.get(key), f) if data else '':>10}")
+        for row in TABLED:
+            cells = _cell(model.get(row.key), row.factor), _cell(data.get(row.key), row.factor) if data else ""
+            print(f"    {row.heading:<26}{cells[0]:>10}{cells[1]:>10}")
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := still_moving(m)):
                 print(f"    {who} {words}")
@@ -572,7 +574,7 @@ def parser() -> argparse.ArgumentParser:
         help="data file: CSV, NHTSA EV5 header (.EV5), ISO-MME test (.mme, folder or .zip), or one or more NHTSA"
         " channel files vNNNNNtsv.CCC of one test (or their folder)",
     )
-    p.add_argument("--format", choices=("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"), help="default: from the file name")
+    p.add_argument("--format", choices=DATA_FORMATS, help="default: from the file name")
     p.add_argument("--mass", help='test mass, e.g. "1350 kg" (default: the data header)')
     p.add_argument("--speed", help='impact speed, e.g. "48 km/h", with its unit (default: the data header or velocity column)')
     p.add_argument(

@@ -38,11 +38,11 @@ from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
+from crashnlp.problem.choices import DATA_FORMATS
 from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
 from crashnlp.results.files import atomic_open, check_writable_file
 
-FORMATS = ("csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme")
 UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
 # upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
 VEHICLE_CLASSES = (
@@ -509,8 +509,8 @@ def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
     `paths[0]` is the file the problem names."""
     path = paths[0]
     fmt = options.format or format_of(path)
-    if fmt not in FORMATS:
-        raise InputError(f"--format {fmt}: one of {', '.join(FORMATS)}")
+    if fmt not in DATA_FORMATS:
+        raise InputError(f"--format {fmt}: one of {', '.join(DATA_FORMATS)}")
     _check_columns(fmt, options.columns)
     draft = _draft(fmt, paths, options.columns)
     draft.data = {"format": fmt, **draft.data}

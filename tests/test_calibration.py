@@ -20,7 +20,8 @@ from bench.calibration import (
     held_out_records,
 )
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
-from crashnlp.results.identified import INTERVAL_METRICS, IdentifiedRange
+from crashnlp.base.outputs import PREDICTED_KEYS
+from crashnlp.results.identified import IdentifiedRange
 
 
 def _range(*tests: tuple[float, float]) -> IdentifiedRange:
@@ -99,8 +100,8 @@ def _synthetic(seed: int, power: float, vehicles: int = 60) -> list[dict]:
             speed, predicted_mass = target / 3.6, mass * MASS_RATIOS.get(scenario, 1.0)
             distance = reach(fit, speed, predicted_mass)[1]
             value = 2.0
-            truth = {m: value + scale(m, value, speed) * 0.04 * distance**power * rng.standard_normal() for m in INTERVAL_METRICS}
-            parts = {m: {"value": value, "parameters": 1e-3, "fitted": 1e-3, "past_the_reach": 0.0} for m in INTERVAL_METRICS}
+            truth = {m: value + scale(m, value, speed) * 0.04 * distance**power * rng.standard_normal() for m in PREDICTED_KEYS}
+            parts = {m: {"value": value, "parameters": 1e-3, "fitted": 1e-3, "past_the_reach": 0.0} for m in PREDICTED_KEYS}
             rows.append(
                 {
                     "vehicle": f"s{i:02d}",
@@ -127,7 +128,7 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
     calibration = calibrate(_synthetic(1, power), 1)
     assert np.mean(list(calibration.power.values())) == pytest.approx(power, abs=0.1)
     held = evaluate(_synthetic(2, power), calibration)
-    for metric in INTERVAL_METRICS:
+    for metric in PREDICTED_KEYS:
         covered = np.mean([by[metric]["coverage"] for by in held.values()])
         assert covered >= 0.9, (metric, covered)
 
@@ -135,10 +136,10 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
 def test_the_shipped_table_calibrates_every_metric_of_every_class_and_names_its_corpus():
     cal = shipped()
     for klass in CLASSES:
-        for metric in INTERVAL_METRICS:
+        for metric in PREDICTED_KEYS:
             q = cal.q(klass, metric)
             assert q is not None and np.isfinite(q) and q >= 0, (klass, metric)
-    assert set(cal.power) == set(INTERVAL_METRICS)
+    assert set(cal.power) == set(PREDICTED_KEYS)
     named = cal.named()
     assert named["file"] == "crashnlp/analysis/calibration.json" and named["version"] >= 2 and named["corpus"]["seed"]
     assert Calibration.from_json(cal.to_json()) == cal
@@ -154,7 +155,7 @@ def test_the_shipped_table_holds_the_held_out_seed_s_predictions():
     rows = held[str(CHECK_SEED)]
     assert len({(r["form"], r["vehicle"]) for r in rows}) == sum(POPULATIONS[CHECK_SEED][1].values())
     by_scenario = evaluate(rows, shipped())
-    for metric in INTERVAL_METRICS:
+    for metric in PREDICTED_KEYS:
         covered = sum(by[metric]["coverage"] * by[metric]["n"] for by in by_scenario.values())
         coverage = covered / sum(by[metric]["n"] for by in by_scenario.values())
         assert coverage >= TARGETS["coverage"].get(metric, TARGETS["coverage_other"]), (metric, coverage)

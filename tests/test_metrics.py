@@ -61,13 +61,13 @@ def test_olc_not_reached_is_nan():
     assert np.isnan(olc(t, np.full(t.size, 10.0), 10.0 * t))  # vehicle never slows: no relative travel
 
 
-def test_report_units_and_pre_impact_samples_ignored():
+def test_result_units_and_pre_impact_samples_ignored():
     t, a, v, x, A = half_sine()
-    r = crash_metrics(t, a, v, x).report()
-    assert r["max_crush_mm"] == pytest.approx(600, rel=1e-3)
-    assert r["t_zero_velocity_ms"] == pytest.approx(80, abs=0.1)
+    r = metrics(t, a, v, x, None)
+    assert r["max_crush_m"] == pytest.approx(0.600, rel=1e-3)
+    assert r["time_zero_velocity_s"] == pytest.approx(0.080, abs=1e-4)
     assert r["peak_decel_g"] == pytest.approx(A / G0)
-    assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "t_max_crush_ms"}
+    assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "time_max_crush_s"}
 
 
 def _recorded(t, a, v, x) -> testcase.TestCase:

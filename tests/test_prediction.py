@@ -19,6 +19,7 @@ from crashnlp.analysis.calibration import shipped
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
 from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.base.units import G0
 from crashnlp.case.testcase import Recorded
 from crashnlp.cli import main
@@ -28,7 +29,6 @@ from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
-from crashnlp.results.identified import INTERVAL_METRICS
 from crashnlp.results.response import Response
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
@@ -474,7 +474,7 @@ def test_an_extrapolated_interval_names_its_parts_and_the_force_past_the_reach_w
     folder, path, result = engine_fit
     test = crashnlp.simulate(prediction_problem(path, 64.0, folder), params=result)["64kph"]
     shares = test.shares()
-    assert set(shares) == set(INTERVAL_METRICS)
+    assert set(shares) == set(PREDICTED_KEYS)
     for metric, part in shares.items():
         assert {"parameters", "form", "past_the_reach", "dominant"} <= set(part)
         low, high = test.intervals[metric]
@@ -504,6 +504,6 @@ def test_the_shipped_intervals_hold_held_out_predictions_of_every_generator_form
         folder.mkdir()
         rows += held_out(form, make(0, CHECK_SEED, speed=56 / 3.6), folder, SMALL, one)
     assert len(rows) == len(FORMS) * len(one) and all(r["status"] == "ok" for r in rows)
-    judgements = {(r["vehicle"], r["scenario"], m): judged(r, m, shipped()) for r in rows for m in INTERVAL_METRICS}
+    judgements = {(r["vehicle"], r["scenario"], m): judged(r, m, shipped()) for r in rows for m in PREDICTED_KEYS}
     missed = [k for k, j in judgements.items() if j is None or not j["covered"]]
     assert len(missed) <= 0.1 * len(judgements), missed

@@ -20,11 +20,9 @@ output alike. Definitions:
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 
 import numpy as np
-
-from crashnlp.base.units import G0
 
 OLC_FREE = 0.065  # m, free flight of the virtual occupant
 OLC_RESTRAINED = 0.235  # m, restrained travel until it moves with the vehicle
@@ -48,24 +46,6 @@ class CrashMetrics:
     esw: float
     tesw: float
     olc: float
-
-    def report(self) -> dict[str, float]:
-        """The metrics in report units: mm, ms, m/s, g (keys carry the unit)."""
-        scale = {
-            "v0": ("v0_mps", 1.0),
-            "max_crush": ("max_crush_mm", 1e3),
-            "t_max_crush": ("t_max_crush_ms", 1e3),
-            "t_zero_velocity": ("t_zero_velocity_ms", 1e3),
-            "delta_v": ("delta_v_mps", 1.0),
-            "rebound_velocity": ("rebound_velocity_mps", 1.0),
-            "end_velocity": ("end_velocity_mps", 1.0),
-            "peak_decel": ("peak_decel_g", 1 / G0),
-            "t_peak_decel": ("t_peak_decel_ms", 1e3),
-            "esw": ("esw_g", 1 / G0),
-            "tesw": ("tesw_g", 1 / G0),
-            "olc": ("olc_g", 1 / G0),
-        }
-        return {scale[k][0]: v * scale[k][1] for k, v in asdict(self).items()}
 
 
 def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:

@@ -55,13 +55,13 @@ from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shi
 from crashnlp.analysis.metrics import DRIFT, lift_off
 from crashnlp.analysis.summary import data_curves, response_metrics
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import COLUMNS, OUTPUT, PANELS, named_test
+from crashnlp.base.outputs import COLUMNS, METRIC, OUTPUT, PANELS, PREDICTED_KEYS, named_test
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.files import claim, run_name
-from crashnlp.results.identified import INTERVAL_METRICS, Z95, IdentifiedModel, applied
+from crashnlp.results.identified import Z95, IdentifiedModel, applied
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.results.result import Result
@@ -77,21 +77,6 @@ BAND_METRIC = {
     "accel": "peak_decel_g",
     "barrier_force": "peak_decel_g",
     "pitch": "max_pitch_deg",
-}
-# metric -> the response column it is the extreme of, and the extreme's sign (max: +1, min: -1)
-INSTANT = {
-    "max_crush_m": ("displacement", 1.0),
-    "peak_decel_g": ("accel", -1.0),
-    "rebound_velocity_mps": ("velocity", -1.0),
-    "max_pitch_deg": ("pitch", 1.0),
-}
-# the fitted channel each metric is read from (its report unit is the metric's)
-METRIC_CHANNEL = {
-    "max_crush_m": "displacement",
-    "peak_decel_g": "accel",
-    "rebound_velocity_mps": "velocity",
-    "olc_g": "accel",
-    "max_pitch_deg": "pitch",
 }
 
 
@@ -270,14 +255,14 @@ def _uncertainty(
     undetermined = [label for label, s in zip(identified.labels, std) if not np.isfinite(s)]
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
-        return Uncertainty({k: None for k in INTERVAL_METRICS}, notes=(note,))
+        return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
     gm, gy = _sensitivities(case, test, p, identified, std, dt)
     cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
     intervals: dict[str, tuple[float, float] | None] = {}
     parts, qs, notes = {}, {}, []
-    for i, key in enumerate(INTERVAL_METRICS):
+    for i, key in enumerate(PREDICTED_KEYS):
         value, miss = metrics.get(key), identified.discrepancy.get(key)
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
@@ -306,9 +291,10 @@ def _parameter_half(key: str, gm: np.ndarray, gy: dict[str, np.ndarray], cov: np
     at the metric's instant where that is wider (a central difference of an extreme moves its
     instant), so that the band there lies within the interval."""
     var = float(gm @ cov @ gm)
-    column, sign = INSTANT.get(key, ("", 0.0))
-    if column in gy:
-        g = gy[column][:, int(np.argmax(sign * response[column]))] * OUTPUT[column].factor
+    metric = METRIC[key]
+    column = metric.channel if metric.extreme else None
+    if column is not None and column in gy:
+        g = gy[column][:, int(np.argmax(metric.extreme * response[column]))] * OUTPUT[column].factor
         var = max(var, float(g @ cov @ g))
     return Z95 * float(np.sqrt(var))
 
@@ -354,7 +340,7 @@ def _bands(
 def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
     """The fitted tests' RMSE of the channel `metric` is read from, in the metric's unit (0 when
     none is fitted)."""
-    channel = METRIC_CHANNEL.get(metric)
+    channel = METRIC[metric].channel
     rmse = identified.channel_rmse.get(channel) if channel else None
     return 0.0 if rmse is None or channel is None else rmse * OUTPUT[channel].factor
 
@@ -399,7 +385,7 @@ def _sensitivities(
     """d metric / d value (values x metrics) and d output / d value (output -> values x times):
     central differences over one standard error each way, clipped to the estimate's bounds."""
     slices = case.layout.slices()
-    gm = np.zeros((len(identified.labels), len(INTERVAL_METRICS)))
+    gm = np.zeros((len(identified.labels), len(PREDICTED_KEYS)))
     gy: dict[str, np.ndarray] = {}
     for j, label in enumerate(identified.labels):
         k = _position(slices, label)
@@ -409,7 +395,7 @@ def _sensitivities(
             continue
         r_up, r_down = (case.simulate_test(test, _with(p, k, value), dt) for value in (up, down))
         m_up, m_down = response_metrics(r_up), response_metrics(r_down)
-        gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in INTERVAL_METRICS]
+        gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in PREDICTED_KEYS]
         for name in BAND_METRIC:
             gy.setdefault(name, np.zeros((len(identified.labels), r_up.time.size)))[j] = (r_up[name] - r_down[name]) / (up - down)
     return gm, gy

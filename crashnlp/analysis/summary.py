@@ -7,7 +7,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from crashnlp.analysis.metrics import crash_metrics
-from crashnlp.base.units import G0
+from crashnlp.base.outputs import METRICS
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.signal import integrate, resample
 from crashnlp.results.response import Response
@@ -30,22 +30,12 @@ def metrics(
     `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
     """
     m = crash_metrics(t, accel, velocity, displacement)
-    out = {
-        "max_crush_m": m.max_crush,
-        "time_max_crush_s": m.t_max_crush,
+    others = {
         "max_front_end_crush_m": float(np.max(crush)) if crush is not None else None,
-        "time_zero_velocity_s": m.t_zero_velocity,
-        "peak_decel_g": m.peak_decel / G0,
-        "rebound_velocity_mps": m.rebound_velocity,
-        "delta_v_mps": m.delta_v,
-        "esw_g": m.esw / G0,
-        "tesw_g": m.tesw / G0,
-        "olc_g": m.olc / G0,
         "record_end_s": float(t[-1]),
-        "end_velocity_mps": m.end_velocity,
+        "max_pitch_deg": float(np.degrees(np.max(pitch))) if pitch is not None else None,
     }
-    out["max_pitch_deg"] = float(np.degrees(np.max(pitch))) if pitch is not None else None
-    return out
+    return {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
 
 
 def still_moving(metrics: Mapping[str, float | None]) -> str | None:

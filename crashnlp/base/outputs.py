@@ -1,9 +1,10 @@
-"""The one registry of the model's outputs: name, SI unit, report unit, label; and of the crash
-metrics as the console and the report show them.
+"""The one registry of the model's outputs (name, SI unit, report unit, label) and of the crash
+metrics (key, label, shown unit, factor, digits, how each is read).
 
 The symbolic model evaluates its outputs in this order; the simulator, the
 result files, the figures, the console and the problem schema (the channels a
-test can measure) all read their names and units from here.
+test can measure, the outputs a bound may limit) all read their names and units
+from here; every console line, table, CSV and report of a crash metric reads METRICS.
 """
 
 from __future__ import annotations
@@ -64,27 +65,75 @@ NAMES: tuple[str, ...] = tuple(o.name for o in OUTPUTS)
 MEASURABLE: tuple[str, ...] = tuple(o.name for o in OUTPUTS if o.measurable)
 COLUMNS: tuple[Output, ...] = tuple(o for o in OUTPUTS if o.column)
 PANELS: tuple[str, ...] = (*MEASURABLE, "crush")  # a response figure's panels: what a test measures, and the crush
+BOUNDED: tuple[str, ...] = PANELS  # the outputs a problem's constraints may bound: the same
 
-# the crash metrics of a fit, as the console and the report show them: result.json key, label, factor
-METRIC_ROWS = (
-    ("max_crush_m", "max dynamic crush (mm)", 1e3),
-    ("max_front_end_crush_m", "max front-end crush (mm)", 1e3),
-    ("time_max_crush_s", "time of max crush (ms)", 1e3),
-    ("time_zero_velocity_s", "time of zero velocity (ms)", 1e3),
-    ("peak_decel_g", "peak deceleration (g)", 1.0),
-    ("rebound_velocity_mps", "rebound velocity (m/s)", 1.0),
-    ("olc_g", "OLC (g)", 1.0),
-    ("max_pitch_deg", "max pitch (deg)", 1.0),
+
+@dataclass(frozen=True)
+class Metric:
+    """A crash metric of result.json: its key (whose suffix is the unit of the stored value), how it
+    is read from a pulse, and how a person reads it (label, unit, factor and digits of every
+    console line, table, CSV column and report that shows it)."""
+
+    key: str
+    label: str  # what it is, in a fit's metric table: "max dynamic crush"
+    unit: str  # the unit it is shown in
+    factor: float  # stored value -> shown unit
+    read: str | None  # the crashnlp.analysis.metrics.CrashMetrics field it is (None: read from another curve)
+    per: float = 1.0  # the stored value is that field (SI) over this: G0 for a value in g
+    short: str | None = None  # its name in a prediction's line; None: a prediction does not give it
+    digits: int = 1  # digits after the point in a prediction's line
+    table: bool = True  # a fit's metric table shows it
+    channel: str | None = None  # the fitted channel it is read from (the channel's report unit is the metric's)
+    extreme: float = 0.0  # the channel's instant it is: +1 its max, -1 its min, 0 no one instant
+    plotted: bool = False  # a study plots it against a swept entry
+
+    @property
+    def heading(self) -> str:
+        """Label with its unit, as a table's row or column names it: "max dynamic crush (mm)"."""
+        return f"{self.label} ({self.unit})"
+
+    @property
+    def column(self) -> str:
+        """Its column in a CSV of shown values: the key with the shown unit, "max_crush_mm"."""
+        return f"{self.key.rsplit('_', 1)[0]}_{self.unit.replace('/', 'p')}"
+
+    def shown(self, value: float) -> str:
+        """A stored value as a prediction's line prints it: in the shown unit, `digits` after the point."""
+        return f"{value * self.factor:.{self.digits}f}"
+
+    def band(self, band: tuple[float, float] | list[float]) -> str:
+        """A 95 % interval as a prediction's line prints it: "[low, high]"."""
+        return f"[{self.shown(band[0])}, {self.shown(band[1])}]"
+
+
+# result.json's crash metrics, in its order (crashnlp.analysis.summary.metrics writes them)
+# fmt: off
+METRICS: tuple[Metric, ...] = (
+    Metric("max_crush_m", "max dynamic crush", "mm", 1e3, "max_crush", short="max crush",
+           channel="displacement", extreme=1.0, plotted=True),
+    Metric("time_max_crush_s", "time of max crush", "ms", 1e3, "t_max_crush"),
+    Metric("max_front_end_crush_m", "max front-end crush", "mm", 1e3, None),
+    Metric("time_zero_velocity_s", "time of zero velocity", "ms", 1e3, "t_zero_velocity", short="zero velocity", digits=2),
+    Metric("peak_decel_g", "peak deceleration", "g", 1.0, "peak_decel", G0, short="peak decel",
+           channel="accel", extreme=-1.0, plotted=True),
+    Metric("rebound_velocity_mps", "rebound velocity", "m/s", 1.0, "rebound_velocity", short="rebound", digits=2,
+           channel="velocity", extreme=-1.0),
+    Metric("delta_v_mps", "delta-V", "m/s", 1.0, "delta_v", table=False),
+    Metric("esw_g", "ESW", "g", 1.0, "esw", G0, table=False),
+    Metric("tesw_g", "TESW", "g", 1.0, "tesw", G0, table=False),
+    Metric("olc_g", "OLC", "g", 1.0, "olc", G0, short="OLC", channel="accel", plotted=True),
+    Metric("record_end_s", "end of the record", "ms", 1e3, None, table=False),
+    Metric("end_velocity_mps", "velocity at the record's end", "m/s", 1.0, "end_velocity", table=False),
+    Metric("max_pitch_deg", "max pitch", "deg", 1.0, None, short="max pitch", digits=2,
+           channel="pitch", extreme=1.0, plotted=True),
 )
-# a prediction's: metric key, what it is, factor to the printed unit, the unit, digits after the point
-PREDICTED_ROWS = (
-    ("max_crush_m", "max crush", 1e3, "mm", 1),
-    ("time_zero_velocity_s", "zero velocity", 1e3, "ms", 2),
-    ("peak_decel_g", "peak decel", 1.0, "g", 1),
-    ("rebound_velocity_mps", "rebound", 1.0, "m/s", 2),
-    ("olc_g", "OLC", 1.0, "g", 1),
-    ("max_pitch_deg", "max pitch", 1.0, "deg", 2),
-)
+# fmt: on
+METRIC: dict[str, Metric] = {m.key: m for m in METRICS}
+TABLED: tuple[Metric, ...] = tuple(m for m in METRICS if m.table)  # a fit's metric table, model against test
+# what a prediction gives, each with its 95 % interval; a study's table records these of every test
+PREDICTED: tuple[Metric, ...] = tuple(m for m in METRICS if m.short)
+PREDICTED_KEYS: tuple[str, ...] = tuple(m.key for m in PREDICTED)
+PLOTTED: tuple[str, ...] = tuple(m.key for m in METRICS if m.plotted)
 
 # the unit a person reads an SI quantity in (reports, figures): SI unit -> (shown unit, factor from SI)
 SHOWN_UNITS = {"N": ("kN", 1e-3), "N/m": ("kN/m", 1e-3), "N*s/m": ("kN*s/m", 1e-3), "rad": ("deg", 180 / math.pi)}

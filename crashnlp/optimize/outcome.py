@@ -10,13 +10,14 @@ import numpy as np
 
 from crashnlp.analysis.rating import iso18571
 from crashnlp.analysis.summary import channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case, TestCase
 from crashnlp.case.completion import measured_pulse, measured_pulses
 from crashnlp.models.tail import trend_tail
 from crashnlp.numerics.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.problem.forms import DEFAULT_FORM
-from crashnlp.results.identified import INTERVAL_METRICS, Z95, IdentifiedModel, IdentifiedRange
+from crashnlp.results.identified import Z95, IdentifiedModel, IdentifiedRange
 from crashnlp.results.response import Response
 from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 
@@ -114,7 +115,7 @@ def _discrepancy(tests: dict[str, TestResult]) -> dict[str, float]:
     """Per metric, the root mean square over tests of the model's relative miss of the data's value,
     over the tests where both reach it (a model that does not stop in the record has no stop time)."""
     out = {}
-    for key in INTERVAL_METRICS:
+    for key in PREDICTED_KEYS:
         pairs = [(t.metrics.get(key), (t.data_metrics or {}).get(key)) for t in tests.values()]
         misses = [model / data - 1.0 for model, data in pairs if model is not None and data and np.isfinite(model / data)]
         if misses:

@@ -39,8 +39,9 @@ from pydantic import (
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
 
-from crashnlp.base.outputs import MEASURABLE, OUTPUT
+from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
 from crashnlp.base.units import to_si
+from crashnlp.problem.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
@@ -286,9 +287,11 @@ class Tail(Strict):
 
 TailRule = Literal["trend", "segment"]
 
+SpringLawName = Literal[SPRING_LAWS]  # type: ignore[valid-type]  # crashnlp.problem.choices
+
 
 class Spring(Strict):
-    law: Literal["force", "secant"] = Field(
+    law: SpringLawName = Field(
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
     )
     crush_breakpoints: list[Length] | BreakpointCount | None = Field(
@@ -368,8 +371,11 @@ class Damper(Strict):
         return self
 
 
+UnloadingLawName = Literal[UNLOADING_LAWS]  # type: ignore[valid-type]
+
+
 class Unloading(Strict):
-    law: Literal["elastic", "plastic"] = "elastic"
+    law: UnloadingLawName = "elastic"
     stiffness: Stiffness | None = Field(
         None, description="unloading stiffness of the plastic law; omitted: from the data's rebound"
     )
@@ -407,8 +413,8 @@ class Model(Strict):
 
 # --------------------------------------------------------------------------- data
 CHANNEL_UNITS = {name: OUTPUT[name].unit for name in MEASURABLE}
-ChannelName = Literal["accel", "velocity", "displacement", "pitch", "barrier_force"]
-assert set(get_args(ChannelName)) == set(MEASURABLE), "the channels a problem names are the measurable outputs"
+ChannelName = Literal[MEASURABLE]  # type: ignore[valid-type]  # the channels a problem names: the measurable outputs
+DataFormat = Literal[DATA_FORMATS]  # type: ignore[valid-type]  # crashnlp.problem.choices
 CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
 DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
 SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
@@ -476,7 +482,7 @@ def format_of(path: Path) -> str:
 
 class DataSpec(Strict):
     file: Path
-    format: Literal["csv", "nhtsa-ev5", "nhtsa-channel", "iso-mme"] = Field(
+    format: DataFormat = Field(
         "csv", description="omitted: from the file's name (crashnlp.problem.schema.format_of), csv for a name no other format has"
     )
     time: TimeColumn = TimeColumn(column="time_s")
@@ -554,15 +560,8 @@ class Test(Strict):
 
 
 # --------------------------------------------------------------------------- identification
-OUTPUT_UNITS = {
-    "displacement": "m",
-    "velocity": "m/s",
-    "accel": "m/s^2",
-    "pitch": "rad",
-    "crush": "m",
-    "barrier_force": "N",
-}
-OutputName = Literal["displacement", "velocity", "accel", "pitch", "crush", "barrier_force"]
+OUTPUT_UNITS = {name: OUTPUT[name].unit for name in BOUNDED}  # the outputs a bound may limit, and their SI units
+OutputName = Literal[BOUNDED]  # type: ignore[valid-type]
 
 
 class EstimateSpec(Strict):

@@ -19,12 +19,12 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
-from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, PREDICTED_ROWS, shown_unit
+from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file
 from crashnlp.results.identified import Z95
 from crashnlp.results.result import Result
-from crashnlp.studies.table import PLOTTED, number, shown_column
+from crashnlp.studies.table import number, shown_column
 
 if TYPE_CHECKING:
     from crashnlp.analysis.prediction import PredictedTest
@@ -112,7 +112,7 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     """One test: its figures, its metrics (model against test), RMSE and ISO 18571 ratings."""
     t = result.tests[name]
     data = t.data_metrics or {}
-    metrics = [(label, _cell(t.metrics.get(key), f), _cell(data.get(key), f)) for key, label, f in METRIC_ROWS]
+    metrics = [(m.heading, _cell(t.metrics.get(m.key), m.factor), _cell(data.get(m.key), m.factor)) for m in TABLED]
     fits = [
         {
             "channel": c,
@@ -191,12 +191,11 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
     pages = []
     for test in tests.values():
         rows = []
-        for key, label, factor, unit, digits in PREDICTED_ROWS:
-            value, band = test.metrics.get(key), test.intervals.get(key)
+        for m in PREDICTED:
+            value, band = test.metrics.get(m.key), test.intervals.get(m.key)
             if value is None:
                 continue
-            interval = "-" if band is None else f"[{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
-            rows.append((f"{label} ({unit})", f"{value * factor:.{digits}f}", interval))
+            rows.append((f"{m.short} ({m.unit})", m.shown(value), "-" if band is None else m.band(band)))
         pages.append(
             {
                 "name": test.name,

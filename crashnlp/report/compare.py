@@ -20,7 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import OUTPUT, PREDICTED_ROWS, named_test
+from crashnlp.base.outputs import OUTPUT, PREDICTED, named_test
 from crashnlp.report import TEMPLATES, embedded_figures
 from crashnlp.report.folders import folder_kind, read_result, read_simulation
 from crashnlp.results.files import atomic_open, check_writable
@@ -136,15 +136,15 @@ def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     "value [low, high]" where the curve has a 95 % interval, "-" where it has no value."""
     head = ["metric", *(c.label for c in curves)]
     rows = []
-    for key, label, factor, unit, digits in PREDICTED_ROWS:
+    for m in PREDICTED:
         cells = []
         for c in curves:
-            value, band = c.metrics.get(key), c.intervals.get(key)
-            text = "-" if value is None else f"{value * factor:.{digits}f}"
+            value, band = c.metrics.get(m.key), c.intervals.get(m.key)
+            text = "-" if value is None else m.shown(value)
             if value is not None and band is not None:
-                text += f" [{band[0] * factor:.{digits}f}, {band[1] * factor:.{digits}f}]"
+                text += f" {m.band(band)}"
             cells.append(text)
-        rows.append([f"{label} ({unit})", *cells])
+        rows.append([f"{m.short} ({m.unit})", *cells])
     return head, rows
 
 
@@ -152,17 +152,16 @@ def write_metrics(path: Path, curves: list[Curve]) -> None:
     """metrics.csv: a row per curve, its folder, then each metric in the console's unit with its
     interval's ends (empty where there is none)."""
     head = ["curve", "folder"]
-    for key, _, _, unit, _ in PREDICTED_ROWS:
-        name = f"{key.rsplit('_', 1)[0]}_{unit.replace('/', 'p')}"
-        head += [name, f"{name}_low", f"{name}_high"]
+    for m in PREDICTED:
+        head += [m.column, f"{m.column}_low", f"{m.column}_high"]
     with atomic_open(path) as fh:
         writer = csv.writer(fh)
         writer.writerow(head)
         for c in curves:
             row = [c.label, str(c.folder)]
-            for key, _, factor, _, _ in PREDICTED_ROWS:
-                value, band = c.metrics.get(key), c.intervals.get(key)
-                row += [_number(value, factor), *(_number(end, factor) for end in (band or (None, None)))]
+            for m in PREDICTED:
+                value, band = c.metrics.get(m.key), c.intervals.get(m.key)
+                row += [_number(value, m.factor), *(_number(end, m.factor) for end in (band or (None, None)))]
             writer.writerow(row)
 
 

@@ -35,8 +35,6 @@ SAME_GEOMETRY = 1e-4
 # the model's structure (section, field): given otherwise by a problem, it is another model
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
-# the crash metrics a prediction gives 95 % intervals for (result.json's metric keys)
-INTERVAL_METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "olc_g", "max_pitch_deg")
 Z95 = NormalDist().inv_cdf(
     0.975
 )  # two-sided 95 % quantile of the normal distribution (the standard library's: scipy.special costs a command 0.2 s to import)

@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.base.outputs import METRIC_ROWS, OUTPUT, shown_unit
+from crashnlp.base.outputs import METRICS, OUTPUT, PLOTTED, shown_unit
 from crashnlp.engine.schedule import map_all
 from crashnlp.results.files import atomic_open
 from crashnlp.studies.plan import PlannedCase
@@ -19,7 +19,6 @@ from crashnlp.studies.spec import Study, SweepEntry
 if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
-PLOTTED = ("max_crush_m", "peak_decel_g", "max_pitch_deg", "olc_g")
 MULTIPLIER = re.compile(r"multiplier\.(?:(?P<test>[^.]+)\.)?bound\.(?P<output>\w+)\.(?P<side>upper|lower)")  # of an output bound
 
 
@@ -90,9 +89,9 @@ def shown_column(name: str) -> tuple[str, float] | None:
     bound ("multiplier.56kph.bound.pitch.upper", per SI unit) as a person reads it: its label
     ("56kph: peak deceleration (g)", "56kph: d objective / d pitch upper bound (1/deg)") and the
     factor from the column's value to that unit; None for any other column."""
-    for key, label, factor in METRIC_ROWS:
-        if name.endswith(f".{key}"):
-            return f"{name.removesuffix('.' + key)}: {label}", factor
+    for m in METRICS:
+        if name.endswith(f".{m.key}"):
+            return f"{name.removesuffix('.' + m.key)}: {m.heading}", m.factor
     bound = MULTIPLIER.fullmatch(name)
     if bound is not None and bound["output"] in OUTPUT:
         unit, factor = shown_unit(OUTPUT[bound["output"]].unit)

@@ -11,13 +11,12 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.numerics.runtime import THREADS_ENV
 from crashnlp.problem import problem_from_dict
 
 if TYPE_CHECKING:
     from crashnlp.results.result import Result
-
-METRICS = ("max_crush_m", "time_zero_velocity_s", "peak_decel_g", "rebound_velocity_mps", "max_pitch_deg", "olc_g")
 
 
 def solve_job(job: dict[str, Any]) -> dict[str, Any]:
@@ -55,7 +54,7 @@ def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
         "wall_s": result.solver.wall_s,
     }
     for name, test in result.tests.items():
-        record.update({f"{name}.{k}": test.metrics[k] for k in METRICS})
+        record.update({f"{name}.{k}": test.metrics[k] for k in PREDICTED_KEYS})
     for path, value in result.parameters.items():
         values = np.ravel(value)
         if np.ndim(value):

@@ -1,0 +1,60 @@
+"""Each registry a problem file chooses from: the schema takes its choices from the names below it
+(crashnlp.problem.choices, crashnlp.base.outputs), and each implementation registry above holds
+exactly those names, so that no choice the schema accepts lacks an implementation and no
+implementation is out of the schema's reach. And the crash metrics: one registry, whose keys are
+the ones the metrics of a pulse carry, in result.json's order."""
+
+from __future__ import annotations
+
+from typing import get_args
+
+import numpy as np
+import pytest
+
+from crashnlp.analysis.summary import metrics
+from crashnlp.base.outputs import BOUNDED, MEASURABLE, METRIC, METRICS, OUTPUT, PREDICTED, TABLED
+from crashnlp.data.load import READERS
+from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.problem import choices, schema
+from crashnlp.transcription import TRANSCRIPTIONS
+
+
+def test_laws_and_formats_hold_the_schemas_names():
+    assert tuple(SPRING_LAWS) == choices.SPRING_LAWS == get_args(schema.Spring.model_fields["law"].annotation)
+    assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
+    assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
+
+
+def test_each_transcription_has_its_spec_class():
+    specs = get_args(get_args(schema.TranscriptionSpec)[0])
+    assert {get_args(s.model_fields["method"].annotation)[0] for s in specs} == set(TRANSCRIPTIONS)
+
+
+def test_the_schemas_outputs_are_the_output_registrys():
+    assert get_args(schema.ChannelName) == MEASURABLE
+    assert get_args(schema.OutputName) == BOUNDED
+    assert schema.OUTPUT_UNITS == {name: OUTPUT[name].unit for name in BOUNDED}
+    bounds = schema.Constraints.model_validate({"bounds": {"pitch": ["-2 deg", "10 deg"]}}).bounds
+    assert bounds["pitch"] == pytest.approx((np.radians(-2), np.radians(10)))
+
+
+def test_a_pulses_metrics_are_the_registrys_keys_in_its_order():
+    t = np.linspace(0.0, 0.12, 1201)
+    accel = -200.0 * np.sin(np.pi * t / 0.1) * (t < 0.1)
+    velocity = 15.0 + np.concatenate(([0.0], np.cumsum((accel[1:] + accel[:-1]) / 2 * np.diff(t))))
+    displacement = np.concatenate(([0.0], np.cumsum((velocity[1:] + velocity[:-1]) / 2 * np.diff(t))))
+    out = metrics(t, accel, velocity, displacement, np.zeros_like(t), displacement)
+    assert list(out) == [m.key for m in METRICS]
+    assert out["peak_decel_g"] == pytest.approx(200.0 / 9.80665, rel=1e-6)  # read in g, as the key says
+    assert out["max_crush_m"] == out["max_front_end_crush_m"]
+
+
+def test_metric_rows_read_as_they_say():
+    assert {m.key for m in PREDICTED} <= {m.key for m in TABLED}
+    crush = METRIC["max_crush_m"]
+    assert crush.heading == "max dynamic crush (mm)" and crush.column == "max_crush_mm"
+    assert crush.shown(0.61234) == "612.3" and crush.band((0.6, 0.625)) == "[600.0, 625.0]"
+    assert METRIC["rebound_velocity_mps"].column == "rebound_velocity_mps"
+    for m in METRICS:
+        assert m.channel is None or m.channel in OUTPUT
+        assert not m.extreme or m.channel is not None  # an instant's value is some channel's extreme
