@@ -17,7 +17,9 @@ from crashnlp.case.case import Case
 from crashnlp.optimize import solve as solve_module
 from crashnlp.optimize.identify import identify
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.solve import CYCLE_RUN, SETTLE_OPTIONS, SolveResult, cycle, followed, ipopt_options
+from crashnlp.optimize.options import SETTLE_OPTIONS, ipopt_options
+from crashnlp.optimize.solved import SolveResult
+from crashnlp.optimize.watch import CYCLE_RUN, cycle, followed
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import Solver
 from crashnlp.transcription.collocation import GAUSS_NEWTON_OPTIONS

@@ -490,7 +490,7 @@ def test_a_mass_no_vehicle_has_is_refused_before_the_integrator_sees_it(tmp_path
 
 @pytest.mark.integration
 def test_ctrl_c_inside_ipopt_ends_the_run_as_interrupted_and_writes_nothing(tmp_path, capsys, monkeypatch):
-    from crashnlp.optimize.solve import Watch
+    from crashnlp.optimize.watch import Watch
 
     iteration = Watch.eval
 

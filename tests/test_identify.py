@@ -189,7 +189,7 @@ def test_where_gauss_newton_fails_the_exact_hessian_starts_over_and_counts_both(
     ids=["slow", "at-the-limit", "fast", "growing", "still-far"],
 )
 def test_the_slow_tail_is_a_steady_slow_contraction_close_in(ratio, last, tail):
-    from crashnlp.optimize.solve import TAIL_RUN, slow_tail
+    from crashnlp.optimize.watch import TAIL_RUN, slow_tail
 
     steps = [last / ratio**k for k in range(TAIL_RUN, -1, -1)]
     assert slow_tail(steps) is tail

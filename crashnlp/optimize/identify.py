@@ -16,7 +16,9 @@ from crashnlp.models.form import OUTPUTS
 from crashnlp.numerics.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
-from crashnlp.optimize.solve import SETTLE_OPTIONS, STEADY_OPTIONS, SolveResult, after, solve
+from crashnlp.optimize.options import SETTLE_OPTIONS, STEADY_OPTIONS
+from crashnlp.optimize.solve import solve
+from crashnlp.optimize.solved import SolveResult, after
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
@@ -146,7 +148,7 @@ def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalContr
 
 
 # Multiple shooting integrates each interval in `substeps` RK4 steps. Where the fit's iterates
-# cycle (crashnlp.optimize.solve: a kink of the force laws crossed inside a step), the fit is
+# cycle (crashnlp.optimize.watch: a kink of the force laws crossed inside a step), the fit is
 # solved again from where it got to with REFINE times the steps, up to MAX_SUBSTEPS: the pickup
 # at 56 and 40 km/h and at a 4-degree pitch bound both finish at 4 steps.
 REFINE, MAX_SUBSTEPS = 4, 16
@@ -210,7 +212,7 @@ def _refined(case: Case, cycled: SolveResult) -> tuple[Case, str]:
 
 def _settled(case: Case) -> str:
     """The line that says a cycle no finer integration could take away was settled
-    (crashnlp.optimize.solve.SETTLE_OPTIONS)."""
+    (crashnlp.optimize.options.SETTLE_OPTIONS)."""
     spec = case.problem.transcription
     where = f"{spec.substeps} RK4 steps per interval" if isinstance(spec, MultipleShootingSpec) else "its collocation grid"
     return (
@@ -221,7 +223,7 @@ def _settled(case: Case) -> str:
 
 def _steady(case: Case) -> str:
     """The line that says a fit stopped at IPOPT's acceptable level with its objective steady
-    (crashnlp.optimize.solve.STEADY_OPTIONS)."""
+    (crashnlp.optimize.options.STEADY_OPTIONS)."""
     return (
         f"{case.name}: {_steady_for(case, STEADY_OPTIONS)}: stopped at IPOPT's acceptable level, short of its"
         " tolerance (as where a kink of the force laws, crossed inside an integration step, holds the dual"

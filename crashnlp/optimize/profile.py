@@ -27,7 +27,7 @@ from crashnlp.case.case import Case
 from crashnlp.engine.executors import Executor
 from crashnlp.engine.schedule import map_all
 from crashnlp.optimize.identify import Solution, fit_ocp
-from crashnlp.optimize.solve import build_solver
+from crashnlp.optimize.solvers import build_solver
 from crashnlp.problem.schema import Problem
 from crashnlp.results.identified import Z95
 
