@@ -20,7 +20,7 @@ from crashnlp.transcription import TRANSCRIPTIONS
 
 
 def test_laws_and_formats_hold_the_schemas_names():
-    assert tuple(SPRING_LAWS) == choices.SPRING_LAWS == get_args(schema.Spring.model_fields["law"].annotation)
+    assert tuple(SPRING_LAWS) == tuple(choices.SPRING_LAWS) == get_args(schema.Spring.model_fields["law"].annotation)
     assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
     assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
 

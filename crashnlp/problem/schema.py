@@ -265,7 +265,6 @@ class Vehicle(Strict):
 
 
 # --------------------------------------------------------------------------- model
-SPRING_UNITS = {"force": "N", "secant": "N/m"}
 
 
 class BreakpointCount(Strict):
@@ -287,11 +286,11 @@ class Tail(Strict):
 
 TailRule = Literal["trend", "segment"]
 
-SpringLawName = Literal[SPRING_LAWS]  # type: ignore[valid-type]  # crashnlp.problem.choices
+SpringLawName = Literal[tuple(SPRING_LAWS)]  # type: ignore[valid-type]  # crashnlp.problem.choices
 
 
 class Spring(Strict):
-    law: SpringLawName = Field(
+    law: SpringLawName = Field(  # type: ignore[valid-type]
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
     )
     crush_breakpoints: list[Length] | BreakpointCount | None = Field(
@@ -319,9 +318,9 @@ class Spring(Strict):
         if not isinstance(data, dict) or not isinstance(data.get("values"), list):
             return data
         law = data.get("law", "force")
-        if not isinstance(law, str) or law not in SPRING_UNITS:
+        if not isinstance(law, str) or law not in SPRING_LAWS:
             return {k: v for k, v in data.items() if k != "values"}
-        return {**data, "values": [_quantity_in_si(v, SPRING_UNITS[law]) for v in data["values"]]}
+        return {**data, "values": [_quantity_in_si(v, SPRING_LAWS[law]) for v in data["values"]]}
 
     @field_validator("crush_breakpoints")
     @classmethod
@@ -339,7 +338,7 @@ class Spring(Strict):
         return self
 
     def unit_of(self, field: str) -> str | None:
-        return SPRING_UNITS[self.law] if field == "values" else super().unit_of(field)
+        return SPRING_LAWS[self.law] if field == "values" else super().unit_of(field)
 
     @property
     def placed_breakpoints(self) -> list[float]:
