@@ -25,10 +25,10 @@ from pathlib import Path
 
 import numpy as np
 
+from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.problem.choices import DATA_FORMATS
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 

@@ -31,6 +31,7 @@ import yaml
 from pydantic import ValidationError
 
 from crashnlp.analysis.metrics import STOPPED, zero_crossing
+from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError
 from crashnlp.base.units import unit_scale
 from crashnlp.data.csv_reader import Table
@@ -38,7 +39,6 @@ from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
-from crashnlp.problem.choices import DATA_FORMATS
 from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
 from crashnlp.results.files import atomic_open, check_writable_file

@@ -1,5 +1,5 @@
 """Each registry a problem file chooses from: the schema takes its choices from the names below it
-(crashnlp.problem.choices, crashnlp.base.outputs), and each implementation registry above holds
+(crashnlp.base.choices, crashnlp.base.outputs), and each implementation registry above holds
 exactly those names, so that no choice the schema accepts lacks an implementation and no
 implementation is out of the schema's reach. And the crash metrics: one registry, whose keys are
 the ones the metrics of a pulse carry, in result.json's order."""
@@ -12,10 +12,11 @@ import numpy as np
 import pytest
 
 from crashnlp.analysis.summary import metrics
+from crashnlp.base import choices
 from crashnlp.base.outputs import BOUNDED, MEASURABLE, METRIC, METRICS, OUTPUT, PREDICTED, TABLED
 from crashnlp.data.load import READERS
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
-from crashnlp.problem import choices, schema
+from crashnlp.problem import schema
 from crashnlp.transcription import TRANSCRIPTIONS
 
 

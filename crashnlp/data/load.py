@@ -1,7 +1,7 @@
 """Load a test's data as the problem file describes it: read, sign, bias, filter, integrate, window.
 
 A new format is one reader module plus one line in READERS and its name in
-crashnlp.problem.choices.DATA_FORMATS (the schema's choices): a reader takes the DataSpec and
+crashnlp.base.choices.DATA_FORMATS (the schema's choices): a reader takes the DataSpec and
 returns the non-derived channels in SI (file sign, unfiltered) and the header meta.
 """
 

@@ -8,7 +8,7 @@ away from kinks at the breakpoints.
 
 A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
 added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS; either's name also goes
-into crashnlp.problem.choices, where the schema reads it. Past the last
+into crashnlp.base.choices, where the schema reads it. Past the last
 breakpoint a law continues its last segment, unless `with_tail` bends it into a line.
 """
 

@@ -39,9 +39,9 @@ from pydantic import (
 from pydantic.json_schema import JsonSchemaValue
 from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
 
+from crashnlp.base.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
 from crashnlp.base.units import to_si
-from crashnlp.problem.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
@@ -286,7 +286,7 @@ class Tail(Strict):
 
 TailRule = Literal["trend", "segment"]
 
-SpringLawName = Literal[tuple(SPRING_LAWS)]  # type: ignore[valid-type]  # crashnlp.problem.choices
+SpringLawName = Literal[tuple(SPRING_LAWS)]  # type: ignore[valid-type]  # crashnlp.base.choices
 
 
 class Spring(Strict):
@@ -413,7 +413,7 @@ class Model(Strict):
 # --------------------------------------------------------------------------- data
 CHANNEL_UNITS = {name: OUTPUT[name].unit for name in MEASURABLE}
 ChannelName = Literal[MEASURABLE]  # type: ignore[valid-type]  # the channels a problem names: the measurable outputs
-DataFormat = Literal[DATA_FORMATS]  # type: ignore[valid-type]  # crashnlp.problem.choices
+DataFormat = Literal[DATA_FORMATS]  # type: ignore[valid-type]  # crashnlp.base.choices
 CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
 DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
 SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
