@@ -168,6 +168,7 @@ def _process(bench: dict[str, Any]) -> dict[str, str]:
         "process_speedup": f"{whole['speedup']:.1f}",
         "process_no_figures_speedup": f"{whole['speedup_no_figures']:.1f}",
     }
+    out["load"] = f"{bench['machine']['load_average'][0]:.1f}"  # the machine's load average when the run began
     if "new_problem" in whole:  # a new problem's runs and the pickup's, as ratios to the import floor
         new = whole["new_problem"]
         out |= {f"new_problem_run{n}_x": f"{new[f'run_{n}']['vs_floor']:.1f}" for n in (1, 2, 3)}
