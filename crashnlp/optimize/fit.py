@@ -2,7 +2,10 @@
 
 Each channel's residuals are divided by its scale sigma and weighted by the
 inverse of its sample count, so channels of different units and lengths count
-alike. Default scales are the accuracy a crash engineer asks of a fit.
+alike. Default scales are the accuracy a crash engineer asks of a fit. A channel
+the test filtered (its `filter`) that reads zero before impact is compared as the
+test recorded it: the model's samples filtered at the same CFC class, a fixed matrix
+on them (crashnlp.instrument).
 """
 
 from __future__ import annotations
@@ -12,7 +15,8 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
-from crashnlp.data.signal import resample
+from crashnlp.data.signal import CFC_CLASSES, resample
+from crashnlp.instrument import AT_REST, recording_matrix
 from crashnlp.nlp import NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.prior import SmoothnessPrior, smoothness_prior
@@ -37,8 +41,14 @@ class Residual:
     data: np.ndarray  # SI, at those nodes
     sigma: float
     weight: float
-    model: ca.MX  # model output at those nodes (SI)
+    model: ca.MX  # model output at those nodes (SI), as the test recorded it
     measured: ca.MX  # the data as an NLP parameter (row)
+    recording: np.ndarray | None = None  # fitted nodes x all nodes: the model's samples as recorded (None: as they are)
+
+    def seen(self, values: np.ndarray) -> np.ndarray:
+        """The model's output at every node (SI) as this residual compares it with the data."""
+        values = np.asarray(values, dtype=float)
+        return self.recording @ values if self.recording is not None else values[self.columns]
 
     @property
     def error(self) -> ca.MX:
@@ -64,11 +74,23 @@ def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
             continue
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
-        model = tr.output(name)[:, cols.tolist()]
+        recording = _recording(name, ch_spec.filter if ch_spec.derive is None else None, times, cols)
+        if recording is None:
+            model = tr.output(name)[:, cols.tolist()]
+        else:
+            model = ca.mtimes(tr.output(name), nlp.parameter(f"{tr.test.name}.{name}.recording", recording.T))
         data = resample(channel, times[cols])
         measured = nlp.parameter(f"{tr.test.name}.{name}.data", data[None, :])
-        out.append(Residual(tr.test.name, name, cols.tolist(), data, sigma, ch_spec.weight, model, measured))
+        out.append(Residual(tr.test.name, name, cols.tolist(), data, sigma, ch_spec.weight, model, measured, recording))
     return out
+
+
+def _recording(name: str, cfc: str | None, times: np.ndarray, cols: np.ndarray) -> np.ndarray | None:
+    """The rows of the recording matrix at the fitted nodes of a channel read through a CFC
+    filter that reads zero before impact; None for the others (their samples compared as they are)."""
+    if cfc is None or name not in AT_REST:
+        return None
+    return recording_matrix(times, CFC_CLASSES[cfc])[cols]
 
 
 @dataclass
