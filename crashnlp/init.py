@@ -540,7 +540,10 @@ def init_problem(data: Path, out: Path, options: Options) -> Problem:
         raise InputError(f"{data}: file not found")
     draft, suspension = draft_for(data, options)
     out_dir = Path(out).resolve().parent
-    problem = Case(problem_from_dict(problem_dict(draft, suspension, data), out_dir, source=str(data))).problem
+    case = Case(problem_from_dict(problem_dict(draft, suspension, data), out_dir, source=str(data)))
+    problem = case.problem
+    if case.resolution is not None:
+        draft.notes.append(f"Spring: {case.resolution.note}.")
     text = render(draft, problem, os.path.relpath(data.resolve(), out_dir))
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
     Path(out).write_text(text)

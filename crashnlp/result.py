@@ -120,6 +120,7 @@ class Result:
     z: np.ndarray | None = field(default=None, repr=False)  # the NLP's solution vector, to warm-start a twin
     identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
     regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
+    resolution: dict[str, Any] = field(default_factory=dict)  # the spring law's breakpoints and how their number was chosen
 
     @property
     def ok(self) -> bool:
@@ -140,6 +141,7 @@ class Result:
             "profiles": self.profiles,
             "covariance": self.covariance,
             "regularization": self.regularization,
+            "resolution": self.resolution,
             "at_bound": self.at_bound,
             "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
@@ -190,6 +192,7 @@ class Result:
             profiles=raw.get("profiles", {}),
             covariance=raw.get("covariance", {}),
             regularization=raw.get("regularization", {}),
+            resolution=raw.get("resolution", {}),
             notes=tuple(raw.get("notes", ())),
             identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )

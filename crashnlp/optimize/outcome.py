@@ -59,6 +59,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         notes=tuple(solution.notes) + _data_notes(case) + identified.tail_notes(),
         identified=identified,
         regularization=solution.regularization,
+        resolution=case.resolution.to_json() if case.resolution is not None else {},
     )
 
 
