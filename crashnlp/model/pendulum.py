@@ -33,7 +33,7 @@ from typing import Any
 
 import casadi as ca
 
-from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge, with_tail
+from crashnlp.model.laws import SPRING_LAWS, UNLOADING_LAWS, damper_force, hinge, rounded_hinge, with_tail
 from crashnlp.model.parameters import ParameterLayout
 from crashnlp.outputs import NAMES
 from crashnlp.problem.schema import Model as ModelSpec
@@ -43,6 +43,15 @@ STATES = ("r", "theta", "rdot", "thetadot", "x_max")  # x_max: largest crush so 
 NX = len(STATES)
 ABSORBED = ("barrier_power", "front_damper_power", "damper_power")  # integrated by the simulator
 HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush this far below it
+# The contact force never pulls: it is the front end's push where positive, zero once the vehicle
+# separates. The switch is rounded over a band of SEPARATION crush smoothing widths along the
+# unloading stiffness (the unloading switch's width, crashnlp.model.laws.plastic_unloading), exact
+# outside it (crashnlp.model.laws.rounded_hinge): unsmoothed, its
+# slope falls from the unloading stiffness to zero at one instant, and a fit whose data want a
+# shooting node's force below zero (a CFC-filtered pulse undershoots after a steep end) sits on
+# that kink, its dual infeasibility held up at any integration step (a tall van fitted at 40 + 56
+# km/h cycled there past 170 iterations; 15 once smoothed: docs/design-notes.md).
+SEPARATION = 0.1
 OUTPUTS = NAMES  # the registry's order (crashnlp.outputs)
 
 
@@ -118,7 +127,9 @@ class PendulumModel:
             # starts from zero at impact instead of jumping to c * v0
             engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
             damper = engaged * damper_force(rate, dbps, dvals, s.eps_rate)
-        contact = ca.if_else(crush >= 0, ca.fmax(force + damper, 0), 0)
+        push = force + damper
+        separating = rounded_hinge(push, SEPARATION * s.eps_crush * stiffness) if s.eps_crush > 0 else ca.fmax(push, 0)
+        contact = ca.if_else(crush >= 0, separating, 0)
         return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
 
     def _history_rate(self, crush, rate, x_max):
