@@ -6,6 +6,7 @@ from scipy.signal import filtfilt
 
 from crashnlp.data.signal import cfc_coefficients, cfc_filter
 from crashnlp.instrument import PRE_IMPACT, as_recorded, recording
+from crashnlp.units import G0
 
 
 def pulse(t: np.ndarray) -> np.ndarray:
@@ -55,3 +56,18 @@ def test_a_class_the_model_grid_cannot_carry_is_filtered_on_a_finer_one():
     t = np.linspace(0.0, 0.15, 151)
     seen = as_recorded(t, pulse(t), 180.0)
     assert np.all(np.isfinite(seen)) and np.max(np.abs(seen - pulse(t))) < 0.2 * 380.0
+
+
+def test_the_exported_pulse_is_recorded_from_rest_as_the_fit_compares_it():
+    """A pulse that steps to 20 g at impact is exported as an accelerometer at rest before impact
+    records it (half the step at impact: the zero-phase filter's), not as the step held back into
+    negative time; and it is the fit's recording of the same samples."""
+    from crashnlp.export import pulse
+    from crashnlp.response import Response
+
+    time = np.arange(0.0, 0.1 + 1e-9, 1e-4)
+    step = -20.0 * G0 * (time < 0.05)
+    velocity = 15.0 + np.concatenate([[0.0], np.cumsum(0.5 * (step[1:] + step[:-1]) * np.diff(time))])
+    p = pulse(Response(time, {"accel": step, "velocity": velocity}, np.zeros((1, time.size))), 15.0, 1e4, 60.0)
+    assert p.accel[0] == pytest.approx(0.5 * step[0], rel=0.02)
+    assert np.allclose(p.accel, as_recorded(time, step, 60.0))
