@@ -320,7 +320,9 @@ def _camry() -> Quoted:
         "camry-64-data-not-shown": "\n".join(line for line in faster if "data not shown" in line),
     }
     model, data = test["metrics"]["model"], test["metrics"]["data"]
-    numbers = crush_and_stop("camry", model) | crush_and_stop("camry.data", data) | peak("camry", model) | peak("camry.data", data)
+    numbers = (
+        crush_and_stop("camry", model) | crush_and_stop("camry.data", data) | peak("camry", model) | peak("camry.data", data)
+    )
     return blocks, numbers | table_row("camry", test)
 
 

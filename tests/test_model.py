@@ -296,7 +296,9 @@ def test_the_rounded_end_of_contact_is_exact_outside_its_band_and_once_different
     pushes = np.linspace(-3e3, 3e3, 601)
     values = np.array([float(f(p)) for p in pushes])
     assert np.all(values >= 0)
-    assert np.all(values[pushes <= -0.5 * width] == 0) and np.allclose(values[pushes >= 0.5 * width], pushes[pushes >= 0.5 * width])
+    assert np.all(values[pushes <= -0.5 * width] == 0) and np.allclose(
+        values[pushes >= 0.5 * width], pushes[pushes >= 0.5 * width]
+    )
     h = 1e-3
     for edge in (-0.5 * width, 0.5 * width):
         left, right = float(slope(edge - h)), float(slope(edge + h))
