@@ -265,6 +265,8 @@ def _print_solution(result) -> None:
     if result.at_bound:
         pulls = ", ".join(f"{label} ({pull:.2g} std)" for label, pull in result.at_bound.items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
+    if result.resolution:
+        print(f"  {result.resolution['note']}")
     for note in result.identified.tail_notes() if result.identified is not None else ():
         print(f"  {note}")
     for name, t in result.tests.items():

@@ -667,7 +667,10 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     _check_out(Path(out), paths)
     draft, suspension = draft_for(paths, options)
     out_dir = Path(out).resolve().parent
-    problem = Case(problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0]))).problem
+    case = Case(problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0])))
+    problem = case.problem
+    if case.resolution is not None:
+        draft.notes.append(f"Spring: {case.resolution.note}.")
     text = render(draft, problem, os.path.relpath(paths[0].resolve(), out_dir))
     out_dir.mkdir(parents=True, exist_ok=True)  # the data file is named from here
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")

@@ -12,11 +12,13 @@ from scipy.interpolate import PchipInterpolator
 from crashnlp.case.case import Case
 from crashnlp.case.completion import (
     DEFAULT_COUNT,
+    LEVEL,
+    MAX_COUNT,
     REACH,
-    breakpoints,
     complete,
     measured_pulses,
     repaired_start,
+    resolution,
     several_speeds,
     spring_values,
     unloading_stiffness,
@@ -47,7 +49,7 @@ def test_breakpoints_span_the_measured_crush_where_the_curve_bends(pickup_case):
     pulses = measured_pulses(pickup_case.problem, pickup_case.tests)
     crush = max(p.max_crush for p in pulses)
     assert crush == pytest.approx(0.593, abs=0.002)  # the data set's truth
-    bps = np.array(breakpoints(pulses))
+    bps = np.array(resolution(pulses, DEFAULT_COUNT)[0])
     assert bps.size == DEFAULT_COUNT and bps[0] == 0.0
     assert bps[-1] == pytest.approx(REACH * crush)
     assert np.min(np.diff(bps)) >= MIN_SPACING * bps[-1] / (DEFAULT_COUNT - 1) - 1e-12
@@ -57,6 +59,25 @@ def test_breakpoints_span_the_measured_crush_where_the_curve_bends(pickup_case):
     x = np.linspace(0.0, crush, 500)
     misses = [np.sqrt(np.mean((np.interp(x, b, truth(b)) - truth(x)) ** 2)) for b in (bps, np.linspace(0.0, crush, bps.size))]
     assert misses[0] < 0.7 * misses[1]
+
+
+def test_the_data_choose_the_fewest_breakpoints_whose_curve_follows_their_loading_curve(pickup_case):
+    """The Camry's loading curve (NHTSA 10146: its peaks and folds) asks for 14 breakpoints: 13
+    leave more than LEVEL per unit of mass, 14 less. The synthetic pickup's smooth one is followed
+    within a fifth of LEVEL by DEFAULT_COUNT already. A count or a list the problem gives is kept,
+    and the data's choice is said beside it."""
+    camry = Case(load_problem(ROOT / "problems" / "nhtsa-10146.yaml"))
+    pulses = measured_pulses(camry.problem, camry.tests)
+    placed, chosen = resolution(pulses)
+    assert (chosen.count, chosen.chosen, len(placed)) == (14, "data", 14) and chosen.misfit <= LEVEL
+    assert resolution(pulses, 13)[1].misfit > LEVEL
+    assert chosen.misfit < resolution(pulses, DEFAULT_COUNT)[1].misfit / 3
+    pickup = measured_pulses(pickup_case.problem, pickup_case.tests)
+    placed, chosen = resolution(pickup)
+    assert chosen.count == DEFAULT_COUNT < MAX_COUNT and chosen.misfit < LEVEL / 5
+    given = resolution(pulses, [0.0, 0.4, 0.8])[1]
+    assert (given.count, given.chosen, given.data_count) == (3, "list", 14) and given.misfit > LEVEL
+    assert "the data would choose 14" in given.note
 
 
 def test_spring_values_follow_the_true_load_curve(pickup_case):
@@ -141,7 +162,7 @@ def test_breakpoints_without_data_are_refused():
 def test_complete_keeps_what_the_problem_gives(pickup_case):
     """A complete problem comes back equal (the shipped problems do not change)."""
     problem = load_problem(PICKUP)
-    assert complete(problem, measured_pulses(pickup_case.problem, pickup_case.tests)).model_dump() == problem.model_dump()
+    assert complete(problem, measured_pulses(pickup_case.problem, pickup_case.tests))[0].model_dump() == problem.model_dump()
 
 
 def test_repaired_start_reaches_the_measured_crush():

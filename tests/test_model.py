@@ -281,3 +281,26 @@ def test_a_tail_in_the_problem_caps_the_force_past_its_start():
 def _damper(r) -> np.ndarray:
     """The front-end damper's force along a response (its power over the crush rate)."""
     return np.divide(r["front_damper_power"], r["crush_rate"], out=np.zeros_like(r.time), where=np.abs(r["crush_rate"]) > 1e-6)
+
+
+def test_the_rounded_end_of_contact_is_exact_outside_its_band_and_once_differentiable():
+    """The contact force's switch to zero (crashnlp.models.laws.rounded_hinge): zero below the
+    band, the push itself above it, never negative, and its slope continuous (against finite
+    differences) across both edges, where a fit's iterates would otherwise cycle."""
+    from crashnlp.models.laws import rounded_hinge
+
+    z = ca.SX.sym("z")
+    width = 2.0e3
+    f = ca.Function("f", [z], [rounded_hinge(z, width)])
+    slope = ca.Function("df", [z], [ca.jacobian(rounded_hinge(z, width), z)])
+    pushes = np.linspace(-3e3, 3e3, 601)
+    values = np.array([float(f(p)) for p in pushes])
+    assert np.all(values >= 0)
+    assert np.all(values[pushes <= -0.5 * width] == 0) and np.allclose(
+        values[pushes >= 0.5 * width], pushes[pushes >= 0.5 * width]
+    )
+    h = 1e-3
+    for edge in (-0.5 * width, 0.5 * width):
+        left, right = float(slope(edge - h)), float(slope(edge + h))
+        assert left == pytest.approx(right, abs=1e-5)
+        assert float(slope(edge)) == pytest.approx((float(f(edge + h)) - float(f(edge - h))) / (2 * h), abs=1e-5)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from crashnlp.case.segmentation import BANDS, MIN_SPACING, bends, line_misfits
+from crashnlp.case.segmentation import BANDS, MIN_SPACING, bends, line_misfits, misfit
 
 
 def test_line_misfits_are_the_least_squares_residuals():
@@ -29,6 +29,19 @@ def test_the_knots_of_a_piecewise_linear_curve_are_found():
     assert found[0] == 0.0 and found[-1] == 0.6
     assert np.max(np.abs(found - knots)) <= 0.6 / BANDS + 1e-12
     assert np.max(np.abs(np.linspace(0.0, 0.6, knots.size) - knots)) > 0.035
+
+
+def test_the_misfit_is_what_a_continuous_curve_through_the_breakpoints_leaves():
+    """Nothing through the knots of a piecewise-linear curve (on band edges: no band straddles a
+    knot); through fewer, the RMS of the best such curve, which noise raises by its own RMS."""
+    knots, force = np.array([0.0, 0.2, 0.45, 0.7]), np.array([0.0, 4e5, 3e5, 9e5])
+    crush = np.linspace(0.0, 0.7, 7001)
+    curve = np.interp(crush, knots, force)
+    assert misfit(crush, curve, 0.7, list(knots)) < 1e-6 * 9e5
+    coarse = misfit(crush, curve, 0.7, [0.0, 0.35, 0.7])
+    assert 2e4 < coarse < 2e5
+    noisy = curve + np.random.default_rng(1).normal(0.0, 1e4, crush.size)
+    assert misfit(crush, noisy, 0.7, list(knots)) == pytest.approx(1e4 / np.sqrt(crush.size / BANDS), rel=0.3)
 
 
 def test_a_straight_curve_is_split_evenly():

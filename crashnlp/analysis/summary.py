@@ -9,7 +9,8 @@ import numpy as np
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.base.outputs import METRICS
 from crashnlp.case.testcase import TestCase
-from crashnlp.data.signal import integrate, resample
+from crashnlp.data.instrument import as_recorded
+from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.results.response import Response
 
 
@@ -70,9 +71,19 @@ def data_metrics(test: TestCase) -> dict | None:
     return out
 
 
-def response_metrics(r: Response) -> dict:
+def response_metrics(r: Response, accel_filter: str | None = None) -> dict:
+    """The metrics of a model response; with `accel_filter` (the CFC class of a test's
+    accelerometers) its acceleration as the test recorded it (crashnlp.data.instrument), so that its
+    peak and pulse compare with the test's filtered ones."""
     y = r.outputs
-    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+    accel = y["accel"] if accel_filter is None else as_recorded(r.time, y["accel"], CFC_CLASSES[accel_filter])
+    return metrics(r.time, accel, y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+
+
+def accel_filter(test: TestCase) -> str | None:
+    """The CFC class a test's accelerometers were read through (None: none, or no accel channel)."""
+    spec = test.spec.data.channels.get("accel") if test.spec.data is not None else None
+    return spec.filter if spec is not None and spec.derive is None else None
 
 
 def channel_consistency(test: TestCase, mass: float) -> dict | None:

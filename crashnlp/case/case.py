@@ -34,12 +34,13 @@ class Case:
 
     What the problem leaves out (vehicle mass, breakpoints, spring values, unloading
     stiffness, estimate) is filled in from the data (crashnlp.case.completion); `problem` is the
-    completed copy, and the problem it is given is not changed.
+    completed copy, and the problem it is given is not changed; `resolution` says how finely
+    its spring law follows the data's loading curve and who chose that (None without data).
     """
 
     def __init__(self, problem: Problem):
         loaded, tests = load_tests(problem)
-        self.problem = complete(loaded, measured_pulses(loaded, tests))
+        self.problem, self.resolution = complete(loaded, measured_pulses(loaded, tests))
         self.tests = [dataclasses.replace(test, spec=spec) for test, spec in zip(tests, self.problem.tests)]
         self.layout = ParameterLayout.of(self.problem)
         self.base = self.layout.values(self.problem)

@@ -4,14 +4,17 @@ The given problem is never changed. What is filled, and how:
 
 - Crush from the data: the displacement channel, else the integral of velocity, else the
   integral of acceleration from the impact speed; samples from impact (t >= 0) on.
-- `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints (default 8) from 0
-  to the largest crush of all tests (REACH = 1), where the measured loading curve (m |a|
-  against crush, all tests together) bends (crashnlp.case.segmentation): at the bumper's first
-  peak, the ends of plateaus, the start of a stack-up, which evenly spaced breakpoints put
-  corners inside. None lies past the largest crush, so the data reach every one: a breakpoint
-  past it would carry a value the data barely see, which a fit runs to where model-form error
-  pulls it and a prediction at a higher speed then meets. Past the last breakpoint the spring
-  law continues its last segment.
+- `model.spring.crush_breakpoints` omitted or `{count: N}`: N breakpoints from 0 to the
+  largest crush of all tests (REACH = 1), where the measured loading curve (m |a| against
+  crush, all tests together) bends (crashnlp.case.segmentation): at the bumper's first peak, the
+  ends of plateaus, the start of a stack-up, which evenly spaced breakpoints put corners
+  inside. Omitted, N is the data's (`resolution`): the fewest from DEFAULT_COUNT up to
+  MAX_COUNT whose piecewise-linear curve follows the measured one within LEVEL RMS per unit
+  of mass (the discrepancy principle: as fine as the data ask, no finer). A problem's list
+  or count is kept, and the data's choice said beside it. None lies past the largest crush,
+  so the data reach every one: a breakpoint past it would carry a value the data barely see,
+  which a fit runs to where model-form error pulls it and a prediction at a higher speed then
+  meets. Past the last breakpoint the spring law continues its last segment.
 - `values` omitted: the measured force-crush curve while loading (impact to largest crush),
   m |a| minus the damper's force, against the crush, averaged over the crush band nearest
   each breakpoint (halfway to its neighbours). A band the data do not reach takes the
@@ -36,19 +39,25 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.case.segmentation import bends
+from crashnlp.base.units import G0
+from crashnlp.case.segmentation import BANDS, bends, misfit
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.channels import TestData
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.models.form import form_class
-from crashnlp.problem.schema import Damper, EstimateSpec, Problem, with_fields
+from crashnlp.problem.schema import BreakpointCount, Damper, EstimateSpec, Problem, with_fields
 
-DEFAULT_COUNT = 8
+DEFAULT_COUNT = 8  # the fewest breakpoints the data's resolution has
+MAX_COUNT = BANDS // 4 + 1  # the most: four crush bands to a segment (18)
+# The accuracy the loading curve is resolved to: 1 g of RMS misfit per unit of mass, half the
+# accel channel's residual scale (crashnlp.optimize.fit.DEFAULT_SIGMA), so that the force law
+# leaves the fit's accuracy to the dynamics (docs/identification.md, "Resolution").
+LEVEL = 1.0 * G0  # m/s^2
 REACH = 1.0
 DAMPING_PER_MASS = 2.0  # 1/s: nominal damper per kg of vehicle
 DAMPER_BOUND_FACTOR = 10.0  # the estimated damper's upper bound: this times the nominal one
@@ -99,11 +108,64 @@ def pulse(data: TestData, speed: float, mass: float) -> Pulse | None:
     return Pulse(t[after], x[after], v[after], mass * np.maximum(-a[after], 0.0), mass, speed, "pitch" in ch)
 
 
-def breakpoints(pulses: list[Pulse], count: int = DEFAULT_COUNT) -> list[float]:
-    """`count` breakpoints from 0 to REACH times the largest crush of all pulses, where their
-    measured loading curve (m |a| against crush) bends (crashnlp.case.segmentation)."""
-    top = REACH * max(p.max_crush for p in pulses)
-    return bends(*loading_curve(pulses), top, count)
+@dataclass(frozen=True)
+class Resolution:
+    """How finely the spring law follows the measured loading curve, and who chose it.
+
+    `chosen`: "data" (the problem left the breakpoints out: the fewest from DEFAULT_COUNT whose
+    curve follows the data within `level`), "count" (the problem gave their number) or "list"
+    (the problem gave them). `misfit`: RMS of the measured loading curve about the law's best
+    piecewise-linear curve through the breakpoints, per unit of mass (m/s^2); `data_count`: the
+    number the data would choose."""
+
+    count: int
+    chosen: Literal["data", "count", "list"]
+    misfit: float
+    level: float
+    data_count: int
+
+    def to_json(self) -> dict[str, float | int | str]:
+        """result.json's `resolution`: the misfit and level in g, and the note."""
+        return {
+            "count": self.count,
+            "chosen": self.chosen,
+            "data_count": self.data_count,
+            "misfit_g": round(self.misfit / G0, 4),
+            "level_g": self.level / G0,
+            "note": self.note,
+        }
+
+    @property
+    def note(self) -> str:
+        """One line: the number of breakpoints and how it was chosen."""
+        if self.chosen == "data":
+            met = "the fewest" if self.misfit <= self.level else "the most allowed, none"
+            return (
+                f"{self.count} breakpoints, chosen from the data: {met} of {DEFAULT_COUNT} to {MAX_COUNT} whose "
+                f"curve follows the measured loading curve within {self.level / G0:g} g RMS ({self.misfit / G0:.2f} g)"
+            )
+        given = "their number" if self.chosen == "count" else "them"
+        return (
+            f"{self.count} breakpoints, the problem gives {given}: their curve follows the measured loading curve "
+            f"within {self.misfit / G0:.2f} g RMS; the data would choose {self.data_count}"
+        )
+
+
+def resolution(pulses: list[Pulse], given: list[float] | int | None = None) -> tuple[list[float], Resolution]:
+    """The breakpoints (`given` as a list, else `given` of them, else as many as the data
+    choose) and how they follow the pulses' loading curve. Placed breakpoints run from 0 to
+    REACH times the largest crush of all pulses, where their measured loading curve (m |a|
+    against crush) bends (crashnlp.case.segmentation)."""
+    crush, force = loading_curve(pulses)
+    top, mass = REACH * max(p.max_crush for p in pulses), float(np.mean([p.mass for p in pulses]))
+    chosen: list[float] = []
+    for count in range(DEFAULT_COUNT, MAX_COUNT + 1):
+        chosen = bends(crush, force, top, count)
+        if misfit(crush, force, top, chosen) <= LEVEL * mass:
+            break
+    placed = given if isinstance(given, list) else bends(crush, force, top, given) if given is not None else chosen
+    how: Literal["data", "count", "list"] = "list" if isinstance(given, list) else "count" if given is not None else "data"
+    return placed, Resolution(len(placed), how, misfit(crush, force, top, placed) / mass, LEVEL, len(chosen))
 
 
 def loading_curve(pulses: list[Pulse], damper: Damper | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -194,17 +256,20 @@ def _required(pulses: list[Pulse], what: str) -> list[Pulse]:
     return pulses
 
 
-def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
+def complete(problem: Problem, pulses: list[Pulse]) -> tuple[Problem, Resolution | None]:
     """A copy of `problem` with breakpoints, spring values, damper, unloading stiffness and
-    estimate filled in from the pulses where the problem leaves them out. A filled-in entry
-    counts as set in its own section (`model_fields_set`), the sections around it do not."""
+    estimate filled in from the pulses where the problem leaves them out, and the resolution of
+    its spring law (None without pulses). A filled-in entry counts as set in its own section
+    (`model_fields_set`), the sections around it do not."""
     model = problem.model
     spring, unloading = model.spring, model.unloading
     set_in_model: dict[str, Damper] = {}
-    if not isinstance(spring.crush_breakpoints, list):
-        count = spring.crush_breakpoints.count if spring.crush_breakpoints is not None else DEFAULT_COUNT
-        placed = breakpoints(_required(pulses, "model.spring.crush_breakpoints"), count)
-        spring = spring.model_copy(update={"crush_breakpoints": placed})
+    given = spring.crush_breakpoints
+    placed: Resolution | None = None
+    if pulses or not isinstance(given, list):
+        count = given.count if isinstance(given, BreakpointCount) else given
+        bps, placed = resolution(_required(pulses, "model.spring.crush_breakpoints"), count)
+        spring = spring.model_copy(update={"crush_breakpoints": bps})
     if spring.values is None:
         measured = _required(pulses, "model.spring.values")
         damper = model.damper if model.damper is not None else nominal_damper(measured, problem.vehicle.known_mass)
@@ -217,7 +282,7 @@ def complete(problem: Problem, pulses: list[Pulse]) -> Problem:
     out = with_fields(problem, model=with_fields(model, spring=spring, unloading=unloading).model_copy(update=set_in_model))
     if not out.estimate and out.kind == "identify" and pulses:
         out = out.model_copy(update={"estimate": default_estimate(out, pulses)})
-    return out
+    return out, placed
 
 
 def repaired_start(problem: Problem, tests: Sequence[TestCase]) -> dict[str, Any]:

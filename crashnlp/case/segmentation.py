@@ -9,6 +9,10 @@ minimise the squared misfit of a straight line fitted to each (the optimal segme
 dynamic programming, Bellman 1961), no segment shorter than MIN_SPACING times the even spacing,
 so that two breakpoints never come so close that the data cannot tell their values apart. A
 tie (a straight curve, where any split fits) goes to the most even split.
+
+`misfit` says how closely a spring law with given breakpoints can follow the curve: the RMS
+residual of the continuous piecewise-linear least-squares curve through them over the same band
+means (crashnlp.case.completion chooses the number of breakpoints by it).
 """
 
 from __future__ import annotations
@@ -30,6 +34,15 @@ def bends(crush: np.ndarray, force: np.ndarray, top: float, count: int) -> list[
     spread = float(np.sum((means - np.mean(means)) ** 2))  # the curve's own sum of squares
     cost = line_misfits(at, means) + EVEN_WEIGHT * spread * _shares(bands) ** 2
     return [float(edges[c]) for c in _split(cost, segments, shortest)]
+
+
+def misfit(crush: np.ndarray, force: np.ndarray, top: float, breakpoints: list[float]) -> float:
+    """RMS residual of the continuous piecewise-linear curve through `breakpoints` that fits the
+    curve's BANDS band means from 0 to `top` by least squares (the curve's unit)."""
+    at, means = band_means(crush, force, np.linspace(0.0, top, BANDS + 1))
+    hats = np.column_stack([np.interp(at, breakpoints, unit) for unit in np.eye(len(breakpoints))])
+    values = np.linalg.lstsq(hats, means, rcond=None)[0]
+    return float(np.sqrt(np.mean((hats @ values - means) ** 2)))
 
 
 def band_means(crush: np.ndarray, force: np.ndarray, edges: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

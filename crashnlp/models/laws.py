@@ -27,6 +27,14 @@ def hinge(z: Expr, eps: float) -> Expr:
     return ca.fmax(z, 0) if eps == 0 else 0.5 * (z + ca.sqrt(z * z + eps * eps))
 
 
+def rounded_hinge(z: Expr, width: Expr) -> Expr:
+    """max(z, 0) with its corner rounded by a parabola over |z| < width / 2: once differentiable,
+    and exact outside that band (zero below it, z above), so that a force clamped by it is zero
+    past the band, not a tail."""
+    half = 0.5 * width
+    return ca.if_else(z >= half, z, ca.if_else(z <= -half, 0, (z + half) ** 2 / (2 * width)))
+
+
 def hinge_integral(z: Expr, eps: float) -> Expr:
     """Antiderivative of `hinge` in z, zero far left."""
     if eps == 0:

@@ -2,7 +2,10 @@
 
 Each channel's residuals are divided by its scale sigma and weighted by the
 inverse of its sample count, so channels of different units and lengths count
-alike. Default scales are the accuracy a crash engineer asks of a fit.
+alike. Default scales are the accuracy a crash engineer asks of a fit. A channel
+the test filtered (its `filter`) that reads zero before impact is compared as the
+test recorded it: the model's samples filtered at the same CFC class, the filter's
+two passes variables of the NLP held to its banded equations (crashnlp.data.instrument).
 """
 
 from __future__ import annotations
@@ -13,8 +16,9 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.units import G0
-from crashnlp.data.signal import resample
-from crashnlp.numerics.nlp import NLPBuilder
+from crashnlp.data.instrument import AT_REST, RECORDED, Recording, as_recorded, recording
+from crashnlp.data.signal import CFC_CLASSES, resample
+from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.prior import SmoothnessPrior, smoothness_prior
 
@@ -37,8 +41,14 @@ class Residual:
     data: np.ndarray  # SI, at those nodes
     sigma: float
     weight: float
-    model: ca.MX  # model output at those nodes (SI)
+    model: ca.MX  # model output at those nodes (SI), as the test recorded it
     measured: ca.MX  # the data as an NLP parameter (row)
+    cfc: float | None = None  # the class the model's samples are recorded at (None: compared as they are)
+
+    def seen(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:
+        """The model's output at every node (`times`, SI) as this residual compares it with the data."""
+        values = np.asarray(values, dtype=float)
+        return (as_recorded(times, values, self.cfc) if self.cfc is not None else values)[self.columns]
 
     @property
     def error(self) -> ca.MX:
@@ -64,11 +74,37 @@ def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
             continue
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
-        model = tr.output(name)[:, cols.tolist()]
+        cfc = _recorded_class(name, ch_spec.filter if ch_spec.derive is None else None)
+        output = tr.output(name) if cfc is None else _recorded(nlp, tr, name, recording(times, cfc))
+        model = output[:, cols.tolist()]
         data = resample(channel, times[cols])
         measured = nlp.parameter(f"{tr.test.name}.{name}.data", data[None, :])
-        out.append(Residual(tr.test.name, name, cols.tolist(), data, sigma, ch_spec.weight, model, measured))
+        out.append(Residual(tr.test.name, name, cols.tolist(), data, sigma, ch_spec.weight, model, measured, cfc))
     return out
+
+
+def _recorded_class(name: str, cfc: str | None) -> float | None:
+    """The CFC class a channel's model samples are recorded at: its filter's, where it reads zero
+    before impact; None for the others (their samples compared as they are)."""
+    return CFC_CLASSES[cfc] if cfc is not None and name in AT_REST else None
+
+
+def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording) -> ca.MX:
+    """A model output at every node (row) as the test recorded it: the filter's forward and
+    backward passes are variables, started at the passes of the initial guess, and held to the
+    filter's banded equations as dynamics (their defects scaled by the guess's largest value)."""
+    y = tr.output(name)
+    u0, s0 = rec.solve(np.asarray(nlp.evaluate([y], nlp.bounds()["x0"])[0]).ravel())
+    size = max(float(np.max(np.abs(s0))), 1.0)
+    u = nlp.variable(f"{tr.test.name}.{name}.forward{RECORDED}", rec.size, u0, scale=size)
+    s = nlp.variable(f"{tr.test.name}.{name}.backward{RECORDED}", rec.size, s0, scale=size)
+    scale = nlp.parameter(f"{tr.test.name}.{name}.recorded_scale", size)
+    a, b = (ca.DM(ca.sparsify(ca.DM(rec.lower(taps)))) for taps in (rec.a, rec.b))
+    record = ca.mtimes(ca.DM(ca.sparsify(ca.DM(rec.extend))), y.T)
+    nlp.constrain(DYNAMICS, (ca.mtimes(a, u) - ca.mtimes(b, record)) / scale, test=tr.test.name, detail=f"{name}.forward")
+    backward = ca.mtimes(a, s) - ca.mtimes(b, u[::-1]) - ca.DM(rec.start) * u[-1]
+    nlp.constrain(DYNAMICS, backward / scale, test=tr.test.name, detail=f"{name}.backward")
+    return s[rec.at.tolist()].T
 
 
 @dataclass

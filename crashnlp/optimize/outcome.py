@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.analysis.rating import iso18571
-from crashnlp.analysis.summary import channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.analysis.summary import accel_filter, channel_consistency, data_metrics, response_metrics, still_moving
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case, TestCase
 from crashnlp.case.completion import measured_pulse, measured_pulses
@@ -62,6 +62,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         identified=identified,
         regularization=solution.regularization,
         output_bounds={str(name): ends for name, ends in case.problem.constraints.bounds.items()},
+        resolution=case.resolution.to_json() if case.resolution is not None else {},
     )
 
 
@@ -156,7 +157,7 @@ def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> Te
         ts,
         data,
         _fits(solution, ts, test.name, ratings),
-        response_metrics(ts),
+        response_metrics(ts, accel_filter(test)),
         data_metrics(test),
         ts.loading_end,
         v.energy[test.name] if v is not None else None,
@@ -176,7 +177,7 @@ def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[st
     for r in solution.residuals:
         if r.test != test:
             continue
-        times, model = ts.time[r.columns], ts.outputs[r.channel][r.columns]
+        times, model = ts.time[r.columns], r.seen(ts.time, ts.outputs[r.channel])
         rating = iso18571(times, r.data, model) if ratings and len(times) >= 10 else None
         rmse = float(np.sqrt(np.mean((model - r.data) ** 2)))
         out[r.channel] = ChannelFit(r.channel, times, r.data, model, r.sigma, rmse, rating)

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import casadi as ca
 import numpy as np
 
+from crashnlp.data.instrument import RECORDED
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.fit import Residual
 from crashnlp.optimize.ocp import OptimalControl
@@ -162,9 +163,8 @@ class SensitivityEvaluator:
         theta = nlp.blocks["theta"]
         self.theta = list(range(theta.offset, theta.offset + theta.shape[0]))  # columns of z
         self.theta_scale = theta.scale
-        self.states = np.concatenate(
-            [np.arange(b.offset, b.offset + b.shape[0] * b.shape[1]) for n, b in nlp.blocks.items() if n.endswith((".x", ".xc"))]
-        ).tolist()
+        states = [b for n, b in nlp.blocks.items() if n.endswith((".x", ".xc", RECORDED))]  # held by the dynamics
+        self.states = np.concatenate([np.arange(b.offset, b.offset + b.shape[0] * b.shape[1]) for b in states]).tolist()
         sizes = [len(r.columns) for r in residuals]
         ends = np.cumsum(sizes)
         self.rows = [slice(e - n, e) for e, n in zip(ends, sizes)]

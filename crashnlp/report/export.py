@@ -7,7 +7,8 @@
   *MAT_DAMPER_NONLINEAR_VISCOUS for the damper).
 - `csv`: the same curves in SI, one file each.
 - `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
-  (SAE J211, crashnlp.data.signal), as a sled-test input, with a check of its velocity change.
+  as a test's accelerometer records it (SAE J211 from rest before impact, crashnlp.data.instrument, as
+  a fit compares the model), as a sled-test input, with a check of its velocity change.
 
 The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
 smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
@@ -25,7 +26,8 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.base.units import G0
 from crashnlp.data.channels import SAMPLE_INTERVALS
-from crashnlp.data.signal import cfc_filter, cumtrapz
+from crashnlp.data.instrument import as_recorded
+from crashnlp.data.signal import cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
@@ -207,7 +209,9 @@ class Pulse:
 
 def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     """The acceleration of a response to an impact at `speed`, resampled at `rate` Hz over its
-    record and CFC-filtered (J211)."""
+    record and CFC-filtered (J211) as a test's accelerometer records it, at rest before impact
+    (crashnlp.data.instrument.as_recorded: the filter a fit compares the model through, and the one
+    its reported peak and ratings are read through)."""
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"--rate {rate:g}: must be a positive number of Hz")
     if rate * SAMPLE_INTERVALS[0] > 1:
@@ -215,7 +219,8 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     try:
         time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
         time = time[time <= response.time[-1] + 1e-12]
-        accel = cfc_filter(np.interp(time, response.time, response["accel"]), 1.0 / rate, cfc)
+        cfc_coefficients(cfc, 1.0 / rate)  # a rate the class cannot be sampled at is refused
+        accel = as_recorded(time - time[0], np.interp(time, response.time, response["accel"]), cfc)
     except ValueError as exc:
         raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]

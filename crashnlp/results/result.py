@@ -125,6 +125,7 @@ class Result:
     identified: IdentifiedModel | None = field(default=None, repr=False)  # the complete fitted vehicle, to predict with
     regularization: dict[str, Any] = field(default_factory=dict)  # the smoothness prior's weight and how it was chosen
     output_bounds: dict[str, tuple[float | None, float | None]] = field(default_factory=dict)  # constraints.bounds, SI
+    resolution: dict[str, Any] = field(default_factory=dict)  # the spring law's breakpoints and how their number was chosen
 
     @property
     def ok(self) -> bool:
@@ -146,6 +147,7 @@ class Result:
             "covariance": self.covariance,
             "regularization": self.regularization,
             "output_bounds": {name: list(ends) for name, ends in self.output_bounds.items()},
+            "resolution": self.resolution,
             "at_bound": self.at_bound,
             "notes": list(self.notes),
             "tests": {name: _test_json(t) for name, t in self.tests.items()},
@@ -201,6 +203,7 @@ class Result:
             covariance=raw.get("covariance", {}),
             regularization=raw.get("regularization", {}),
             output_bounds={name: (lo, hi) for name, (lo, hi) in raw.get("output_bounds", {}).items()},
+            resolution=raw.get("resolution", {}),
             notes=tuple(raw.get("notes", ())),
             identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )

@@ -1,0 +1,112 @@
+"""The model's outputs as a crash test's instrumentation records them: CFC filtered.
+
+A test's accelerometers (and load cells) are filtered to SAE J211 over the whole record, from
+before impact on; the data a fit compares with, and the metrics reported of them (peak, OLC,
+ISO 18571), are of the filtered signal. The model's samples are not filtered by anything, so a
+fit that compares them with the data asks an unfiltered pulse to match a filtered one: even a
+fit of the model's own data then misses its parameters, and the model's peak is compared with a
+rounded one. `as_recorded` applies to the model's samples what the data went through:
+
+- before impact the channel reads zero (the vehicle at rest in its own frame: no deceleration,
+  no wall force, no pitch), so the record the filter sees starts PRE_IMPACT seconds earlier at
+  zero, and the model's value at impact is a step from it, as the accelerometer's is;
+- between the samples the signal is linear, on a grid RATE_FACTOR times finer than needed for
+  the filter class to be sampled well (at least ten samples per period of the class's -3 dB
+  frequency; the model's own grid where that is fine enough already);
+- then `crashnlp.data.signal.cfc_filter`, the same zero-phase two-pass J211 Butterworth the
+  data get, and the result is read at the model's samples.
+
+Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
+filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
+couple every node through it. A fit instead holds the filter's two passes to their own
+equations, banded (`Recording`, crashnlp.optimize.fit): the same numbers, a few nonzeros a row.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from crashnlp.data.signal import cfc_coefficients, cfc_filter
+
+AT_REST = ("accel", "barrier_force", "pitch")  # channels that read zero before impact
+PRE_IMPACT = 0.02  # s of zero record before impact (the CFC 60 filter's response lasts about 10 ms)
+CORNER = 5.0 / 3.0  # the -3 dB frequency of a CFC class, per unit of its class number
+SAMPLES_PER_PERIOD = 10  # of the -3 dB frequency, at least, where the filter runs
+PAD = 0.01  # s of odd reflection past the record's end (cfc_filter's `pad`)
+RECORDED = ".recorded"  # the ending of the NLP's blocks of a recording's passes (states of the sensitivities)
+
+
+def _steps(dt: float, cfc: float) -> int:
+    """Filter steps per sample interval: the fewest that put SAMPLES_PER_PERIOD samples in a
+    period of the class's -3 dB frequency."""
+    return max(1, math.ceil(dt * SAMPLES_PER_PERIOD * CORNER * cfc - 1e-9))
+
+
+def _grid(time: np.ndarray, cfc: float) -> tuple[int, float, int]:
+    """Filter steps per sample interval, the filter's sample interval and the zero record's length."""
+    steps = _steps(float(time[1] - time[0]), cfc)
+    fine_dt = float(time[1] - time[0]) / steps
+    return steps, fine_dt, math.ceil(PRE_IMPACT / fine_dt)
+
+
+def as_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
+    """A model output sampled on a uniform grid from impact (`time[0] = 0`, zero before), filtered
+    at CFC `cfc` as the test's record of it is, at the same samples."""
+    time, values = np.asarray(time, dtype=float), np.asarray(values, dtype=float)
+    steps, fine_dt, before = _grid(time, cfc)
+    fine = np.arange((time.size - 1) * steps + 1) * fine_dt + time[0]
+    record = np.concatenate([np.zeros(before), np.interp(fine, time, values)])
+    return cfc_filter(record, fine_dt, cfc, PAD)[before::steps]
+
+
+@dataclass(frozen=True)
+class Recording:
+    """`as_recorded` on a fixed grid as the filter's own equations, linear and banded, for an NLP.
+
+    The record the filter passes over is `extend @ y` (y the samples: joined linearly onto the
+    filter's grid from impact on, then cfc_filter's odd reflection past the end); the forward
+    pass u solves `lower(a) u = lower(b) record` from rest (before impact the record is zero, and
+    so is the pass); the backward pass s, over u reversed, solves `lower(a) s = lower(b) u[::-1] +
+    start * u[-1]` (cfc_filter starts each pass in steady state); the recorded samples are
+    `s[at]`. Equal to `as_recorded` (tested), with a few nonzeros a row where its matrix is dense.
+    """
+
+    extend: np.ndarray  # record samples x y samples
+    a: np.ndarray  # the biquad's denominator (a[0] = 1)
+    b: np.ndarray  # its numerator
+    start: np.ndarray  # the backward pass's first rows, per unit of u's last sample
+    at: np.ndarray  # the samples of s (reversed time) at the grid's
+
+    @property
+    def size(self) -> int:
+        return self.extend.shape[0]
+
+    def lower(self, taps: np.ndarray) -> np.ndarray:
+        """The banded lower-triangular Toeplitz matrix of a biquad's three taps."""
+        return sum(taps[k] * np.eye(self.size, k=-k) for k in range(3))
+
+    def solve(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The forward and backward passes (u, s) of `values` at the grid's samples."""
+        a = self.lower(self.a)
+        u = np.linalg.solve(a, self.lower(self.b) @ (self.extend @ np.asarray(values, dtype=float)))
+        return u, np.linalg.solve(a, self.lower(self.b) @ u[::-1] + self.start * u[-1])
+
+
+def recording(time: np.ndarray, cfc: float) -> Recording:
+    """The Recording of samples on `time` (uniform, from impact) at CFC `cfc`."""
+    steps, fine_dt, before = _grid(time, cfc)
+    fine = np.arange((time.size - 1) * steps + 1) * fine_dt
+    interp = np.column_stack([np.interp(fine, time - time[0], unit) for unit in np.eye(time.size)])
+    record = np.vstack([np.zeros((before, time.size)), interp])  # what cfc_filter gets
+    pad = min(record.shape[0] - 1, max(1, int(round(PAD / fine_dt))))
+    reflected = 2.0 * record[-1] - record[-2 : -pad - 2 : -1]
+    b, a = cfc_coefficients(cfc, fine_dt)
+    gain = b.sum() / math.fsum(a)  # the steady state's output per unit input
+    start = np.zeros(interp.shape[0] + pad)
+    start[0] = b[1] + b[2] - (a[1] + a[2]) * gain
+    start[1] = b[2] - a[2] * gain
+    at = start.size - 1 - steps * np.arange(time.size)
+    return Recording(np.vstack([interp, reflected]), a, b, start, at)
