@@ -33,6 +33,7 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -80,6 +81,10 @@ SCENARIOS: dict[str, tuple[tuple[float, ...], float]] = {
     "one test, mass -15 %, 56 -> 56": ((56.0,), 56.0),
 }
 # scenario -> the predicted test's mass over the fitted tests' (payload or ballast at the CG: with_payload)
+# A fit of the corpus ends within this many IPOPT iterations (every shipped fit needs fewer than
+# 100, the robustness corpus 60 at most): a fit that cycles on a kink ends, as IPOPT says, and
+# counts as a miss of every interval of its scenarios instead of holding the table up.
+FIT_MAX_ITER = 100
 MASS_RATIOS = {"one test, mass +20 %, 56 -> 56": 1.2, "one test, mass -15 %, 56 -> 56": 0.85}
 # issue 38's acceptance: coverage per metric; median half-width (relative) per scenario kind and metric
 TARGETS = {
@@ -114,6 +119,8 @@ def held_out(
     out = []
     for fitted in dict.fromkeys(SCENARIOS[s][0] for s in scenarios):
         path = fit_problem(v, fitted, folder, transcription)
+        limited = yaml.safe_load(path.read_text()) | {"solver": {"ipopt": {"max_iter": FIT_MAX_ITER}}}
+        path.write_text(yaml.safe_dump(limited, sort_keys=False))
         result = crashnlp.identify(path)
         for scenario in scenarios:
             speeds, target = SCENARIOS[scenario]
