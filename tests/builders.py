@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import csv
 import os
 import signal
 from pathlib import Path
@@ -67,6 +68,15 @@ def small_pickup_problem(folder: Path) -> Path:
     path = folder / "small.yaml"
     path.write_text(yaml.safe_dump(raw))
     return path
+
+
+def write_channels(path: Path, r, names: tuple[str, str, str, str] = ("accel_g", "vel_mps", "disp_m", "pitch_deg")) -> None:
+    """A simulated response `r` written as a test's CSV: time, then acceleration (g), velocity,
+    displacement and pitch (deg) under the column `names`."""
+    columns = {"time_s": r.time, names[0]: r["accel"] / 9.80665, names[1]: r["velocity"]}
+    columns |= {names[2]: r["displacement"], names[3]: np.degrees(r["pitch"])}
+    with path.open("w", newline="") as fh:
+        csv.writer(fh).writerows([list(columns), *zip(*columns.values())])
 
 
 def make_case(changes: dict | None = None, base_dir: Path = ROOT / "problems") -> Case:

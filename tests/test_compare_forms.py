@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import csv
 import json
 
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, write_channels
 
 import crashnlp
 from crashnlp.case.case import Case
@@ -77,17 +76,7 @@ def _write(path, form: str, speed: str) -> None:
         },
     )
     r = Case(problem_from_dict(raw, path.parent)).simulate()["t"]
-    columns = {
-        "time_s": r.time,
-        "accel_g": r["accel"] / 9.80665,
-        "vel_mps": r["velocity"],
-        "disp_m": r["displacement"],
-        "pitch_deg": np.degrees(r["pitch"]),
-    }
-    with path.open("w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(columns)
-        w.writerows(zip(*columns.values()))
+    write_channels(path, r)
 
 
 def _problem_file(folder, form: str, speeds: tuple[str, ...]):

@@ -12,7 +12,7 @@ import csv
 
 import numpy as np
 import pytest
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, write_channels
 
 from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
@@ -136,16 +136,8 @@ def test_the_shipped_pickups_own_fit_comes_back_through_the_cfc60_filter(tmp_pat
     problem = load_problem(ROOT / "problems" / "pickup-56kph.yaml")
     truth = identify(Case(problem), progress=None).parameters
     r = Case(problem.with_values(truth)).simulate(dt=1e-4)["56kph"]
-    columns = {
-        "time_s": r.time,
-        "accel_x_g": r["accel"] / 9.80665,
-        "vel_x_mps": r["velocity"],
-        "disp_x_m": r["displacement"],
-        "pitch_deg": np.degrees(r["pitch"]),
-    }
     path = tmp_path / "own.csv"
-    with path.open("w", newline="") as fh:
-        csv.writer(fh).writerows([list(columns), *zip(*columns.values())])
+    write_channels(path, r, ("accel_x_g", "vel_x_mps", "disp_x_m", "pitch_deg"))
     raw = read_yaml(ROOT / "problems" / "pickup-56kph.yaml")
     raw["tests"][0]["data"]["file"] = str(path)
     sol = identify(Case(problem_from_dict(raw, ROOT / "problems")), progress=None)
