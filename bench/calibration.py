@@ -33,7 +33,6 @@ from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -118,9 +117,7 @@ def held_out(
     generator's metrics."""
     out = []
     for fitted in dict.fromkeys(SCENARIOS[s][0] for s in scenarios):
-        path = fit_problem(v, fitted, folder, transcription)
-        limited = yaml.safe_load(path.read_text()) | {"solver": {"ipopt": {"max_iter": FIT_MAX_ITER}}}
-        path.write_text(yaml.safe_dump(limited, sort_keys=False))
+        path = fit_problem(v, fitted, folder, transcription, {"ipopt": {"max_iter": FIT_MAX_ITER}})
         result = crashnlp.identify(path)
         for scenario in scenarios:
             speeds, target = SCENARIOS[scenario]

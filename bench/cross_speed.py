@@ -93,9 +93,11 @@ def test_entry(kmh: float, data: dict | None = None) -> dict:
     return {**entry, "data": data} if data is not None else {**entry, "duration": WINDOW[1]}
 
 
-def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path, transcription: dict | None = None) -> Path:
-    """The minimal problem of a joint fit at `speeds` (with `transcription`, else the default one),
-    its CSVs written beside it."""
+def fit_problem(
+    v: Vehicle, speeds: tuple[float, ...], folder: Path, transcription: dict | None = None, solver: dict | None = None
+) -> Path:
+    """The minimal problem of a joint fit at `speeds` (with `transcription`, else the default one;
+    with the `solver` section, else none), its CSVs written beside it."""
     problem = minimal_problem(v, "unused.csv", transcription)
     problem["vehicle"].pop("speed")
     problem["name"] = f"{v.name}-{'-'.join(f'{s:.0f}' for s in speeds)}"
@@ -105,6 +107,8 @@ def fit_problem(v: Vehicle, speeds: tuple[float, ...], folder: Path, transcripti
         write_csv(folder / name, measured(at_speed(v, kmh), simulate(at_speed(v, kmh))))
         tests.append(test_entry(kmh, minimal_problem(v, name)["tests"][0]["data"]))
     problem["tests"] = tests
+    if solver is not None:
+        problem["solver"] = solver
     path = folder / f"{problem['name']}.yaml"
     path.write_text(yaml.safe_dump(problem, sort_keys=False))
     return path
