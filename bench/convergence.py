@@ -9,7 +9,7 @@ Four groups, each judged against the issue's acceptance (TARGETS):
 - the 64-case grid (bench/studies.py's GRID_64) by `crashnlp study` on 1 and 2 workers: 64 of 64
   ok, none above 150 iterations, the same table on both;
 - regularized joint fits: pickup-joint.yaml at each of REGULARIZATION, their iterations and the
-  64 km/h prediction's crush and peak errors against the generator's pickup.
+  64 km/h prediction's max displacement and peak errors against the generator's pickup.
 
 The first three are solved by the corpus, scaling and studies sections of the same run and only
 read here (`summary(results)`, rendered by bench/report.py): solving them again would double the
@@ -58,13 +58,13 @@ def regularized_fit(weight: float, intervals: int | None) -> dict:
 
 
 def prediction_errors(result: crashnlp.Result) -> dict[str, float]:
-    """Max crush and peak deceleration of the fit's PREDICT_KMH prediction (bench/cross_speed.py's
+    """Max displacement and peak deceleration of the fit's PREDICT_KMH prediction (bench/cross_speed.py's
     way: a problem naming only the new speed) relative to the generator's noise-free pickup."""
     with tempfile.TemporaryDirectory(prefix="crashnlp-convergence-") as tmp:
         test = crashnlp.simulate(prediction_problem(JOINT, PREDICT_KMH, Path(tmp)), params=result)[f"{PREDICT_KMH:.0f}kph"]
     real = truth_metrics(PICKUP, PREDICT_KMH)
     return {
-        "crush_rel": test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,
+        "displacement_rel": test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
         "peak_rel": test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
     }
 
@@ -77,8 +77,8 @@ def run(quick: bool = False) -> dict:
     for weight in REGULARIZATION:
         rows.append(r := regularized_fit(weight, intervals))
         line = f"  pickup-joint, regularization {weight:g}: {r['status']}, {r['iterations']} it, {r['wall_s']:.1f} s"
-        if "crush_rel" in r:
-            line += f"; {PREDICT_KMH:.0f} km/h crush {100 * r['crush_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %"
+        if "displacement_rel" in r:
+            line += f"; {PREDICT_KMH:.0f} km/h displacement {100 * r['displacement_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %"
         print(line, flush=True)
     return {"problem": JOINT.name, "predict_kmh": PREDICT_KMH, "targets": TARGETS, "regularized": rows}
 

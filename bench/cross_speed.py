@@ -15,9 +15,9 @@ fits per vehicle, from minimal problem files (crashnlp.case.completion fills in 
 - interpolation: fit 40 + 64 km/h, predict 56 km/h.
 
 The prediction is `crashnlp.simulate` of a problem that names only the new test's speed and
-duration, with the fit's result as `params`; its max crush, peak deceleration and time of zero
+duration, with the fit's result as `params`; its max displacement, peak deceleration and time of zero
 velocity are compared with the generator's noise-free response, and its 95 % intervals are
-checked for covering the generator's max crush and peak deceleration.
+checked for covering the generator's max displacement and peak deceleration.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ from crashnlp.base.units import G0
 SPEEDS_KMH = (40.0, 56.0, 64.0)
 SPLITS = {"extrapolation": ((40.0, 56.0), 64.0), "interpolation": ((40.0, 64.0), 56.0)}
 TARGETS = {
-    "extrapolation": {"crush_rel": 0.03, "peak_rel": 0.15},
-    "interpolation": {"crush_rel": 0.02, "peak_rel": 0.10},
+    "extrapolation": {"displacement_rel": 0.03, "peak_rel": 0.15},
+    "interpolation": {"displacement_rel": 0.02, "peak_rel": 0.10},
     "coverage": 0.85,
     "iterations": 100,
 }
@@ -80,7 +80,7 @@ PICKUP_FAMILY = "the shared pickup"  # its shipped and minimal problems
 SHIPPED = (
     PROBLEMS / "pickup-joint.yaml"
 )  # the shipped joint fit, its breakpoints past the 56 km/h crush: predicted at 64 km/h too
-INTERVAL_METRICS = {"max_crush_m": "crush", "peak_decel_g": "peak"}
+INTERVAL_METRICS = {"max_displacement_m": "displacement", "peak_decel_g": "peak"}
 
 
 def at_speed(v: Vehicle, kmh: float) -> Vehicle:
@@ -130,7 +130,7 @@ def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
     truth = simulate(at_speed(v, kmh))
     m = crash_metrics(truth["time"], truth["accel"], truth["velocity"], truth["displacement"])
     return {
-        "max_crush_m": m.max_crush,
+        "max_displacement_m": m.max_displacement,
         "peak_decel_g": m.peak_decel / G0,
         "time_zero_velocity_s": m.t_zero_velocity,
         "rebound_velocity_mps": m.rebound_velocity,
@@ -163,7 +163,7 @@ def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None, tra
     test = crashnlp.simulate(prediction_problem(path, target, folder), params=result)[f"{target:.0f}kph"]
     real = truth_metrics(v, target)
     row.update(
-        crush_rel=test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,
+        displacement_rel=test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
         peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
         stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
         pitch_err_deg=test.metrics["max_pitch_deg"] - real["max_pitch_deg"],
@@ -192,7 +192,7 @@ def within_targets(row: dict) -> bool:
     return (
         row["status"] == "ok"
         and row["iterations"] <= TARGETS["iterations"]
-        and abs(row["crush_rel"]) <= target["crush_rel"]
+        and abs(row["displacement_rel"]) <= target["displacement_rel"]
         and abs(row["peak_rel"]) <= target["peak_rel"]
     )
 
@@ -210,7 +210,7 @@ def summary(rows: list[dict]) -> dict:
             "fits": sum(r["split"] == split for r in rows),
             "ok": len(ok),
             "within_targets": sum(within_targets(r) for r in ok),
-            "crush_rel_max": _worst(ok, "crush_rel"),
+            "displacement_rel_max": _worst(ok, "displacement_rel"),
             "peak_rel_max": _worst(ok, "peak_rel"),
             "stop_err_max_s": _worst(ok, "stop_err_s"),
             "iterations_max": max((r["iterations"] for r in rows if r["split"] == split), default=0),
@@ -239,7 +239,7 @@ def run(quick: bool = False) -> dict:
             line = f"  {r['vehicle']} ({label}) {split}: {r['status']}, {r['iterations']} it"
             if r["status"] == "ok":
                 line += (
-                    f", crush {100 * r['crush_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %, "
+                    f", displacement {100 * r['displacement_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %, "
                     f"stop {1e3 * r['stop_err_s']:+.2f} ms, covered {sum(r['covered'].values())}/2"
                 )
                 line += f", load rise {r['load_rise']:.2f}x" if "load_rise" in r else ""

@@ -5,7 +5,7 @@ families; bench.corpus.tall_vehicle: a planar rigid body on its suspension, CG 0
 the impact point). Each is fitted with each form of crashnlp.problem.forms (model.form set,
 nothing else changed) from the minimal problem of two of its tests, the third predicted, as the
 cross-speed benchmark splits them: interpolation, 40 + 64 km/h fitted and 56 predicted;
-extrapolation, 40 + 56 fitted and 64 predicted. Per fit: the fitted pitch's RMSE over the two tests, the prediction's max crush and
+extrapolation, 40 + 56 fitted and 64 predicted. Per fit: the fitted pitch's RMSE over the two tests, the prediction's max displacement and
 peak deceleration against the generator's (relative) and its stop (ms), and where the prediction,
 the fitted responses and the generator's own responses at the fitted speeds let the front end go
 while the CG still moves toward the barrier (crashnlp.analysis.metrics.lift_off): a fitted lift-off the
@@ -73,7 +73,7 @@ def judge(v, form: str, split: str, folder: Path) -> dict:
     truth_offs = [t for t in (_truth_lift_off(v, kmh) for kmh in fitted) if t is not None]
     row.update(
         pitch_rmse_deg=None if pitch is None else float(np.degrees(pitch)),
-        crush_rel=test.metrics["max_crush_m"] / real["max_crush_m"] - 1.0,
+        displacement_rel=test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
         peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
         stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
         lift_off_s=_lift_off(test.response),
@@ -100,11 +100,11 @@ def _summary(rows: list[dict], split: str) -> dict:
         "fits": len(rows),
         "ok": len(ok),
         "within_targets": sum(
-            abs(r["crush_rel"]) <= target["crush_rel"] and abs(r["peak_rel"]) <= target["peak_rel"] for r in ok
+            abs(r["displacement_rel"]) <= target["displacement_rel"] and abs(r["peak_rel"]) <= target["peak_rel"] for r in ok
         ),
         "pitch_rmse_median_deg": float(np.median(pitch)) if pitch else float("nan"),
         "pitch_rmse_max_deg": float(np.max(pitch)) if pitch else float("nan"),
-        "crush_rel_max": float(max((abs(r["crush_rel"]) for r in ok), default=float("nan"))),
+        "displacement_rel_max": float(max((abs(r["displacement_rel"]) for r in ok), default=float("nan"))),
         "peak_rel_max": float(max((abs(r["peak_rel"]) for r in ok), default=float("nan"))),
         "stop_err_max_s": float(max((abs(r["stop_err_s"]) for r in ok), default=float("nan"))),
         "lift_offs": sum(r["lift_off_s"] is not None for r in ok),
@@ -146,6 +146,6 @@ def _line(r: dict) -> str:
         off += f", a fit lifts off at {1e3 * r['fitted_lift_off_s']:.1f} ms"
         off += " (so does the generator)" if r["truth_lift_off_s"] is not None else " (the generator does not)"
     return line + (
-        f", pitch RMSE {r['pitch_rmse_deg']:.2f} deg, crush {100 * r['crush_rel']:+.1f} %, "
+        f", pitch RMSE {r['pitch_rmse_deg']:.2f} deg, displacement {100 * r['displacement_rel']:+.1f} %, "
         f"peak {100 * r['peak_rel']:+.1f} %, stop {1e3 * r['stop_err_s']:+.2f} ms{off}"
     )

@@ -93,9 +93,9 @@ def targets(results: dict) -> list[tuple[str, str, bool | None]]:
         rows.append(("corpus: every vehicle identified", f"{c['succeeded']} of {c['vehicles']}", c["success_rate"] == 1.0))
         rows.append(
             (
-                f"corpus: crush within {100 * t['crush_rel']:g} %",
-                f"largest error {100 * c['crush_rel_max']:.2f} %",
-                c["crush_rel_max"] <= t["crush_rel"],
+                f"corpus: max displacement within {100 * t['displacement_rel']:g} %",
+                f"largest error {100 * c['displacement_rel_max']:.2f} %",
+                c["displacement_rel_max"] <= t["displacement_rel"],
             )
         )
         rows.append(
@@ -152,14 +152,14 @@ def cross_speed_targets(xs: dict | None) -> list[tuple[str, str, bool | None]]:
         r, goal = s[split], t[split]
         rows.append(
             (
-                f"cross-speed {split}: crush within {100 * goal['crush_rel']:g} %, peak within {100 * goal['peak_rel']:g} %",
-                f"{r['within_targets']} of {r['fits']} (largest {100 * r['crush_rel_max']:.1f} % and {100 * r['peak_rel_max']:.1f} %)",
+                f"cross-speed {split}: max displacement within {100 * goal['displacement_rel']:g} %, peak within {100 * goal['peak_rel']:g} %",
+                f"{r['within_targets']} of {r['fits']} (largest {100 * r['displacement_rel_max']:.1f} % and {100 * r['peak_rel_max']:.1f} %)",
                 r["within_targets"] == r["fits"],
             )
         )
     rows.append(
         (
-            f"cross-speed: 95 % intervals cover the generator's crush and peak in >= {100 * t['coverage']:g} % of pairs",
+            f"cross-speed: 95 % intervals cover the generator's max displacement and peak in >= {100 * t['coverage']:g} % of pairs",
             f"{100 * s['coverage']:.0f} % of {s['pairs']}",
             s["coverage"] >= t["coverage"],
         )
@@ -273,7 +273,7 @@ def _slow_fits_md(g: dict | None, title: str) -> list[str]:
 def _regularized_md(r: dict | None) -> list[str]:
     if not r:
         return []
-    ok = lambda x: "crush_rel" in x  # noqa: E731
+    ok = lambda x: "displacement_rel" in x  # noqa: E731
     rows = [
         [
             f"{x['regularization']:g}",
@@ -281,7 +281,7 @@ def _regularized_md(r: dict | None) -> list[str]:
             x["status"],
             x["iterations"],
             f"{x['wall_s']:.2f} ({'compiled' if x.get('compiled') else 'VM'})",
-            f"{100 * x['crush_rel']:+.1f}" if ok(x) else "",
+            f"{100 * x['displacement_rel']:+.1f}" if ok(x) else "",
             f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
         ]
         for x in r["regularized"]
@@ -291,7 +291,7 @@ def _regularized_md(r: dict | None) -> list[str]:
         f"{r['problem']} with `objective.regularization` set, identified; its {kmh} prediction (a problem naming only that "
         "speed, as in the cross-speed section) against the generator's noise-free pickup:",
         "",
-        *_table(["regularization", "intervals", "status", "iterations", "wall (s)", f"{kmh} crush (%)", f"{kmh} peak (%)"], rows),
+        *_table(["regularization", "intervals", "status", "iterations", "wall (s)", f"{kmh} displacement (%)", f"{kmh} peak (%)"], rows),
         "",
     ]
 
@@ -316,7 +316,7 @@ def _grid_md(g: dict | None) -> list[str]:
 
 
 def _goal(target: dict) -> str:
-    return f"{100 * target['crush_rel']:g} % / {100 * target['peak_rel']:g} %"
+    return f"{100 * target['displacement_rel']:g} % / {100 * target['peak_rel']:g} %"
 
 
 def cross_speed_md(r: dict) -> list[str]:
@@ -328,7 +328,7 @@ def cross_speed_md(r: dict) -> list[str]:
             x["split"],
             x["status"],
             x["iterations"],
-            f"{100 * x['crush_rel']:+.1f}" if ok(x) else "",
+            f"{100 * x['displacement_rel']:+.1f}" if ok(x) else "",
             f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
             f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
             f"{sum(x['covered'].values())} of {len(x['covered'])}" if ok(x) else "",
@@ -355,7 +355,7 @@ def cross_speed_md(r: dict) -> list[str]:
         "problem files, each the same structure at 40, 56 and 64 km/h. Extrapolation fits 40 + 56 km/h and predicts "
         "64 km/h; interpolation fits 40 + 64 km/h and predicts 56 km/h, with `crashnlp.simulate` "
         "of a problem that names only the new speed. Errors against the generator's noise-free response; covered: "
-        "whether the 95 % intervals hold the generator's max crush and peak deceleration; load rise: the generator's "
+        "whether the 95 % intervals hold the generator's max displacement and peak deceleration; load rise: the generator's "
         "load at the predicted test's largest crush over its load at the fitted tests' largest, how much the structure "
         "stiffens where only the prediction goes (the corpus's load curves double at 1.15 times the crush each vehicle "
         "was built for: built for 56 km/h, the 64 km/h test crushes into that rise); max pitch: the predicted test's max pitch less the "
@@ -373,7 +373,7 @@ def cross_speed_md(r: dict) -> list[str]:
                 "split",
                 "status",
                 "iterations",
-                "crush (%)",
+                "displacement (%)",
                 "peak (%)",
                 "stop (ms)",
                 "covered",
@@ -656,8 +656,8 @@ def corpus_md(r: dict) -> list[str]:
             f"{x['mass_kg']:.0f}",
             f"{x['speed_kmh']:.1f}",
             x["status"],
-            f"{x['crush_true_m'] * 1e3:.0f}" if ok(x) else "",
-            f"{100 * x['crush_rel']:+.2f}" if ok(x) else "",
+            f"{x['displacement_true_m'] * 1e3:.0f}" if ok(x) else "",
+            f"{100 * x['displacement_rel']:+.2f}" if ok(x) else "",
             f"{x['stop_true_s'] * 1e3:.1f}" if ok(x) else "",
             f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
             f"{x['force_rating']:.3f}" if ok(x) else "",
@@ -674,8 +674,8 @@ def corpus_md(r: dict) -> list[str]:
         "Judged against the generator's noise-free response; the force rating is ISO/TS 18571 of the barrier force "
         "from impact to separation.",
         "",
-        f"Identified {c['succeeded']} of {c['vehicles']}; within 2 % crush and 2 ms stop time: {c['within_targets']}. "
-        f"Crush error median {100 * c['crush_rel_median']:.2f} %, largest {100 * c['crush_rel_max']:.2f} %; stop-time error "
+        f"Identified {c['succeeded']} of {c['vehicles']}; within 2 % max displacement and 2 ms stop time: {c['within_targets']}. "
+        f"Max displacement error median {100 * c['displacement_rel_median']:.2f} %, largest {100 * c['displacement_rel_max']:.2f} %; stop-time error "
         f"median {1e3 * c['stop_err_median_s']:.2f} ms, largest {1e3 * c['stop_err_max_s']:.2f} ms; force rating median "
         f"{c['force_rating_median']:.3f}, lowest {c['force_rating_min']:.3f}; median wall time {c['wall_median_s']:.2f} s.",
         "",
@@ -685,8 +685,8 @@ def corpus_md(r: dict) -> list[str]:
                 "mass (kg)",
                 "speed (km/h)",
                 "status",
-                "crush (mm)",
-                "crush error (%)",
+                "max displacement (mm)",
+                "displacement error (%)",
                 "stop (ms)",
                 "stop error (ms)",
                 "force ISO 18571",
@@ -787,7 +787,7 @@ def forms_md(r: dict) -> list[str]:
             f"{s['within_targets']}/{s['ok']}",
             f"{s['pitch_rmse_median_deg']:.2f}",
             f"{s['pitch_rmse_max_deg']:.2f}",
-            f"{100 * s['crush_rel_max']:.1f} %",
+            f"{100 * s['displacement_rel_max']:.1f} %",
             f"{100 * s['peak_rel_max']:.1f} %",
             f"{1e3 * s['stop_err_max_s']:.2f}",
             s["lift_offs"],
@@ -796,14 +796,14 @@ def forms_md(r: dict) -> list[str]:
         for split, forms in r["summary"].items()
         for form, s in forms.items()
     ]
-    head = ["split", "form", "converged", "within targets", "pitch RMSE median (deg)", "worst (deg)", "worst crush"]
+    head = ["split", "form", "converged", "within targets", "pitch RMSE median (deg)", "worst (deg)", "worst displacement"]
     head += ["worst peak", "worst stop (ms)", "predictions lifting off", "fits lifting off (not in the generator)"]
     goals = "; ".join(f"{split} {_goal(t)}" for split, t in r["targets"].items())
     return [
         "## Model forms on tall vehicles",
         "",
         "Vans and tall SUVs fitted with each form at 40 + 64 km/h, 56 predicted (interpolation), and at 40 + 56, "
-        f"64 predicted (extrapolation); targets, crush / peak: {goals}.",
+        f"64 predicted (extrapolation); targets, displacement / peak: {goals}.",
         "",
         *_table(head, rows),
         "",

@@ -3,7 +3,7 @@
 Each vehicle's test is written as a CSV, and a problem file that gives only the vehicle and
 its test (no breakpoints, no spring values, no estimate: crashnlp.case.completion fills them in).
 The identified model is simulated (CVODES, 10 kHz) and judged against the generator's
-noise-free response: maximum crush, time of zero velocity, and the ISO/TS 18571 rating of
+noise-free response: max displacement, time of zero velocity, and the ISO/TS 18571 rating of
 the barrier force over the pulse (impact to the generator's separation from the wall).
 """
 
@@ -24,7 +24,7 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
 
 COUNT, SEED = 30, 2024
-TARGETS = {"crush_rel": 0.02, "stop_s": 0.002, "force_rating_median": 0.9}
+TARGETS = {"displacement_rel": 0.02, "stop_s": 0.002, "force_rating_median": 0.9}
 WINDOW = (0.0, 0.2)  # s
 
 
@@ -105,9 +105,9 @@ def judge(v: Vehicle, problem_path: Path, truth: dict[str, np.ndarray]) -> dict:
     span = truth["time"] <= end
     force_model = np.interp(truth["time"][span], response.time, response["barrier_force"])
     out.update(
-        crush_m=model.max_crush,
-        crush_true_m=real.max_crush,
-        crush_rel=model.max_crush / real.max_crush - 1.0,
+        displacement_m=model.max_displacement,
+        displacement_true_m=real.max_displacement,
+        displacement_rel=model.max_displacement / real.max_displacement - 1.0,
         stop_s=model.t_zero_velocity,
         stop_true_s=real.t_zero_velocity,
         stop_err_s=model.t_zero_velocity - real.t_zero_velocity,
@@ -118,14 +118,14 @@ def judge(v: Vehicle, problem_path: Path, truth: dict[str, np.ndarray]) -> dict:
 
 
 def within_targets(r: dict) -> bool:
-    """Identified, crush within 2 %, stop time within 2 ms."""
-    return r["status"] == "ok" and abs(r["crush_rel"]) <= TARGETS["crush_rel"] and abs(r["stop_err_s"]) <= TARGETS["stop_s"]
+    """Identified, max displacement within 2 %, stop time within 2 ms."""
+    return r["status"] == "ok" and abs(r["displacement_rel"]) <= TARGETS["displacement_rel"] and abs(r["stop_err_s"]) <= TARGETS["stop_s"]
 
 
 def summary(rows: list[dict]) -> dict:
-    """Success rate, crush and stop-time errors, force ratings over the corpus."""
+    """Success rate, max displacement and stop-time errors, force ratings over the corpus."""
     ok = [r for r in rows if r["status"] == "ok"]
-    crush = np.array([abs(r["crush_rel"]) for r in ok])
+    travel = np.array([abs(r["displacement_rel"]) for r in ok])
     stop = np.array([abs(r["stop_err_s"]) for r in ok])
     rating = np.array([r["force_rating"] for r in ok])
     pick = lambda a, f: float(f(a)) if a.size else float("nan")  # noqa: E731
@@ -134,8 +134,8 @@ def summary(rows: list[dict]) -> dict:
         "succeeded": len(ok),
         "success_rate": len(ok) / len(rows),
         "within_targets": sum(within_targets(r) for r in rows),
-        "crush_rel_median": pick(crush, np.median),
-        "crush_rel_max": pick(crush, np.max),
+        "displacement_rel_median": pick(travel, np.median),
+        "displacement_rel_max": pick(travel, np.max),
         "stop_err_median_s": pick(stop, np.median),
         "stop_err_max_s": pick(stop, np.max),
         "force_rating_median": pick(rating, np.median),
@@ -156,7 +156,7 @@ def run(quick: bool = False) -> dict:
             print(
                 f"  {v.name} {v.mass:.0f} kg {v.speed * 3.6:.1f} km/h: {r['status']}"
                 + (
-                    f", crush {100 * r['crush_rel']:+.2f} %, stop {1e3 * r['stop_err_s']:+.2f} ms, force {r['force_rating']:.3f}"
+                    f", displacement {100 * r['displacement_rel']:+.2f} %, stop {1e3 * r['stop_err_s']:+.2f} ms, force {r['force_rating']:.3f}"
                     if r["status"] == "ok"
                     else ""
                 ),

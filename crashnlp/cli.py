@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
+from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED, current_names
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
@@ -43,7 +43,7 @@ def _read_params(path: str) -> dict:
     """The content of a result.json (or of a fit's folder's): a mapping with a 'parameters' mapping."""
     p = Path(path) / "result.json" if Path(path).is_dir() else Path(path)
     try:
-        raw = json.loads(p.read_text(encoding="utf-8"))
+        raw = current_names(json.loads(p.read_text(encoding="utf-8")))  # a result written before a rename too
         params = raw["parameters"]
     except FileNotFoundError:
         raise InputError(f"{p}: file not found") from None
@@ -227,6 +227,9 @@ def _numbers(value, digits: int) -> str:
     return text if not isinstance(value, list) else f"[{text}]"
 
 
+HEADINGS = max(len(m.heading) for m in TABLED)  # the width of the metric table's first column
+
+
 def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
@@ -235,7 +238,7 @@ def _consistency_line(c: dict) -> str:
     """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency)."""
     parts = [
         f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {s['time_zero_velocity_s'] * 1e3:.1f} ms"
-        f" after {s['max_crush_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
+        f" after {s['max_displacement_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
         for name, s in c.items()
         if isinstance(s, dict)
     ]
@@ -271,10 +274,10 @@ def _print_solution(result) -> None:
         print(f"  {note}")
     for name, t in result.tests.items():
         model, data = t.metrics, t.data_metrics
-        print(f"  test {name:<24}{'model':>10}{'test' if data else '':>10}")
+        print(f"  test {name:<{HEADINGS - 2}}{'model':>10}{'test' if data else '':>10}")
         for row in TABLED:
             cells = _cell(model.get(row.key), row.factor), _cell(data.get(row.key), row.factor) if data else ""
-            print(f"    {row.heading:<26}{cells[0]:>10}{cells[1]:>10}")
+            print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := still_moving(m)):
                 print(f"    {who} {words}")
@@ -352,7 +355,7 @@ def cmd_design(args) -> int:
 FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute, factor, format
     ("objective", "objective", 1.0, ".4g"),
     ("pitch RMSE (deg)", "pitch_rmse", 180 / math.pi, ".3f"),
-    ("max crush error (mm)", "crush_error", 1e3, ".1f"),
+    ("displacement error (mm)", "displacement_error", 1e3, ".1f"),
     ("identified parameters", "parameters", 1, "d"),
     ("held-out rel. RMSE", "held_out_score", 1.0, ".4f"),
     ("BIC", "bic", 1.0, ".1f"),

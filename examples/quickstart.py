@@ -14,13 +14,15 @@ def main() -> None:
     print(result.status, result.solver.iterations, "iterations")
     print("spring values (N):", result.parameters["model.spring.values"])
     print("their std (N):    ", result.std_errors["model.spring.values"])
-    print("max crush (m):", result.tests["56kph"].metrics["max_crush_m"])
+    print("max displacement (m):", result.tests["56kph"].metrics["max_displacement_m"])  # the CG's travel
     print("energy balance error:", result.tests["56kph"].energy["balance_error_relative"])
     result.save("results/pickup-56kph")  # the files `crashnlp identify` writes
 
     faster = problem.with_values({"vehicle.speed": "64 km/h"})  # a new problem; `problem` is unchanged
     test = crashnlp.simulate(faster, params=result)["56kph"]  # the identified vehicle, with 95 % intervals
-    print("max crush at 64 km/h (m):", test["crush_m"].max(), test.intervals["max_crush_m"])  # name -> array, per test
+    # name -> array, per test; the CG's travel is "displacement", the front end's shortening "crush"
+    print("max displacement at 64 km/h (m):", test["displacement_m"].max(), test.intervals["max_displacement_m"])
+    print("max front-end crush at 64 km/h (m):", test["crush_m"].max(), test.metrics["max_front_end_crush_m"])
     print("past the fitted range:", test.extrapolation)
 
     table = crashnlp.study("problems/studies/pitch-bound.yaml", executor="local")

@@ -45,7 +45,7 @@ INLINE = re.compile(r"(?P<value>[-+]?[\d.,]+(?:e[-+]?\d+)?)<!--n:(?P<key>[\w.-]+
 WHAT_IF = "name: pickup-what-ifs\ntests:\n  - {name: 64kph, speed: 64 km/h, duration: 0.2 s}\n"
 PARTS = ("wall", "accelerometers")  # the channels a load-cell barrier's test measures the impact with, each on its own
 # the lines of the Camry's fit the README quotes, by how they start (indentation aside)
-BRIEF = ("nhtsa-10146: ok", "test ", "max dynamic crush", "time of zero velocity", "peak deceleration", "rebound", "OLC")
+BRIEF = ("nhtsa-10146: ok", "test ", "max displacement", "time of zero velocity", "peak deceleration", "rebound", "OLC")
 BRIEF += ("ISO 18571", "energy balance")
 
 
@@ -73,32 +73,32 @@ def fitted_test(folder: str, test: str) -> dict[str, Any]:
 
 
 def table_row(prefix: str, test: dict[str, Any]) -> dict[str, str]:
-    """A fit's row of docs/barrier.md's table: each channel's ISO 18571 rating, stop, crush, rebound."""
+    """A fit's row of docs/barrier.md's table: each channel's ISO 18571 rating, stop, max displacement, rebound."""
     model = test["metrics"]["model"]
     out = {f"{prefix}.rating.{c}": f"{f['iso18571']['overall']:.3f}" for c, f in test["fit"].items() if f["iso18571"]}
     return out | {
-        f"{prefix}.table.max_crush_mm": f"{model['max_crush_m'] * 1e3:.0f}",
+        f"{prefix}.table.max_displacement_mm": f"{model['max_displacement_m'] * 1e3:.0f}",
         f"{prefix}.table.rebound_mps": f"{model['rebound_velocity_mps']:.2f}",
     }
 
 
 def channels_apart(consistency: dict[str, Any]) -> dict[str, str]:
     """What the wall and the accelerometers say each on its own (docs/barrier.md): the wall's stop,
-    both crushes and rebounds, and how far apart their impulses are."""
+    both max displacements and rebounds, and how far apart their impulses are."""
     out = {
         "barrier.impulse_apart_pct": f"{(consistency['impulse_ratio'] - 1) * 100:.1f}",
         "barrier.wall.stop_ms": f"{consistency['wall']['time_zero_velocity_s'] * 1e3:.1f}",
     }
     for name in PARTS:
-        out[f"barrier.{name}.max_crush_mm"] = f"{consistency[name]['max_crush_m'] * 1e3:.0f}"
+        out[f"barrier.{name}.max_displacement_mm"] = f"{consistency[name]['max_displacement_m'] * 1e3:.0f}"
         out[f"barrier.{name}.rebound_mps"] = f"{consistency[name]['rebound_velocity_mps']:.1f}"
     return out
 
 
-def crush_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
-    """Max crush (mm) and time of zero velocity (ms) as the console's metric table prints them."""
+def displacement_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
+    """Max displacement (mm) and time of zero velocity (ms) as the console's metric table prints them."""
     return {
-        f"{prefix}.max_crush_mm": console_digits(metrics["max_crush_m"] * 1e3),
+        f"{prefix}.max_displacement_mm": console_digits(metrics["max_displacement_m"] * 1e3),
         f"{prefix}.stop_ms": console_digits(metrics["time_zero_velocity_s"] * 1e3),
     }
 
@@ -274,8 +274,8 @@ def _corpus(bench: dict[str, Any]) -> dict[str, str]:
     return {
         "corpus_ok": str(corpus["succeeded"]),
         "corpus_vehicles": str(corpus["vehicles"]),
-        "corpus_crush_pct": f"{corpus['crush_rel_max'] * 100:.2f}",
-        "corpus_crush_median_pct": f"{corpus['crush_rel_median'] * 100:.2f}",
+        "corpus_displacement_pct": f"{corpus['displacement_rel_max'] * 100:.2f}",
+        "corpus_displacement_median_pct": f"{corpus['displacement_rel_median'] * 100:.2f}",
         "corpus_stop_ms": f"{corpus['stop_err_max_s'] * 1e3:.2f}",
         "corpus_stop_median_ms": f"{corpus['stop_err_median_s'] * 1e3:.2f}",
         "corpus_rating": f"{corpus['force_rating_median']:.3f}",
@@ -287,8 +287,8 @@ def _corpus(bench: dict[str, Any]) -> dict[str, str]:
         "corpus_mass_max_kg": f"{max(v['mass_kg'] for v in vehicles):.0f}",
         "corpus_speed_min_kmh": f"{min(v['speed_kmh'] for v in vehicles):.0f}",
         "corpus_speed_max_kmh": f"{max(v['speed_kmh'] for v in vehicles):.0f}",
-        "corpus_crush_min_mm": f"{min(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
-        "corpus_crush_max_mm": f"{max(v['crush_true_m'] for v in vehicles) * 1e3:.0f}",
+        "corpus_displacement_min_mm": f"{min(v['displacement_true_m'] for v in vehicles) * 1e3:.0f}",
+        "corpus_displacement_max_mm": f"{max(v['displacement_true_m'] for v in vehicles) * 1e3:.0f}",
     }
 
 
@@ -296,7 +296,7 @@ def _cross_speed(bench: dict[str, Any]) -> dict[str, str]:
     cross = bench["cross_speed"]
     joint = next(f for f in cross["fits"] if f["vehicle"] == "pickup-joint.yaml")
     out = {
-        "joint_crush_pct": f"{joint['crush_rel'] * 100:.1f}",
+        "joint_displacement_pct": f"{joint['displacement_rel'] * 100:.1f}",
         "joint_peak_pct": f"{joint['peak_rel'] * 100:.1f}",
         "cross_pct": f"{cross['summary']['coverage'] * 100:.0f}",
         "cross_pairs": str(cross["summary"]["pairs"]),
@@ -325,7 +325,7 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
         chosen = [f for name, f in families.items() if ("tall" in name) == (group == "tall")]
         for split in ("extrapolation", "interpolation"):
             parts = [f[split] for f in chosen]
-            out[f"{group}_{split}_crush_pct"] = f"{max(p['crush_rel_max'] for p in parts) * 100:.1f}"
+            out[f"{group}_{split}_displacement_pct"] = f"{max(p['displacement_rel_max'] for p in parts) * 100:.1f}"
             out[f"{group}_{split}_peak_pct"] = f"{max(p['peak_rel_max'] for p in parts) * 100:.1f}"
             out[f"{group}_{split}_within"] = str(sum(p["within_targets"] for p in parts))
             out[f"{group}_{split}_fits"] = str(sum(p["fits"] for p in parts))
@@ -340,7 +340,7 @@ def _families(bench: dict[str, Any]) -> dict[str, str]:
     out["family_coverage_lowest_pct"] = f"{min(f['coverage'] for f in families.values()) * 100:.0f}"
     out["family_coverage_highest_pct"] = f"{max(f['coverage'] for f in families.values()) * 100:.0f}"
     minimal = next(f for f in cross["fits"] if f["vehicle"] == "pickup" and f["split"] == "extrapolation")
-    out["minimal_crush_pct"], out["minimal_peak_pct"] = f"{minimal['crush_rel'] * 100:+.1f}", f"{minimal['peak_rel'] * 100:+.1f}"
+    out["minimal_displacement_pct"], out["minimal_peak_pct"] = f"{minimal['displacement_rel'] * 100:+.1f}", f"{minimal['peak_rel'] * 100:+.1f}"
     return out
 
 
@@ -354,7 +354,7 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
             f"forms.{form}.within": str(s["within_targets"]),
             f"forms.{form}.ok": str(s["ok"]),
-            f"forms.{form}.crush": f"{s['crush_rel_max'] * 100:.1f}",
+            f"forms.{form}.displacement": f"{s['displacement_rel_max'] * 100:.1f}",
             f"forms.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
             f"forms.{form}.lift_offs": str(s["lift_offs"]),
@@ -365,7 +365,7 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
         out |= {
             f"forms.{form}.extrapolation_within": str(s["within_targets"]),
             f"forms.{form}.extrapolation_ok": str(s["ok"]),
-            f"forms.{form}.extrapolation_crush": f"{s['crush_rel_max'] * 100:.1f}",
+            f"forms.{form}.extrapolation_displacement": f"{s['displacement_rel_max'] * 100:.1f}",
             f"forms.{form}.extrapolation_peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.{form}.extrapolation_lift_offs": str(s["lift_offs"]),
         }
@@ -384,7 +384,7 @@ SCENARIO_KEYS = {
     "one test, mass -15 %, 56 -> 56": "mass85",
 }
 METRIC_KEYS = {
-    "max_crush_m": "crush",
+    "max_displacement_m": "displacement",
     "time_zero_velocity_s": "stop",
     "peak_decel_g": "peak",
     "rebound_velocity_mps": "rebound",
@@ -398,16 +398,16 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h;
     and on the check seed and the hidden population, each scenario's coverage and median
     half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>), and the largest
-    miss of the crush from one test down to 40 km/h and of the extrapolated peak."""
+    miss of the max displacement from one test down to 40 km/h and of the extrapolated peak."""
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down = check["one test down, 56 -> 48"]
     out = {
-        "intervals_vehicles": str(down["max_crush_m"]["n"]),
+        "intervals_vehicles": str(down["max_displacement_m"]["n"]),
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
-        "intervals_down48_crush_pct": f"{down['max_crush_m']['half_width_median'] * 100:.1f}",
+        "intervals_down48_displacement_pct": f"{down['max_displacement_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
-        "intervals_down40_crush_miss_pct": f"{check['one test down, 56 -> 40']['max_crush_m']['error_max'] * 100:.0f}",
+        "intervals_down40_displacement_miss_pct": f"{check['one test down, 56 -> 40']['max_displacement_m']['error_max'] * 100:.0f}",
         "intervals_extrap_peak_miss_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['error_max'] * 100:.0f}",
     }
     calibration = intervals["calibration"]
@@ -475,7 +475,7 @@ def _camry() -> Quoted:
     }
     model, data = test["metrics"]["model"], test["metrics"]["data"]
     numbers = (
-        crush_and_stop("camry", model) | crush_and_stop("camry.data", data) | peak("camry", model) | peak("camry.data", data)
+        displacement_and_stop("camry", model) | displacement_and_stop("camry.data", data) | peak("camry", model) | peak("camry.data", data)
     )
     numbers |= {  # as the data set's reference values are given (getting-started)
         "camry.data.stop_rounded_ms": f"{data['time_zero_velocity_s'] * 1e3:.1f}",
@@ -622,7 +622,7 @@ def _joint() -> Quoted:
         numbers[f"joint.{tail}.peak_low_g"], numbers[f"joint.{tail}.peak_high_g"] = f"{low:.0f}", f"{high:.0f}"
     segment = predicted["segment"]["metrics"]
     numbers["joint.segment.peak_pct"] = f"{(segment['peak_decel_g'] / truth['peak_decel_g'] - 1) * 100:+.1f}"
-    numbers["joint.segment.crush_pct"] = f"{(segment['max_crush_m'] / truth['max_crush_m'] - 1) * 100:+.1f}"
+    numbers["joint.segment.displacement_pct"] = f"{(segment['max_displacement_m'] / truth['max_displacement_m'] - 1) * 100:+.1f}"
     return {"pickup-joint-64-extrapolates": "\n".join(line for line in joint if "extrapolates" in line)}, numbers
 
 
@@ -638,7 +638,7 @@ def _init() -> Quoted:
     test = fitted_test("results/v10146", "v10146")
     model = test["metrics"]["model"]
     accel = {"camry.init.rating.accel": f"{test['fit']['accel']['iso18571']['overall']:.3f}"}
-    return {}, crush_and_stop("camry.init", model) | peak("camry.init", model) | accel
+    return {}, displacement_and_stop("camry.init", model) | peak("camry.init", model) | accel
 
 
 # --------------------------------------------------------------------------- the pages

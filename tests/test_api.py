@@ -136,7 +136,7 @@ def test_the_example_runs_as_written(tmp_path):
     example = str(ROOT / "examples/quickstart.py")
     done = subprocess.run([sys.executable, example], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr[-2000:]
-    assert "max crush at 64 km/h" in done.stdout
+    assert "max displacement at 64 km/h" in done.stdout
     assert (tmp_path / "results/pickup-56kph/result.json").is_file()
 
 

@@ -82,7 +82,7 @@ def test_the_conformal_quantile_is_the_rank_ceil_n_plus_one_times_the_coverage()
 
 
 def test_the_scales_are_the_value_the_impact_speed_for_the_rebound_and_a_floor_for_the_pitch():
-    assert scale("max_crush_m", 0.6, 15.0) == 0.6
+    assert scale("max_displacement_m", 0.6, 15.0) == 0.6
     assert scale("rebound_velocity_mps", 0.2, 15.0) == 15.0
     assert scale("max_pitch_deg", 0.2, 15.0) == 1.0
 

@@ -279,7 +279,7 @@ def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
     path.write_text(yaml.safe_dump(merge(fit, {"transcription": {"method": "multiple-shooting", "intervals": 45}})))
     assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
     printed = capsys.readouterr().out
-    assert re.search(r"max dynamic crush \(mm\) +\d+\.\d +-\n", printed)  # the model's travel; the data's none
+    assert re.search(r"max displacement \(mm\) +\d+\.\d +-\n", printed)  # the model's travel; the data's none
     assert "the test record ends at 45.0 ms still moving toward the barrier at 6.5" in printed
     assert "the model ends at 45.0 ms still moving toward the barrier at 6.5" in printed
     notes = json.loads((out / "result.json").read_text())["notes"]

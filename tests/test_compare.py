@@ -6,6 +6,7 @@ from __future__ import annotations
 import csv
 import html
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -46,16 +47,16 @@ def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page
         "pickup-56kph, predicted at 64.0 km/h",
     ]
     fit = json.loads((folders["fit"] / "result.json").read_text())["tests"]["56kph"]["metrics"]["model"]
-    assert float(rows[1]["max_crush_mm"]) == pytest.approx(fit["max_crush_m"] * 1e3) and rows[1]["max_crush_mm_low"] == ""
+    assert float(rows[1]["max_displacement_mm"]) == pytest.approx(fit["max_displacement_m"] * 1e3) and rows[1]["max_displacement_mm_low"] == ""
     for row, speed in ((rows[0], "48"), (rows[2], "64")):
         sim = json.loads((folders[speed] / "simulation.json").read_text())["tests"]["56kph"]
         assert float(row["peak_decel_g"]) == pytest.approx(sim["metrics"]["peak_decel_g"])
         assert float(row["peak_decel_g_low"]) == pytest.approx(sim["intervals"]["peak_decel_g"][0])
-    assert float(rows[0]["max_crush_mm"]) < float(rows[1]["max_crush_mm"]) < float(rows[2]["max_crush_mm"])
+    assert float(rows[0]["max_displacement_mm"]) < float(rows[1]["max_displacement_mm"]) < float(rows[2]["max_displacement_mm"])
     page = html.unescape((out / PAGE).read_text(encoding="utf-8"))
     assert len(self_contained(page)) == len(FIGURES)
     assert all(label in page and label in console for label in labels)
-    assert f"{sim['metrics']['max_crush_m'] * 1e3:.1f} [" in page  # 64 km/h: value and interval in one cell
+    assert f"{sim['metrics']['max_displacement_m'] * 1e3:.1f} [" in page  # 64 km/h: value and interval in one cell
 
 
 def test_two_fits_of_one_vehicle_are_told_apart_by_their_folders(folders, tmp_path):
@@ -64,6 +65,52 @@ def test_two_fits_of_one_vehicle_are_told_apart_by_their_folders(folders, tmp_pa
     with (out / METRICS).open() as fh:
         labels = [r["curve"] for r in csv.DictReader(fh)]
     assert labels == [f"pickup-56kph, fit at 56.0 km/h ({folders['fit']})"] * 2
+
+
+# the keys of the CG's travel as crashnlp wrote them before issue 40 named it displacement
+OLD_METRICS = {"max_displacement_m": "max_crush_m", "time_max_displacement_s": "time_max_crush_s"}
+OLD_EXTRAPOLATION = {"displacement_m": "crush_m", "displacement_rel": "crush_rel"}
+
+
+def _renamed(doc, names: dict[str, str]):
+    if isinstance(doc, dict):
+        return {names.get(k, k): _renamed(v, names) for k, v in doc.items()}
+    return [_renamed(v, names) for v in doc] if isinstance(doc, list) else doc
+
+
+def written_before_the_rename(folder: Path, copy: Path) -> Path:
+    """A copy of a fit's or a simulation's folder with its result.json or simulation.json as
+    crashnlp wrote them before the rename: metrics, intervals and range under the old keys."""
+    shutil.copytree(folder, copy)
+    for path in (copy / "result.json", copy / "simulation.json"):
+        if path.exists():
+            doc = _renamed(json.loads(path.read_text()), OLD_METRICS)
+            for test in doc["tests"].values():
+                if "extrapolation" in test:
+                    test["extrapolation"] = _renamed(test["extrapolation"], OLD_EXTRAPOLATION)
+            path.write_text(json.dumps(doc))
+    return copy
+
+
+def test_folders_written_before_the_rename_read_as_written_now(folders, tmp_path):
+    old = {k: written_before_the_rename(folders[k], tmp_path / f"old-{k}") for k in ("fit", "64")}
+    fit, sim = ((old[k] / name).read_text() for k, name in (("fit", "result.json"), ("64", "simulation.json")))
+    assert '"max_crush_m"' in fit and '"max_displacement_m"' not in fit and '"crush_rel"' in sim  # the old format
+    tables = {}
+    for which, given in (("now", folders), ("before", old)):
+        out = tmp_path / f"cmp-{which}"
+        assert main(["compare-results", str(given["fit"]), str(given["64"]), "--out", str(out)]) == 0
+        with (out / METRICS).open() as fh:
+            tables[which] = [{k: v for k, v in row.items() if k not in ("curve", "folder")} for row in csv.DictReader(fh)]
+        # a prediction from each fit's result.json: the old one's identified range reads as the new one's
+        problem, params = ROOT / "problems/pickup-40kph.yaml", given["fit"] / "result.json"
+        assert main(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / f"sim-{which}"), "--no-figures"]) == 0
+    assert tables["before"] == tables["now"] and float(tables["now"][1]["max_displacement_mm_high"]) > 0
+    predicted = [json.loads((tmp_path / f"sim-{w}" / "simulation.json").read_text())["tests"] for w in ("now", "before")]
+    assert predicted[0] == predicted[1]
+    assert main(["report", str(old["64"])]) == 0  # the extrapolation under its old keys
+    page = html.unescape((old["64"] / "report.html").read_text(encoding="utf-8"))
+    assert "extrapolates: max displacement" in page
 
 
 @pytest.mark.parametrize(

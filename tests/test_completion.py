@@ -47,7 +47,7 @@ def test_breakpoints_span_the_measured_crush_where_the_curve_bends(pickup_case):
     bumper's first peak (0.05 m in the load curve the pickup's data were made with), and the
     piecewise-linear curve through them follows that load curve closer than through even ones."""
     pulses = measured_pulses(pickup_case.problem, pickup_case.tests)
-    crush = max(p.max_crush for p in pulses)
+    crush = max(p.max_displacement for p in pulses)
     assert crush == pytest.approx(0.593, abs=0.002)  # the data set's truth
     bps = np.array(resolution(pulses, DEFAULT_COUNT)[0])
     assert bps.size == DEFAULT_COUNT and bps[0] == 0.0
@@ -84,7 +84,7 @@ def test_spring_values_follow_the_true_load_curve(pickup_case):
     """m|a| against crush while loading recovers the generator's load curve within 3 % inside the
     crush range, at breakpoints apart from its first peak (a band around a peak averages it down)."""
     pulses = measured_pulses(pickup_case.problem, pickup_case.tests)
-    bps = list(np.linspace(0.0, max(p.max_crush for p in pulses), DEFAULT_COUNT))
+    bps = list(np.linspace(0.0, max(p.max_displacement for p in pulses), DEFAULT_COUNT))
     ref = pickup_case.problem.reference.force_crush
     truth = PchipInterpolator(ref.crush, ref.force)(bps)
     values = np.array(spring_values(bps, pulses, "force", pickup_case.problem.model.damper))
@@ -198,8 +198,8 @@ def test_crush_from_acceleration_alone_matches_the_displacement_channel(pickup_c
     accel_only = Case(problem_from_dict(raw, PICKUP.parent))
     (measured,) = measured_pulses(pickup_case.problem, pickup_case.tests)
     (integrated,) = measured_pulses(accel_only.problem, accel_only.tests)
-    assert integrated.max_crush == pytest.approx(measured.max_crush, rel=0.01)
-    assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_crush, rel=0.01)
+    assert integrated.max_displacement == pytest.approx(measured.max_displacement, rel=0.01)
+    assert accel_only.problem.model.spring.crush_breakpoints[-1] == pytest.approx(REACH * measured.max_displacement, rel=0.01)
 
 
 def test_tests_at_two_speeds_estimate_the_damper_one_speed_does_not(tmp_path):

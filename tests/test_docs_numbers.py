@@ -58,7 +58,7 @@ def test_a_typed_result_is_caught_and_definitions_are_not():
     text = (
         "The fit crushes 745.7 mm in 23 iterations (ISO 18571, CFC 60, issue 41, seed 2030, test 10146).\n"
         "At 56 km/h (a problem's input) and 1e-8 (a tolerance of the code) with 3 workers, exit 2.\n"
-        "Marked 745.7<!--n:camry.max_crush_mm--> and `crashnlp simulate --speed '73.5 km/h'`.\n"
+        "Marked 745.7<!--n:camry.max_displacement_mm--> and `crashnlp simulate --speed '73.5 km/h'`.\n"
         "<!-- numbers: identify-nhtsa-10146-brief -->\n```\n11 iterations, objective 4.66465\n```\n"
     )
     assert numbers.typed(text, DEFINITIONS) == ["line 1: 745.7", "line 1: 23"]
@@ -67,13 +67,13 @@ def test_a_typed_result_is_caught_and_definitions_are_not():
 
 def test_a_drifted_number_or_block_is_named_and_refresh_brings_it_back():
     readme = PAGES["README.md"].read_text()
-    crush = QUOTED["numbers"]["camry.max_crush_mm"]
+    crush = QUOTED["numbers"]["camry.max_displacement_mm"]
     block = QUOTED["blocks"]["identify-nhtsa-10146-brief"]
-    stale = readme.replace(f"{crush}<!--n:camry.max_crush_mm-->", "745.8<!--n:camry.max_crush_mm-->")
+    stale = readme.replace(f"{crush}<!--n:camry.max_displacement_mm-->", "745.8<!--n:camry.max_displacement_mm-->")
     stale = stale.replace(block, block.replace("11 iterations", "12 iterations"))
     assert numbers.drift(stale, QUOTED) == [
         "block identify-nhtsa-10146-brief: differs from the run",
-        f"camry.max_crush_mm: 745.8, the run gives {crush}",
+        f"camry.max_displacement_mm: 745.8, the run gives {crush}",
     ]
     assert numbers.refresh(stale, QUOTED) == readme
     assert numbers.drift("1.0<!--n:no.such-->", QUOTED) == ["no.such: no such number"]

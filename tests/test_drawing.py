@@ -77,7 +77,7 @@ def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unload
     assert np.all(low <= identified) and np.all(identified <= high) and np.max(high - low) > 0
     crush, force = measured["measured m|a| vs CG travel"]
     test = result.tests["56kph"]
-    assert test.data_metrics["max_crush_m"] is None  # the 60 ms record ends still moving: loading to its last travel
+    assert test.data_metrics["max_displacement_m"] is None  # the 60 ms record ends still moving: loading to its last travel
     recorded = np.genfromtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", names=True)
     travel = recorded["disp_x_m"][recorded["time_s"] <= 0.06]
     assert np.max(crush) == pytest.approx(np.max(travel), rel=0.01)

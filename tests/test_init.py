@@ -40,7 +40,7 @@ def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     assert "cg_to_front_axle: 1.246 m" in text and "cg_to_impact: 2.219 m" in text and "estimate" in text
     (test,) = _identify(out, tmp_path / "res")["tests"].values()
     model = test["metrics"]["model"]
-    assert model["max_crush_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
+    assert model["max_displacement_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
     assert abs(model["time_zero_velocity_s"] * 1e3 - CAMRY_DATA["stop_ms"]) <= 2.0
 
 
@@ -85,7 +85,7 @@ def test_init_on_a_csv_given_mass_and_speed_identifies(compact_csv, tmp_path):
     model = test["metrics"]["model"]
     crush = float(np.max(truth["displacement"]))
     stop = float(truth["time"][np.flatnonzero(truth["velocity"] <= 0)[0]])
-    assert model["max_crush_m"] == pytest.approx(crush, rel=0.02)
+    assert model["max_displacement_m"] == pytest.approx(crush, rel=0.02)
     assert abs(model["time_zero_velocity_s"] - stop) <= 2e-3
 
 
@@ -205,7 +205,7 @@ def test_init_on_nhtsa_channel_files_with_mass_and_speed_identifies(camry_channe
     assert main(["identify", str(out), "--out", str(tmp_path / "res"), "--no-figures"]) == 0
     assert "v10146: ok (IPOPT" in capsys.readouterr().out
     (test,) = json.loads((tmp_path / "res" / "result.json").read_text())["tests"].values()
-    assert test["metrics"]["model"]["max_crush_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
+    assert test["metrics"]["model"]["max_displacement_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
 
 
 def test_init_reads_the_channels_named_in_a_folder(camry_channels, tmp_path):

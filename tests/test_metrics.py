@@ -28,7 +28,7 @@ def test_half_sine_metrics():
     m = crash_metrics(t, a, v, x)
     assert m.v0 == pytest.approx(v0)
     assert m.t_zero_velocity == pytest.approx(T, abs=1e-4)
-    assert m.max_crush == pytest.approx(v0 * T / 2, rel=1e-4)  # x(T) = v0 T - A T^2 / pi
+    assert m.max_displacement == pytest.approx(v0 * T / 2, rel=1e-4)  # x(T) = v0 T - A T^2 / pi
     assert m.peak_decel == pytest.approx(A, rel=1e-6)
     assert m.t_peak_decel == pytest.approx(T / 2, abs=1e-5)
     assert m.esw == pytest.approx(v0**2 / (2 * v0 * T / 2), rel=1e-3)  # = v0 / T
@@ -64,10 +64,10 @@ def test_olc_not_reached_is_nan():
 def test_result_units_and_pre_impact_samples_ignored():
     t, a, v, x, A = half_sine()
     r = metrics(t, a, v, x, None)
-    assert r["max_crush_m"] == pytest.approx(0.600, rel=1e-3)
+    assert r["max_displacement_m"] == pytest.approx(0.600, rel=1e-3)
     assert r["time_zero_velocity_s"] == pytest.approx(0.080, abs=1e-4)
     assert r["peak_decel_g"] == pytest.approx(A / G0)
-    assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "time_max_crush_s"}
+    assert set(r) >= {"esw_g", "tesw_g", "olc_g", "delta_v_mps", "rebound_velocity_mps", "time_max_displacement_s"}
 
 
 def _recorded(t, a, v, x) -> testcase.TestCase:
@@ -75,16 +75,16 @@ def _recorded(t, a, v, x) -> testcase.TestCase:
     return testcase.TestCase(schema.Test(name="half-sine"), float(v[0]), float(t[-1]), TestData(channels), {})
 
 
-def test_a_record_that_ends_moving_has_no_max_crush():
+def test_a_record_that_ends_moving_has_no_max_displacement():
     t, a, v, x, _ = half_sine(15.0, 0.08, end=0.05)
     moving = data_metrics(_recorded(t, a, v, x))
-    assert moving["max_crush_m"] is None and moving["time_max_crush_s"] is None and moving["esw_g"] is None
+    assert moving["max_displacement_m"] is None and moving["time_max_displacement_s"] is None and moving["esw_g"] is None
     assert moving["record_end_s"] == pytest.approx(0.05, abs=1e-4)
     assert still_moving(moving) == (
         f"ends at 50.0 ms still moving toward the barrier at {moving['end_velocity_mps']:.3g} m/s"
-        " (no stop: its travel there is no max dynamic crush)"
+        " (no stop: its travel there is no max displacement)"
     )
     model = metrics(t, a, v, x, None)  # a model's response keeps its travel, and the words
-    assert model["max_crush_m"] == pytest.approx(x[-1]) and still_moving(model) == still_moving(moving)
+    assert model["max_displacement_m"] == pytest.approx(x[-1]) and still_moving(model) == still_moving(moving)
     stopped = data_metrics(_recorded(*half_sine(15.0, 0.08)[:4]))
-    assert stopped["max_crush_m"] == pytest.approx(0.6, rel=1e-3) and still_moving(stopped) is None
+    assert stopped["max_displacement_m"] == pytest.approx(0.6, rel=1e-3) and still_moving(stopped) is None

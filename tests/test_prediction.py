@@ -68,10 +68,10 @@ def test_the_result_simulates_the_minimal_file_it_was_fitted_from(fitted, capsys
     sim = json.loads((out / "simulation.json").read_text())["tests"]["t1"]
     fit = result.tests["t1"].metrics
     # the forward simulation of the identified model is the fit's own response
-    assert sim["metrics"]["max_crush_m"] == pytest.approx(fit["max_crush_m"], rel=2e-3)
+    assert sim["metrics"]["max_displacement_m"] == pytest.approx(fit["max_displacement_m"], rel=2e-3)
     assert sim["metrics"]["time_zero_velocity_s"] == pytest.approx(fit["time_zero_velocity_s"], abs=1e-3)
-    low, high = sim["intervals"]["max_crush_m"]
-    assert low < sim["metrics"]["max_crush_m"] < high
+    low, high = sim["intervals"]["max_displacement_m"]
+    assert low < sim["metrics"]["max_displacement_m"] < high
     assert sim["extrapolation"] == {}  # the fit's own test is inside its range
     header = (out / "t1" / "response.csv").read_text().splitlines()[0].split(",")
     assert {"crush_m_low", "crush_m_high", "accel_g_low", "accel_g_high"} <= set(header)
@@ -83,20 +83,20 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
     prediction = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
     real = simulate(dataclasses.replace(v, speed=56 / 3.6))
     truth = crash_metrics(real["time"], real["accel"], real["velocity"], real["displacement"])
-    assert prediction.metrics["max_crush_m"] == pytest.approx(truth.max_crush, rel=0.05)
+    assert prediction.metrics["max_displacement_m"] == pytest.approx(truth.max_displacement, rel=0.05)
     assert prediction.extrapolation["speed_mps"] == pytest.approx((56 - 48) / 3.6)
-    assert prediction.extrapolation["crush_m"] > 0  # a faster impact crushes past the fitted crush
-    low, high = prediction.intervals["max_crush_m"]
-    assert low < prediction.metrics["max_crush_m"] < high
+    assert prediction.extrapolation["displacement_m"] > 0  # a faster impact travels past the fitted travel
+    low, high = prediction.intervals["max_displacement_m"]
+    assert low < prediction.metrics["max_displacement_m"] < high
     band_low, band_high = prediction.bands["accel"]
     assert np.all(band_low <= prediction.response["accel"]) and np.all(prediction.response["accel"] <= band_high)
     slower = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
     assert slower.extrapolation == {}
     # past the fitted crush the force is the tail rule's guess: the interval widens beyond the parameters' share
-    width = lambda t: np.diff(t.intervals["max_crush_m"])[0] / t.metrics["max_crush_m"]  # noqa: E731
+    width = lambda t: np.diff(t.intervals["max_displacement_m"])[0] / t.metrics["max_displacement_m"]  # noqa: E731
     assert width(prediction) > 1.5 * width(slower)
     # a faster impact crushes more: the identified vehicle is one physical vehicle at both speeds
-    assert prediction.metrics["max_crush_m"] > slower.metrics["max_crush_m"]
+    assert prediction.metrics["max_displacement_m"] > slower.metrics["max_displacement_m"]
 
 
 @pytest.mark.integration
@@ -109,7 +109,7 @@ def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted
     base = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
     more = crashnlp.simulate(path, params=result)["new"]
     assert more.mass == pytest.approx(1.2 * base.mass)
-    assert more.metrics["max_crush_m"] > base.metrics["max_crush_m"]  # more energy into the same front end
+    assert more.metrics["max_displacement_m"] > base.metrics["max_displacement_m"]  # more energy into the same front end
     assert more.extrapolation["mass_kg"] == pytest.approx(0.2 * base.mass)
 
 
@@ -152,7 +152,7 @@ def test_a_breakpoint_count_predicts_where_it_is_the_count_the_fit_placed(fitted
 
     same = crashnlp.simulate(with_count(placed), params=result)["new"]
     plain = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
-    assert same.metrics["max_crush_m"] == pytest.approx(plain.metrics["max_crush_m"], rel=1e-9)
+    assert same.metrics["max_displacement_m"] == pytest.approx(plain.metrics["max_displacement_m"], rel=1e-9)
     with pytest.raises(InputError, match="model.spring.crush_breakpoints"):
         crashnlp.simulate(with_count(placed + 1), params=result)
 
@@ -165,7 +165,7 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
     assert len(model["spring"]["crush_breakpoints"]) == len(model["spring"]["values"]) == 8  # completed from the data
     assert model["spring"]["values"] == pytest.approx(result.parameters["model.spring.values"], rel=1e-9)
     assert loaded.identified.range.speeds == (pytest.approx(v.speed), pytest.approx(v.speed))
-    assert loaded.identified.range.max_crush == pytest.approx(result.tests["t1"].data_metrics["max_crush_m"], rel=0.01)
+    assert loaded.identified.range.max_displacement == pytest.approx(result.tests["t1"].data_metrics["max_displacement_m"], rel=0.01)
     # past the front-end crush the model reached, predictions follow the curve's trend
     reach = float(np.max(result.tests["t1"].response["crush"]))
     assert loaded.identified.range.model_crush == pytest.approx(reach)
@@ -193,14 +193,14 @@ def test_a_prediction_file_of_only_name_and_tests_takes_the_rest_from_the_result
     )
     sim = json.loads((out / "simulation.json").read_text())["tests"]["new"]
     full = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
-    assert sim["metrics"]["max_crush_m"] == pytest.approx(full.metrics["max_crush_m"], rel=1e-6)  # result.json: 10 digits
+    assert sim["metrics"]["max_displacement_m"] == pytest.approx(full.metrics["max_displacement_m"], rel=1e-6)  # result.json: 10 digits
     assert sim["intervals"]["peak_decel_g"] == pytest.approx(list(full.intervals["peak_decel_g"]), rel=1e-6)
     # the vehicle in feet, to five significant digits (5e-6 apart): the same vehicle, not another
     feet = yaml.safe_load(_new_speed(folder, raw, 56).read_text())
     feet["vehicle"]["cg_to_impact"] = f"{raw['vehicle']['cg_to_impact'] / 0.3048:.5g} ft"
     (folder / "feet.yaml").write_text(yaml.safe_dump(feet))
     in_feet = crashnlp.simulate(folder / "feet.yaml", params=result)["new"]
-    assert in_feet.metrics["max_crush_m"] == pytest.approx(full.metrics["max_crush_m"], rel=1e-4)
+    assert in_feet.metrics["max_displacement_m"] == pytest.approx(full.metrics["max_displacement_m"], rel=1e-4)
 
 
 @pytest.mark.integration
@@ -209,8 +209,8 @@ def test_a_what_if_speed_or_mass_predicts_as_a_file_naming_them_and_shows_no_dat
     own = crashnlp.simulate(path, params=result)["t1"]
     assert set(own.data) >= {"accel", "velocity"} and not any("data not shown" in n for n in own.notes)
     faster = crashnlp.simulate(path, params=result, speed="56 km/h")["t1"]
-    assert faster.metrics["max_crush_m"] == pytest.approx(
-        crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"].metrics["max_crush_m"], rel=1e-9
+    assert faster.metrics["max_displacement_m"] == pytest.approx(
+        crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"].metrics["max_displacement_m"], rel=1e-9
     )
     assert faster.data == {}
     assert faster.notes[0] == "t1: data not shown: recorded at 48.0 km/h (its velocity data), simulated at 56.0 km/h"
@@ -231,11 +231,11 @@ def test_a_result_alone_simulates_its_own_tests_with_a_what_if(fitted, capsys):
     folder, _, raw, result, _ = fitted
     at56 = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
     alone = crashnlp.simulate(result, speed="56 km/h")["t1"]
-    assert alone.metrics["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-9)
+    assert alone.metrics["max_displacement_m"] == pytest.approx(at56.metrics["max_displacement_m"], rel=1e-9)
     out = folder / "alone"
     assert main(["simulate", str(folder / "fit"), "--speed", "56 km/h", "--out", str(out), "--no-figures"]) == 0  # the folder
     sim = json.loads((out / "simulation.json").read_text())["tests"]["t1"]
-    assert sim["metrics"]["max_crush_m"] == pytest.approx(at56.metrics["max_crush_m"], rel=1e-6)
+    assert sim["metrics"]["max_displacement_m"] == pytest.approx(at56.metrics["max_displacement_m"], rel=1e-6)
     capsys.readouterr()
     args = ["simulate", str(folder / "fit" / "result.json"), "--params", str(folder / "fit" / "result.json")]
     assert main([*args, "--out", str(folder / "both")]) == 2
@@ -353,10 +353,10 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
         (tmp_path / f"{tail}.yaml").write_text(yaml.safe_dump(new, sort_keys=False))
         predicted[tail] = crashnlp.simulate(tmp_path / f"{tail}.yaml", params=result)["new"]
     trend, segment = predicted["trend"], predicted["segment"]
-    assert trend.metrics["max_crush_m"] == pytest.approx(truth60.max_crush, rel=0.03)
+    assert trend.metrics["max_displacement_m"] == pytest.approx(truth60.max_displacement, rel=0.03)
     assert trend.metrics["peak_decel_g"] == pytest.approx(truth60.peak_decel / G0, rel=0.15)
-    low, high = trend.intervals["max_crush_m"]
-    assert low <= truth60.max_crush <= high
+    low, high = trend.intervals["max_displacement_m"]
+    assert low <= truth60.max_displacement <= high
     low, high = trend.intervals["peak_decel_g"]
     assert low <= truth60.peak_decel / G0 <= high
     assert segment.metrics["peak_decel_g"] > 1.5 * truth60.peak_decel / G0  # the wall
@@ -457,7 +457,7 @@ def test_bands_are_pointwise_95_and_at_a_metric_s_instant_its_interval(engine_fi
     assert r["contact_force"][-1] == 0.0 and width["barrier_force"][-1] == 0.0
     # the band at a metric's instant lies within that metric's interval
     instants = {
-        "max_crush_m": ("displacement", int(np.argmax(r["displacement"])), 1.0),
+        "max_displacement_m": ("displacement", int(np.argmax(r["displacement"])), 1.0),
         "peak_decel_g": ("accel", int(np.argmax(-r["accel"])), -1 / G0),
         "rebound_velocity_mps": ("velocity", int(np.argmin(r["velocity"])), -1.0),
         "max_pitch_deg": ("pitch", int(np.argmax(r["pitch"])), np.degrees(1.0)),
@@ -481,7 +481,7 @@ def test_an_extrapolated_interval_names_its_parts_and_the_force_past_the_reach_w
         # the parts add in quadrature to the interval's half-width
         half = np.sqrt(sum(part[k] ** 2 for k in ("parameters", "form", "past_the_reach")))
         assert (high - low) / 2 == pytest.approx(half, rel=1e-9)
-    assert shares["max_crush_m"]["past_the_reach"] > 0 and test.extrapolation["crush_m"] > 0
+    assert shares["max_displacement_m"]["past_the_reach"] > 0 and test.extrapolation["displacement_m"] > 0
     for metric, part in shares.items():
         said = any(f"{metric}'s interval is mostly the force past the crush" in n for n in test.notes)
         assert said == (part["dominant"] == "past_the_reach"), metric

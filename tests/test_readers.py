@@ -48,7 +48,7 @@ def test_nhtsa_10146_reproduces_reference_values():
     assert v.values[0] == pytest.approx(57.09 / 3.6) and x.values[0] == pytest.approx(0.0, abs=1e-12)
     m = metrics(a.time, a.values, v.values, x.values, None)
     assert m["time_zero_velocity_s"] == pytest.approx(0.0740, rel=0.02)
-    assert m["max_crush_m"] == pytest.approx(0.746, rel=0.02)
+    assert m["max_displacement_m"] == pytest.approx(0.746, rel=0.02)
     assert m["peak_decel_g"] == pytest.approx(40.9, rel=0.02)
     assert m["olc_g"] == pytest.approx(29.4, rel=0.03)
     # the reference's "about 2.3 m/s" is the rebound level the vehicle keeps; the short
@@ -152,7 +152,7 @@ def test_csv_pickup_in_si_and_window():
     a = data.channels["accel"]
     assert -a.values.min() / G0 == pytest.approx(29.8, rel=0.1)  # truth 29.8 g before noise
     m = crash_metrics(a.time, a.values, data.channels["velocity"].values, data.channels["displacement"].values)
-    assert m.max_crush == pytest.approx(0.593, abs=0.003)
+    assert m.max_displacement == pytest.approx(0.593, abs=0.003)
     assert m.t_zero_velocity == pytest.approx(0.0679, abs=0.001)
 
 

@@ -13,7 +13,20 @@ import pytest
 
 from crashnlp.analysis.summary import metrics
 from crashnlp.base import choices
-from crashnlp.base.outputs import BOUNDED, MEASURABLE, METRIC, METRICS, OUTPUT, PREDICTED, TABLED
+from crashnlp.base.outputs import (
+    BOUNDED,
+    COLUMNS,
+    MEASURABLE,
+    METRIC,
+    METRICS,
+    OUTPUT,
+    OUTPUTS,
+    PREDICTED,
+    RENAMED,
+    RENAMED_EXTRAPOLATION,
+    TABLED,
+    current_names,
+)
 from crashnlp.data.load import READERS
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.problem import schema
@@ -47,15 +60,28 @@ def test_a_pulses_metrics_are_the_registrys_keys_in_its_order():
     out = metrics(t, accel, velocity, displacement, np.zeros_like(t), displacement)
     assert list(out) == [m.key for m in METRICS]
     assert out["peak_decel_g"] == pytest.approx(200.0 / 9.80665, rel=1e-6)  # read in g, as the key says
-    assert out["max_crush_m"] == out["max_front_end_crush_m"]
+    assert out["max_displacement_m"] == out["max_front_end_crush_m"]
 
 
 def test_metric_rows_read_as_they_say():
     assert {m.key for m in PREDICTED} <= {m.key for m in TABLED}
-    crush = METRIC["max_crush_m"]
-    assert crush.heading == "max dynamic crush (mm)" and crush.column == "max_crush_mm"
-    assert crush.shown(0.61234) == "612.3" and crush.band((0.6, 0.625)) == "[600.0, 625.0]"
+    travel = METRIC["max_displacement_m"]
+    assert travel.heading == "max displacement (mm)" and travel.column == "max_displacement_mm"
+    assert travel.shown(0.61234) == "612.3" and travel.band((0.6, 0.625)) == "[600.0, 625.0]"
     assert METRIC["rebound_velocity_mps"].column == "rebound_velocity_mps"
     for m in METRICS:
         assert m.channel is None or m.channel in OUTPUT
         assert not m.extreme or m.channel is not None  # an instant's value is some channel's extreme
+
+
+def test_a_renamed_key_names_nothing_now_and_maps_to_a_metric():
+    """An old key never comes back with another meaning: old files must read as they were meant."""
+    now = {m.key for m in METRICS} | {o.key for o in OUTPUTS} | {o.column for o in COLUMNS}
+    assert not set(RENAMED) & now and set(RENAMED.values()) <= {m.key for m in METRICS}
+    assert not set(RENAMED_EXTRAPOLATION) & set(RENAMED_EXTRAPOLATION.values())
+    old = {"tests": {"t": {"metrics": {"max_crush_m": 0.7, "crush_m": 0.6}}}, "rows": [{"56kph.time_max_crush_s": 0.07}]}
+    assert current_names(old) == {
+        "tests": {"t": {"metrics": {"max_displacement_m": 0.7, "crush_m": 0.6}}},  # crush_m: the front end's, as before
+        "rows": [{"56kph.time_max_displacement_s": 0.07}],
+    }
+    assert current_names({"crush_m": 0.1, "crush_rel": 0.2}, RENAMED_EXTRAPOLATION) == {"displacement_m": 0.1, "displacement_rel": 0.2}

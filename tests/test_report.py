@@ -162,7 +162,15 @@ def study_row(case: int, pitch: str, k_front: str, ok: bool = True) -> dict:
     row = {"case": f"case-{case:03d}", "constraints.bounds.pitch": f"[null, {pitch}]", "vehicle.suspension.k_front": k_front}
     row |= {"constraints.bounds.pitch_si": si[pitch], "vehicle.suspension.k_front_si": si[k_front], "warm_start": ""}
     row |= {"status": "ok" if ok else "error: failed", "objective": 1.0 + case, "iterations": 10 + case, "wall_s": 0.1}
-    return row | {"t.max_crush_m": 0.5 + 0.01 * case, "t.peak_decel_g": 30.0 + case} if ok else row
+    return row | {"t.max_displacement_m": 0.5 + 0.01 * case, "t.peak_decel_g": 30.0 + case} if ok else row
+
+
+def test_a_study_case_stored_before_the_rename_reads_as_one_stored_now(tmp_path):
+    store = CaseStore(tmp_path / "cases")
+    row = study_row(1, "4 deg", "50 kN/m")
+    store.save("case-001", "key", {k.replace("max_displacement_m", "max_crush_m"): v for k, v in row.items()}, None)
+    assert "t.max_crush_m" in (tmp_path / "cases" / "case-001.json").read_text()
+    assert store.rows() == [row] and store.row("case-001", "key") == row
 
 
 def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
@@ -172,9 +180,9 @@ def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
         store.save(f"case-{case:03d}", "key", study_row(case, pitch, k, ok=case != 0), None)  # the first failed
     assert main(["report", str(tmp_path / "grid")]) == 0
     page = (tmp_path / "grid" / "report.html").read_text(encoding="utf-8")
-    assert len(self_contained(page)) == 3  # objective, max crush, peak deceleration over the grid
+    assert len(self_contained(page)) == 3  # objective, max displacement, peak deceleration over the grid
     assert page.count("<tr>") == 1 + 4 and "t: peak deceleration (g)" in page and "<td>500</td>" not in page
-    assert "<td>510</td>" in page  # max crush 0.51 m in mm, as the console shows it
+    assert "<td>510</td>" in page  # max displacement 0.51 m in mm, as the console shows it
 
 
 def test_a_zip_study_has_no_map(tmp_path):

@@ -78,5 +78,5 @@ def test_shipped_barrier_fit_meets_the_wall_and_the_accelerometers():
     assert accel["time_zero_velocity_s"] == pytest.approx(0.07396, abs=5e-4)
     stop = test.metrics["time_zero_velocity_s"]
     assert abs(stop - accel["time_zero_velocity_s"]) <= 1e-3 and abs(stop - wall["time_zero_velocity_s"]) <= 1e-3
-    assert wall["max_crush_m"] <= test.metrics["max_crush_m"] <= accel["max_crush_m"]
+    assert wall["max_displacement_m"] <= test.metrics["max_displacement_m"] <= accel["max_displacement_m"]
     assert test.consistency["impulse_ratio"] == pytest.approx(1.056, abs=0.005)

@@ -134,7 +134,7 @@ def test_the_study_figure_reads_in_degrees_under_the_consoles_labels(shipped):
     assert job["title"] == f"pitch-bound: {PITCH}"
     pitch = job["series"]["56kph: max pitch (deg)"]
     assert pitch == pytest.approx([r["56kph.max_pitch_deg"] for r in rows])
-    assert job["series"]["56kph: max dynamic crush (mm)"] == pytest.approx([1e3 * r["56kph.max_crush_m"] for r in rows])
+    assert job["series"]["56kph: max displacement (mm)"] == pytest.approx([1e3 * r["56kph.max_displacement_m"] for r in rows])
     per_degree = job["series"]["56kph: d objective / d pitch upper bound (1/deg)"]
     assert per_degree == pytest.approx([np.radians(r["multiplier.56kph.bound.pitch.upper"]) for r in rows])
 
@@ -154,7 +154,7 @@ def test_the_shipped_crush_space_designs_all_solve_and_more_space_never_costs_mo
     peak = np.array([r["objective"] for r in rows])
     assert np.all(np.diff(peak) <= 1e-6 * peak[:-1]), peak  # a looser bound only adds designs
     assert peak[0] > 1.5 * peak[-1]
-    travel = np.array([r["56kph.max_crush_m"] for r in rows])  # the CG's travel, on the NLP grid
+    travel = np.array([r["56kph.max_displacement_m"] for r in rows])  # the CG's travel, on the NLP grid
     assert np.all(np.abs(travel - space) < 0.01), travel  # each design uses its space (pitch adds mm)
     gain = [r["multiplier.56kph.bound.crush.upper"] for r in rows]  # the bound's price: peak fallen per metre
     assert gain == sorted(gain, reverse=True), gain  # space is worth less the more there is

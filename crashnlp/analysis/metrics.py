@@ -3,12 +3,13 @@
 Model frame: x toward the barrier, impact at t = 0, so accel < 0 while crushing, velocity starts
 at +v0 and displacement (CG travel since impact) is positive. Works for test data and model
 output alike. Definitions:
-- max dynamic crush: the largest displacement, and its time;
+- max displacement: the CG's largest travel since impact, and its time (NHTSA's "maximum dynamic
+  crush"; not the front end's crush, which the model reports apart);
 - time of zero velocity: first downward crossing of v = 1e-6 v0 after impact (so a vehicle that stops
   without rebound counts as stopped), linearly interpolated;
 - delta-V: v0 - min(v) (includes the rebound); rebound velocity: -min(v) (>= 0);
 - peak deceleration: max(-a);
-- ESW (equivalent square wave, displacement based): v0^2 / (2 C), C the max dynamic crush;
+- ESW (equivalent square wave, displacement based): v0^2 / (2 C), C the max displacement;
   TESW (time based): v0 / t_m, t_m the time of zero velocity; both as in M. Huang,
   "Vehicle Crash Mechanics", CRC Press 2002, ch. 2 (constant decelerations that stop the
   vehicle in the same crush, resp. the same time);
@@ -35,8 +36,8 @@ class CrashMetrics:
     """Metrics in SI: m, s, m/s, m/s^2. NaN where a metric is not reached in the record."""
 
     v0: float
-    max_crush: float
-    t_max_crush: float
+    max_displacement: float
+    t_max_displacement: float
     t_zero_velocity: float
     delta_v: float
     rebound_velocity: float
@@ -113,21 +114,21 @@ def crash_metrics(t: np.ndarray, accel: np.ndarray, velocity: np.ndarray, displa
     after = t >= 0.0
     t, a, v, x = t[after], a[after], v[after], x[after]
     v0 = float(v[0])
-    i_crush = int(np.argmax(x))
+    i_travel = int(np.argmax(x))
     i_peak = int(np.argmax(-a))
     t_stop = zero_crossing(t, v, STOPPED * abs(v0))
-    max_crush = float(x[i_crush])
+    max_displacement = float(x[i_travel])
     return CrashMetrics(
         v0=v0,
-        max_crush=max_crush,
-        t_max_crush=float(t[i_crush]),
+        max_displacement=max_displacement,
+        t_max_displacement=float(t[i_travel]),
         t_zero_velocity=t_stop,
         delta_v=float(v0 - v.min()),
         rebound_velocity=float(max(0.0, -v.min())),
         end_velocity=float(v[-1]),
         peak_decel=float(-a[i_peak]),
         t_peak_decel=float(t[i_peak]),
-        esw=v0**2 / (2.0 * max_crush) if max_crush > 0 else float("nan"),
+        esw=v0**2 / (2.0 * max_displacement) if max_displacement > 0 else float("nan"),
         tesw=v0 / t_stop if t_stop > 0 else float("nan"),
         olc=olc(t, v, x),
     )

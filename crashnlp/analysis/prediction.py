@@ -55,7 +55,16 @@ from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shi
 from crashnlp.analysis.metrics import DRIFT, lift_off
 from crashnlp.analysis.summary import data_curves, response_metrics
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import COLUMNS, METRIC, OUTPUT, PANELS, PREDICTED_KEYS, named_test
+from crashnlp.base.outputs import (
+    COLUMNS,
+    METRIC,
+    OUTPUT,
+    PANELS,
+    PREDICTED_KEYS,
+    RENAMED_EXTRAPOLATION,
+    current_names,
+    named_test,
+)
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, trend_misses
@@ -71,8 +80,8 @@ if TYPE_CHECKING:
 
 # response columns and the metric whose non-parameter half-width their band carries
 BAND_METRIC = {
-    "displacement": "max_crush_m",
-    "crush": "max_crush_m",
+    "displacement": "max_displacement_m",
+    "crush": "max_displacement_m",
     "velocity": "rebound_velocity_mps",
     "accel": "peak_decel_g",
     "barrier_force": "peak_decel_g",
@@ -182,7 +191,7 @@ def predict(
             continue
         chosen = calibration or shipped()
         u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
-        beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
+        beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
             test.name,
             test.speed,
@@ -204,13 +213,13 @@ def predict(
 def _drift(name: str, response: Response) -> tuple[str, ...]:
     """A note when the vehicle ends its record still moving toward the barrier without touching
     it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off), and its
-    max crush is its travel at the end, not where it stopped."""
+    max displacement is its travel at the end, not where it stopped."""
     velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
     if velocity <= DRIFT or contact > 0:
         return ()
     return (
         f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
-        "lifted the front end off): its max crush is its travel at the end of the record, not a stop",
+        "lifted the front end off): its max displacement is its travel at the end of the record, not a stop",
     )
 
 
@@ -348,13 +357,13 @@ def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
 def past_the_reach(
     case: Case, p: np.ndarray, response: Response, identified: IdentifiedModel, mass: float, metrics: dict[str, float | None]
 ) -> dict[str, float]:
-    """The 95 % half-widths the force past the model's reach in the fitted tests adds to max crush
-    (m), time of zero velocity (s) and peak deceleration (g); nothing inside the reach.
+    """The 95 % half-widths the force past the model's reach in the fitted tests adds to max
+    displacement (m), time of zero velocity (s) and peak deceleration (g); nothing inside the reach.
 
     The force there is the trend rule's guess: its miss per breakpoint spacing
     (crashnlp.models.tail.trend_misses), with Student's t for the few misses it is measured from,
-    times the distance d past the reach, is the force's error there. The crush moves by the
-    energy that error adds over d, the stop in proportion to the crush (the mean speed to the stop
+    times the distance d past the reach, is the force's error there. The max displacement moves by the
+    energy that error adds over d, the stop in proportion to it (the mean speed to the stop
     unchanged), and the peak by the error where the peak lies, if past the reach."""
     crush, reach_m = response["crush"], identified.range.model_crush
     deepest = float(np.max(crush))
@@ -369,10 +378,10 @@ def past_the_reach(
     quantile = float(student.ppf(0.975, misses.size))  # a root mean square of few misses: Student's t
     rate = float(np.sqrt(np.mean(misses**2))) * quantile / spacing(breakpoints)  # N of force error per m past the reach, 95 %
     at_deepest = max(float(curve(np.array([deepest]))[0]), 1.0)
-    half = {"max_crush_m": rate * beyond**2 / 2 / at_deepest}
-    stop, max_crush = metrics.get("time_zero_velocity_s"), metrics.get("max_crush_m")
-    if stop is not None and np.isfinite(stop) and max_crush:
-        half["time_zero_velocity_s"] = stop * half["max_crush_m"] / max_crush
+    half = {"max_displacement_m": rate * beyond**2 / 2 / at_deepest}
+    stop, travel = metrics.get("time_zero_velocity_s"), metrics.get("max_displacement_m")
+    if stop is not None and np.isfinite(stop) and travel:
+        half["time_zero_velocity_s"] = stop * half["max_displacement_m"] / travel
     peak = int(np.argmax(-response["accel"]))
     if crush[peak] > reach_m:
         half["peak_decel_g"] = rate * (crush[peak] - reach_m) / mass / G0
@@ -453,7 +462,7 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
     """The name and the predicted tests `write_simulation` wrote into `folder`, back in SI: the
     responses and bands from each response.csv, the rest from simulation.json."""
-    raw = json.loads((folder / "simulation.json").read_text(encoding="utf-8"))
+    raw = current_names(json.loads((folder / "simulation.json").read_text(encoding="utf-8")))
     tests = {}
     for name, entry in raw["tests"].items():
         columns = read_columns(folder / name / "response.csv")
@@ -471,7 +480,7 @@ def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
             entry["metrics"],
             intervals,
             bands,
-            dict(entry.get("extrapolation", {})),
+            current_names(dict(entry.get("extrapolation", {})), RENAMED_EXTRAPOLATION),
             tuple(entry.get("notes", ())),
         )
     return str(raw["name"]), tests
@@ -494,8 +503,9 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
 def extrapolation_line(beyond: dict[str, float]) -> str:
     """How far a prediction lies past the identified range (`PredictedTest.extrapolation`), in words."""
     parts = []
-    if "crush_m" in beyond:
-        parts.append(f"max crush {beyond['crush_m'] * 1e3:.0f} mm ({beyond['crush_rel'] * 100:.0f} %) past the largest fitted")
+    if "displacement_m" in beyond:
+        travel, rel = beyond["displacement_m"], beyond["displacement_rel"]
+        parts.append(f"max displacement {travel * 1e3:.0f} mm ({rel * 100:.0f} %) past the largest fitted")
     if "speed_mps" in beyond:
         side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
         parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")

@@ -24,8 +24,8 @@ def metrics(
 ) -> dict:
     """The crash metrics result.json reports, in the units their names say.
 
-    Max dynamic crush is the crash-test quantity, the CG's largest displacement, for data and
-    model alike, so the two compare. A model also reports its largest front-end crush
+    Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
+    travel, for data and model alike, so the two compare. A model also reports its largest front-end crush
     (`max_front_end_crush_m`, the `crush` output along the crush force's line of action: what a
     crush bound limits); the two differ by the pitch and the geometry. `record_end_s` and
     `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
@@ -46,7 +46,7 @@ def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
         return None
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
-    return f"{moving} (no stop: its travel there is no max dynamic crush)"
+    return f"{moving} (no stop: its travel there is no max displacement)"
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -57,7 +57,7 @@ def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 def data_metrics(test: TestCase) -> dict | None:
     """Metrics of the measured curves, on the accel channel's time base. A record that ends before
-    the vehicle stops has no max dynamic crush, and no ESW from it: its last sample is not one
+    the vehicle stops has no max displacement, and no ESW from it: its last sample is not one
     (None; `still_moving` says where it ends)."""
     ch = test.data.channels if test.data is not None else {}
     if not {"accel", "velocity", "displacement"} <= set(ch):
@@ -67,7 +67,7 @@ def data_metrics(test: TestCase) -> dict | None:
     pitch = resample(ch["pitch"], t) if "pitch" in ch else None
     out = metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
     if still_moving(out):
-        out.update(max_crush_m=None, time_max_crush_s=None, esw_g=None)
+        out.update(max_displacement_m=None, time_max_displacement_s=None, esw_g=None)
     return out
 
 
@@ -110,6 +110,6 @@ def _one_mass(t: np.ndarray, accel: np.ndarray, v0: float, mass: float) -> dict[
     return {
         "impulse_Ns": mass * (m.v0 - m.end_velocity),
         "time_zero_velocity_s": m.t_zero_velocity,
-        "max_crush_m": m.max_crush,
+        "max_displacement_m": m.max_displacement,
         "rebound_velocity_mps": m.rebound_velocity,
     }

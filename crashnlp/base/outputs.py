@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import Any
 
 from crashnlp.base.units import G0
 
@@ -75,7 +76,7 @@ class Metric:
     console line, table, CSV column and report that shows it)."""
 
     key: str
-    label: str  # what it is, in a fit's metric table: "max dynamic crush"
+    label: str  # what it is, in a fit's metric table: "max displacement"
     unit: str  # the unit it is shown in
     factor: float  # stored value -> shown unit
     read: str | None  # the crashnlp.analysis.metrics.CrashMetrics field it is (None: read from another curve)
@@ -89,12 +90,12 @@ class Metric:
 
     @property
     def heading(self) -> str:
-        """Label with its unit, as a table's row or column names it: "max dynamic crush (mm)"."""
+        """Label with its unit, as a table's row or column names it: "max displacement (mm)"."""
         return f"{self.label} ({self.unit})"
 
     @property
     def column(self) -> str:
-        """Its column in a CSV of shown values: the key with the shown unit, "max_crush_mm"."""
+        """Its column in a CSV of shown values: the key with the shown unit, "max_displacement_mm"."""
         return f"{self.key.rsplit('_', 1)[0]}_{self.unit.replace('/', 'p')}"
 
     def shown(self, value: float) -> str:
@@ -106,12 +107,14 @@ class Metric:
         return f"[{self.shown(band[0])}, {self.shown(band[1])}]"
 
 
-# result.json's crash metrics, in its order (crashnlp.analysis.summary.metrics writes them)
+# result.json's crash metrics, in its order (crashnlp.analysis.summary.metrics writes them). Two
+# quantities, two names: displacement is the CG's travel since impact (NHTSA's "maximum dynamic crush"
+# is its largest value), crush is the front end's shortening along the crush force's line of action
 # fmt: off
 METRICS: tuple[Metric, ...] = (
-    Metric("max_crush_m", "max dynamic crush", "mm", 1e3, "max_crush", short="max crush",
+    Metric("max_displacement_m", "max displacement", "mm", 1e3, "max_displacement", short="max displacement",
            channel="displacement", extreme=1.0, plotted=True),
-    Metric("time_max_crush_s", "time of max crush", "ms", 1e3, "t_max_crush"),
+    Metric("time_max_displacement_s", "time of max displacement", "ms", 1e3, "t_max_displacement"),
     Metric("max_front_end_crush_m", "max front-end crush", "mm", 1e3, None),
     Metric("time_zero_velocity_s", "time of zero velocity", "ms", 1e3, "t_zero_velocity", short="zero velocity", digits=2),
     Metric("peak_decel_g", "peak deceleration", "g", 1.0, "peak_decel", G0, short="peak decel",
@@ -134,6 +137,32 @@ TABLED: tuple[Metric, ...] = tuple(m for m in METRICS if m.table)  # a fit's met
 PREDICTED: tuple[Metric, ...] = tuple(m for m in METRICS if m.short)
 PREDICTED_KEYS: tuple[str, ...] = tuple(m.key for m in PREDICTED)
 PLOTTED: tuple[str, ...] = tuple(m.key for m in METRICS if m.plotted)
+
+# the keys of the CG's travel that files written before issue 40's rename called crush: old name ->
+# current name. RENAMED: the crash metrics' keys, wherever a file keeps them (result.json's and
+# simulation.json's metrics, intervals and identified range, a study's columns "test.key");
+# RENAMED_EXTRAPOLATION: a prediction's extrapolation, whose "crush_m" was the CG's travel past the
+# fitted tests' largest ("crush_m" elsewhere is the front end's crush, and stays)
+RENAMED: dict[str, str] = {"max_crush_m": "max_displacement_m", "time_max_crush_s": "time_max_displacement_s"}
+RENAMED_EXTRAPOLATION: dict[str, str] = {"crush_m": "displacement_m", "crush_rel": "displacement_rel"}
+
+
+def current(key: str, renamed: dict[str, str] = RENAMED) -> str:
+    """A key as it is named now: `key` itself, or the current name of a renamed one, also as the
+    last part of a dotted column ("56kph.max_crush_m" -> "56kph.max_displacement_m")."""
+    head, dot, last = key.rpartition(".")
+    return f"{head}{dot}{renamed.get(last, last)}"
+
+
+def current_names(doc: Any, renamed: dict[str, str] = RENAMED) -> Any:
+    """A file's JSON document with every mapping's keys, at any depth, as they are named now
+    (`current`): a file written before a rename reads as one written now."""
+    if isinstance(doc, dict):
+        return {current(k, renamed): current_names(v, renamed) for k, v in doc.items()}
+    if isinstance(doc, list):
+        return [current_names(v, renamed) for v in doc]
+    return doc
+
 
 # the unit a person reads an SI quantity in (reports, figures): SI unit -> (shown unit, factor from SI)
 SHOWN_UNITS = {"N": ("kN", 1e-3), "N/m": ("kN/m", 1e-3), "N*s/m": ("kN*s/m", 1e-3), "rad": ("deg", 180 / math.pi)}

@@ -72,7 +72,7 @@ class Pulse:
     """One test's measured crash pulse from impact on (SI, model frame)."""
 
     time: np.ndarray
-    crush: np.ndarray  # CG travel since impact, m
+    displacement: np.ndarray  # CG travel since impact (the crush of the measured loading curve), m
     rate: np.ndarray  # crush rate (the velocity toward the barrier), m/s
     force: np.ndarray  # m |a| while decelerating, N
     mass: float
@@ -82,18 +82,18 @@ class Pulse:
     @property
     def loading(self) -> slice:
         """Samples from impact to the largest crush."""
-        return slice(0, int(np.argmax(self.crush)) + 1)
+        return slice(0, int(np.argmax(self.displacement)) + 1)
 
     @property
-    def max_crush(self) -> float:
-        return float(np.max(self.crush))
+    def max_displacement(self) -> float:
+        return float(np.max(self.displacement))
 
 
 def pulse(data: TestData, speed: float, mass: float) -> Pulse | None:
     """The crash pulse of one test's data from impact on; None without accel or velocity.
 
     Velocity without a velocity channel is the acceleration integrated from the impact speed at
-    t = 0; crush without a displacement channel is the velocity integrated, zero at t = 0."""
+    t = 0; displacement without a displacement channel is the velocity integrated, zero at t = 0."""
     ch = data.channels
     base = ch.get("accel") or ch.get("velocity")
     if base is None:
@@ -157,7 +157,7 @@ def resolution(pulses: list[Pulse], given: list[float] | int | None = None) -> t
     REACH times the largest crush of all pulses, where their measured loading curve (m |a|
     against crush) bends (crashnlp.case.segmentation)."""
     crush, force = loading_curve(pulses)
-    top, mass = REACH * max(p.max_crush for p in pulses), float(np.mean([p.mass for p in pulses]))
+    top, mass = REACH * max(p.max_displacement for p in pulses), float(np.mean([p.mass for p in pulses]))
     chosen: list[float] = []
     for count in range(DEFAULT_COUNT, MAX_COUNT + 1):
         chosen = bends(crush, force, top, count)
@@ -170,7 +170,7 @@ def resolution(pulses: list[Pulse], given: list[float] | int | None = None) -> t
 
 def loading_curve(pulses: list[Pulse], damper: Damper | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Every pulse's samples while loading, together: crush, and m |a| less the damper's force."""
-    crush = np.concatenate([p.crush[p.loading] for p in pulses])
+    crush = np.concatenate([p.displacement[p.loading] for p in pulses])
     force = np.concatenate([p.force[p.loading] - _damper_force(damper, p.rate[p.loading]) for p in pulses])
     return crush, force
 

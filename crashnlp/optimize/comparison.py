@@ -1,14 +1,14 @@
 """Which model form the data choose: every form fitted, and scored on what its fit did not see.
 
 `compare(problem)` fits the problem once with every form of crashnlp.problem.forms.FORMS and
-reports per form the objective, the fitted pitch and crush misfit, the number of identified
+reports per form the objective, the fitted pitch and max displacement misfit, the number of identified
 parameters, and a held-out score:
 
 - with two or more tests, leave-one-test-out: each test predicted by the form fitted to the
   others (crashnlp.results.identified.apply, crashnlp.analysis.prediction.predict: the trend tail, as any
   prediction). The score is the prediction's relative RMSE, each measured channel's RMSE over
   the RMS of its data on the test's duration, averaged over channels and held-out tests; with
-  the errors of max crush, peak deceleration and stop time beside it;
+  the errors of max displacement, peak deceleration and stop time beside it;
 - with one test, the Bayesian information criterion of the fit's Gaussian likelihood, each
   channel with its own variance: BIC = sum_c n_c ln(RSS_c / n_c) + k ln n, k the identified
   parameters (the estimated entries less those the fit leaves unidentified). AIC beside it.
@@ -62,7 +62,7 @@ class HeldOut:
     status: str
     score: float | None = None  # relative RMSE, mean over the measured channels
     channels: dict[str, float] = field(default_factory=dict)  # relative RMSE per channel
-    max_crush_error: float | None = None  # relative
+    max_displacement_error: float | None = None  # relative
     peak_decel_error: float | None = None  # relative
     stop_error_s: float | None = None
     lift_off_s: float | None = None  # the front end lets go while the CG moves on, and the data say it did not
@@ -76,7 +76,7 @@ class FormScore:
     status: str
     objective: float | None = None
     pitch_rmse: float | None = None  # rad, over the fitted tests' pitch channels
-    crush_error: float | None = None  # m, worst |model - measured| max crush (the CG's travel)
+    displacement_error: float | None = None  # m, worst |model - measured| max displacement (the CG's travel)
     parameters: int = 0  # identified
     samples: int = 0  # fitted data points
     aic: float | None = None
@@ -189,7 +189,7 @@ def _score(problem: Problem, form: str, source: str | None, criterion: str, prog
         status,
         fit.solver.objective,
         _pitch_rmse(fitted),
-        _crush_error(fit),
+        _displacement_error(fit),
         int(k),
         int(samples),
         aic,
@@ -207,12 +207,14 @@ def _pitch_rmse(tests: list) -> float | None:
     return float(np.sqrt(np.sum([np.sum((f.model - f.data) ** 2) for f in fits]) / np.sum([f.data.size for f in fits])))
 
 
-def _crush_error(fit: Result) -> float | None:
-    """The worst |model - measured| max crush (the CG's travel) over the tests that measure it (m)."""
+def _displacement_error(fit: Result) -> float | None:
+    """The worst |model - measured| max displacement (the CG's travel) over the tests that measure it (m)."""
     errors = [
-        abs(t.metrics["max_crush_m"] - t.data_metrics["max_crush_m"])  # type: ignore[operator]
+        abs(t.metrics["max_displacement_m"] - t.data_metrics["max_displacement_m"])  # type: ignore[operator]
         for t in fit.tests.values()
-        if t.data_metrics and t.data_metrics.get("max_crush_m") is not None and t.metrics.get("max_crush_m") is not None
+        if t.data_metrics
+        and t.data_metrics.get("max_displacement_m") is not None
+        and t.metrics.get("max_displacement_m") is not None
     ]
     return max(errors) if errors else None
 
@@ -269,7 +271,7 @@ def _held_out(problem: Problem, name: str, source: str | None, progress: TextIO 
         "ok",
         float(np.mean(list(channels.values()))) if channels else None,
         channels,
-        error("max_crush_m", True),
+        error("max_displacement_m", True),
         error("peak_decel_g", True),
         error("time_zero_velocity_s", False),
         _lift_off(response, data),

@@ -38,8 +38,8 @@ def peak_decel(ocp: OptimalControl) -> None:
     _epigraph(ocp, "peak_decel", lambda tr: -tr.output("accel"), scale)
 
 
-def max_crush(ocp: OptimalControl) -> None:
-    """The largest crush over every node of every test."""
+def max_front_end_crush(ocp: OptimalControl) -> None:
+    """The largest front-end crush (the `crush` output) over every node of every test."""
     _epigraph(ocp, "crush", lambda tr: tr.output("crush"), 0.5)
 
 
@@ -74,7 +74,7 @@ def olc(ocp: OptimalControl) -> None:
     ocp.nlp.minimize(total)
 
 
-DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {"peak_decel": peak_decel, "crush": max_crush, "olc": olc}
+DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {"peak_decel": peak_decel, "crush": max_front_end_crush, "olc": olc}
 
 
 def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:

@@ -74,7 +74,11 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
     mass = float(fitted.vehicle.mass or 0.0)  # Case fills it in
     masses = [float(t.overrides.get("vehicle.mass", mass)) for t in case.tests]
     pulses = measured_pulses(case.problem, case.tests)
-    measured = max(p.max_crush for p in pulses) if pulses else max(float(t.metrics["max_crush_m"] or 0.0) for t in tests.values())
+    measured = (
+        max(p.max_displacement for p in pulses)
+        if pulses
+        else max(float(t.metrics["max_displacement_m"] or 0.0) for t in tests.values())
+    )
     reach = model_reach(tests)
     # a result names its form where it is not the default one: the pendulum's files carry no form entry
     model = fitted.model.model_dump(mode="json", exclude={"form"} if fitted.model.form == DEFAULT_FORM else None)
@@ -242,7 +246,7 @@ def _force_crush(solution: Solution, tests: dict[str, TestResult]) -> LoadingCur
     known = case.problem.reference.force_crush
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
     pulses = {test.name: measured_pulse(case.problem, test) for test in case.tests}
-    measured = {name: (p.crush[p.loading], p.force[p.loading]) for name, p in pulses.items() if p is not None}
+    measured = {name: (p.displacement[p.loading], p.force[p.loading]) for name, p in pulses.items() if p is not None}
     return LoadingCurve(x, f, inside, values, reference, measured, _curve_band(solution, x, f))
 
 

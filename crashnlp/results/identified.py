@@ -42,24 +42,24 @@ Z95 = NormalDist().inv_cdf(
 
 @dataclass(frozen=True)
 class IdentifiedRange:
-    """What the fitted tests covered: the largest measured crush (CG travel), the speeds and
+    """What the fitted tests covered: the largest measured displacement (the CG's travel), the speeds and
     masses of the tests, the largest front-end crush the model went through in them, how far
     the data determine its loading curve, and each test's impact energy, m v^2 / 2 (SI; none in
     a result written before they were kept). A prediction beyond it extrapolates."""
 
-    max_crush: float
+    max_displacement: float
     speeds: tuple[float, float]
     masses: tuple[float, float]
     model_crush: float
     energies: tuple[float, ...] = ()
 
-    def beyond(self, max_crush: float, speed: float, mass: float) -> dict[str, float]:
-        """How far a simulated test lies past the range: crush in m and relative, speed in m/s,
+    def beyond(self, max_displacement: float, speed: float, mass: float) -> dict[str, float]:
+        """How far a simulated test lies past the range: max displacement in m and relative, speed in m/s,
         mass in kg, each only where it is past; empty inside the range."""
         out: dict[str, float] = {}
-        if max_crush > self.max_crush * (1 + 1e-3):
-            out["crush_m"] = max_crush - self.max_crush
-            out["crush_rel"] = max_crush / self.max_crush - 1.0
+        if max_displacement > self.max_displacement * (1 + 1e-3):
+            out["displacement_m"] = max_displacement - self.max_displacement
+            out["displacement_rel"] = max_displacement / self.max_displacement - 1.0
         for key, value, (lo, hi) in (("speed_mps", speed, self.speeds), ("mass_kg", mass, self.masses)):
             past = value - hi if value > hi * (1 + 1e-6) else value - lo if value < lo * (1 - 1e-6) else 0.0
             if past:
@@ -68,7 +68,7 @@ class IdentifiedRange:
 
     def to_json(self) -> dict[str, Any]:
         return {
-            "max_crush_m": self.max_crush,
+            "max_displacement_m": self.max_displacement,
             "speeds_mps": list(self.speeds),
             "masses_kg": list(self.masses),
             "model_crush_m": self.model_crush,
@@ -78,8 +78,8 @@ class IdentifiedRange:
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> IdentifiedRange:
         energies = tuple(float(e) for e in raw.get("energies_j", ()))
-        crush, model_crush = float(raw["max_crush_m"]), float(raw["model_crush_m"])
-        return cls(crush, _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), model_crush, energies)
+        travel, model_crush = float(raw["max_displacement_m"]), float(raw["model_crush_m"])
+        return cls(travel, _pair(raw["speeds_mps"]), _pair(raw["masses_kg"]), model_crush, energies)
 
 
 def _pair(values: Any) -> tuple[float, float]:

@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.base.outputs import OUTPUT, PANELS, named_test
+from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.jsonfile import write_json
@@ -167,7 +167,7 @@ class Result:
         and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
         ratings, its node arrays are empty."""
         folder = Path(folder)
-        raw = json.loads((folder / "result.json").read_text())
+        raw = current_names(json.loads((folder / "result.json").read_text()))
         tests = {}
         for name, t in raw["tests"].items():
             response = read_response(folder / name / "response.csv")

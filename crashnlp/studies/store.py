@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
+from crashnlp.base.outputs import current_names
 from crashnlp.results.files import atomic_open, note_output
 from crashnlp.results.jsonfile import write_json
 
@@ -84,4 +85,6 @@ def _stored(path: Path) -> dict | None:
     if not isinstance(stored, dict):
         return None
     row = stored.get("row")
-    return stored if isinstance(row, dict) and isinstance(row.get("status"), str) else None
+    if not (isinstance(row, dict) and isinstance(row.get("status"), str)):
+        return None
+    return {**stored, "row": current_names(row)}  # a case stored before a rename reads as one stored now
