@@ -9,6 +9,8 @@
   are those of results/docs-numbers.json, which `make docs-numbers` writes
   (scripts/docs_numbers.py): a page whose marked block or number differs from the file, or that
   types a number that is neither marked nor a definition, fails the build, naming it.
+- The crash-metric reference (`reference/metrics.md`) is generated from the metric registry
+  (crashnlp.base.outputs: METRICS, and RENAMED for the keys older files used).
 - The figures under results/readme/ and results/bench-scaling.png, CHANGELOG.md and
   results/bench.md live outside docs/; they are added to the site as generated files, so the
   pages link them by their site paths (figures/..., changelog.md, bench-results.md).
@@ -50,6 +52,7 @@ def on_files(files: Files, config: Any) -> Files:
     for uri, path in PAGES.items():
         files.append(File.generated(config, uri, content=_page(path)))
     files.append(File.generated(config, "reference/problem-file.md", content=problem_reference()))
+    files.append(File.generated(config, "reference/metrics.md", content=metrics_reference()))
     return files
 
 
@@ -122,6 +125,42 @@ def problem_reference() -> str:
     ]
     lines += ["| " + " | ".join(_cell(c) for c in row) + " |" for row in rows]
     return "\n".join(lines) + "\n"
+
+
+# --------------------------------------------------------------------------- crash-metric reference
+def metrics_reference() -> str:
+    """The crash metrics as result.json, simulation.json, a study's table and compare-results'
+    metrics.csv name them, and the keys files written before a rename used: the registry's own."""
+    from crashnlp.base.outputs import METRICS, RENAMED, RENAMED_EXTRAPOLATION
+
+    before = {new: old for old, new in RENAMED.items()}
+    lines = [
+        "# Crash-metric reference",
+        "",
+        "Generated at each docs build from the metric registry (`crashnlp/base/outputs.py`, `METRICS`). The key",
+        "is the metric's name in `result.json` (`tests.<test>.metrics.model` and `.data`), in `simulation.json`",
+        "(`tests.<test>.metrics` and `.intervals`) and in a study's table (`<test>.<key>`); its suffix is the unit",
+        "of the stored value. The console, the reports and the CSV of compare-results show it in the unit",
+        "of the last columns. `displacement` is the CG's travel since impact, `crush` the front end's",
+        "shortening along the crush force's line of action: two quantities, two names.",
+        "",
+        "| key | what | shown in | CSV column | key in older files |",
+        "| --- | --- | --- | --- | --- |",
+    ]
+    lines += [f"| `{m.key}` | {m.label} | {m.unit} | `{m.column}` | {_old(before.get(m.key))} |" for m in METRICS]
+    lines += [
+        "",
+        "Files written before the CG's travel was named displacement read as written now: every reader of",
+        "`result.json`, `simulation.json` and a study's cases maps the older keys above (`RENAMED`), and a",
+        "prediction's `extrapolation` "
+        + ", ".join(f"`{old}` to `{new}`" for old, new in RENAMED_EXTRAPOLATION.items())
+        + " (`RENAMED_EXTRAPOLATION`).",
+    ]
+    return "\n".join(lines) + "\n"
+
+
+def _old(key: str | None) -> str:
+    return f"`{key}`" if key else ""
 
 
 def _cell(text: str) -> str:
