@@ -249,7 +249,7 @@ UNIT_CHANNELS = {"time": "s", **{ch: CHANNEL_UNITS[ch] for ch in ("accel", "velo
 CHANNEL_SIGNS = {
     "accel": "the pulse decelerates",
     "velocity": "the impact speed is positive",
-    "displacement": "the crush is positive",
+    "displacement": "the travel toward the barrier is positive",
 }
 
 
@@ -393,7 +393,7 @@ def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
 
 
 def _direction(name: str, values: np.ndarray) -> float:
-    """> 0 when a channel reads in the model frame: decelerating, impact speed positive, crush positive."""
+    """> 0 when a channel reads in the model frame: decelerating, impact speed positive, travel positive."""
     if name == "accel":
         return -float(np.sum(values))
     if name == "velocity":
