@@ -78,7 +78,9 @@ def run(quick: bool = False) -> dict:
         rows.append(r := regularized_fit(weight, intervals))
         line = f"  pickup-joint, regularization {weight:g}: {r['status']}, {r['iterations']} it, {r['wall_s']:.1f} s"
         if "displacement_rel" in r:
-            line += f"; {PREDICT_KMH:.0f} km/h displacement {100 * r['displacement_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %"
+            line += (
+                f"; {PREDICT_KMH:.0f} km/h displacement {100 * r['displacement_rel']:+.1f} %, peak {100 * r['peak_rel']:+.1f} %"
+            )
         print(line, flush=True)
     return {"problem": JOINT.name, "predict_kmh": PREDICT_KMH, "targets": TARGETS, "regularized": rows}
 

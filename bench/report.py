@@ -291,7 +291,10 @@ def _regularized_md(r: dict | None) -> list[str]:
         f"{r['problem']} with `objective.regularization` set, identified; its {kmh} prediction (a problem naming only that "
         "speed, as in the cross-speed section) against the generator's noise-free pickup:",
         "",
-        *_table(["regularization", "intervals", "status", "iterations", "wall (s)", f"{kmh} displacement (%)", f"{kmh} peak (%)"], rows),
+        *_table(
+            ["regularization", "intervals", "status", "iterations", "wall (s)", f"{kmh} displacement (%)", f"{kmh} peak (%)"],
+            rows,
+        ),
         "",
     ]
 

@@ -119,7 +119,11 @@ def judge(v: Vehicle, problem_path: Path, truth: dict[str, np.ndarray]) -> dict:
 
 def within_targets(r: dict) -> bool:
     """Identified, max displacement within 2 %, stop time within 2 ms."""
-    return r["status"] == "ok" and abs(r["displacement_rel"]) <= TARGETS["displacement_rel"] and abs(r["stop_err_s"]) <= TARGETS["stop_s"]
+    return (
+        r["status"] == "ok"
+        and abs(r["displacement_rel"]) <= TARGETS["displacement_rel"]
+        and abs(r["stop_err_s"]) <= TARGETS["stop_s"]
+    )
 
 
 def summary(rows: list[dict]) -> dict:

@@ -47,7 +47,10 @@ def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page
         "pickup-56kph, predicted at 64.0 km/h",
     ]
     fit = json.loads((folders["fit"] / "result.json").read_text())["tests"]["56kph"]["metrics"]["model"]
-    assert float(rows[1]["max_displacement_mm"]) == pytest.approx(fit["max_displacement_m"] * 1e3) and rows[1]["max_displacement_mm_low"] == ""
+    assert (
+        float(rows[1]["max_displacement_mm"]) == pytest.approx(fit["max_displacement_m"] * 1e3)
+        and rows[1]["max_displacement_mm_low"] == ""
+    )
     for row, speed in ((rows[0], "48"), (rows[2], "64")):
         sim = json.loads((folders[speed] / "simulation.json").read_text())["tests"]["56kph"]
         assert float(row["peak_decel_g"]) == pytest.approx(sim["metrics"]["peak_decel_g"])
@@ -104,7 +107,10 @@ def test_folders_written_before_the_rename_read_as_written_now(folders, tmp_path
             tables[which] = [{k: v for k, v in row.items() if k not in ("curve", "folder")} for row in csv.DictReader(fh)]
         # a prediction from each fit's result.json: the old one's identified range reads as the new one's
         problem, params = ROOT / "problems/pickup-40kph.yaml", given["fit"] / "result.json"
-        assert main(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / f"sim-{which}"), "--no-figures"]) == 0
+        assert (
+            main(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / f"sim-{which}"), "--no-figures"])
+            == 0
+        )
     assert tables["before"] == tables["now"] and float(tables["now"][1]["max_displacement_mm_high"]) > 0
     predicted = [json.loads((tmp_path / f"sim-{w}" / "simulation.json").read_text())["tests"] for w in ("now", "before")]
     assert predicted[0] == predicted[1]

@@ -165,7 +165,9 @@ def test_the_result_carries_its_complete_model_and_range(fitted):
     assert len(model["spring"]["crush_breakpoints"]) == len(model["spring"]["values"]) == 8  # completed from the data
     assert model["spring"]["values"] == pytest.approx(result.parameters["model.spring.values"], rel=1e-9)
     assert loaded.identified.range.speeds == (pytest.approx(v.speed), pytest.approx(v.speed))
-    assert loaded.identified.range.max_displacement == pytest.approx(result.tests["t1"].data_metrics["max_displacement_m"], rel=0.01)
+    assert loaded.identified.range.max_displacement == pytest.approx(
+        result.tests["t1"].data_metrics["max_displacement_m"], rel=0.01
+    )
     # past the front-end crush the model reached, predictions follow the curve's trend
     reach = float(np.max(result.tests["t1"].response["crush"]))
     assert loaded.identified.range.model_crush == pytest.approx(reach)
@@ -193,7 +195,9 @@ def test_a_prediction_file_of_only_name_and_tests_takes_the_rest_from_the_result
     )
     sim = json.loads((out / "simulation.json").read_text())["tests"]["new"]
     full = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
-    assert sim["metrics"]["max_displacement_m"] == pytest.approx(full.metrics["max_displacement_m"], rel=1e-6)  # result.json: 10 digits
+    assert sim["metrics"]["max_displacement_m"] == pytest.approx(
+        full.metrics["max_displacement_m"], rel=1e-6
+    )  # result.json: 10 digits
     assert sim["intervals"]["peak_decel_g"] == pytest.approx(list(full.intervals["peak_decel_g"]), rel=1e-6)
     # the vehicle in feet, to five significant digits (5e-6 apart): the same vehicle, not another
     feet = yaml.safe_load(_new_speed(folder, raw, 56).read_text())

@@ -84,4 +84,7 @@ def test_a_renamed_key_names_nothing_now_and_maps_to_a_metric():
         "tests": {"t": {"metrics": {"max_displacement_m": 0.7, "crush_m": 0.6}}},  # crush_m: the front end's, as before
         "rows": [{"56kph.time_max_displacement_s": 0.07}],
     }
-    assert current_names({"crush_m": 0.1, "crush_rel": 0.2}, RENAMED_EXTRAPOLATION) == {"displacement_m": 0.1, "displacement_rel": 0.2}
+    assert current_names({"crush_m": 0.1, "crush_rel": 0.2}, RENAMED_EXTRAPOLATION) == {
+        "displacement_m": 0.1,
+        "displacement_rel": 0.2,
+    }

@@ -74,7 +74,11 @@ def olc(ocp: OptimalControl) -> None:
     ocp.nlp.minimize(total)
 
 
-DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {"peak_decel": peak_decel, "crush": max_front_end_crush, "olc": olc}
+DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {
+    "peak_decel": peak_decel,
+    "crush": max_front_end_crush,
+    "olc": olc,
+}
 
 
 def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
