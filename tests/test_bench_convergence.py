@@ -35,7 +35,7 @@ def results(corpus_its: list[int], joint_its: list[int], grid_status: list[str],
             "problem": "pickup-joint.yaml",
             "predict_kmh": 64.0,
             "regularized": [
-                {"regularization": w, "intervals": 200, **fit(iterations=n), "crush_rel": 0.01, "peak_rel": -0.05}
+                {"regularization": w, "intervals": 200, **fit(iterations=n), "displacement_rel": 0.01, "peak_rel": -0.05}
                 for w, n in ((0.0, 20), (10.0, 377))
             ],
         },

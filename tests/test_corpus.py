@@ -27,7 +27,7 @@ VEHICLES = (8, 18, 2, 23)
 
 def assert_targets(result: dict) -> None:
     assert result["status"] == "ok"
-    assert abs(result["crush_rel"]) <= 0.02
+    assert abs(result["displacement_rel"]) <= 0.02
     assert abs(result["stop_err_s"]) <= 0.002
     assert result["force_rating"] >= 0.85
 
