@@ -288,7 +288,7 @@ def test_cli_round_trip_and_reproducible_result(data_file, tmp_path):
     fit = result["tests"]["t56"]["fit"]
     assert set(fit) == {"accel", "velocity", "displacement", "pitch"}
     assert fit["displacement"]["iso18571"]["overall"] > 0.95  # 0.993 when written; "excellent" from 0.94
-    # the separate integrator reproduces the NLP's maximum crush
+    # the separate integrator reproduces the NLP's maximum front-end crush
     sim = tmp_path / "sim"
     assert main(["simulate", str(problem), "--params", str(out / "result.json"), "--out", str(sim)]) == 0
     nlp_crush = max(float(row["crush_m"]) for row in csv.DictReader((out / "t56/response.csv").open()))

@@ -17,7 +17,7 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
   identified loading curve follows its trend there (crashnlp.models.tail), and how well that
   rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
   the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
-  the reach over the breakpoint spacing, moves the max crush (by the energy it adds or takes),
+  the reach over the breakpoint spacing, moves the max displacement (by the energy it adds or takes),
   the stop with it, and the peak deceleration where the peak lies past the reach. That is a
   rule's guess, so the calibrated q scales it as it scales the form term; a peak the force past
   the reach raises beyond the predicted one is the calibrated form term's to cover.
@@ -25,7 +25,7 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
 Each interval reports its parts, and the dominant one; an interval the force past the reach
 dominates says so in a note. The response bands are pointwise 95 %: at each instant the
 parameters' half-width of the curve, and the non-parameter half-width of the metric read from
-that curve (the peak deceleration for the acceleration and the barrier force, the max crush for
+that curve (the peak deceleration for the acceleration and the barrier force, the max displacement for
 displacement and crush, the rebound for the velocity, the max pitch for the pitch) in proportion
 to how far the curve has moved from what the model knows exactly (zero force, the initial
 state): so the band at a metric's instant is that metric's interval, and there is no band after

@@ -1,6 +1,6 @@
 """Design: choose spring and damper values for a crash pulse, with no data.
 
-The objective is a design goal (peak deceleration, maximum crush, or the
+The objective is a design goal (peak deceleration, maximum front-end crush, or the
 Occupant Load Criterion) under the problem's constraints, on the same
 transcription as identification. Where loading ends is not known before the
 design is: the NLP is solved with the stop node of the previous solve until it
