@@ -12,6 +12,7 @@ from bench.calibration import (
     CHECK_SEED,
     HIDDEN_SEED,
     MASS_RATIOS,
+    MODEL_FORMS,
     POPULATIONS,
     SCENARIOS,
     TARGETS,
@@ -20,6 +21,7 @@ from bench.calibration import (
     held_out_records,
 )
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
+from crashnlp.problem.forms import FORMS
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.results.identified import IdentifiedRange
 
@@ -35,7 +37,8 @@ def test_a_prediction_s_class_and_distance_follow_its_energy_and_its_mass_agains
     one = _range((56 / 3.6, 1500.0))
     assert reach(one, 40 / 3.6, 1500.0) == ("down", pytest.approx(2 * math.log(56 / 40)))
     assert reach(one, 64 / 3.6, 1500.0) == ("up", pytest.approx(2 * math.log(64 / 56)))
-    assert reach(one, 56 / 3.6, 1800.0) == ("mass-up", pytest.approx(math.log(1.2)))  # a heavier vehicle: a mass ratio
+    # a heavier vehicle goes past the fitted crush as a faster one does: up, by its mass ratio
+    assert reach(one, 56 / 3.6, 1800.0) == ("up", pytest.approx(math.log(1.2)))
     assert reach(one, 56 / 3.6, 1275.0) == ("mass-down", pytest.approx(-math.log(0.85)))
     assert reach(one, 56 / 3.6, 1500.0) == ("between", 0.0)  # the fitted test itself
     # further in speed than in mass: the energy decides
@@ -133,28 +136,34 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
         assert covered >= 0.9, (metric, covered)
 
 
-def test_the_shipped_table_calibrates_every_metric_of_every_class_and_names_its_corpus():
-    cal = shipped()
+@pytest.mark.parametrize("form", sorted(FORMS))
+def test_each_model_form_s_shipped_table_calibrates_every_metric_of_every_class_and_names_itself(form):
+    """Every form of the registry has a table of its own fits (a prediction takes its form's)."""
+    cal = shipped(form)
+    assert cal.form == form
     for klass in CLASSES:
         for metric in PREDICTED_KEYS:
             q = cal.q(klass, metric)
             assert q is not None and np.isfinite(q) and q >= 0, (klass, metric)
     assert set(cal.power) == set(PREDICTED_KEYS)
     named = cal.named()
-    assert named["file"] == "crashnlp/analysis/calibration.json" and named["version"] >= 2 and named["corpus"]["seed"]
+    assert named["file"] == "crashnlp/analysis/calibration.json" and named["form"] == form
+    assert named["version"] >= 3 and named["corpus"]["seed"]
     assert Calibration.from_json(cal.to_json()) == cal
 
 
-def test_the_shipped_table_holds_the_held_out_seed_s_predictions():
-    """The check seed's records (tests/data, written by make calibrate), which the table never saw:
-    over its predictions, issue 38's coverage line for each metric (a failed fit or a prediction
-    without an interval counts as a miss), the share the split-conformal quantile promises over
-    the mix of predictions it was set on; each scenario's own coverage is the benchmark's
-    (results/bench.md)."""
-    held = held_out_records()
+@pytest.mark.parametrize("form", sorted(MODEL_FORMS))
+def test_each_form_s_shipped_table_holds_the_held_out_seed_s_predictions_of_that_form(form):
+    """The check seed's records of the form's fits (tests/data, written by make calibrate), which
+    its table never saw: over its predictions, issue 38's coverage line for each metric (a failed
+    fit or a prediction without an interval counts as a miss), the share the split-conformal
+    quantile promises over the mix of predictions it was set on; each scenario's own coverage is
+    the benchmark's (results/bench.md)."""
+    held = held_out_records()[form]
     rows = held[str(CHECK_SEED)]
-    assert len({(r["form"], r["vehicle"]) for r in rows}) == sum(POPULATIONS[CHECK_SEED][1].values())
-    by_scenario = evaluate(rows, shipped())
+    counts = (MODEL_FORMS[form] or {}).get(CHECK_SEED) or POPULATIONS[CHECK_SEED][1]
+    assert len({(r["form"], r["vehicle"]) for r in rows}) == sum(counts.values())
+    by_scenario = evaluate(rows, shipped(form))
     for metric in PREDICTED_KEYS:
         covered = sum(by[metric]["coverage"] * by[metric]["n"] for by in by_scenario.values())
         coverage = covered / sum(by[metric]["n"] for by in by_scenario.values())

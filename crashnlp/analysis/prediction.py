@@ -180,7 +180,7 @@ def predict(
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
-        chosen = calibration or shipped()
+        chosen = calibration or shipped(case.problem.model.form)
         u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
         beyond = identified.range.beyond(float(metrics["max_crush_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
