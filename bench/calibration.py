@@ -527,7 +527,10 @@ def _form_markdown(section: dict) -> list[str]:
         *(
             []
             if section["shipped"]
-            else [f"**This run's {form} table is not the shipped one (crashnlp/analysis/calibration.json): `make calibrate`.**", ""]
+            else [
+                f"**This run's {form} table is not the shipped one (crashnlp/analysis/calibration.json): `make calibrate`.**",
+                "",
+            ]
         ),
         "q per class and metric, and per metric the power of the distance in the form term's unit:",
         "",

@@ -21,8 +21,8 @@ from bench.calibration import (
     held_out_records,
 )
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
-from crashnlp.problem.forms import FORMS
 from crashnlp.base.outputs import PREDICTED_KEYS
+from crashnlp.problem.forms import FORMS
 from crashnlp.results.identified import IdentifiedRange
 
 
