@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+import crashnlp
 from bench.calibration import (
     CHECK_SEED,
     HIDDEN_SEED,
@@ -19,7 +20,10 @@ from bench.calibration import (
     calibrate,
     evaluate,
     held_out_records,
+    with_form,
 )
+from bench.corpus import random_vehicle
+from bench.cross_speed import fit_problem, prediction_problem
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.problem.forms import FORMS
@@ -183,3 +187,16 @@ def test_the_fitted_miss_leaves_out_a_test_where_model_or_data_do_not_reach_the_
         "b": SimpleNamespace(metrics={"time_zero_velocity_s": math.nan}, data_metrics={"time_zero_velocity_s": 0.070}),
     }
     assert _discrepancy(tests)["time_zero_velocity_s"] == pytest.approx(0.1)
+
+
+@pytest.mark.integration
+def test_a_prediction_takes_its_model_form_s_table_and_names_it(tmp_path):
+    """A rigid-body fit predicting up takes the rigid-body table's q (not the pendulum's), and
+    simulation.json's calibration names the form."""
+    path = with_form(fit_problem(random_vehicle(0, CHECK_SEED, speed=56 / 3.6), (56.0,), tmp_path), "rigid-body")
+    result = crashnlp.identify(path)
+    assert result.ok
+    test = crashnlp.simulate(prediction_problem(path, 64.0, tmp_path), params=result)["64kph"]
+    assert test.calibration["form"] == "rigid-body"
+    assert test.form_q and test.form_q == {k: shipped("rigid-body").q("up", k) for k in test.form_q}
+    assert test.form_q != {k: shipped().q("up", k) for k in test.form_q}
