@@ -8,19 +8,25 @@ import math
 import numpy as np
 import pytest
 
+import crashnlp
 from bench.calibration import (
     CHECK_SEED,
     HIDDEN_SEED,
     MASS_RATIOS,
+    MODEL_FORMS,
     POPULATIONS,
     SCENARIOS,
     TARGETS,
     calibrate,
     evaluate,
     held_out_records,
+    with_form,
 )
+from bench.corpus import random_vehicle
+from bench.cross_speed import fit_problem, prediction_problem
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
 from crashnlp.base.outputs import PREDICTED_KEYS
+from crashnlp.problem.forms import FORMS
 from crashnlp.results.identified import IdentifiedRange
 
 
@@ -35,7 +41,8 @@ def test_a_prediction_s_class_and_distance_follow_its_energy_and_its_mass_agains
     one = _range((56 / 3.6, 1500.0))
     assert reach(one, 40 / 3.6, 1500.0) == ("down", pytest.approx(2 * math.log(56 / 40)))
     assert reach(one, 64 / 3.6, 1500.0) == ("up", pytest.approx(2 * math.log(64 / 56)))
-    assert reach(one, 56 / 3.6, 1800.0) == ("mass-up", pytest.approx(math.log(1.2)))  # a heavier vehicle: a mass ratio
+    # a heavier vehicle goes past the fitted crush as a faster one does: up, by its mass ratio
+    assert reach(one, 56 / 3.6, 1800.0) == ("up", pytest.approx(math.log(1.2)))
     assert reach(one, 56 / 3.6, 1275.0) == ("mass-down", pytest.approx(-math.log(0.85)))
     assert reach(one, 56 / 3.6, 1500.0) == ("between", 0.0)  # the fitted test itself
     # further in speed than in mass: the energy decides
@@ -133,28 +140,34 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
         assert covered >= 0.9, (metric, covered)
 
 
-def test_the_shipped_table_calibrates_every_metric_of_every_class_and_names_its_corpus():
-    cal = shipped()
+@pytest.mark.parametrize("form", sorted(FORMS))
+def test_each_model_form_s_shipped_table_calibrates_every_metric_of_every_class_and_names_itself(form):
+    """Every form of the registry has a table of its own fits (a prediction takes its form's)."""
+    cal = shipped(form)
+    assert cal.form == form
     for klass in CLASSES:
         for metric in PREDICTED_KEYS:
             q = cal.q(klass, metric)
             assert q is not None and np.isfinite(q) and q >= 0, (klass, metric)
     assert set(cal.power) == set(PREDICTED_KEYS)
     named = cal.named()
-    assert named["file"] == "crashnlp/analysis/calibration.json" and named["version"] >= 2 and named["corpus"]["seed"]
+    assert named["file"] == "crashnlp/analysis/calibration.json" and named["form"] == form
+    assert named["version"] >= 3 and named["corpus"]["seed"]
     assert Calibration.from_json(cal.to_json()) == cal
 
 
-def test_the_shipped_table_holds_the_held_out_seed_s_predictions():
-    """The check seed's records (tests/data, written by make calibrate), which the table never saw:
-    over its predictions, issue 38's coverage line for each metric (a failed fit or a prediction
-    without an interval counts as a miss), the share the split-conformal quantile promises over
-    the mix of predictions it was set on; each scenario's own coverage is the benchmark's
-    (results/bench.md)."""
-    held = held_out_records()
+@pytest.mark.parametrize("form", sorted(MODEL_FORMS))
+def test_each_form_s_shipped_table_holds_the_held_out_seed_s_predictions_of_that_form(form):
+    """The check seed's records of the form's fits (tests/data, written by make calibrate), which
+    its table never saw: over its predictions, issue 38's coverage line for each metric (a failed
+    fit or a prediction without an interval counts as a miss), the share the split-conformal
+    quantile promises over the mix of predictions it was set on; each scenario's own coverage is
+    the benchmark's (results/bench.md)."""
+    held = held_out_records()[form]
     rows = held[str(CHECK_SEED)]
-    assert len({(r["form"], r["vehicle"]) for r in rows}) == sum(POPULATIONS[CHECK_SEED][1].values())
-    by_scenario = evaluate(rows, shipped())
+    counts = (MODEL_FORMS[form] or {}).get(CHECK_SEED) or POPULATIONS[CHECK_SEED][1]
+    assert len({(r["form"], r["vehicle"]) for r in rows}) == sum(counts.values())
+    by_scenario = evaluate(rows, shipped(form))
     for metric in PREDICTED_KEYS:
         covered = sum(by[metric]["coverage"] * by[metric]["n"] for by in by_scenario.values())
         coverage = covered / sum(by[metric]["n"] for by in by_scenario.values())
@@ -174,3 +187,16 @@ def test_the_fitted_miss_leaves_out_a_test_where_model_or_data_do_not_reach_the_
         "b": SimpleNamespace(metrics={"time_zero_velocity_s": math.nan}, data_metrics={"time_zero_velocity_s": 0.070}),
     }
     assert _discrepancy(tests)["time_zero_velocity_s"] == pytest.approx(0.1)
+
+
+@pytest.mark.integration
+def test_a_prediction_takes_its_model_form_s_table_and_names_it(tmp_path):
+    """A rigid-body fit predicting up takes the rigid-body table's q (not the pendulum's), and
+    simulation.json's calibration names the form."""
+    path = with_form(fit_problem(random_vehicle(0, CHECK_SEED, speed=56 / 3.6), (56.0,), tmp_path), "rigid-body")
+    result = crashnlp.identify(path)
+    assert result.ok
+    test = crashnlp.simulate(prediction_problem(path, 64.0, tmp_path), params=result)["64kph"]
+    assert test.calibration["form"] == "rigid-body"
+    assert test.form_q and test.form_q == {k: shipped("rigid-body").q("up", k) for k in test.form_q}
+    assert test.form_q != {k: shipped().q("up", k) for k in test.form_q}

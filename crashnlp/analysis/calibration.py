@@ -5,9 +5,11 @@ its miss at another speed or mass. That miss is calibrated instead on a corpus o
 more than one generator form (bench/corpus.py), each fitted as a user would (minimal problem
 files) and asked to predict tests it was not fitted at (bench/calibration.py, `make calibrate`).
 
-Each prediction falls into a class by where it goes against the fitted tests: further in mass
-than in speed, `mass-up` or `mass-down` (the same vehicle heavier or lighter: a payload, another
-trim); otherwise by its impact energy (m v^2 / 2) against theirs, `down`, `between` or `up`. Its
+Each prediction falls into a class by where it goes against the fitted tests: a lighter vehicle,
+further below the fitted masses than beside the fitted speeds, is `mass-down` (ballast out,
+another trim: its crush stays within the fitted one at the fitted speed); any other by its impact
+energy (m v^2 / 2) against theirs, `down`, `between` or `up`. A heavier vehicle (a payload) is
+`up`: its crush goes past the fitted tests' as a faster vehicle's does, and so do its misses. Its
 distance is |ln(E / E_nearest)|, E_nearest the fitted test's energy closest to its own: a speed
 ratio and a mass ratio in one number. A metric's 95 % half-width adds in quadrature the
 parameters' half-width, the model's miss on the fitted tests, and what q scales:
@@ -25,8 +27,10 @@ class miss alike). The power says how the miss grows with the distance, set from
 metric (bench/calibration.py). At a fitted test's own energy the terms are zero, and the
 interval is what the fitted tests say of themselves.
 
-The table ships as crashnlp/analysis/calibration.json with its method, corpus seeds and version;
-simulation.json names it.
+Each model form has its own table, calibrated on that form's fits of the corpus: a form's miss
+is its own. The tables ship as crashnlp/analysis/calibration.json (model form -> table, each with
+its method, corpus seeds and version); a prediction takes its form's (`shipped`), and
+simulation.json names the table it used.
 """
 
 from __future__ import annotations
@@ -40,12 +44,13 @@ from typing import Any
 
 import numpy as np
 
+from crashnlp.problem.forms import DEFAULT_FORM
 from crashnlp.results.identified import IdentifiedRange
 
-FILE = "calibration.json"
+FILE = "calibration.json"  # model form -> its table
 PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
 SAME_ENERGY = 1e-3  # relative: fitted tests closer than this in energy count as one
-CLASSES = ("down", "between", "up", "mass-down", "mass-up")
+CLASSES = ("down", "between", "up", "mass-down")
 
 
 @dataclass(frozen=True)
@@ -112,14 +117,15 @@ def _outside(value: float, bounds: tuple[float, float]) -> float:
 
 def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[str, float]:
     """The class of a prediction at `speed` and `mass` against the fitted tests, and its distance
-    |ln(E / E_nearest)|. A prediction that goes further in mass than in speed (|ln| of the mass
-    ratio past the fitted masses against twice the speed ratio's) is `mass-up` or `mass-down`;
-    any other is `down`, `between` or `up` by its energy against the fitted tests'."""
+    |ln(E / E_nearest)|. A lighter vehicle that goes further below the fitted masses than beside
+    the fitted speeds (|ln| of the mass ratio against twice the speed ratio's) is `mass-down`; any
+    other is `down`, `between` or `up` by its energy against the fitted tests' (a heavier vehicle
+    `up`: its crush goes past theirs)."""
     known = np.asarray(energies(fitted))
     energy = 0.5 * mass * speed**2
     distance = float(np.min(np.abs(np.log(energy / known))))
-    if _outside(mass, fitted.masses) > 2 * _outside(speed, fitted.speeds):
-        return ("mass-up" if mass > fitted.masses[1] else "mass-down"), distance
+    if mass < fitted.masses[0] and _outside(mass, fitted.masses) > 2 * _outside(speed, fitted.speeds):
+        return "mass-down", distance
     if energy < known.min() * (1 - SAME_ENERGY):
         return "down", distance
     if energy > known.max() * (1 + SAME_ENERGY):
@@ -150,9 +156,10 @@ def conformal_quantile(scores: list[float], coverage: float, units: int | None =
 
 @dataclass(frozen=True)
 class Calibration:
-    """The calibrated form term: q per class and metric, per metric the power of the distance in
-    the form term's unit, and what it was calibrated on."""
+    """The calibrated form term of one model form: q per class and metric, per metric the power of
+    the distance in the form term's unit, and what it was calibrated on."""
 
+    form: str
     version: int
     method: str
     coverage: float
@@ -170,10 +177,17 @@ class Calibration:
 
     def named(self) -> dict[str, Any]:
         """What simulation.json says of the calibration its intervals used."""
-        return {"file": f"crashnlp/analysis/{FILE}", "version": self.version, "method": self.method, "corpus": self.corpus}
+        return {
+            "file": f"crashnlp/analysis/{FILE}",
+            "form": self.form,
+            "version": self.version,
+            "method": self.method,
+            "corpus": self.corpus,
+        }
 
     def to_json(self) -> dict[str, Any]:
         return {
+            "form": self.form,
             "version": self.version,
             "method": self.method,
             "coverage": self.coverage,
@@ -185,6 +199,7 @@ class Calibration:
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> Calibration:
         return cls(
+            raw["form"],
             int(raw["version"]),
             raw["method"],
             float(raw["coverage"]),
@@ -195,6 +210,13 @@ class Calibration:
 
 
 @cache
-def shipped() -> Calibration:
-    """The calibration shipped with the package (crashnlp/analysis/calibration.json)."""
-    return Calibration.from_json(json.loads(resources.files("crashnlp.analysis").joinpath(FILE).read_text()))
+def tables() -> dict[str, Calibration]:
+    """The tables shipped with the package (crashnlp/analysis/calibration.json), by model form."""
+    raw = json.loads(resources.files("crashnlp.analysis").joinpath(FILE).read_text())
+    return {form: Calibration.from_json(table) for form, table in raw.items()}
+
+
+def shipped(form: str = DEFAULT_FORM) -> Calibration:
+    """The shipped table of model form `form`; the default form's where `form` has none of its own
+    (Calibration.named says which)."""
+    return tables().get(form) or tables()[DEFAULT_FORM]

@@ -9,8 +9,9 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
 - the model's form: its miss on the fitted tests (each metric's relative miss, root mean square
   over the tests, scaled to the predicted value, and the RMSE of the curve the metric is read
   from), and the out-of-sample term calibrated on held-out predictions of a corpus of vehicles
-  of two generator forms (crashnlp.analysis.calibration): the fit tunes the metrics of the tests it was
-  fitted at, so their miss there understates the miss at another speed or mass. The calibrated
+  of three generator forms, one table per model form (crashnlp.analysis.calibration): the fit
+  tunes the metrics of the tests it was fitted at, so their miss there understates the miss at
+  another speed or mass. The calibrated
   term grows with the distance in impact energy from the nearest fitted test (to a power the
   calibration sets per metric), and is zero at a fitted test's own;
 - the force past the crush the model reached in the fitted tests, which no test measured: the
@@ -171,9 +172,9 @@ def predict(
 ) -> dict[str, PredictedTest]:
     """Every test of `case` simulated (`case` built from a problem the identified model was
     applied to, crashnlp.results.identified.apply); with `identified`, intervals and extrapolation too,
-    their form terms from `calibration` (the shipped one by default). A test's data come with it
-    only where it runs at the speed, mass and duration they were recorded at
-    (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
+    their form terms from `calibration` (by default the shipped table of the problem's model
+    form). A test's data come with it only where it runs at the speed, mass and duration they
+    were recorded at (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
     positive step, or too many steps, is refused (check_steps)."""
     check_steps(case, dt)
     out = {}
@@ -189,7 +190,7 @@ def predict(
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
-        chosen = calibration or shipped()
+        chosen = calibration or shipped(case.problem.model.form)
         u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
         beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
