@@ -119,7 +119,7 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     pages print it; the sections of make bench one function each."""
     parts = (
         *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
-        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _detectors),
     )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
@@ -369,6 +369,35 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.extrapolation_peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.{form}.extrapolation_lift_offs": str(s["lift_offs"]),
         }
+    for split, forms in bench["forms"]["summary"].items():  # the 95 % intervals' coverage (%) and median half-width (%)
+        for form, s in forms.items():
+            out |= {f"forms.{form}.{split}_{k}": f"{s[k] * 100:.0f}" for k in s if k.endswith(("_covered", "_half_width_median"))}
+    hidden = bench["forms"].get("hidden")  # the hidden tall vehicles (forms.hidden.<form>.<what>)
+    for form, s in (hidden or {}).get("summary", {}).items():
+        out |= {
+            f"forms.hidden.{form}.within": str(s["within_hidden"]),
+            f"forms.hidden.{form}.fits": str(s["fits"]),
+            f"forms.hidden.{form}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
+            f"forms.hidden.{form}.crush": f"{s['crush_rel_max'] * 100:.1f}",
+            f"forms.hidden.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
+            f"forms.hidden.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
+            f"forms.hidden.{form}.lift_offs": str(s["lift_offs"]),
+        }
+    return out
+
+
+def _detectors(bench: dict[str, Any]) -> dict[str, str]:
+    """The watch's rules on the set and the check seed (bench/detectors.py), per seed role:
+    detectors.<role>.<rule>.fires / fits / false_alarms, and the role's seed, fits, misses."""
+    d, out = bench["detectors"], {"detectors.count": str(bench["detectors"]["count"])}
+    for role in ("set", "check"):
+        s = d[role]["summary"]
+        out |= {f"detectors.{role}.seed": str(d[role]["seed"]), f"detectors.{role}.fits": str(s["fits"])}
+        out |= {f"detectors.{role}.ok": str(s["ok"]), f"detectors.{role}.misses": str(s["misses"])}
+        out[f"detectors.{role}.alone_not_converged"] = str(s["alone_not_converged"])
+        out[f"detectors.{role}.apart"] = f"{s['apart_std_max']:.0e}"
+        for rule, q in s["rules"].items():
+            out |= {f"detectors.{role}.{rule}.{k}": str(n) for k, n in q.items()}  # fires, fits, false_alarms
     return out
 
 
