@@ -382,13 +382,17 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.hidden.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.hidden.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
             f"forms.hidden.{form}.lift_offs": str(s["lift_offs"]),
+            f"forms.hidden.{form}.lift_offs_not_in_truth": str(s["lift_offs_not_in_truth"]),
+            f"forms.hidden.{form}.no_stop": str(s["no_stop"]),
+            f"forms.hidden.{form}.no_stop_in_truth": str(s["no_stop_in_truth"]),
         }
     return out
 
 
 def _detectors(bench: dict[str, Any]) -> dict[str, str]:
     """The watch's rules on the set and the check seed (bench/detectors.py), per seed role:
-    detectors.<role>.<rule>.fires / fits / false_alarms, and the role's seed, fits, misses."""
+    detectors.<role>.<rule>.fires (and .false_alarms for the rules that fired), and the role's
+    seed, fits, misses."""
     d, out = bench["detectors"], {"detectors.count": str(bench["detectors"]["count"])}
     for role in ("set", "check"):
         s = d[role]["summary"]
@@ -396,8 +400,10 @@ def _detectors(bench: dict[str, Any]) -> dict[str, str]:
         out |= {f"detectors.{role}.ok": str(s["ok"]), f"detectors.{role}.misses": str(s["misses"])}
         out[f"detectors.{role}.alone_not_converged"] = str(s["alone_not_converged"])
         out[f"detectors.{role}.apart"] = f"{s['apart_std_max']:.0e}"
-        for rule, q in s["rules"].items():
-            out |= {f"detectors.{role}.{rule}.{k}": str(n) for k, n in q.items()}  # fires, fits, false_alarms
+        for rule, q in s["rules"].items():  # the fires; the false alarms where a rule can stop a fit it should not
+            out[f"detectors.{role}.{rule}.fires"] = str(q["fires"])
+            if rule in ("tail", "cycle", "steady"):
+                out[f"detectors.{role}.{rule}.false_alarms"] = str(q["false_alarms"])
     return out
 
 

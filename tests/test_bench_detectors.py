@@ -69,7 +69,8 @@ def test_the_summary_counts_fires_false_alarms_and_runs_that_hit_their_limit_uns
 
 
 def hidden_row(**kw) -> dict:
-    row = {"status": "ok", "pitch_rmse_deg": 0.1, "crush_rel": 0.01, "peak_rel": -0.05, "stop_err_s": 0.001, "lift_off_s": None}
+    row = {"status": "ok", "pitch_rmse_deg": 0.1, "crush_rel": 0.01, "peak_rel": -0.05, "stop_err_s": 0.001}
+    row |= {"stop_s": 0.095, "stop_true_s": 0.094, "lift_off_s": None, "truth_prediction_lift_off_s": None}
     return {**row, **kw}
 
 
@@ -78,7 +79,12 @@ def test_a_hidden_vehicle_meets_every_target_or_none():
     for miss in ({"pitch_rmse_deg": 0.6}, {"crush_rel": -0.03}, {"peak_rel": 0.11}, {"stop_err_s": -0.004}):
         assert not forms.within_hidden(hidden_row(**miss))
     assert not forms.within_hidden(hidden_row(lift_off_s=0.0986))  # in target otherwise, but it lets go while moving on
-    assert not forms.within_hidden(hidden_row(stop_err_s=math.nan))  # it never comes to rest
+    assert forms.within_hidden(hidden_row(lift_off_s=0.0986, truth_prediction_lift_off_s=0.097))  # as the vehicle does
+    never = {"stop_s": math.nan, "stop_err_s": math.nan}
+    assert not forms.within_hidden(hidden_row(**never))  # it never comes to rest where the generator does
+    neither = {**never, "stop_true_s": math.nan, "lift_off_s": 0.0717, "truth_prediction_lift_off_s": 0.0721}
+    assert forms.within_hidden(hidden_row(**neither))  # it lets go and drifts on as the generator does
+    assert not forms.within_hidden(hidden_row(stop_true_s=math.nan, stop_err_s=math.nan))  # it stops, the generator not
     assert not forms.within_hidden(hidden_row(status="solver failed", pitch_rmse_deg=None))
 
 
