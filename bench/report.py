@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import statistics
 from pathlib import Path
 
@@ -795,20 +796,114 @@ def forms_md(r: dict) -> list[str]:
             f"{1e3 * s['stop_err_max_s']:.2f}",
             s["lift_offs"],
             f"{s['fitted_lift_offs']} ({s['fitted_lift_offs_not_in_truth']})",
+            *_interval_cells(s),
         ]
         for split, forms in r["summary"].items()
         for form, s in forms.items()
     ]
     head = ["split", "form", "converged", "within targets", "pitch RMSE median (deg)", "worst (deg)", "worst displacement"]
     head += ["worst peak", "worst stop (ms)", "predictions lifting off", "fits lifting off (not in the generator)"]
+    head += ["displacement covered (half-width)", "peak covered (half-width)"]
     goals = "; ".join(f"{split} {_goal(t)}" for split, t in r["targets"].items())
     return [
         "## Model forms on tall vehicles",
         "",
         "Vans and tall SUVs fitted with each form at 40 + 64 km/h, 56 predicted (interpolation), and at 40 + 56, "
-        f"64 predicted (extrapolation); targets, displacement / peak: {goals}.",
+        f"64 predicted (extrapolation); targets, displacement / peak: {goals}. Covered: the share of predictions whose 95 % "
+        "interval holds the generator's value; half-width: the median, relative to the prediction.",
         "",
         *_table(head, rows),
+        "",
+        *_hidden_md(r.get("hidden")),
+    ]
+
+
+def _interval_cells(s: dict) -> list[str]:
+    return [f"{100 * s[f'{m}_covered']:.0f} % ({100 * s[f'{m}_half_width_median']:.1f} %)" for m in ("displacement", "peak")]
+
+
+def _lift_off_cell(f: dict) -> str:
+    """A prediction's lift-off (ms), and the generator's own at that speed where it has one."""
+    if f["lift_off_s"] is None:
+        return ""
+    truth = f["truth_prediction_lift_off_s"]
+    return f"{1e3 * f['lift_off_s']:.1f}" + ("" if truth is None else f" (generator {1e3 * truth:.1f})")
+
+
+def _hidden_md(h: dict | None) -> list[str]:
+    """The hidden tall vehicles, one row a fit, held to the issue's targets for them."""
+    if not h:
+        return []
+    t = h["targets"]
+    rows = [
+        [
+            f"{f['vehicle']} ({f['family']})",
+            f["form"],
+            f["status"],
+            f["iterations"],
+            *(
+                [
+                    f"{f['pitch_rmse_deg']:.2f}",
+                    f"{100 * f['displacement_rel']:+.1f}",
+                    f"{100 * f['peak_rel']:+.1f}",
+                    f"{1e3 * f['stop_err_s']:+.2f}" if math.isfinite(f["stop_err_s"]) else "no stop",
+                    _lift_off_cell(f),
+                    _met(f["within_hidden"]),
+                ]
+                if f["status"] == "ok"
+                else ["", "", "", "", "", _met(False)]
+            ),
+        ]
+        for f in h["fits"]
+    ]
+    kinds = "; ".join(f"{label}: {k['maker']}, seed {k['seed']}" for label, k in h["kinds"].items())
+    return [
+        f"Hidden tall vehicles ({kinds}; built for {h['built_kmh']:g} km/h), fitted at 40 + 64 km/h, 56 predicted; "
+        f"targets: fitted pitch RMSE <= {t['pitch_rmse_deg']:g} deg, displacement {100 * t['displacement_rel']:g} %, "
+        f"peak {100 * t['peak_rel']:g} %, stop {1e3 * t['stop_s']:g} ms, no lift-off while the CG moves on that the "
+        "generator does not have at 56 km/h too.",
+        "",
+        *_table(
+            [
+                "vehicle",
+                "form",
+                "status",
+                "iterations",
+                "pitch RMSE (deg)",
+                "displacement (%)",
+                "peak (%)",
+                "stop (ms)",
+                "lift-off (ms)",
+                "met",
+            ],
+            rows,
+        ),
+        "",
+    ]
+
+
+def detectors_md(r: dict) -> list[str]:
+    """The watch's rules on the set seed's and the check seed's corpus fits (bench/detectors.py)."""
+    rows = []
+    for role in ("set", "check"):
+        s = r[role]["summary"]
+        cells = [f"{q['fires']} on {q['fits']} fits, {q['false_alarms']} false" for q in s["rules"].values()]
+        apart = "" if math.isnan(s["apart_std_max"]) else f"{s['apart_std_max']:.1e}"
+        rows.append([f"{role} (seed {r[role]['seed']})", f"{s['ok']} of {s['fits']}", *cells, s["misses"]])
+        rows[-1] += [f"{s['iterations_median']:g} / {s['alone_iterations_median']:g}", s["alone_not_converged"], apart]
+    rules = list(r["set"]["summary"]["rules"])
+    head = ["seed", "ok", *rules, "misses", "iterations median, watched / left alone", "left alone not converged"]
+    return [
+        "## The watch's rules, set on one seed and checked on another",
+        "",
+        f"{r['count']} corpus vehicles a seed, each fitted on its own test and at "
+        f"{' and at '.join(' + '.join(f'{k:g}' for k in j) for j in r['joints_kmh'])} km/h, watched (as crashnlp fits) and left alone (Gauss-Newton, no "
+        f"watch, IPOPT's own termination, at most {r['left_alone']['max_iter']} iterations). Per rule: fires, the fits it "
+        "fired on, false alarms (a tail whose Newton did not finish the same fit; a cycle on a fit that converged left "
+        "alone; a steady stop away from the fit left alone). Misses: runs that reached their limit with no rule firing. "
+        "Apart: the largest parameter difference between the watched fit and the fit left alone, in standard errors.",
+        "",
+        *_table([*head, "apart (std)"], rows),
         "",
     ]
 
@@ -824,6 +919,7 @@ SECTIONS = {
     "forms": forms_md,
     "intervals": calibration.markdown,
     "whole_process": whole_process_md,
+    "detectors": detectors_md,
 }
 
 

@@ -19,6 +19,7 @@ from bench import (  # noqa: E402
     calibration,
     convergence,
     cross_speed,
+    detectors,
     forms,
     identification,
     report,
@@ -43,6 +44,7 @@ SECTIONS = {
     "forms": forms,  # the pendulum against the rigid body on the tall vehicles: docs/model.md's "Which form when"
     "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
+    "detectors": detectors,  # the watch's rules: set on one corpus seed, checked on another
     "convergence": convergence,  # reads the corpus, scaling and studies sections' fits: bench/report.py
 }
 

@@ -119,7 +119,7 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     pages print it; the sections of make bench one function each."""
     parts = (
         *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
-        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _detectors),
     )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
@@ -352,15 +352,10 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
     interpolation split, and the extrapolation split's under extrapolation_<what>."""
     out = {}
     for form, s in bench["forms"]["summary"]["interpolation"].items():
-        out |= {
+        out |= _worst(f"forms.{form}", s) | {
             f"forms.{form}.pitch_median": f"{s['pitch_rmse_median_deg']:.2f}",
-            f"forms.{form}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
             f"forms.{form}.within": str(s["within_targets"]),
             f"forms.{form}.ok": str(s["ok"]),
-            f"forms.{form}.displacement": f"{s['displacement_rel_max'] * 100:.1f}",
-            f"forms.{form}.peak": f"{s['peak_rel_max'] * 100:.1f}",
-            f"forms.{form}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
-            f"forms.{form}.lift_offs": str(s["lift_offs"]),
             f"forms.{form}.fitted_lift_offs": str(s["fitted_lift_offs"]),
             f"forms.{form}.fitted_not_in_truth": str(s["fitted_lift_offs_not_in_truth"]),
         }
@@ -372,6 +367,47 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.{form}.extrapolation_peak": f"{s['peak_rel_max'] * 100:.1f}",
             f"forms.{form}.extrapolation_lift_offs": str(s["lift_offs"]),
         }
+    for split, forms in bench["forms"]["summary"].items():  # the 95 % intervals' coverage (%) and median half-width (%)
+        for form, s in forms.items():
+            out |= {f"forms.{form}.{split}_{k}": f"{s[k] * 100:.0f}" for k in s if k.endswith(("_covered", "_half_width_median"))}
+    hidden = bench["forms"].get("hidden")  # the hidden tall vehicles (forms.hidden.<form>.<what>)
+    for form, s in (hidden or {}).get("summary", {}).items():
+        out |= _worst(f"forms.hidden.{form}", s) | {
+            f"forms.hidden.{form}.within": str(s["within_hidden"]),
+            f"forms.hidden.{form}.fits": str(s["fits"]),
+            f"forms.hidden.{form}.lift_offs_not_in_truth": str(s["lift_offs_not_in_truth"]),
+            f"forms.hidden.{form}.no_stop": str(s["no_stop"]),
+            f"forms.hidden.{form}.no_stop_in_truth": str(s["no_stop_in_truth"]),
+        }
+    return out
+
+
+def _worst(prefix: str, s: dict[str, Any]) -> dict[str, str]:
+    """A forms summary's worst fitted pitch RMSE, prediction errors and its lift-offs, under `prefix`."""
+    return {
+        f"{prefix}.pitch_max": f"{s['pitch_rmse_max_deg']:.2f}",
+        f"{prefix}.displacement": f"{s['displacement_rel_max'] * 100:.1f}",
+        f"{prefix}.peak": f"{s['peak_rel_max'] * 100:.1f}",
+        f"{prefix}.stop": f"{s['stop_err_max_s'] * 1e3:.2f}",
+        f"{prefix}.lift_offs": str(s["lift_offs"]),
+    }
+
+
+def _detectors(bench: dict[str, Any]) -> dict[str, str]:
+    """The watch's rules on the set and the check seed (bench/detectors.py), per seed role:
+    detectors.<role>.<rule>.fires (and .false_alarms for the rules that fired), and the role's
+    fits, misses (the seeds are bench/detectors.py's SEEDS, named where they are quoted)."""
+    d, out = bench["detectors"], {"detectors.count": str(bench["detectors"]["count"])}
+    for role in ("set", "check"):
+        s = d[role]["summary"]
+        out[f"detectors.{role}.fits"] = str(s["fits"])
+        out |= {f"detectors.{role}.ok": str(s["ok"]), f"detectors.{role}.misses": str(s["misses"])}
+        out[f"detectors.{role}.alone_not_converged"] = str(s["alone_not_converged"])
+        out[f"detectors.{role}.apart"] = f"{s['apart_std_max']:.0e}"
+        for rule, q in s["rules"].items():  # the fires; the false alarms where a rule can stop a fit it should not
+            out[f"detectors.{role}.{rule}.fires"] = str(q["fires"])
+            if rule in ("tail", "cycle", "steady"):
+                out[f"detectors.{role}.{rule}.false_alarms"] = str(q["false_alarms"])
     return out
 
 
