@@ -87,8 +87,10 @@ class Recording:
     def lower(self, taps: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The banded lower-triangular Toeplitz matrix of a biquad's three taps, as the rows,
         columns and values of its nonzeros (size x size)."""
-        parts = [(np.arange(k, self.size), np.arange(self.size - k), np.full(self.size - k, taps[k])) for k in range(3) if taps[k]]
-        return tuple(np.concatenate(column) for column in zip(*parts))  # type: ignore[return-value]
+        n = self.size
+        parts = [(np.arange(k, n), np.arange(n - k), np.full(n - k, taps[k])) for k in range(3) if taps[k]]
+        rows, cols, values = (np.concatenate(column) for column in zip(*parts))
+        return rows, cols, values
 
     def solve(self, values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """The forward and backward passes (u, s) of `values` at the grid's samples, each by the
