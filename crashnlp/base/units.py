@@ -17,7 +17,7 @@ import os
 import re
 from contextlib import suppress
 from functools import cache
-from importlib.util import find_spec
+from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
@@ -88,22 +88,7 @@ def _convert(value: str, text: str, unit: str) -> float:
 
 
 def _table() -> Path:
-    return cache_dir() / f"units-pint-{_pint_version()}.json"
-
-
-@cache
-def _pint_version() -> str:
-    """The installed pint's version, from the name of its distribution's metadata folder beside
-    the package (NAME-VERSION.dist-info), without importing pint; importlib.metadata, which reads
-    the same folder, costs 30 ms of CPU to import, a quarter of numpy's, in every process."""
-    spec = find_spec("pint")
-    folder = Path(spec.origin).parents[1] if spec is not None and spec.origin else None
-    found = sorted(folder.glob("pint-*.dist-info")) if folder is not None else []
-    if len(found) == 1:
-        return found[0].name.removeprefix("pint-").removesuffix(".dist-info")
-    from importlib.metadata import version  # an install laid out otherwise
-
-    return version("pint")
+    return cache_dir() / f"units-pint-{version('pint')}.json"
 
 
 @cache
