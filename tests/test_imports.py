@@ -170,3 +170,20 @@ def test_a_result_imports_with_numpy_alone():
     loaded = set(ast.literal_eval(printed))
     assert "crashnlp" in loaded and "numpy" in loaded
     assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
+
+
+@pytest.mark.integration  # a process of its own, and a fit
+def test_identify_without_figures_imports_no_library_it_does_not_use(tmp_path):
+    """`crashnlp identify --no-figures` loads neither matplotlib nor numpy.ma (which np.median and
+    np.percentile import on their first call: a third of numpy's own import), nor scipy, unless
+    pint brought it (pint reads a unit the cache's table has not seen yet, and imports scipy)."""
+    out = tmp_path / "fit"
+    code = (
+        "import sys; from crashnlp.cli import main;"
+        f" code = main(['identify', {str(ROOT / 'problems/pickup-56kph.yaml')!r}, '--out', {str(out)!r}, '--no-figures']);"
+        " print(code, sorted(m for m in ('matplotlib', 'numpy.ma', 'pint', 'scipy') if m in sys.modules))"
+    )
+    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    code, loaded = printed.splitlines()[-1].split(" ", 1)
+    loaded = set(ast.literal_eval(loaded))
+    assert code == "0" and loaded <= {"pint", "scipy"} and ("scipy" not in loaded or "pint" in loaded), printed
