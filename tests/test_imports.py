@@ -15,6 +15,7 @@ __init__ is the package's module.
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 import tomllib
@@ -172,18 +173,20 @@ def test_a_result_imports_with_numpy_alone():
     assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
 
 
-@pytest.mark.integration  # a process of its own, and a fit
-def test_identify_without_figures_imports_no_library_it_does_not_use(tmp_path):
-    """`crashnlp identify --no-figures` loads neither matplotlib nor numpy.ma (which np.median and
-    np.percentile import on their first call: a third of numpy's own import), nor scipy, unless
-    pint brought it (pint reads a unit the cache's table has not seen yet, and imports scipy)."""
-    out = tmp_path / "fit"
+@pytest.mark.integration  # processes of their own, and fits or simulations
+@pytest.mark.parametrize("command", ["identify", "simulate"])
+def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, command):
+    """`crashnlp identify` and `simulate` with `--no-figures`, run a second time, load neither
+    matplotlib nor scipy nor numpy.ma (which np.median and np.percentile import on their first
+    call: a third of numpy's own import). The first run may: pint, reading a unit the cache's
+    table has not seen yet, imports scipy. The runs have a cache of their own: the table is
+    written whole, so a process of another test may drop what the first run wrote."""
     code = (
         "import sys; from crashnlp.cli import main;"
-        f" code = main(['identify', {str(ROOT / 'problems/pickup-56kph.yaml')!r}, '--out', {str(out)!r}, '--no-figures']);"
-        " print(code, sorted(m for m in ('matplotlib', 'numpy.ma', 'pint', 'scipy') if m in sys.modules))"
+        f" code = main([{command!r}, {str(ROOT / 'problems/pickup-56kph.yaml')!r}, '--out', {str(tmp_path / command)!r},"
+        " '--no-figures']); print(code, sorted(m for m in ('matplotlib', 'numpy.ma', 'scipy') if m in sys.modules))"
     )
-    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    code, loaded = printed.splitlines()[-1].split(" ", 1)
-    loaded = set(ast.literal_eval(loaded))
-    assert code == "0" and loaded <= {"pint", "scipy"} and ("scipy" not in loaded or "pint" in loaded), printed
+    env = {**os.environ, "CRASHNLP_CACHE": str(tmp_path / "cache")}  # its own: no other test's process rewrites the units
+    for _ in range(2):
+        printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    assert printed.splitlines()[-1] == "0 []", printed
