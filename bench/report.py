@@ -529,9 +529,14 @@ def studies_md(r: dict) -> list[str]:
         "## Studies",
         "",
         "`crashnlp study` as a process, into a fresh folder each run; median of the runs given, the variants taking turns. "
-        "A lone worker's solve uses the threaded maps on both cores (as shipped); serial maps: CRASHNLP_THREADS=1.",
+        "A lone worker's solve uses the threaded maps on both cores (as shipped); serial maps: CRASHNLP_THREADS=1. "
+        "The load average (1 minute) before and after each study's runs says what else shared the cores: a speed-up "
+        "measured beside other work is not the machine's.",
         "",
-        *_table(["study", "run", "wall (s)", "runs (s)", "speed-up", "table as the first", "exit"], _study_rows(r)),
+        *_table(
+            ["study", "run", "wall (s)", "runs (s)", "speed-up", "table as the first", "exit", "load average (before, after)"],
+            _study_rows(r),
+        ),
         "",
         f"On the 16-case grid the solves themselves (IPOPT) take {g['solves_s']:.1f} s in all and the longest warm-start chain "
         f"{g['longest_chain_s']:.1f} s of it: two workers can be at most {g['two_worker_bound']:.2f}x faster on the solves. "
@@ -567,6 +572,7 @@ def _study_rows(r: dict) -> list[list]:
                     f"{r[key]['1 worker']['wall_s'] / x['wall_s']:.2f}x",
                     "yes" if x["same_table"] else "**no**",
                     x["exit"],
+                    ", ".join(f"{a:.1f}" for a in x.get("load_average", ())),  # runs before the load was recorded: none
                 ]
             )
     return rows

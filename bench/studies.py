@@ -84,11 +84,14 @@ def without_times(rows: list[dict]) -> list[dict]:
 def interleaved(study: Path, variants: dict[str, dict], repeats: int) -> tuple[dict[str, dict], list[dict]]:
     """Every variant (run_once keywords) `repeats` times, taking turns so that a change of the
     machine's load falls on all alike: the median wall time of each, whether every table equals
-    the first (but for the solve times), and the first table."""
+    the first (but for the solve times), the machine's load average before and after them (a
+    speed-up measured beside other work is not the machine's), and the first table."""
     runs: dict[str, list[dict]] = {name: [] for name in variants}
+    load_before = os.getloadavg()[0]
     for _ in range(repeats):
         for name, kwargs in variants.items():
             runs[name].append(run_once(study, **kwargs))
+    load = {"load_average": [load_before, os.getloadavg()[0]]}  # 1-minute, before and after: what else ran beside them
     reference = without_times(runs[next(iter(runs))][0]["rows"])
     out = {}
     for name, rs in runs.items():
@@ -101,9 +104,11 @@ def interleaved(study: Path, variants: dict[str, dict], repeats: int) -> tuple[d
             "summary": rs[0]["summary"],
             "same_table": all(without_times(r["rows"]) == reference for r in rs),
             **chain_bound(rs[0]["rows"]),
+            **load,
         }
         print(
-            f"  {study.stem} {name}: {out[name]['wall_s']:.1f} s (runs {', '.join(f'{w:.1f}' for w in out[name]['walls_s'])}), {out[name]['summary']}"
+            f"  {study.stem} {name}: {out[name]['wall_s']:.1f} s (runs {', '.join(f'{w:.1f}' for w in out[name]['walls_s'])}), "
+            f"{out[name]['summary']}; load average {load_before:.1f} to {load['load_average'][1]:.1f} on {os.cpu_count()} cores"
         )
     return out, runs[next(iter(runs))][0]["rows"]
 

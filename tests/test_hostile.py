@@ -453,6 +453,57 @@ def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_pat
     assert capsys.readouterr().err == ""
 
 
+# a script using crashnlp as a library: it starts a compile, as crashnlp.identify does on a new
+# shape, prints the compile's process id, and ends normally or by Ctrl-C
+LIBRARY_SCRIPT = """
+import sys
+from pathlib import Path
+from crashnlp.numerics import compile_job
+source = Path(sys.argv[1])
+job = compile_job.start("cc", source, source.with_suffix(".so"), ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+print(job.pid, flush=True)
+if sys.argv[2] == "interrupted":
+    raise KeyboardInterrupt
+"""
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("ending", ["normal", "interrupted"])
+def test_a_script_s_compiles_finish_after_it_at_the_lowest_priority_unless_ctrl_c_ended_it(tmp_path, ending):
+    """The Python API's compiles, left running by the script, go on at nice 19 after its
+    interpreter exits, with the command line's one line; a script ended by Ctrl-C stops them and
+    their files go, as a command's do."""
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    source = _big_source(tmp_path / "big.c")
+    env = {k: v for k, v in os.environ.items() if k != "CRASHNLP_KEEP_COMPILING"}
+    script = subprocess.run(
+        [sys.executable, "-c", LIBRARY_SCRIPT, str(source), ending], env=env, capture_output=True, text=True, timeout=60
+    )
+    pid = int(script.stdout.split()[0])
+    lines = [line for line in script.stderr.splitlines() if line.startswith("crashnlp:")]
+    try:
+        if ending == "interrupted":
+            assert lines == [], script.stderr
+            deadline = time.monotonic() + 10
+            while time.monotonic() < deadline and _alive(pid):
+                time.sleep(0.05)
+            assert not _alive(pid), "the compile outlived a script ended by Ctrl-C"
+        else:
+            assert len(lines) == 1 and "in the background" in lines[0] and f"pid {pid}" in lines[0], script.stderr
+            deadline = time.monotonic() + 5
+            while time.monotonic() < deadline and _alive(pid) and _nice(pid) != 19:
+                time.sleep(0.05)
+            assert _alive(pid) and _nice(pid) == 19, "the released compile is not running at nice 19"
+    finally:
+        if _alive(pid):
+            os.killpg(pid, signal.SIGTERM)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline and (_alive(pid) or list(tmp_path.iterdir())):
+            time.sleep(0.1)
+    assert list(tmp_path.iterdir()) == [], "a stopped compile left files"
+
+
 def test_a_command_that_succeeds_releases_its_compiles_and_any_other_ending_stops_them(monkeypatch, capsys):
     """Only exit 0 lets a compile finish after the command: a failed one's line stays its only one."""
     import crashnlp.cli as cli

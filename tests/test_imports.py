@@ -15,6 +15,7 @@ __init__ is the package's module.
 from __future__ import annotations
 
 import ast
+import os
 import subprocess
 import sys
 import tomllib
@@ -170,3 +171,22 @@ def test_a_result_imports_with_numpy_alone():
     loaded = set(ast.literal_eval(printed))
     assert "crashnlp" in loaded and "numpy" in loaded
     assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
+
+
+@pytest.mark.integration  # processes of their own, and fits or simulations
+@pytest.mark.parametrize("command", ["identify", "simulate"])
+def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, command):
+    """`crashnlp identify` and `simulate` with `--no-figures`, run a second time, load neither
+    matplotlib nor scipy nor numpy.ma (which np.median and np.percentile import on their first
+    call: a third of numpy's own import). The first run may: pint, reading a unit the cache's
+    table has not seen yet, imports scipy. The runs have a cache of their own: the table is
+    written whole, so a process of another test may drop what the first run wrote."""
+    code = (
+        "import sys; from crashnlp.cli import main;"
+        f" code = main([{command!r}, {str(ROOT / 'problems/pickup-56kph.yaml')!r}, '--out', {str(tmp_path / command)!r},"
+        " '--no-figures']); print(code, sorted(m for m in ('matplotlib', 'numpy.ma', 'scipy') if m in sys.modules))"
+    )
+    env = {**os.environ, "CRASHNLP_CACHE": str(tmp_path / "cache")}  # its own: no other test's process rewrites the units
+    for _ in range(2):
+        printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
+    assert printed.splitlines()[-1] == "0 []", printed

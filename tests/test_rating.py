@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from crashnlp.analysis import rating
-from crashnlp.analysis.rating import iso18571
+from crashnlp.analysis.rating import iso18571, iso18571_each
 from crashnlp.numerics.compiled import cache_dir
 
 T = np.arange(0, 0.1, 1e-4)
@@ -86,9 +86,25 @@ def package_ratings(request):
 @pytest.mark.parametrize(("t", "reference", "model"), CASES)
 def test_equals_the_package(package_ratings, monkeypatch, t, reference, model):
     ours = iso18571(t, reference, model)
-    monkeypatch.setattr(rating, "_ratings", package_ratings)  # same resampling, the package's ratings
+    monkeypatch.setattr(rating, "_ratings_each", lambda curves: [package_ratings(*c) for c in curves])  # the package's
     theirs = iso18571(t, reference, model)
     np.testing.assert_allclose([ours[k] for k in NAMES], [theirs[k] for k in NAMES], rtol=0, atol=1e-6, equal_nan=True)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the nan case divides by nan
+def test_curves_rated_together_get_each_its_own_numbers():
+    """Rated together, curves of other lengths and warping bands share one cost array: each gets,
+    to the bit, the ratings it gets alone, and a curve with a nan spoils no other's."""
+    short = T[:700]
+    curves = [
+        (T, pulse(T), pulse(T, 0.001, 0.95)),
+        (short, pulse(short), pulse(short, 0.002, 1.1)),
+        (T, pulse(T), np.where(T == T[500], np.nan, pulse(T))),
+        (UNEVEN, pulse(UNEVEN), pulse(UNEVEN, 0.001, 0.95)),
+        (T20, pulse(T20), pulse(T20, 0.003)),
+    ]
+    together = [[r[k] for k in NAMES] for r in iso18571_each(curves)]
+    np.testing.assert_array_equal(together, [[iso18571(*c)[k] for k in NAMES] for c in curves])
 
 
 def test_identical_scaled_shifted_and_resampled():

@@ -50,7 +50,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from scipy.stats import t as student
 
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
 from crashnlp.analysis.metrics import DRIFT, lift_off
@@ -376,6 +375,8 @@ def past_the_reach(
     misses = trend_misses(curve, breakpoints, reach_m)
     if misses.size == 0:
         return {}
+    from scipy.stats import t as student  # only past the reach: scipy.stats costs every simulate 0.3 s to import
+
     quantile = float(student.ppf(0.975, misses.size))  # a root mean square of few misses: Student's t
     rate = float(np.sqrt(np.mean(misses**2))) * quantile / spacing(breakpoints)  # N of force error per m past the reach, 95 %
     at_deepest = max(float(curve(np.array([deepest]))[0]), 1.0)

@@ -76,17 +76,22 @@ def _shares(bands: int) -> np.ndarray:
 
 def _split(cost: np.ndarray, segments: int, shortest: int) -> list[int]:
     """The band edges 0 = c_0 < ... < c_segments = len(cost) - 1 minimising the sum of
-    cost[c_k, c_k+1], every segment at least `shortest` bands long."""
+    cost[c_k, c_k+1], every segment at least `shortest` bands long. Each segment count's best
+    ends are found for every end at once (a matrix of start x end): the first cheapest start
+    wins, and where none is finite, the first start allowed."""
     bands = cost.shape[0] - 1
     best = np.full((segments + 1, bands + 1), np.inf)
     came_from = np.zeros((segments + 1, bands + 1), dtype=int)
     best[0, 0] = 0.0
+    edge = np.arange(bands + 1)
     for k in range(1, segments + 1):
-        for j in range(k * shortest, bands + 1):
-            starts = np.arange((k - 1) * shortest, j - shortest + 1)
-            total = best[k - 1, starts] + cost[starts, j]
-            came_from[k, j] = starts[int(np.argmin(total))]
-            best[k, j] = float(np.min(total))
+        first = (k - 1) * shortest  # the first start allowed; a start s serves the ends j >= s + shortest
+        allowed = (edge[:, None] >= first) & (edge[None, :] - edge[:, None] >= shortest)
+        total = np.where(allowed, best[k - 1][:, None] + cost, np.inf)[:, k * shortest :]
+        cheapest = np.argmin(total, axis=0)
+        low = total[cheapest, np.arange(total.shape[1])]
+        came_from[k, k * shortest :] = np.where(np.isposinf(low), first, cheapest)
+        best[k, k * shortest :] = low
     cuts = [bands]
     for k in range(segments, 0, -1):
         cuts.append(int(came_from[k, cuts[-1]]))

@@ -13,7 +13,7 @@ import numpy as np
 
 from crashnlp.base.errors import InputError
 from crashnlp.data import TestData, load_test_data
-from crashnlp.data.channels import END_TOLERANCE
+from crashnlp.data.channels import END_TOLERANCE, median_interval
 from crashnlp.problem import Problem, Test
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
@@ -142,7 +142,7 @@ def check_end(key: str, end: float, test: Test, data: TestData) -> None:
     sample: the fit would take a record that ends early for the whole crash, and print "ok"."""
     name, channel = min(data.channels.items(), key=lambda item: float(item[1].time[-1]))
     last = float(channel.time[-1])
-    if end - last > END_TOLERANCE * float(np.median(np.diff(channel.time))):
+    if end - last > END_TOLERANCE * median_interval(channel.time):
         file = test.data.file.name if test.data is not None else "the data"
         raise InputError(
             f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "

@@ -83,9 +83,21 @@ SAMPLE_INTERVALS = (5e-7, 5e-3)  # s: 2 MHz to 200 Hz; crash data are sampled at
 RECORD_SPANS = (1e-3, 100.0)  # s: a crash lasts about 0.1 s
 
 
+def median_interval(time: np.ndarray) -> float:
+    """The median interval between the samples of a time base that `check_samples` passed:
+    np.median(np.diff(time)), the same number, without the import of numpy.ma that np.median
+    makes on its first call (45 ms of CPU in every command that reads data)."""
+    steps = np.diff(np.asarray(time, dtype=float))
+    half = steps.size // 2
+    if steps.size % 2:
+        return float(np.partition(steps, half)[half])
+    low, high = np.partition(steps, (half - 1, half))[half - 1 : half + 1]
+    return float((low + high) / 2)
+
+
 def check_sampling(time: np.ndarray, at: str) -> None:
     """Refuse a time base no crash record has: usually a wrong time unit (ms read as s, or s as ms)."""
-    dt = float(np.median(np.diff(time)))
+    dt = median_interval(time)
     span = float(time[-1] - time[0])
     lo, hi = SAMPLE_INTERVALS
     if not lo <= dt <= hi:

@@ -23,7 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, TestData, check_samples, median_interval, si_factor, where
 from crashnlp.data.csv_reader import Table
 from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
@@ -156,7 +156,7 @@ def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[n
     time, values = table.values(0, channel), table.values(1, channel)
     check_samples(time, values, at)
     if curve.interval > 0:
-        dt = float(np.median(np.diff(time)))
+        dt = median_interval(time)
         if abs(dt - curve.interval) > 0.01 * curve.interval:
             raise DataError(f"{at}: sample interval {dt:g} s differs from the header's {curve.interval:g} s")
         tol = 0.5 * curve.interval

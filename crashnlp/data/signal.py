@@ -83,6 +83,12 @@ def _all_pole(v: np.ndarray, s: float, a2: float, y_before: float) -> np.ndarray
     return out.T.ravel()[: v.size]
 
 
+def from_rest(v: np.ndarray, a: np.ndarray) -> np.ndarray:
+    """y[n] = v[n] - a1 y[n-1] - a2 y[n-2] (a = [1, a1, a2]) from rest: a biquad's denominator
+    alone, as `_all_pole` runs it (no loop per sample, no dense solve)."""
+    return _all_pole(np.asarray(v, dtype=float), math.fsum(a), a[2], 0.0)
+
+
 def _steady_pass(b: np.ndarray, a: np.ndarray, x: np.ndarray) -> np.ndarray:
     """One causal pass of the biquad (b, a with a0 = 1) over `x`, started in steady state for x[0]:
     as if x had always been x[0] before (scipy's lfilter with zi = lfilter_zi(b, a) x[0])."""

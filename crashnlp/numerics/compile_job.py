@@ -3,19 +3,23 @@ or is killed; finished after one that succeeds, in the background at the lowest 
 
 `start` runs one; at the end of a command that succeeded `release_compiles` lets those still
 running finish for the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so on the console,
-`stop_compiles` ends them (any other ending, a study worker's end, KEEP_ENV=0). A compile is `python -I .../compile_job.py
-LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it compiles SOURCE into a temporary file beside
-LIBRARY and renames that in place when the compiler succeeds, so that no reader sees half a
-library. It reads its standard input until end of file, which comes when its starter closes the
-pipe or dies, however it dies; the whole group (compiler driver, cc1, as) is then stopped, unless
-the starter wrote RELEASE first: then the group goes on at nice 19, so that it takes only cores
-nothing else wants. Any compile ends itself after TIME_LIMIT_S. Whatever the ending, the
-temporary file and the CLEANUP files (the source, which is a background compile's lock) are
-removed.
+`stop_compiles` ends them (any other ending, a study worker's end, KEEP_ENV=0). A Python script or
+notebook that used crashnlp as a library (crashnlp.api) gets the same at its interpreter's exit
+(`_at_exit`): its compiles finish for its next run, with the same line, unless Ctrl-C ended it.
+
+A compile is `python -I .../compile_job.py LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it
+compiles SOURCE into a temporary file beside LIBRARY and renames that in place when the compiler
+succeeds, so that no reader sees half a library. It reads its standard input until end of file,
+which comes when its starter closes the pipe or dies, however it dies; the whole group (compiler
+driver, cc1, as) is then stopped, unless the starter wrote RELEASE first: then the group goes on
+at nice 19, so that it takes only cores nothing else wants. Any compile ends itself after
+TIME_LIMIT_S. Whatever the ending, the temporary file and the CLEANUP files (the source, which is
+a background compile's lock) are removed.
 """
 
 from __future__ import annotations
 
+import atexit
 import os
 import signal
 import subprocess
@@ -88,6 +92,22 @@ def release_compiles() -> list[int]:
             file=sys.stderr,
         )
     return released
+
+
+def _at_exit() -> None:
+    """The exit of an interpreter that started compiles and did not end them itself (the command
+    line does, crashnlp.cli.main; a script or notebook using crashnlp.api does not): they finish
+    for the next run, as after a command that succeeded, and the line says so (KEEP_ENV=0 stops
+    them); an interpreter whose last uncaught exception was Ctrl-C's KeyboardInterrupt stops them,
+    as the command line does. Killed by a signal, an interpreter runs no exit handler: its
+    compiles see their input end and stop."""
+    if isinstance(getattr(sys, "last_value", None), KeyboardInterrupt):
+        stop_compiles()
+    else:
+        release_compiles()
+
+
+atexit.register(_at_exit)
 
 
 def _watch_starter() -> None:

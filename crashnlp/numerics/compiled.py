@@ -3,8 +3,9 @@
 The virtual machine costs a few nanoseconds per instruction; the same
 instructions compiled run several times faster. Compiling takes a second or
 two, so each library is kept under the cache folder (CRASHNLP_CACHE, default
-~/.cache/crashnlp), named by a hash of its C source and flags: the same
-function is compiled once per machine, whatever the process. Without a C
+~/.cache/crashnlp), named by a hash of the Function as CasADi serializes it, CasADi's
+version, the compiler and its flags: the same function is compiled once per machine, whatever
+the process. Without a C
 compiler the Function itself is returned, so results never depend on it.
 
 A compile runs in a process group of its own (crashnlp.numerics.compile_job), waited for here,
@@ -60,21 +61,28 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
     cc = compiler()
     if cc is None:
         return fn
-    gen = ca.CodeGenerator(f"{fn.name()}.c", {"with_header": False, "casadi_real": "double"})
-    gen.add(fn)
-    if jacobian:
-        gen.add(fn.jacobian())
-    source = gen.dump()
-    key = hashlib.sha256("\0".join([source, cc, *FLAGS]).encode()).hexdigest()[:20]
+    # keyed by the Function as CasADi serializes it, not by its C: generating the C only to find
+    # its library costs ten times as much (16 ms for the model's right-hand side)
+    what = [fn.serialize(), f"jacobian={jacobian}", ca.CasadiMeta.version(), cc, *FLAGS]
+    key = hashlib.sha256("\0".join(what).encode()).hexdigest()[:20]
     if key not in _loaded:
         library = cache_dir() / f"{fn.name()}-{key}.so"
         try:
             if not library.exists():
-                build(cc, source, library)
+                build(cc, _source(fn, jacobian), library)
             _loaded[key] = ca.external(fn.name(), str(library))
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
     return _loaded[key]
+
+
+def _source(fn: ca.Function, jacobian: bool) -> str:
+    """The C of `fn`, and of its Jacobian with `jacobian`."""
+    gen = ca.CodeGenerator(f"{fn.name()}.c", {"with_header": False, "casadi_real": "double"})
+    gen.add(fn)
+    if jacobian:
+        gen.add(fn.jacobian())
+    return gen.dump()
 
 
 def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:

@@ -99,8 +99,9 @@ def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording) -> ca.
     u = nlp.variable(f"{tr.test.name}.{name}.forward{RECORDED}", rec.size, u0, scale=size)
     s = nlp.variable(f"{tr.test.name}.{name}.backward{RECORDED}", rec.size, s0, scale=size)
     scale = nlp.parameter(f"{tr.test.name}.{name}.recorded_scale", size)
-    a, b = (ca.DM(ca.sparsify(ca.DM(rec.lower(taps)))) for taps in (rec.a, rec.b))
-    record = ca.mtimes(ca.DM(ca.sparsify(ca.DM(rec.extend))), y.T)
+    a, b = (ca.DM.triplet(*rec.lower(taps), rec.size, rec.size) for taps in (rec.a, rec.b))
+    rows, cols = np.nonzero(rec.extend)
+    record = ca.mtimes(ca.DM.triplet(rows, cols, rec.extend[rows, cols], *rec.extend.shape), y.T)
     nlp.constrain(DYNAMICS, (ca.mtimes(a, u) - ca.mtimes(b, record)) / scale, test=tr.test.name, detail=f"{name}.forward")
     backward = ca.mtimes(a, s) - ca.mtimes(b, u[::-1]) - ca.DM(rec.start) * u[-1]
     nlp.constrain(DYNAMICS, backward / scale, test=tr.test.name, detail=f"{name}.backward")

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from crashnlp.analysis.rating import iso18571
+from crashnlp.analysis.rating import iso18571_each
 from crashnlp.analysis.summary import accel_filter, channel_consistency, data_metrics, response_metrics, still_moving
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case, TestCase
@@ -177,14 +177,16 @@ def _mass(solution: Solution, test: TestCase) -> float:
 
 
 def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[str, ChannelFit]:
+    """Each fitted channel of a test: model and data at its nodes, RMSE and ISO 18571 ratings
+    (rated together: crashnlp.analysis.rating.iso18571_each; none under 10 nodes)."""
+    fitted = [r for r in solution.residuals if r.test == test]
+    curves = [(ts.time[r.columns], r.data, r.seen(ts.time, ts.outputs[r.channel])) for r in fitted]
+    rated = [i for i, (times, _, _) in enumerate(curves) if ratings and len(times) >= 10]
+    rating = dict(zip(rated, iso18571_each([curves[i] for i in rated])))
     out = {}
-    for r in solution.residuals:
-        if r.test != test:
-            continue
-        times, model = ts.time[r.columns], r.seen(ts.time, ts.outputs[r.channel])
-        rating = iso18571(times, r.data, model) if ratings and len(times) >= 10 else None
-        rmse = float(np.sqrt(np.mean((model - r.data) ** 2)))
-        out[r.channel] = ChannelFit(r.channel, times, r.data, model, r.sigma, rmse, rating)
+    for i, (r, (times, data, model)) in enumerate(zip(fitted, curves)):
+        rmse = float(np.sqrt(np.mean((model - data) ** 2)))
+        out[r.channel] = ChannelFit(r.channel, times, data, model, r.sigma, rmse, rating.get(i))
     return out
 
 
