@@ -16,6 +16,15 @@ rounded one. `as_recorded` applies to the model's samples what the data went thr
 - then `crashnlp.data.signal.cfc_filter`, the same zero-phase two-pass J211 Butterworth the
   data get, and the result is read at the model's samples.
 
+The acceleration is given to the filter as the velocity's rate (`rates`), not as the model's
+acceleration at the samples: the two agree to fourth order where the pulse is smooth, but a sample
+of the acceleration jumps in slope, as a function of the parameters, whenever an event of the
+pulse (the end of contact, a spring breakpoint, the unloading switch) crosses it, and a fit whose
+recorded residuals hang on such a sample steps the event across it and back without end. The
+velocity's samples are the NLP's states: the rate is linear in them, and the events act only
+through the integration between the nodes (at impact too: the rate there, one sided, is the step
+from rest that the front end's first millimetre makes within tens of microseconds).
+
 Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
 filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
 couple every node through it. A fit instead holds the filter's two passes to their own
@@ -25,6 +34,7 @@ equations, banded (`Recording`, crashnlp.optimize.fit): the same numbers, a few 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +70,33 @@ def as_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
     fine = np.arange((time.size - 1) * steps + 1) * fine_dt + time[0]
     record = np.concatenate([np.zeros(before), np.interp(fine, time, values)])
     return cfc_filter(record, fine_dt, cfc, PAD)[before::steps]
+
+
+def rates(time: np.ndarray) -> np.ndarray:
+    """The matrix that takes samples of the velocity on a uniform grid to its rate at the samples:
+    fourth-order central differences, second order where a side has fewer than two samples (one
+    sided at the ends, so that no stencil reaches across the step at impact)."""
+    n, dt = time.size, float(time[1] - time[0])
+    out = np.zeros((n, n))
+    for k in range(n):
+        if 2 <= k <= n - 3:
+            out[k, k - 2 : k + 3] = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / (12.0 * dt)
+        elif 1 <= k <= n - 2:
+            out[k, [k - 1, k + 1]] = np.array([-1.0, 1.0]) / (2.0 * dt)
+        elif n < 3:
+            out[k, :2] = np.array([-1.0, 1.0]) / dt
+        elif k == 0:
+            out[k, :3] = np.array([-3.0, 4.0, -1.0]) / (2.0 * dt)
+        else:
+            out[k, k - 2 :] = np.array([1.0, -4.0, 3.0]) / (2.0 * dt)
+    return out
+
+
+def recorded(time: np.ndarray, outputs: Mapping[str, np.ndarray], name: str, cfc: float) -> np.ndarray:
+    """The model's output `name` on a uniform grid from impact as the test records it at CFC `cfc`:
+    `as_recorded` of its samples, the acceleration's taken as the velocity's rate (`rates`)."""
+    values = rates(time) @ np.asarray(outputs["velocity"], dtype=float) if name == "accel" else outputs[name]
+    return as_recorded(time, np.asarray(values, dtype=float), cfc)
 
 
 @dataclass(frozen=True)

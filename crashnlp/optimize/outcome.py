@@ -177,7 +177,7 @@ def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[st
     for r in solution.residuals:
         if r.test != test:
             continue
-        times, model = ts.time[r.columns], r.seen(ts.time, ts.outputs[r.channel])
+        times, model = ts.time[r.columns], r.seen(ts.time, ts.outputs)
         rating = iso18571(times, r.data, model) if ratings and len(times) >= 10 else None
         rmse = float(np.sqrt(np.mean((model - r.data) ** 2)))
         out[r.channel] = ChannelFit(r.channel, times, r.data, model, r.sigma, rmse, rating)
