@@ -22,8 +22,9 @@ of the acceleration jumps in slope, as a function of the parameters, whenever an
 pulse (the end of contact, a spring breakpoint, the unloading switch) crosses it, and a fit whose
 recorded residuals hang on such a sample steps the event across it and back without end. The
 velocity's samples are the NLP's states: the rate is linear in them, and the events act only
-through the integration between the nodes (at impact too: the rate there, one sided, is the step
-from rest that the front end's first millimetre makes within tens of microseconds).
+through the integration between the nodes (at impact too, where the rate, one sided, is the step
+from rest that the front end's first millimetre makes within tens of microseconds; the sample there
+holds half of it, `accelerometer`).
 
 Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
 filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
@@ -92,10 +93,21 @@ def rates(time: np.ndarray) -> np.ndarray:
     return out
 
 
+def accelerometer(time: np.ndarray) -> np.ndarray:
+    """The matrix that takes the model's velocity samples on a uniform grid from impact to the
+    acceleration samples its record is made of: the velocity's rate (`rates`), and at impact half
+    of it, since a sample stands for the interval about it and half of that lies before impact, at
+    rest (the step's half a sample late or early otherwise; 0.4 g at impact on the pickup's fitted
+    pulse, 0.1 g so)."""
+    out = rates(time)
+    out[0] *= 0.5
+    return out
+
+
 def recorded(time: np.ndarray, outputs: Mapping[str, np.ndarray], name: str, cfc: float) -> np.ndarray:
     """The model's output `name` on a uniform grid from impact as the test records it at CFC `cfc`:
-    `as_recorded` of its samples, the acceleration's taken as the velocity's rate (`rates`)."""
-    values = rates(time) @ np.asarray(outputs["velocity"], dtype=float) if name == "accel" else outputs[name]
+    `as_recorded` of its samples, the acceleration's made from the velocity's (`accelerometer`)."""
+    values = accelerometer(time) @ np.asarray(outputs["velocity"], dtype=float) if name == "accel" else outputs[name]
     return as_recorded(time, np.asarray(values, dtype=float), cfc)
 
 
