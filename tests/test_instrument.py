@@ -5,7 +5,7 @@ import pytest
 from scipy.signal import filtfilt
 
 from crashnlp.base.units import G0
-from crashnlp.data.instrument import PRE_IMPACT, as_recorded, rates, recorded, recording
+from crashnlp.data.instrument import PRE_IMPACT, acceleration, as_recorded, rate, recorded, recording
 from crashnlp.data.signal import cfc_coefficients, cfc_filter
 
 
@@ -76,15 +76,17 @@ def test_the_exported_pulse_is_recorded_from_rest_as_the_fit_compares_it():
 @pytest.mark.parametrize("size", [2, 3, 4, 5, 151])
 def test_the_velocitys_rate_is_exact_for_polynomials_of_its_stencils_order(size):
     """Fourth-order central differences inside (exact for quartics), second order at the ends
-    and their neighbours (exact for quadratics), first order on two samples."""
+    and their neighbours (exact for quadratics), first order on two samples; its matrix (the
+    rate of the identity) is the same operator."""
     t = np.linspace(0.0, 0.001 * (size - 1), size)
-    d = rates(t)
     quadratic = (2.0 - 3.0 * t + 40.0 * t**2, -3.0 + 80.0 * t)
     expected = quadratic if size > 2 else (2.0 - 3.0 * t, np.full(size, -3.0))
-    np.testing.assert_allclose(d @ expected[0], expected[1], rtol=1e-9, atol=1e-9)
+    np.testing.assert_allclose(rate(expected[0], 0.001), expected[1], rtol=1e-9, atol=1e-9)
     quartic = (t**4 - 0.1 * t**3, 4.0 * t**3 - 0.3 * t**2)
     inside = slice(2, size - 2)
-    np.testing.assert_allclose((d @ quartic[0])[inside], quartic[1][inside], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rate(quartic[0], 0.001)[inside], quartic[1][inside], rtol=1e-9, atol=1e-12)
+    np.testing.assert_allclose(rate(np.eye(size), 0.001) @ quartic[0], rate(quartic[0], 0.001), atol=1e-12)
+    assert acceleration(quadratic[0], 0.001)[0] == pytest.approx(0.5 * rate(quadratic[0], 0.001)[0])
 
 
 def _unloading(end: float, t: np.ndarray) -> dict[str, np.ndarray]:

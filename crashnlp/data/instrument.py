@@ -16,15 +16,16 @@ rounded one. `as_recorded` applies to the model's samples what the data went thr
 - then `crashnlp.data.signal.cfc_filter`, the same zero-phase two-pass J211 Butterworth the
   data get, and the result is read at the model's samples.
 
-The acceleration is given to the filter as the velocity's rate (`rates`), not as the model's
+The acceleration is given to the filter as the velocity's rate (`rate`), not as the model's
 acceleration at the samples: the two agree to fourth order where the pulse is smooth, but a sample
 of the acceleration jumps in slope, as a function of the parameters, whenever an event of the
-pulse (the end of contact, a spring breakpoint, the unloading switch) crosses it, and a fit whose
+pulse (the end of contact, a spring breakpoint, the force at zero crush on its bound) crosses it,
+and a fit whose
 recorded residuals hang on such a sample steps the event across it and back without end. The
 velocity's samples are the NLP's states: the rate is linear in them, and the events act only
 through the integration between the nodes (at impact too, where the rate, one sided, is the step
 from rest that the front end's first millimetre makes within tens of microseconds; the sample there
-holds half of it, `accelerometer`).
+holds half of it, `acceleration`).
 
 Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
 filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
@@ -73,41 +74,37 @@ def as_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
     return cfc_filter(record, fine_dt, cfc, PAD)[before::steps]
 
 
-def rates(time: np.ndarray) -> np.ndarray:
-    """The matrix that takes samples of the velocity on a uniform grid to its rate at the samples:
-    fourth-order central differences, second order where a side has fewer than two samples (one
-    sided at the ends, so that no stencil reaches across the step at impact)."""
-    n, dt = time.size, float(time[1] - time[0])
-    out = np.zeros((n, n))
-    for k in range(n):
-        if 2 <= k <= n - 3:
-            out[k, k - 2 : k + 3] = np.array([1.0, -8.0, 0.0, 8.0, -1.0]) / (12.0 * dt)
-        elif 1 <= k <= n - 2:
-            out[k, [k - 1, k + 1]] = np.array([-1.0, 1.0]) / (2.0 * dt)
-        elif n < 3:
-            out[k, :2] = np.array([-1.0, 1.0]) / dt
-        elif k == 0:
-            out[k, :3] = np.array([-3.0, 4.0, -1.0]) / (2.0 * dt)
-        else:
-            out[k, k - 2 :] = np.array([1.0, -4.0, 3.0]) / (2.0 * dt)
+def rate(values: np.ndarray, dt: float) -> np.ndarray:
+    """The rate of samples (along the first axis, `dt` apart): fourth-order central differences,
+    second order where a side has fewer than two samples (one sided at the ends, so that no
+    stencil reaches across the step at impact); first order of two samples. Of the identity, its
+    matrix."""
+    v = np.asarray(values, dtype=float)
+    if v.shape[0] < 3:
+        return np.broadcast_to((v[-1] - v[0]) / dt, v.shape).copy()
+    out = np.empty_like(v)
+    out[0] = (-3.0 * v[0] + 4.0 * v[1] - v[2]) / (2.0 * dt)
+    out[-1] = (v[-3] - 4.0 * v[-2] + 3.0 * v[-1]) / (2.0 * dt)
+    out[1:-1] = (v[2:] - v[:-2]) / (2.0 * dt)
+    out[2:-2] = (v[:-4] - 8.0 * v[1:-3] + 8.0 * v[3:-1] - v[4:]) / (12.0 * dt)
     return out
 
 
-def accelerometer(time: np.ndarray) -> np.ndarray:
-    """The matrix that takes the model's velocity samples on a uniform grid from impact to the
-    acceleration samples its record is made of: the velocity's rate (`rates`), and at impact half
-    of it, since a sample stands for the interval about it and half of that lies before impact, at
-    rest (the step's half a sample late or early otherwise; 0.4 g at impact on the pickup's fitted
-    pulse, 0.1 g so)."""
-    out = rates(time)
+def acceleration(velocity: np.ndarray, dt: float) -> np.ndarray:
+    """The acceleration samples a record is made of, from the velocity's samples on a uniform grid
+    from impact (along the first axis): the velocity's `rate`, and at impact half of it, since a
+    sample stands for the interval about it and half of that lies before impact, at rest (the
+    step half a sample late or early otherwise; 0.4 g off at impact on the pickup's fitted pulse,
+    0.1 g so)."""
+    out = rate(velocity, dt)
     out[0] *= 0.5
     return out
 
 
 def recorded(time: np.ndarray, outputs: Mapping[str, np.ndarray], name: str, cfc: float) -> np.ndarray:
     """The model's output `name` on a uniform grid from impact as the test records it at CFC `cfc`:
-    `as_recorded` of its samples, the acceleration's made from the velocity's (`accelerometer`)."""
-    values = accelerometer(time) @ np.asarray(outputs["velocity"], dtype=float) if name == "accel" else outputs[name]
+    `as_recorded` of its samples, the acceleration's made from the velocity's (`acceleration`)."""
+    values = acceleration(outputs["velocity"], float(time[1] - time[0])) if name == "accel" else outputs[name]
     return as_recorded(time, np.asarray(values, dtype=float), cfc)
 
 

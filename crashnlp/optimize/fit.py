@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.units import G0
-from crashnlp.data.instrument import AT_REST, RECORDED, Recording, accelerometer, recorded, recording
+from crashnlp.data.instrument import AT_REST, RECORDED, Recording, acceleration, recorded, recording
 from crashnlp.data.signal import CFC_CLASSES, resample
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
@@ -96,10 +96,12 @@ def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording) -> ca.
     """A model output at every node (row) as the test recorded it: the filter's forward and
     backward passes are variables, started at the passes of the initial guess, and held to the
     filter's banded equations as dynamics (their defects scaled by the guess's largest value). The
-    acceleration is made from the velocity's samples (crashnlp.data.instrument.accelerometer),
+    acceleration is made from the velocity's samples (crashnlp.data.instrument.acceleration),
     linear in the nodes' states."""
     if name == "accel":
-        y = ca.mtimes(ca.DM(ca.sparsify(ca.DM(accelerometer(tr.trajectory.times)))), tr.output("velocity").T).T
+        times = tr.trajectory.times
+        matrix = acceleration(np.eye(times.size), float(times[1] - times[0]))
+        y = ca.mtimes(ca.DM(ca.sparsify(ca.DM(matrix))), tr.output("velocity").T).T
     else:
         y = tr.output(name)
     u0, s0 = rec.solve(np.asarray(nlp.evaluate([y], nlp.bounds()["x0"])[0]).ravel())

@@ -175,11 +175,13 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, from_neighbour, _refinable(case))
     while True:
+        departed = None
         if not result.cycling:
             solution = _finished(case, ocp, fit, result, theta0)
             if not (_departs(solution) and _refinable(case)):
                 break
-        case, note = _refined(case, result, solution if not result.cycling else None)
+            departed = solution
+        case, note = _refined(case, result, departed)
         notes.append(note)
         _say(note, progress)
         ocp, fit = fit_ocp(case)
