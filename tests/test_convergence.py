@@ -151,7 +151,8 @@ def test_a_fit_whose_forward_check_departs_is_refined_until_it_holds(tmp_path):
     own simulated record on 5 ms shooting intervals: at one RK4 step per interval the NLP
     crosses the bend inside a step and integrates it millimetres off the model (the forward
     check refuses the fit, as it refused the hidden population's te01 at 40 + 56 km/h); the fit
-    is solved again from there with four steps, says so, and holds the check."""
+    is solved again from there with more steps (four, then sixteen where it cycles), says so,
+    and holds the check."""
     spring = {"crush_breakpoints": [0, 0.02, 0.1, 0.7], "values": [0.0, 3e6, 5e5, 6e5]}
     truth = merge(BASE, {"model": {"spring": spring}, "tests": [{"name": "t56", "duration": 0.2}], "simulation": {"dt": 1e-4}})
     write_channels(tmp_path / "stiff.csv", Case(problem_from_dict(truth, tmp_path)).simulate()["t56"])
@@ -168,9 +169,8 @@ def test_a_fit_whose_forward_check_departs_is_refined_until_it_holds(tmp_path):
     )
     solution = identify(Case(problem_from_dict(fit, tmp_path)), progress=None)
     assert solution.ok, solution.status
-    (note,) = solution.notes
-    assert "departs from the NLP" in note and "at 1 RK4 step(s)" in note
-    assert solution.case.problem.transcription.substeps == 4
+    assert "departs from the NLP" in solution.notes[0] and "at 1 RK4 step(s)" in solution.notes[0]
+    assert solution.case.problem.transcription.substeps > 1
     assert not solution.verification.departs
 
 
