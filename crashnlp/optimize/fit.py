@@ -17,7 +17,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.units import G0
-from crashnlp.data.instrument import AT_REST, RECORDED, Recording, acceleration, recorded, recording
+from crashnlp.data.instrument import AT_REST, RECORDED, Recording, acceleration, from_velocity, recorded, recording
 from crashnlp.data.signal import CFC_CLASSES, resample
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
@@ -78,7 +78,9 @@ def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
         cfc = _recorded_class(name, ch_spec.filter if ch_spec.derive is None else None)
-        output = tr.output(name) if cfc is None else _recorded(nlp, tr, name, recording(times, cfc))
+        output = (
+            tr.output(name) if cfc is None else _recorded(nlp, tr, name, recording(times, cfc), from_velocity(name, times, cfc))
+        )
         model = output[:, cols.tolist()]
         data = resample(channel, times[cols])
         measured = nlp.parameter(f"{tr.test.name}.{name}.data", data[None, :])
@@ -92,13 +94,13 @@ def _recorded_class(name: str, cfc: str | None) -> float | None:
     return CFC_CLASSES[cfc] if cfc is not None and name in AT_REST else None
 
 
-def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording) -> ca.MX:
+def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording, velocity: bool) -> ca.MX:
     """A model output at every node (row) as the test recorded it: the filter's forward and
     backward passes are variables, started at the passes of the initial guess, and held to the
-    filter's banded equations as dynamics (their defects scaled by the guess's largest value). The
-    acceleration is made from the velocity's samples (crashnlp.data.instrument.acceleration),
-    linear in the nodes' states."""
-    if name == "accel":
+    filter's banded equations as dynamics (their defects scaled by the guess's largest value). With
+    `velocity` (crashnlp.data.instrument.from_velocity) the acceleration is made from the
+    velocity's samples (crashnlp.data.instrument.acceleration), linear in the nodes' states."""
+    if velocity:
         times = tr.trajectory.times
         matrix = acceleration(np.eye(times.size), float(times[1] - times[0]))
         y = ca.mtimes(ca.DM(ca.sparsify(ca.DM(matrix))), tr.output("velocity").T).T
