@@ -44,8 +44,7 @@ def test_minimal_problem_identifies_a_corpus_vehicle(index, tmp_path):
 # full size); the first Gauss-Newton steps move the crush at the shooting nodes past the largest
 # crush. Where the largest crush stalls behind the crush there, vehicle 13's fit wanders (532
 # iterations at 100 intervals); where it follows, it closes in. With the model recorded at CFC 60
-# as its data are and the end of contact rounded, vehicle 13's takes 28, vehicle 17's 10; with its
-# acceleration recorded from the velocity's samples, 18 and 9.
+# as its data are and the end of contact rounded, vehicle 13's takes 28, vehicle 17's 10.
 @pytest.mark.parametrize("index", [13, 17])
 def test_cold_start_far_from_the_fit_closes_in(index, tmp_path):
     v = random_vehicle(index, SEED)
@@ -56,20 +55,18 @@ def test_cold_start_far_from_the_fit_closes_in(index, tmp_path):
 
 
 def test_a_steady_objective_stops_the_fit_where_going_on_moves_nothing(tmp_path):
-    """Vehicle 1 at 100 intervals, asked for a tolerance of 1e-12, stops at IPOPT's acceptable
-    level once its objective is steady (21 iterations), says so, and sits within 1e-4 standard
-    errors of the fit IPOPT takes on to that tolerance (acceptable stops switched off: 28). Its fit
-    stopped so at the default tolerance (94 iterations) while the acceleration's samples at the
-    nodes were recorded: the end of contact crossing a node held the dual infeasibility up; with the
-    acceleration recorded from the velocity's samples it converges (15)."""
+    """Vehicle 1 at 100 intervals stops at IPOPT's acceptable level (94 iterations), says so, and
+    sits within 2e-2 standard errors of the fit IPOPT takes on to its tolerance (acceptable stops
+    switched off; it cycles, and ends refined to 4 RK4 steps: 1e-2 measured, the unloading
+    stiffness and the CG height the farthest)."""
     path, _ = write_test(random_vehicle(1, SEED), tmp_path, FAST)
-    problem = load_problem(path).with_values({"solver.ipopt": {"tol": 1e-12}})
+    problem = load_problem(path)
     steady = identify(Case(problem), progress=None)
-    to_tol = identify(Case(problem.with_values({"solver.ipopt": {"tol": 1e-12, "acceptable_iter": 0}})), progress=None)
+    to_tol = identify(Case(problem.with_values({"solver.ipopt": {"acceptable_iter": 0}})), progress=None)
     assert steady.result.return_status == "Solved_To_Acceptable_Level" and to_tol.result.return_status == "Solve_Succeeded"
     assert any("objective steady" in note for note in steady.notes)
     assert steady.result.iterations < to_tol.result.iterations
-    assert np.all(np.abs(steady.theta - to_tol.theta) <= 1e-4 * to_tol.std_errors), (steady.theta, to_tol.theta)
+    assert np.all(np.abs(steady.theta - to_tol.theta) <= 2e-2 * to_tol.std_errors), (steady.theta, to_tol.theta)
 
 
 # The issue's failing case: the shipped pickup problem (its breakpoints to 0.7 m, 500 kN initial
