@@ -16,16 +16,16 @@ rounded one. `as_recorded` applies to the model's samples what the data went thr
 - then `crashnlp.data.signal.cfc_filter`, the same zero-phase two-pass J211 Butterworth the
   data get, and the result is read at the model's samples.
 
-The acceleration is given to the filter as the velocity's rate (`rate`), not as the model's
-acceleration at the samples: the two agree to fourth order where the pulse is smooth, but a sample
-of the acceleration jumps in slope, as a function of the parameters, whenever an event of the
-pulse (the end of contact, a spring breakpoint, the force at zero crush on its bound) crosses it,
-and a fit whose
-recorded residuals hang on such a sample steps the event across it and back without end. The
-velocity's samples are the NLP's states: the rate is linear in them, and the events act only
-through the integration between the nodes (at impact too, where the rate, one sided, is the step
-from rest that the front end's first millimetre makes within tens of microseconds; the sample there
-holds half of it, `acceleration`).
+Where the filter runs on the model's grid itself (`from_velocity`), the acceleration is given to it
+as the velocity's rate (`rate`), not as the model's acceleration at the samples: the two agree to
+fourth order where the pulse is smooth, but a sample of the acceleration jumps in slope, as a
+function of the parameters, whenever an event of the pulse (the end of contact, a spring
+breakpoint, the force at zero crush on its bound) crosses it, and a fit whose recorded residuals
+hang on such a sample steps the event across it and back without end. The velocity's samples are
+the NLP's states: the rate is linear in them, and the events act only through the integration
+between the nodes (at impact too, where the rate, one sided, is the step from rest that the front
+end's first millimetre makes within tens of microseconds; the sample there holds half of it,
+`acceleration`).
 
 Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
 filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
