@@ -9,7 +9,7 @@ import numpy as np
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.base.outputs import METRICS
 from crashnlp.case.testcase import TestCase
-from crashnlp.data.instrument import as_recorded
+from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.results.response import Response
 
@@ -76,7 +76,7 @@ def response_metrics(r: Response, accel_filter: str | None = None) -> dict:
     accelerometers) its acceleration as the test recorded it (crashnlp.data.instrument), so that its
     peak and pulse compare with the test's filtered ones."""
     y = r.outputs
-    accel = y["accel"] if accel_filter is None else as_recorded(r.time, y["accel"], CFC_CLASSES[accel_filter])
+    accel = y["accel"] if accel_filter is None else recorded(r.time, y, "accel", CFC_CLASSES[accel_filter])
     return metrics(r.time, accel, y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
 
 

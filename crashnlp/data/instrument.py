@@ -16,6 +16,17 @@ rounded one. `as_recorded` applies to the model's samples what the data went thr
 - then `crashnlp.data.signal.cfc_filter`, the same zero-phase two-pass J211 Butterworth the
   data get, and the result is read at the model's samples.
 
+Where the filter runs on the model's grid itself (`from_velocity`), the acceleration is given to it
+as the velocity's rate (`rate`), not as the model's acceleration at the samples: the two agree to
+fourth order where the pulse is smooth, but a sample of the acceleration jumps in slope, as a
+function of the parameters, whenever an event of the pulse (the end of contact, a spring
+breakpoint, the force at zero crush on its bound) crosses it, and a fit whose recorded residuals
+hang on such a sample steps the event across it and back without end. The velocity's samples are
+the NLP's states: the rate is linear in them, and the events act only through the integration
+between the nodes (at impact too, where the rate, one sided, is the step from rest that the front
+end's first millimetre makes within tens of microseconds; the sample there holds half of it,
+`acceleration`).
+
 Every step is linear in the samples, so on a fixed grid it is a matrix, but a dense one (the
 filter's response lasts tens of samples each way), and a fit's Gauss-Newton Hessian would
 couple every node through it. A fit instead holds the filter's two passes to their own
@@ -25,6 +36,7 @@ equations, banded (`Recording`, crashnlp.optimize.fit): the same numbers, a few 
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
@@ -60,6 +72,48 @@ def as_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
     fine = np.arange((time.size - 1) * steps + 1) * fine_dt + time[0]
     record = np.concatenate([np.zeros(before), np.interp(fine, time, values)])
     return cfc_filter(record, fine_dt, cfc, PAD)[before::steps]
+
+
+def rate(values: np.ndarray, dt: float) -> np.ndarray:
+    """The rate of samples (along the first axis, `dt` apart): fourth-order central differences,
+    second order where a side has fewer than two samples (one sided at the ends, so that no
+    stencil reaches across the step at impact); first order of two samples. Of the identity, its
+    matrix."""
+    v = np.asarray(values, dtype=float)
+    if v.shape[0] < 3:
+        return np.broadcast_to((v[-1] - v[0]) / dt, v.shape).copy()
+    out = np.empty_like(v)
+    out[0] = (-3.0 * v[0] + 4.0 * v[1] - v[2]) / (2.0 * dt)
+    out[-1] = (v[-3] - 4.0 * v[-2] + 3.0 * v[-1]) / (2.0 * dt)
+    out[1:-1] = (v[2:] - v[:-2]) / (2.0 * dt)
+    out[2:-2] = (v[:-4] - 8.0 * v[1:-3] + 8.0 * v[3:-1] - v[4:]) / (12.0 * dt)
+    return out
+
+
+def acceleration(velocity: np.ndarray, dt: float) -> np.ndarray:
+    """The acceleration samples a record is made of, from the velocity's samples on a uniform grid
+    from impact (along the first axis): the velocity's `rate`, and at impact half of it, since a
+    sample stands for the interval about it and half of that lies before impact, at rest (the
+    step half a sample late or early otherwise; 0.4 g off at impact on the pickup's fitted pulse,
+    0.1 g so)."""
+    out = rate(velocity, dt)
+    out[0] *= 0.5
+    return out
+
+
+def from_velocity(name: str, time: np.ndarray, cfc: float) -> bool:
+    """Whether the output `name` on `time` is recorded from the velocity's samples (`acceleration`):
+    the acceleration, where the filter runs on the grid itself (`_steps`). On a coarser grid a
+    step's quadrature error where it crosses a bend of the force law (its velocity a few mm/s off,
+    over a few ms) would be read as acceleration: the acceleration's own samples are recorded there."""
+    return name == "accel" and _steps(float(time[1] - time[0]), cfc) == 1
+
+
+def recorded(time: np.ndarray, outputs: Mapping[str, np.ndarray], name: str, cfc: float) -> np.ndarray:
+    """The model's output `name` on a uniform grid from impact as the test records it at CFC `cfc`:
+    `as_recorded` of its samples, the acceleration's made from the velocity's where `from_velocity`."""
+    values = acceleration(outputs["velocity"], float(time[1] - time[0])) if from_velocity(name, time, cfc) else outputs[name]
+    return as_recorded(time, np.asarray(values, dtype=float), cfc)
 
 
 @dataclass(frozen=True)

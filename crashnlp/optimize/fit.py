@@ -10,13 +10,14 @@ two passes variables of the NLP held to its banded equations (crashnlp.data.inst
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import casadi as ca
 import numpy as np
 
 from crashnlp.base.units import G0
-from crashnlp.data.instrument import AT_REST, RECORDED, Recording, as_recorded, recording
+from crashnlp.data.instrument import AT_REST, RECORDED, Recording, acceleration, from_velocity, recorded, recording
 from crashnlp.data.signal import CFC_CLASSES, resample
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
 from crashnlp.optimize.ocp import OptimalControl, Transcript
@@ -45,10 +46,12 @@ class Residual:
     measured: ca.MX  # the data as an NLP parameter (row)
     cfc: float | None = None  # the class the model's samples are recorded at (None: compared as they are)
 
-    def seen(self, times: np.ndarray, values: np.ndarray) -> np.ndarray:
-        """The model's output at every node (`times`, SI) as this residual compares it with the data."""
-        values = np.asarray(values, dtype=float)
-        return (as_recorded(times, values, self.cfc) if self.cfc is not None else values)[self.columns]
+    def seen(self, times: np.ndarray, outputs: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The model's output at the fitted nodes as this residual compares it with the data, from
+        its `outputs` at every node (`times`, SI)."""
+        if self.cfc is None:
+            return np.asarray(outputs[self.channel], dtype=float)[self.columns]
+        return recorded(times, outputs, self.channel, self.cfc)[self.columns]
 
     @property
     def error(self) -> ca.MX:
@@ -75,7 +78,9 @@ def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
         cfc = _recorded_class(name, ch_spec.filter if ch_spec.derive is None else None)
-        output = tr.output(name) if cfc is None else _recorded(nlp, tr, name, recording(times, cfc))
+        output = (
+            tr.output(name) if cfc is None else _recorded(nlp, tr, name, recording(times, cfc), from_velocity(name, times, cfc))
+        )
         model = output[:, cols.tolist()]
         data = resample(channel, times[cols])
         measured = nlp.parameter(f"{tr.test.name}.{name}.data", data[None, :])
@@ -89,11 +94,18 @@ def _recorded_class(name: str, cfc: str | None) -> float | None:
     return CFC_CLASSES[cfc] if cfc is not None and name in AT_REST else None
 
 
-def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording) -> ca.MX:
+def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording, velocity: bool) -> ca.MX:
     """A model output at every node (row) as the test recorded it: the filter's forward and
     backward passes are variables, started at the passes of the initial guess, and held to the
-    filter's banded equations as dynamics (their defects scaled by the guess's largest value)."""
-    y = tr.output(name)
+    filter's banded equations as dynamics (their defects scaled by the guess's largest value). With
+    `velocity` (crashnlp.data.instrument.from_velocity) the acceleration is made from the
+    velocity's samples (crashnlp.data.instrument.acceleration), linear in the nodes' states."""
+    if velocity:
+        times = tr.trajectory.times
+        matrix = acceleration(np.eye(times.size), float(times[1] - times[0]))
+        y = ca.mtimes(ca.DM(ca.sparsify(ca.DM(matrix))), tr.output("velocity").T).T
+    else:
+        y = tr.output(name)
     u0, s0 = rec.solve(np.asarray(nlp.evaluate([y], nlp.bounds()["x0"])[0]).ravel())
     size = max(float(np.max(np.abs(s0))), 1.0)
     u = nlp.variable(f"{tr.test.name}.{name}.forward{RECORDED}", rec.size, u0, scale=size)

@@ -180,7 +180,7 @@ def _fits(solution: Solution, ts: Response, test: str, ratings: bool) -> dict[st
     """Each fitted channel of a test: model and data at its nodes, RMSE and ISO 18571 ratings
     (rated together: crashnlp.analysis.rating.iso18571_each; none under 10 nodes)."""
     fitted = [r for r in solution.residuals if r.test == test]
-    curves = [(ts.time[r.columns], r.data, r.seen(ts.time, ts.outputs[r.channel])) for r in fitted]
+    curves = [(ts.time[r.columns], r.data, r.seen(ts.time, ts.outputs)) for r in fitted]
     rated = [i for i, (times, _, _) in enumerate(curves) if ratings and len(times) >= 10]
     rating = dict(zip(rated, iso18571_each([curves[i] for i in rated])))
     out = {}

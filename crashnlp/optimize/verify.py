@@ -38,6 +38,11 @@ class Verification:
         """Largest mismatch of a test relative to its tolerance (above 1 fails)."""
         return max(v / self.allowed[test][k] for k, v in self.mismatch[test].items())
 
+    @property
+    def departs(self) -> bool:
+        """Whether the forward simulation of some test departs from the NLP beyond its tolerance."""
+        return any(self.worst(test) > 1 for test in self.mismatch)
+
 
 def _stops(test, outputs: dict[str, np.ndarray]) -> str | None:
     """Why the model misses the data's stop, if it does."""
