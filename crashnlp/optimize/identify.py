@@ -226,7 +226,7 @@ def _refined(case: Case, stopped: SolveResult, departed: Solution | None = None)
         why = f"IPOPT's iterates cycled after {stopped.iterations} iterations"
         where = "(a kink of the force laws crossed inside a step)"
     else:
-        assert departed.verification is not None
+        assert departed.verification is not None and departed.verification.problem is not None
         why = departed.verification.problem
         where = "(the NLP's integration too coarse where the force law bends)"
     return case.with_transcription(spec.model_copy(update={"substeps": steps})), (
