@@ -21,7 +21,7 @@ from builders import BASE, ROOT, command, die_always, die_once, merge, parents, 
 from crashnlp.base.errors import InputError, RunError
 from crashnlp.case.case import Case
 from crashnlp.engine import executors
-from crashnlp.engine.executors import NO_WORKERS_WAIT, WORKER_DEATHS, DaskExecutor, LocalExecutor
+from crashnlp.engine.executors import LOCAL_CLUSTER_CONFIG, NO_WORKERS_WAIT, WORKER_DEATHS, DaskExecutor, LocalExecutor
 from crashnlp.engine.schedule import map_all, run_tree
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
@@ -326,6 +326,20 @@ def test_a_dask_task_whose_worker_is_lost_runs_on_another(tmp_path):
         executor.close()
     assert isinstance(done[0], int) and (tmp_path / "ran").exists()
     assert all(isinstance(p, int) for p in others.values())
+
+
+@pytest.mark.integration
+def test_a_local_dask_cluster_runs_its_workers_without_the_profiler_and_leaves_the_callers_config():
+    """The LocalCluster's workers take LOCAL_CLUSTER_CONFIG; the process that started it keeps its own."""
+    dask_config = pytest.importorskip("dask.config")
+    before = {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG}
+    executor = DaskExecutor(2)
+    try:
+        seen = executor.client.run(lambda: {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG})
+    finally:
+        executor.close()
+    assert len(seen) == 2 and all(config == LOCAL_CLUSTER_CONFIG for config in seen.values())
+    assert {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG} == before != LOCAL_CLUSTER_CONFIG
 
 
 def test_a_dask_cluster_left_without_workers_ends_the_run_in_one_line(monkeypatch):

@@ -37,6 +37,15 @@ from crashnlp.numerics.compile_job import stop_compiles
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
 NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
+# a LocalCluster's housekeeping, which shares the cores with the cases it runs: no statistical
+# profiler sampling every worker's stacks (it holds the GIL a solve's callbacks need), and the
+# event loops' tick and the system monitor at intervals a study of whole solves does not miss
+# (measured in docs/design-notes.md, "Dask's housekeeping on a LocalCluster")
+LOCAL_CLUSTER_CONFIG = {
+    "distributed.worker.profile.enabled": False,
+    "distributed.admin.tick.interval": "200ms",
+    "distributed.admin.system-monitor.interval": "5s",
+}
 
 
 class Executor(Protocol):
@@ -204,8 +213,10 @@ class DaskExecutor:
         logging.getLogger("distributed").setLevel(logging.CRITICAL)  # failures reach the user as one line
         self.cluster = None
         if address is None:
+            import dask.config  # installed with distributed
+
             # the worker processes inherit it: Ctrl-C is the main process's to handle
-            with _sigint_ignored(), _workers_skip_main_script():
+            with _sigint_ignored(), _workers_skip_main_script(), dask.config.set(LOCAL_CLUSTER_CONFIG):
                 self.cluster = self.distributed.LocalCluster(
                     n_workers=workers or default_workers(),
                     threads_per_worker=1,
