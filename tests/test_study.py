@@ -331,7 +331,9 @@ def test_a_dask_task_whose_worker_is_lost_runs_on_another(tmp_path):
 @pytest.mark.integration
 def test_a_local_dask_cluster_runs_its_workers_without_the_profiler_and_leaves_the_callers_config():
     """The LocalCluster's workers take LOCAL_CLUSTER_CONFIG; the process that started it keeps its own."""
-    dask_config = pytest.importorskip("dask.config")
+    pytest.importorskip("distributed")  # which loads its part of dask's configuration
+    import dask.config as dask_config
+
     before = {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG}
     executor = DaskExecutor(2)
     try:
