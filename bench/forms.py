@@ -53,7 +53,8 @@ HIDDEN = {  # label: (maker, seed), seeds no fit saw while the forms were built
 }
 HIDDEN_COUNT = 3  # vehicles a hidden kind
 HIDDEN_SPLIT = "interpolation"
-HIDDEN_TARGETS = {"pitch_rmse_deg": 0.5, "displacement_rel": 0.02, "peak_rel": 0.10, "stop_s": 0.003}
+# issue 40's for hidden tall vehicles: the interpolation targets, a fitted pitch RMSE and a stop error
+HIDDEN_TARGETS = {**TARGETS["interpolation"], "pitch_rmse_deg": 0.5, "stop_s": 0.003}
 
 
 def with_form(path: Path, form: str) -> Path:
