@@ -90,10 +90,8 @@ def test_a_collocation_nlp_regularizes_its_constraint_block_for_gauss_newton():
 def test_joint_collocation_fits_of_two_speeds_finish(intervals):
     """pickup-56kph's problem with the 40 km/h test, by collocation: without the constraint block
     regularized, MUMPS misjudges the inertia of these ill-conditioned KKT systems and the fits
-    stall (70 and 299 iterations at 120 and 250 intervals); with it they took 14 and 17, and with
-    the acceleration recorded from the velocity's samples the one at 250 takes 98 (Gauss-Newton at
-    its objective from iteration 19, its dual infeasibility held at 1e-4 until the watch hands
-    its tail to Newton), within issue 25's line for joint fits."""
+    stall (70 and 299 iterations at 120 and 250 intervals); with it they take 21 or fewer
+    (Gauss-Newton, then Newton for its tail), within issue 25's line for joint fits."""
     base = load_problem(PICKUP_56)
     problem = base.model_copy(update={"tests": [base.tests[0], load_problem(PICKUP_40).tests[0]]})
     solution = identify(
