@@ -69,7 +69,7 @@ HIDDEN: dict[str, Callable[..., Vehicle]] = {"tall vans with an engine on mounts
 # seed -> (forms, vehicles of each form)
 POPULATIONS: dict[int, tuple[dict[str, Callable[..., Vehicle]], dict[str, int]]] = {
     SET_SEED: (FORMS, {"rigid body": 20, "engine on mounts": 20, "tall vans and SUVs": 8}),
-    CHECK_SEED: (FORMS, {"rigid body": 12, "engine on mounts": 3, "tall vans and SUVs": 4}),
+    CHECK_SEED: (FORMS, {"rigid body": 12, "engine on mounts": 12, "tall vans and SUVs": 8}),
     HIDDEN_SEED: (HIDDEN, {"tall vans with an engine on mounts": 10}),
 }
 # model form -> seed -> vehicles of each generator form its table is set and checked on (None: POPULATIONS');
@@ -170,12 +170,14 @@ def with_form(path: Path, model_form: str) -> Path:
 
 
 def _fit_record(result: crashnlp.Result) -> dict:
-    """What a record keeps of its fit: the range, the model's miss on the fitted tests, and each
-    fitted test's metrics, model's and data's."""
+    """What a record keeps of its fit: the range, the model's miss on the fitted tests (per metric,
+    and per channel the root mean square over the curve), and each fitted test's metrics, model's
+    and data's."""
     ident = result.identified
     return {
         "range": ident.range.to_json(),
         "discrepancy": ident.discrepancy,
+        "channel_rmse": ident.channel_rmse,
         "tests": {name: {"model": t.metrics, "data": t.data_metrics} for name, t in result.tests.items()},
     }
 
