@@ -161,15 +161,18 @@ def followed(iterates: list[np.ndarray], returns: int, x: np.ndarray, judged: bo
 
 
 def came_back(iterates: list[np.ndarray]) -> bool:
-    """Whether the last iterate lies within CYCLE_RETURN of its step from an earlier one than
-    the one before it (CYCLE_START above)."""
+    """Whether the last iterate lies within CYCLE_RETURN of its stride from an earlier one than
+    the one before it (CYCLE_START above). Its stride is the longer of its own step and the step
+    before: a cycle may hold a step that IPOPT's line search cut to almost nothing, and the iterate
+    that step reaches comes back within a fraction of the cycle's steps, not of its own."""
     if len(iterates) < 3:
         return False
-    x, step = iterates[-1], float(np.abs(iterates[-1] - iterates[-2]).max(initial=0.0))
-    if step <= 0:
+    x = iterates[-1]
+    stride = max(float(np.abs(b - a).max(initial=0.0)) for a, b in zip(iterates[-3:-1], iterates[-2:]))
+    if stride <= 0:
         return False
     distances = np.abs(np.stack(iterates[:-2]) - x).max(axis=1, initial=0.0)  # one call for the window
-    return bool(distances.min() <= CYCLE_RETURN * step)
+    return bool(distances.min() <= CYCLE_RETURN * stride)
 
 
 def cycle(returns: int, steps: list[float]) -> bool:
