@@ -56,6 +56,25 @@ def test_a_long_uneven_cycle_is_a_cycle():
     assert cycle(*_returns([loop[k % 23] for k in range(23 + 3 * CYCLE_RUN)]))
 
 
+def test_a_cycle_through_a_step_the_line_search_cut_short_is_a_cycle():
+    """A loop of three iterates, one reached by a step cut to 1e-3 of a full one, as Gauss-Newton
+    ran on a tall van (cross-speed seed 2051, v03, 40 + 56 km/h) at 1 RK4 step per interval: a full
+    step, a cut one, a full one back, each lap a little off the last."""
+    a, b = np.array([1e-2, -2e-3, 4e-3]), np.array([-5e-3, 3e-3, 1e-3])
+    cut = 1e-3 * (b - a)
+    loop = [a, a + cut, b]
+    iterates = [loop[k % 3] * (1 + 1e-3 * k) for k in range(3 + 3 * CYCLE_RUN)]
+    assert cycle(*_returns(iterates))
+
+
+@pytest.mark.parametrize("ratio", [0.5, 0.9])
+def test_a_converging_run_with_steps_cut_short_is_not_a_cycle(ratio):
+    """Steps toward a point, every third one cut to 1e-3 by the line search, never come back."""
+    direction = np.array([1.0, -0.5, 0.25])
+    distance = np.cumsum([ratio**k * (1e-3 if k % 3 == 1 else 1.0) for k in range(4 * CYCLE_RUN)])
+    assert not cycle(*_returns([direction * d for d in distance]))
+
+
 @pytest.mark.parametrize("ratio", [0.5, 0.9, 0.99])
 def test_a_converging_run_is_not_a_cycle(ratio):
     """Steady steps toward a point, however slowly, never come back."""

@@ -27,14 +27,16 @@ from crashnlp.optimize.solved import Stop
 TAIL_RATIO, TAIL_SPREAD, TAIL_RUN, TAIL_STEP, TAIL_VIOLATION = 0.5, 0.02, 3, 3e-2, 1e-4
 
 # A cycle: the iterates go round a point instead of closing in on it. Rule: from CYCLE_START
-# iterations on, CYCLE_RUN iterates in a row each within CYCLE_RETURN of its last step from one of
-# the CYCLE_PERIOD iterates before the last (it came back), the steps over the last half of them
-# no shorter than CYCLE_SHRINK of the half before, the constraints met to CYCLE_VIOLATION.
-# Reason: where the crush crosses a kink of the force laws inside an integration step, the step's
-# derivatives jump as the parameters move the crossing across a stage of the step; the dual
-# infeasibility then stays put and IPOPT steps round and round the optimum, where a converging
-# run shortens its steps. A cycle can be long, so the window looks CYCLE_PERIOD back. Measured:
-# docs/design-notes.md, "Fits that finish: measured" and "The 4-degree row".
+# iterations on, CYCLE_RUN iterates in a row each within CYCLE_RETURN of its stride from one of the
+# CYCLE_PERIOD iterates before the last (it came back), the steps over the last half of them no
+# shorter than CYCLE_SHRINK of the half before, the constraints met to CYCLE_VIOLATION. An
+# iterate's stride is the longer of its step and the step before: a cycle may hold a step that the
+# line search cut to almost nothing. Reason: where the crush crosses a kink of the force laws
+# inside an integration step, the step's derivatives jump as the parameters move the crossing
+# across a stage of the step; the dual infeasibility then stays put and IPOPT steps round and round
+# the optimum, where a converging run shortens its steps. A cycle can be long, so the window looks
+# CYCLE_PERIOD back. Measured: docs/design-notes.md, "Fits that finish: measured", "The 4-degree
+# row" and "A cycle through a step cut short".
 CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATION = 20, 8, 30, 0.3, 0.7, 1e-3
 
 # A wander: the iterates left the start's basin. Rule, for a warm start only: after WANDER_START
@@ -161,15 +163,18 @@ def followed(iterates: list[np.ndarray], returns: int, x: np.ndarray, judged: bo
 
 
 def came_back(iterates: list[np.ndarray]) -> bool:
-    """Whether the last iterate lies within CYCLE_RETURN of its step from an earlier one than
-    the one before it (CYCLE_START above)."""
+    """Whether the last iterate lies within CYCLE_RETURN of its stride from an earlier one than
+    the one before it (CYCLE_START above). Its stride is the longer of its own step and the step
+    before: a cycle may hold a step that IPOPT's line search cut to almost nothing, and the iterate
+    that step reaches comes back within a fraction of the cycle's steps, not of its own."""
     if len(iterates) < 3:
         return False
-    x, step = iterates[-1], float(np.abs(iterates[-1] - iterates[-2]).max(initial=0.0))
-    if step <= 0:
+    x = iterates[-1]
+    stride = max(float(np.abs(b - a).max(initial=0.0)) for a, b in zip(iterates[-3:-1], iterates[-2:]))
+    if stride <= 0:
         return False
     distances = np.abs(np.stack(iterates[:-2]) - x).max(axis=1, initial=0.0)  # one call for the window
-    return bool(distances.min() <= CYCLE_RETURN * step)
+    return bool(distances.min() <= CYCLE_RETURN * stride)
 
 
 def cycle(returns: int, steps: list[float]) -> bool:
