@@ -130,12 +130,22 @@ def judge(v, form: str, split: str, folder: Path) -> dict:
         truth_prediction_lift_off_s=lift_off(truth["time"], truth["velocity"], truth["barrier_force"]),  # the generator's own
         truth_release_s=truth_release_s,  # when the generator's front end lets go at the predicted speed
         truth_release_mps=truth_release_mps,  # and its CG's velocity then (negative: on its rebound)
+        curve_at_crush_rel=_curve_miss(result, v, float(np.max(test.response.outputs["crush"]))),
         fitted_lift_off_s=min(fitted_offs) if fitted_offs else None,
         truth_lift_off_s=min(truth_offs) if truth_offs else None,
         covered={key: _covers(test.intervals.get(key), real[key]) for key in INTERVAL_METRICS},
         half_width={key: _half_width(test.intervals.get(key), test.metrics[key]) for key in INTERVAL_METRICS},
     )
     return row
+
+
+def _curve_miss(result, v: Vehicle, crush: float) -> float:
+    """The fitted loading curve's force at `crush` (the prediction's largest) relative to the
+    generator's, less one; the bench's problems use the force law, whose curve is the
+    breakpoints' piecewise-linear one."""
+    spring = result.identified.model["spring"]
+    fitted = np.interp(crush, spring["crush_breakpoints"], spring["values"])
+    return float(fitted / Body(v).load(crush) - 1.0)
 
 
 def _covers(interval: tuple[float, float] | None, value: float) -> bool:
@@ -399,7 +409,18 @@ def _folder(tmp: Path, name: str) -> Path:
 
 
 def _hidden_summary(rows: list[dict]) -> dict:
-    return {**_summary(rows, HIDDEN_SPLIT), "within_hidden": sum(r["within_hidden"] for r in rows)}
+    """_summary's, the fits within HIDDEN_TARGETS, and the predictions that let go while moving
+    forward where the generator does not, the fastest first: when and how fast each lets go, when
+    and how fast the generator does, and its fitted loading curve's miss at its largest crush."""
+    keys = ("vehicle", "lift_off_s", "lift_off_mps", "truth_release_s", "truth_release_mps", "curve_at_crush_rel")
+    unmatched = [
+        r for r in rows if r["status"] == "ok" and r["lift_off_s"] is not None and r["truth_prediction_lift_off_s"] is None
+    ]
+    return {
+        **_summary(rows, HIDDEN_SPLIT),
+        "within_hidden": sum(r["within_hidden"] for r in rows),
+        "unmatched_lift_offs": [{k: r[k] for k in keys} for r in sorted(unmatched, key=lambda r: -r["lift_off_mps"])],
+    }
 
 
 def _line(r: dict) -> str:
