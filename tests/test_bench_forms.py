@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from bench import report
 from bench.corpus import simulate, tall_engine_vehicle, tall_vehicle
 from bench.cross_speed import at_speed
 from bench.forms import OneLineBody, engine_pitch, release
@@ -36,3 +37,24 @@ def test_release_is_the_last_let_go_and_the_velocity_then():
     assert release(t, -t, np.array([0, 1, 2, 0, 3, 0.0])) == (5.0, -5.0)
     assert release(t, t, np.array([0, 1, 2, 0, 3, 1.0])) == (None, None)
     assert release(t, t, np.zeros(6)) == (None, None)
+
+
+def test_the_report_says_how_fast_a_prediction_and_its_generator_let_go():
+    f = {"lift_off_s": 0.0984, "lift_off_mps": 0.0856, "truth_prediction_lift_off_s": None}
+    f |= {"truth_release_s": 0.0978, "truth_release_mps": -0.0739}
+    assert report._lift_off_cell(f) == "98.4 at +0.086 m/s (generator lets go at 97.8 at -0.074 m/s)"
+    assert report._lift_off_cell({**f, "truth_prediction_lift_off_s": 0.0721}) == "98.4 at +0.086 m/s (generator 72.1)"
+    assert report._lift_off_cell({**f, "lift_off_s": None}) == ""
+
+
+def test_the_report_tables_each_engine_vans_pitch_fits():
+    fit, failed = {"status": "ok", "pitch_rmse_deg": 1.234}, {"status": "Maximum_Iterations_Exceeded"}
+    engine = {"40": {"impulse_share": 0.0, "pitch_rms_deg": 0.0}, "64": {"impulse_share": 0.4, "pitch_rms_deg": 6.0}}
+    vans = [
+        {"vehicle": f"te0{i}", "engine": engine, "one_speed": {"40": fit, "64": failed}, "variants": {"default": fit}}
+        for i in range(2)
+    ]
+    lines = report._pitch_floor_md({"vans": vans, "summary": {}})
+    rows = [line for line in lines if line.startswith("| te0")]
+    assert len(rows) == 2 and rows[0] == "| te00 | 0 % / 0.0 | 40 % / 6.0 | 1.23 | Maximum_Iterations_Exceeded | 1.23 |"
+    assert report._pitch_floor_md({"vans": [], "summary": {}}) == []
