@@ -273,9 +273,10 @@ class Body:
         return np.array([*body, s[8], engine_accel - body[3]])
 
 
-def simulate(v: Vehicle) -> dict[str, np.ndarray]:
-    """Noise-free response at 10 kHz: time, accel, velocity, displacement, pitch, barrier force (SI)."""
-    body = Body(v)
+def simulate(v: Vehicle, body_type: type[Body] = Body) -> dict[str, np.ndarray]:
+    """Noise-free response at 10 kHz: time, accel, velocity, displacement, pitch, barrier force and
+    the part of it that meets the engine (SI), of `body_type`'s equations of motion."""
+    body = body_type(v)
     t = DT * np.arange(int(round(DURATION / DT)) + 1)
     start = [0, 0, 0, v.speed, 0, 0, 0] + ([0, 0] if v.engine else [])
     sol = solve_ivp(body.rhs, (0.0, DURATION), start, method="LSODA", t_eval=t, rtol=1e-9, atol=1e-11, max_step=5e-5)
@@ -283,7 +284,16 @@ def simulate(v: Vehicle) -> dict[str, np.ndarray]:
         raise RuntimeError(f"{v.name}: {sol.message}")
     X, Z, phi, Xd = sol.y[:4]
     accel, force = np.array([body.body_accel(si) for si in sol.y.T]).T
-    return {"time": t, "accel": accel, "velocity": Xd, "displacement": X, "pitch": phi, "barrier_force": force}
+    engine = np.array([body.engine_forces(si)[1] for si in sol.y.T])
+    return {
+        "time": t,
+        "accel": accel,
+        "velocity": Xd,
+        "displacement": X,
+        "pitch": phi,
+        "barrier_force": force,
+        "engine_force": engine,
+    }
 
 
 def measured(v: Vehicle, truth: dict[str, np.ndarray]) -> dict[str, np.ndarray]:

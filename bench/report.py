@@ -829,11 +829,17 @@ def _interval_cells(s: dict) -> list[str]:
 
 
 def _lift_off_cell(f: dict) -> str:
-    """A prediction's lift-off (ms), and the generator's own at that speed where it has one."""
+    """A prediction's lift-off (ms; and the CG's speed then, where the row has it), and the
+    generator's own at that speed, or where it has none when it lets go and how fast it moves then."""
     if f["lift_off_s"] is None:
         return ""
+    cell = f"{1e3 * f['lift_off_s']:.1f}" + ("" if f.get("lift_off_mps") is None else f" at {f['lift_off_mps']:+.3f} m/s")
     truth = f["truth_prediction_lift_off_s"]
-    return f"{1e3 * f['lift_off_s']:.1f}" + ("" if truth is None else f" (generator {1e3 * truth:.1f})")
+    if truth is not None:
+        return cell + f" (generator {1e3 * truth:.1f})"
+    if f.get("truth_release_s") is None:
+        return cell
+    return cell + f" (generator lets go at {1e3 * f['truth_release_s']:.1f} at {f['truth_release_mps']:+.3f} m/s)"
 
 
 def _hidden_md(h: dict | None) -> list[str]:
@@ -885,7 +891,44 @@ def _hidden_md(h: dict | None) -> list[str]:
             rows,
         ),
         "",
+        *_pitch_floor_md(h.get("pitch_floor")),
     ]
+
+
+def _pitch_floor_md(floor: dict | None) -> list[str]:
+    """The engine vans' pitch under the rigid body's fits (bench/forms.py's pitch_floor), one row a van."""
+    if not floor or not floor["vans"]:
+        return []
+    vans = floor["vans"]
+    speeds, variants = list(vans[0]["one_speed"]), list(vans[0]["variants"])
+    rows = [
+        [
+            v["vehicle"],
+            *(f"{100 * v['engine'][k]['impulse_share']:.0f} % / {v['engine'][k]['pitch_rms_deg']:.1f}" for k in speeds),
+            *(_pitch_cell(v["one_speed"][k]) for k in speeds),
+            *(_pitch_cell(v["variants"][k]) for k in variants),
+        ]
+        for v in vans
+    ]
+    head = [
+        "van",
+        *(f"{k} km/h: engine's impulse share / its pitch on the front end's line (deg)" for k in speeds),
+        *(f"{k} km/h fitted alone (deg)" for k in speeds),
+        *(f"joint, {k.replace('_', ' ')} (deg)" for k in variants),
+    ]
+    return [
+        "The engine vans' pitch under the rigid body: the engine's share of the barrier's impulse and the RMS pitch its "
+        "push would add if it acted on the front end's line of action, as in a form with one front-end force; the fitted "
+        "pitch RMSE of each speed fitted alone, and of the joint fit as made above, with the pitch weighted up, with the "
+        "suspension estimated, with the CG's height and the pitch inertia free.",
+        "",
+        *_table(head, rows),
+        "",
+    ]
+
+
+def _pitch_cell(fit: dict) -> str:
+    return f"{fit['pitch_rmse_deg']:.2f}" if "pitch_rmse_deg" in fit else fit["status"]
 
 
 def detectors_md(r: dict) -> list[str]:

@@ -379,6 +379,43 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
             f"forms.hidden.{form}.no_stop": str(s["no_stop"]),
             f"forms.hidden.{form}.no_stop_in_truth": str(s["no_stop_in_truth"]),
         }
+    rigid = (hidden or {}).get("summary", {}).get("rigid-body", {})
+    out |= _unmatched("forms.hidden.rigid-body.unmatched", rigid.get("unmatched_lift_offs", []))
+    floor = (hidden or {}).get("pitch_floor")
+    return out | (_pitch_floor(floor["summary"]) if floor else {})
+
+
+def _unmatched(prefix: str, rows: list[dict[str, Any]]) -> dict[str, str]:
+    """The fastest of the rigid body's hidden predictions that let go while moving forward where the
+    generator does not (bench/forms.py): when (ms) and how fast (m/s) it lets go, when the generator
+    lets go and its rebound then (m/s, back from the barrier), its fitted loading curve's miss at its
+    largest crush (%)."""
+    if not rows:
+        return {}
+    r = rows[0]
+    return {
+        f"{prefix}.lift_off_ms": f"{r['lift_off_s'] * 1e3:.1f}",
+        f"{prefix}.lift_off_mps": f"{r['lift_off_mps']:.3f}",
+        f"{prefix}.truth_release_ms": f"{r['truth_release_s'] * 1e3:.1f}",
+        f"{prefix}.truth_rebound_mps": f"{-r['truth_release_mps']:.3f}",
+        f"{prefix}.curve_pct": f"{r['curve_at_crush_rel'] * 100:+.0f}",
+    }
+
+
+def _pitch_floor(s: dict[str, Any]) -> dict[str, str]:
+    """The engine vans' pitch (bench/forms.py's pitch_floor), forms.hidden.floor.<what>: per fitted
+    speed the range of the pitch RMSE of that speed fitted alone (deg), of the engine's share of the
+    barrier's impulse (%) and of the pitch its push would add on the front end's line (deg); per
+    joint fit the range of its pitch RMSE (deg), and of the best any of them reached."""
+    prefix = "forms.hidden.floor"
+    out = {f"{prefix}.vans": str(s["vehicles"])}
+    for kmh in s["one_speed_deg"]:
+        for end in ("min", "max"):
+            out[f"{prefix}.one_speed_{kmh}.{end}"] = f"{s['one_speed_deg'][kmh][end]:.2f}"
+            out[f"{prefix}.share_{kmh}.{end}"] = f"{s['impulse_share'][kmh][end] * 100:.0f}"
+            out[f"{prefix}.engine_pitch_{kmh}.{end}"] = f"{s['engine_pitch_rms_deg'][kmh][end]:.1f}"
+    for key, spread in {**s["variants_deg"], "best": s["best_deg"]}.items():
+        out |= {f"{prefix}.{key}.{end}": f"{spread[end]:.2f}" for end in ("min", "max")}
     return out
 
 

@@ -5,6 +5,7 @@ parameters."""
 from __future__ import annotations
 
 import csv
+import dataclasses
 
 import casadi as ca
 import numpy as np
@@ -12,8 +13,11 @@ import pytest
 import sympy as sp
 from builders import BASE, ROOT, assert_contact_force_is_the_front_ends, make_case, merge
 
+from bench.corpus import Body, Vehicle, tall_vehicle
+from bench.corpus import simulate as generate
+from bench.forms import release
 from crashnlp.analysis.energy import energy_audit
-from crashnlp.analysis.metrics import lift_off
+from crashnlp.analysis.metrics import STOPPED, lift_off, zero_crossing
 from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.models.form import OUTPUTS, Structure
@@ -182,6 +186,52 @@ def test_lift_off_finds_a_front_end_that_lets_go_while_the_cg_moves_on():
     assert t is not None
     i = int(np.searchsorted(r.time, t))
     assert r["contact_force"][i] == 0 and r["velocity"][i] > 0
+
+
+def _generators_problem(v: Vehicle) -> dict:
+    """The rigid-body form of bench.corpus's generator `v`: its body, its load curve sampled at
+    101 breakpoints, its unloading line."""
+    crush = np.linspace(0.0, v.load_crush[-1], 101)
+    suspension = {"k_front": v.k_front, "k_rear": v.k_rear, "c_front": v.c_front, "c_rear": v.c_rear}
+    body = ("mass", "pitch_inertia", "cg_to_impact", "cg_above_impact", "cg_to_front_axle", "cg_to_rear_axle")
+    return {
+        "name": "generator",
+        "vehicle": {**{k: getattr(v, k) for k in body}, "speed": v.speed, "suspension": suspension},
+        "model": {
+            "form": "rigid-body",
+            "spring": {"law": "force", "crush_breakpoints": crush.tolist(), "values": Body(v).load(crush).tolist()},
+            "unloading": {"law": "plastic", "stiffness": v.unloading_stiffness},
+        },
+        "tests": [{"name": "t", "duration": 0.2}],
+        "simulation": {"dt": 1e-4},
+    }
+
+
+@pytest.mark.parametrize("index", [0, 1])
+def test_the_form_lets_go_of_the_barrier_when_an_independent_rigid_body_does(index, tmp_path):
+    """bench.corpus's generator (a planar body written without crashnlp) and the form given its
+    load curve and unloading line (and neither crush damping nor the wall's vertical force, which
+    the form does not have), at 56 km/h: on both tall vans the pitch draws the contact point back
+    while the CG still moves forward at more than 0.5 m/s, so the front end unloads before the CG
+    stops; van 0 then lets go while still moving forward, van 1 stops first. The form does either
+    when and as fast as the generator does: lifting off while moving forward is the body's doing,
+    not the contact law's."""
+    v = dataclasses.replace(tall_vehicle(index, 7, speed=56 / 3.6), crush_damping=0.0, vertical_ratio=0.0)
+    g = generate(v)
+    r = Case(problem_from_dict(_generators_problem(v), tmp_path)).simulate()["t"]
+    back = np.flatnonzero((r["crush_rate"] < 0) & (r["contact_force"] > 0))
+    assert back.size and r["velocity"][back[0]] > 0.5
+    stops = [zero_crossing(t, vel, STOPPED * v.speed) for t, vel in ((g["time"], g["velocity"]), (r.time, r["velocity"]))]
+    offs = [lift_off(g["time"], g["velocity"], g["barrier_force"]), lift_off(r.time, r["velocity"], r["contact_force"])]
+    ends = [release(g["time"], g["velocity"], g["barrier_force"]), release(r.time, r["velocity"], r["contact_force"])]
+    assert (offs[0] is None) == (offs[1] is None) == (index == 1)
+    assert np.isnan(stops[0]) == np.isnan(stops[1]) == (index == 0)
+    if index == 1:
+        assert abs(stops[0] - stops[1]) < 1e-4
+    else:
+        assert abs(offs[0] - offs[1]) < 2e-4
+    assert abs(ends[0][0] - ends[1][0]) < 2e-4 and abs(ends[0][1] - ends[1][1]) < 0.02
+    assert abs(np.degrees(g["pitch"].max() - r["pitch"].max())) < 0.05
 
 
 CHANNELS = {"accel": ("accel_g", "g"), "velocity": ("vel_mps", "m/s"), "pitch": ("pitch_deg", "deg")}
