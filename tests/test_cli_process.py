@@ -12,7 +12,7 @@ from pathlib import Path
 import pytest
 from builders import ROOT
 
-from crashnlp.__main__ import BLAS_THREADS_ENV
+from crashnlp.__main__ import BLAS_THREADS_ENV, GC_YOUNG
 
 pytestmark = pytest.mark.integration  # processes of their own
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
@@ -54,19 +54,20 @@ def test_the_end_with_daemon_threads_alone_is_at_once(tmp_path):
 @pytest.mark.parametrize(("given", "expected"), [(None, "1"), ("2", "2")])
 def test_the_command_runs_with_one_blas_thread_unless_the_user_set_them(given, expected):
     """The variable is set before numpy loads (numpy then starts no OpenBLAS thread: the process
-    has one thread when the command ends), and a value the user gave is kept."""
+    has one thread when the command ends), and a value the user gave is kept; the collector's
+    youngest generation is collected every GC_YOUNG allocations."""
     env = {k: v for k, v in os.environ.items() if k != BLAS_THREADS_ENV}
     if given is not None:
         env[BLAS_THREADS_ENV] = given
     code = (
         "import atexit, os, sys; sys.argv = ['crashnlp', 'schema'];"
         " atexit.register(lambda: print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'],"
-        " len(os.listdir('/proc/self/task')), file=sys.stderr));"
+        " len(os.listdir('/proc/self/task')), __import__('gc').get_threshold()[0], file=sys.stderr));"
         " from crashnlp.__main__ import run; run()"
     )
     proc = python(code, env)
-    loaded, value, threads = proc.stderr.split()
-    assert (proc.returncode, loaded, value) == (0, "True", expected)
+    loaded, value, threads, young = proc.stderr.split()
+    assert (proc.returncode, loaded, value, int(young)) == (0, "True", expected, GC_YOUNG)
     if given is None and Path("/proc/self/task").is_dir():
         assert threads == "1"
 
