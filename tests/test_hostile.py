@@ -22,7 +22,7 @@ from crashnlp.results.jsonfile import write_json
 from crashnlp.studies.store import CaseStore
 
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
-CLI = [sys.executable, "-m", "crashnlp.cli"]
+CLI = [sys.executable, "-m", "crashnlp"]  # the console command (crashnlp.__main__), as a user starts it
 
 
 def pickup(changes: dict | None = None, drop: tuple[str, ...] = ()) -> dict:

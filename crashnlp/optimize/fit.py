@@ -111,13 +111,20 @@ def _recorded(nlp: NLPBuilder, tr: Transcript, name: str, rec: Recording, veloci
     u = nlp.variable(f"{tr.test.name}.{name}.forward{RECORDED}", rec.size, u0, scale=size)
     s = nlp.variable(f"{tr.test.name}.{name}.backward{RECORDED}", rec.size, s0, scale=size)
     scale = nlp.parameter(f"{tr.test.name}.{name}.recorded_scale", size)
-    a, b = (ca.DM.triplet(*rec.lower(taps), rec.size, rec.size) for taps in (rec.a, rec.b))
+    a, b = (_sparse_dm(*rec.lower(taps), (rec.size, rec.size)) for taps in (rec.a, rec.b))
     rows, cols = np.nonzero(rec.extend)
-    record = ca.mtimes(ca.DM.triplet(rows, cols, rec.extend[rows, cols], *rec.extend.shape), y.T)
+    record = ca.mtimes(_sparse_dm(rows, cols, rec.extend[rows, cols], rec.extend.shape), y.T)
     nlp.constrain(DYNAMICS, (ca.mtimes(a, u) - ca.mtimes(b, record)) / scale, test=tr.test.name, detail=f"{name}.forward")
     backward = ca.mtimes(a, s) - ca.mtimes(b, u[::-1]) - ca.DM(rec.start) * u[-1]
     nlp.constrain(DYNAMICS, backward / scale, test=tr.test.name, detail=f"{name}.backward")
     return s[rec.at.tolist()].T
+
+
+def _sparse_dm(rows: np.ndarray, cols: np.ndarray, values: np.ndarray, shape: tuple[int, int]) -> ca.DM:
+    """The sparse DM of the nonzeros (rows, cols, values). The indices go to CasADi as lists: SWIG
+    converts a numpy integer array element by element, a float array at once (the pickup's three
+    matrices, up to 630 nonzeros: 5 to 8 ms of CPU against under 1 ms, measured)."""
+    return ca.DM.triplet(rows.tolist(), cols.tolist(), values, *shape)
 
 
 @dataclass
