@@ -19,8 +19,8 @@ from bench.calibration import (
     TARGETS,
     calibrate,
     evaluate,
-    judged,
     held_out_records,
+    judged,
     with_form,
 )
 from bench.corpus import random_vehicle
