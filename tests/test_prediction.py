@@ -408,7 +408,12 @@ def test_a_front_end_that_lets_go_while_the_cg_moves_on_is_said_so():
         t, {"velocity": np.array([5, 4, 3, 2, 1, -0.5]), "contact_force": np.array([0, 1e5, 2e5, 0, 0, 0])}, np.zeros((0, 6))
     )
     (note,) = _let_go("t1", touched)
-    assert note.startswith("t1:") and "60.0 ms" in note and "2.00 m/s" in note
+    assert note.startswith("t1:") and "60.0 ms" in note and "2.000 m/s" in note
+    assert "zero velocity (93.3 ms) is when that drift ends" in note  # 1 -> -0.5 m/s from 80 to 100 ms
+    creep = np.array([5, 4, 3, 0.02, 0.01, -0.5])
+    creeping = Response(t, {"velocity": creep, "contact_force": np.array([0, 1e5, 2e5, 0, 0, 0])}, np.zeros((0, 6)))
+    (note,) = _let_go("t1", creeping)  # slower than the lift-off line of the benchmarks, still said
+    assert "60.0 ms" in note and "0.020 m/s" in note and "zero velocity (80.4 ms)" in note
     stopped = Response(
         t, {"velocity": np.array([5, 4, 3, 0, -0.2, -0.5]), "contact_force": np.array([0, 1e5, 2e5, 0, 0, 0])}, np.zeros((0, 6))
     )

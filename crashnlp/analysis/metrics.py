@@ -49,13 +49,13 @@ class CrashMetrics:
     olc: float
 
 
-def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
+def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray, faster_than: float = DRIFT) -> float | None:
     """The first time the front end lets go of the barrier (contact force back to zero after it
-    was positive) while the CG still moves toward it faster than DRIFT; None when it never does.
-    A model whose pitch lifts the front end off stops late or not at all: its crush and stop are
-    then the pitch's, not the structure's."""
+    was positive) while the CG still moves toward it faster than `faster_than` (m/s); None when it
+    never does. A model whose pitch lifts the front end off stops late or not at all: its crush and
+    stop are then the pitch's, not the structure's."""
     touched = np.cumsum(contact > 0) > 0
-    off = np.flatnonzero(touched & (contact <= 0) & (velocity > DRIFT))
+    off = np.flatnonzero(touched & (contact <= 0) & (velocity > faster_than))
     return float(t[off[0]]) if off.size else None
 
 

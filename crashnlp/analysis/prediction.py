@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
-from crashnlp.analysis.metrics import DRIFT, lift_off
+from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import data_curves, response_metrics
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
@@ -224,16 +224,19 @@ def _drift(name: str, response: Response) -> tuple[str, ...]:
 
 
 def _let_go(name: str, response: Response) -> tuple[str, ...]:
-    """A note when the front end lets go of the barrier while the CG still moves toward it
-    (crashnlp.analysis.metrics.lift_off): what the response does from then on is the pitch's, not the
-    structure's."""
-    t = lift_off(response.time, response["velocity"], response["contact_force"])
+    """A note when the front end lets go of the barrier while the CG still moves toward it, however
+    slowly (crashnlp.analysis.metrics.lift_off): what the response does from then on is the pitch's,
+    not the structure's. A creep of a few cm/s matters most: the time of zero velocity is then when
+    the creep ends, tens of ms after the structure let go."""
+    t = lift_off(response.time, response["velocity"], response["contact_force"], faster_than=0.0)
     if t is None:
         return ()
     v = float(np.interp(t, response.time, response["velocity"]))
+    stop = zero_crossing(response.time, response["velocity"])
+    drift = f"; its time of zero velocity ({stop * 1e3:.1f} ms) is when that drift ends" if stop > t else ""
     return (
         f"{name}: the front end lets go of the barrier at {t * 1e3:.1f} ms while the CG still moves toward it at "
-        f"{v:.2f} m/s (its pitch lifted it off): its crush and stop from then on are the pitch's",
+        f"{v:.3f} m/s (its pitch lifted it off): its crush and stop from then on are the pitch's{drift}",
     )
 
 
