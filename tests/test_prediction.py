@@ -100,6 +100,32 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
 
 
 @pytest.mark.integration
+def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_calibrated_form_term(tmp_path):
+    """A record cut at 50 ms, the vehicle still moving: the fit has no miss of its own of the stop,
+    the rebound or the max displacement, yet a prediction at another speed carries their
+    calibrated form term, says where it comes from, and covers the generator's values."""
+    v = dataclasses.replace(random_vehicle(3, 2030, speed=56 / 3.6), speed=48 / 3.6)
+    write_csv(tmp_path / "t1.csv", measured(v, simulate(v)))
+    raw = minimal_problem(v, "t1.csv", SMALL)
+    raw["tests"][0]["data"]["window"] = [0.0, 0.05]
+    path = tmp_path / "cut.yaml"
+    path.write_text(yaml.safe_dump(raw, sort_keys=False))
+    result = crashnlp.identify(path)
+    assert result.ok
+    ended = ("max_displacement_m", "time_zero_velocity_s", "rebound_velocity_mps")
+    assert not set(ended) & set(result.identified.discrepancy)  # the record reaches none of them
+    prediction = crashnlp.simulate(_new_speed(tmp_path, raw, 40), params=result)["new"]
+    real = simulate(dataclasses.replace(v, speed=40 / 3.6))
+    truth = crash_metrics(real["time"], real["accel"], real["velocity"], real["displacement"])
+    for key, value in (("max_displacement_m", truth.max_displacement), ("time_zero_velocity_s", truth.t_zero_velocity)):
+        low, high = prediction.intervals[key]
+        assert low <= value <= high, (key, value, (low, high))
+        assert prediction.parts[key].unit > 0  # the calibrated form term carries it
+        assert any(n.startswith(f"new: {key}: the fitted tests' records end before it") for n in prediction.notes)
+    assert not any("records end before" in n and "peak_decel_g" in n for n in prediction.notes)  # the record holds the peak
+
+
+@pytest.mark.integration
 def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted):
     folder, _, raw, result, _ = fitted
     heavier = yaml.safe_load(_new_speed(folder, raw, 48).read_text())

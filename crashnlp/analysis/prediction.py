@@ -32,7 +32,10 @@ to how far the curve has moved from what the model knows exactly (zero force, th
 state): so the band at a metric's instant is that metric's interval, and there is no band after
 the vehicle has left the barrier or at t = 0.
 
-A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
+A metric whose fitted tests' records end before it (a vehicle still moving at the record's end
+has no stop, rebound or max displacement in it) has no miss of the fit's own: where the curve it
+is read from was fitted, its interval holds the curves' miss and the calibrated form term, and a
+note says so. A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
 interval, nor does anything when an estimated value is not determined by the data: the
 prediction says so in `notes`, instead of a band that only looks narrow.
 
@@ -78,6 +81,8 @@ from crashnlp.results.result import Result
 if TYPE_CHECKING:
     from crashnlp.results.plots import Job  # not at run time: matplotlib
 
+# the fitted channels that determine the CG's motion, and with it every metric but the pitch
+MOTION = ("accel", "velocity", "displacement")
 # response columns and the metric whose non-parameter half-width their band carries
 BAND_METRIC = {
     "displacement": "max_displacement_m",
@@ -275,13 +280,18 @@ def _uncertainty(
     intervals: dict[str, tuple[float, float] | None] = {}
     parts, qs, notes = {}, {}, []
     for i, key in enumerate(PREDICTED_KEYS):
-        value, miss = metrics.get(key), identified.discrepancy.get(key)
+        value, (miss, unreached) = metrics.get(key), _fitted_miss(identified, key)
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
         if miss is None or value is None or not np.isfinite(value):
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue
+        if unreached:
+            notes.append(
+                f"{test.name}: {key}: the fitted tests' records end before it; its interval holds the fitted"
+                " curves' miss and the calibrated form term, not the fit's own miss of it"
+            )
         parts[key] = IntervalParts(
             value,
             _parameter_half(key, gm[:, i], gy, cov, response),
@@ -296,6 +306,19 @@ def _uncertainty(
         intervals[key] = parts[key].interval(q)
     notes += _dominated(test.name, parts, qs)
     return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+
+
+def _fitted_miss(identified: IdentifiedModel, key: str) -> tuple[float | None, bool]:
+    """The fitted tests' relative miss of a metric (None where no fitted test measured its curve),
+    and whether their records end before it. A record that ends with the vehicle still moving has
+    no stop, rebound or max displacement in it, so the fit has no miss of them; where the curve
+    they are read from was fitted (the CG's motion, or the pitch for the pitch), the fit's own miss
+    is taken as zero and the interval holds the curves' miss and the calibrated form term."""
+    miss = identified.discrepancy.get(key)
+    if miss is not None:
+        return miss, False
+    curves = ("pitch",) if METRIC[key].channel == "pitch" else MOTION
+    return (0.0, True) if any(c in identified.channel_rmse for c in curves) else (None, False)
 
 
 def _parameter_half(key: str, gm: np.ndarray, gy: dict[str, np.ndarray], cov: np.ndarray, response: Response) -> float:
