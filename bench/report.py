@@ -949,7 +949,7 @@ def detectors_md(r: dict) -> list[str]:
         f"{' and at '.join(' + '.join(f'{k:g}' for k in j) for j in r['joints_kmh'])} km/h, watched (as crashnlp fits) and left alone (Gauss-Newton, no "
         f"watch, IPOPT's own termination, at most {r['left_alone']['max_iter']} iterations). Per rule: fires, the fits it "
         "fired on, false alarms (a tail whose Newton did not finish the same fit; a cycle on a fit that converged left "
-        "alone; a steady stop away from the fit left alone). Misses: runs that reached their limit with no rule firing. "
+        "alone; a steady stop away from the fit left alone; an unsettled cycle whose exact Hessian did not converge). Misses: runs that reached their limit with no rule firing. "
         "Apart: the largest parameter difference between the watched fit and the fit left alone, in standard errors.",
         "",
         *_table([*head, "apart (std)"], rows),

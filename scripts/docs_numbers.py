@@ -443,7 +443,7 @@ def _detectors(bench: dict[str, Any]) -> dict[str, str]:
         out[f"detectors.{role}.apart"] = f"{s['apart_std_max']:.0e}"
         for rule, q in s["rules"].items():  # the fires; the false alarms where a rule can stop a fit it should not
             out[f"detectors.{role}.{rule}.fires"] = str(q["fires"])
-            if rule in ("tail", "cycle", "steady"):
+            if rule in ("tail", "cycle", "steady", "unsettled"):
                 out[f"detectors.{role}.{rule}.false_alarms"] = str(q["false_alarms"])
     return out
 

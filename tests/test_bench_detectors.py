@@ -33,6 +33,8 @@ def test_each_run_is_named_by_the_rule_that_stopped_it():
     assert run(NEWTON, solved("Solved_To_Acceptable_Level")).kind == "newton"
     settle = run(Solver(ipopt=dict(SETTLE_OPTIONS)), solved("Solved_To_Acceptable_Level"))
     assert (settle.kind, settle.fired) == ("settle", "settle")
+    unsettled = run(Solver(ipopt=dict(SETTLE_OPTIONS)), solved("User_Requested_Stop", stopped="unsettled"))
+    assert (unsettled.kind, unsettled.fired) == ("settle", "unsettled")
     assert run(GN, solved()).fired is None and run(GN, solved("Maximum_Iterations_Exceeded")).fired is None
 
 
@@ -50,6 +52,13 @@ def test_a_cycle_is_a_false_alarm_where_the_fit_converged_left_alone():
     cycle = run(GN, solved("User_Requested_Stop", stopped="cycle"))
     assert detectors._judged([cycle], 0, True, None, None) == {"rule": "cycle", "at": 10, "false_alarm": True}
     assert not detectors._judged([cycle], 0, False, None, None)["false_alarm"]
+
+
+def test_an_unsettled_cycle_is_a_false_alarm_where_the_exact_hessian_does_not_converge():
+    unsettled = run(Solver(ipopt=dict(SETTLE_OPTIONS)), solved("User_Requested_Stop", stopped="unsettled"))
+    judged = lambda runs: detectors._judged(runs, 0, False, None, None)["false_alarm"]  # noqa: E731
+    assert not judged([unsettled, run(NEWTON, solved())])
+    assert judged([unsettled, run(NEWTON, solved("Maximum_Iterations_Exceeded"))]) and judged([unsettled])
 
 
 def test_the_summary_counts_fires_false_alarms_and_runs_that_hit_their_limit_unseen():

@@ -9,6 +9,7 @@ cycle leads to is checked on scripted runs."""
 
 from __future__ import annotations
 
+import casadi as ca
 import numpy as np
 import pytest
 from builders import ROOT, make_case, small_pickup_problem
@@ -19,7 +20,7 @@ from crashnlp.optimize.identify import identify
 from crashnlp.optimize.ocp import OptimalControl
 from crashnlp.optimize.options import SETTLE_OPTIONS, ipopt_options
 from crashnlp.optimize.solved import SolveResult
-from crashnlp.optimize.watch import CYCLE_RUN, cycle, followed
+from crashnlp.optimize.watch import CYCLE_RUN, CYCLE_START, Watch, cycle, followed
 from crashnlp.problem import load_problem
 from crashnlp.problem.schema import Solver
 from crashnlp.transcription.collocation import GAUSS_NEWTON_OPTIONS
@@ -87,6 +88,37 @@ def test_an_oscillation_that_closes_in_is_not_a_cycle():
     """Alternating steps that shrink by half each time do come back, but their steps shrink."""
     iterates = [np.array([(-0.5) ** k, 0.0]) for k in range(4 * CYCLE_RUN)]
     assert not cycle(*_returns(iterates))
+
+
+def _watched_settle(objective_swing: float, violation: float) -> Watch:
+    """A Watch on a settle's run (looks: settle) fed a loop of four iterates, as the settle of
+    seed 3200's e03 (40 + 64 km/h, 16 RK4 steps) went round: steps of 0.1 to 0.16 in the scaled
+    variables, the objective about 15.4 swinging by `objective_swing` (relative) from one
+    iterate to the next, each constraint off by `violation`."""
+    corners = [np.array(c, dtype=float) * 0.06 for c in ((1, 0), (0, 1), (-1, 0), (0, -1))]
+    watch = Watch(2, 1)
+    watch.start(np.zeros(1), np.zeros(1), None, frozenset({"settle"}))
+    for k in range(2 * CYCLE_START):
+        f = 15.4 * (1 + objective_swing * (-1) ** k)
+        watch.eval([ca.DM(corners[k % 4]), ca.DM(f), ca.DM([violation]), ca.DM(), ca.DM(), ca.DM()])
+        if watch.stopped is not None:
+            break
+    return watch
+
+
+@pytest.mark.parametrize("objective_swing, violation", [(5e-3, 1e-8), (1e-7, 3e-4)])
+def test_a_settles_cycle_that_its_acceptable_level_refuses_is_unsettled(objective_swing, violation):
+    """A settle's iterates going round with the objective swinging past SETTLE_OPTIONS' steady
+    tolerance, or with the constraints off by more than its own, never settle: the watch sees the
+    cycle as soon as the cycle rule would (CYCLE_START), and says it does not settle."""
+    watch = _watched_settle(objective_swing, violation)
+    assert watch.stopped == "unsettled" and watch.count == CYCLE_START
+
+
+def test_a_settles_cycle_at_a_steady_objective_is_left_to_settle():
+    """The same loop with the objective steady to SETTLE_OPTIONS' tolerance and the constraints
+    met: the settle's acceptable level ends it, and the watch does not."""
+    assert _watched_settle(SETTLE_OPTIONS["acceptable_obj_change_tol"] / 10, 1e-8).stopped is None
 
 
 def test_a_collocation_nlp_regularizes_its_constraint_block_for_gauss_newton():
@@ -223,8 +255,23 @@ def test_a_cycle_is_refined_where_the_steps_can_be_and_settled_where_not(monkeyp
         assert result.cycling and len(calls) == 1
         return
     assert result.converged and result.settled and result.iterations == 20
-    assert calls[1]["start"] is cycled
+    assert calls[1]["start"] is cycled and calls[1]["looks"] == {"settle"}
     assert SETTLE_OPTIONS.items() <= calls[1]["spec"].ipopt.items()
+
+
+def test_a_cycle_that_does_not_settle_is_finished_by_the_exact_hessian(monkeypatch):
+    """Where the settle's own run is seen going round unsettled (crashnlp.optimize.watch), the
+    exact Hessian finishes warm from the settle's iterate, every run counted."""
+    runs = [
+        _run("User_Requested_Stop", stopped="cycle"),
+        _run("User_Requested_Stop", stopped="unsettled"),
+        _run("Solve_Succeeded"),
+    ]
+    calls = _scripted(monkeypatch, runs)
+    result = solve_module.solve(None, Solver(), progress=None)
+    assert result.converged and not result.settled and result.iterations == 30
+    assert calls[1]["looks"] == {"settle"} and SETTLE_OPTIONS.items() <= calls[1]["spec"].ipopt.items()
+    assert calls[2]["spec"].hessian == "exact" and calls[2]["start"].z is runs[1].z and len(calls) == 3
 
 
 def test_gauss_newton_after_a_newton_that_did_not_finish_settles_its_cycle(monkeypatch):

@@ -36,7 +36,9 @@ STEADY_OPTIONS = {
 # the fit's tolerance (relative) with the constraints met. The dual infeasibility is not asked to
 # fall, since the derivatives' jump at the kink keeps it up. Reason: going on round the cycle
 # would move the parameters by a few millionths of their standard errors (docs/design-notes.md,
-# "Fits that finish: measured").
+# "Fits that finish: measured"). The settle's run is watched: a cycle there whose objective or
+# constraints these options refuse never settles, and the exact Hessian finishes from it
+# (crashnlp.optimize.watch, "A cycle that does not settle").
 SETTLE_OPTIONS = {**STEADY_OPTIONS, "acceptable_obj_change_tol": 1e-5, "acceptable_iter": 15}
 # Newton from where Gauss-Newton's tail began: IPOPT takes the iterate and its multipliers as
 # they are, with a barrier already at its floor.

@@ -53,11 +53,14 @@ def solve(
     - A cycle: the run stops there, since the exact Hessian sees the same kink. A `refinable`
       solve returns `cycling`, and the caller refines the integration
       (crashnlp.optimize.identify); any other settles it to IPOPT's acceptable level
-      (SETTLE_OPTIONS).
+      (SETTLE_OPTIONS), watched: where the settle's iterates go round with an objective or
+      constraints its acceptable level refuses, it cannot settle, and the exact Hessian
+      finishes warm from its iterate (`settled`).
     - A wander from a neighbour's solution: Gauss-Newton starts over from it with a small,
       monotone barrier (WANDER_OPTIONS).
     The result counts the iterations and time of every run. Measured: docs/design-notes.md,
-    "Gauss-Newton's slow tail" and "Fits that finish: measured"."""
+    "Gauss-Newton's slow tail", "Fits that finish: measured" and "A cycle that does not
+    settle"."""
     if spec.hessian != "auto" or hessian_kind(nlp, spec) != "gauss-newton":
         return _solve(nlp, spec, verbose, progress)
     limit = min(int(spec.ipopt.get("max_iter", 1000)), AUTO_GAUSS_NEWTON_ITER)
@@ -77,12 +80,28 @@ def solve(
         # Newton did not finish what Gauss-Newton began: Gauss-Newton all the way, as without the tail
         first = after(after(first, newton), _solve(nlp, gauss_newton, verbose, progress, looks=frozenset({"cycle"})))
     if first.cycling and not refinable:
-        settle = gauss_newton.model_copy(update={"ipopt": {**SETTLE_OPTIONS, **gauss_newton.ipopt}})
-        first = dataclasses.replace(after(first, _solve(nlp, settle, verbose, progress, start=first)), settled=True)
+        first = settled(nlp, gauss_newton, exact, first, verbose, progress)
     crawled = first.return_status == "Maximum_Iterations_Exceeded" and limit >= AUTO_GAUSS_NEWTON_ITER
     if first.converged or not (crawled or first.return_status in GAUSS_NEWTON_FAILURES):
         return first
     return after(first, _solve(nlp, exact, verbose, progress))
+
+
+def settled(
+    nlp: NLPBuilder, gauss_newton: Solver, exact: Solver, cycled: SolveResult, verbose: bool, progress: TextIO | None
+) -> SolveResult:
+    """A cycle settled: Gauss-Newton warm from the `cycled` run's iterate, to IPOPT's acceptable
+    level (SETTLE_OPTIONS), watched for a cycle that does not settle (crashnlp.optimize.watch);
+    where one goes round, the exact Hessian finishes warm from the settle's iterate. Such a cycle
+    swings the objective or opens the constraints from one iterate to the next, and each lap
+    breaks the run of steady iterates the settle stops at, so that the settle runs to its limit;
+    the exact Hessian started there converges (docs/design-notes.md, "A cycle that does not
+    settle")."""
+    settle = gauss_newton.model_copy(update={"ipopt": {**SETTLE_OPTIONS, **gauss_newton.ipopt}})
+    run = after(cycled, _solve(nlp, settle, verbose, progress, start=cycled, looks=frozenset({"settle"})))
+    if run.stopped != "unsettled":
+        return dataclasses.replace(run, settled=True)
+    return after(run, _solve(nlp, exact, verbose, progress, start=run))
 
 
 def finishes(tail: SolveResult, newton: SolveResult) -> bool:

@@ -11,7 +11,8 @@ import numpy as np
 
 from crashnlp.numerics.nlp import SUCCESS
 
-Stop = Literal["cycle", "wander"]  # why the Watch (crashnlp.optimize.watch) stopped Gauss-Newton short
+# why the Watch (crashnlp.optimize.watch) stopped Gauss-Newton short: a cycle, a wander, a settle's cycle that does not settle
+Stop = Literal["cycle", "wander", "unsettled"]
 
 
 @dataclass
