@@ -1,5 +1,5 @@
 """The whole_process section's commands, this checkout against an earlier commit, in one run:
-`python bench/side_by_side.py [REF] [--repeats N]` (REF: main by default).
+`python bench/side_by_side.py [REF] [--repeats N] [--new M]` (REF: main by default).
 
 A change that shaves milliseconds off a command is measured against the code before it on the
 same machine in the same minutes, not against last week's report: REF's `crashnlp` package is
@@ -8,7 +8,8 @@ exported to a temporary folder and each command runs as a process under either p
 the floor (bench/whole_process.py, one OpenBLAS thread). Measured, per version: a new problem
 written by `crashnlp init` identified three times from an empty cache of its own (run 3 once the
 library compiled after run 1 is ready), then the warm pickup with and without figures
-(medians of N turns), wall and CPU time and their ratios to the floor's median.
+(medians of N turns), wall and CPU time and their ratios to the floor's median; the new
+problem's runs are medians of --new such sequences.
 """
 
 from __future__ import annotations
@@ -47,23 +48,34 @@ def runs(commands: dict[str, list[str]], envs: dict[str, dict[str, str]], repeat
     return taking_turns(turns, repeats, floors=1)
 
 
-def new_problem(folder: Path, envs: dict[str, dict[str, str]]) -> dict[str, dict]:
-    """Runs 1, 2 and 3 of a problem written by `crashnlp init`, each version with an empty cache of its own."""
+def new_problem(folder: Path, envs: dict[str, dict[str, str]], repeats: int) -> dict[str, dict]:
+    """Runs 1, 2 and 3 of a problem written by `crashnlp init`, `repeats` times, each version with an
+    empty cache of its own each time: name/version -> the runs' wall and CPU times."""
     problem = folder / "camry.yaml"
     subprocess.run([CLI, "init", str(CAMRY_EV5), "--out", str(problem)], check=True, capture_output=True)
-    own = {v: {**env, **as_a_user(folder / f"cache-{v}")} for v, env in envs.items()}
     identify = [CLI, "identify", str(problem), "--no-figures", "--out", str(folder / "camry")]
-    out = {f"new_run_{n}": runs({"": identify}, own, 1) for n in (1, 2)}
-    for v in VERSIONS:
-        wait_for_compiles(folder / f"cache-{v}")
-    out["new_run_3"] = runs({"": identify}, own, 1)
-    return {f"{key}{name}": r for key, turn in out.items() for name, r in turn.items()}
+    out: dict[str, dict] = {}
+    for r in range(repeats):
+        own = {v: {**env, **as_a_user(folder / f"cache-{v}-{r}")} for v, env in envs.items()}
+        turns = {n: runs({f"new_run_{n}": identify}, own, 1) for n in (1, 2)}
+        for v in VERSIONS:
+            wait_for_compiles(folder / f"cache-{v}-{r}")
+        turns[3] = runs({"new_run_3": identify}, own, 1)
+        for n, turn in turns.items():
+            for key, t in turn.items():
+                slot = out.setdefault(f"new_run_{n}/{FLOOR_KEY}" if key == FLOOR_KEY else key, {"walls_s": [], "cpus_s": []})
+                slot["walls_s"] += t["walls_s"]
+                slot["cpus_s"] += t["cpus_s"]
+    return {
+        key: {**r, "wall_s": statistics.median(r["walls_s"]), "cpu_s": statistics.median(r["cpus_s"])} for key, r in out.items()
+    }
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("ref", nargs="?", default="main")
-    ap.add_argument("--repeats", type=int, default=7)
+    ap.add_argument("--repeats", type=int, default=7, help="turns of the warm pickup")
+    ap.add_argument("--new", type=int, default=3, help="new problems, each from an empty cache")
     args = ap.parse_args(argv)
     compileall.compile_dir(ROOT / "crashnlp", quiet=1)
     with tempfile.TemporaryDirectory() as tmp:
@@ -71,7 +83,7 @@ def main(argv: list[str] | None = None) -> int:
         base = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
         paths = {"before": export(args.ref, folder / "before"), "after": ROOT}
         envs = {v: {**base, "PYTHONPATH": str(paths[v])} for v in VERSIONS}
-        out = new_problem(folder, envs)
+        out = new_problem(folder, envs, args.new)
         warm = {v: {**env, **as_a_user(folder / f"pickup-{v}")} for v, env in envs.items()}
         identify = [CLI, "identify", str(PICKUP_56), "--out", str(folder / "out")]
         runs({"prime": [*identify, "--no-figures"]}, warm, 1)
