@@ -749,7 +749,8 @@ def new_problem_md(r: dict | None) -> list[str]:
         "## A new problem, as a user gets it",
         "",
         "`crashnlp init` on the Camry's EV5 file, then `crashnlp identify --no-figures` from an empty cache with no "
-        "crashnlp variable set, each run followed by the floor (`python -c 'import numpy, casadi'`, median "
+        "crashnlp variable set, each run followed by three runs of the floor (`python -c 'import numpy, casadi'` "
+        "with one OpenBLAS thread, as the command runs; median "
         f"{r['floor_s']:.2f} s, CPU {r['floor_cpu_s']:.2f} s):",
         "",
         *_table(["run", "wall (s)", "against the floor", "CPU (s)", "CPU against the floor's", "exit"], rows),
@@ -768,7 +769,7 @@ def whole_process_md(r: dict) -> list[str]:
         "warm_no_figures": "crashnlp --no-figures, warm caches",
         "simulate_warm": "`crashnlp simulate` of the same problem, warm caches",
         "simulate_no_figures": "`crashnlp simulate --no-figures`, warm caches",
-        "python_numpy_casadi": "python -c 'import numpy, casadi' (the floor)",
+        "python_numpy_casadi": "python -c 'import numpy, casadi' (the floor: one OpenBLAS thread, run after each command)",
         "scipy_baseline": "scipy least_squares + solve_ivp fit (same model), as a process",
     }
     rows = [[label, f"{r[k]['wall_s']:.2f}", f"{r[k]['peak_rss_mb']:.0f}", r[k]["exit"]] for k, label in labels.items() if k in r]

@@ -17,6 +17,11 @@ largest of a process and its waited-for children); against the scipy baseline fi
 and a Python that only imports numpy and CasADi (the floor of any such command),
 beside them.
 
+The floor runs with the command's footing: one OpenBLAS thread (OPENBLAS_NUM_THREADS=1, as
+the command sets unless the user set a number, crashnlp/__main__.py; with a thread per core
+numpy's import varied 0.17 to 0.37 s from run to run), and it is sampled after every run of
+every command, so that the ratios rest on floors measured in the same minutes.
+
 crashnlp's bytecode is written first, as `pip install` writes a package's and Python
 its own modules' on a first import: where PYTHONDONTWRITEBYTECODE is set (as on the
 benchmark machine) and crashnlp is installed editable, every process would otherwise
@@ -34,12 +39,16 @@ import tempfile
 from pathlib import Path
 
 from bench.common import PICKUP_56, ROOT, wait_for_compiles
+from crashnlp.__main__ import BLAS_THREADS_ENV
 from crashnlp.numerics.compile_job import KEEP_ENV
 from crashnlp.numerics.compiled import SWITCH_ENV
 
 CLI = str(Path(sys.executable).with_name("crashnlp"))
 BASELINE = "from bench.identification import run_baseline; run_baseline(None, 100)"
 FLOOR = [sys.executable, "-c", "import numpy, casadi"]  # what any such command imports first
+FLOOR_ENV = {**os.environ, BLAS_THREADS_ENV: os.environ.get(BLAS_THREADS_ENV, "1")}  # the command's BLAS threads
+FLOOR_KEY = "python_numpy_casadi"
+FLOOR_SAMPLES = 3  # floors after each run of a new problem
 CAMRY_EV5 = ROOT / "problems/data/nhtsa-10146/v10146.EV5"
 
 
@@ -72,19 +81,24 @@ def median_of(command: list[str], repeats: int, env: dict[str, str] | None = Non
     return taking_turns({"run": (command, env)}, repeats)["run"]
 
 
-def taking_turns(commands: dict[str, tuple[list[str], dict[str, str] | None]], repeats: int) -> dict[str, dict]:
+def taking_turns(commands: dict[str, tuple[list[str], dict[str, str] | None]], repeats: int, floors: int = 0) -> dict[str, dict]:
     """Median wall and CPU time, all wall times, peak memory and worst exit status of each command, the
     commands run in turns (one of each, `repeats` times) so that a machine whose speed drifts
-    (a shared one) slows them alike."""
+    (a shared one) slows them alike; with `floors`, that many runs of the floor after each
+    command's, gathered under FLOOR_KEY."""
     runs: dict[str, list] = {name: [] for name in commands}
+    if floors:
+        runs[FLOOR_KEY] = []
     for _ in range(repeats):
         for name, (command, env) in commands.items():
             runs[name].append(timed_process(command, env))
+            runs.get(FLOOR_KEY, []).extend(timed_process(FLOOR, FLOOR_ENV) for _ in range(floors))
     return {
         name: {
             "wall_s": statistics.median(r[0] for r in rs),
             "walls_s": [r[0] for r in rs],
             "cpu_s": statistics.median(r[3] for r in rs),
+            "cpus_s": [r[3] for r in rs],
             "peak_rss_mb": max(r[1] for r in rs),
             "exit": max(r[2] for r in rs),
         }
@@ -100,27 +114,28 @@ def as_a_user(cache: Path) -> dict[str, str]:
 
 def new_problem(folder: Path) -> dict:
     """A problem written by `crashnlp init`, identified three times from an empty cache (see the
-    module), each run followed by the floor; ratios to the median floor of the three."""
+    module), each run followed by FLOOR_SAMPLES floors; ratios to the median of those floors."""
     problem = folder / "camry.yaml"
     subprocess.run([CLI, "init", str(CAMRY_EV5), "--out", str(problem)], check=True, capture_output=True)
     env = as_a_user(folder / "cache")
     identify = [CLI, "identify", str(problem), "--no-figures", "--out", str(folder / "camry")]
-    floors: list[dict] = []
+    floors: dict[str, list[float]] = {"wall_s": [], "cpu_s": []}
 
     def identified() -> dict:
-        run = median_of(identify, 1, env)
-        floors.append(median_of(FLOOR, 1))
-        return run
+        turn = taking_turns({"run": (identify, env)}, 1, floors=FLOOR_SAMPLES)
+        floors["wall_s"] += turn[FLOOR_KEY]["walls_s"]
+        floors["cpu_s"] += turn[FLOOR_KEY]["cpus_s"]
+        return turn["run"]
 
     runs = [identified(), identified()]
     compile_s = wait_for_compiles(folder / "cache")
     runs.append(identified())
-    floor = {k: statistics.median(f[k] for f in floors) for k in ("wall_s", "cpu_s")}
+    floor = {k: statistics.median(v) for k, v in floors.items()}
     out = {
         f"run_{n + 1}": {**r, "vs_floor": r["wall_s"] / floor["wall_s"], "cpu_vs_floor": r["cpu_s"] / floor["cpu_s"]}
         for n, r in enumerate(runs)
     }
-    out |= {"floor_s": floor["wall_s"], "floor_cpu_s": floor["cpu_s"], "floors_s": [f["wall_s"] for f in floors]}
+    out |= {"floor_s": floor["wall_s"], "floor_cpu_s": floor["cpu_s"], "floors_s": floors["wall_s"]}
     out["compile_after_run_2_s"] = compile_s
     for n in range(1, 4):
         r = out[f"run_{n}"]
@@ -150,16 +165,15 @@ def run(quick: bool = False) -> dict:
             "warm_no_figures": ([*identify, "--no-figures"], fresh_env),
             "simulate_warm": (simulate, fresh_env),
             "simulate_no_figures": ([*simulate, "--no-figures"], fresh_env),
-            "python_numpy_casadi": (FLOOR, None),
             "scipy_baseline": ([sys.executable, "-c", BASELINE], baseline_env),
         }
-        out.update(taking_turns(turns, repeats))
+        out.update(taking_turns(turns, repeats, floors=1))
     out["speedup"] = out["scipy_baseline"]["wall_s"] / out["warm"]["wall_s"]
     out["speedup_no_figures"] = out["scipy_baseline"]["wall_s"] / out["warm_no_figures"]["wall_s"]
-    floor = out["python_numpy_casadi"]
+    floor = out[FLOOR_KEY]
     out["vs_floor"] = {key: out[key]["wall_s"] / floor["wall_s"] for key in ("warm", "warm_no_figures")}
     out["cpu_vs_floor"] = {key: out[key]["cpu_s"] / floor["cpu_s"] for key in ("warm", "warm_no_figures")}
-    for key in ("first_run_fresh_cache", "second_run_fresh_cache", *turns):
+    for key in ("first_run_fresh_cache", "second_run_fresh_cache", *turns, FLOOR_KEY):
         r = out[key]
         ratio = f", {out['vs_floor'][key]:.1f}x the floor (CPU {out['cpu_vs_floor'][key]:.1f}x)" if key in out["vs_floor"] else ""
         print(f"  {key}: {r['wall_s']:.2f} s (CPU {r['cpu_s']:.2f} s){ratio}, peak {r['peak_rss_mb']:.0f} MB, exit {r['exit']}")

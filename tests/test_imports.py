@@ -190,3 +190,19 @@ def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, 
     for _ in range(2):
         printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
     assert printed.splitlines()[-1] == "0 []", printed
+
+
+@pytest.mark.integration  # a process of its own
+def test_the_schema_builds_without_parsing_text():
+    """Importing the problem schema evaluates no annotation string (pydantic would evaluate each
+    field's again as its class is built) and parses no builtin's signature from text (pydantic
+    reads each default factory's; a builtin's takes tokenize, whose first use compiles its
+    patterns): docs/design-notes.md, "The problem schema's cost"."""
+    code = (
+        "import tokenize; import crashnlp.problem.schema as s; from pydantic import BaseModel;"
+        " models = [c for c in vars(s).values() if isinstance(c, type) and issubclass(c, BaseModel)];"
+        " print(tokenize._compile.cache_info().currsize,"
+        " sorted(c.__name__ for c in models if any(isinstance(a, str) for a in vars(c).get('__annotations__', {}).values())))"
+    )
+    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert printed.split() == ["0", "[]"], printed

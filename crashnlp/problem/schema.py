@@ -8,9 +8,11 @@ values by the law, a channel's sigma by the channel, bounds by what they bound) 
 `SIValue`, converted by its model's validator before the fields are checked. The unit
 markers also let `estimate` and `sweep` entries name fields by dotted path and give bounds
 with units. A validated problem is frozen: `Problem.with_values` makes a changed copy.
-"""
 
-from __future__ import annotations
+The annotations are objects, not strings (no `from __future__ import annotations`): pydantic
+would evaluate each field's string as its class is built, 3 to 4 ms of the import
+(docs/design-notes.md, "The problem schema's cost").
+"""
 
 import copy
 import math
@@ -18,7 +20,7 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, TypeVar, cast, get_args
+from typing import Annotated, Any, Literal, Self, TypeVar, cast, get_args
 
 from pydantic import (
     AfterValidator,
@@ -179,6 +181,18 @@ class Strict(BaseModel):
         return _find_unit([info.annotation, *info.metadata])
 
 
+def _no_entries() -> dict[Any, Any]:
+    """A fresh empty mapping: a section's default. A function of Python rather than `dict` or `list`:
+    pydantic reads a default factory's signature as the class is built, and a builtin's it parses
+    from text with tokenize, whose first use compiles its patterns (2 ms of the import)."""
+    return {}
+
+
+def _no_items() -> list[Any]:
+    """A fresh empty list: a section's default (a function of Python, as `_no_entries` says why)."""
+    return []
+
+
 _S = TypeVar("_S", bound=Strict)
 _T = TypeVar("_T")
 
@@ -328,7 +342,7 @@ class Spring(Strict):
         return _increasing(v, "crush_breakpoints") if isinstance(v, list) else v
 
     @model_validator(mode="after")
-    def _values(self) -> Spring:
+    def _values(self) -> Self:
         if self.values is None:
             return self
         if not isinstance(self.crush_breakpoints, list):
@@ -364,7 +378,7 @@ class Damper(Strict):
         return _increasing(v, "rate_breakpoints")
 
     @model_validator(mode="after")
-    def _same_length(self) -> Damper:
+    def _same_length(self) -> Self:
         if len(self.values) != len(self.rate_breakpoints):
             raise ValueError(f"values has {len(self.values)} entries but rate_breakpoints has {len(self.rate_breakpoints)}")
         return self
@@ -526,7 +540,7 @@ class DataSpec(Strict):
         return v
 
     @model_validator(mode="after")
-    def _curves(self) -> DataSpec:
+    def _curves(self) -> Self:
         """Curve lists that fit their channel."""
         for name, ch in self.channels.items():
             if ch.curves == ALL_BARRIER_FX and name != "barrier_force":
@@ -582,7 +596,7 @@ def _bound_in_si(bound: Any, unit: str | None) -> Any:
 class Constraints(Strict):
     monotone_crush: bool = Field(False, description="crush does not decrease until its maximum")
     monotone_spring: bool = Field(False, description="spring values non-decreasing")
-    bounds: dict[OutputName, Bound] = Field(default_factory=dict)
+    bounds: dict[OutputName, Bound] = Field(default_factory=_no_entries)
 
     @model_validator(mode="before")
     @classmethod
@@ -593,7 +607,7 @@ class Constraints(Strict):
         return {**data, "bounds": {k: _bound_in_si(v, OUTPUT_UNITS.get(k)) for k, v in data["bounds"].items()}}
 
     @model_validator(mode="after")
-    def _ordered(self) -> Constraints:
+    def _ordered(self) -> Self:
         for k, (lo, hi) in self.bounds.items():
             if lo is not None and hi is not None and lo > hi:
                 raise ValueError(f"bounds.{k}: lower bound above upper bound")
@@ -627,7 +641,7 @@ TranscriptionSpec = Annotated[MultipleShootingSpec | CollocationSpec, Field(disc
 
 
 class Solver(Strict):
-    ipopt: dict[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
+    ipopt: dict[str, Any] = Field(default_factory=_no_entries, description="options passed to IPOPT")
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
@@ -655,7 +669,8 @@ class Uncertainty(Strict):
     """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
 
     profile: list[str] = Field(
-        default_factory=list, description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]"
+        default_factory=_no_items,
+        description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]",
     )
     points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
     executor: Literal["local", "dask"] = Field("local", description="where the profiles run in parallel (the study executors)")
@@ -682,7 +697,7 @@ class ForceCrush(Strict):
     force: list[Force]
 
     @model_validator(mode="after")
-    def _same_length(self) -> ForceCrush:
+    def _same_length(self) -> Self:
         if len(self.crush) != len(self.force):
             raise ValueError("crush and force need the same number of entries")
         return self
@@ -712,7 +727,7 @@ class Problem(Strict):
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
-    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
+    estimate: dict[str, EstimateSpec] = Field(default_factory=_no_entries)  # last: it takes the units of the entries it names
 
     @field_validator("estimate", mode="before")
     @classmethod
@@ -737,7 +752,7 @@ class Problem(Strict):
         return converted
 
     @model_validator(mode="after")
-    def _check(self) -> Problem:
+    def _check(self) -> Self:
         names = [t.name for t in self.tests]
         if len(set(names)) != len(names):
             raise ValueError("tests: names must be unique")
@@ -771,7 +786,7 @@ class Problem(Strict):
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed
 
-    def with_values(self, values: dict[str, Any]) -> Problem:
+    def with_values(self, values: dict[str, Any]) -> "Problem":
         """A new validated problem with entries replaced by dotted path ("vehicle.speed": "64 km/h",
         "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is. What the
         problem left out stays left out (`model_fields_set`), so that the new problem is still
