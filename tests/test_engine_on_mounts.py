@@ -199,7 +199,7 @@ def _truth() -> dict:
 
 @pytest.mark.integration
 @pytest.mark.slow
-def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_without_intervals(tmp_path):
+def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_without_intervals(tmp_path, capsys):
     """The form's own 64 km/h crash (accelerometer, velocity, displacement, pitch), refitted from a
     start 20 % off the spring and 15 % off the gap: both within 1 %. The form has no calibration
     table, so a prediction at 56 km/h gives no interval and says so."""
@@ -232,3 +232,7 @@ def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_without_intervals(tm
     test = crashnlp.simulate(path, params=result)["t56"]
     assert not any(test.intervals.values()) and not test.form_q
     assert any("no intervals: model form engine-on-mounts has no calibration table" in n for n in test.notes)
+    result.save(tmp_path / "fit", figures=False)
+    assert main(["simulate", str(path), "--params", str(tmp_path / "fit" / "result.json"), "--out", str(tmp_path / "o")]) == 0
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("t56: max displacement"))
+    assert "interval" not in line and "[" not in line  # no interval printed, nor said to be
