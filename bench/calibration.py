@@ -418,7 +418,7 @@ def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> d
     return {
         "model_form": model_form,
         "calibration": calibration.to_json(),
-        "shipped": calibration.to_json() == shipped(model_form).to_json(),
+        "shipped": (table := shipped(model_form)) is not None and calibration.to_json() == table.to_json(),
         "set_seed": SET_SEED,
         "check_seed": CHECK_SEED,
         "hidden_seed": HIDDEN_SEED,

@@ -157,7 +157,7 @@ def _print_prediction(test) -> None:
         if band is not None:
             text += f" {m.band(band)}"
         parts.append(f"{text} {m.unit}")
-    print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if test.intervals else ""))
+    print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
     for note in test.notes:

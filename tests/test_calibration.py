@@ -25,9 +25,9 @@ from bench.calibration import (
 )
 from bench.corpus import random_vehicle
 from bench.cross_speed import fit_problem, prediction_problem
-from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped
+from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped, tables
 from crashnlp.base.outputs import PREDICTED_KEYS
-from crashnlp.problem.forms import FORMS
+from crashnlp.problem.forms import COMPARED, FORMS
 from crashnlp.results.identified import IdentifiedRange
 
 
@@ -141,9 +141,11 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
         assert covered >= 0.9, (metric, covered)
 
 
-@pytest.mark.parametrize("form", sorted(FORMS))
+@pytest.mark.parametrize("form", sorted(COMPARED))
 def test_each_model_form_s_shipped_table_calibrates_every_metric_of_every_class_and_names_itself(form):
-    """Every form of the registry has a table of its own fits (a prediction takes its form's)."""
+    """Every form compare chooses from has a table of its own fits (a prediction takes its form's);
+    a form without one has none to borrow."""
+    assert set(tables()) <= set(FORMS) and shipped("engine-on-mounts") is None
     cal = shipped(form)
     assert cal.form == form
     for klass in CLASSES:

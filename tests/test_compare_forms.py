@@ -14,7 +14,7 @@ from crashnlp.case.case import Case
 from crashnlp.cli import main
 from crashnlp.optimize.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
 from crashnlp.problem import problem_from_dict
-from crashnlp.problem.forms import DEFAULT_FORM, FORMS
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
 from crashnlp.results.response import Response
 
 BASE_DIR = ROOT / "problems"
@@ -114,7 +114,7 @@ def _problem_file(folder, form: str, speeds: tuple[str, ...]):
 
 @pytest.mark.integration
 @pytest.mark.slow
-@pytest.mark.parametrize("form", list(FORMS))
+@pytest.mark.parametrize("form", list(COMPARED))
 def test_the_data_of_a_form_choose_that_form_by_held_out_prediction(tmp_path, form, capsys):
     """Tests at 40 and 56 km/h made by one form: the comparison predicts each from the other with
     every form, and chooses the form that made them; compare.json says so, and the table too."""
@@ -128,7 +128,7 @@ def test_the_data_of_a_form_choose_that_form_by_held_out_prediction(tmp_path, fo
     # 40 km/h from 56 lies inside the reach, where the form that made the data predicts itself
     # (56 from 40 extrapolates along the trend tail)
     assert abs(own["held_out"][0]["max_displacement_error"]) < 1e-3
-    other = next(f for f in FORMS if f != form)
+    other = next(f for f in COMPARED if f != form)
     assert saved["forms"][other]["held_out_score"] > own["held_out_score"]
     out = capsys.readouterr().out
     assert f"choice (held-out): {form}" in out

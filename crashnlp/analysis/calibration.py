@@ -30,7 +30,7 @@ interval is what the fitted tests say of themselves.
 Each model form has its own table, calibrated on that form's fits of the corpus: a form's miss
 is its own. The tables ship as crashnlp/analysis/calibration.json (model form -> table, each with
 its method, corpus seeds and version); a prediction takes its form's (`shipped`), and
-simulation.json names the table it used.
+simulation.json names the table it used. A form without a table of its own gives no intervals.
 """
 
 from __future__ import annotations
@@ -216,7 +216,7 @@ def tables() -> dict[str, Calibration]:
     return {form: Calibration.from_json(table) for form, table in raw.items()}
 
 
-def shipped(form: str = DEFAULT_FORM) -> Calibration:
-    """The shipped table of model form `form`; the default form's where `form` has none of its own
-    (Calibration.named says which)."""
-    return tables().get(form) or tables()[DEFAULT_FORM]
+def shipped(form: str = DEFAULT_FORM) -> Calibration | None:
+    """The shipped table of model form `form`; None where it has none: another form's misses are
+    not its own, so its predictions get no intervals (crashnlp.analysis.prediction says so)."""
+    return tables().get(form)

@@ -4,7 +4,9 @@ Every term comes from the forward simulation (integrated works and the state's
 energies), so the balance error measures the physics and the integrator, not
 an NLP. Where a form's impact is an impulse (the pendulum's pivot, which keeps
 the angular momentum about it and stops the tangential velocity), the kinetic
-energy it takes is `impact_loss`; a form without one (rigid-body) has none. The front end is the only barrier force, so the
+energy it takes is `impact_loss`; a form without one (rigid-body) has none. The front end is the
+only barrier force (engine-on-mounts' engine, which meets the barrier too, counts its contact with
+the front end's terms and its mounts' damper with the suspension's), so the
 barrier's work on the vehicle is minus what the front end absorbs; a rigid
 barrier supplies no energy, so the front end may give back at most what it
 stores (`front_end_returned_excess` is the largest excess, ~0).

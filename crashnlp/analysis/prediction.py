@@ -195,6 +195,12 @@ def predict(
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
         chosen = calibration or shipped(case.problem.model.form)
+        if chosen is None:
+            note = uncalibrated(test.name, case.problem.model.form)
+            none: dict[str, tuple[float, float] | None] = {k: None for k in PREDICTED_KEYS}
+            notes = first + drift + (note,)
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, none, notes=notes, data=data)
+            continue
         u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
         beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
@@ -213,6 +219,14 @@ def predict(
             chosen.named(),
         )
     return out
+
+
+def uncalibrated(name: str, form: str) -> str:
+    """The note of a prediction whose model form has no calibration table: no intervals, and why."""
+    return (
+        f"{name}: no intervals: model form {form} has no calibration table (crashnlp/analysis/calibration.json, "
+        "make calibrate), and another form's misses are not its own"
+    )
 
 
 def _drift(name: str, response: Response) -> tuple[str, ...]:

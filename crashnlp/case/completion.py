@@ -245,8 +245,10 @@ def default_estimate(problem: Problem, pulses: list[Pulse]) -> dict[str, Estimat
         out["model.unloading.stiffness"] = EstimateSpec(bounds=UNLOADING_BOUNDS)
     if problem.model.damper is not None and several_speeds(pulses):
         out["model.damper.values"] = EstimateSpec(bounds=(0.0, DAMPER_BOUND_FACTOR * DAMPING_PER_MASS * mass))
+    form = form_class(problem.model.form)
     if any(p.has_pitch for p in pulses):
-        out.update(form_class(problem.model.form).pitch_estimate(problem, several_speeds(pulses)))
+        out.update(form.pitch_estimate(problem, several_speeds(pulses)))
+    out.update(form.own_estimate(problem))
     return out
 
 
@@ -280,6 +282,7 @@ def complete(problem: Problem, pulses: list[Pulse]) -> tuple[Problem, Resolution
     if unloading.stiffness is None:
         unloading = unloading.model_copy(update={"stiffness": unloading_stiffness(pulses)})
     out = with_fields(problem, model=with_fields(model, spring=spring, unloading=unloading).model_copy(update=set_in_model))
+    out = form_class(out.model.form).complete(out, pulses)
     if not out.estimate and out.kind == "identify" and pulses:
         out = out.model_copy(update={"estimate": default_estimate(out, pulses)})
     return out, placed

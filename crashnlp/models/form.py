@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import importlib
 from abc import ABC, abstractmethod
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
 from typing import Any, ClassVar
@@ -102,6 +102,20 @@ class Mechanics:
     barrier_share: Expr  # cosine of the line of action to the horizontal: barrier force / contact force
 
 
+@dataclass(frozen=True)
+class Contact:
+    """A second body part that meets the barrier besides the front end (an engine on its mounts):
+    how far it has passed the barrier's face along x (`reach`, an expression of q, positive once
+    it touches), its force on it (>= 0), the elastic part of that force and the energy the elastic
+    part stores. Its force enters Lagrange's equations as Q = -force d(reach)/dq, the barrier's
+    force and the stored energy as the front end's do; what it does not store it dissipates."""
+
+    reach: Expr
+    force: Expr
+    elastic: Expr
+    stored: Expr
+
+
 class CrashModel(ABC):
     """Symbolic crash model of one form; CasADi Functions of (state, parameters).
 
@@ -139,6 +153,10 @@ class CrashModel(ABC):
     def mechanics(self) -> Mechanics:
         """T, V, D, the crush and the kinematics the outputs read, of self.q and self.qd."""
 
+    def contacts(self) -> tuple[Contact, ...]:
+        """Body parts that meet the barrier besides the front end; none unless a form has them."""
+        return ()
+
     @abstractmethod
     def initial_state_after_impact(self, v0: Expr) -> Expr:
         """The state just after impact at horizontal speed v0 (a column of length nx)."""
@@ -160,6 +178,19 @@ class CrashModel(ABC):
             "vehicle.cg_above_impact": EstimateSpec(bounds=CG_ABOVE_IMPACT_BOUNDS),
             "vehicle.pitch_inertia": EstimateSpec(bounds=(mass * lo**2, mass * hi**2)),
         }
+
+    @classmethod
+    def complete(cls, problem: Problem, pulses: Sequence[Any]) -> Problem:
+        """The problem with the form's own entries it leaves out filled in from the tests'
+        measured pulses (crashnlp.case.completion.Pulse); a form without entries of its own
+        returns it as it is."""
+        return problem
+
+    @classmethod
+    def own_estimate(cls, problem: Problem) -> dict[str, EstimateSpec]:
+        """What a fit estimates by default of the form's own entries (once `complete` has filled
+        them in); none unless a form has entries of its own."""
+        return {}
 
     # ---------------------------------------------------------------- pieces
     def _par(self, path: str) -> ca.SX:
@@ -228,6 +259,13 @@ class CrashModel(ABC):
         x_max = self.x[self.nx - 1]
         contact, front_damper, stored = self._front_end(crush, crush_rate, x_max)
         Q = -contact * ca.jacobian(crush, q).T
+        barrier_force, front_damper_power = contact * mech.barrier_share, front_damper * crush_rate
+        for other in self.contacts():  # forms with none keep the expressions above unchanged
+            rate = ca.jtimes(other.reach, q, qd)
+            Q -= other.force * ca.jacobian(other.reach, q).T
+            barrier_force += other.force
+            front_damper_power += (other.force - other.elastic) * rate
+            stored += other.stored
 
         Lag = T - V
         dL_dqd = ca.gradient(Lag, qd)
@@ -243,13 +281,13 @@ class CrashModel(ABC):
             "pitch": mech.pitch,
             "crush": crush,
             "crush_rate": crush_rate,
-            "barrier_force": contact * mech.barrier_share,
+            "barrier_force": barrier_force,
             "contact_force": contact,
             "kinetic": T,
             "potential": V + stored,
             "front_energy": stored,
             "barrier_power": -ca.dot(Q, qd),
-            "front_damper_power": front_damper * crush_rate,
+            "front_damper_power": front_damper_power,
             "damper_power": 2 * D,
         }
         xdot = ca.vertcat(qd, qdd, self._history_rate(crush, crush_rate, x_max))

@@ -35,6 +35,12 @@ def rounded_hinge(z: Expr, width: Expr) -> Expr:
     return ca.if_else(z >= half, z, ca.if_else(z <= -half, 0, (z + half) ** 2 / (2 * width)))
 
 
+def rounded_hinge_integral(z: Expr, width: Expr) -> Expr:
+    """Antiderivative of `rounded_hinge` in z, zero below its band."""
+    half = 0.5 * width
+    return ca.if_else(z >= half, 0.5 * z * z + width * width / 24, ca.if_else(z <= -half, 0, (z + half) ** 3 / (6 * width)))
+
+
 def hinge_integral(z: Expr, eps: float) -> Expr:
     """Antiderivative of `hinge` in z, zero far left."""
     if eps == 0:

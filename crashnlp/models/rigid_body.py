@@ -19,6 +19,8 @@ force, so the state just after impact is the state before it.
 
 from __future__ import annotations
 
+from typing import ClassVar
+
 import casadi as ca
 
 from crashnlp.base.errors import InputError
@@ -29,8 +31,8 @@ from crashnlp.problem.schema import Problem
 class RigidBodyModel(CrashModel):
     """Symbolic rigid body in travel, heave and pitch about its CG."""
 
-    COORDINATES = ("x", "z", "phi")
-    STATE_FLOOR = (0.01, 0.01, 0.01, 0.1, 0.1, 0.01, 0.01)  # m, m, rad, m/s, m/s, rad/s, m
+    COORDINATES: ClassVar[tuple[str, ...]] = ("x", "z", "phi")
+    STATE_FLOOR: ClassVar[tuple[float, ...]] = (0.01, 0.01, 0.01, 0.1, 0.1, 0.01, 0.01)  # m, m, rad, m/s, m/s, rad/s, m
 
     def mechanics(self) -> Mechanics:
         q, qd = self.q, self.qd

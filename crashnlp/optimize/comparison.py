@@ -1,6 +1,6 @@
 """Which model form the data choose: every form fitted, and scored on what its fit did not see.
 
-`compare(problem)` fits the problem once with every form of crashnlp.problem.forms.FORMS and
+`compare(problem)` fits the problem once with every form of crashnlp.problem.forms.COMPARED and
 reports per form the objective, the fitted pitch and max displacement misfit, the number of identified
 parameters, and a held-out score:
 
@@ -42,7 +42,7 @@ from crashnlp.base.units import G0
 from crashnlp.case.case import case_of
 from crashnlp.optimize.pipeline import prepare_case, solve_problem
 from crashnlp.problem import Problem
-from crashnlp.problem.forms import DEFAULT_FORM, FORMS
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
 from crashnlp.results.identified import apply
 from crashnlp.results.response import Response
 from crashnlp.results.result import Result
@@ -139,7 +139,7 @@ def compare(problem: Problem, source: str | None = None, progress: TextIO | None
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     prepare_case(problem, source)  # the problem's own errors are the caller's, before any form's
     scores = []
-    for form in FORMS:
+    for form in COMPARED:
         _say(progress, f"{problem.name}: fitting {form}")
         try:
             formed = with_form(problem, form)

@@ -244,6 +244,21 @@ class Suspension(Strict):
     _not_negative = field_validator("k_front", "k_rear", "c_front", "c_rear")(lambda v: _not_negative(v))
 
 
+class Engine(Strict):
+    """An engine on mounts that meets the barrier once its gap closes (model.form engine-on-mounts;
+    other forms leave it out). Omitted entries are filled in by the form (crashnlp.models.engine_on_mounts)."""
+
+    mass: Mass | None = Field(None, description="part of vehicle.mass; omitted: a share of it")
+    mount_stiffness: Stiffness | None = Field(None, description="the mounts along x; omitted: from a nominal frequency")
+    mount_damping: Damping | None = Field(None, description="the mounts along x; omitted: from a nominal damping ratio")
+    gap: Length | None = Field(None, description="the engine's travel toward the barrier before it touches; omitted: from data")
+    contact_stiffness: Stiffness | None = Field(None, description="of its contact with the barrier (compression only)")
+    contact_damping: Damping | None = Field(None, description="of its contact with the barrier")
+
+    _positive = field_validator("mass", "gap", "contact_stiffness")(lambda v: _positive(v))
+    _not_negative = field_validator("mount_stiffness", "mount_damping", "contact_damping")(lambda v: _not_negative(v))
+
+
 class Vehicle(Strict):
     mass: Mass | None = Field(None, description="test mass; may come from the data header")
     speed: Annotated[Speed | None, Structural()] = Field(None, description="impact speed (a test may override)")
@@ -258,6 +273,7 @@ class Vehicle(Strict):
         description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
     gravity: Acceleration = 9.80665
+    engine: Engine | None = Field(None, description="an engine on mounts (model.form engine-on-mounts)")
 
     @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
     @classmethod
