@@ -269,7 +269,7 @@ def test_a_cycle_that_does_not_settle_is_finished_by_the_exact_hessian(monkeypat
     ]
     calls = _scripted(monkeypatch, runs)
     result = solve_module.solve(None, Solver(), progress=None)
-    assert result.converged and not result.settled and result.iterations == 30
+    assert result.converged and not result.settled and result.unsettled and result.iterations == 30
     assert calls[1]["looks"] == {"settle"} and SETTLE_OPTIONS.items() <= calls[1]["spec"].ipopt.items()
     assert calls[2]["spec"].hessian == "exact" and calls[2]["start"].z is runs[1].z and len(calls) == 3
 

@@ -189,8 +189,8 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
         result = after(
             result, solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, refinable=_refinable(case))
         )
-    if result.converged and (result.settled or result.return_status == ACCEPTABLE):
-        notes.append(note := _settled(case) if result.settled else _steady(case))
+    if result.converged and (result.settled or result.unsettled or result.return_status == ACCEPTABLE):
+        notes.append(note := _settled(case) if result.settled else _unsettled(case) if result.unsettled else _steady(case))
         _say(note, progress)
     solution.notes = notes
     return solution
@@ -237,12 +237,25 @@ def _refined(case: Case, stopped: SolveResult, departed: Solution | None = None)
 def _settled(case: Case) -> str:
     """The line that says a cycle no finer integration could take away was settled
     (crashnlp.optimize.options.SETTLE_OPTIONS)."""
-    spec = case.problem.transcription
-    where = f"{spec.substeps} RK4 steps per interval" if isinstance(spec, MultipleShootingSpec) else "its collocation grid"
     return (
-        f"{case.name}: IPOPT's iterates circled the optimum at {where} (a kink of the force laws crossed inside a "
+        f"{case.name}: IPOPT's iterates circled the optimum at {_where(case)} (a kink of the force laws crossed inside a "
         f"step); stopped at IPOPT's acceptable level: {_steady_for(case, SETTLE_OPTIONS)}"
     )
+
+
+def _unsettled(case: Case) -> str:
+    """The line that says a cycle no finer integration could take away did not settle, and the exact
+    Hessian finished the fit from it (crashnlp.optimize.solve.settled)."""
+    return (
+        f"{case.name}: IPOPT's iterates circled the optimum at {_where(case)} (a kink of the force laws crossed inside a"
+        " step) without settling; the exact Hessian finished the fit from there"
+    )
+
+
+def _where(case: Case) -> str:
+    """Where a case's solve crosses the force laws' kinks: its RK4 steps per interval, or its grid."""
+    spec = case.problem.transcription
+    return f"{spec.substeps} RK4 steps per interval" if isinstance(spec, MultipleShootingSpec) else "its collocation grid"
 
 
 def _steady(case: Case) -> str:

@@ -101,7 +101,7 @@ def settled(
     run = after(cycled, _solve(nlp, settle, verbose, progress, start=cycled, looks=frozenset({"settle"})))
     if run.stopped != "unsettled":
         return dataclasses.replace(run, settled=True)
-    return after(run, _solve(nlp, exact, verbose, progress, start=run))
+    return dataclasses.replace(after(run, _solve(nlp, exact, verbose, progress, start=run)), unsettled=True)
 
 
 def finishes(tail: SolveResult, newton: SolveResult) -> bool:

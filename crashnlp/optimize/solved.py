@@ -31,6 +31,7 @@ class SolveResult:
     tail: float | None = None  # stopped in Gauss-Newton's slow tail (crashnlp.optimize.watch): the distance still to go
     stopped: Stop | None = None  # why the Watch stopped Gauss-Newton short of convergence
     settled: bool = False  # the run settled a cycle (crashnlp.optimize.options.SETTLE_OPTIONS)
+    unsettled: bool = False  # a cycle's settle went round; the exact Hessian finished from its iterate
 
     @property
     def converged(self) -> bool:
