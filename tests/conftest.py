@@ -7,7 +7,8 @@ Markers (registered in pyproject.toml, where --strict-markers refuses any other)
     pytest -m "not slow"             all but the tests that cost more than ~5 s each
     pytest -m slow                   only those
     pytest -n 2 --dist loadfile      what `make test` runs: two workers, a file's tests on one
-                                     worker (its module fixtures fit once)
+                                     worker (its module fixtures fit once), the files with a
+                                     slow test handed out first (_file_order)
 
 A test is `unit` unless it, or its module's `pytestmark`, says `integration`, and a unit test
 that builds an IPOPT solver for an NLP (more than one variable: not the option probes) fails
@@ -62,6 +63,20 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
     for item in items:
         if item.get_closest_marker("integration") is None:
             item.add_marker(pytest.mark.unit)
+    items.sort(key=_file_order(items))
+
+
+def _file_order(items: list[pytest.Item]):
+    """The order the files run in (xdist's workers take them in it, pyproject.toml's
+    --no-loadscope-reorder): the files with a slow test first, so that the long files start early
+    and the short ones fill in at the end; then the files of more tests first (xdist's own order);
+    a file's tests in their order."""
+    files = [item.nodeid.split("::")[0] for item in items]
+    slow = {file for file, item in zip(files, items) if item.get_closest_marker("slow") is not None}
+    count = {file: files.count(file) for file in set(files)}
+    first = {file: files.index(file) for file in reversed(files)}
+    position = {id(item): (file not in slow, -count[file], first[file], n) for n, (file, item) in enumerate(zip(files, items))}
+    return lambda item: position[id(item)]
 
 
 @pytest.fixture(autouse=True)

@@ -1,7 +1,7 @@
 """The compiled NLP: one library per problem shape, the same bits as CasADi's virtual machine.
 
 These tests compile (tests/conftest.py turns NLP compilation off for the others), on the
-shipped pickup problem cut to 30 intervals.
+shipped pickup problem cut to 30 intervals: one library, compiled behind a first solve.
 """
 
 from __future__ import annotations
@@ -30,18 +30,27 @@ def switched_on(monkeypatch: pytest.MonkeyPatch, folder) -> None:
 
 @pytest.fixture(scope="module")
 def shared(tmp_path_factory):
-    """A cache holding the library of the test problem's shape, compiled once (`now`), and
-    the solve that compiled it."""
+    """A cache holding the library of the test problem's shape, compiled behind a first solve
+    (`compile: auto`, in the virtual machine) and waited for; that solve, the sources left in
+    the cache once the library is there, and the next solve (which loads it). (`compile: now` is
+    what tests/test_shipped.py, test_api.py and test_study.py compile by.)"""
     folder = tmp_path_factory.mktemp("cache")
     with pytest.MonkeyPatch.context() as mp:
         switched_on(mp, folder)
-        yield folder, identify(pickup("now"), progress=None)
+        before = identify(pickup("auto"), progress=None)
+        deadline = time.monotonic() + 180
+        while not libraries(folder) and time.monotonic() < deadline:
+            time.sleep(0.5)
+        assert len(libraries(folder)) == 1, "the background compile did not finish"
+        left = list(folder.glob("nlp-*.c"))
+        yield folder, before, left, identify(pickup("auto"), progress=None)
 
 
 @pytest.fixture
 def cache(shared, monkeypatch):
+    """The shared cache, switched on; and the solve that loaded its library."""
     switched_on(monkeypatch, shared[0])
-    return shared
+    return shared[0], shared[3]
 
 
 def pickup(compile: str, **values) -> Case:
@@ -88,16 +97,10 @@ def test_one_library_serves_other_fixed_values(cache, monkeypatch):
 
 
 @pytest.mark.slow
-def test_auto_solves_now_and_compiles_behind_for_the_next_run(tmp_path, monkeypatch):
-    switched_on(monkeypatch, tmp_path)
-    before = identify(pickup("auto"), progress=None)
+def test_auto_solves_now_and_compiles_behind_for_the_next_run(shared):
+    _, before, left, after = shared
     assert before.result.converged and not before.result.compiled
-    deadline = time.monotonic() + 180
-    while not libraries(tmp_path) and time.monotonic() < deadline:
-        time.sleep(0.5)
-    assert len(libraries(tmp_path)) == 1, "the background compile did not finish"
-    assert not list(tmp_path.glob("nlp-*.c")), "the source (the lock) is left behind"
-    after = identify(pickup("auto"), progress=None)
+    assert not left, "the source (the lock) is left behind"
     assert after.result.compiled
     assert np.array_equal(before.result.z, after.result.z)
 

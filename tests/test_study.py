@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -358,6 +359,13 @@ def test_a_dask_cluster_left_without_workers_ends_the_run_in_one_line(monkeypatc
         check(state, False)  # just past NO_WORKERS_WAIT without one
 
 
+@pytest.fixture(scope="module")
+def calm(small, tmp_path_factory) -> tuple[Path, list[dict]]:
+    """write_study(small)'s cases run undisturbed on two workers: the folder and the rows."""
+    out = tmp_path_factory.mktemp("calm") / "out"
+    return out, run_study(write_study(small), out, workers=2, progress=False)
+
+
 def _workers_of(pid: int) -> set[int]:
     """The pool workers below a crashnlp process: the children of its fork server's process."""
     parent = parents()
@@ -368,11 +376,10 @@ def _workers_of(pid: int) -> set[int]:
 @pytest.mark.integration
 @pytest.mark.slow
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
-def test_a_study_whose_worker_is_killed_mid_case_completes_with_the_same_table(small, tmp_path):
+def test_a_study_whose_worker_is_killed_mid_case_completes_with_the_same_table(small, calm, tmp_path):
     """SIGKILL to one of the two workers while it solves a case: the command ends 0 and its
     table is the undisturbed run's."""
-    study = write_study(small)
-    calm = run_study(study, tmp_path / "calm", workers=2, progress=False)
+    study, (calm_out, calm) = write_study(small), calm
     out = tmp_path / "killed"
     argv = [sys.executable, "-m", "crashnlp.cli", "study", str(study), "--out", str(out), "--workers", "2", "--no-progress"]
     proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
@@ -387,16 +394,16 @@ def test_a_study_whose_worker_is_killed_mid_case_completes_with_the_same_table(s
     _, err = proc.communicate(timeout=120)
     assert killed is not None, "no worker was seen to kill"
     assert proc.returncode == 0, err
-    assert without_wall_time(read_table(out / "table.csv")) == without_wall_time(read_table(tmp_path / "calm/table.csv"))
+    assert without_wall_time(read_table(out / "table.csv")) == without_wall_time(read_table(calm_out / "table.csv"))
     assert [r["status"] for r in calm] == ["ok"] * 4
 
 
 # --------------------------------------------------------------------------- (3) resume
 @pytest.mark.integration
 @pytest.mark.slow
-def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, tmp_path):
-    study, out = write_study(small), tmp_path / "out"
-    first = run_study(study, out, workers=2, progress=False)
+def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, calm, tmp_path):
+    study, out, (calm_out, first) = write_study(small), tmp_path / "out", calm
+    shutil.copytree(calm_out, out)
     cases = out / "cases"
     stamp = {p.name: p.stat().st_mtime_ns for p in cases.glob("*.json")}
     for name in ("case-001", "case-002"):  # as if stopped after the seed wave
