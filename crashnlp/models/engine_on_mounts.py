@@ -37,8 +37,8 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.models.form import SEPARATION, Contact, Expr, Mechanics
-from crashnlp.models.laws import rounded_hinge, rounded_hinge_integral
+from crashnlp.models.form import OPEN_AT_IMPACT, SEPARATION, Contact, Expr, Mechanics
+from crashnlp.models.laws import engagement, never_pulling, rounded_hinge, rounded_hinge_integral
 from crashnlp.models.rigid_body import RigidBodyModel
 from crashnlp.problem.schema import Engine, EstimateSpec, Problem, with_fields
 
@@ -66,7 +66,6 @@ GAP_BOUNDS = (0.7, 1.4)  # a fit estimates the gap within these times its value 
 # between steps, and one estimating the gap at one speed ran out of iterations (a tall van of seed
 # 2062 at 56 km/h: 1300) where 1 cm converges (47).
 CONTACT_WIDTH = 0.01  # m
-OPEN = 1e-9  # of the contact's separation band before it touches (a band of zero width divides by zero)
 
 
 class MeasuredPulse(Protocol):
@@ -110,9 +109,9 @@ class EngineOnMountsModel(RigidBodyModel):
             elastic, stored = k * rounded_hinge(reach, eps), k * rounded_hinge_integral(reach, eps)
         else:
             elastic, stored = k * ca.fmax(reach, 0), 0.5 * k * ca.fmax(reach, 0) ** 2
-        engaged = ca.fmin(ca.fmax(reach / eps, 0), 1) if eps > 0 else reach > 0
+        engaged = engagement(reach, eps)
         push = elastic + engaged * c * rate
-        force = rounded_hinge(push, SEPARATION * eps * k * (engaged + OPEN)) if eps > 0 else ca.fmax(push, 0)
+        force = never_pulling(push, SEPARATION * eps * k * (engaged + OPEN_AT_IMPACT), eps)
         return (Contact(reach, force, elastic, stored),)
 
     def initial_state_after_impact(self, v0: Expr) -> Expr:

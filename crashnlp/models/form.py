@@ -29,7 +29,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.outputs import NAMES
-from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, hinge, rounded_hinge, with_tail
+from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, engagement, hinge, never_pulling, with_tail
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.problem.forms import FORMS
 from crashnlp.problem.schema import EstimateSpec, Problem
@@ -50,7 +50,7 @@ HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush th
 # (`_separation_width`): a band there would start contact with a jump of force, on which corpus
 # vehicles cycled instead (docs/design-notes.md).
 SEPARATION = 0.1
-OPEN_AT_IMPACT = 1e-9  # of the band at impact (a join of zero width divides by zero)
+OPEN_AT_IMPACT = 1e-9  # of the band at impact, or before a contact touches (a join of zero width divides by zero)
 OUTPUTS = NAMES  # the registry's order (crashnlp.base.outputs)
 # CG height above the impact point (bumper beam about 0.45 m, CG 0.45 m to 0.9 m) and radius of
 # gyration in pitch (0.9 m for a city car to 1.8 m for a long van; sqrt(I / m)).
@@ -220,10 +220,9 @@ class CrashModel(ABC):
             dvals = [self._par("model.damper.values")[i] for i in range(s.n_damper)]
             # the damper engages over the first eps of crush, so the contact force
             # starts from zero at impact instead of jumping to c * v0
-            engaged = ca.fmin(ca.fmax(crush / s.eps_crush, 0), 1) if s.eps_crush > 0 else crush > 0
-            damper = engaged * damper_force(rate, dbps, dvals, s.eps_rate)
+            damper = engagement(crush, s.eps_crush) * damper_force(rate, dbps, dvals, s.eps_rate)
         push = force + damper
-        separating = rounded_hinge(push, self._separation_width(crush, x_max, stiffness)) if s.eps_crush > 0 else ca.fmax(push, 0)
+        separating = never_pulling(push, self._separation_width(crush, x_max, stiffness), s.eps_crush)
         contact = ca.if_else(crush >= 0, separating, 0)
         return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
 

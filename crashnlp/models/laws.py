@@ -35,6 +35,18 @@ def rounded_hinge(z: Expr, width: Expr) -> Expr:
     return ca.if_else(z >= half, z, ca.if_else(z <= -half, 0, (z + half) ** 2 / (2 * width)))
 
 
+def engagement(z: Expr, eps: float) -> Expr:
+    """0 below z = 0, rising to 1 over the first eps of z: a contact's damper engages as the contact
+    begins, so that its force starts from zero instead of jumping to c * v; a step where eps is 0."""
+    return ca.fmin(ca.fmax(z / eps, 0), 1) if eps > 0 else z > 0
+
+
+def never_pulling(push: Expr, width: Expr, eps: float) -> Expr:
+    """A contact's force from what pushes it: max(push, 0), its corner rounded over `width`
+    (`rounded_hinge`) where the contact is smoothed (eps > 0), so that a contact lets go smoothly."""
+    return rounded_hinge(push, width) if eps > 0 else ca.fmax(push, 0)
+
+
 def rounded_hinge_integral(z: Expr, width: Expr) -> Expr:
     """Antiderivative of `rounded_hinge` in z, zero below its band."""
     half = 0.5 * width
