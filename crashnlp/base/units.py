@@ -13,7 +13,6 @@ remembered value is pint's own, to the last bit; failures are never remembered.
 from __future__ import annotations
 
 import json
-import os
 import re
 from contextlib import suppress
 from functools import cache
@@ -21,7 +20,7 @@ from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
-from crashnlp.base.cache import cache_dir
+from crashnlp.base.cache import cache_dir, write_atomic
 
 G0 = 9.80665  # standard gravity, m/s^2
 
@@ -103,15 +102,8 @@ def _remembered() -> dict[str, float]:
 
 def _remember(known: dict[str, float]) -> None:
     """Write the table (whole, atomically; a lost race only costs a conversion later)."""
-    path = _table()
-    partial = path.with_suffix(f".{os.getpid()}.tmp")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        partial.write_text(json.dumps(known, sort_keys=True))
-        os.replace(partial, path)
-    except OSError:
-        with suppress(OSError):
-            partial.unlink()
+    with suppress(OSError):
+        write_atomic(_table(), json.dumps(known, sort_keys=True))
 
 
 def unit_scale(unit: str, si_unit: str) -> float:

@@ -29,6 +29,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.outputs import NAMES
+from crashnlp.models import stored as model_store
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, engagement, hinge, never_pulling, with_tail
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.problem.forms import FORMS
@@ -124,16 +125,27 @@ class CrashModel(ABC):
     COORDINATES: ClassVar[tuple[str, ...]]
     STATE_FLOOR: ClassVar[tuple[float, ...]]  # smallest scale of each state, in SI (NLP scaling)
 
-    def __init__(self, structure: Structure, layout: ParameterLayout):
+    rhs: ca.Function
+    outputs: ca.Function
+    initial_state: ca.Function
+    loading_curve: ca.Function
+
+    def __init__(self, structure: Structure, layout: ParameterLayout, whole: ca.Function | None = None):
+        """The model of `structure` and `layout`: derived, or read from `whole`, what `whole()`
+        gave of a model of the same form, structure and layout (crashnlp.models.stored)."""
         self.structure = structure
         self.layout = layout
         n = len(self.COORDINATES)
-        self.x = ca.SX.sym("x", self.nx)
+        self.x = ca.SX.sym("x", self.nx) if whole is None else whole.sx_in(0)
         self.q, self.qd = self.x[:n], self.x[n : 2 * n]
-        self.p = ca.SX.sym("p", layout.size)
+        self.p = ca.SX.sym("p", layout.size) if whole is None else whole.sx_in(1)
         self._functions: dict[tuple, Any] = {}
         self._parameters = layout.split(self.p)
-        self._build()
+        if whole is None:
+            self._build()
+        else:
+            crush, v0 = whole.sx_in(2), whole.sx_in(3)
+            self._assign(crush, v0, *whole(self.x, self.p, crush, v0))
 
     # ---------------------------------------------------------------- what a form says
     @classmethod
@@ -197,7 +209,8 @@ class CrashModel(ABC):
         return self._parameters[path]
 
     def _front_end(self, crush, rate, x_max):
-        """Contact force (never tensile, zero once separated), its damper part, and stored energy."""
+        """Contact force (never tensile, zero once separated), its damper part, stored energy, and
+        the loading force (the law, with its tail) as a function of crush."""
         s = self.structure
         bps = [self._par("model.spring.crush_breakpoints")[i] for i in range(s.n_spring)]
         vals = [self._par("model.spring.values")[i] for i in range(s.n_spring)]
@@ -209,8 +222,6 @@ class CrashModel(ABC):
             return law(x, bps, vals, s.eps_crush)[0]
 
         stiffness = self._par("model.unloading.stiffness")
-        c = ca.SX.sym("crush")
-        self.loading_curve = ca.Function("loading_curve", [c, self.p], [load(c)], ["crush", "p"], ["force"])
         spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness, s.eps_crush)
         if stored is None:
             stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
@@ -224,7 +235,7 @@ class CrashModel(ABC):
         push = force + damper
         separating = never_pulling(push, self._separation_width(crush, x_max, stiffness), s.eps_crush)
         contact = ca.if_else(crush >= 0, separating, 0)
-        return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0)
+        return contact, contact - ca.if_else(crush >= 0, ca.fmax(spring, 0), 0), ca.if_else(crush >= 0, stored, 0), load
 
     def _separation_width(self, crush, x_max, stiffness):
         """The band the end of contact is rounded over (SEPARATION above): its full width once
@@ -249,14 +260,14 @@ class CrashModel(ABC):
         return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
 
     def _build(self):
-        q, qd, p = self.q, self.qd, self.p
+        q, qd = self.q, self.qd
         mech = self.mechanics()
         T, V, D = mech.kinetic, mech.potential, mech.dissipation
         Xd = mech.velocity
         crush = mech.crush
         crush_rate = ca.jtimes(crush, q, qd)
         x_max = self.x[self.nx - 1]
-        contact, front_damper, stored = self._front_end(crush, crush_rate, x_max)
+        contact, front_damper, stored, load = self._front_end(crush, crush_rate, x_max)
         Q = -contact * ca.jacobian(crush, q).T
         barrier_force, front_damper_power = contact * mech.barrier_share, front_damper * crush_rate
         for other in self.contacts():  # forms with none keep the expressions above unchanged
@@ -290,11 +301,29 @@ class CrashModel(ABC):
             "damper_power": 2 * D,
         }
         xdot = ca.vertcat(qd, qdd, self._history_rate(crush, crush_rate, x_max))
-        args, names = [self.x, p], ["x", "p"]
+        c, v0 = ca.SX.sym("crush"), ca.SX.sym("v0")
+        y = ca.vertcat(*[values[k] for k in OUTPUTS])
+        self._assign(c, v0, xdot, y, load(c), self.initial_state_after_impact(v0))
+
+    def _assign(self, crush: ca.SX, v0: ca.SX, xdot: ca.SX, y: ca.SX, force: ca.SX, x0: ca.SX) -> None:
+        """The model's Functions of its expressions (of self.x, self.p, a crush and an impact speed v0)."""
+        args, names = [self.x, self.p], ["x", "p"]
         self.rhs = ca.Function("rhs", args, [xdot], names, ["xdot"])
-        self.outputs = ca.Function("outputs", args, [ca.vertcat(*[values[k] for k in OUTPUTS])], names, ["y"])
-        v0 = ca.SX.sym("v0")
-        self.initial_state = ca.Function("x0", [self.p, v0], [self.initial_state_after_impact(v0)], ["p", "v0"], ["x0"])
+        self.outputs = ca.Function("outputs", args, [y], names, ["y"])
+        self.initial_state = ca.Function("x0", [self.p, v0], [x0], ["p", "v0"], ["x0"])
+        self.loading_curve = ca.Function("loading_curve", [crush, self.p], [force], ["crush", "p"], ["force"])
+
+    def whole(self) -> ca.Function:
+        """Every expression of the model's Functions in one Function, (x, p, crush, v0) -> (xdot, y,
+        force, x0), what crashnlp.models.stored keeps. Each Function is evaluated at its own inputs,
+        where CasADi gives back the nodes it holds: the expressions they share stay shared, and
+        a model read from it (`__init__`) derives its own Functions (`augmented_rhs`) exactly as the
+        derived model does."""
+        crush, v0 = self.loading_curve.sx_in(0), self.initial_state.sx_in(1)
+        xdot, y = self.rhs(self.x, self.p), self.outputs(self.x, self.p)
+        force, x0 = self.loading_curve(crush, self.p), self.initial_state(self.p, v0)
+        names = (["x", "p", "crush", "v0"], ["xdot", "y", "force", "x0"])
+        return ca.Function("model", [self.x, self.p, crush, v0], [xdot, y, force, x0], *names)
 
     def cached(self, key: tuple, build: Callable[[], Any]) -> Any:
         """What `build` makes, built once per model and key: the simulator's integrators and
@@ -324,5 +353,14 @@ def form_class(name: str) -> type[CrashModel]:
 
 
 def build_model(spec: ModelSpec, layout: ParameterLayout) -> CrashModel:
-    """The symbolic model of a problem's model section (its `form`) and parameter layout."""
-    return form_class(spec.form)(Structure.of(spec), layout)
+    """The symbolic model of a problem's model section (its `form`) and parameter layout: read
+    from the cache where an earlier process derived it (crashnlp.models.stored), else derived
+    and kept there."""
+    cls, structure = form_class(spec.form), Structure.of(spec)
+    path = model_store.path_of(spec.form, (FORMS[spec.form], structure, layout))
+    whole = model_store.read(path)
+    if whole is not None:
+        return cls(structure, layout, whole)
+    model = cls(structure, layout)
+    model_store.write(path, model.whole())
+    return model

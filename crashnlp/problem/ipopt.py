@@ -15,15 +15,13 @@ import hashlib
 import io
 import json
 import math
-import os
 import re
-import tempfile
 from dataclasses import asdict, dataclass
 from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
-from crashnlp.base.cache import cache_dir
+from crashnlp.base.cache import cache_dir, write_atomic
 
 Kind = Literal["real", "integer", "string"]
 
@@ -114,7 +112,7 @@ def ipopt_options() -> dict[str, IpoptOption]:
     if not options:
         raise RuntimeError("IPOPT printed no documentation of its options")
     with contextlib.suppress(OSError):  # an unwritable cache: read IPOPT again next time
-        _write_atomic(path, json.dumps({name: asdict(o) for name, o in options.items()}))
+        write_atomic(path, json.dumps({name: asdict(o) for name, o in options.items()}))
     return options
 
 
@@ -131,19 +129,6 @@ def _from_json(raw: dict[str, dict[str, Any]]) -> dict[str, IpoptOption]:
         settings = fields.pop("settings")
         options[name] = IpoptOption(**fields, settings=None if settings is None else tuple(settings))
     return options
-
-
-def _write_atomic(path: Path, text: str) -> None:
-    """Write `text` under a temporary name beside `path`, then rename it in place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
 
 
 def ipopt_documentation() -> str:
