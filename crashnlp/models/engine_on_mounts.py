@@ -43,15 +43,14 @@ from crashnlp.models.rigid_body import RigidBodyModel
 from crashnlp.problem.schema import Engine, EstimateSpec, Problem, with_fields
 
 # The engine and gearbox's share of the vehicle's mass: a tenth to a fifth of a passenger car's (a
-# rule of thumb, assumed: no measured table here), the corpus generator's engines 12 to 20 %.
+# rule of thumb, assumed: docs/design-notes.md, "The engine on its mounts").
 ENGINE_SHARE = 0.15
 MOUNT_FREQUENCY = 10.0  # Hz: the powertrain's fore-aft rigid-body mode on its mounts (8 to 15 Hz)
 MOUNT_DAMPING = 0.5  # damping ratio of the mounts (hydraulic mounts, large amplitude)
 # The contact: the barrier stops the engine at about twice the body's mean crush force (the work
 # of the fastest test's impact over its largest travel) within CONTACT_STOP of engine travel, the
 # crush space of the radiator and the engine's accessories; damped at CONTACT_DAMPING of critical.
-# Assumed, not measured on real tests: the corpus engine vehicles (bench.corpus.with_engine) stop
-# theirs over 8 to 15 cm, damped at 0.4 to 0.7 of critical.
+# Assumed, not measured on real tests (docs/design-notes.md, "The engine on its mounts").
 CONTACT_STOP = 0.12  # m
 CONTACT_DAMPING = 0.5
 # The gap: where the recorded loading curve (m |a| against the CG's travel) of the furthest test rises again,
@@ -61,10 +60,9 @@ RISE = 1.2
 GAP_SHARE = 0.7
 GAP_BOUNDS = (0.7, 1.4)  # a fit estimates the gap within these times its value from the data
 # The contact builds up over CONTACT_WIDTH of reach (the corner of its spring rounded, its damper
-# engaged), a switch where model.smoothing.crush is 0. Over the crush smoothing's 1 mm the engine,
-# at 10 m/s, passes it within a tenth of a 1 ms integration step: a fit then sees the force jump
-# between steps, and one estimating the gap at one speed ran out of iterations (a tall van of seed
-# 2062 at 56 km/h: 1300) where 1 cm converges (47).
+# engaged), a switch where model.smoothing.crush is 0: wide enough that an engine at 10 m/s takes
+# a 1 ms integration step to cross it, so that a fit does not see its force jump between steps
+# (the crush smoothing's 1 mm ran fits out of iterations: docs/design-notes.md).
 CONTACT_WIDTH = 0.01  # m
 
 
@@ -152,8 +150,8 @@ class EngineOnMountsModel(RigidBodyModel):
     @classmethod
     def own_estimate(cls, problem: Problem) -> dict[str, EstimateSpec]:
         """The gap, within GAP_BOUNDS times the value the problem gives or the data chose: where the
-        engine meets the barrier is what the pulse shows least exactly (`second_rise`, up to 27 % off
-        on the corpus), and a gap fixed that far off misfits the pitch and the peak."""
+        engine meets the barrier is what the pulse shows least exactly (`second_rise`), and a gap
+        fixed a fifth off misfits the pitch and the peak (docs/design-notes.md)."""
         gap = problem.vehicle.engine.gap if problem.vehicle.engine is not None else None
         if gap is None:
             return {}
