@@ -54,18 +54,20 @@ CYCLE_START, CYCLE_RUN, CYCLE_PERIOD, CYCLE_RETURN, CYCLE_SHRINK, CYCLE_VIOLATIO
 WANDER_START, WANDER_RISE, WANDER_VIOLATION = 25, 2.0, 1e-3
 
 # A cycle that does not settle. Rule, for the settling of a cycle only (SETTLE_OPTIONS): the cycle
-# rule above, its thresholds unchanged, fires in the settle's own run, and the cycle holds an
-# iterate that IPOPT's acceptable test of the settle refuses: the objective changing by more than
-# its acceptable_obj_change_tol (relative where above 1) from one of the last CYCLE_RUN iterates to
-# the next, or the constraints violated by more than its acceptable_constr_viol_tol; the exact
-# Hessian then finishes from the settle's iterate (crashnlp.optimize.solve). Reason: a cycle comes
-# back to its iterates, so an iterate the acceptable test refuses breaks every run of iterates the
-# settle counts toward its stop, lap after lap, and the settle runs to its limit; the settle is for
-# cycles whose objective has stopped moving, where the exact Hessian sees the same kink. Where the
-# objective still swings from one iterate to the next, the Gauss-Newton step, not the kink, keeps
-# the iterates going round, and the exact Hessian started there converges. No threshold of its
-# own: the cycle's are the cycle rule's, the acceptable test's the settle's. Measured:
-# docs/design-notes.md, "A cycle that does not settle".
+# rule above, its thresholds unchanged but for the constraints, fires in the settle's own run, and
+# the cycle holds an iterate that IPOPT's acceptable test of the settle refuses: the objective
+# changing by more than its acceptable_obj_change_tol (relative where above 1) from one of the last
+# CYCLE_RUN iterates to the next, or the constraints violated by more than its
+# acceptable_constr_viol_tol (however far: a settle's cycle is not held to CYCLE_VIOLATION, as a
+# cycle that violates the constraints cannot settle either); the exact Hessian then finishes from
+# the settle's iterate (crashnlp.optimize.solve). Reason: a cycle comes back to its iterates, so an
+# iterate the acceptable test refuses breaks every run of iterates the settle counts toward its
+# stop, lap after lap, and the settle runs to its limit; the settle is for cycles whose objective
+# has stopped moving, where the exact Hessian sees the same kink. Where the objective still swings
+# from one iterate to the next, the Gauss-Newton step, not the kink, keeps the iterates going
+# round, and the exact Hessian started there converges. No threshold of its own: the cycle's are
+# the cycle rule's, the acceptable test's the settle's. Measured: docs/design-notes.md, "A cycle
+# that does not settle".
 Look = Literal["tail", "settle", Stop]  # what the Watch looks for: the slow tail, the stops, and a settle's cycle
 
 
@@ -206,11 +208,9 @@ def came_back(iterates: list[np.ndarray]) -> bool:
 
 def unsettled(objectives: list[float], violation: float) -> bool:
     """Whether a settle's cycle holds an iterate its acceptable test refuses ("A cycle that does
-    not settle" above): the constraints, met to CYCLE_VIOLATION as a cycle's are, violated by more
-    than SETTLE_OPTIONS' tolerance, or the objective changing by more than its tolerance between
-    two of the last `objectives` (relative where above 1)."""
-    if violation > CYCLE_VIOLATION:
-        return False
+    not settle" above): the constraints violated by more than SETTLE_OPTIONS' tolerance, or the
+    objective changing by more than its tolerance between two of the last `objectives` (relative
+    where above 1)."""
     changes = [abs(b - a) / max(1.0, abs(b)) for a, b in zip(objectives, objectives[1:])]
     steady, met = SETTLE_OPTIONS["acceptable_obj_change_tol"], SETTLE_OPTIONS["acceptable_constr_viol_tol"]
     return violation > met or max(changes, default=0.0) > steady
