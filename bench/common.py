@@ -167,8 +167,8 @@ def machine() -> dict:
 
 
 def wait_for_compiles(cache: Path, timeout: float = 300.0) -> float:
-    """Seconds until no NLP library is being compiled in `cache` (a dead compile's source does
-    not hold it up: crashnlp.optimize.oracle.compiles_running)."""
+    """Seconds until no NLP library is being compiled in `cache` (a dead compile holds no lock:
+    crashnlp.optimize.oracle.compiles_running)."""
     t0 = time.perf_counter()
     while compiles_running(cache) and time.perf_counter() - t0 < timeout:
         time.sleep(0.2)

@@ -25,7 +25,8 @@ library's -O1 (designs with the exact Hessian ~90 s) against ~1 s to solve it. T
 that take the `compiled_nlp` fixture turn it on, into the run's cache: the shipped pickup
 problem (tests/test_shipped.py), a small identification by the API and the command line
 (tests/test_api.py) and a study (tests/test_study.py) each compile their shape and are
-compared with the virtual machine's solve; tests/test_oracle.py compiles into caches of its own.
+compared with the virtual machine's solve; tests/test_oracle.py and tests/test_compile_once.py
+compile into caches of their own.
 No background compile outlives its command (CRASHNLP_KEEP_COMPILING=0), so none is left running
 after the run; tests/test_hostile.py checks the default, a released compile, on a compile of its own.
 """

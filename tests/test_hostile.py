@@ -431,8 +431,8 @@ def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path,
 
 @pytest.mark.integration
 def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_path, capsys, monkeypatch):
-    """Released, a compile outlives its starter's letting go and leaves the library (its source, the
-    lock, removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
+    """Released, a compile outlives its starter's letting go and leaves the library (its source
+    removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
     from crashnlp.numerics import compile_job
 
     if shutil.which("cc") is None:

@@ -100,7 +100,7 @@ def test_one_library_serves_other_fixed_values(cache, monkeypatch):
 def test_auto_solves_now_and_compiles_behind_for_the_next_run(shared):
     _, before, left, after = shared
     assert before.result.converged and not before.result.compiled
-    assert not left, "the source (the lock) is left behind"
+    assert not left, "the source is left behind"
     assert after.result.compiled
     assert np.array_equal(before.result.z, after.result.z)
 

@@ -1,4 +1,5 @@
-"""The crashnlp cache folder: compiled functions, built models and remembered unit conversions.
+"""The crashnlp cache folder: compiled functions (with a lock file each: crashnlp.numerics.compiled),
+derived models (crashnlp.models.stored) and remembered unit conversions.
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it.

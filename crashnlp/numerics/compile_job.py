@@ -13,8 +13,13 @@ succeeds, so that no reader sees half a library. It reads its standard input unt
 which comes when its starter closes the pipe or dies, however it dies; the whole group (compiler
 driver, cc1, as) is then stopped, unless the starter wrote RELEASE first: then the group goes on
 at nice 19, so that it takes only cores nothing else wants. Any compile ends itself after
-TIME_LIMIT_S. Whatever the ending, the temporary file and the CLEANUP files (the source, which is
-a background compile's lock) are removed.
+TIME_LIMIT_S. Whatever the ending, the temporary file and the CLEANUP files (a background
+compile's source) are removed.
+
+A starter that holds the library's lock (crashnlp.numerics.compiled.try_lock) passes it to the
+compile (`lock`): the compile inherits the locked descriptor and holds the lock until it ends,
+after the renaming, however it ends (the kernel closes a dead process's descriptors). Its
+compiler does not inherit it.
 """
 
 from __future__ import annotations
@@ -31,7 +36,7 @@ from pathlib import Path
 KEEP_ENV = "CRASHNLP_KEEP_COMPILING"  # "0": a background compile ends with the command (default: it finishes, at nice 19)
 RELEASE = b"release\n"  # what a starter writes to a watched compile that is to finish without it
 BACKGROUND_NICE = 19
-TIME_LIMIT_S = 900.0  # a compile still running after this ends itself (and its lock is taken for dead: crashnlp.optimize.oracle)
+TIME_LIMIT_S = 900.0  # a compile still running after this ends itself
 STOP_WAIT_S = 10.0  # how long a stopped compile may take to remove its files before its group is killed
 # this file, run isolated (-I: no current folder or PYTHON* variables on its path; it needs only the
 # standard library): `-m crashnlp.numerics.compile_job` ran the crashnlp of the folder a command was started in
@@ -39,15 +44,19 @@ JOB = (sys.executable, "-I", str(Path(__file__).resolve()))
 _compiles: list[subprocess.Popen] = []  # the compiles this process started and has not stopped
 
 
-def start(cc: str, source: Path, library: Path, flags: tuple[str, ...], cleanup: tuple[Path, ...] = ()) -> subprocess.Popen:
+def start(
+    cc: str, source: Path, library: Path, flags: tuple[str, ...], cleanup: tuple[Path, ...] = (), lock: int | None = None
+) -> subprocess.Popen:
     """Start compiling the file `source` into `library` (crashnlp.numerics.compile_job: through a temporary
-    name, `cleanup` removed at the end). It ends with this process unless released (`release_compiles`)."""
+    name, `cleanup` removed at the end), holding the locked descriptor `lock` while it runs. It ends with
+    this process unless released (`release_compiles`)."""
     compile = subprocess.Popen(
         [*JOB, str(library), str(source), *map(str, cleanup), "--", cc, *flags],
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
         start_new_session=True,
+        pass_fds=() if lock is None else (lock,),
     )
     _compiles.append(compile)
     return compile

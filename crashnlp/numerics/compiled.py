@@ -10,16 +10,26 @@ compiler the Function itself is returned, so results never depend on it.
 
 A compile runs in a process group of its own (crashnlp.numerics.compile_job), waited for here,
 and ends with the process that started it, on exit as on a signal, leaving no
-half-written library.
+half-written library (it is renamed into place once whole).
+
+Once per machine, not once per process: each library has a lock file beside it (LIBRARY.lock;
+`locked`, `try_lock`: flock), held for the whole compile, so that the workers of a study that
+all need the same function start one compile, not one each. A process that finds the lock held
+waits for it, as it would wait for its own compile (the other compile is as far along or
+further, and a wait takes no core from it), then loads the library. The kernel releases a flock
+when its holder dies, however it dies, so a crashed compile never holds a lock.
 """
 
 from __future__ import annotations
 
+import fcntl
 import hashlib
 import os
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
 
@@ -29,7 +39,7 @@ import numpy as np
 from crashnlp.base.cache import CACHE_ENV, cache_dir
 from crashnlp.numerics import compile_job
 
-__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler"]
+__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler", "compiling", "locked", "try_lock"]
 
 SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": the model's functions, not the NLPs
 FLAGS = ("-O2", "-fPIC", "-shared")
@@ -69,7 +79,9 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
         library = cache_dir() / f"{fn.name()}-{key}.so"
         try:
             if not library.exists():
-                build(cc, _source(fn, jacobian), library)
+                with locked(library):  # another process compiling it: its library, once written
+                    if not library.exists():
+                        build(cc, _source(fn, jacobian), library)
             _loaded[key] = ca.external(fn.name(), str(library))
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
@@ -83,6 +95,51 @@ def _source(fn: ca.Function, jacobian: bool) -> str:
     if jacobian:
         gen.add(fn.jacobian())
     return gen.dump()
+
+
+def try_lock(library: Path) -> int | None:
+    """An open descriptor of `library`'s lock file, flocked exclusively for the caller, or None
+    at once if another holds it. The lock is released when every descriptor of it is closed:
+    this one and the copy a compile inherits (crashnlp.numerics.compile_job.start), closed by
+    the kernel when their processes die, however they die."""
+    fd = _lock_file(library)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except BlockingIOError:
+        os.close(fd)
+        return None
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+@contextmanager
+def locked(library: Path) -> Iterator[None]:
+    """`library`'s lock held for the block, waited for while another holds it: check inside that
+    the library is still missing, since the holder waited for may have written it."""
+    fd = _lock_file(library)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+    finally:
+        os.close(fd)
+
+
+def compiling(library: Path) -> bool:
+    """Whether a process holds `library`'s lock now (compiles it). The probe holds the lock for an
+    instant: a compile that tries it then is not started (its caller stays in the VM this once)."""
+    fd = try_lock(library)
+    if fd is not None:
+        os.close(fd)
+    return fd is None
+
+
+def _lock_file(library: Path) -> int:
+    """An open descriptor of LIBRARY.lock beside `library`, made if need be. Lock files stay (empty):
+    one removed while held would let a second compile start on a new one."""
+    library.parent.mkdir(parents=True, exist_ok=True)
+    return os.open(library.with_suffix(".lock"), os.O_RDWR | os.O_CREAT, 0o666)
 
 
 def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:

@@ -17,6 +17,13 @@ Hessian kind and the compiler:
 - `compile: now`: compile before solving and wait (before a large study).
 - `compile: never`, or CRASHNLP_COMPILE=0 or =model: the virtual machine only.
 
+A library is compiled once per machine at a time, under its lock (crashnlp.numerics.compiled:
+a flock, released by the kernel when its compile dies): a process that finds its library being
+compiled by another (a study's other worker, another command) does not compile it again. With
+`auto` it solves in the virtual machine, as it would have without a compiler, rather than wait
+(the compile takes several times a solve, and the next solve loads the library); with `now` it
+waits for that compile, as for its own, and loads the library.
+
 The exact Hessian (designs, and fits that Gauss-Newton cannot finish) is the
 structured one of crashnlp.numerics.derivatives, compiled like the rest: derived by
 nlpsol through the whole graph, its C code ran to tens of megabytes.
@@ -32,7 +39,6 @@ import hashlib
 import os
 import subprocess
 import sys
-import time
 from contextlib import suppress
 from dataclasses import dataclass
 from functools import cache
@@ -45,7 +51,6 @@ from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
 NLP_FLAGS = ("-O1", "-ffp-contract=off", "-fPIC", "-shared")  # -O2 doubles gcc's time on 3 MB of C for ~10 % speed
-STALE_S = compile_job.TIME_LIMIT_S  # a background compile older than this is taken for dead (it ends itself by then)
 COMPILE_ERRORS = (OSError, RuntimeError, subprocess.CalledProcessError)  # an unusable cache or compiler: stay in the VM
 SOLVER_FUNCTIONS = ("nlp", "grad_f", "jac_g", "hess_lag")
 SOLVER_OPTIONS = {"no_nlp_grad": True, "calc_lam_p": False, "calc_lam_x": False, "calc_f": False, "calc_g": False}
@@ -101,8 +106,10 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
         return functions, False
     with suppress(*COMPILE_ERRORS):
         if mode == "now":
-            _write_names(functions, library)
-            compiled.build(cc, _source(functions), library, NLP_FLAGS)
+            with compiled.locked(library):
+                if not library.exists():
+                    _write_names(functions, library)
+                    compiled.build(cc, _source(functions), library, NLP_FLAGS)
             return _load(library), True
         _compile_behind(cc, functions, library)
     return functions, False
@@ -171,26 +178,26 @@ def _load(library: Path) -> dict[str, ca.Function]:
 
 
 def compiles_running(cache: Path) -> list[Path]:
-    """The sources of the NLP libraries being compiled in `cache`: each compile's source file is
-    its lock, and one older than STALE_S is taken for a dead compile's."""
-    running = []
-    for source in cache.glob("nlp-*.c"):
-        with suppress(FileNotFoundError):  # a compile that finished meanwhile removed it
-            if time.time() - source.stat().st_mtime < STALE_S:
-                running.append(source)
-    return running
+    """The NLP libraries being compiled in `cache` now: those whose lock is held."""
+    libraries = (lock.with_suffix(".so") for lock in cache.glob("nlp-*.lock"))
+    return [library for library in libraries if compiled.compiling(library)]
 
 
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
     """Start compiling the library beside this process (crashnlp.numerics.compile_job: stopped with an
-    interrupted command, finished at nice 19 after one that ends); the source file is the lock (one compile per
-    library at a time, a stale one restarted). No more compiles at once than cores: a batch of
-    many shapes compiles the rest on later runs."""
-    source = library.with_suffix(".c")
-    running = compiles_running(library.parent)
-    if source in running or len(running) >= (os.cpu_count() or 1):
+    interrupted command, finished at nice 19 after one that ends), holding its lock: none if another
+    process holds it, or wrote the library meanwhile. No more compiles at once than cores: a batch
+    of many shapes compiles the rest on later runs."""
+    if len(compiles_running(library.parent)) >= (os.cpu_count() or 1):
         return
-    library.parent.mkdir(parents=True, exist_ok=True)
-    source.write_text(_source(functions))
-    _write_names(functions, library)
-    compile_job.start(cc, source, library, NLP_FLAGS, cleanup=(source,))
+    lock = compiled.try_lock(library)
+    if lock is None:
+        return
+    try:
+        if not library.exists():
+            source = library.with_suffix(".c")
+            source.write_text(_source(functions))
+            _write_names(functions, library)
+            compile_job.start(cc, source, library, NLP_FLAGS, cleanup=(source,), lock=lock)
+    finally:
+        os.close(lock)  # the compile holds its own copy
