@@ -126,6 +126,20 @@ def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_cali
 
 
 @pytest.mark.integration
+def test_a_form_without_a_calibration_table_gives_no_interval_but_says_it_extrapolates(fitted, monkeypatch):
+    """Without a table for its form a prediction has no interval, and says so; how far it lies
+    past the fitted speed and travel it still says."""
+    from crashnlp.analysis import prediction as module
+
+    folder, _, raw, result, _ = fitted
+    monkeypatch.setattr(module, "shipped", lambda form: None)
+    prediction = crashnlp.simulate(_new_speed(folder, raw, 56), params=result)["new"]
+    assert not any(prediction.intervals.values())
+    assert any("no calibration table" in n for n in prediction.notes)
+    assert prediction.extrapolation["speed_mps"] == pytest.approx((56 - 48) / 3.6)
+    assert prediction.extrapolation["displacement_m"] > 0
+
+
 def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted):
     folder, _, raw, result, _ = fitted
     heavier = yaml.safe_load(_new_speed(folder, raw, 48).read_text())

@@ -194,15 +194,15 @@ def predict(
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
+        beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
         chosen = calibration or shipped(case.problem.model.form)
         if chosen is None:
             note = uncalibrated(test.name, case.problem.model.form)
             none: dict[str, tuple[float, float] | None] = {k: None for k in PREDICTED_KEYS}
             notes = first + drift + (note,)
-            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, none, notes=notes, data=data)
+            out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, none, {}, beyond, notes, data)
             continue
         u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
-        beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
         out[test.name] = PredictedTest(
             test.name,
             test.speed,
