@@ -18,7 +18,8 @@ another (CHECK_SEED), which it never saw, checks it: coverage, median half-width
 scenario and metric, and per form; and so does a population of another form (HIDDEN,
 HIDDEN_SEED). The records hold what a model form's fits and predictions give: each model form
 (MODEL_FORMS) is fitted to the same vehicles and gets its own table, set and checked the same way
-(`make calibrate`).
+(`make calibrate`). `--forms FORM ...` makes the named forms' tables only: the other forms' tables,
+held-out records and parts of the bench section stay as they were.
 """
 
 from __future__ import annotations
@@ -397,8 +398,7 @@ def held_out_records() -> dict[str, dict[str, list[dict]]]:
 
 def sections(by_form: dict[str, dict[int, list[dict]]]) -> dict:
     """The bench section: the default form's (section), and every other form's under "forms"."""
-    main = section(by_form[DEFAULT_FORM], DEFAULT_FORM)
-    return {**main, "forms": {form: section(rows, form) for form, rows in by_form.items() if form != DEFAULT_FORM}}
+    return merged({}, {form: section(rows, form) for form, rows in by_form.items()})
 
 
 def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> dict:
@@ -551,35 +551,50 @@ def _form_markdown(section: dict) -> list[str]:
     return lines
 
 
-def write(section: dict, by_form: dict[str, dict[int, list[dict]]]) -> None:
-    """Every model form's table into crashnlp/analysis/calibration.json, its check seed's and hidden
-    population's records into CHECK_RECORDS (compact), the section into results/bench.*."""
+BENCH_JSON, BENCH_MD = RESULTS / "bench.json", RESULTS / "bench.md"
+
+
+def write(by_form: dict[str, dict[int, list[dict]]]) -> None:
+    """The model forms of `by_form`: each one's table into crashnlp/analysis/calibration.json, its
+    check seed's and hidden population's records into CHECK_RECORDS (compact), its part of the
+    section into results/bench.*; every other form's as it was there."""
     from bench import report
 
+    made = {form: {**section(rows, form), "shipped": True} for form, rows in by_form.items()}
     path = ROOT / "crashnlp" / "analysis" / FILE
-    tables = {s["model_form"]: s["calibration"] for s in (section, *section["forms"].values())}
-    path.write_text(json.dumps(tables, indent=1) + "\n")
-    held = {form: {str(seed): compact(rows[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)} for form, rows in by_form.items()}
+    tables = json.loads(path.read_text()) if path.exists() else {}
+    path.write_text(json.dumps(tables | {form: s["calibration"] for form, s in made.items()}, indent=1) + "\n")
+    held = held_out_records() if CHECK_RECORDS.exists() else {}
+    held |= {form: {str(seed): compact(rows[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)} for form, rows in by_form.items()}
     CHECK_RECORDS.write_bytes(gzip.compress(json.dumps(held, separators=(",", ":")).encode(), mtime=0))
-    json_path, md_path = RESULTS / "bench.json", RESULTS / "bench.md"
-    results = json.loads(json_path.read_text()) if json_path.exists() else {}
-    shipped_now = {"shipped": True}
-    results["intervals"] = {**section, **shipped_now, "forms": {f: {**s, **shipped_now} for f, s in section["forms"].items()}}
-    report.write(results, json_path, md_path)
-    print(f"wrote {path}, {CHECK_RECORDS}, {json_path} and {md_path}")
+    results = json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}
+    results["intervals"] = merged(results.get("intervals", {}), made)
+    report.write(results, BENCH_JSON, BENCH_MD)
+    print(f"wrote {path}, {CHECK_RECORDS}, {BENCH_JSON} and {BENCH_MD}")
+
+
+def merged(old: dict, made: dict[str, dict]) -> dict:
+    """The bench section (sections' layout) with the parts of the model forms in `made` (form ->
+    section) in place of `old`'s, every other form's part as `old` has it."""
+    main = made.get(DEFAULT_FORM) or {k: v for k, v in old.items() if k != "forms"}
+    return {**main, "forms": old.get("forms", {}) | {form: s for form, s in made.items() if form != DEFAULT_FORM}}
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`make calibrate`: every model form's table from scratch, or with --cache DIR from the records a
-    former run left there."""
+    """`make calibrate`: every model form's table (or those --forms names) from scratch, or with
+    --cache DIR from the records a former run left there."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, help="a folder that keeps each vehicle's records between runs")
+    parser.add_argument(
+        "--forms", nargs="+", choices=list(MODEL_FORMS), default=list(MODEL_FORMS), help="the model forms to calibrate"
+    )
     args = parser.parse_args(argv)
+    if DEFAULT_FORM not in args.forms and "intervals" not in (json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}):
+        parser.error(f"{BENCH_JSON}: no key intervals to add the forms to; calibrate {DEFAULT_FORM} too")
     if args.cache is not None:
         args.cache.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault(COMPILE_ENV, "model")  # each corpus fit's NLP has a shape of its own: a compile outlasts it
-    by_form = {form: records(form, cache=args.cache) for form in MODEL_FORMS}
-    write(sections(by_form), by_form)
+    write({form: records(form, cache=args.cache) for form in dict.fromkeys(args.forms)})
     return 0
 
 

@@ -21,6 +21,7 @@ from bench.calibration import (
     evaluate,
     held_out_records,
     judged,
+    merged,
     with_form,
 )
 from bench.corpus import random_vehicle
@@ -139,6 +140,21 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
     for metric in PREDICTED_KEYS:
         covered = np.mean([by[metric]["coverage"] for by in held.values()])
         assert covered >= 0.9, (metric, covered)
+
+
+def test_calibrating_some_forms_replaces_their_parts_of_the_bench_section_and_keeps_the_others():
+    """`bench/calibration.py --forms`: the named forms' parts of the section in place of the old
+    ones, every other form's (the default's too) as it was; the default's part is the section's top."""
+    old = merged({}, {"pendulum": {"model_form": "pendulum", "n": 1}, "rigid-body": {"model_form": "rigid-body", "n": 1}})
+    assert old == {"model_form": "pendulum", "n": 1, "forms": {"rigid-body": {"model_form": "rigid-body", "n": 1}}}
+    new = merged(old, {"engine-on-mounts": {"model_form": "engine-on-mounts", "n": 2}})
+    assert {k: v for k, v in new.items() if k != "forms"} == {"model_form": "pendulum", "n": 1}
+    assert new["forms"] == {
+        "rigid-body": {"model_form": "rigid-body", "n": 1},
+        "engine-on-mounts": {"model_form": "engine-on-mounts", "n": 2},
+    }
+    again = merged(new, {"pendulum": {"model_form": "pendulum", "n": 3}})
+    assert again["n"] == 3 and again["forms"] == new["forms"]
 
 
 @pytest.mark.parametrize("form", sorted(COMPARED))
