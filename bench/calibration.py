@@ -46,10 +46,12 @@ from bench.common import RESULTS, ROOT  # noqa: E402
 from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
+from crashnlp.analysis.prediction import PredictedTest, predict  # noqa: E402
 from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
+from crashnlp.case.case import case_of  # noqa: E402
 from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
-from crashnlp.results.identified import IdentifiedRange  # noqa: E402
+from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 
 VERSION = 4
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
@@ -145,7 +147,7 @@ def held_out(
             if result.ok:
                 ratio = MASS_RATIOS.get(scenario, 1.0)
                 problem = prediction_problem(path, target, folder, v.mass * ratio if ratio != 1.0 else None)
-                predicted = crashnlp.simulate(problem, params=result)[f"{target:.0f}kph"]
+                predicted = prediction(problem, result, model_form)[f"{target:.0f}kph"]
                 klass, distance = reach(result.identified.range, predicted.speed, predicted.mass)
                 row |= {
                     "class": klass,
@@ -159,6 +161,15 @@ def held_out(
                 }
             out.append(row)
     return out
+
+
+def prediction(problem: crashnlp.Problem, result: crashnlp.Result, model_form: str) -> dict[str, PredictedTest]:
+    """`crashnlp.simulate(problem, params=result)`, the intervals' parts of a model form without a
+    table of its own made with the default form's: a record keeps of the table only the form
+    term's unit, which `_parts` makes again with the power being calibrated, so a form's first
+    table is made from its own fits as its next ones are."""
+    case = case_of(apply(problem, result.identified, problem.name))
+    return predict(case, result.identified, calibration=shipped(model_form) or shipped())
 
 
 def with_form(path: Path, model_form: str) -> Path:
