@@ -80,6 +80,7 @@ POPULATIONS: dict[int, tuple[dict[str, Callable[..., Vehicle]], dict[str, int]]]
 MODEL_FORMS: dict[str, dict[int, dict[str, int]] | None] = {
     DEFAULT_FORM: None,
     "rigid-body": None,
+    "engine-on-mounts": None,
 }
 CHECK_RECORDS = ROOT / "tests" / "data" / "calibration-held-out.json.gz"  # written by make calibrate
 LABELS = {SET_SEED: "set seed", CHECK_SEED: "check seed (unseen)", HIDDEN_SEED: "hidden population (unseen form)"}
