@@ -18,7 +18,8 @@ another (CHECK_SEED), which it never saw, checks it: coverage, median half-width
 scenario and metric, and per form; and so does a population of another form (HIDDEN,
 HIDDEN_SEED). The records hold what a model form's fits and predictions give: each model form
 (MODEL_FORMS) is fitted to the same vehicles and gets its own table, set and checked the same way
-(`make calibrate`).
+(`make calibrate`). `--forms FORM ...` makes the named forms' tables only: the other forms' tables,
+held-out records and parts of the bench section stay as they were.
 """
 
 from __future__ import annotations
@@ -45,10 +46,12 @@ from bench.common import RESULTS, ROOT  # noqa: E402
 from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
+from crashnlp.analysis.prediction import PredictedTest, predict  # noqa: E402
 from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
+from crashnlp.case.case import case_of  # noqa: E402
 from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
-from crashnlp.results.identified import IdentifiedRange  # noqa: E402
+from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 
 VERSION = 4
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
@@ -77,6 +80,7 @@ POPULATIONS: dict[int, tuple[dict[str, Callable[..., Vehicle]], dict[str, int]]]
 MODEL_FORMS: dict[str, dict[int, dict[str, int]] | None] = {
     DEFAULT_FORM: None,
     "rigid-body": None,
+    "engine-on-mounts": None,
 }
 CHECK_RECORDS = ROOT / "tests" / "data" / "calibration-held-out.json.gz"  # written by make calibrate
 LABELS = {SET_SEED: "set seed", CHECK_SEED: "check seed (unseen)", HIDDEN_SEED: "hidden population (unseen form)"}
@@ -144,7 +148,7 @@ def held_out(
             if result.ok:
                 ratio = MASS_RATIOS.get(scenario, 1.0)
                 problem = prediction_problem(path, target, folder, v.mass * ratio if ratio != 1.0 else None)
-                predicted = crashnlp.simulate(problem, params=result)[f"{target:.0f}kph"]
+                predicted = prediction(problem, result, model_form)[f"{target:.0f}kph"]
                 klass, distance = reach(result.identified.range, predicted.speed, predicted.mass)
                 row |= {
                     "class": klass,
@@ -158,6 +162,15 @@ def held_out(
                 }
             out.append(row)
     return out
+
+
+def prediction(problem: crashnlp.Problem, result: crashnlp.Result, model_form: str) -> dict[str, PredictedTest]:
+    """`crashnlp.simulate(problem, params=result)`, the intervals' parts of a model form without a
+    table of its own made with the default form's: a record keeps of the table only the form
+    term's unit, which `_parts` makes again with the power being calibrated, so a form's first
+    table is made from its own fits as its next ones are."""
+    case = case_of(apply(problem, result.identified, problem.name))
+    return predict(case, result.identified, calibration=shipped(model_form) or shipped())
 
 
 def with_form(path: Path, model_form: str) -> Path:
@@ -397,8 +410,7 @@ def held_out_records() -> dict[str, dict[str, list[dict]]]:
 
 def sections(by_form: dict[str, dict[int, list[dict]]]) -> dict:
     """The bench section: the default form's (section), and every other form's under "forms"."""
-    main = section(by_form[DEFAULT_FORM], DEFAULT_FORM)
-    return {**main, "forms": {form: section(rows, form) for form, rows in by_form.items() if form != DEFAULT_FORM}}
+    return merged({}, {form: section(rows, form) for form, rows in by_form.items()})
 
 
 def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> dict:
@@ -551,35 +563,50 @@ def _form_markdown(section: dict) -> list[str]:
     return lines
 
 
-def write(section: dict, by_form: dict[str, dict[int, list[dict]]]) -> None:
-    """Every model form's table into crashnlp/analysis/calibration.json, its check seed's and hidden
-    population's records into CHECK_RECORDS (compact), the section into results/bench.*."""
+BENCH_JSON, BENCH_MD = RESULTS / "bench.json", RESULTS / "bench.md"
+
+
+def write(by_form: dict[str, dict[int, list[dict]]]) -> None:
+    """The model forms of `by_form`: each one's table into crashnlp/analysis/calibration.json, its
+    check seed's and hidden population's records into CHECK_RECORDS (compact), its part of the
+    section into results/bench.*; every other form's as it was there."""
     from bench import report
 
+    made = {form: {**section(rows, form), "shipped": True} for form, rows in by_form.items()}
     path = ROOT / "crashnlp" / "analysis" / FILE
-    tables = {s["model_form"]: s["calibration"] for s in (section, *section["forms"].values())}
-    path.write_text(json.dumps(tables, indent=1) + "\n")
-    held = {form: {str(seed): compact(rows[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)} for form, rows in by_form.items()}
+    tables = json.loads(path.read_text()) if path.exists() else {}
+    path.write_text(json.dumps(tables | {form: s["calibration"] for form, s in made.items()}, indent=1) + "\n")
+    held = held_out_records() if CHECK_RECORDS.exists() else {}
+    held |= {form: {str(seed): compact(rows[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)} for form, rows in by_form.items()}
     CHECK_RECORDS.write_bytes(gzip.compress(json.dumps(held, separators=(",", ":")).encode(), mtime=0))
-    json_path, md_path = RESULTS / "bench.json", RESULTS / "bench.md"
-    results = json.loads(json_path.read_text()) if json_path.exists() else {}
-    shipped_now = {"shipped": True}
-    results["intervals"] = {**section, **shipped_now, "forms": {f: {**s, **shipped_now} for f, s in section["forms"].items()}}
-    report.write(results, json_path, md_path)
-    print(f"wrote {path}, {CHECK_RECORDS}, {json_path} and {md_path}")
+    results = json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}
+    results["intervals"] = merged(results.get("intervals", {}), made)
+    report.write(results, BENCH_JSON, BENCH_MD)
+    print(f"wrote {path}, {CHECK_RECORDS}, {BENCH_JSON} and {BENCH_MD}")
+
+
+def merged(old: dict, made: dict[str, dict]) -> dict:
+    """The bench section (sections' layout) with the parts of the model forms in `made` (form ->
+    section) in place of `old`'s, every other form's part as `old` has it."""
+    main = made.get(DEFAULT_FORM) or {k: v for k, v in old.items() if k != "forms"}
+    return {**main, "forms": old.get("forms", {}) | {form: s for form, s in made.items() if form != DEFAULT_FORM}}
 
 
 def main(argv: list[str] | None = None) -> int:
-    """`make calibrate`: every model form's table from scratch, or with --cache DIR from the records a
-    former run left there."""
+    """`make calibrate`: every model form's table (or those --forms names) from scratch, or with
+    --cache DIR from the records a former run left there."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cache", type=Path, help="a folder that keeps each vehicle's records between runs")
+    parser.add_argument(
+        "--forms", nargs="+", choices=list(MODEL_FORMS), default=list(MODEL_FORMS), help="the model forms to calibrate"
+    )
     args = parser.parse_args(argv)
+    if DEFAULT_FORM not in args.forms and "intervals" not in (json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}):
+        parser.error(f"{BENCH_JSON}: no key intervals to add the forms to; calibrate {DEFAULT_FORM} too")
     if args.cache is not None:
         args.cache.mkdir(parents=True, exist_ok=True)
     os.environ.setdefault(COMPILE_ENV, "model")  # each corpus fit's NLP has a shape of its own: a compile outlasts it
-    by_form = {form: records(form, cache=args.cache) for form in MODEL_FORMS}
-    write(sections(by_form), by_form)
+    write({form: records(form, cache=args.cache) for form in dict.fromkeys(args.forms)})
     return 0
 
 

@@ -17,14 +17,18 @@ from bench.calibration import (
     POPULATIONS,
     SCENARIOS,
     TARGETS,
+    _parts,
     calibrate,
     evaluate,
+    held_out,
     held_out_records,
     judged,
+    merged,
     with_form,
 )
 from bench.corpus import random_vehicle
 from bench.cross_speed import fit_problem, prediction_problem
+from crashnlp.analysis import calibration as analysis_calibration
 from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped, tables
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.problem.forms import COMPARED, FORMS
@@ -141,11 +145,26 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
         assert covered >= 0.9, (metric, covered)
 
 
-@pytest.mark.parametrize("form", sorted(COMPARED))
+def test_calibrating_some_forms_replaces_their_parts_of_the_bench_section_and_keeps_the_others():
+    """`bench/calibration.py --forms`: the named forms' parts of the section in place of the old
+    ones, every other form's (the default's too) as it was; the default's part is the section's top."""
+    old = merged({}, {"pendulum": {"model_form": "pendulum", "n": 1}, "rigid-body": {"model_form": "rigid-body", "n": 1}})
+    assert old == {"model_form": "pendulum", "n": 1, "forms": {"rigid-body": {"model_form": "rigid-body", "n": 1}}}
+    new = merged(old, {"engine-on-mounts": {"model_form": "engine-on-mounts", "n": 2}})
+    assert {k: v for k, v in new.items() if k != "forms"} == {"model_form": "pendulum", "n": 1}
+    assert new["forms"] == {
+        "rigid-body": {"model_form": "rigid-body", "n": 1},
+        "engine-on-mounts": {"model_form": "engine-on-mounts", "n": 2},
+    }
+    again = merged(new, {"pendulum": {"model_form": "pendulum", "n": 3}})
+    assert again["n"] == 3 and again["forms"] == new["forms"]
+
+
+@pytest.mark.parametrize("form", sorted(MODEL_FORMS))
 def test_each_model_form_s_shipped_table_calibrates_every_metric_of_every_class_and_names_itself(form):
-    """Every form compare chooses from has a table of its own fits (a prediction takes its form's);
-    a form without one has none to borrow."""
-    assert set(tables()) <= set(FORMS) and shipped("engine-on-mounts") is None
+    """Every model form has a table of its own fits (a prediction takes its form's), compare's
+    forms among them."""
+    assert set(COMPARED) <= set(tables()) == set(MODEL_FORMS) <= set(FORMS)
     cal = shipped(form)
     assert cal.form == form
     for klass in CLASSES:
@@ -205,3 +224,24 @@ def test_a_prediction_takes_its_model_form_s_table_and_names_it(tmp_path):
     assert test.calibration["form"] == "rigid-body"
     assert test.form_q and test.form_q == {k: shipped("rigid-body").q("up", k) for k in test.form_q}
     assert test.form_q != {k: shipped().q("up", k) for k in test.form_q}
+
+
+@pytest.mark.integration
+def test_the_records_of_a_form_without_a_table_carry_the_parts_its_first_table_is_made_from(tmp_path, monkeypatch):
+    """A model form with no table of its own (rigid-body, its table hidden) still gives each
+    held-out record every metric's interval parts: made with the default form's table, they are
+    the parts its own table gives but for the form term's unit, which _parts makes again from the
+    power being calibrated."""
+    v, scenario = random_vehicle(0, CHECK_SEED, speed=56 / 3.6), ("one test down, 56 -> 48",)
+    (tmp_path / "own").mkdir(), (tmp_path / "bare").mkdir()
+    own = held_out("rigid body", v, tmp_path / "own", scenarios=scenario, model_form="rigid-body")[0]
+    everything = tables()
+    monkeypatch.setattr(analysis_calibration, "tables", lambda: {f: t for f, t in everything.items() if f != "rigid-body"})
+    bare = held_out("rigid body", v, tmp_path / "bare", scenarios=scenario, model_form="rigid-body")[0]
+    assert set(bare["parts"]) == set(own["parts"]) == set(PREDICTED_KEYS)
+    for metric in PREDICTED_KEYS:
+        mine, borrowed = own["parts"][metric], bare["parts"][metric]
+        assert {k: x for k, x in borrowed.items() if k != "unit"} == pytest.approx({k: x for k, x in mine.items() if k != "unit"})
+        assert (
+            _parts(bare, metric, 0.7).unit == pytest.approx(_parts(own, metric, 0.7).unit) and _parts(own, metric, 0.7).unit > 0
+        )

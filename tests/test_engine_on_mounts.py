@@ -1,7 +1,7 @@
 """Physics of the engine-on-mounts form (model.form: engine-on-mounts): its equations against the
 corpus generator's (bench.corpus, written without crashnlp), its energy audit, its defaults from
-the data, what it refuses, and a fit recovering its own parameters (no calibration table: no
-intervals, and a note saying so)."""
+the data, what it refuses, and a fit recovering its own parameters, whose predictions take the
+form's own calibration table (and, without one, give no intervals and say so)."""
 
 from __future__ import annotations
 
@@ -17,9 +17,11 @@ from bench.corpus import Body, engine_vehicle
 from bench.corpus import simulate as generate
 from bench.cross_speed import fit_problem
 from bench.forms import with_form
+from crashnlp.analysis import prediction
 from crashnlp.analysis.calibration import shipped
 from crashnlp.analysis.energy import energy_audit
 from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case
 from crashnlp.case.completion import pulse
 from crashnlp.cli import main
@@ -199,10 +201,11 @@ def _truth() -> dict:
 
 @pytest.mark.integration
 @pytest.mark.slow
-def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_without_intervals(tmp_path, capsys):
+def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_with_its_form_s_intervals(tmp_path, capsys, monkeypatch):
     """The form's own 64 km/h crash (accelerometer, velocity, displacement, pitch), refitted from a
-    start 20 % off the spring and 15 % off the gap: both within 1 %. The form has no calibration
-    table, so a prediction at 56 km/h gives no interval and says so."""
+    start 20 % off the spring and 15 % off the gap: both within 1 %. A prediction at 56 km/h takes
+    the form's own calibration table (class down): every metric's interval, its parts named, and
+    the command line prints them. Without a table of its own it gives no interval and says so."""
     r = make_case(_truth()).simulate()["t64"]
     write_channels(tmp_path / "engine.csv", r)
     units = {"accel": ("accel_g", "g"), "velocity": ("vel_mps", "m/s"), "displacement": ("disp_m", "m")}
@@ -226,13 +229,23 @@ def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_without_intervals(tm
     for key, truth in TRUTH.items():
         est, truth = np.asarray(result.parameters[key], float), np.asarray(truth, float)
         assert np.all(np.abs(est - truth) < 0.01 * np.max(np.abs(truth))), (key, est, truth)
-    assert shipped("engine-on-mounts") is None
     problem["tests"] = [{"name": "t56", "speed": "56 km/h", "duration": WINDOW}]
     path.write_text(yaml.safe_dump(problem))
     test = crashnlp.simulate(path, params=result)["t56"]
-    assert not any(test.intervals.values()) and not test.form_q
-    assert any("no intervals: model form engine-on-mounts has no calibration table" in n for n in test.notes)
+    table = shipped("engine-on-mounts")
+    assert test.calibration["form"] == "engine-on-mounts" and test.form_q == {k: table.q("down", k) for k in test.form_q}
+    shares = test.shares()
+    assert set(shares) == set(PREDICTED_KEYS) and all(test.intervals[k] is not None for k in PREDICTED_KEYS)
+    for metric, part in shares.items():
+        assert {"parameters", "form", "past_the_reach", "dominant"} <= set(part)
+        low, high = test.intervals[metric]
+        assert low < test.metrics[metric] < high and test.parts[metric].unit > 0  # the calibrated form term carries it
+        assert (high - low) / 2 == pytest.approx(np.sqrt(sum(part[k] ** 2 for k in ("parameters", "form", "past_the_reach"))))
     result.save(tmp_path / "fit", figures=False)
     assert main(["simulate", str(path), "--params", str(tmp_path / "fit" / "result.json"), "--out", str(tmp_path / "o")]) == 0
     line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("t56: max displacement"))
-    assert "interval" not in line and "[" not in line  # no interval printed, nor said to be
+    assert line.endswith("(95 % intervals)")
+    monkeypatch.setattr(prediction, "shipped", lambda form: None)  # a form without a table of its own
+    test = crashnlp.simulate(path, params=result)["t56"]
+    assert not any(test.intervals.values()) and not test.form_q
+    assert any("no intervals: model form engine-on-mounts has no calibration table" in n for n in test.notes)
