@@ -2,8 +2,8 @@
 the model again.
 
 Deriving a model (Lagrange's equations by AD, the front end's laws over every breakpoint) costs
-every process that builds one 50 ms (the pickup's 8 breakpoints) to 100 ms (the Camry's 14);
-reading its Functions as CasADi serialized them costs 2 ms. A stored model is keyed by what
+every process that builds one, and every case of a study, tens of milliseconds, more with more
+breakpoints; reading its Functions as CasADi serialized them a few (CHANGELOG.md). A stored model is keyed by what
 fixes its expressions: its form's class, its Structure, its parameter layout, CasADi's version
 and the source of every module that derives it (crashnlp.models and crashnlp.base.outputs), so
 that a change to any of them derives it anew. What is read is the same Function to the last
