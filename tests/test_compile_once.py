@@ -1,15 +1,19 @@
 """One compile per library and machine, under the library's lock in the cache.
 
 A fake compiler (the machine's, after a pause, writing a line per start) stands in for `cc`, so
-that a compile is still running when another asker looks, and the starts can be counted. The
+that a compile is still running when another asker looks, and the starts can be counted. It
+writes its output file before the pause, as a linker that has begun, so that a compile killed
+meanwhile leaves what a real one leaves: its source and a partial library. The
 functions are the smallest that go through the same paths as the model's and the NLP's.
 """
 
 from __future__ import annotations
 
+import fcntl
 import os
 import shutil
 import signal
+import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
@@ -26,6 +30,7 @@ pytestmark = pytest.mark.integration
 PAUSE_ENV = "FAKE_CC_PAUSE"
 FAKE_CC = """#!/bin/sh
 echo "$$" >> "{log}"
+for arg; do [ "$previous" = -o ] && echo partial > "$arg"; previous=$arg; done
 sleep "${{{pause}:-0}}"
 exec "{cc}" "$@"
 """
@@ -51,6 +56,18 @@ def starts(log: Path) -> int:
     return len(log.read_text().split()) if log.exists() else 0
 
 
+def leftovers() -> list[str]:
+    """The compiles' sources and partial libraries in the cache."""
+    return sorted(p.name for p in cache_dir().iterdir() if p.suffix in (".c", ".tmp"))
+
+
+def wait_for_partials(count: int) -> None:
+    """Until `count` compiles have begun writing their partial library (the fake compiler's pause)."""
+    deadline = time.monotonic() + 10
+    while len([name for name in leftovers() if name.endswith(".tmp")]) < count and time.monotonic() < deadline:
+        time.sleep(0.02)
+
+
 def twice() -> ca.Function:
     x = ca.SX.sym("x")
     return ca.Function("twice", [x], [2 * x])
@@ -67,28 +84,82 @@ def test_askers_of_one_library_at_once_start_one_compile_and_all_load_it(tmp_pat
     assert [float(f(3.0)) for f in functions] == [6.0] * 3
 
 
-def test_a_background_compile_runs_once_and_one_killed_holds_no_lock(tmp_path, monkeypatch):
-    """An NLP's library compiled behind a solve: a second asker while it runs starts none (its
-    solve stays in the VM). Killed (SIGKILL, no clean-up), the compile leaves no library and no
-    lock held, so the next asker compiles it at once, not after a staleness timeout."""
+def test_a_background_compile_runs_once_and_one_killed_holds_no_lock_nor_files(tmp_path, monkeypatch):
+    """An NLP's library compiled behind a solve: a second asker while it runs starts none, at once
+    (its solve stays in the VM). Killed (SIGKILL, no clean-up), the compile leaves no library and no
+    lock held, so the next asker compiles it at once, not after a staleness timeout; its source and
+    partial library are left, and that next compile removes them."""
     log = fake_compiler(tmp_path, monkeypatch, pause=30)
     monkeypatch.setattr(compile_job, "_compiles", [])  # this test's compiles only
     cc, library = os.environ["CC"], cache_dir() / "nlp-test-gauss-newton.so"
     functions = {"twice": twice()}
     oracle._compile_behind(cc, functions, library)
+    t0 = time.monotonic()
     oracle._compile_behind(cc, functions, library)
+    assert time.monotonic() - t0 < compiled.TRY_WAIT_S  # a compile holds the lock: no wait for it
     (job,) = compile_job._compiles
-    deadline = time.monotonic() + 10
-    while starts(log) < 1 and time.monotonic() < deadline:
-        time.sleep(0.02)
+    wait_for_partials(1)
     assert starts(log) == 1 and len(oracle.compiles_running(cache_dir())) == 1
     os.killpg(job.pid, signal.SIGKILL)
     compile_job.stop_compiles([job])
     assert oracle.compiles_running(cache_dir()) == [] and not library.exists()
+    assert leftovers() == sorted([library.with_suffix(".c").name, f".{library.name}.{job.pid}.tmp"])
     monkeypatch.setenv(PAUSE_ENV, "0")
     oracle._compile_behind(cc, functions, library)
     (again,) = compile_job._compiles
     assert again.wait(timeout=60) == 0
     compile_job.stop_compiles([again])
-    assert starts(log) == 2 and library.exists()
+    assert starts(log) == 2 and library.exists() and leftovers() == []
     assert float(oracle._load(library)["twice"](3.0)) == 6.0
+
+
+def test_a_compile_removes_what_killed_compiles_left_and_not_a_running_compiles_files(tmp_path, monkeypatch):
+    """The files of a compile killed by SIGKILL (a library not compiled again) are removed by the
+    next compile of another library; those of a compile still running are not."""
+    fake_compiler(tmp_path, monkeypatch, pause=30)
+    monkeypatch.setattr(compile_job, "_compiles", [])
+    cc, killed, running = os.environ["CC"], cache_dir() / "nlp-killed.so", cache_dir() / "nlp-running.so"
+    oracle._compile_behind(cc, {"twice": twice()}, killed)
+    wait_for_partials(1)
+    (job,) = compile_job._compiles
+    os.killpg(job.pid, signal.SIGKILL)
+    compile_job.stop_compiles([job])
+    assert leftovers() == sorted([killed.with_suffix(".c").name, f".{killed.name}.{job.pid}.tmp"])
+    oracle._compile_behind(cc, {"twice": twice()}, running)
+    wait_for_partials(1)
+    (behind,) = compile_job._compiles
+    running_files = sorted([running.with_suffix(".c").name, f".{running.name}.{behind.pid}.tmp"])
+    assert leftovers() == running_files
+    monkeypatch.setenv(PAUSE_ENV, "0")
+    assert compiled.compiled(twice()).class_name() == "External"  # compiled inline, meanwhile
+    assert leftovers() == running_files
+    compile_job.stop_compiles([behind])
+    assert leftovers() == []
+
+
+def test_a_look_at_the_lock_does_not_stop_a_compile_that_tries_it(tmp_path, monkeypatch):
+    """`compiling` (and so `compiles_running`) looks at a library's lock by taking it for an instant;
+    a background compile that tries the lock in that instant is started all the same. The look is
+    stretched to 0.1 s (its flock sleeps once it has the lock, as a looker descheduled there would),
+    and the compile tries in the middle of it."""
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setattr(compile_job, "_compiles", [])
+    cc, library = os.environ["CC"], cache_dir() / "nlp-test-gauss-newton.so"
+    flock, held = fcntl.flock, threading.Event()
+
+    def stretched(fd: int, operation: int) -> None:
+        flock(fd, operation)
+        if threading.current_thread().name == "look":
+            held.set()
+            time.sleep(0.1)
+
+    monkeypatch.setattr(fcntl, "flock", stretched)
+    look = threading.Thread(target=compiled.compiling, args=(library,), name="look")
+    look.start()
+    assert held.wait(timeout=10)
+    oracle._compile_behind(cc, {"twice": twice()}, library)
+    look.join()
+    (job,) = compile_job._compiles  # started, not given up
+    assert job.wait(timeout=60) == 0
+    compile_job.stop_compiles([job])
+    assert library.exists()

@@ -13,8 +13,9 @@ succeeds, so that no reader sees half a library. It reads its standard input unt
 which comes when its starter closes the pipe or dies, however it dies; the whole group (compiler
 driver, cc1, as) is then stopped, unless the starter wrote RELEASE first: then the group goes on
 at nice 19, so that it takes only cores nothing else wants. Any compile ends itself after
-TIME_LIMIT_S. Whatever the ending, the temporary file and the CLEANUP files (a background
-compile's source) are removed.
+TIME_LIMIT_S. Whatever the ending but SIGKILL, the temporary file (`partial`) and the CLEANUP
+files (the source) are removed; after SIGKILL the next compile removes them
+(crashnlp.numerics.compiled.start).
 
 A starter that holds the library's lock (crashnlp.numerics.compiled.try_lock) passes it to the
 compile (`lock`): the compile inherits the locked descriptor and holds the lock until it ends,
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import atexit
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -119,6 +121,17 @@ def _at_exit() -> None:
 atexit.register(_at_exit)
 
 
+def partial(library: Path, pid: int) -> Path:
+    """Where the compile with process id `pid` writes `library` until it is whole (hidden, beside it)."""
+    return library.with_name(f".{library.name}.{pid}.tmp")
+
+
+def partial_of(path: Path) -> Path | None:
+    """The library that `path` is a partial of (`partial`), or None."""
+    match = re.fullmatch(r"\.(.+)\.[0-9]+\.tmp", path.name)
+    return path.with_name(match[1]) if match else None
+
+
 def _watch_starter() -> None:
     """Stop the group at the end of input, unless the starter released it first: then lower the
     group's priority (the compiler's processes, and those the driver starts later) and go on."""
@@ -134,10 +147,10 @@ def _watch_starter() -> None:
 def main(argv: list[str]) -> int:
     files, command = argv[: argv.index("--")], argv[argv.index("--") + 1 :]
     library, source, *cleanup = (Path(f) for f in files)
-    partial = library.with_name(f".{library.name}.{os.getpid()}.tmp")
+    temporary = partial(library, os.getpid())
     signal.signal(signal.SIGTERM, lambda signum, frame: None)  # a handler, not SIG_IGN: the compiler gets the default
     try:
-        compiler = subprocess.Popen([*command, str(source), "-o", str(partial), "-lm"], stdin=subprocess.DEVNULL)
+        compiler = subprocess.Popen([*command, str(source), "-o", str(temporary), "-lm"], stdin=subprocess.DEVNULL)
         threading.Thread(target=_watch_starter, daemon=True).start()
         try:
             code = compiler.wait(timeout=TIME_LIMIT_S)
@@ -145,10 +158,10 @@ def main(argv: list[str]) -> int:
             os.killpg(0, signal.SIGTERM)
             code = compiler.wait()
         if code == 0:
-            os.replace(partial, library)
+            os.replace(temporary, library)
         return 0 if code == 0 else 1
     finally:
-        for path in (partial, *cleanup):
+        for path in (temporary, *cleanup):
             path.unlink(missing_ok=True)
 
 

@@ -13,11 +13,21 @@ and ends with the process that started it, on exit as on a signal, leaving no
 half-written library (it is renamed into place once whole).
 
 Once per machine, not once per process: each library has a lock file beside it (LIBRARY.lock;
-`locked`, `try_lock`: flock), held for the whole compile, so that the workers of a study that
-all need the same function start one compile, not one each. A process that finds the lock held
-waits for it, as it would wait for its own compile (the other compile is as far along or
-further, and a wait takes no core from it), then loads the library. The kernel releases a flock
-when its holder dies, however it dies, so a crashed compile never holds a lock.
+`locked`, `try_lock`: flock), held exclusively by its compile from before its source is written
+until the library is renamed into place, so that the workers of a study that all need the same
+function start one compile, not one each. A process that finds the lock held waits for it, as it
+would wait for its own compile (the other compile is as far along or further, and a wait takes no
+core from it), then loads the library. The kernel releases a flock when its holder dies, however
+it dies, so a crashed compile never holds a lock.
+
+Whether a library is being compiled is seen by taking its lock shared for an instant
+(`compiling`): lookers never see each other, and a compile that tries the lock meanwhile
+(`try_lock`) waits the look out instead of giving up; it gives up at once only on a compile.
+
+A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial library stay in
+the cache. The next compile of any library (`start`) removes them: its own library's, under the
+lock it holds, and every other library's whose lock no compile holds, taken shared meanwhile so that
+none starts. A running compile's files are never removed.
 """
 
 from __future__ import annotations
@@ -27,7 +37,7 @@ import hashlib
 import os
 import shutil
 import subprocess
-import tempfile
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from functools import cache
@@ -39,10 +49,12 @@ import numpy as np
 from crashnlp.base.cache import CACHE_ENV, cache_dir
 from crashnlp.numerics import compile_job
 
-__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler", "compiling", "locked", "try_lock"]
+__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler", "compiling", "locked", "start", "try_lock"]
 
 SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": the model's functions, not the NLPs
 FLAGS = ("-O2", "-fPIC", "-shared")
+TRY_WAIT_S = 0.5  # how long a compile's try waits out lookers: a look holds the lock for microseconds
+TRY_POLL_S = 0.001
 _loaded: dict[str, ca.Function] = {}
 
 
@@ -79,9 +91,9 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
         library = cache_dir() / f"{fn.name()}-{key}.so"
         try:
             if not library.exists():
-                with locked(library):  # another process compiling it: its library, once written
+                with locked(library) as lock:  # another process compiling it: its library, once written
                     if not library.exists():
-                        build(cc, _source(fn, jacobian), library)
+                        build(cc, _source(fn, jacobian), library, lock)
             _loaded[key] = ca.external(fn.name(), str(library))
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
@@ -98,16 +110,20 @@ def _source(fn: ca.Function, jacobian: bool) -> str:
 
 
 def try_lock(library: Path) -> int | None:
-    """An open descriptor of `library`'s lock file, flocked exclusively for the caller, or None
-    at once if another holds it. The lock is released when every descriptor of it is closed:
-    this one and the copy a compile inherits (crashnlp.numerics.compile_job.start), closed by
-    the kernel when their processes die, however they die."""
+    """An open descriptor of `library`'s lock file, flocked exclusively for the caller (to compile
+    it), or None if a compile holds it. Lookers (`compiling`, `start`'s clean-up) hold it shared for
+    an instant: a try that finds only them waits them out (polling, TRY_WAIT_S at most), so that a
+    look never stops a compile. The lock is released when every descriptor of it is closed: this
+    one and the copy a compile inherits (crashnlp.numerics.compile_job.start), closed by the kernel
+    when their processes die, however they die."""
     fd = _lock_file(library)
+    deadline = time.monotonic() + TRY_WAIT_S
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-    except BlockingIOError:
-        os.close(fd)
-        return None
+        while not _flock(fd, fcntl.LOCK_EX):
+            if compiling(library) or time.monotonic() > deadline:
+                os.close(fd)
+                return None
+            time.sleep(TRY_POLL_S)
     except BaseException:
         os.close(fd)
         raise
@@ -115,24 +131,43 @@ def try_lock(library: Path) -> int | None:
 
 
 @contextmanager
-def locked(library: Path) -> Iterator[None]:
-    """`library`'s lock held for the block, waited for while another holds it: check inside that
-    the library is still missing, since the holder waited for may have written it."""
+def locked(library: Path) -> Iterator[int]:
+    """`library`'s lock held exclusively for the block, waited for while another holds it; yields its
+    descriptor (for `build`). Check inside that the library is still missing, since the holder
+    waited for may have written it."""
     fd = _lock_file(library)
     try:
         fcntl.flock(fd, fcntl.LOCK_EX)
-        yield
+        yield fd
     finally:
         os.close(fd)
 
 
 def compiling(library: Path) -> bool:
-    """Whether a process holds `library`'s lock now (compiles it). The probe holds the lock for an
-    instant: a compile that tries it then is not started (its caller stays in the VM this once)."""
-    fd = try_lock(library)
-    if fd is not None:
+    """Whether a compile holds `library`'s lock now (exclusively)."""
+    with _looked_at(library) as free:
+        return not free
+
+
+@contextmanager
+def _looked_at(library: Path) -> Iterator[bool]:
+    """`library`'s lock held shared for the block if no compile holds it (True), else not held
+    (False), without waiting. Shared, a look never makes another look or a compile's try give up
+    (`try_lock`)."""
+    fd = _lock_file(library)
+    try:
+        yield _flock(fd, fcntl.LOCK_SH)
+    finally:
         os.close(fd)
-    return fd is None
+
+
+def _flock(fd: int, operation: int) -> bool:
+    """Whether `fd` got the flock `operation` (LOCK_EX or LOCK_SH) without waiting."""
+    try:
+        fcntl.flock(fd, operation | fcntl.LOCK_NB)
+    except BlockingIOError:
+        return False
+    return True
 
 
 def _lock_file(library: Path) -> int:
@@ -142,19 +177,57 @@ def _lock_file(library: Path) -> int:
     return os.open(library.with_suffix(".lock"), os.O_RDWR | os.O_CREAT, 0o666)
 
 
-def build(cc: str, source: str, library: Path, flags: tuple[str, ...] = FLAGS) -> None:
-    """Compile `source` into `library` and wait; a signal meanwhile stops the compile."""
-    library.parent.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(dir=library.parent) as tmp:
-        src = Path(tmp) / "fn.c"
-        src.write_text(source)
-        compile = compile_job.start(cc, src, library, flags)
-        try:
-            code = compile.wait()
-        finally:
-            compile_job.stop_compiles([compile])
-        if code != 0:
-            raise subprocess.CalledProcessError(code, compile.args)
+def build(cc: str, source: str, library: Path, lock: int, flags: tuple[str, ...] = FLAGS) -> None:
+    """Compile `source` into `library` and wait, for the holder of its lock `lock` (`start`); a
+    signal meanwhile stops the compile."""
+    compile = start(cc, source, library, flags, lock)
+    try:
+        code = compile.wait()
+    finally:
+        compile_job.stop_compiles([compile])
+    if code != 0:
+        raise subprocess.CalledProcessError(code, compile.args)
+
+
+def start(cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int) -> subprocess.Popen:
+    """Start compiling `source` into `library` (crashnlp.numerics.compile_job), for the holder of its
+    lock `lock` (`try_lock`, `locked`), which the compile holds too until it ends. The source is
+    written beside the library (LIBRARY.c) and removed by the compile however it ends but by
+    SIGKILL; first, what compiles killed by SIGKILL left in the cache is removed (`_remove_leftovers`)."""
+    _remove_leftovers(library)
+    path = library.with_suffix(".c")
+    path.write_text(source)
+    return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock)
+
+
+def _remove_leftovers(own: Path) -> None:
+    """Remove the sources and partial libraries that compiles killed by SIGKILL left in `own`'s
+    folder: `own`'s (the caller holds its lock), and those of every other library whose lock no
+    compile holds, looked at meanwhile (`_looked_at`) so that none starts. Files without a lock
+    file beside their library are not a compile's, and stay."""
+    for library, files in _leftovers(own).items():
+        if library == own:
+            _remove(files)
+        elif library.with_suffix(".lock").exists():
+            with _looked_at(library) as free:
+                if free:
+                    _remove(files)
+
+
+def _leftovers(own: Path) -> dict[Path, list[Path]]:
+    """The compiles' sources (LIBRARY.c) and partial libraries (crashnlp.numerics.compile_job.partial)
+    in `own`'s folder, by library."""
+    found: dict[Path, list[Path]] = {}
+    for path in own.parent.iterdir():
+        library = path.with_suffix(own.suffix) if path.suffix == ".c" else compile_job.partial_of(path)
+        if library is not None and library.suffix == own.suffix:
+            found.setdefault(library, []).append(path)
+    return found
+
+
+def _remove(files: list[Path]) -> None:
+    for path in files:
+        path.unlink(missing_ok=True)
 
 
 class Evaluator:

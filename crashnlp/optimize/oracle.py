@@ -46,7 +46,7 @@ from pathlib import Path
 
 import casadi as ca
 
-from crashnlp.numerics import compile_job, compiled, derivatives
+from crashnlp.numerics import compiled, derivatives
 from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
 
@@ -106,10 +106,10 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
         return functions, False
     with suppress(*COMPILE_ERRORS):
         if mode == "now":
-            with compiled.locked(library):
+            with compiled.locked(library) as lock:
                 if not library.exists():
                     _write_names(functions, library)
-                    compiled.build(cc, _source(functions), library, NLP_FLAGS)
+                    compiled.build(cc, _source(functions), library, lock, NLP_FLAGS)
             return _load(library), True
         _compile_behind(cc, functions, library)
     return functions, False
@@ -178,7 +178,8 @@ def _load(library: Path) -> dict[str, ca.Function]:
 
 
 def compiles_running(cache: Path) -> list[Path]:
-    """The NLP libraries being compiled in `cache` now: those whose lock is held."""
+    """The NLP libraries being compiled in `cache` now: those whose lock a compile holds
+    (crashnlp.numerics.compiled.compiling)."""
     libraries = (lock.with_suffix(".so") for lock in cache.glob("nlp-*.lock"))
     return [library for library in libraries if compiled.compiling(library)]
 
@@ -186,7 +187,7 @@ def compiles_running(cache: Path) -> list[Path]:
 def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -> None:
     """Start compiling the library beside this process (crashnlp.numerics.compile_job: stopped with an
     interrupted command, finished at nice 19 after one that ends), holding its lock: none if another
-    process holds it, or wrote the library meanwhile. No more compiles at once than cores: a batch
+    compile holds it, or wrote the library meanwhile. No more compiles at once than cores: a batch
     of many shapes compiles the rest on later runs."""
     if len(compiles_running(library.parent)) >= (os.cpu_count() or 1):
         return
@@ -195,9 +196,7 @@ def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -
         return
     try:
         if not library.exists():
-            source = library.with_suffix(".c")
-            source.write_text(_source(functions))
             _write_names(functions, library)
-            compile_job.start(cc, source, library, NLP_FLAGS, cleanup=(source,), lock=lock)
+            compiled.start(cc, _source(functions), library, NLP_FLAGS, lock)
     finally:
         os.close(lock)  # the compile holds its own copy
