@@ -2,7 +2,8 @@
 derived models (crashnlp.models.stored) and remembered unit conversions.
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
-time: it is rebuilt on demand, and results never depend on it.
+time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
+CRASHNLP_CACHE_MB (crashnlp.numerics.compiled).
 """
 
 from __future__ import annotations

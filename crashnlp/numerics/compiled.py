@@ -28,18 +28,24 @@ A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial 
 the cache. The next compile of any library (`start`) removes them: its own library's, under the
 lock it holds, and every other library's whose lock no compile holds, taken shared meanwhile so that
 none starts. A running compile's files are never removed.
+
+What a compile may take (`start`): the cache within CRASHNLP_CACHE_MB, the least recently used
+libraries removed first (`used`, `_make_room`); and no more than half the memory available, else
+it is not started (`TooLarge`) and the functions stay in CasADi's virtual machine.
 """
 
 from __future__ import annotations
 
 import fcntl
 import hashlib
+import math
 import os
 import shutil
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from functools import cache
 from pathlib import Path
 
@@ -47,15 +53,37 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.cache import CACHE_ENV, cache_dir
+from crashnlp.base.errors import InputError
 from crashnlp.numerics import compile_job
 
-__all__ = ["CACHE_ENV", "Evaluator", "build", "cache_dir", "compiled", "compiler", "compiling", "locked", "start", "try_lock"]
+__all__ = [
+    "CACHE_ENV",
+    "Evaluator",
+    "TooLarge",
+    "build",
+    "cache_dir",
+    "cache_limit",
+    "compiled",
+    "compiler",
+    "compiling",
+    "locked",
+    "refused",
+    "start",
+    "try_lock",
+    "used",
+]
 
 SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": the model's functions, not the NLPs
 FLAGS = ("-O2", "-fPIC", "-shared")
 TRY_WAIT_S = 0.5  # how long a compile's try waits out lookers: a look holds the lock for microseconds
 TRY_POLL_S = 0.001
+LIMIT_ENV = "CRASHNLP_CACHE_MB"  # the cache's size (MB) past which a compile first removes the least recently used libraries
+DEFAULT_LIMIT_MB = 2048.0
+# gcc's peak memory per byte of CasADi's C, at -O1 and -O2: 99 to 117 for 4 to 14 MB of C, 150 and
+# more for 47 MB (docs/design-notes.md, "What a compile takes")
+MEMORY_PER_SOURCE_BYTE = 160
 _loaded: dict[str, ca.Function] = {}
+_too_large: set[Path] = set()  # the libraries this process did not compile for want of memory (`start`)
 
 
 def compiler(nlp: bool = False) -> str | None:
@@ -95,6 +123,7 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
                     if not library.exists():
                         build(cc, _source(fn, jacobian), library, lock)
             _loaded[key] = ca.external(fn.name(), str(library))
+            used(library)
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
     return _loaded[key]
@@ -189,12 +218,24 @@ def build(cc: str, source: str, library: Path, lock: int, flags: tuple[str, ...]
         raise subprocess.CalledProcessError(code, compile.args)
 
 
+class TooLarge(RuntimeError):
+    """A compile not started: it would take more memory than this machine can spare (`start`)."""
+
+
 def start(cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int) -> subprocess.Popen:
     """Start compiling `source` into `library` (crashnlp.numerics.compile_job), for the holder of its
     lock `lock` (`try_lock`, `locked`), which the compile holds too until it ends. The source is
     written beside the library (LIBRARY.c) and removed by the compile however it ends but by
-    SIGKILL; first, what compiles killed by SIGKILL left in the cache is removed (`_remove_leftovers`)."""
+    SIGKILL. First, what compiles killed by SIGKILL left in the cache is removed
+    (`_remove_leftovers`) and the cache is brought within its limit (`_make_room`).
+
+    A compile that would take more than half the memory available now (MEMORY_PER_SOURCE_BYTE) is
+    not started: one line on stderr says so, and TooLarge is raised (the caller stays in CasADi's
+    virtual machine, as without a compiler). Its other half stays the user's: a compile finishes
+    after the command, and gcc thrashing in swap would take the machine with it."""
+    _affordable(source, library)
     _remove_leftovers(library)
+    _make_room(library)
     path = library.with_suffix(".c")
     path.write_text(source)
     return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock)
@@ -228,6 +269,76 @@ def _leftovers(own: Path) -> dict[Path, list[Path]]:
 def _remove(files: list[Path]) -> None:
     for path in files:
         path.unlink(missing_ok=True)
+
+
+def used(library: Path) -> None:
+    """Mark `library` as used now (its modification time), for `_make_room`'s order."""
+    with suppress(OSError):
+        os.utime(library)
+
+
+def cache_limit() -> float:
+    """The cache's size limit in bytes: CRASHNLP_CACHE_MB megabytes, DEFAULT_LIMIT_MB where unset."""
+    raw = os.environ.get(LIMIT_ENV, "").strip()
+    try:
+        megabytes = float(raw) if raw else DEFAULT_LIMIT_MB
+    except ValueError:
+        megabytes = math.nan
+    if not megabytes >= 0:
+        raise InputError(f"{LIMIT_ENV}={raw}: expected a size in megabytes (a number >= 0)")
+    return megabytes * 1e6
+
+
+def _make_room(adding: Path) -> None:
+    """Remove the least recently used libraries (`used`) of `adding`'s folder, each with its list of
+    names, until the folder's files take at most `cache_limit()`: not `adding`, nor a library
+    whose lock a compile holds (looked at meanwhile, `_looked_at`, so that none starts). A process
+    that has a removed library loaded keeps it; the next that needs it compiles it again."""
+    files = {path: path.stat() for path in adding.parent.iterdir() if path.is_file()}
+    total, limit = sum(s.st_size for s in files.values()), cache_limit()
+    libraries = sorted((p for p in files if p.suffix == adding.suffix and p != adding), key=lambda p: files[p].st_mtime)
+    for library in libraries:
+        if total <= limit:
+            return
+        with _looked_at(library) as free:
+            if free:
+                names = library.with_suffix(".names")
+                total -= files[library].st_size + (files[names].st_size if names in files else 0)
+                _remove([library, names])
+
+
+def refused(library: Path) -> bool:
+    """Whether this process found `library` too large to compile (`start`): its source need not be
+    generated again."""
+    return library in _too_large
+
+
+def _affordable(source: str, library: Path) -> None:
+    """Raise TooLarge, and say so on stderr once a process, where compiling `source` would take more
+    than half the memory available now (`start`); nothing where the available memory is not known."""
+    if library in _too_large:
+        raise TooLarge(library.name)
+    available = available_memory()
+    need = len(source) * MEMORY_PER_SOURCE_BYTE
+    if available is not None and need > available / 2:
+        line = (
+            f"crashnlp: {library.stem} is not compiled: its {len(source) / 1e6:.0f} MB of C would take gcc about "
+            f"{need / 1e9:.1f} GB of memory, of {available / 1e9:.1f} GB available; it runs in CasADi's virtual machine"
+        )
+        print(line, file=sys.stderr)
+        _too_large.add(library)
+        raise TooLarge(line)
+
+
+def available_memory() -> float | None:
+    """The memory available to a new process now, in bytes (Linux: /proc/meminfo's MemAvailable;
+    elsewhere the free pages), or None where neither is known."""
+    with suppress(OSError, ValueError, StopIteration):
+        with open("/proc/meminfo") as meminfo:
+            return float(next(line for line in meminfo if line.startswith("MemAvailable:")).split()[1]) * 1024
+    with suppress(OSError, ValueError, AttributeError):
+        return float(os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE"))
+    return None
 
 
 class Evaluator:

@@ -102,7 +102,7 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
         if library and (library in _loaded or library.exists()):
             return _load(library), True
     functions = {**_functions(nlp, hessian), **{name: make() for name, make in nlp.extras.items()}}
-    if not (cc and library):
+    if not (cc and library) or compiled.refused(library):
         return functions, False
     with suppress(*COMPILE_ERRORS):
         if mode == "now":
@@ -174,6 +174,7 @@ def _load(library: Path) -> dict[str, ca.Function]:
     if library not in _loaded:
         names = library.with_suffix(".names").read_text().split()
         _loaded[library] = {name: ca.external(name, str(library)) for name in names}
+        compiled.used(library)
     return dict(_loaded[library])
 
 

@@ -1,0 +1,96 @@
+"""What a compile may take: the cache's disk within its limit, and no more than half the memory
+available.
+
+The compiles are real (the machine's compiler, through tests/test_compile_once.py's fake one,
+without its pause); the libraries a compile finds in the cache are files of known sizes.
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+from crashnlp.base.cache import cache_dir
+from crashnlp.base.errors import InputError
+from crashnlp.numerics import compile_job, compiled
+from crashnlp.optimize import oracle
+from tests.test_compile_once import fake_compiler, starts, twice
+
+pytestmark = pytest.mark.integration
+
+MB = 1_000_000
+
+
+def library_of(name: str, megabytes: float, age_s: float) -> Path:
+    """A library of `megabytes` in the cache, with its list of names, last used `age_s` ago."""
+    library = cache_dir() / f"{name}.so"
+    library.parent.mkdir(parents=True, exist_ok=True)
+    library.write_bytes(b"\0" * int(megabytes * MB))
+    library.with_suffix(".names").write_text("nlp\n")
+    when = library.stat().st_mtime - age_s
+    os.utime(library, (when, when))
+    return library
+
+
+def test_a_compile_first_removes_the_least_recently_used_libraries_down_to_the_limit(tmp_path, monkeypatch):
+    """Four libraries of 3 MB (12 MB) and a limit of 7 MB: the compile of a fifth removes the least
+    recently used ones that no compile holds, until 7 MB are left: the oldest, `used` since, stays;
+    the one a compile holds stays; the two next oldest go, with their lists of names."""
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setenv(compiled.LIMIT_ENV, "7")
+    oldest, held, older, newest = (library_of(n, 3, age) for n, age in (("a", 400), ("b", 300), ("c", 200), ("d", 100)))
+    compiled.used(oldest)
+    lock = compiled.try_lock(held)
+    assert lock is not None
+    try:
+        assert compiled.compiled(twice()).class_name() == "External"
+    finally:
+        os.close(lock)
+    assert oldest.exists() and oldest.with_suffix(".names").exists() and held.exists()
+    assert not older.exists() and not older.with_suffix(".names").exists() and not newest.exists()
+    assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 7 * MB
+
+
+def test_a_cache_within_its_limit_keeps_every_library(tmp_path, monkeypatch):
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.delenv(compiled.LIMIT_ENV, raising=False)
+    kept = [library_of(n, 3, age) for n, age in (("a", 400), ("b", 300))]
+    assert compiled.compiled(twice()).class_name() == "External"
+    assert all(library.exists() for library in kept)
+
+
+@pytest.mark.parametrize("value", ["lots", "-1", "nan"])
+def test_a_limit_that_is_not_a_size_is_refused_naming_the_variable(monkeypatch, value):
+    monkeypatch.setenv(compiled.LIMIT_ENV, value)
+    with pytest.raises(InputError, match=f"^{compiled.LIMIT_ENV}={value}: "):
+        compiled.cache_limit()
+
+
+def test_a_compile_that_needs_more_than_half_the_available_memory_is_not_started(tmp_path, monkeypatch, capsys):
+    """With 2 kB of memory available, the model function's compile (its C times the memory gcc takes
+    per byte) does not start: the function stays in CasADi's virtual machine, one line says why,
+    once a process; the NLP's background compile is not started either, and the solve's functions
+    are not offered for compiling again in this process (`refused`)."""
+    log = fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setattr(compile_job, "_compiles", [])
+    monkeypatch.setattr(compiled, "_too_large", set())
+    monkeypatch.setattr(compiled, "available_memory", lambda: 2000.0)
+    for _ in range(2):
+        assert compiled.compiled(twice()).class_name() != "External"
+    (line,) = capsys.readouterr().err.splitlines()
+    assert line.startswith("crashnlp: twice-") and "is not compiled" in line and "virtual machine" in line
+    library = cache_dir() / "nlp-test-gauss-newton.so"
+    with pytest.raises(compiled.TooLarge):  # the solve's caller stays in the VM (oracle.COMPILE_ERRORS)
+        oracle._compile_behind(os.environ["CC"], {"twice": twice()}, library)
+    assert compiled.refused(library) and compile_job._compiles == [] and starts(log) == 0
+    assert not library.with_suffix(".c").exists()
+    monkeypatch.setattr(compiled, "_too_large", set())  # another process, with memory enough: compiled
+    monkeypatch.setattr(compiled, "available_memory", lambda: 1e12)
+    assert compiled.compiled(twice()).class_name() == "External"
+
+
+def test_the_available_memory_is_read_from_the_machine():
+    available = compiled.available_memory()
+    assert available is None or 0 < available < 1e15
