@@ -330,18 +330,22 @@ def test_a_dask_task_whose_worker_is_lost_runs_on_another(tmp_path):
 
 
 @pytest.mark.integration
-def test_a_local_dask_cluster_runs_its_workers_without_the_profiler_and_leaves_the_callers_config():
-    """The LocalCluster's workers take LOCAL_CLUSTER_CONFIG; the process that started it keeps its own."""
+def test_a_local_dask_cluster_runs_its_workers_without_the_profiler_and_leaves_the_callers_config(monkeypatch):
+    """The LocalCluster's workers take LOCAL_CLUSTER_CONFIG, and malloc's settings of this process
+    (not the MALLOC_TRIM_THRESHOLD_ dask's nanny sets by default); the process that started it keeps its own."""
     pytest.importorskip("distributed")  # which loads its part of dask's configuration
     import dask.config as dask_config
 
+    monkeypatch.delenv("MALLOC_TRIM_THRESHOLD_", raising=False)
     before = {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG}
     executor = DaskExecutor(2)
     try:
         seen = executor.client.run(lambda: {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG})
+        trim = executor.client.run(lambda: os.environ.get("MALLOC_TRIM_THRESHOLD_"))
     finally:
         executor.close()
     assert len(seen) == 2 and all(config == LOCAL_CLUSTER_CONFIG for config in seen.values())
+    assert list(trim.values()) == [None, None]
     assert {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG} == before != LOCAL_CLUSTER_CONFIG
 
 

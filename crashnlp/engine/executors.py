@@ -38,13 +38,17 @@ WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
 NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
 # a LocalCluster's housekeeping, which shares the cores with the cases it runs: no statistical
-# profiler sampling every worker's stacks (it holds the GIL a solve's callbacks need), and the
-# event loops' tick and the system monitor at intervals a study of whole solves does not miss
+# profiler sampling every worker's stacks (it holds the GIL a solve's callbacks need), the
+# event loops' tick and the system monitor at intervals a study of whole solves does not miss,
+# and glibc's malloc left as in a local worker: dask's nanny sets MALLOC_TRIM_THRESHOLD_ for the
+# workers it starts, which turns off malloc's adaptive mmap threshold, so that every large block
+# a solve allocates is mapped and unmapped again (13 to 15 % more CPU a case)
 # (measured in docs/design-notes.md, "Dask's housekeeping on a LocalCluster")
 LOCAL_CLUSTER_CONFIG = {
     "distributed.worker.profile.enabled": False,
     "distributed.admin.tick.interval": "200ms",
     "distributed.admin.system-monitor.interval": "5s",
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
 }
 
 
