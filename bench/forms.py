@@ -1,4 +1,4 @@
-"""Model forms on tall vehicles: the pendulum against the rigid body, fitted at two speeds, predicting the third.
+"""Model forms on tall vehicles: each form `crashnlp compare` fits, fitted at two speeds, predicting the third.
 
 The vehicles are the cross-speed benchmark's vans and tall SUVs (bench/cross_speed.py's tall
 families; bench.corpus.tall_vehicle: a planar rigid body on its suspension, CG 0.30-0.45 m above
