@@ -16,5 +16,7 @@ FORMS: dict[str, str] = {
 }
 DEFAULT_FORM = "pendulum"
 # The forms `crashnlp compare` fits and the forms benchmark judges: those with a calibration table
-# of their own (crashnlp/analysis/calibration.json), so that every fit's predictions carry intervals.
-COMPARED: tuple[str, ...] = ("pendulum", "rigid-body", "engine-on-mounts")
+# of their own (crashnlp/analysis/calibration.json) whose choice was measured on vehicles of every
+# generator form. engine-on-mounts has a table but no such measurement yet: it is chosen by naming
+# it (CHANGELOG.md).
+COMPARED: tuple[str, ...] = ("pendulum", "rigid-body")
