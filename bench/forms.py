@@ -1,8 +1,8 @@
-"""Model forms on tall vehicles: the pendulum against the rigid body, fitted at two speeds, predicting the third.
+"""Model forms on tall vehicles: every model form (crashnlp.problem.forms.FORMS), fitted at two speeds, predicting the third.
 
 The vehicles are the cross-speed benchmark's vans and tall SUVs (bench/cross_speed.py's tall
 families; bench.corpus.tall_vehicle: a planar rigid body on its suspension, CG 0.30-0.45 m above
-the impact point). Each is fitted with each form of crashnlp.problem.forms.COMPARED (model.form set,
+the impact point). Each is fitted with each form of crashnlp.problem.forms.FORMS (model.form set,
 nothing else changed) from the minimal problem of two of its tests, the third predicted, as the
 cross-speed benchmark splits them: interpolation, 40 + 64 km/h fitted and 56 predicted;
 extrapolation, 40 + 56 fitted and 64 predicted. Per fit: the fitted pitch's RMSE over the two tests, the prediction's max displacement and
@@ -46,7 +46,7 @@ from bench.cross_speed import (
 )
 from crashnlp.analysis.metrics import lift_off
 from crashnlp.case.case import Case
-from crashnlp.problem.forms import COMPARED
+from crashnlp.problem.forms import FORMS
 from crashnlp.problem.load import load_problem
 
 COUNT = 6  # vehicles per tall family, as the cross-speed benchmark has them
@@ -161,7 +161,7 @@ def summary(rows: list[dict]) -> dict:
     """Per split and form: fits, converged, within the split's targets, pitch RMSE median and
     worst, worst prediction errors, predictions and fits with a lift-off."""
     return {
-        split: {form: _summary([r for r in rows if r["split"] == split and r["form"] == form], split) for form in COMPARED}
+        split: {form: _summary([r for r in rows if r["split"] == split and r["form"] == form], split) for form in FORMS}
         for split in SPLITS
     }
 
@@ -384,7 +384,7 @@ def run(quick: bool = False) -> dict:
             "built_kmh": HIDDEN_KMH,
             "split": HIDDEN_SPLIT,
             "targets": HIDDEN_TARGETS,
-            "summary": {form: _hidden_summary([r for r in hidden if r["form"] == form]) for form in COMPARED},
+            "summary": {form: _hidden_summary([r for r in hidden if r["form"] == form]) for form in FORMS},
             "fits": hidden,
             "pitch_floor": {"summary": floor_summary(floors), "vans": floors},
         },
@@ -395,7 +395,7 @@ def _fits(jobs: list[tuple[str, Vehicle, str]], tmp: Path) -> list[dict]:
     """Each (family label, vehicle, split) fitted with each form, printed as it ends."""
     rows = []
     for label, v, split in jobs:
-        for form in COMPARED:
+        for form in FORMS:
             folder = _folder(tmp, f"{v.seed}-{v.name}-{split}-{form}")
             rows.append(r := {**judge(v, form, split, folder), "family": label})
             print(_line(r), flush=True)

@@ -789,7 +789,7 @@ def whole_process_md(r: dict) -> list[str]:
 
 
 def forms_md(r: dict) -> list[str]:
-    """The pendulum against the rigid body on the tall vehicles, both splits (bench/forms.py)."""
+    """Every model form on the tall vehicles, both splits (bench/forms.py)."""
     rows = [
         [
             split,

@@ -41,7 +41,7 @@ SECTIONS = {
     "corpus": robustness,
     "self_consistency": self_consistency,
     "cross_speed": cross_speed,
-    "forms": forms,  # the pendulum against the rigid body on the tall vehicles: docs/model.md's "Which form when"
+    "forms": forms,  # every model form on the tall vehicles: docs/model.md's "Which form when"
     "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
     "detectors": detectors,  # the watch's rules: set on one corpus seed, checked on another
