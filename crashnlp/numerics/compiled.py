@@ -79,8 +79,9 @@ TRY_WAIT_S = 0.5  # how long a compile's try waits out lookers: a look holds the
 TRY_POLL_S = 0.001
 LIMIT_ENV = "CRASHNLP_CACHE_MB"  # the cache's size (MB) past which a compile first removes the least recently used libraries
 DEFAULT_LIMIT_MB = 2048.0
-# gcc's peak memory per byte of CasADi's C, at -O1 and -O2: 99 to 117 for 4 to 14 MB of C, 150 and
-# more for 47 MB (docs/design-notes.md, "What a compile takes")
+# gcc's peak memory per byte of CasADi's C, measured at the NLPs' -O1: 99 to 117 for 4 to 14 MB of
+# C, 150 and more for 47 MB (docs/design-notes.md, "What a compile takes"); the model's functions,
+# compiled at -O2, are kilobytes
 MEMORY_PER_SOURCE_BYTE = 160
 _loaded: dict[str, ca.Function] = {}
 _too_large: set[Path] = set()  # the libraries this process did not compile for want of memory (`start`)
