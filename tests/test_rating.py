@@ -1,14 +1,15 @@
 """ISO/TS 18571 rating: equal to the objective-rating-metrics package it transcribes; identical
-curves rate 1, shifted or scaled curves lower."""
+curves rate 1, shifted or scaled curves lower; its compiled time warping takes the numpy one's paths."""
 
+import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from crashnlp.analysis import rating
+from crashnlp.analysis import rating, warping
 from crashnlp.analysis.rating import iso18571, iso18571_each
-from crashnlp.numerics.compiled import cache_dir
+from crashnlp.numerics.compiled import CACHE_ENV, SWITCH_ENV, cache_dir, compiler
 
 T = np.arange(0, 0.1, 1e-4)
 SHIPPED = Path(__file__).parents[1] / "problems/data/synthetic-pickup/pickup-56kph.csv"
@@ -133,3 +134,62 @@ def test_a_pure_delay_costs_phase_in_proportion(delay):
 def test_mismatched_lengths_refused():
     with pytest.raises(ValueError, match="same length"):
         iso18571(T, pulse(T), pulse(T)[:-1])
+
+
+@pytest.fixture(scope="module")
+def kernel(tmp_path_factory):
+    """The compiled warping as a command gets it: the first rating finds no library, starts its
+    compile and rates in numpy; a rating once the compile is done loads it."""
+    if compiler() is None:
+        pytest.skip("no C compiler")
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv(CACHE_ENV, str(tmp_path_factory.mktemp("cache")))
+        mp.setenv(SWITCH_ENV, "1")
+        mp.setattr(warping, "_loaded", [])
+        assert warping.kernel() is None, "a library in an empty cache"
+        deadline = time.monotonic() + 120
+        while (lib := warping.kernel()) is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert lib is not None, "the warping's compile did not finish"
+        yield lib
+
+
+def warping_pairs():
+    """Pairs of curves for the warping, of 10 to 2001 samples: random, quantised (ties in the
+    cumulative costs), constant (ties everywhere), with a nan in either curve (a row or column of
+    nan costs) or in one cost only, and curves at a time shift from each other (the path runs
+    along the band's edge)."""
+    rng = np.random.default_rng(18571)
+    for n in (10, 11, 57, 300, 2001):
+        x, y = rng.standard_normal(n), rng.standard_normal(n)
+        yield pytest.param(x, y, id=f"random {n}")
+        yield pytest.param(np.round(2 * x), np.round(2 * y), id=f"quantised {n}")
+        yield pytest.param(np.where(np.arange(n) == n // 3, np.nan, x), y, id=f"nan in x {n}")
+        yield pytest.param(x, np.where(np.arange(n) == n - 2, np.nan, y), id=f"nan in y {n}")
+        if n > 50:  # inf - inf: one cell's cost nan, which np.minimum spreads to every cell after it
+            inf_x, inf_y = (np.where(np.arange(n) == k, np.inf, v) for k, v in ((n // 2, x), (n // 2 + 1, y)))
+            yield pytest.param(inf_x, inf_y, id=f"one nan cost {n}")
+        t = np.linspace(0, 1, n)
+        yield pytest.param(np.sin(9 * t), np.sin(9 * (t - 0.08)), id=f"shifted {n}")
+    yield pytest.param(np.ones(400), np.ones(400), id="constant")
+    yield pytest.param(np.zeros(400), np.ones(400), id="constant apart")
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # nan
+@pytest.mark.parametrize(("x", "y"), list(warping_pairs()))
+def test_the_compiled_warping_takes_the_numpy_path(kernel, x, y):
+    """The compiled warping (crashnlp.analysis.warping) and the numpy recurrence it stands in for
+    give the same path, to the last index: ties broken alike, a nan spread alike."""
+    band = int(np.ceil(rating.DTW_BAND * x.size)) - 1
+    ours = warping.warping_path(kernel, x, y, band)
+    numpy = rating._numpy_warping_paths([(x, y)], [band])[0]
+    np.testing.assert_array_equal(np.stack(ours), np.stack(numpy))
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")  # the constant and nan cases divide by 0
+def test_ratings_compiled_and_in_numpy_are_the_same_numbers(kernel, monkeypatch):
+    """Every case of the package comparison rated with the compiled warping and without: the same bits."""
+    curves = [case.values for case in CASES]
+    compiled_ratings = iso18571_each(curves)
+    monkeypatch.setattr(warping, "kernel", lambda: None)
+    assert repr(iso18571_each(curves)) == repr(compiled_ratings)

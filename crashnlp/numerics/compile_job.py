@@ -42,16 +42,24 @@ TIME_LIMIT_S = 900.0  # a compile still running after this ends itself
 STOP_WAIT_S = 10.0  # how long a stopped compile may take to remove its files before its group is killed
 # this file, run isolated (-I: no current folder or PYTHON* variables on its path; it needs only the
 # standard library): `-m crashnlp.numerics.compile_job` ran the crashnlp of the folder a command was started in
+NLP = "this problem's NLP"  # what a compile is, unless its starter says (`start`)
 JOB = (sys.executable, "-I", str(Path(__file__).resolve()))
 _compiles: list[subprocess.Popen] = []  # the compiles this process started and has not stopped
+_what: dict[int, str] = {}  # what each compile (process id) is compiling, for the line of `release_compiles`
 
 
 def start(
-    cc: str, source: Path, library: Path, flags: tuple[str, ...], cleanup: tuple[Path, ...] = (), lock: int | None = None
+    cc: str,
+    source: Path,
+    library: Path,
+    flags: tuple[str, ...],
+    cleanup: tuple[Path, ...] = (),
+    lock: int | None = None,
+    what: str = NLP,
 ) -> subprocess.Popen:
     """Start compiling the file `source` into `library` (crashnlp.numerics.compile_job: through a temporary
     name, `cleanup` removed at the end), holding the locked descriptor `lock` while it runs. It ends with
-    this process unless released (`release_compiles`)."""
+    this process unless released (`release_compiles`, whose line names it `what`)."""
     compile = subprocess.Popen(
         [*JOB, str(library), str(source), *map(str, cleanup), "--", cc, *flags],
         stdin=subprocess.PIPE,
@@ -61,6 +69,7 @@ def start(
         pass_fds=() if lock is None else (lock,),
     )
     _compiles.append(compile)
+    _what[compile.pid] = what
     return compile
 
 
@@ -97,8 +106,9 @@ def release_compiles() -> list[int]:
                 _compiles.remove(compile)
     stop_compiles()  # those that ended: waited for
     if released:
+        what = " and ".join(dict.fromkeys(_what.pop(pid, NLP) for pid in released))
         print(
-            f"crashnlp: compiling this problem's NLP in the background for the next run (pid {', '.join(map(str, released))}, "
+            f"crashnlp: compiling {what} in the background for the next run (pid {', '.join(map(str, released))}, "
             f"nice {BACKGROUND_NICE}, ends within {TIME_LIMIT_S / 60:.0f} min); {KEEP_ENV}=0 turns this off",
             file=sys.stderr,
         )

@@ -223,12 +223,15 @@ class TooLarge(RuntimeError):
     """A compile not started: it would take more memory than this machine can spare (`start`)."""
 
 
-def start(cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int) -> subprocess.Popen:
+def start(
+    cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int, what: str = compile_job.NLP
+) -> subprocess.Popen:
     """Start compiling `source` into `library` (crashnlp.numerics.compile_job), for the holder of its
     lock `lock` (`try_lock`, `locked`), which the compile holds too until it ends. The source is
     written beside the library (LIBRARY.c) and removed by the compile however it ends but by
-    SIGKILL. First, what compiles killed by SIGKILL left in the cache is removed
-    (`_remove_leftovers`) and the cache is brought within its limit (`_make_room`).
+    SIGKILL; `what` names it in the line that says it goes on after the command. First, what
+    compiles killed by SIGKILL left in the cache is removed (`_remove_leftovers`) and the cache is
+    brought within its limit (`_make_room`).
 
     A compile that would take more than half the memory available now (MEMORY_PER_SOURCE_BYTE) is
     not started: one line on stderr says so, and TooLarge is raised (the caller stays in CasADi's
@@ -239,7 +242,7 @@ def start(cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int
     _make_room(library)
     path = library.with_suffix(".c")
     path.write_text(source)
-    return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock)
+    return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock, what=what)
 
 
 def _remove_leftovers(own: Path) -> None:
