@@ -430,6 +430,35 @@ def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path,
 
 
 @pytest.mark.integration
+def test_a_compile_no_run_waits_for_gives_way_from_its_start_and_is_named(tmp_path, capsys, monkeypatch):
+    """A compile started at nice 19 (the ISO 18571 rating's time warping: no run waits for it)
+    runs so from its start, cc1 too, while its starter still runs; released with an NLP's compile,
+    one line names both."""
+    from crashnlp.numerics import compile_job
+
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    monkeypatch.delenv(compile_job.KEEP_ENV, raising=False)
+    jobs = [
+        compile_job.start("cc", _big_source(tmp_path / f"{name}.c"), tmp_path / f"{name}.so", ("-O2", "-fPIC", "-shared"), **kw)
+        for name, kw in (("nlp", {}), ("kernel", {"what": "the kernel", "nice": compile_job.BACKGROUND_NICE}))
+    ]
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not all(any("cc1" in command(p) for p in descendants(j.pid)) for j in jobs):
+            time.sleep(0.05)
+        assert {_nice(p) for p in descendants(jobs[1].pid) | {jobs[1].pid}} == {compile_job.BACKGROUND_NICE}
+        assert _nice(jobs[0].pid) < compile_job.BACKGROUND_NICE
+        assert compile_job.release_compiles() == [j.pid for j in jobs]
+    finally:
+        for job in jobs:
+            os.killpg(job.pid, signal.SIGTERM)
+            job.wait(timeout=30)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "compiling this problem's NLP and the kernel in the background" in err[0], err
+
+
+@pytest.mark.integration
 def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_path, capsys, monkeypatch):
     """Released, a compile outlives its starter's letting go and leaves the library (its source
     removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""

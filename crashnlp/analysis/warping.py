@@ -3,10 +3,11 @@ loaded with ctypes: the same paths to the bit as rating's numpy recurrence, in a
 
 The library is compiled once per machine, like the NLPs' (crashnlp.numerics.compiled: the cache
 folder, a name hashed from the source, the compiler and its flags, a lock): the first rating that
-finds it missing starts its compile and rates in numpy meanwhile; the compile finishes after the
-command, at nice 19, with a line that says so (crashnlp.numerics.compile_job). Compiled where the
-NLPs are (not with CRASHNLP_COMPILE=0 or =model); without a compiler or a usable cache the numpy
-recurrence rates, with the same numbers.
+finds it missing starts its compile, at nice 19 from its start (no run waits for it), and rates
+in numpy meanwhile; a compile still running when the command ends finishes after it, with a line
+that says so (crashnlp.numerics.compile_job). Compiled where the NLPs are (not with
+CRASHNLP_COMPILE=0 or =model); without a compiler or a usable cache the numpy recurrence rates,
+with the same numbers.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.numerics import compiled
+from crashnlp.numerics import compile_job, compiled
 
 SOURCE = Path(__file__).with_name("warping.c")
 FLAGS = ("-O2", "-ffp-contract=off", "-fPIC", "-shared")  # no contraction into FMA: numpy's bits
@@ -67,7 +68,7 @@ def _compile_behind(cc: str, source: str, library: Path) -> None:
         return
     try:
         if not library.exists():
-            compiled.start(cc, source, library, FLAGS, lock, what=WHAT)
+            compiled.start(cc, source, library, FLAGS, lock, what=WHAT, nice=compile_job.BACKGROUND_NICE)
     finally:
         os.close(lock)  # the compile holds its own copy
 

@@ -7,8 +7,9 @@ running finish for the next run (unless CRASHNLP_KEEP_COMPILING=0) and says so o
 notebook that used crashnlp as a library (crashnlp.api) gets the same at its interpreter's exit
 (`_at_exit`): its compiles finish for its next run, with the same line, unless Ctrl-C ended it.
 
-A compile is `python -I .../compile_job.py LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: it
-compiles SOURCE into a temporary file beside LIBRARY and renames that in place when the compiler
+A compile is `python -I .../compile_job.py NICE LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: at
+niceness NICE (0, or BACKGROUND_NICE for one that no process waits for: it gives way to the
+command from its start), it compiles SOURCE into a temporary file beside LIBRARY and renames that in place when the compiler
 succeeds, so that no reader sees half a library. It reads its standard input until end of file,
 which comes when its starter closes the pipe or dies, however it dies; the whole group (compiler
 driver, cc1, as) is then stopped, unless the starter wrote RELEASE first: then the group goes on
@@ -56,12 +57,13 @@ def start(
     cleanup: tuple[Path, ...] = (),
     lock: int | None = None,
     what: str = NLP,
+    nice: int = 0,
 ) -> subprocess.Popen:
     """Start compiling the file `source` into `library` (crashnlp.numerics.compile_job: through a temporary
-    name, `cleanup` removed at the end), holding the locked descriptor `lock` while it runs. It ends with
-    this process unless released (`release_compiles`, whose line names it `what`)."""
+    name, `cleanup` removed at the end) at niceness `nice`, holding the locked descriptor `lock` while it
+    runs. It ends with this process unless released (`release_compiles`, whose line names it `what`)."""
     compile = subprocess.Popen(
-        [*JOB, str(library), str(source), *map(str, cleanup), "--", cc, *flags],
+        [*JOB, str(nice), str(library), str(source), *map(str, cleanup), "--", cc, *flags],
         stdin=subprocess.PIPE,
         stdout=subprocess.DEVNULL,
         stderr=subprocess.DEVNULL,
@@ -155,7 +157,9 @@ def _watch_starter() -> None:
 
 
 def main(argv: list[str]) -> int:
-    files, command = argv[: argv.index("--")], argv[argv.index("--") + 1 :]
+    files, command = argv[1 : argv.index("--")], argv[argv.index("--") + 1 :]
+    if int(argv[0]) > os.getpriority(os.PRIO_PROCESS, 0):  # never below the starter's (not allowed)
+        os.setpriority(os.PRIO_PROCESS, 0, int(argv[0]))
     library, source, *cleanup = (Path(f) for f in files)
     temporary = partial(library, os.getpid())
     signal.signal(signal.SIGTERM, lambda signum, frame: None)  # a handler, not SIG_IGN: the compiler gets the default

@@ -224,12 +224,13 @@ class TooLarge(RuntimeError):
 
 
 def start(
-    cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int, what: str = compile_job.NLP
+    cc: str, source: str, library: Path, flags: tuple[str, ...], lock: int, what: str = compile_job.NLP, nice: int = 0
 ) -> subprocess.Popen:
     """Start compiling `source` into `library` (crashnlp.numerics.compile_job), for the holder of its
     lock `lock` (`try_lock`, `locked`), which the compile holds too until it ends. The source is
     written beside the library (LIBRARY.c) and removed by the compile however it ends but by
-    SIGKILL; `what` names it in the line that says it goes on after the command. First, what
+    SIGKILL; it runs at niceness `nice`, and `what` names it in the line that says it goes on after
+    the command. First, what
     compiles killed by SIGKILL left in the cache is removed (`_remove_leftovers`) and the cache is
     brought within its limit (`_make_room`).
 
@@ -242,7 +243,7 @@ def start(
     _make_room(library)
     path = library.with_suffix(".c")
     path.write_text(source)
-    return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock, what=what)
+    return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock, what=what, nice=nice)
 
 
 def _remove_leftovers(own: Path) -> None:
