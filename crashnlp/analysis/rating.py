@@ -2,10 +2,10 @@
 
 The rating of the `objective-rating-metrics` package (class ISO18571 with its defaults,
 unrounded), transcribed to numpy: the package's dynamic time warping (dtwalign) imports numba,
-1.4 s and ~250 MB in every process. The warping also runs in C once compiled
-(crashnlp.analysis.warping), with the same paths. tests/test_rating.py holds the three equal. ISO/TS 18571 rates
-signals sampled at 10 kHz, so both curves are linearly resampled to a 10 kHz grid over the span
-of `t` when `t` is sampled otherwise.
+1.4 s and ~250 MB in every process; the warping runs in C once that is compiled
+(crashnlp.analysis.warping), with the same paths. tests/test_rating.py holds the three equal.
+ISO/TS 18571 rates signals sampled at 10 kHz, so both curves are linearly resampled to a 10 kHz
+grid over the span of `t` when `t` is sampled otherwise.
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ def iso18571_each(curves: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]) -
     """`iso18571` of each (t, reference, model), the same numbers, their dynamic time warpings
     run side by side in numpy (`_numpy_warping_paths`: one numpy operation a diagonal for all of
     them, where each curve's own took as long) or one after another in C (a fit's four channels
-    rated in about 60 ms in numpy and 9 ms with the C, measured)."""
+    rated in 113 ms with numpy's, 16 ms with the C's, measured at a load of 6)."""
     return _ratings_each([_at_iso_rate(*curve) for curve in curves])
 
 
