@@ -6,6 +6,7 @@ import copy
 import csv
 import os
 import signal
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -162,6 +163,11 @@ def die_always(tally: str) -> int:
 def worker_pid(_) -> int:
     """A task that says which process ran it."""
     return os.getpid()
+
+
+def worker_state() -> tuple[bool, bool]:
+    """Whether this worker has the solver stack loaded, and ignores SIGINT."""
+    return "crashnlp.optimize.pipeline" in sys.modules, signal.getsignal(signal.SIGINT) is signal.SIG_IGN
 
 
 def _linear(x: np.ndarray, bps: np.ndarray, vals: np.ndarray) -> np.ndarray:

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, command, die_always, die_once, merge, parents, worker_pid
+from builders import BASE, ROOT, command, die_always, die_once, merge, parents, worker_pid, worker_state
 
 from crashnlp.base.errors import InputError, RunError
 from crashnlp.case.case import Case
@@ -347,6 +347,32 @@ def test_a_local_dask_cluster_runs_its_workers_without_the_profiler_and_leaves_t
     assert len(seen) == 2 and all(config == LOCAL_CLUSTER_CONFIG for config in seen.values())
     assert list(trim.values()) == [None, None]
     assert {key: dask_config.get(key) for key in LOCAL_CLUSTER_CONFIG} == before != LOCAL_CLUSTER_CONFIG
+
+
+@pytest.mark.integration
+@pytest.mark.filterwarnings("ignore:Port .* is already in use")  # the two clusters' schedulers' web servers
+def test_a_cluster_started_ahead_serves_the_next_executor_of_its_size_and_ends_without_leftovers():
+    """start_cluster's LocalCluster is the next DaskExecutor's of its size (one of another size is
+    closed); its workers have the solver stack loaded before any case and ignore SIGINT; closing
+    ends their processes and leaves none of their lock files in dask's scratch folder."""
+    pytest.importorskip("distributed")
+    executors.start_cluster(1)
+    executors.start_cluster(2)
+    other, started = executors._started_clusters[1], executors._started_clusters[2]
+    executor = DaskExecutor(2)
+    try:
+        assert executor.cluster is started and not executors._started_clusters
+        assert other.status.name == "closed"
+        pids = [nanny.pid for nanny in started.workers.values()]
+        locks = [Path(nanny.worker_dir + ".dirlock") for nanny in started.workers.values()]
+        assert all(lock.exists() for lock in locks)
+        state = executor.client.run(worker_state)
+    finally:
+        executor.close()
+    assert list(state.values()) == [(True, True)] * 2
+    time.sleep(0.2)
+    assert not [pid for pid in pids if Path(f"/proc/{pid}").exists() and " Z " not in Path(f"/proc/{pid}/stat").read_text()]
+    assert not [lock for lock in locks if lock.exists()]
 
 
 def test_a_dask_cluster_left_without_workers_ends_the_run_in_one_line(monkeypatch):

@@ -13,9 +13,12 @@ from __future__ import annotations
 
 import json
 import sys
+import threading
+from collections.abc import Callable
+from concurrent.futures import Future
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 from tqdm import tqdm
@@ -23,7 +26,7 @@ from tqdm import tqdm
 from crashnlp.base.errors import InputError
 from crashnlp.case.checks import check_keys, check_tests
 from crashnlp.engine import CONNECT_TIMEOUT
-from crashnlp.engine.executors import default_workers, make_executor, start_early
+from crashnlp.engine.executors import default_workers, discard_started_clusters, make_executor, start_cluster, start_early
 from crashnlp.engine.schedule import run_tree
 from crashnlp.problem import problem_from_dict
 from crashnlp.results.files import claim, run_name
@@ -38,6 +41,7 @@ if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
 RESULTS = Path("results")
+T = TypeVar("T")
 
 
 def constraint_names(study: Study) -> list[str]:
@@ -69,17 +73,45 @@ def run_study(
     """
     if executor == "local" and not check:
         start_early()  # the workers' fork server preloads crashnlp while the cases are checked
+    try:
+        if executor == "dask" and address is None and not check:
+            checking = _in_thread(_checked_cases, path)  # while the LocalCluster starts (it must in the main thread)
+            start_cluster(workers or default_workers())
+            study, cases, raws = checking.result()
+        else:
+            study, cases, raws = _checked_cases(path)
+        if check:
+            return []
+        out = Path(out) if out is not None else RESULTS / study.name
+        with claim(out, run_name("study", study.name), option=None):
+            return _run(study, cases, raws, out, executor, workers, address, progress, timeout)
+    finally:
+        discard_started_clusters()  # one not taken: the study was refused, or had fewer cases left than workers
+
+
+def _checked_cases(path: str | Path) -> tuple[Study, list[PlannedCase], dict[int, dict]]:
+    """The study, its cases and their raw problems, every one validated."""
     study = load_study(path)
-    out = Path(out) if out is not None else RESULTS / study.name
     cases = plan_cases(study)
     raws = {c.number: _case_problem(study, c) for c in cases}
     checked: set[str] = set()
     for c in cases:
         _validate(study, c, raws[c.number], checked)
-    if check:
-        return []
-    with claim(out, run_name("study", study.name), option=None):
-        return _run(study, cases, raws, out, executor, workers, address, progress, timeout)
+    return study, cases, raws
+
+
+def _in_thread(fn: Callable[..., T], *args: Any) -> Future[T]:
+    """fn(*args) in a daemon thread of its own (the process does not wait for it if stopped)."""
+    future: Future[T] = Future()
+
+    def run() -> None:
+        try:
+            future.set_result(fn(*args))
+        except BaseException as exc:  # noqa: BLE001 - the caller of result() gets it
+            future.set_exception(exc)
+
+    threading.Thread(target=run, name="crashnlp-check", daemon=True).start()
+    return future
 
 
 def _run(
