@@ -15,6 +15,7 @@ console and exit codes over that pipeline.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
@@ -130,13 +131,14 @@ def simulate(
     return predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
 
 
-def compare(problem: Problem | str | Path, progress: TextIO | None = None) -> Comparison:
-    """Fit every model form (crashnlp.problem.forms) to the problem's tests and choose one by
-    what the fits did not see: leave-one-test-out prediction with two or more tests, BIC with
-    one (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
+def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] | None = None) -> Comparison:
+    """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED) to the problem's tests
+    and choose one by what the fits did not see: leave-one-test-out prediction with two or more
+    tests, BIC with one (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
     from crashnlp.optimize.comparison import compare as compare_forms
+    from crashnlp.problem.forms import COMPARED
 
-    return compare_forms(_problem(problem), _source(problem), progress)
+    return compare_forms(_problem(problem), _source(problem), progress, forms or COMPARED)
 
 
 def study(

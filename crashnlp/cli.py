@@ -365,15 +365,18 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
-    from crashnlp.optimize.comparison import compare
+    from crashnlp.optimize.comparison import check_forms, compare
     from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
+    from crashnlp.problem.forms import COMPARED
     from crashnlp.results.jsonfile import write_json
 
+    forms = args.forms or COMPARED
     problem = load_problem(args.problem)
     if problem.kind != "identify":
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; compare fits an identify problem's forms")
     prepare_case(problem, args.problem)
+    check_forms(forms)
     run = run_name("compare", problem.name)
     out = check_output(_out(args, f"{problem.name}-compare"), run)
     if args.check:
@@ -381,7 +384,7 @@ def cmd_compare_forms(args) -> int:
         return 0
     with claim(out, run):
         with _computing(args):
-            comparison = compare(problem, args.problem, progress=sys.stdout)
+            comparison = compare(problem, args.problem, progress=sys.stdout, forms=forms)
         write_json(out / "compare.json", comparison.to_json())
     print(f"  {'':<24}" + "".join(f"{f.form:>14}" for f in comparison.forms))
     print(f"  {'status':<24}" + "".join(f"{f.status.split(':')[0][:13]:>14}" for f in comparison.forms))
@@ -568,6 +571,12 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare", help="fit every model form (model.form) and choose one by held-out prediction or BIC")
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
     p.add_argument("--out", help="output folder (default results/<problem name>-compare)")
+    p.add_argument(
+        "--forms",
+        nargs="+",
+        metavar="FORM",
+        help="the model forms to fit (model.form; default: pendulum rigid-body, the engine-on-mounts form when named)",
+    )
     p.set_defaults(func=cmd_compare_forms)
 
     add_study_parser(sub)

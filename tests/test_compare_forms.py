@@ -32,15 +32,24 @@ def test_the_lowest_held_out_score_wins_but_a_tie_keeps_the_default():
     assert choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-100.0 - 3 * BIC_TIE)], "bic")[0] == "rigid-body"
 
 
-def test_a_failed_fit_or_a_front_end_lifted_off_is_not_chosen_while_another_form_serves():
+def test_a_failed_fit_is_not_chosen_while_another_form_serves():
     failed = _score("rigid-body", held=0.01, status="solver failed: Maximum_Iterations_Exceeded")
     assert choose([_score("pendulum", held=0.10), failed], "held-out")[0] == "pendulum"
-    choice, reason = choose([_score("pendulum", held=0.01, off=0.05), _score("rigid-body", held=0.10)], "held-out")
-    assert choice == "rigid-body" and "lift" in reason
     assert choose([_score("pendulum", held=None), _score("rigid-body", held=None)], "held-out")[0] is None
 
 
-def test_a_lift_off_counts_against_a_form_only_where_the_measured_vehicle_was_still_pushed():
+def test_a_lift_off_is_named_beside_the_choice_but_does_not_pass_over_a_better_score():
+    """A held-out prediction that lets go while the data still push costs its form in the score
+    already; the form with several times the held-out error is not chosen for keeping on the
+    barrier (the hidden van v01: the rigid body 0.064, lifting off 6 ms early, against 0.342)."""
+    scores = [_score("pendulum", held=0.14, off=0.077), _score("rigid-body", held=0.064, off=0.083)]
+    choice, reason = choose([*scores, _score("engine-on-mounts", held=0.342)], "held-out")
+    assert choice == "rigid-body" and "83.0 ms" in reason
+    choice, reason = choose([_score("pendulum", held=0.10), _score("rigid-body", held=0.05)], "held-out")
+    assert choice == "rigid-body" and "lets the front end go" not in reason
+
+
+def test_a_lift_off_is_named_only_where_the_measured_vehicle_was_still_pushed():
     t = np.linspace(0.0, 0.1, 101)
     velocity, contact = np.maximum(5 - 60 * t, 0.3), np.where(t < 0.07, 1e5, 0.0)
     response = Response(t, {"velocity": velocity, "contact_force": contact}, np.zeros((0, t.size)))
@@ -157,4 +166,14 @@ def test_compare_check_reads_the_problem_and_writes_nothing(tmp_path, capsys):
     out = tmp_path / "out"
     assert main(["compare", str(BASE_DIR / "pickup-joint.yaml"), "--out", str(out), "--check"]) == 0
     assert "pickup-joint.yaml: ok (2 tests; would write" in capsys.readouterr().out
+    assert not out.exists()
+
+
+def test_compare_refuses_a_form_it_does_not_have_in_one_line(tmp_path, capsys):
+    out = tmp_path / "out"
+    for extra in ([], ["--check"]):
+        args = ["compare", str(BASE_DIR / "pickup-joint.yaml"), "--out", str(out), "--forms", "rigid-body", "wheel", *extra]
+        assert main(args) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--forms" in err[0] and "'wheel'" in err[0] and "engine-on-mounts" in err[0]
     assert not out.exists()

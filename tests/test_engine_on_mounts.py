@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import casadi as ca
 import numpy as np
 import pytest
 import yaml
@@ -131,6 +132,33 @@ def test_the_engine_pushes_the_barrier_only_once_its_gap_closes():
     reach = x + u - ENGINE["gap"]
     assert np.max(engine[reach < -0.5 * CONTACT_WIDTH]) < 1e-5  # N: the separation band, closed to OPEN of its width
     assert np.min(engine) >= 0.0 and np.max(engine) > 1e5
+
+
+@pytest.mark.parametrize("corner", [0.0, CONTACT_WIDTH])
+def test_the_contact_force_has_no_kink_where_its_damper_engages(corner):
+    """The contact's force is once differentiable in the engine's reach where its damper starts
+    and ends engaging (reach 0 and CONTACT_WIDTH), the engine closing at 10 m/s: the fitted gap
+    moves those corners through the integration steps. A clamped engagement put a jump of
+    c v / CONTACT_WIDTH (6 times the contact's stiffness here) into the slope."""
+    case = engine_case()
+    model = case.model
+    contact = model.contacts()[0]
+    force = ca.Function("force", [model.x, model.p], [contact.force])
+    p = case.test_parameters(case.tests[0])
+    moving = np.zeros(model.x.shape[0])
+    moving[model.states().index("xdot")] = 10.0
+
+    def slope(reach: float) -> float:
+        """dF/dreach by a central difference of 10 nm, the engine's travel on its mounts held at 0."""
+        x = [moving.copy() for _ in range(2)]
+        for x_i, sign in zip(x, (1, -1)):
+            x_i[model.states().index("x")] = ENGINE["gap"] + reach + sign * 1e-8
+        return float(force(x[0], p) - force(x[1], p)) / 2e-8
+
+    below, above = slope(corner - 1e-6), slope(corner + 1e-6)
+    assert abs(above - below) < 0.05 * ENGINE["contact_stiffness"]
+    # the damper's part: engaged, c v on top of the spring's k r
+    assert slope(0.5 * CONTACT_WIDTH) > ENGINE["contact_stiffness"]
 
 
 def test_defaults_come_from_the_vehicle_and_the_recorded_pulse():

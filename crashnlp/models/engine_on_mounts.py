@@ -38,7 +38,7 @@ import numpy as np
 
 from crashnlp.base.errors import InputError
 from crashnlp.models.form import OPEN_AT_IMPACT, SEPARATION, Contact, Expr, Mechanics
-from crashnlp.models.laws import engagement, never_pulling, rounded_hinge, rounded_hinge_integral
+from crashnlp.models.laws import never_pulling, rounded_hinge, rounded_hinge_integral, smooth_engagement
 from crashnlp.models.rigid_body import RigidBodyModel
 from crashnlp.problem.schema import Engine, EstimateSpec, Problem, with_fields
 
@@ -97,7 +97,8 @@ class EngineOnMountsModel(RigidBodyModel):
     def contacts(self) -> tuple[Contact, ...]:
         """The engine's contact with the barrier: elastic k_c r (its corner rounded over
         CONTACT_WIDTH, zero before it: the barrier does not reach out), a damper c_c rdot engaged
-        over the first CONTACT_WIDTH, the push never pulling (its separation rounded as the front
+        over the first CONTACT_WIDTH, its corners rounded (`smooth_engagement`: the gap, a fitted
+        parameter, moves where they are crossed), the push never pulling (its separation rounded as the front
         end's, closed before it touches)."""
         eps = CONTACT_WIDTH if self.structure.eps_crush > 0 else 0.0
         k, c = self._par("vehicle.engine.contact_stiffness"), self._par("vehicle.engine.contact_damping")
@@ -107,7 +108,7 @@ class EngineOnMountsModel(RigidBodyModel):
             elastic, stored = k * rounded_hinge(reach, eps), k * rounded_hinge_integral(reach, eps)
         else:
             elastic, stored = k * ca.fmax(reach, 0), 0.5 * k * ca.fmax(reach, 0) ** 2
-        engaged = engagement(reach, eps)
+        engaged = smooth_engagement(reach, eps)
         push = elastic + engaged * c * rate
         force = never_pulling(push, SEPARATION * eps * k * (engaged + OPEN_AT_IMPACT), eps)
         return (Contact(reach, force, elastic, stored),)

@@ -15,8 +15,7 @@ FORMS: dict[str, str] = {
     "engine-on-mounts": "crashnlp.models.engine_on_mounts:EngineOnMountsModel",
 }
 DEFAULT_FORM = "pendulum"
-# The forms `crashnlp compare` fits: those with a calibration table of their own
-# (crashnlp/analysis/calibration.json) whose choice holds on vehicles of every generator form.
-# engine-on-mounts has a table, but among these it was chosen on vans without an engine, whose
-# rigid body scored several times better (the forms benchmark, CHANGELOG.md): it is chosen by naming it.
+# The forms `crashnlp compare` fits unless told (`--forms`). engine-on-mounts is fitted when named:
+# its fits cost many times the others' (compare of the shipped pickup-joint: 147 s of CPU with it,
+# 4.4 s without; docs/design-notes.md, "Which form: the score, not the lift-off").
 COMPARED: tuple[str, ...] = ("pendulum", "rigid-body")
