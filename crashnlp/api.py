@@ -22,6 +22,7 @@ from typing import TYPE_CHECKING, Any, TextIO
 import numpy as np
 
 from crashnlp.problem import Problem, load_problem
+from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
@@ -131,14 +132,13 @@ def simulate(
     return predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
 
 
-def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] | None = None) -> Comparison:
+def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] = COMPARED) -> Comparison:
     """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED) to the problem's tests
     and choose one by what the fits did not see: leave-one-test-out prediction with two or more
     tests, BIC with one (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
     from crashnlp.optimize.comparison import compare as compare_forms
-    from crashnlp.problem.forms import COMPARED
 
-    return compare_forms(_problem(problem), _source(problem), progress, forms or COMPARED)
+    return compare_forms(_problem(problem), _source(problem), progress, forms)
 
 
 def study(

@@ -14,7 +14,6 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
-import os
 import subprocess
 from pathlib import Path
 
@@ -42,7 +41,7 @@ def kernel() -> ctypes.CDLL | None:
     library = _library(cc, source)
     try:
         if not library.exists():
-            _compile_behind(cc, source, library)
+            compiled.start_behind(cc, library, FLAGS, lambda: source, what=WHAT, nice=compile_job.BACKGROUND_NICE)
             return None
         lib = ctypes.CDLL(str(library))
         compiled.used(library)
@@ -58,19 +57,6 @@ def _library(cc: str, source: str) -> Path:
     """Where the library of `source` compiled by `cc` is kept: named by a hash of both and FLAGS."""
     key = hashlib.sha256("\0".join([source, cc, *FLAGS]).encode()).hexdigest()[:20]
     return compiled.cache_dir() / f"warping-{key}.so"
-
-
-def _compile_behind(cc: str, source: str, library: Path) -> None:
-    """Start compiling `library` beside this process, holding its lock: not if another compile
-    holds it or wrote the library meanwhile."""
-    lock = compiled.try_lock(library)
-    if lock is None:
-        return
-    try:
-        if not library.exists():
-            compiled.start(cc, source, library, FLAGS, lock, what=WHAT, nice=compile_job.BACKGROUND_NICE)
-    finally:
-        os.close(lock)  # the compile holds its own copy
 
 
 def warping_path(lib: ctypes.CDLL, x: np.ndarray, y: np.ndarray, band: int) -> tuple[np.ndarray, np.ndarray]:

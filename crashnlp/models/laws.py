@@ -45,10 +45,8 @@ def smooth_engagement(z: Expr, eps: float) -> Expr:
     """`engagement` with its two corners rounded: 3 s^2 - 2 s^3 of s = clamp(z / eps, 0, 1), once
     differentiable, so that a damper engaging where a parameter moves the contact's start (an
     engine's gap) does not put a kink of c * v / eps into the force; a step where eps is 0."""
-    if eps <= 0:
-        return z > 0
-    s = ca.fmin(ca.fmax(z / eps, 0), 1)
-    return s * s * (3 - 2 * s)
+    s = engagement(z, eps)
+    return s * s * (3 - 2 * s) if eps > 0 else s
 
 
 def never_pulling(push: Expr, width: Expr, eps: float) -> Expr:

@@ -44,7 +44,7 @@ import shutil
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager, suppress
 from functools import cache
 from pathlib import Path
@@ -69,6 +69,7 @@ __all__ = [
     "locked",
     "refused",
     "start",
+    "start_behind",
     "try_lock",
     "used",
 ]
@@ -244,6 +245,22 @@ def start(
     path = library.with_suffix(".c")
     path.write_text(source)
     return compile_job.start(cc, path, library, flags, cleanup=(path,), lock=lock, what=what, nice=nice)
+
+
+def start_behind(
+    cc: str, library: Path, flags: tuple[str, ...], source: Callable[[], str], what: str = compile_job.NLP, nice: int = 0
+) -> None:
+    """Start compiling `library` beside this process (`start`), holding its lock: not if a compile
+    holds it, or wrote the library meanwhile. `source` makes the C once the lock is held (and
+    whatever the library needs beside it)."""
+    lock = try_lock(library)
+    if lock is None:
+        return
+    try:
+        if not library.exists():
+            start(cc, source(), library, flags, lock, what=what, nice=nice)
+    finally:
+        os.close(lock)  # the compile holds its own copy
 
 
 def _remove_leftovers(own: Path) -> None:

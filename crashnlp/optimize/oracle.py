@@ -192,12 +192,9 @@ def _compile_behind(cc: str, functions: dict[str, ca.Function], library: Path) -
     of many shapes compiles the rest on later runs."""
     if len(compiles_running(library.parent)) >= (os.cpu_count() or 1):
         return
-    lock = compiled.try_lock(library)
-    if lock is None:
-        return
-    try:
-        if not library.exists():
-            _write_names(functions, library)
-            compiled.start(cc, _source(functions), library, NLP_FLAGS, lock)
-    finally:
-        os.close(lock)  # the compile holds its own copy
+
+    def source() -> str:
+        _write_names(functions, library)
+        return _source(functions)
+
+    compiled.start_behind(cc, library, NLP_FLAGS, source)

@@ -16,6 +16,5 @@ FORMS: dict[str, str] = {
 }
 DEFAULT_FORM = "pendulum"
 # The forms `crashnlp compare` fits unless told (`--forms`). engine-on-mounts is fitted when named:
-# its fits cost many times the others' (compare of the shipped pickup-joint: 147 s of CPU with it,
-# 4.4 s without; docs/design-notes.md, "Which form: the score, not the lift-off").
+# its fits cost many times the others' (docs/design-notes.md, "Which form: the score, not the lift-off").
 COMPARED: tuple[str, ...] = ("pendulum", "rigid-body")
