@@ -11,7 +11,10 @@ someone else's process (tests, notebooks, crashnlp.cli.main called from Python) 
   study workers, compiles) inherit it.
 - Python's cyclic garbage collector runs every 700 net allocations of container objects (its
   default threshold), each run going through the young objects: some 120 runs in a warm
-  identify, most of them while the modules load. The command runs it every GC_YOUNG instead.
+  identify, most of them while the modules load. The command runs it every GC_YOUNG instead,
+  and once the command's modules are loaded it moves what is alive into the collector's
+  permanent generation (gc.freeze): the modules, classes and functions live as long as the
+  process, and the oldest generation's collections no longer go through them.
 - Python's teardown at exit (a last garbage collection, every module's objects freed one by
   one, the libraries' destructors) frees what the system frees at once when the process ends.
   Once the command has returned, its exit handlers run (atexit, as at a normal exit) and its
@@ -41,6 +44,7 @@ def run() -> NoReturn:
     gc.set_threshold(GC_YOUNG)
     from crashnlp.cli import main  # after the variable: it imports numpy
 
+    gc.freeze()
     end(main())
 
 

@@ -17,7 +17,6 @@ import re
 import signal
 import sys
 import threading
-import traceback
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager, nullcontext, redirect_stderr
@@ -711,6 +710,8 @@ def describe(exc: BaseException) -> str:
 
 def _fail(message: str, code: int, debug: bool) -> int:
     if debug:
+        import traceback  # here, not at the top: a command without --debug has no use for it
+
         traceback.print_exc()
     print(f"crashnlp: {message}", file=sys.stderr)
     return code

@@ -55,19 +55,22 @@ def test_the_end_with_daemon_threads_alone_is_at_once(tmp_path):
 def test_the_command_runs_with_one_blas_thread_unless_the_user_set_them(given, expected):
     """The variable is set before numpy loads (numpy then starts no OpenBLAS thread: the process
     has one thread when the command ends), and a value the user gave is kept; the collector's
-    youngest generation is collected every GC_YOUNG allocations."""
+    youngest generation is collected every GC_YOUNG allocations, and what the loaded modules hold
+    is in its permanent generation."""
     env = {k: v for k, v in os.environ.items() if k != BLAS_THREADS_ENV}
     if given is not None:
         env[BLAS_THREADS_ENV] = given
     code = (
         "import atexit, os, sys; sys.argv = ['crashnlp', 'schema'];"
         " atexit.register(lambda: print('numpy' in sys.modules, os.environ['OPENBLAS_NUM_THREADS'],"
-        " len(os.listdir('/proc/self/task')), __import__('gc').get_threshold()[0], file=sys.stderr));"
+        " len(os.listdir('/proc/self/task')), __import__('gc').get_threshold()[0], __import__('gc').get_freeze_count(),"
+        " file=sys.stderr));"
         " from crashnlp.__main__ import run; run()"
     )
     proc = python(code, env)
-    loaded, value, threads, young = proc.stderr.split()
+    loaded, value, threads, young, frozen = proc.stderr.split()
     assert (proc.returncode, loaded, value, int(young)) == (0, "True", expected, GC_YOUNG)
+    assert int(frozen) > 10_000
     if given is None and Path("/proc/self/task").is_dir():
         assert threads == "1"
 

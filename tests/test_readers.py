@@ -10,7 +10,8 @@ import pytest
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.summary import metrics
 from crashnlp.base.units import G0
-from crashnlp.data import DataError, load_test_data
+from crashnlp.data import DataError, csv_reader, load_test_data
+from crashnlp.data.csv_reader import Table
 from crashnlp.problem.schema import DataSpec
 
 ROOT = Path(__file__).resolve().parents[1] / "problems" / "data"
@@ -455,3 +456,74 @@ def test_nhtsa_curve_files_with_a_header_line_spaces_and_crlf_read_as_shipped(tm
         curve.write_text("Time (s)    Accel (g)\r\n" + curve.read_text().replace("\t", "    ").replace("\n", "\r\n"))
     shipped, spoilt = (load_test_data(camry(file=f)).channels["accel"] for f in (EV5, tmp_path / "v10146.EV5"))
     np.testing.assert_array_equal(shipped.values, spoilt.values)
+
+
+# ---------------------------------------------------------------- plain files read in one call
+def _cells(table: Table, k: int) -> np.ndarray:
+    """Column k as float() reads its cells one by one."""
+    return np.array([float(cells[k].replace(",", ".") if table.decimal_comma else cells[k]) for _, cells in table.rows])
+
+
+def test_every_shipped_data_file_is_plain_and_read_to_the_bits_float_gives():
+    files = sorted(f for f in ROOT.rglob("*") if f.is_file() and f.suffix not in (".md", ".EV5"))
+    assert len(files) > 100
+    for f in files:
+        table = Table.read(f)
+        assert table.numbers is not None, f
+        for k in range(table.width):
+            assert table.values(k, "x").tobytes() == _cells(table, k).tobytes(), (f, k)
+
+
+def _read_both(path: Path, monkeypatch) -> list[tuple[list[str] | None, list]]:
+    """What Table.read gives, and then the values or refusal of each column, with the plain
+    reading and without it (every file read cell by cell)."""
+    outcomes = []
+    for plain in (True, False):
+        with monkeypatch.context() as m:
+            if not plain:
+                m.setattr(csv_reader, "_plain", lambda lines: None)
+            try:
+                table = Table.read(path)
+            except DataError as exc:
+                outcomes.append((None, [str(exc)]))
+                continue
+            columns = []
+            for k in range(table.width + (table.header is None)):  # one past the last: as nhtsa_channel asks
+                try:
+                    columns.append(table.values(k, "accel").tobytes())
+                except DataError as exc:
+                    columns.append(str(exc))
+            outcomes.append((table.header, columns))
+    return outcomes
+
+
+@pytest.mark.parametrize(
+    "text",
+    [
+        pytest.param(_dialect(), id="plain"),
+        pytest.param(_dialect(header=""), id="no-header"),
+        pytest.param(_dialect("\t"), id="tabs"),
+        pytest.param(_dialect("   "), id="runs-of-spaces"),
+        pytest.param(_dialect(";", comma=True), id="decimal-commas"),
+        pytest.param("0;0,5;1\n0.001;0.6;2\n0.002;0.7;3\n", id="a-decimal-comma-on-the-first-line-only"),
+        pytest.param(_dialect().replace("0.0003", '"0.0003"'), id="quoted-cell"),
+        pytest.param(_dialect(header='"time_s"{s}"accel_x_g"'), id="quoted-header"),
+        pytest.param(_dialect().replace("\n", ",1\n").replace("accel_x_g,1", "accel_x_g"), id="rows-wider-than-header"),
+        pytest.param(_dialect().replace("0.0003", "1_000"), id="underscore-digits"),
+        pytest.param(_dialect().replace("0.0003", "\u0661.\u0665"), id="arabic-indic-digits"),
+        pytest.param(_dialect().replace("0.0003,", "0.0003,,"), id="extra-cell-on-one-line"),
+        pytest.param(_dialect().replace("time_s,accel_x_g", "time_s,accel_x_g,note"), id="header-wider-than-rows"),
+        pytest.param(_dialect() + "0.0021\n", id="cut-mid-line"),
+        pytest.param(_dialect().replace("0.0003,", "0.0003,n/a "), id="text-cell"),
+        pytest.param(_dialect().replace("0.0003,", "0.0003, "), id="blank-cell"),
+        pytest.param(_dialect().replace("0.0004,", "0.0004,1 # note "), id="comment-after-a-number"),
+        pytest.param(_dialect().split("\n")[0] + "\n", id="header-only"),
+        pytest.param(f"0,1\n0.001,{'9' * 200_000}\n", id="past-the-field-limit"),
+        pytest.param("0 1\n0.001 1e400\n0.002 nan\n", id="overflow-and-nan"),
+    ],
+)
+def test_plain_reading_gives_what_the_cell_by_cell_reading_gives(tmp_path, monkeypatch, text):
+    path = tmp_path / "export.csv"
+    path.write_text(text, encoding="utf-8")
+    plain, careful = _read_both(path, monkeypatch)
+    assert plain == careful

@@ -99,9 +99,12 @@ class Case:
 
     def loading_curve(self, p: np.ndarray) -> Curve:
         """The front end's loading force (N) as a function of crush (m, a numpy array) at the
-        parameters `p`: the model's own law, smoothing and tail."""
+        parameters `p`: the model's own law, smoothing and tail. The curve mapped over a number
+        of crushes is built once per model and number (the uncertainty band asks for it twice
+        per estimate)."""
         curve = self.model.loading_curve
-        return lambda crush: np.asarray(curve.map(crush.size)(crush, p)).ravel()
+        mapped = lambda n: self.model.cached(("loading_curve", n), lambda: curve.map(n))
+        return lambda crush: np.asarray(mapped(crush.size)(crush, p)).ravel()
 
     def simulate(self, p: np.ndarray | None = None, dt: float | None = None) -> dict[str, Response]:
         """Forward simulation of every test with the separate integrator."""

@@ -9,7 +9,8 @@ the cells are not comma-separated), for this reader, NHTSA channel files
 from __future__ import annotations
 
 import csv
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -29,11 +30,16 @@ def _is_number(cell: str) -> bool:
     return True
 
 
+def _delimiter(first: str) -> str:
+    """The delimiter the first line has most of, else " " (runs of spaces)."""
+    delimiter = max(DELIMITERS, key=first.count)
+    return delimiter if delimiter in first else " "
+
+
 def _split(lines: list[str], path: Path) -> tuple[str, list[list[str]]]:
-    """The delimiter (" " for runs of spaces) and the cells of each line: split on the delimiter
-    the first line has most of, else on spaces."""
-    delimiter = max(DELIMITERS, key=lines[0].count)
-    if delimiter not in lines[0]:
+    """The delimiter (" " for runs of spaces) and the cells of each line, each stripped."""
+    delimiter = _delimiter(lines[0])
+    if delimiter == " ":
         return " ", [line.split() for line in lines]
     try:
         return delimiter, [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
@@ -41,15 +47,41 @@ def _split(lines: list[str], path: Path) -> tuple[str, list[list[str]]]:
         raise DataError(f"{path}: cannot read as CSV ({exc})") from None
 
 
+def _plain(lines: list[str]) -> tuple[list[str] | None, np.ndarray] | None:
+    """The header (None without one) and the rows as a matrix, read in one call, where the file is
+    plain: no quotes, the same number of cells on every line below the header, every one of them
+    a number as numpy reads it (a decimal comma is not); None otherwise, for the cell-by-cell
+    reading to read or refuse (a line past the csv module's field limit too, which it refuses).
+    A column the header names and the rows lack is left to that reading too (Table.values).
+    numpy's reader converts each cell as float() does (the same bits), and refuses some cells
+    float() takes (1_000, other scripts' digits), which the cell-by-cell reading then reads."""
+    delimiter, text = _delimiter(lines[0]), "\n".join(lines)
+    if '"' in text or max(map(len, lines)) > csv.field_size_limit():
+        return None
+    first = lines[0].split() if delimiter == " " else [c.strip() for c in lines[0].split(delimiter)]
+    header = None if all(_is_number(c if delimiter == "," else c.replace(",", ".")) for c in first) else first
+    data = lines[1:] if header is not None else lines
+    if not data:
+        return None
+    try:
+        return header, np.loadtxt(data, delimiter=None if delimiter == " " else delimiter, comments=None, ndmin=2)
+    except ValueError:
+        return None
+
+
 @dataclass(frozen=True)
 class Table:
     """The cells of a delimited text file: its header (None when the first line is all numbers)
-    and its rows, each with its line number in the file (blank and comment lines left out)."""
+    and its rows, each with its line number in the file (blank and comment lines left out).
+
+    A plain file (see `_plain`) is read in one call into `numbers`, and its rows are split into
+    cells only when a message needs them; any other file is read cell by cell."""
 
     path: Path
     header: list[str] | None
-    rows: list[tuple[int, list[str]]]
+    lines: list[tuple[int, str]]  # the file's lines, numbered, blank and comment lines left out
     decimal_comma: bool = False  # cells not split on commas, so 0,5 is a half
+    numbers: np.ndarray | None = field(default=None, compare=False)  # the rows as numbers, a plain file's
 
     @classmethod
     def read(cls, path: Path) -> Table:
@@ -58,20 +90,33 @@ class Table:
             lines = Path(path).read_text(encoding="utf-8-sig", errors="replace").splitlines()
         except OSError as exc:
             raise DataError(f"{path}: cannot read ({exc.strerror})") from None
-        numbered = [(n, line) for n, line in enumerate(lines, 1) if line.strip() and not line.lstrip().startswith("#")]
+        numbered = [(n, line) for n, line in enumerate(lines, 1) if (text := line.lstrip()) and text[0] != "#"]
         if not numbered:
             raise DataError(f"{path}: empty file")
+        plain = _plain([line for _, line in numbered])
+        if plain is not None:
+            return cls(Path(path), plain[0], numbered, _delimiter(numbered[0][1]) != ",", plain[1])
         delimiter, cells = _split([line for _, line in numbered], path)
-        rows = list(zip((n for n, _ in numbered), cells))
         decimal_comma = delimiter != ","
-        header = None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in rows[0][1]) else rows.pop(0)[1]
-        if not rows:
+        header = None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in cells[0]) else cells[0]
+        if header is not None and len(cells) == 1:
             raise DataError(f"{path}: no rows of data below the header")
-        return cls(Path(path), header, rows, decimal_comma)
+        table = cls(Path(path), header, numbered, decimal_comma)
+        rows = list(zip((n for n, _ in numbered), cells))
+        object.__setattr__(table, "rows", rows[1:] if header is not None else rows)  # the cells split above, not again
+        return table
+
+    @cached_property
+    def rows(self) -> list[tuple[int, list[str]]]:
+        """The rows below the header: each line's number and its cells."""
+        rows = list(zip((n for n, _ in self.lines), _split([line for _, line in self.lines], self.path)[1]))
+        return rows[1:] if self.header is not None else rows
 
     @property
     def width(self) -> int:
-        return len(self.header) if self.header is not None else len(self.rows[0][1])
+        if self.header is not None:
+            return len(self.header)
+        return self.numbers.shape[1] if self.numbers is not None else len(self.rows[0][1])
 
     def index(self, column: str | int, channel: str) -> int:
         """Where a column is, 0-based: by its name in the header, else by its number counted from 1."""
@@ -96,6 +141,8 @@ class Table:
     def values(self, k: int, channel: str) -> np.ndarray:
         """Column k (0-based) as numbers; a blank, missing or non-numeric cell is refused, naming
         the column and the line (numpy converts the cells as float() does, in one call)."""
+        if self.numbers is not None and k < self.numbers.shape[1]:
+            return self.numbers[:, k].copy()
         try:
             column = [cells[k] for _, cells in self.rows]
             return np.array([c.replace(",", ".") for c in column] if self.decimal_comma else column, dtype=float)
