@@ -36,6 +36,11 @@ def _delimiter(first: str) -> str:
     return delimiter if delimiter in first else " "
 
 
+def _header(first: list[str], decimal_comma: bool) -> list[str] | None:
+    """The first line's cells as the header; None where every one is a number (no header line)."""
+    return None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in first) else first
+
+
 def _split(lines: list[str], path: Path) -> tuple[str, list[list[str]]]:
     """The delimiter (" " for runs of spaces) and the cells of each line, each stripped."""
     delimiter = _delimiter(lines[0])
@@ -59,7 +64,7 @@ def _plain(lines: list[str]) -> tuple[list[str] | None, np.ndarray] | None:
     if '"' in text or max(map(len, lines)) > csv.field_size_limit():
         return None
     first = lines[0].split() if delimiter == " " else [c.strip() for c in lines[0].split(delimiter)]
-    header = None if all(_is_number(c if delimiter == "," else c.replace(",", ".")) for c in first) else first
+    header = _header(first, delimiter != ",")
     data = lines[1:] if header is not None else lines
     if not data:
         return None
@@ -98,7 +103,7 @@ class Table:
             return cls(Path(path), plain[0], numbered, _delimiter(numbered[0][1]) != ",", plain[1])
         delimiter, cells = _split([line for _, line in numbered], path)
         decimal_comma = delimiter != ","
-        header = None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in cells[0]) else cells[0]
+        header = _header(cells[0], decimal_comma)
         if header is not None and len(cells) == 1:
             raise DataError(f"{path}: no rows of data below the header")
         table = cls(Path(path), header, numbered, decimal_comma)
