@@ -21,7 +21,7 @@ at least as well. A held-out prediction that lets the front end go while the CG 
 toward the barrier (crashnlp.analysis.metrics.lift_off), where the measured test was still being
 decelerated then, is named beside the choice, but does not pass a form over: its cost is in the
 score already, and a rule that passed such forms over chose forms whose held-out error was 2.4 to
-5.4 times the one passed over (docs/design-notes.md, "Which form: the score, not the lift-off").
+6.7 times the one passed over (docs/design-notes.md, "Which form: the score, not the lift-off").
 
 `forms` names the forms to fit (default COMPARED: the pendulum and the rigid body; the
 engine-on-mounts form is fitted when named, since its fits cost many times the others').
