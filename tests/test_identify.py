@@ -216,6 +216,26 @@ def test_the_fit_does_not_jump_with_a_force_at_zero_crush(tmp_path):
 
 
 @pytest.mark.integration
+def test_breakpoints_past_the_reach_change_neither_the_estimates_nor_their_errors(data_file):
+    """Two breakpoints appended past the crush the test reaches: their values are not identified,
+    and the reached values keep their estimates and standard errors, as without them. Their
+    columns hold only the smoothing's leak past the reach (about 1e-4 of the others'); kept in
+    the SVD, they paired with the reached values and inflated those values' errors."""
+    plain = solve(fit_problem(data_file))
+    spring = {"crush_breakpoints": [0, 0.2, 0.4, 0.7, 1.0, 1.3], "values": ["500 kN"] * 6}
+    longer = solve(fit_problem(data_file, model={"spring": spring}))
+    assert plain.ok and longer.ok, (plain.status, longer.status)
+    assert longer.reach < 0.7  # the last segment of the plain fit is the one the crush ends in
+    labels = longer.ocp.free.labels()
+    past = [labels.index(f"model.spring.values[{k}]") for k in (4, 5)]
+    assert np.flatnonzero(longer.unreached()).tolist() == past
+    assert np.all(np.isinf(longer.std_errors[past]))
+    reached = np.delete(np.arange(len(labels)), past)
+    assert np.all(np.abs(longer.theta[reached] - plain.theta) <= 0.01 * plain.std_errors)
+    assert longer.std_errors[reached] == pytest.approx(plain.std_errors, rel=1e-3)
+
+
+@pytest.mark.integration
 def test_transcriptions_agree_on_the_objective(data_file):
     a = solve(fit_problem(data_file, MS))
     b = solve(fit_problem(data_file, COLLOCATION))

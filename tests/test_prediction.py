@@ -376,9 +376,10 @@ def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
 @pytest.mark.slow
 def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_path):
     """The shipped pickup's structure (generator, not pendulum) fitted at 48 km/h with breakpoints
-    to 1.3 times its crush: the last value has no data, and with the law as fitted (`tail: segment`)
-    a 60 km/h prediction meets the wall it runs to. The default tail follows the curve's trend
-    there and predicts the generator's crush and peak, inside its 95 % intervals."""
+    to 1.3 times its crush: the last value has no data (not identified), and with the law as fitted
+    (`tail: segment`) a 60 km/h prediction meets the wall it runs to, with no intervals. The
+    default tail follows the curve's trend there and predicts the generator's crush and peak,
+    inside its 95 % intervals."""
     v = dataclasses.replace(PICKUP, speed=48 / 3.6)
     truth = simulate(v)
     write_csv(tmp_path / "t1.csv", measured(v, truth))
@@ -389,6 +390,7 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
     result = crashnlp.identify(tmp_path / "fit.yaml")
     assert result.ok
     assert any("model.spring.values[6]" in note for note in result.notes)  # said: no test determines it
+    assert result.not_identified == ("model.spring.values[6]",)  # and its error is not a number
     real = simulate(dataclasses.replace(PICKUP, speed=60 / 3.6))
     truth60 = crash_metrics(real["time"], real["accel"], real["velocity"], real["displacement"])
     predicted = {}
@@ -404,6 +406,7 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
     low, high = trend.intervals["peak_decel_g"]
     assert low <= truth60.peak_decel / G0 <= high
     assert segment.metrics["peak_decel_g"] > 1.5 * truth60.peak_decel / G0  # the wall
+    assert all(interval is None for interval in segment.intervals.values())  # built on the value no test determines
 
 
 @pytest.mark.integration

@@ -73,7 +73,7 @@ from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.files import claim, run_name
-from crashnlp.results.identified import Z95, IdentifiedModel, applied
+from crashnlp.results.identified import Z95, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.results.result import Result
@@ -282,13 +282,13 @@ def _uncertainty(
     calibration: Calibration,
 ) -> Uncertainty:
     """95 % intervals of the metrics and bands of the response columns (module docstring)."""
-    std = identified.std()
-    undetermined = [label for label, s in zip(identified.labels, std) if not np.isfinite(s)]
+    std, unused = identified.std(), _past_the_tail(case, identified)
+    undetermined = [label for label, s, out in zip(identified.labels, std, unused) if not (np.isfinite(s) or out)]
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
         return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
-    gm, gy = _sensitivities(case, test, p, identified, std, dt)
-    cov = identified.covariance if identified.covariance is not None else np.zeros((len(std), len(std)))
+    gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt)
+    cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
     intervals: dict[str, tuple[float, float] | None] = {}
@@ -320,6 +320,17 @@ def _uncertainty(
         intervals[key] = parts[key].interval(q)
     notes += _dominated(test.name, parts, qs)
     return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+
+
+def _past_the_tail(case: Case, identified: IdentifiedModel) -> np.ndarray:
+    """Per estimate, whether the prediction's loading curve leaves it out: a spring value that
+    shapes no force short of the start of the line its tail follows (none where the law goes on
+    as fitted, `tail: segment`). A fit's own tail starts just past the crush its tests reached, so
+    the data do not determine such a value, and the prediction follows the trend instead."""
+    spring = case.problem.model.spring
+    if isinstance(spring.tail, str):
+        return np.zeros(len(identified.labels), bool)
+    return shaping_nothing_short_of(identified.labels, spring.placed_breakpoints, spring.tail.start)
 
 
 def _fitted_miss(identified: IdentifiedModel, key: str) -> tuple[float | None, bool]:

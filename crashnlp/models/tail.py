@@ -54,10 +54,17 @@ def trend_window(breakpoints: np.ndarray, reach: float) -> float:
     return covered if covered >= COVERED * max(x[k + 1] - x[k], spacing(x)) else spacing(x)
 
 
+def tail_start(reach: float, eps: float) -> float:
+    """Where the tail starts (m) for a curve reached to `reach` by the fitted tests, its kinks
+    smoothed over `eps`: CLEARANCE smoothing widths past the reach. A value whose breakpoints lie
+    past it shapes neither the force the fit went through nor a prediction's."""
+    return reach + CLEARANCE * eps
+
+
 def trend_tail(curve: Curve, breakpoints: np.ndarray, reach: float, eps: float) -> tuple[float, float]:
-    """The tail's start (m) and slope (N/m) for a curve reached to `reach` by the fitted tests:
-    CLEARANCE smoothing widths past the reach, along the trend over `trend_window`."""
-    return reach + CLEARANCE * eps, trend_slope(curve, reach, trend_window(breakpoints, reach))
+    """The tail's start (`tail_start`, m) and slope (N/m) for a curve reached to `reach` by the
+    fitted tests, along the trend over `trend_window`."""
+    return tail_start(reach, eps), trend_slope(curve, reach, trend_window(breakpoints, reach))
 
 
 def trend_misses(curve: Curve, breakpoints: np.ndarray, reach: float) -> np.ndarray:

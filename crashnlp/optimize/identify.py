@@ -13,6 +13,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.case.completion import measured_pulse, repaired_start
 from crashnlp.models.form import OUTPUTS
+from crashnlp.models.tail import tail_start
 from crashnlp.numerics.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
 from crashnlp.optimize.ocp import OptimalControl
@@ -22,6 +23,7 @@ from crashnlp.optimize.solved import SolveResult, after
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
+from crashnlp.results.identified import shaping_nothing_short_of
 from crashnlp.results.response import Response
 
 
@@ -77,6 +79,20 @@ class Solution:
 
     def full_parameters(self) -> np.ndarray:
         return self.ocp.free.full(self.theta)
+
+    @property
+    def reach(self) -> float:
+        """The largest front-end crush the model went through in the fitted tests (m): how far
+        the data determine its loading curve."""
+        return max(float(np.max(t["crush"])) for t in self.tests)
+
+    def unreached(self) -> np.ndarray:
+        """Per estimated entry, whether the fitted tests never reach it: a spring value whose
+        breakpoints lie past the tail's start (crashnlp.models.tail.tail_start) of the reach."""
+        case = self.case
+        breakpoints = self.full_parameters()[case.layout.index("model.spring.crush_breakpoints")]
+        start = tail_start(self.reach, case.problem.model.smoothing.crush)
+        return shaping_nothing_short_of(self.ocp.free.labels(), breakpoints, start)
 
 
 def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.ndarray) -> str:
@@ -279,9 +295,11 @@ def _steady_for(case: Case, defaults: dict[str, float]) -> str:
 
 
 def _finished(case: Case, ocp: OptimalControl, fit: FitObjective, result: SolveResult, theta0: np.ndarray) -> Solution:
-    """`finish`, with the covariance (the prior's information in it) and the prior's weight."""
+    """`finish`, with the covariance (the prior's information in it; the values the fitted tests
+    never reach left out of it) and the prior's weight."""
     solution = finish(case, ocp, result, theta0, fit.residuals)
     information = fit.prior.information(fit.weight) if fit.prior is not None else None
-    solution.covariance = SensitivityEvaluator(ocp, fit.residuals)(result.z).covariance(information)
+    sensitivity = SensitivityEvaluator(ocp, fit.residuals)(result.z)
+    solution.covariance = sensitivity.without(solution.unreached()).covariance(information)
     solution.regularization = {"weight": fit.weight}
     return solution

@@ -17,7 +17,7 @@ from crashnlp.models.tail import trend_tail
 from crashnlp.numerics.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.problem.forms import DEFAULT_FORM
-from crashnlp.results.identified import Z95, IdentifiedModel, IdentifiedRange
+from crashnlp.results.identified import Z95, IdentifiedModel, IdentifiedRange, shaping_nothing_short_of, without_entries
 from crashnlp.results.response import Response
 from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 
@@ -53,7 +53,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         at_bound={label: round(float(pull[i]), 3) for i, label in enumerate(labels) if at_bound[i]},
         active_constraints=tuple(active_constraints(solution)) + tuple(_parameter_bounds(solution)),
         tests=tests,
-        force_crush=_force_crush(solution, tests),
+        force_crush=_force_crush(solution),
         profiles=solution.profiles,
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
@@ -79,7 +79,7 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         if pulses
         else max(float(t.metrics["max_displacement_m"] or 0.0) for t in tests.values())
     )
-    reach = model_reach(tests)
+    reach = solution.reach
     # a result names its form where it is not the default one: the pendulum's files carry no form entry
     model = fitted.model.model_dump(mode="json", exclude={"form"} if fitted.model.form == DEFAULT_FORM else None)
     if case.problem.kind == "identify" and fitted.model.spring.tail == "trend":
@@ -104,12 +104,6 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
     )
-
-
-def model_reach(tests: dict[str, TestResult]) -> float:
-    """The largest front-end crush the model went through in the fitted tests (m): how far the
-    data determine its loading curve."""
-    return max(float(np.max(t.response["crush"])) for t in tests.values())
 
 
 def _span(values: list[float]) -> tuple[float, float]:
@@ -236,11 +230,11 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
     ]
 
 
-def _force_crush(solution: Solution, tests: dict[str, TestResult]) -> LoadingCurve:
+def _force_crush(solution: Solution) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, its breakpoints and 95 %
     band, and each test's measured m |a| against CG travel while loading."""
     case, p = solution.case, solution.full_parameters()
-    x = np.linspace(0.0, max(model_reach(tests) * 1.05, 1e-3), 201)
+    x = np.linspace(0.0, max(solution.reach * 1.05, 1e-3), 201)
     curve = case.loading_curve(p)
     bps = p[case.layout.index("model.spring.crush_breakpoints")]
     inside = bps[bps <= x[-1]]
@@ -249,21 +243,28 @@ def _force_crush(solution: Solution, tests: dict[str, TestResult]) -> LoadingCur
     reference = (np.asarray(known.crush), np.asarray(known.force)) if known is not None else None
     pulses = {test.name: measured_pulse(case.problem, test) for test in case.tests}
     measured = {name: (p.displacement[p.loading], p.force[p.loading]) for name, p in pulses.items() if p is not None}
-    return LoadingCurve(x, f, inside, values, reference, measured, _curve_band(solution, x, f))
+    return LoadingCurve(x, f, inside, values, reference, measured, _curve_band(solution, x, f, bps))
 
 
-def _curve_band(solution: Solution, x: np.ndarray, f: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+def _curve_band(
+    solution: Solution, x: np.ndarray, f: np.ndarray, breakpoints: np.ndarray
+) -> tuple[np.ndarray, np.ndarray] | None:
     """The loading curve's 95 % band at the crushes `x` (N): the estimates' covariance pushed
     through the curve's sensitivities, central differences over one standard error each way;
-    None without a covariance or where the data do not determine an estimate."""
+    None without a covariance or where the data do not determine an estimate that shapes the
+    curve over `x`."""
     cov = solution.covariance
-    if cov is None or not np.all(np.isfinite(cov.std)):
+    if cov is None:
         return None
     free, theta = solution.ocp.free, solution.theta
+    outside = shaping_nothing_short_of(free.labels(), breakpoints, float(x[-1]))
+    if not np.all(np.isfinite(cov.std) | outside):
+        return None
     g = np.zeros((theta.size, x.size))
     for j, step in enumerate(cov.std):
-        if step > 0:
+        if step > 0 and not outside[j]:
             up, down = (theta + s * step * np.eye(theta.size)[j] for s in (1.0, -1.0))
             g[j] = (solution.case.loading_curve(free.full(up))(x) - solution.case.loading_curve(free.full(down))(x)) / (2 * step)
-    half = Z95 * np.sqrt(np.maximum(np.einsum("it,ij,jt->t", g, cov.matrix, g), 0.0))
+    matrix = without_entries(cov.matrix, outside)
+    half = Z95 * np.sqrt(np.maximum(np.einsum("it,ij,jt->t", g, matrix, g), 0.0))
     return f - half, f + half

@@ -10,7 +10,11 @@ The covariance is a sandwich, H^-1 M H^-1, built to mean what it says:
   SVD of the weighted Jacobian with equilibrated columns, never by forming
   J^T J in SI units (whose condition number squares that of J); directions
   whose singular value is below RANK_RTOL of the largest are not identified,
-  and every parameter with a share in them gets an infinite std.
+  and every parameter with a share in them gets an infinite std. Entries the
+  fitted tests never reach (spring values past the crush the model went
+  through) are left out first (`Sensitivity.without`): their columns hold only
+  the smoothing's faint leak, which the SVD would pair with the values the
+  data do reach, inflating their errors many times over.
 - M is the long-run covariance of the score, sum_t s_t with s_t the weighted
   residual times the Jacobian row of all channels at node t: residuals of a
   filtered accelerometer or an integrated channel are autocorrelated, and
@@ -24,7 +28,7 @@ The covariance is a sandwich, H^-1 M H^-1, built to mean what it says:
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import casadi as ca
 import numpy as np
@@ -86,6 +90,12 @@ class Sensitivity:
     raw: np.ndarray  # residuals (SI)
     rows: list[slice]  # rows of each channel
     residuals: list[Residual]
+
+    def without(self, unreached: np.ndarray) -> Sensitivity:
+        """This sensitivity with the columns of `unreached` entries set to zero: entries that the
+        fitted tests never reach (their columns hold only the smoothing's leak past the crush the
+        model went through). They are then not identified, and the rank of the others is theirs."""
+        return replace(self, jacobian=np.where(unreached, 0.0, self.jacobian))
 
     def weights(self) -> np.ndarray:
         """Each residual row's weight in the objective: weight / (n sigma^2) of its channel."""

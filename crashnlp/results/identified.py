@@ -35,6 +35,7 @@ SAME_GEOMETRY = 1e-4
 # the model's structure (section, field): given otherwise by a problem, it is another model
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
+SPRING_VALUES = "model.spring.values"
 Z95 = NormalDist().inv_cdf(
     0.975
 )  # two-sided 95 % quantile of the normal distribution (the standard library's: scipy.special costs a command 0.2 s to import)
@@ -148,7 +149,8 @@ class IdentifiedModel:
             f"past {1e3 * tail['start']:.0f} mm of crush (the model reached {1e3 * self.range.model_crush:.0f} mm in the"
             f" fitted tests) a prediction's loading curve follows its trend, {1e-3 * tail['slope']:.0f} kN/m"
         )
-        past = [f"model.spring.values[{i}]" for i, x in enumerate(spring["crush_breakpoints"]) if x > tail["start"]]
+        shaping = shaping_nothing_short_of(self.labels, spring["crush_breakpoints"], tail["start"])
+        past = [label for label, out in zip(self.labels, shaping) if out]
         if past:
             note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"
         return (note,)
@@ -166,6 +168,27 @@ class IdentifiedModel:
         if self.covariance is None:
             return np.full(len(self.labels), np.inf)
         return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
+
+
+def shaping_nothing_short_of(labels: tuple[str, ...] | list[str], breakpoints: Any, crush: float) -> np.ndarray:
+    """Per labelled estimate, whether it shapes no loading force short of `crush` (m): a spring
+    value whose breakpoint and the one before it lie at or past that crush (the value at the first
+    breakpoint shapes the curve from zero). Tests that stop short of the crush cannot determine
+    such a value, and a loading curve that follows its trend from there leaves it out."""
+    x = np.asarray(breakpoints, float)
+    past = np.concatenate([[False], x[:-1] >= crush]) if x.size else np.zeros(0, bool)
+    out = np.zeros(len(labels), bool)
+    for j, label in enumerate(labels):
+        path, _, index = label.partition("[")
+        if path == SPRING_VALUES and index:
+            out[j] = past[int(index.rstrip("]"))]
+    return out
+
+
+def without_entries(covariance: np.ndarray, left_out: np.ndarray) -> np.ndarray:
+    """`covariance` with the rows and columns of the `left_out` entries zero: what it says of the
+    others, for a quantity those entries do not shape (their own may be infinite)."""
+    return np.where(left_out[:, None] | left_out[None, :], 0.0, covariance)
 
 
 def _finite(x: float) -> float | None:
