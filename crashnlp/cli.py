@@ -219,9 +219,10 @@ def _figure_process(args):
 
 
 def _numbers(value, digits: int) -> str:
-    """A number or list of numbers to `digits` significant digits; None shows as nan."""
+    """A number or list of numbers to `digits` significant digits; None, what result.json holds
+    for a standard error the data do not determine, shows as inf."""
     items = value if isinstance(value, list) else [value]
-    values = np.array([np.nan if v is None else v for v in items], dtype=float)
+    values = np.array([np.inf if v is None else v for v in items], dtype=float)
     text = " ".join(f"{v:.{digits}g}" for v in values)
     return text if not isinstance(value, list) else f"[{text}]"
 
@@ -257,10 +258,9 @@ def _print_solution(result) -> None:
         f"objective {objective}, {timing})"
     )
     for path, value in result.parameters.items():
-        std = result.std_errors.get(path)
         text = _numbers(value, 5)
-        if std is not None:
-            text += f"  (std {_numbers(std, 2)})"
+        if path in result.std_errors:
+            text += f"  (std {_numbers(result.std_errors[path], 2)})"
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")

@@ -259,6 +259,21 @@ def test_parameter_that_cannot_move_the_fit_is_reported(data_file):
 
 
 @pytest.mark.integration
+def test_the_console_gives_a_value_not_identified_an_infinite_std(data_file, tmp_path, capsys):
+    problem = fit_problem(
+        data_file,
+        model={"unloading": {"law": "elastic"}},
+        estimate={"model.unloading.stiffness": {"bounds": ["1 MN/m", "200 MN/m"]}},
+    )
+    path = tmp_path / "dead.yaml"
+    path.write_text(yaml.safe_dump(problem, sort_keys=False))
+    assert main(["identify", str(path), "--out", str(tmp_path / "out"), "--no-figures"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert any(line.strip().startswith("model.unloading.stiffness = ") and line.endswith("(std inf)") for line in lines), lines
+    assert "  not identified (infinite std): model.unloading.stiffness" in lines
+
+
+@pytest.mark.integration
 def test_a_solve_that_never_moves_is_not_success(data_file):
     sol = solve(fit_problem(data_file, solver={"ipopt": {"max_iter": 0}}))
     assert not sol.ok
