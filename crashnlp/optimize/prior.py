@@ -17,8 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.optimize.free import FreeParameters
-
-SPRING = "model.spring.values"
+from crashnlp.results.identified import SPRING_VALUES
 
 
 @dataclass(frozen=True)
@@ -38,7 +37,7 @@ class SmoothnessPrior:
 
 def smoothness_prior(free: FreeParameters, breakpoints: np.ndarray) -> SmoothnessPrior | None:
     """The prior on the estimated spring values; None when they are not estimated or too few."""
-    entry = next((e for e in free.entries if e.path == SPRING), None)
+    entry = next((e for e in free.entries if e.path == SPRING_VALUES), None)
     n = len(breakpoints)
     if entry is None or n < 3 or entry.at.stop - entry.at.start != n:
         return None
