@@ -364,18 +364,14 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
-    from crashnlp.optimize.comparison import check_forms, compare
-    from crashnlp.optimize.pipeline import prepare_case
+    from crashnlp.optimize.comparison import check_comparable, compare
     from crashnlp.problem import load_problem
     from crashnlp.problem.forms import COMPARED
     from crashnlp.results.jsonfile import write_json
 
     forms = args.forms or COMPARED
     problem = load_problem(args.problem)
-    if problem.kind != "identify":
-        raise InputError(f"{args.problem}: kind is {problem.kind!r}; compare fits an identify problem's forms")
-    prepare_case(problem, args.problem)
-    check_forms(forms)
+    check_comparable(problem, args.problem, forms, "--forms")
     run = run_name("compare", problem.name)
     out = check_output(_out(args, f"{problem.name}-compare"), run)
     if args.check:

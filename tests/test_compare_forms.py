@@ -10,6 +10,7 @@ import yaml
 from builders import BASE, ROOT, merge, write_channels
 
 import crashnlp
+from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.cli import main
 from crashnlp.optimize.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
@@ -177,3 +178,8 @@ def test_compare_refuses_a_form_it_does_not_have_in_one_line(tmp_path, capsys):
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--forms" in err[0] and "'wheel'" in err[0] and "engine-on-mounts" in err[0]
     assert not out.exists()
+
+
+def test_the_api_names_its_own_argument_for_a_form_it_does_not_have():
+    with pytest.raises(InputError, match=r"^forms: 'wheel' is none of "):
+        crashnlp.compare(BASE_DIR / "pickup-joint.yaml", forms=["rigid-body", "wheel"])

@@ -140,13 +140,10 @@ def compare(
 ) -> Comparison:
     """Every one of `forms` fitted to the problem's tests and scored (see the module notes);
     `source` the file its input errors name, `progress` a stream for a line per fit."""
-    if problem.kind != "identify":
-        raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
-    check_forms(forms)
+    check_comparable(problem, source, forms)
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     # the profiles the problem asks for are its chosen form's business, not the comparison's
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
-    prepare_case(problem, source)  # the problem's own errors are the caller's, before any form's
     scores = []
     for form in dict.fromkeys(forms):
         _say(progress, f"{problem.name}: fitting {form}")
@@ -160,11 +157,16 @@ def compare(
     return Comparison(problem.name, criterion, tuple(scores), choice, reason)
 
 
-def check_forms(forms: Sequence[str]) -> None:
-    """An InputError naming the first of `forms` that is no model form."""
+def check_comparable(problem: Problem, source: str | None, forms: Sequence[str], where: str = "forms") -> None:
+    """What `compare` refuses before it fits anything, as an InputError: a problem that is not an
+    identify problem, the first of `forms` (given as `where`) that is no model form, and the
+    problem's own errors (`source` the file they name), before any form's."""
+    if problem.kind != "identify":
+        raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
     unknown = [form for form in forms if form not in FORMS]
     if unknown:
-        raise InputError(f"--forms: {unknown[0]!r} is none of {', '.join(FORMS)}")
+        raise InputError(f"{where}: {unknown[0]!r} is none of {', '.join(FORMS)}")
+    prepare_case(problem, source)
 
 
 def _say(progress: TextIO | None, line: str) -> None:
