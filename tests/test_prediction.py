@@ -29,6 +29,7 @@ from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
+from crashnlp.results.identified import shaping_nothing_short_of
 from crashnlp.results.response import Response
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
@@ -370,6 +371,18 @@ def test_the_trend_misses_are_measured_on_the_reach_s_second_half():
     misses = trend_misses(lambda c: np.interp(c, x, f), x, 0.6)
     assert misses == pytest.approx([0.0, 0.0, -2e5, -1e5], abs=1e-6)
     assert trend_misses(lambda c: np.interp(c, x, f), x, 0.15).size == 0  # nothing to measure inside so short a reach
+
+
+def test_a_value_shapes_no_force_short_of_a_crush_where_both_its_segments_lie_past_it():
+    """A spring value shapes the force over the segments on either side of its breakpoint: short
+    of a crush it shapes nothing only where its breakpoint and the one before lie at or past it.
+    The value at zero crush always shapes the curve; other estimates are not spring values."""
+    labels = ["vehicle.crush_offset", *(f"model.spring.values[{k}]" for k in range(5))]
+    x = [0.0, 0.1, 0.2, 0.3, 0.4]
+    assert shaping_nothing_short_of(labels, x, 0.25).tolist() == [False, False, False, False, False, True]
+    assert shaping_nothing_short_of(labels, x, 0.2).tolist() == [False, False, False, False, True, True]
+    assert shaping_nothing_short_of(labels, x, 0.0).tolist() == [False, False, True, True, True, True]
+    assert not shaping_nothing_short_of(labels[:1], x, 0.0).any()
 
 
 @pytest.mark.integration
