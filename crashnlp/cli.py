@@ -218,11 +218,12 @@ def _figure_process(args):
     return nullcontext() if args.no_figures or getattr(args, "check", False) else FigureProcess()
 
 
-def _numbers(value, digits: int) -> str:
-    """A number or list of numbers to `digits` significant digits; None, what result.json holds
-    for a standard error the data do not determine, shows as inf."""
+def _numbers(value, digits: int, missing: float = np.nan) -> str:
+    """A number or list of numbers to `digits` significant digits; None (result.json's for a
+    number that is not finite) shows as `missing`: nan for a value, inf for a standard error
+    the data do not determine."""
     items = value if isinstance(value, list) else [value]
-    values = np.array([np.inf if v is None else v for v in items], dtype=float)
+    values = np.array([missing if v is None else v for v in items], dtype=float)
     text = " ".join(f"{v:.{digits}g}" for v in values)
     return text if not isinstance(value, list) else f"[{text}]"
 
@@ -260,7 +261,7 @@ def _print_solution(result) -> None:
     for path, value in result.parameters.items():
         text = _numbers(value, 5)
         if path in result.std_errors:
-            text += f"  (std {_numbers(result.std_errors[path], 2)})"
+            text += f"  (std {_numbers(result.std_errors[path], 2, np.inf)})"
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
