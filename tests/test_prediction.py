@@ -420,6 +420,10 @@ def test_a_value_past_the_fitted_crush_does_not_reach_a_faster_prediction(tmp_pa
     assert low <= truth60.peak_decel / G0 <= high
     assert segment.metrics["peak_decel_g"] > 1.5 * truth60.peak_decel / G0  # the wall
     assert all(interval is None for interval in segment.intervals.values())  # built on the value no test determines
+    slower = {**raw, "model": {"spring": {"tail": "segment"}}, "tests": [{"name": "new", "speed": "40 km/h", "duration": WINDOW}]}
+    (tmp_path / "slower.yaml").write_text(yaml.safe_dump(slower, sort_keys=False))
+    low, high = crashnlp.simulate(tmp_path / "slower.yaml", params=result)["new"].intervals["max_displacement_m"]
+    assert low < high  # a slower test never reaches that value: the law as fitted gives its intervals
 
 
 @pytest.mark.integration

@@ -70,7 +70,7 @@ from crashnlp.base.outputs import (
 )
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
-from crashnlp.models.tail import spacing, trend_misses
+from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import Z95, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
@@ -282,7 +282,7 @@ def _uncertainty(
     calibration: Calibration,
 ) -> Uncertainty:
     """95 % intervals of the metrics and bands of the response columns (module docstring)."""
-    std, unused = identified.std(), _past_the_tail(case, identified)
+    std, unused = identified.std(), _left_out(case, identified, response)
     undetermined = [label for label, s, out in zip(identified.labels, std, unused) if not (np.isfinite(s) or out)]
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
@@ -322,15 +322,17 @@ def _uncertainty(
     return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
 
 
-def _past_the_tail(case: Case, identified: IdentifiedModel) -> np.ndarray:
-    """Per estimate, whether the prediction's loading curve leaves it out: a spring value that
-    shapes no force short of the start of the line its tail follows (none where the law goes on
-    as fitted, `tail: segment`). A fit's own tail starts just past the crush its tests reached, so
-    the data do not determine such a value, and the prediction follows the trend instead."""
+def _left_out(case: Case, identified: IdentifiedModel, response: Response) -> np.ndarray:
+    """Per estimate, whether the prediction leaves it out: a spring value that shapes no force
+    short of the crush the prediction goes through (with the tail's clearance,
+    crashnlp.models.tail.tail_start), or short of the start of the line its tail follows. A fit's
+    own tail starts just past the crush its tests reached, where the data stop determining the
+    values; a value left out neither widens nor withholds the prediction's intervals."""
     spring = case.problem.model.spring
-    if isinstance(spring.tail, str):
-        return np.zeros(len(identified.labels), bool)
-    return shaping_nothing_short_of(identified.labels, spring.placed_breakpoints, spring.tail.start)
+    start = tail_start(float(np.max(response["crush"])), case.problem.model.smoothing.crush)
+    if not isinstance(spring.tail, str):
+        start = min(start, spring.tail.start)
+    return shaping_nothing_short_of(identified.labels, spring.placed_breakpoints, start)
 
 
 def _fitted_miss(identified: IdentifiedModel, key: str) -> tuple[float | None, bool]:
