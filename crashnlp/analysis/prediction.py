@@ -287,12 +287,14 @@ def _uncertainty(
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
         return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
+    unseen = ", ".join(label for label, s, out in zip(identified.labels, std, unused) if out and not np.isfinite(s))
+    notes = [f"{test.name}: {unseen}, which the data do not determine, shape no force it goes through"] if unseen else []
     gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt)
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
     intervals: dict[str, tuple[float, float] | None] = {}
-    parts, qs, notes = {}, {}, []
+    parts, qs = {}, {}
     for i, key in enumerate(PREDICTED_KEYS):
         value, (miss, unreached) = metrics.get(key), _fitted_miss(identified, key)
         q = calibration.q(klass, key) if distance > 0 else 0.0
