@@ -57,7 +57,7 @@ def trend_window(breakpoints: np.ndarray, reach: float) -> float:
 def tail_start(reach: float, eps: float) -> float:
     """Where the tail starts (m) for a curve reached to `reach` by the fitted tests, its kinks
     smoothed over `eps`: CLEARANCE smoothing widths past the reach. A value whose breakpoints lie
-    past it shapes neither the force the fit went through nor a prediction's."""
+    past it shapes no force the fit went through."""
     return reach + CLEARANCE * eps
 
 
