@@ -249,6 +249,7 @@ def _consistency_line(c: dict) -> str:
 def _print_solution(result) -> None:
     """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import still_moving
+    from crashnlp.results.result import pull_text
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -266,7 +267,7 @@ def _print_solution(result) -> None:
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
     if result.at_bound:
-        pulls = ", ".join(f"{label} ({pull:.2g} std)" for label, pull in result.at_bound.items())
+        pulls = ", ".join(f"{label} ({pull_text(pull)})" for label, pull in result.at_bound.items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
     if result.resolution:
         print(f"  {result.resolution['note']}")

@@ -11,8 +11,9 @@ import yaml
 from builders import BASE, ROOT, assert_exact_hessian_is_casadis, assert_monotone_crush, merge, small_pickup_problem
 
 from crashnlp.case.case import Case
-from crashnlp.cli import main
+from crashnlp.cli import _print_solution, main
 from crashnlp.optimize.identify import identify
+from crashnlp.optimize.outcome import result_of
 from crashnlp.problem import load_problem, problem_from_dict
 from crashnlp.results.result import VOLATILE
 
@@ -271,6 +272,26 @@ def test_the_console_gives_a_value_not_identified_an_infinite_std(data_file, tmp
     lines = capsys.readouterr().out.splitlines()
     assert any(line.strip().startswith("model.unloading.stiffness = ") and line.endswith("(std inf)") for line in lines), lines
     assert "  not identified (infinite std): model.unloading.stiffness" in lines
+
+
+@pytest.mark.integration
+def test_a_value_at_its_bound_the_data_never_reach_has_no_pull(capsys):
+    """pickup-40kph's values at 0.55 and 0.70 m lie past the crush its test reaches: not
+    identified, and the one its fit runs to the bound has no pull past it in standard errors (it
+    has no standard error), which the result and the console say so."""
+    problem = load_problem(ROOT / "problems/pickup-40kph.yaml").with_values({"transcription.intervals": 40})
+    sol = identify(Case(problem), progress=None)
+    labels = sol.ocp.free.labels()
+    past = [labels.index(f"model.spring.values[{k}]") for k in (5, 6)]
+    assert sol.ok and np.flatnonzero(sol.unreached()).tolist() == past
+    at_bound = np.flatnonzero(sol.at_bound())
+    assert labels.index("model.spring.values[5]") in at_bound
+    pull = sol.bound_pull()
+    assert np.all(np.isnan(pull[past][sol.at_bound()[past]])) and np.all(np.isfinite(np.delete(pull, past)))
+    result = result_of(sol)
+    assert result.at_bound["model.spring.values[5]"] is None
+    _print_solution(result)
+    assert "model.spring.values[5] (not identified)" in capsys.readouterr().out
 
 
 @pytest.mark.integration

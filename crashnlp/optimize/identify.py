@@ -67,15 +67,17 @@ class Solution:
 
     def bound_pull(self) -> np.ndarray:
         """How far past its bound each parameter's unconstrained optimum lies, in standard errors
-        (0 off the bounds): |lam| [H^-1]_ii / 2 / std, from the bound's multiplier and the
-        objective's curvature. Above 1.96 the bound, not the data, decides the value."""
+        (0 off the bounds, nan where the data do not determine the value): |lam| [H^-1]_ii / 2 /
+        std, from the bound's multiplier and the objective's curvature. Above 1.96 the bound, not
+        the data, decides the value."""
         if self.result is None or self.covariance is None:
             return np.zeros(self.theta.size)
         block = self.ocp.nlp.blocks["theta"]
         lam = self.result.lam_x[block.offset : block.offset + block.shape[0]] / block.scale.ravel()
         beyond = np.abs(lam) * np.diag(self.covariance.hessian_inverse) / 2
         with np.errstate(invalid="ignore", divide="ignore"):
-            return np.where(self.at_bound(), np.nan_to_num(beyond / self.covariance.std), 0.0)
+            pull = np.where(self.covariance.identified, np.nan_to_num(beyond / self.covariance.std), np.nan)
+        return np.where(self.at_bound(), pull, 0.0)
 
     def full_parameters(self) -> np.ndarray:
         return self.ocp.free.full(self.theta)

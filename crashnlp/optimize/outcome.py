@@ -50,7 +50,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         std_errors=_named(solution, cov.std) if cov is not None else {},
         correlation={"labels": labels, "matrix": np.round(cov.correlation, 6).tolist()} if cov is not None else {},
         not_identified=tuple(np.asarray(labels)[~cov.identified].tolist()) if cov is not None else (),
-        at_bound={label: round(float(pull[i]), 3) for i, label in enumerate(labels) if at_bound[i]},
+        at_bound={label: _finite_rounded(pull[i]) for i, label in enumerate(labels) if at_bound[i]},
         active_constraints=tuple(active_constraints(solution)) + tuple(_parameter_bounds(solution)),
         tests=tests,
         force_crush=_force_crush(solution),
@@ -104,6 +104,11 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
     )
+
+
+def _finite_rounded(x: float) -> float | None:
+    """`x` to three decimals; None where it is not a number (a value the data do not determine)."""
+    return round(float(x), 3) if np.isfinite(x) else None
 
 
 def _span(values: list[float]) -> tuple[float, float]:

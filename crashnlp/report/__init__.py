@@ -23,7 +23,7 @@ from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file
 from crashnlp.results.identified import Z95
-from crashnlp.results.result import Result
+from crashnlp.results.result import Result, pull_text
 from crashnlp.studies.table import number, shown_column
 
 if TYPE_CHECKING:
@@ -77,7 +77,7 @@ def result_page(result: Result, folder: Path) -> str:
         figures=figures,
         parameters=_parameters(result),
         not_identified=result.not_identified,
-        at_bound=result.at_bound,
+        at_bound={label: pull_text(pull) for label, pull in result.at_bound.items()},
         active=result.active_constraints,
         notes=result.notes,
     )
@@ -180,7 +180,7 @@ def _parameter(
         "how": how,
         "bounds": "-" if bounds is None else f"[{_cell(bounds[0], factor)}, {_cell(bounds[1], factor)}]",
         "unit": name,
-        "at_bound": f"{result.at_bound[label]:.2g} std past" if label in result.at_bound else "",
+        "at_bound": pull_text(result.at_bound[label]) if label in result.at_bound else "",
     }
 
 

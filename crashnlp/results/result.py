@@ -113,7 +113,7 @@ class Result:
     std_errors: dict[str, float | list[float | None] | None]
     correlation: dict[str, Any]
     not_identified: tuple[str, ...]
-    at_bound: dict[str, float]
+    at_bound: dict[str, float | None]  # how far past the bound the data pull, in std; None: not identified
     active_constraints: tuple[ActiveConstraint, ...]
     tests: dict[str, TestResult]
     force_crush: LoadingCurve | None = None
@@ -207,6 +207,12 @@ class Result:
             notes=tuple(raw.get("notes", ())),
             identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
         )
+
+
+def pull_text(pull: float | None) -> str:
+    """A value's pull past its bound as the console and the report give it: in standard errors,
+    or that the data do not determine the value (`Result.at_bound`'s None)."""
+    return "not identified" if pull is None else f"{pull:.2g} std"
 
 
 def _number(value: Any) -> float:
