@@ -481,7 +481,7 @@ def _read_both(path: Path, monkeypatch) -> list[tuple[list[str] | None, list]]:
     for plain in (True, False):
         with monkeypatch.context() as m:
             if not plain:
-                m.setattr(csv_reader, "_plain", lambda lines: None)
+                m.setattr(csv_reader, "_plain", lambda lines, delimiter: None)
             try:
                 table = Table.read(path)
             except DataError as exc:

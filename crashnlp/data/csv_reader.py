@@ -41,18 +41,17 @@ def _header(first: list[str], decimal_comma: bool) -> list[str] | None:
     return None if all(_is_number(c.replace(",", ".") if decimal_comma else c) for c in first) else first
 
 
-def _split(lines: list[str], path: Path) -> tuple[str, list[list[str]]]:
-    """The delimiter (" " for runs of spaces) and the cells of each line, each stripped."""
-    delimiter = _delimiter(lines[0])
+def _split(lines: list[str], delimiter: str, path: Path) -> list[list[str]]:
+    """The cells of each line, split on `delimiter` (" ": runs of spaces), each stripped."""
     if delimiter == " ":
-        return " ", [line.split() for line in lines]
+        return [line.split() for line in lines]
     try:
-        return delimiter, [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
+        return [[c.strip() for c in row] for row in csv.reader(lines, delimiter=delimiter)]
     except csv.Error as exc:
         raise DataError(f"{path}: cannot read as CSV ({exc})") from None
 
 
-def _plain(lines: list[str]) -> tuple[list[str] | None, np.ndarray] | None:
+def _plain(lines: list[str], delimiter: str) -> tuple[list[str] | None, np.ndarray] | None:
     """The header (None without one) and the rows as a matrix, read in one call, where the file is
     plain: no quotes, the same number of cells on every line below the header, every one of them
     a number as numpy reads it (a decimal comma is not); None otherwise, for the cell-by-cell
@@ -60,7 +59,7 @@ def _plain(lines: list[str]) -> tuple[list[str] | None, np.ndarray] | None:
     A column the header names and the rows lack is left to that reading too (Table.values).
     numpy's reader converts each cell as float() does (the same bits), and refuses some cells
     float() takes (1_000, other scripts' digits), which the cell-by-cell reading then reads."""
-    delimiter, text = _delimiter(lines[0]), "\n".join(lines)
+    text = "\n".join(lines)
     if '"' in text or max(map(len, lines)) > csv.field_size_limit():
         return None
     first = lines[0].split() if delimiter == " " else [c.strip() for c in lines[0].split(delimiter)]
@@ -98,11 +97,13 @@ class Table:
         numbered = [(n, line) for n, line in enumerate(lines, 1) if (text := line.lstrip()) and text[0] != "#"]
         if not numbered:
             raise DataError(f"{path}: empty file")
-        plain = _plain([line for _, line in numbered])
-        if plain is not None:
-            return cls(Path(path), plain[0], numbered, _delimiter(numbered[0][1]) != ",", plain[1])
-        delimiter, cells = _split([line for _, line in numbered], path)
+        texts = [line for _, line in numbered]
+        delimiter = _delimiter(texts[0])
         decimal_comma = delimiter != ","
+        plain = _plain(texts, delimiter)
+        if plain is not None:
+            return cls(Path(path), plain[0], numbered, decimal_comma, plain[1])
+        cells = _split(texts, delimiter, path)
         header = _header(cells[0], decimal_comma)
         if header is not None and len(cells) == 1:
             raise DataError(f"{path}: no rows of data below the header")
@@ -114,7 +115,8 @@ class Table:
     @cached_property
     def rows(self) -> list[tuple[int, list[str]]]:
         """The rows below the header: each line's number and its cells."""
-        rows = list(zip((n for n, _ in self.lines), _split([line for _, line in self.lines], self.path)[1]))
+        texts = [line for _, line in self.lines]
+        rows = list(zip((n for n, _ in self.lines), _split(texts, _delimiter(texts[0]), self.path)))
         return rows[1:] if self.header is not None else rows
 
     @property

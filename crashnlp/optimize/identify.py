@@ -88,13 +88,16 @@ class Solution:
         the data determine its loading curve."""
         return max(float(np.max(t["crush"])) for t in self.tests)
 
+    @property
+    def breakpoints(self) -> np.ndarray:
+        """The loading curve's crush breakpoints at the solution (m)."""
+        return self.full_parameters()[self.case.layout.index("model.spring.crush_breakpoints")]
+
     def unreached(self) -> np.ndarray:
         """Per estimated entry, whether the fitted tests never reach it: a spring value whose
         breakpoints lie past the tail's start (crashnlp.models.tail.tail_start) of the reach."""
-        case = self.case
-        breakpoints = self.full_parameters()[case.layout.index("model.spring.crush_breakpoints")]
-        start = tail_start(self.reach, case.problem.model.smoothing.crush)
-        return shaping_nothing_short_of(self.ocp.free.labels(), breakpoints, start)
+        start = tail_start(self.reach, self.case.problem.model.smoothing.crush)
+        return shaping_nothing_short_of(self.ocp.free.labels(), self.breakpoints, start)
 
 
 def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.ndarray) -> str:

@@ -241,7 +241,7 @@ def _force_crush(solution: Solution) -> LoadingCurve:
     case, p = solution.case, solution.full_parameters()
     x = np.linspace(0.0, max(solution.reach * 1.05, 1e-3), 201)
     curve = case.loading_curve(p)
-    bps = p[case.layout.index("model.spring.crush_breakpoints")]
+    bps = solution.breakpoints
     inside = bps[bps <= x[-1]]
     f, values = curve(x), curve(inside) if inside.size else np.zeros(0)
     known = case.problem.reference.force_crush
