@@ -45,7 +45,16 @@ import crashnlp  # noqa: E402
 from bench.common import RESULTS, ROOT  # noqa: E402
 from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
-from crashnlp.analysis.calibration import FILE, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped  # noqa: E402
+from crashnlp.analysis.calibration import (  # noqa: E402
+    FILE,
+    PITCH_FLOOR,
+    Calibration,
+    IntervalParts,
+    conformal_quantile,
+    reach,
+    scale,
+    shipped,
+)
 from crashnlp.analysis.prediction import PredictedTest, predict  # noqa: E402
 from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
 from crashnlp.case.case import case_of  # noqa: E402
@@ -322,8 +331,10 @@ def calibrate(rows: list[dict], seed: int, model_form: str = DEFAULT_FORM) -> Ca
 
 
 def judged(row: dict, metric: str, calibration: Calibration) -> dict | None:
-    """One prediction's metric against the generator: covered, relative half-width and error
-    (None where the fit failed or the prediction has no value)."""
+    """One prediction's metric against the generator: covered, and the half-width and the error
+    relative to the metric's scale (crashnlp.analysis.calibration.scale: the rebound's is the impact
+    speed, so that a rebound of zero has an error too); None where the fit failed or the prediction
+    has no value."""
     if "parts" not in row:
         return None
     parts = _parts(row, metric, calibration.power[metric])
@@ -332,10 +343,11 @@ def judged(row: dict, metric: str, calibration: Calibration) -> dict | None:
     if parts is None or truth is None or q is None or not np.isfinite(q):
         return None
     low, high = parts.interval(q)
+    per = scale(metric, parts.value, row["speed_mps"])
     return {
         "covered": bool(low <= truth <= high),
-        "half_rel": (high - low) / 2 / abs(parts.value) if parts.value else float("inf"),
-        "error_rel": parts.value / truth - 1.0 if truth else float("nan"),
+        "half_rel": (high - low) / 2 / per if per else float("inf"),
+        "error_rel": (parts.value - truth) / per if per else float("inf"),
     }
 
 
@@ -521,7 +533,8 @@ def markdown(section: dict) -> list[str]:
         f"{hidden} vehicles of a form the corpus does not hold, {', '.join(HIDDEN)} (seed {HIDDEN_SEED}). Per metric: the "
         "share of predictions whose 95 % interval holds the generator's value (a failed fit, or one that gives no "
         "interval, counts as a miss; in brackets the share of those with an interval), the median half-width and the "
-        "median and largest error, relative to the value.",
+        "median and largest error, relative to the value (the rebound's to the impact speed, the max pitch's to at least "
+        f"{PITCH_FLOOR:g} deg, as the form term's scale is).",
         "",
     ]
     for s in (section, *section.get("forms", {}).values()):
