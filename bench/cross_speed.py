@@ -35,9 +35,11 @@ from scipy.interpolate import PchipInterpolator
 import crashnlp
 from bench.common import PROBLEMS
 from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, tall_vehicle, write_csv
-from bench.robustness import WINDOW, minimal_problem
+from bench.robustness import ACCEL_FILTER, WINDOW, minimal_problem
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.base.units import G0
+from crashnlp.data.instrument import recorded
+from crashnlp.data.signal import CFC_CLASSES
 
 SPEEDS_KMH = (40.0, 56.0, 64.0)
 SPLITS = {"extrapolation": ((40.0, 56.0), 64.0), "interpolation": ((40.0, 64.0), 56.0)}
@@ -126,9 +128,12 @@ def prediction_problem(fit_path: Path, kmh: float, folder: Path, mass: float | N
 
 
 def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
-    """The generator's noise-free crash metrics at `kmh`, under the keys predictions report them."""
+    """The generator's noise-free crash metrics at `kmh`, under the keys predictions report them,
+    its acceleration as the fitted tests' accelerometers record it (ACCEL_FILTER), as a
+    prediction's is (crashnlp.analysis.prediction.read_through)."""
     truth = simulate(at_speed(v, kmh))
-    m = crash_metrics(truth["time"], truth["accel"], truth["velocity"], truth["displacement"])
+    accel = recorded(truth["time"], truth, "accel", CFC_CLASSES[ACCEL_FILTER])
+    m = crash_metrics(truth["time"], accel, truth["velocity"], truth["displacement"])
     return {
         "max_displacement_m": m.max_displacement,
         "peak_decel_g": m.peak_decel / G0,

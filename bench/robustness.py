@@ -26,6 +26,7 @@ from crashnlp.problem import load_problem
 COUNT, SEED = 30, 2024
 TARGETS = {"displacement_rel": 0.02, "stop_s": 0.002, "force_rating_median": 0.9}
 WINDOW = (0.0, 0.2)  # s
+ACCEL_FILTER = "CFC60"  # the minimal problems' accelerometers, read as the shipped problems' are (SAE J211 CFC 60)
 
 
 def minimal_problem(v: Vehicle, csv_name: str, transcription: dict | None = None) -> dict:
@@ -53,7 +54,7 @@ def minimal_problem(v: Vehicle, csv_name: str, transcription: dict | None = None
                     "time": {"column": "time_s", "unit": "s"},
                     "window": list(WINDOW),
                     "channels": {
-                        "accel": {"column": "accel_x_g", "unit": "g", "filter": "CFC60"},
+                        "accel": {"column": "accel_x_g", "unit": "g", "filter": ACCEL_FILTER},
                         "velocity": {"column": "vel_x_mps", "unit": "m/s"},
                         "displacement": {"column": "disp_x_m", "unit": "m"},
                         "pitch": {"column": "pitch_deg", "unit": "deg"},

@@ -56,7 +56,7 @@ import numpy as np
 
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
-from crashnlp.analysis.summary import data_curves, response_metrics
+from crashnlp.analysis.summary import accel_filter, accel_spec, as_recorded, data_curves, response_metrics
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     COLUMNS,
@@ -184,7 +184,8 @@ def predict(
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)
-        response = case.simulate_test(test, p, dt)
+        cfc = read_through(test, identified)
+        response = as_recorded(case.simulate_test(test, p, dt), cfc)
         metrics = response_metrics(response)
         mass = float(p[case.layout.index("vehicle.mass")][0])
         other = test.other_conditions(mass)
@@ -202,7 +203,7 @@ def predict(
             notes = first + drift + (note,)
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, none, {}, beyond, notes, data)
             continue
-        u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen)
+        u = _uncertainty(case, test, p, mass, response, metrics, identified, dt, chosen, cfc)
         out[test.name] = PredictedTest(
             test.name,
             test.speed,
@@ -219,6 +220,16 @@ def predict(
             chosen.named(),
         )
     return out
+
+
+def read_through(test: TestCase, identified: IdentifiedModel | None) -> str | None:
+    """The CFC class a prediction reads its acceleration through: its own test's accelerometers'
+    where its problem names accel data, else the fitted tests' (IdentifiedModel.accel_filter), so
+    that a predicted peak is the kind of peak the fit reports, at the fitted tests' own conditions
+    the same number; None: the model's own acceleration."""
+    if accel_spec(test) is not None or identified is None:
+        return accel_filter(test)
+    return identified.accel_filter
 
 
 def uncalibrated(name: str, form: str) -> str:
@@ -280,8 +291,10 @@ def _uncertainty(
     identified: IdentifiedModel,
     dt: float | None,
     calibration: Calibration,
+    cfc: str | None,
 ) -> Uncertainty:
-    """95 % intervals of the metrics and bands of the response columns (module docstring)."""
+    """95 % intervals of the metrics and bands of the response columns (module docstring), the
+    acceleration read through CFC class `cfc` as the response's is."""
     std, unused = identified.std(), _left_out(case, identified, response)
     undetermined = [label for label, s, out in zip(identified.labels, std, unused) if not (np.isfinite(s) or out)]
     if undetermined:
@@ -289,7 +302,7 @@ def _uncertainty(
         return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
     unseen = ", ".join(label for label, s, out in zip(identified.labels, std, unused) if out and not np.isfinite(s))
     notes = [f"{test.name}: {unseen}, which the data do not determine, shape no force it goes through"] if unseen else []
-    gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt)
+    gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt, cfc)
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
@@ -446,10 +459,11 @@ def past_the_reach(
 
 
 def _sensitivities(
-    case: Case, test: TestCase, p: np.ndarray, identified: IdentifiedModel, std: np.ndarray, dt: float | None
+    case: Case, test: TestCase, p: np.ndarray, identified: IdentifiedModel, std: np.ndarray, dt: float | None, cfc: str | None
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """d metric / d value (values x metrics) and d output / d value (output -> values x times):
-    central differences over one standard error each way, clipped to the estimate's bounds."""
+    central differences over one standard error each way, clipped to the estimate's bounds, the
+    acceleration read through CFC class `cfc`."""
     slices = case.layout.slices()
     gm = np.zeros((len(identified.labels), len(PREDICTED_KEYS)))
     gy: dict[str, np.ndarray] = {}
@@ -459,7 +473,7 @@ def _sensitivities(
         up, down = min(p[k] + std[j], hi), max(p[k] - std[j], lo)
         if up <= down:
             continue
-        r_up, r_down = (case.simulate_test(test, _with(p, k, value), dt) for value in (up, down))
+        r_up, r_down = (as_recorded(case.simulate_test(test, _with(p, k, value), dt), cfc) for value in (up, down))
         m_up, m_down = response_metrics(r_up), response_metrics(r_down)
         gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in PREDICTED_KEYS]
         for name in BAND_METRIC:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
+from dataclasses import replace
 
 import numpy as np
 
@@ -11,6 +12,7 @@ from crashnlp.base.outputs import METRICS
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
+from crashnlp.problem.schema import ChannelSpec
 from crashnlp.results.response import Response
 
 
@@ -73,17 +75,29 @@ def data_metrics(test: TestCase) -> dict | None:
 
 def response_metrics(r: Response, accel_filter: str | None = None) -> dict:
     """The metrics of a model response; with `accel_filter` (the CFC class of a test's
-    accelerometers) its acceleration as the test recorded it (crashnlp.data.instrument), so that its
-    peak and pulse compare with the test's filtered ones."""
-    y = r.outputs
-    accel = y["accel"] if accel_filter is None else recorded(r.time, y, "accel", CFC_CLASSES[accel_filter])
-    return metrics(r.time, accel, y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+    accelerometers) of the response as the test records it (`as_recorded`), so that its peak and
+    pulse compare with the test's filtered ones."""
+    y = as_recorded(r, accel_filter).outputs
+    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+
+
+def as_recorded(r: Response, accel_filter: str | None) -> Response:
+    """The response with its acceleration as accelerometers read through CFC class `accel_filter`
+    record it (crashnlp.data.instrument.recorded); the response itself for None (unfiltered)."""
+    if accel_filter is None:
+        return r
+    return replace(r, outputs={**r.outputs, "accel": recorded(r.time, r.outputs, "accel", CFC_CLASSES[accel_filter])})
 
 
 def accel_filter(test: TestCase) -> str | None:
     """The CFC class a test's accelerometers were read through (None: none, or no accel channel)."""
-    spec = test.spec.data.channels.get("accel") if test.spec.data is not None else None
+    spec = accel_spec(test)
     return spec.filter if spec is not None and spec.derive is None else None
+
+
+def accel_spec(test: TestCase) -> ChannelSpec | None:
+    """The problem's accel channel of a test, or None where its problem names no accel data."""
+    return test.spec.data.channels.get("accel") if test.spec.data is not None else None
 
 
 def channel_consistency(test: TestCase, mass: float) -> dict | None:

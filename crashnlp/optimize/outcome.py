@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.analysis.rating import iso18571_each
-from crashnlp.analysis.summary import accel_filter, channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.analysis.summary import accel_filter, accel_spec, channel_consistency, data_metrics, response_metrics, still_moving
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case, TestCase
 from crashnlp.case.completion import measured_pulse, measured_pulses
@@ -103,7 +103,15 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         ),
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
+        accel_filter=_accel_filter(case),
     )
+
+
+def _accel_filter(case: Case) -> str | None:
+    """The CFC class the fitted tests' accelerometers were read through, where they have accel
+    data and agree on it (None otherwise: a prediction then reports the model's own acceleration)."""
+    filters = {accel_filter(t) for t in case.tests if accel_spec(t) is not None}
+    return filters.pop() if len(filters) == 1 else None
 
 
 def _finite_rounded(x: float) -> float | None:

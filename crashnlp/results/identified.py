@@ -95,7 +95,10 @@ class IdentifiedModel:
     `labels` name the estimated entries one number each ("model.spring.values[3]"), in the
     order of `covariance` (None where the data do not determine a value) and `bounds`.
     `discrepancy`: per crash metric, the root mean square over the fitted tests of the model's
-    relative miss of the data's value; a metric no fitted test measured is absent."""
+    relative miss of the data's value; a metric no fitted test measured is absent.
+    `accel_filter`: the CFC class the fitted tests' accelerometers were read through, where they
+    name one and agree (None: unfiltered); a prediction reads its acceleration through it, so
+    that its peak is the fitted tests' kind of peak (crashnlp.analysis.prediction)."""
 
     vehicle: dict[str, Any]
     model: dict[str, Any]
@@ -106,6 +109,7 @@ class IdentifiedModel:
     range: IdentifiedRange
     discrepancy: dict[str, float] = field(default_factory=dict)
     channel_rmse: dict[str, float] = field(default_factory=dict)
+    accel_filter: str | None = None
 
     def to_json(self) -> dict[str, Any]:
         cov = None if self.covariance is None else [[_finite(x) for x in row] for row in self.covariance]
@@ -119,6 +123,7 @@ class IdentifiedModel:
             "range": self.range.to_json(),
             "discrepancy": self.discrepancy,
             "channel_rmse": self.channel_rmse,
+            "accel_filter": self.accel_filter,
         }
 
     @classmethod
@@ -136,6 +141,7 @@ class IdentifiedModel:
             IdentifiedRange.from_json(raw["range"]),
             dict(raw.get("discrepancy", {})),
             dict(raw.get("channel_rmse", {})),
+            raw.get("accel_filter"),
         )
 
     def tail_notes(self) -> tuple[str, ...]:
