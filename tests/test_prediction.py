@@ -577,3 +577,19 @@ def test_the_shipped_intervals_hold_held_out_predictions_of_every_generator_form
     judgements = {(r["vehicle"], r["scenario"], m): judged(r, m, shipped()) for r in rows for m in PREDICTED_KEYS}
     missed = [k for k, j in judgements.items() if j is None or not j["covered"]]
     assert len(missed) <= 0.1 * len(judgements), missed
+
+
+def test_a_prediction_reads_its_acceleration_as_the_fitted_tests_accelerometers(fitted):
+    """A what-if at the fit's own speed and mass, without data, reports the fit's kind of peak: the
+    model read through the CFC class the fitted tests' accelerometers were read through, its own
+    (unfiltered) acceleration kept beside it, and the peak within the grids' difference of the
+    fit's, where the model's own peak lies well outside it."""
+    folder, _, raw, result, _ = fitted
+    assert result.identified.accel_filter == raw["tests"][0]["data"]["channels"]["accel"]["filter"] == "CFC60"
+    predicted = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
+    r = predicted.response
+    assert r.accel_filter == "CFC60" and r.own_accel is not None
+    peak, own = predicted.metrics["peak_decel_g"], float(-r.own_accel.min() / G0)
+    assert peak == pytest.approx(float(-r["accel"].min() / G0))
+    fitted_peak = result.tests["t1"].metrics["peak_decel_g"]
+    assert abs(peak / fitted_peak - 1) < 0.01 < abs(own / fitted_peak - 1)

@@ -18,6 +18,7 @@ from builders import ROOT
 from crashnlp.base.outputs import named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import main
+from crashnlp.data.instrument import as_recorded as filtered
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.results.result import Result
@@ -139,6 +140,12 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "1000", "--out", str(rough)]) == 0
     steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=4)[:, 1]))) for f in (path, rough)]
     assert steps[0] < 0.9 * steps[1]  # CFC 60 smooths the pulse more than CFC 1000
+    # the fit's response is read through CFC 60 already, as its test's accelerometers: the CFC 60
+    # pulse is that curve resampled, not filtered twice; CFC 1000 filters the model's own
+    assert response.accel_filter == "CFC60" and response.own_accel is not None
+    resampled = np.interp(t, response.time, response["accel"])
+    assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
+    assert np.max(np.abs(filtered(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
 
 
 @pytest.mark.integration

@@ -516,8 +516,9 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
     with claim(out, run_name("simulate", name), option=None):
         for test in tests.values():
             r = test.response
-            write_response_csv(out / test.name / "response.csv", r.time, r.outputs, response_columns(test))
+            write_response_csv(out / test.name / "response.csv", r, response_columns(test))
             entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
+            entry["accel_filter"] = r.accel_filter
             if test.intervals:
                 entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
                 entry["interval_parts"] = test.shares()
@@ -547,7 +548,7 @@ def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
             name,
             float(entry["speed_mps"]),
             float(entry["mass_kg"]),
-            response_of(columns),
+            response_of(columns, entry.get("accel_filter")),
             entry["metrics"],
             intervals,
             bands,

@@ -83,10 +83,14 @@ def response_metrics(r: Response, accel_filter: str | None = None) -> dict:
 
 def as_recorded(r: Response, accel_filter: str | None) -> Response:
     """The response with its acceleration as accelerometers read through CFC class `accel_filter`
-    record it (crashnlp.data.instrument.recorded); the response itself for None (unfiltered)."""
-    if accel_filter is None:
+    record it (crashnlp.data.instrument.recorded); the response itself for None, or where its
+    acceleration is read through that class already (never twice: a second pass filters again)."""
+    if accel_filter is None or r.accel_filter == accel_filter:
         return r
-    return replace(r, outputs={**r.outputs, "accel": recorded(r.time, r.outputs, "accel", CFC_CLASSES[accel_filter])})
+    if r.accel_filter is not None:
+        raise ValueError(f"a response read through {r.accel_filter} cannot be read through {accel_filter}")
+    accel = recorded(r.time, r.outputs, "accel", CFC_CLASSES[accel_filter])
+    return replace(r, outputs={**r.outputs, "accel": accel}, accel_filter=accel_filter, own_accel=r.outputs["accel"])
 
 
 def accel_filter(test: TestCase) -> str | None:

@@ -9,7 +9,15 @@ from __future__ import annotations
 import numpy as np
 
 from crashnlp.analysis.rating import iso18571_each
-from crashnlp.analysis.summary import accel_filter, accel_spec, channel_consistency, data_metrics, response_metrics, still_moving
+from crashnlp.analysis.summary import (
+    accel_filter,
+    accel_spec,
+    as_recorded,
+    channel_consistency,
+    data_metrics,
+    response_metrics,
+    still_moving,
+)
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.case.case import Case, TestCase
 from crashnlp.case.completion import measured_pulse, measured_pulses
@@ -162,13 +170,14 @@ def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> Te
     if v is not None:
         check = {"max_abs_error": v.mismatch[test.name], "allowed": v.allowed[test.name], "worst_relative": v.worst(test.name)}
     data = {name: (ch.time, ch.values) for name, ch in test.data.channels.items()} if test.data is not None else {}
+    seen = as_recorded(ts, accel_filter(test))  # as the test's accelerometers record it: what its fit is rated on
     return TestResult(
         test.name,
         test.speed,
-        ts,
+        seen,
         data,
         _fits(solution, ts, test.name, ratings),
-        response_metrics(ts, accel_filter(test)),
+        response_metrics(seen),
         data_metrics(test),
         ts.loading_end,
         v.energy[test.name] if v is not None else None,

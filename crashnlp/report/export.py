@@ -27,7 +27,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.units import G0
 from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.instrument import as_recorded
-from crashnlp.data.signal import cfc_coefficients, cumtrapz
+from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
@@ -211,7 +211,11 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     """The acceleration of a response to an impact at `speed`, resampled at `rate` Hz over its
     record and CFC-filtered (J211) as a test's accelerometer records it, at rest before impact
     (crashnlp.data.instrument.as_recorded: the filter a fit compares the model through, and the one
-    its reported peak and ratings are read through)."""
+    its reported peak and ratings are read through). A response read through that class already
+    (Response.accel_filter: a fit's or a prediction's, as the fitted tests' accelerometers record
+    it) is only resampled; at another class the model's own acceleration is filtered: never twice."""
+    read = response.accel_filter is not None and CFC_CLASSES[response.accel_filter] == cfc
+    own = response["accel"] if response.own_accel is None else response.own_accel
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"--rate {rate:g}: must be a positive number of Hz")
     if rate * SAMPLE_INTERVALS[0] > 1:
@@ -220,7 +224,8 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
         time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
         time = time[time <= response.time[-1] + 1e-12]
         cfc_coefficients(cfc, 1.0 / rate)  # a rate the class cannot be sampled at is refused
-        accel = as_recorded(time - time[0], np.interp(time, response.time, response["accel"]), cfc)
+        accel = np.interp(time, response.time, response["accel"] if read else own)
+        accel = accel if read else as_recorded(time - time[0], accel, cfc)
     except ValueError as exc:
         raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]

@@ -10,17 +10,24 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.base.outputs import COLUMNS
+from crashnlp.base.outputs import COLUMNS, OUTPUT
 from crashnlp.results.files import write_columns
+
+OWN_ACCEL = "model_accel_g"  # response.csv's column of the model's own acceleration, beside the one read through a CFC class
 
 
 @dataclass
 class Response:
-    """Named outputs (SI) on a time grid, plus the absorbed energies."""
+    """Named outputs (SI) on a time grid, plus the absorbed energies. `accel_filter`: the CFC
+    class its acceleration is read through, as a test's accelerometers record it
+    (crashnlp.analysis.summary.as_recorded), and `own_accel` the model's own acceleration then;
+    None: the acceleration is the model's own."""
 
     time: np.ndarray
     outputs: dict[str, np.ndarray]
     states: np.ndarray  # rows: the model's states()[, the ABSORBED works]
+    accel_filter: str | None = None
+    own_accel: np.ndarray | None = None
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.time if name == "time" else self.outputs[name]
@@ -35,13 +42,14 @@ class Response:
         return float(np.interp(0.0, [-rate[k - 1], -rate[k]], self.time[k - 1 : k + 1]))
 
 
-def write_response_csv(
-    path: Path, time: np.ndarray, outputs: dict[str, np.ndarray], extra: dict[str, np.ndarray] | None = None
-) -> None:
-    """response.csv: time and the registry's written outputs, in report units, then `extra`
+def write_response_csv(path: Path, response: Response, extra: dict[str, np.ndarray] | None = None) -> None:
+    """response.csv: time and the registry's written outputs, in report units, the model's own
+    acceleration where the written one is read through a CFC class (OWN_ACCEL), then `extra`
     columns (already in report units, e.g. a prediction's bands)."""
-    written = {str(o.column): outputs[o.name] * o.factor for o in COLUMNS}  # COLUMNS: the outputs with a column
-    write_columns(path, {"time_s": np.asarray(time), **written, **(extra or {})})
+    written = {str(o.column): response.outputs[o.name] * o.factor for o in COLUMNS}  # COLUMNS: the outputs with a column
+    if response.own_accel is not None:
+        written[OWN_ACCEL] = response.own_accel * OUTPUT["accel"].factor
+    write_columns(path, {"time_s": np.asarray(response.time), **written, **(extra or {})})
 
 
 def read_columns(path: Path) -> dict[str, np.ndarray]:
@@ -50,12 +58,14 @@ def read_columns(path: Path) -> dict[str, np.ndarray]:
     return {name: np.asarray(table[name], dtype=float) for name in table.dtype.names or ()}
 
 
-def response_of(columns: dict[str, np.ndarray]) -> Response:
-    """The response in a response.csv's columns (`read_columns`), back in SI."""
+def response_of(columns: dict[str, np.ndarray], accel_filter: str | None = None) -> Response:
+    """The response in a response.csv's columns (`read_columns`), back in SI; its acceleration read
+    through CFC class `accel_filter` (as its result or simulation file says)."""
     outputs = {o.name: columns[str(o.column)] / o.factor for o in COLUMNS}
-    return Response(columns["time_s"], outputs, np.zeros((0, columns["time_s"].size)))
+    own = columns[OWN_ACCEL] / OUTPUT["accel"].factor if OWN_ACCEL in columns else None
+    return Response(columns["time_s"], outputs, np.zeros((0, columns["time_s"].size)), accel_filter, own)
 
 
-def read_response(path: Path) -> Response:
-    """A response.csv back in SI (the registry's written outputs)."""
-    return response_of(read_columns(path))
+def read_response(path: Path, accel_filter: str | None = None) -> Response:
+    """A response.csv back in SI (the registry's written outputs), its acceleration read through `accel_filter`."""
+    return response_of(read_columns(path), accel_filter)

@@ -170,7 +170,7 @@ class Result:
         raw = current_names(json.loads((folder / "result.json").read_text()))
         tests = {}
         for name, t in raw["tests"].items():
-            response = read_response(folder / name / "response.csv")
+            response = read_response(folder / name / "response.csv", t.get("accel_filter"))
             tests[name] = TestResult(
                 name,
                 t["speed_mps"],
@@ -227,6 +227,7 @@ def _test_json(t: TestResult) -> dict[str, Any]:
         "energy": t.energy,
         "metrics": {"model": t.metrics, "data": t.data_metrics},
         "fit": {c: _fit_json(f) for c, f in t.fit.items()},
+        "accel_filter": t.response.accel_filter,
     }
     return out | ({"consistency": t.consistency} if t.consistency is not None else {})
 
@@ -248,7 +249,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
     run's)."""
     with claim(out, run_name(result.kind, result.name), option=None):
         for name, t in result.tests.items():
-            write_response_csv(out / name / "response.csv", t.response.time, t.response.outputs)
+            write_response_csv(out / name / "response.csv", t.response)
         fc = result.force_crush
         if fc is not None:
             write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
