@@ -16,6 +16,7 @@ from bench.corpus import PICKUP, engine_vehicle, measured, random_vehicle, simul
 from bench.cross_speed import Family, fit_problem, judge, prediction_problem, within_targets
 from bench.robustness import minimal_problem
 from crashnlp.analysis.calibration import shipped
+from crashnlp.analysis.limits import METRIC_RANGE, limited_band, limited_interval
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
 from crashnlp.base.errors import InputError
@@ -152,6 +153,77 @@ def test_a_new_mass_changes_the_prediction_the_identified_front_end_stays(fitted
     assert more.mass == pytest.approx(1.2 * base.mass)
     assert more.metrics["max_displacement_m"] > base.metrics["max_displacement_m"]  # more energy into the same front end
     assert more.extrapolation["mass_kg"] == pytest.approx(0.2 * base.mass)
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("kmh", [10.0, 120.0])
+def test_intervals_and_bands_far_from_the_fit_stay_within_what_is_physically_certain(fitted, kmh):
+    """Far below and far above the fitted 48 km/h, where the uncut intervals reach below zero
+    (and the stop past the record), every interval and the force band stay in their physical
+    range, and at impact the bands hold what is certain there: no force, no travel, the speed."""
+    folder, _, raw, result, _ = fitted
+    test = crashnlp.simulate(_new_speed(folder, raw, kmh), params=result)["new"]
+    end = float(test.response.time[-1])
+    uncut = {key: test.parts[key].interval(q) for key, q in test.form_q.items()}
+    assert any(low < 0 for low, _ in uncut.values())  # the case this guards: past the physical range uncut
+    for key, interval in test.intervals.items():
+        if interval is None:
+            continue
+        low_limit, high_limit = METRIC_RANGE[key]
+        assert low_limit <= interval[0] <= test.metrics[key] <= interval[1] <= (end if high_limit is None else high_limit), key
+        cut = uncut[key] != interval
+        assert cut == any(n.startswith(f"new: {key}'s interval ") for n in test.notes), key
+    low, high = test.bands["barrier_force"]
+    assert np.all(low >= 0.0) and np.all(low <= test.response["barrier_force"])
+    for name in ("barrier_force", "displacement", "crush"):
+        assert test.bands[name][0][0] == test.bands[name][1][0] == test.response[name][0] == 0.0, name
+    # the velocity at impact is the impact speed: the band there spans it and the pendulum's
+    # velocity just after impact (its pivot takes the rest), and nothing else
+    v_low, v_high = (b[0] for b in test.bands["velocity"])
+    v0 = float(test.response["velocity"][0])
+    assert (v_low, v_high) == (min(v0, test.speed), max(v0, test.speed)) and v_high - v_low < 1e-5 * test.speed
+
+
+@pytest.mark.integration
+def test_intervals_and_bands_already_inside_their_physical_range_are_unchanged(fitted):
+    """At the fitted test's own conditions nothing is cut: each interval is its parts' bit for
+    bit, as the calibration and its coverage checks take it (bench/calibration.py, judged)."""
+    folder, _, raw, result, _ = fitted
+    test = crashnlp.simulate(_new_speed(folder, raw, 48), params=result)["new"]
+    assert test.form_q and all(test.intervals[key] == test.parts[key].interval(q) for key, q in test.form_q.items())
+    assert not any("'s interval is cut" in n or "'s interval passes" in n for n in test.notes)
+
+
+@pytest.mark.integration
+def test_the_loading_curve_s_band_stays_at_pushing_force(fitted):
+    """The curve's first value sits at its bound of zero with a standard error of tens of kN:
+    uncut, its band would reach below zero force at zero crush."""
+    curve = fitted[3].force_crush
+    low, high = curve.band
+    assert np.all(low >= 0.0) and np.all(low <= curve.force) and np.all(curve.force <= high)
+    assert low[0] == 0.0 and high[0] - curve.force[0] > 1e3
+
+
+def test_an_interval_is_cut_to_its_metric_s_range_and_says_so():
+    inside = (0.2, 0.4)
+    assert limited_interval("t", "max_displacement_m", inside, 0.15) == (inside, [])
+    (low, high), notes = limited_interval("t", "peak_decel_g", (-6.6, 31.2), 0.15)
+    assert (low, high) == (0.0, 31.2)
+    assert notes == ["t: peak_decel_g's interval is cut at 0.0 g, the least it can be: the data say nothing below it"]
+    assert limited_interval("t", "time_zero_velocity_s", (0.05, 0.2), 0.15)[0] == (0.05, 0.15)
+    assert "passes the record's end (150.00 ms)" in limited_interval("t", "time_zero_velocity_s", (0.05, 0.2), 0.15)[1][0]
+    whole, (note,) = limited_interval("t", "time_zero_velocity_s", (-0.25, 0.44), 0.15)
+    assert whole == (0.0, 0.15) and note.endswith("the data do not determine it")
+
+
+def test_a_band_is_cut_to_pushing_force_and_at_impact_to_what_is_certain_there():
+    time = np.array([0.0, 1e-3, 2e-3])
+    force = np.array([0.0, 50e3, 0.0])
+    low, high = limited_band("barrier_force", time, force, (force - 80e3, force + 80e3), 15.0)
+    assert np.array_equal(low, [0.0, 0.0, 0.0]) and np.array_equal(high, [0.0, 130e3, 80e3])
+    accel = np.array([-0.3, -40.0, 2.0])  # the model's own value at impact stays within its band
+    low, high = limited_band("accel", time, accel, (accel - 90.0, accel + 90.0), 15.0)
+    assert (low[0], high[0]) == (-0.3, 0.0) and np.array_equal(high[1:], accel[1:] + 90.0)
 
 
 @pytest.mark.integration

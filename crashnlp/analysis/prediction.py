@@ -30,7 +30,8 @@ that curve (the peak deceleration for the acceleration and the barrier force, th
 displacement and crush, the rebound for the velocity, the max pitch for the pitch) in proportion
 to how far the curve has moved from what the model knows exactly (zero force, the initial
 state): so the band at a metric's instant is that metric's interval, and there is no band after
-the vehicle has left the barrier or at t = 0.
+the vehicle has left the barrier or at t = 0. Intervals and bands are cut to what is physically
+certain (crashnlp.analysis.limits), with a note for each interval cut.
 
 A metric whose fitted tests' records end before it (a vehicle still moving at the record's end
 has no stop, rebound or max displacement in it) has no miss of the fit's own: where the curve it
@@ -55,6 +56,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
+from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import accel_filter, accel_spec, as_recorded, data_curves, response_metrics
 from crashnlp.base.errors import InputError
@@ -332,9 +334,10 @@ def _uncertainty(
             notes.append(f"{test.name}: no interval for {key}: its form term is not calibrated for a prediction of class {klass}")
             continue
         qs[key] = q
-        intervals[key] = parts[key].interval(q)
+        intervals[key], cut = limited_interval(test.name, key, parts[key].interval(q), float(response.time[-1]))
+        notes += cut
     notes += _dominated(test.name, parts, qs)
-    return Uncertainty(intervals, parts, qs, _bands(response, gy, cov, parts, qs), tuple(notes))
+    return Uncertainty(intervals, parts, qs, _bands(response, test.speed, gy, cov, parts, qs), tuple(notes))
 
 
 def _left_out(case: Case, identified: IdentifiedModel, response: Response) -> np.ndarray:
@@ -390,6 +393,7 @@ def _dominated(name: str, parts: dict[str, IntervalParts], qs: dict[str, float])
 
 def _bands(
     response: Response,
+    speed: float,
     gy: dict[str, np.ndarray],
     cov: np.ndarray,
     parts: dict[str, IntervalParts],
@@ -397,7 +401,9 @@ def _bands(
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Pointwise 95 % bands: the parameters' half-width of the curve at each instant, and its
     metric's non-parameter half-width in proportion to how far the curve has moved from what
-    the model knows exactly (zero, or for the velocity the impact speed)."""
+    the model knows exactly (zero, or for the velocity the impact speed); cut to what is
+    physically certain (crashnlp.analysis.limits: the barrier force only pushes, and at impact,
+    `speed`, nothing has moved yet)."""
     bands = {}
     v0 = float(response["velocity"][0])
     for name, key in BAND_METRIC.items():
@@ -410,7 +416,7 @@ def _bands(
         reference = v0 + part.value if name == "velocity" else abs(part.value)
         rest = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference if reference > 0 else 0.0
         half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + (rest * moved) ** 2)
-        bands[name] = (y - half, y + half)
+        bands[name] = limited_band(name, response.time, y, (y - half, y + half), speed)
     return bands
 
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from crashnlp.analysis.limits import FORCE_RANGE, within
 from crashnlp.analysis.rating import iso18571_each
 from crashnlp.analysis.summary import (
     accel_filter,
@@ -274,7 +275,7 @@ def _curve_band(
     """The loading curve's 95 % band at the crushes `x` (N): the estimates' covariance pushed
     through the curve's sensitivities, central differences over one standard error each way;
     None without a covariance or where the data do not determine an estimate that shapes the
-    curve over `x`."""
+    curve over `x`. Cut at zero force: a front end only pushes (crashnlp.analysis.limits)."""
     cov = solution.covariance
     if cov is None:
         return None
@@ -289,4 +290,4 @@ def _curve_band(
             g[j] = (solution.case.loading_curve(free.full(up))(x) - solution.case.loading_curve(free.full(down))(x)) / (2 * step)
     matrix = without_entries(cov.matrix, outside)
     half = Z95 * np.sqrt(np.maximum(np.einsum("it,ij,jt->t", g, matrix, g), 0.0))
-    return f - half, f + half
+    return within(f - half, f + half, f, *FORCE_RANGE)
