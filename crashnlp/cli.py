@@ -411,12 +411,15 @@ def cmd_init(args) -> int:
         if channel in columns:
             raise InputError(f"--column {item}: {channel} is given twice (--column {channel}={columns[channel]})")
         columns[channel] = name
-    try:
-        mass, speed = (None if v is None else to_si(v, u) for v, u in ((args.mass, "kg"), (_speed_option(args.speed), "m/s")))
-    except UnitError as exc:
-        raise InputError(f"--mass/--speed: {exc}") from None
+    given: dict[str, float | None] = {}
+    for option, text, unit in (("mass", args.mass, "kg"), ("speed", _speed_option(args.speed), "m/s")):
+        try:
+            given[option] = None if text is None else to_si(text, unit)
+        except UnitError as exc:
+            raise InputError(f"--{option}: {exc}") from None
+    options = Options(args.format, given["mass"], given["speed"], columns, args.name, args.force)
     paths = [Path(p) for p in args.data]
-    problem, notes = init_problem(paths, Path(args.out), Options(args.format, mass, speed, columns, args.name))
+    problem, notes = init_problem(paths, Path(args.out), options)
     print(
         f"wrote {args.out}: {problem.name}, {len(problem.model.spring.known_values)} breakpoints to "
         f"{problem.model.spring.placed_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
@@ -598,6 +601,7 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--name", help="problem name (default: the data file's stem)")
     p.add_argument("--out", required=True, help="problem YAML file to write")
+    p.add_argument("--force", action="store_true", help="write over an existing --out (never over a data file)")
     p.set_defaults(func=cmd_init)
 
     p = sub.add_parser("report", help="one self-contained HTML page of a fit's, a simulation's or a study's folder")

@@ -2,7 +2,9 @@
 
 What the data's header gives (EV5: VEHTWT, closing speed, wheelbase, VEHCG; ISO-MME: mass and
 speed of test object 1; CSV and NHTSA channel files: nothing) is used and said so; options
-(--mass, --speed) win over the header.
+(--mass, --speed) win over the header, and are refused where the data contradict them as a fit
+would refuse them (crashnlp.case.testcase). An existing file is written over only with --force,
+a data file never.
 Geometry no source gives takes typical values for the mass class (VEHICLE_CLASSES), each
 marked as an estimate:
 
@@ -81,6 +83,7 @@ class Options:
     speed: float | None = None
     columns: dict[str, str] = field(default_factory=dict)  # channel -> NAME[:UNIT]
     name: str | None = None
+    force: bool = False  # write over an existing --out (never over a data file)
 
 
 # ------------------------------------------------------------------ EV5
@@ -664,10 +667,12 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     for path in paths:
         if not path.exists():
             raise InputError(f"{path}: file not found")
-    _check_out(Path(out), paths)
+    _check_out(Path(out), paths, options)
     draft, suspension = draft_for(paths, options)
     out_dir = Path(out).resolve().parent
-    case = Case(problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0])))
+    drafted = problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0]))
+    _check_given(drafted, options)
+    case = Case(drafted)
     problem = case.problem
     if case.resolution is not None:
         draft.notes.append(f"Spring: {case.resolution.note}.")
@@ -679,8 +684,48 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     return written, draft.notes
 
 
-def _check_out(out: Path, paths: list[Path]) -> None:
-    """Refuse, before any work, an --out that cannot be written or is one of the data files."""
+def _check_out(out: Path, paths: list[Path], options: Options) -> None:
+    """Refuse, before any work, an --out that cannot be written, that is one of the test's data
+    files (even with --force), or that exists without --force: a problem file holds its user's edits."""
     check_writable_file(out)
-    if out.exists() and any(out.resolve() == p.resolve() for p in paths):
-        raise InputError(f"--out {out}: is the data file; name the problem file to write")
+    if not out.exists():
+        return
+    if out.resolve() in _data_files(paths, options.format or format_of(paths[0])):
+        raise InputError(f"--out {out}: is one of the test's data files; name the problem file to write")
+    if not options.force:
+        raise InputError(f"--out {out}: exists; give --force to write over it, or name another file")
+
+
+def _data_files(paths: list[Path], fmt: str) -> set[Path]:
+    """The files of the test's data set, resolved: the paths given; the curve files its EV5 header
+    lists; every channel file of an NHTSA test; an ISO-MME test's .mme and Channel files. A
+    problem may read any of them (init offers a barrier's commented out)."""
+    from crashnlp.data.nhtsa_ev5 import read_header
+
+    files = set(paths)
+    path = paths[0]
+    if fmt == "nhtsa-ev5":
+        files.update(path.with_suffix(f".{number:03d}") for number in read_header(path)[1])
+    elif fmt == "nhtsa-channel":
+        files.update(channel_files(path)[1].values())
+    elif fmt == "iso-mme" and (path.is_dir() or path.suffix.lower() == ".mme"):  # a zip is one file
+        base = path if path.is_dir() else path.parent
+        for p in base.rglob("*"):
+            if p.suffix.lower() == ".mme" or "channel" in (part.lower() for part in p.relative_to(base).parts[:-1]):
+                files.add(p)
+    return {p.resolve() for p in files}
+
+
+def _check_given(problem: Problem, options: Options) -> None:
+    """Refuse a --speed or --mass the test's data contradict, as identify would (crashnlp.case.testcase):
+    the file written would not be fitted."""
+    from crashnlp.case.testcase import mass_contradicted, speed_contradicted
+
+    test = problem.tests[0]
+    assert test.data is not None  # init writes the test with its data
+    data = load_test_data(test.data, problem.vehicle.speed)
+    given = (("--speed", options.speed, speed_contradicted), ("--mass", options.mass, mass_contradicted))
+    for option, value, contradicted in given:
+        why = None if value is None else contradicted(value, test, data)
+        if why is not None:
+            raise InputError(f"{option}: {why}")

@@ -106,8 +106,9 @@ def test_initial_value_outside_its_bounds_is_refused(tmp_path, capsys):
 # --------------------------------------------------------------------------- data that contradict the problem
 def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
     raw = pickup({"vehicle": {"speed": 56}, "tests": [{**pickup()["tests"][0], "speed": 56}]})
-    err = refused(tmp_path, capsys, raw, "tests.0.speed: 56 m/s, but the velocity data")
-    assert "15.5" in err and "5 %" in err
+    err = refused(tmp_path, capsys, raw, "tests.0.speed: 56 m/s (201.6 km/h), but the velocity data")
+    assert "15.5586 m/s (56.01 km/h)" in err and "5 %" in err
+    assert err.endswith("56 is 3.6 times the data's: a plain number is m/s, not km/h\n")
 
 
 @pytest.mark.parametrize(
@@ -115,7 +116,7 @@ def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
     [
         (slice(0, 1), "channel accel (column accel_x_g): fewer than two samples"),
         (slice(0, 451), "tests.0.data.window: runs to 200 ms, but the data of test 56kph end at 45 ms (cut.csv, channel"),
-        (slice(300, None), "start at 10.1812 m/s at 30 ms, where the record begins after impact (cut.csv)"),
+        (slice(300, None), "start at 10.1812 m/s (36.65 km/h) at 30 ms, where the record begins after impact (cut.csv)"),
     ],
     ids=["one-row", "mid-crush", "head-cut"],
 )
@@ -127,11 +128,46 @@ def test_a_record_cut_short_is_refused_saying_where_it_ends_or_begins(tmp_path, 
     refused(tmp_path, capsys, pickup({"tests": [{**test, "data": {**test["data"], "file": str(cut)}}]}), expected)
 
 
-def test_a_header_speed_the_problem_contradicts_is_refused(tmp_path, capsys):
+def camry(vehicle: dict, test: dict) -> dict:
+    """The shipped Camry problem (mass and speed from its EV5 header) with `vehicle` and its test's entries merged in."""
     raw = yaml.safe_load((ROOT / "problems/nhtsa-10146.yaml").read_text())
     raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
-    raw["tests"][0]["speed"] = 57.09  # km/h meant
-    refused(tmp_path, capsys, raw, "tests.0.speed: 57.09 m/s, but the data header")
+    raw["tests"][0].update(test)
+    return merge(raw, {"vehicle": vehicle})
+
+
+def test_a_header_speed_the_problem_contradicts_is_refused(tmp_path, capsys):
+    raw = camry({}, {"speed": 57.09})  # km/h meant
+    err = refused(tmp_path, capsys, raw, "tests.0.speed: 57.09 m/s (205.5 km/h), but the data header")
+    assert err.endswith("57.09 is 3.6 times the data's: a plain number is m/s, not km/h)\n")
+
+
+@pytest.mark.parametrize(
+    "vehicle, test, expected",
+    [
+        (
+            {"speed": "60 km/h"},
+            {},
+            "vehicle.speed: 16.6667 m/s (60 km/h), but the data header of test 10146 says 15.8583 m/s (57.09 km/h) "
+            "(more than 5 % apart)\n",
+        ),
+        (
+            {"mass": "2500 kg"},
+            {},
+            "vehicle.mass: 2500 kg, but the data header of test 10146 says 1719 kg (more than 10 % apart; the fitted "
+            "forces scale with the mass)\n",
+        ),
+        ({}, {"mass": "1500 kg"}, "tests.0.mass: 1500 kg, but the data header of test 10146 says 1719 kg (more than 10 %"),
+    ],
+    ids=["speed-in-km/h", "vehicle-mass", "test-mass"],
+)
+def test_a_speed_or_mass_the_data_header_contradicts_is_refused(tmp_path, capsys, vehicle, test, expected):
+    """A 45 % heavier vehicle fits as well, every force 45 % larger: refused as a 5 % speed is, both
+    units said (a problem may give either); a few percent of ballast are not refused."""
+    err = refused(tmp_path, capsys, camry(vehicle, test), expected)
+    assert "plain number" not in err
+    (tmp_path / "ok.yaml").write_text(yaml.safe_dump(camry({"mass": "1780 kg"}, {})))
+    assert main(["identify", str(tmp_path / "ok.yaml"), "--check"]) == 0
 
 
 @pytest.mark.parametrize("unit", ["ms", "h"])

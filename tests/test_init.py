@@ -258,7 +258,7 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
 @pytest.mark.parametrize(
     "out, options, message",
     [
-        ("pickup.csv", [], "--out {tmp}/pickup.csv: is the data file; name the problem file to write"),
+        ("pickup.csv", [], "--out {tmp}/pickup.csv: is one of the test's data files; name the problem file to write"),
         (".", [], "--out {tmp}: is a folder; name the file to write"),
         ("pickup.csv/p.yaml", [], "--out {tmp}/pickup.csv: exists and is not a folder"),
         (
@@ -267,6 +267,7 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
             "--column accel=2:g: accel is given twice (--column accel=accel_x_g:g)",
         ),
         ("p.yaml", ["--speed", "56"], '--speed 56: give its unit, e.g. "56 km/h" or "56 m/s"'),
+        ("p.yaml", ["--speed", "56 kg"], "--speed: '56 kg' does not convert to m/s"),
     ],
 )
 def test_init_refuses_a_careless_out_or_option_before_any_work(tmp_path, capsys, out, options, message):
@@ -276,6 +277,72 @@ def test_init_refuses_a_careless_out_or_option_before_any_work(tmp_path, capsys,
     assert main(["init", str(data), "--mass", "2550 kg", *options, "--out", f"{tmp_path}/{out}"]) == 2
     assert capsys.readouterr().err == f"crashnlp: error: {message.format(tmp=tmp_path)}\n"
     assert {p: p.read_bytes() for p in tmp_path.iterdir()} == before
+
+
+@pytest.mark.parametrize(
+    "data, out",
+    [
+        ("ev5/v10146.EV5", "ev5/v10146.093"),  # the accelerometer file the problem reads
+        ("ev5/v10146.EV5", "ev5/v10146.EV5"),
+        ("export/v10146tsv.093", "export/v10146tsv.095"),  # a channel file of the test it does not read
+        ("T001", "T001/Channel/T001.002"),
+    ],
+)
+def test_init_never_writes_over_a_data_file_even_with_force(tmp_path, capsys, data, out):
+    (tmp_path / "ev5").mkdir()
+    for suffix in (".EV5", ".093", ".094"):
+        shutil.copy(EV5.with_suffix(suffix), tmp_path / "ev5")
+    channel_export(tmp_path / "export", (93, 94, 95))
+    _mme_set(tmp_path / "T001")
+    before = {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()}
+    assert main(["init", str(tmp_path / data), "--out", str(tmp_path / out), "--force"]) == 2
+    expected = f"--out {tmp_path / out}: is one of the test's data files; name the problem file to write"
+    assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
+    assert {p: p.read_bytes() for p in tmp_path.rglob("*") if p.is_file()} == before
+
+
+def test_init_writes_over_an_existing_file_only_with_force(tmp_path, capsys):
+    out = tmp_path / "p.yaml"
+    out.write_text("# the user's edits\n")
+    assert main(["init", str(EV5), "--out", str(out)]) == 2
+    expected = f"--out {out}: exists; give --force to write over it, or name another file"
+    assert capsys.readouterr().err == f"crashnlp: error: {expected}\n"
+    assert out.read_text() == "# the user's edits\n"
+    # a mass 3.5 % above the header's (ballast, instruments) is no contradiction
+    assert main(["init", str(EV5), "--mass", "1780 kg", "--out", str(out), "--force"]) == 0
+    assert load_problem(out).vehicle.mass == 1780
+
+
+@pytest.mark.parametrize(
+    "data, options, message",
+    [
+        (
+            EV5,
+            ["--speed", "40 km/h"],
+            "--speed: 11.1111 m/s (40 km/h), but the data header of test v10146 says 15.8583 m/s (57.09 km/h)"
+            " (more than 5 % apart)",
+        ),
+        (
+            EV5,
+            ["--mass", "2500 kg"],
+            "--mass: 2500 kg, but the data header of test v10146 says 1719 kg (more than 10 % apart; the fitted forces scale"
+            " with the mass)",
+        ),
+        (
+            ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv",
+            ["--mass", "2550 kg", "--speed", "40 km/h"],
+            "--speed: 11.1111 m/s (40 km/h), but the velocity data of test pickup-56kph start at 15.5586 m/s (56.01 km/h)"
+            " (pickup-56kph.csv); speed and data disagree by more than 5 %",
+        ),
+    ],
+    ids=["header-speed", "header-mass", "velocity-data"],
+)
+def test_init_refuses_a_speed_or_mass_the_data_contradict(tmp_path, capsys, data, options, message):
+    """As identify would refuse the file written (crashnlp.case.testcase): said at init, nothing written."""
+    out = tmp_path / "p.yaml"
+    assert main(["init", str(data), *options, "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {message}\n"
+    assert not out.exists()
 
 
 def test_init_writes_into_a_folder_it_makes_and_the_file_names_the_data(tmp_path, capsys):

@@ -479,6 +479,17 @@ def test_a_bad_swept_value_is_refused_before_any_solve(small, tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+def test_a_swept_mass_the_data_header_contradicts_is_refused_before_any_solve(tmp_path):
+    """Each case's data are checked against its speed and its mass (crashnlp.case.testcase.check_data)."""
+    study = write_study(tmp_path, problem=str(ROOT / "problems/nhtsa-10146.yaml"), sweep={"vehicle.mass": ["1719 kg", "2500 kg"]})
+    expected = (
+        r"sweep: case-001 \(vehicle.mass = 2500 kg\): vehicle.mass: 2500 kg, but the data header of test 10146 says 1719 kg"
+    )
+    with pytest.raises(InputError, match=expected):
+        run_study(study, tmp_path / "out", workers=1, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
 def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp_path, capsys):
     from crashnlp.cli import main
 

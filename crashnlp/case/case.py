@@ -84,9 +84,9 @@ class Case:
         return self.problem.name
 
     def check_data(self) -> None:
-        """Refuse test data that contradict the problem's speed or end before a fit's duration
+        """Refuse test data that contradict the problem's speed or mass, or end before a fit's duration
         (crashnlp.case.testcase.check_data)."""
-        check_data(self.tests)
+        check_data(self.tests, self.problem.vehicle.known_mass)
 
     def test_parameters(self, test: TestCase, p: np.ndarray | None = None) -> np.ndarray:
         """Full parameter vector of one test: shared values with the test's own overrides."""

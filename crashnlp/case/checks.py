@@ -40,7 +40,8 @@ def check_keys(problem: Problem, source: str | None = None) -> None:
 
 
 def check_tests(problem: Problem, source: str | None = None) -> None:
-    """The tests' data read, and refused where they contradict the problem's speed or end before
+    """The tests' data read, and refused where they contradict the problem's speed or mass or end before
     a fit's duration, without building the model (a study checks every case so before it solves any)."""
     with named(source or problem.name):
-        check_data(load_tests(problem)[1])
+        loaded, tests = load_tests(problem)
+        check_data(tests, loaded.vehicle.known_mass)

@@ -17,6 +17,9 @@ from crashnlp.data.channels import END_TOLERANCE, median_interval
 from crashnlp.problem import Problem, Test
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
+# relative: a test mass further from its data header's contradicts it. Headers give the test weight
+# to the kg; ballast and instrumentation differences are a few percent, pounds taken for kg 2.2 times
+MASS_TOLERANCE = 0.10
 SAME_CONDITIONS = 0.01  # relative: a simulated test this close to its data's speed, mass and end runs as they were recorded
 
 
@@ -126,13 +129,15 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
     return Recorded(recorded_speed, (float(weighed), "the data header") if weighed else (mass, "the problem"), end)
 
 
-def check_data(tests: list[TestCase]) -> None:
-    """Refuse test data that contradict the problem's speed (check_speed), or end before a fit's
+def check_data(tests: list[TestCase], mass: float) -> None:
+    """Refuse test data that contradict the problem's speed (check_speed) or, in their header, its
+    mass (`mass`, the vehicle's, where a test gives none: check_mass), or end before a fit's
     duration (check_end; a window is checked as the data load). For fits: a simulation may well
-    ask what a test would do at another speed, or for longer."""
+    ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_speed(i, test.speed, test.spec, test.data)
+            check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
                 check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
 
@@ -151,26 +156,66 @@ def check_end(key: str, end: float, test: Test, data: TestData) -> None:
 
 
 def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
-    """Refuse a test speed the data contradict: the header's speed, or a measured velocity at impact.
+    """Refuse a test speed the data contradict (speed_contradicted), naming its key."""
+    why = speed_contradicted(speed, test, data)
+    if why is not None:
+        raise InputError(f"{f'tests.{i}.speed' if test.speed is not None else 'vehicle.speed'}: {why}")
 
-    A plain number is m/s, so `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs
-    into the iteration limit without ever saying why.
+
+def check_mass(i: int, mass: float, test: Test, data: TestData) -> None:
+    """Refuse a test mass the data header contradicts (mass_contradicted), naming its key."""
+    why = mass_contradicted(mass, test, data)
+    if why is not None:
+        raise InputError(f"{f'tests.{i}.mass' if test.mass is not None else 'vehicle.mass'}: {why}")
+
+
+def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
+    """Why the data contradict a test speed: the header's speed, or a measured velocity at impact,
+    more than SPEED_TOLERANCE away; None where they do not. `crashnlp init --speed` asks too.
+
+    Speeds are said in m/s and km/h, since a problem may give either. A plain number is m/s, so
+    `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs into the iteration limit
+    without ever saying why, and the message says so where the speed is that.
     """
-    where = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+    apart = f"more than {SPEED_TOLERANCE * 100:g} %"
     header = data.meta.get("speed")
     if header and abs(speed - header) > SPEED_TOLERANCE * header:
-        raise InputError(
-            f"{where}: {speed:g} m/s, but the data header of test {test.name} says {header:g} m/s "
-            f"(more than 5 % apart; a plain number is m/s)"
+        return (
+            f"{_speed(speed)}, but the data header of test {test.name} says {_speed(header)} "
+            f"({apart} apart{_plain_number(speed, header)})"
         )
     start = _velocity_start(test, data)
     if start is not None and test.data is not None and abs(start - speed) > SPEED_TOLERANCE * abs(speed):
         begins = float(data.channels["velocity"].time[0])
         late = f" at {begins * 1e3:g} ms, where the record begins after impact" if begins > 0 else ""
-        raise InputError(
-            f"{where}: {speed:g} m/s, but the velocity data of test {test.name} start at {start:g} m/s{late} "
-            f"({test.data.file.name}); speed and data disagree by more than 5 % (a plain number is m/s)"
+        return (
+            f"{_speed(speed)}, but the velocity data of test {test.name} start at {_speed(start)}{late} "
+            f"({test.data.file.name}); speed and data disagree by {apart}{_plain_number(speed, start)}"
         )
+    return None
+
+
+def _speed(v: float) -> str:
+    return f"{v:g} m/s ({v * 3.6:.4g} km/h)"
+
+
+def _plain_number(speed: float, recorded: float) -> str:
+    """The hint for a speed 3.6 times the data's: km/h written as a plain number, which is m/s."""
+    near = abs(speed - 3.6 * recorded) <= SPEED_TOLERANCE * 3.6 * abs(recorded)
+    return f"; {speed:g} is 3.6 times the data's: a plain number is m/s, not km/h" if near else ""
+
+
+def mass_contradicted(mass: float, test: Test, data: TestData) -> str | None:
+    """Why the data header contradicts a test mass: its test weight more than MASS_TOLERANCE away;
+    None where it does not, or gives none. The fitted forces scale with the mass (F = m a), so a
+    wrong mass fits as well as the right one and goes unnoticed. `crashnlp init --mass` asks too."""
+    header = data.meta.get("mass")
+    if header and abs(mass - header) > MASS_TOLERANCE * header:
+        return (
+            f"{mass:.0f} kg, but the data header of test {test.name} says {header:.0f} kg (more than "
+            f"{MASS_TOLERANCE * 100:g} % apart; the fitted forces scale with the mass)"
+        )
+    return None
 
 
 def _velocity_start(test: Test, data: TestData) -> float | None:

@@ -26,7 +26,7 @@ from crashnlp.results.result import Result
 
 def prepare_case(problem: Problem, source: str | None = None) -> Case:
     """The Case of a problem to solve, after every check: its keys (crashnlp.case.checks), the tests'
-    data against its speed (Case.check_data: a fit to data that contradict the problem is
+    data against its speed and mass (Case.check_data: a fit to data that contradict the problem is
     refused, not run), and the estimate as the solve lays it out (FreeParameters: an initial
     value of another size than its entry is refused here, not once the output folder is held)."""
     check_keys(problem, source)

@@ -190,12 +190,13 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
     """Refuse a case whose problem is not valid, or whose data contradict it (crashnlp.case.checks:
     those of a solve, short of building the model), naming the study file, the case and its
-    values. Data are read once per distinct set of tests (`checked`)."""
+    values. Data are read once per distinct set of tests, speed and mass (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
     try:
         problem = problem_from_dict(raw, study.base_dir, source="problem")
         check_keys(problem, "problem")
-        tests = json.dumps([raw.get("tests"), raw.get("vehicle", {}).get("speed")], sort_keys=True, default=str)
+        vehicle = raw.get("vehicle", {})
+        tests = json.dumps([raw.get("tests"), vehicle.get("speed"), vehicle.get("mass")], sort_keys=True, default=str)
         if tests not in checked:
             check_tests(problem, "problem")
             checked.add(tests)
