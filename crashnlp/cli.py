@@ -110,15 +110,16 @@ def _with_params(file: str, source: str):
 
 
 def _speed_option(text: str | None) -> str | None:
-    """--speed as given, refused without a unit: a plain 64 would be 64 m/s (230 km/h), and no
-    data stand against a what-if's speed or init's to catch it (a fit's data do, crashnlp.case.testcase)."""
-    try:
-        number = float(text or "")
-    except ValueError:
-        return text
-    if not math.isfinite(number):
-        return text
-    raise InputError(f'--speed {text}: give its unit, e.g. "{number:g} km/h" or "{number:g} m/s"')
+    """init's --speed as given, refused without a unit (crashnlp.problem.schema.stated_speed)."""
+    from crashnlp.base.units import UnitError
+    from crashnlp.problem.schema import stated_speed
+
+    if text is not None:
+        try:
+            stated_speed(text)
+        except UnitError as exc:
+            raise InputError(f"--speed {text}: {exc}") from None
+    return text
 
 
 def cmd_simulate(args) -> int:
@@ -126,12 +127,12 @@ def cmd_simulate(args) -> int:
         prepared = _simulation(args)
         if prepared is None:
             return 0
-        case, identified, out = prepared
+        case, identified, out, dt = prepared
         from crashnlp.analysis.prediction import predict, simulation_figure_jobs, write_simulation
 
         with claim(out, run_name("simulate", case.name)):
             with _computing(args):
-                predicted = predict(case, identified, args.dt)
+                predicted = predict(case, identified, dt)
             write_simulation(case.name, predicted, out)
             if figures is not None:
                 figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
@@ -182,15 +183,16 @@ def _result_alone(path: str, params: str | None):
 
 
 def _simulation(args):
-    """(case, identified model or None, output folder) of the problem file, every check made and
-    the folder checked (crashnlp.results.files.check_output), or None after `--check`."""
+    """(case, identified model or None, output folder, --dt in s or None) of the problem file, every
+    check made and the folder checked (crashnlp.results.files.check_output), or None after `--check`."""
     from crashnlp.analysis.prediction import check_steps
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
 
-    check_steps(None, args.dt, "--dt")
-    speed, mass = what_if(_speed_option(args.speed), args.mass, prefix="--")
+    dt = None if args.dt is None else _quantity_option("--dt", args.dt, "s")
+    check_steps(None, dt, "--dt")
+    speed, mass = what_if(args.speed, args.mass, prefix="--")
     folder = Path(args.problem) / "result.json"
     if Path(args.problem).is_dir() and not folder.is_file():
         raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
@@ -201,13 +203,13 @@ def _simulation(args):
     else:
         problem, identified = load_problem(args.problem), None
     case = case_of(problem, args.problem).at(speed, mass)
-    check_steps(case, args.dt, "--dt", args.problem)
+    check_steps(case, dt, "--dt", args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    return case, identified, out
+    return case, identified, out, dt
 
 
 def _figure_process(args):
@@ -524,12 +526,17 @@ def _chosen_test(folder: Path, responses: dict, test: str | None) -> str:
 
 def _rate(text: str) -> float:
     """--rate as a number of Hz ("10 kHz", "10000")."""
+    return _quantity_option("--rate", text, "Hz")
+
+
+def _quantity_option(option: str, text: str, unit: str) -> float:
+    """An option's quantity in SI `unit` ("10 kHz", "0.1 ms"; a plain number is SI)."""
     from crashnlp.base.units import UnitError, to_si
 
     try:
-        return to_si(text, "Hz")
+        return to_si(text, unit)
     except UnitError as exc:
-        raise InputError(f"--rate {text}: {exc}") from None
+        raise InputError(f"{option} {text}: {exc}") from None
 
 
 def parser() -> argparse.ArgumentParser:
@@ -548,7 +555,7 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", help='a what-if: every test at this impact speed, e.g. "64 km/h" (with its unit)')
     p.add_argument("--mass", help='a what-if: every test at this mass, e.g. "1650 kg"')
     p.add_argument("--out", help="output folder (default results/<problem name>/simulation)")
-    p.add_argument("--dt", type=float, help="output step in s (default: the problem's simulation.dt)")
+    p.add_argument("--dt", help='output step, e.g. "0.1 ms" (a plain number is s; default: the problem\'s simulation.dt)')
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_simulate)
 

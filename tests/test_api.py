@@ -118,8 +118,21 @@ def test_simulate_takes_a_what_if_speed_and_mass_for_every_test(small_problem):
         crashnlp.simulate(small_problem, speed="fast")
 
 
+def test_simulate_refuses_a_speed_text_without_unit_as_the_command_does(small_problem):
+    """A text "64" would be 64 m/s (230 km/h): refused as `crashnlp simulate --speed 64` is; a Python number is SI."""
+    with pytest.raises(InputError, match='^speed 64: give its unit, e.g. "64 km/h" or "64 m/s"$'):
+        crashnlp.simulate(small_problem, speed="64")
+    assert crashnlp.simulate(small_problem, dt=1e-3, speed=17.0)["56kph"].speed == 17.0
+
+
 @pytest.mark.parametrize(
-    "dt, message", [(0.0, "dt 0: must be a positive"), (float("nan"), "dt nan: must be"), (1e-12, "dt 1e-12 s: more than")]
+    "dt, message",
+    [
+        (0.0, "dt 0: must be a positive"),
+        (float("nan"), "dt nan: must be"),
+        (1e-12, "dt 1e-12 s: more than"),
+        (5e-3, "dt 0.005 s: 12 output steps over 0.06 s"),
+    ],
 )
 def test_simulate_refuses_the_steps_the_command_refuses(small_problem, dt, message):
     """One check (crashnlp.analysis.prediction.check_steps) for `crashnlp.simulate` and `crashnlp simulate

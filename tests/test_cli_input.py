@@ -9,6 +9,7 @@ import sys
 from types import UnionType
 from typing import Annotated, Literal, Union, get_args, get_origin
 
+import numpy as np
 import pytest
 import yaml
 from builders import BASE, ROOT, merge
@@ -28,6 +29,7 @@ CASES = {
     "wrong type": ({"vehicle": {"suspension": "stiff"}}, "vehicle.suspension:"),
     "wrong unit": ({"vehicle": {"mass": "2550 m"}}, "vehicle.mass:"),
     "unreadable quantity": ({"vehicle": {"cg_to_impact": "far away"}}, "vehicle.cg_to_impact: cannot read"),
+    "decimal comma": ({"vehicle": {"speed": "57,09 km/h"}}, "vehicle.speed: a comma in a number; write 57.09 km/h\n"),
     "missing file": ({"tests": [{"name": "a", "data": {**DATA, "file": "nowhere.csv"}}]}, "tests.0.data.file: file not found"),
     "breakpoints not increasing": (
         {"model": {"spring": {"crush_breakpoints": [0, 0.2, 0.1, 0.3, 0.4, 0.5, 0.6, 0.7]}}},
@@ -159,6 +161,8 @@ def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
         ("--mass", "3 g", "--mass 3 g: 0.003 kg is no vehicle's mass"),
         ("--speed", "64", '--speed 64: give its unit, e.g. "64 km/h" or "64 m/s"'),
         ("--speed", "0 km/h", "--speed 0 km/h: 0 m/s is no impact"),
+        ("--speed", "40,5 km/h", "--speed 40,5 km/h: a comma in a number; write 40.5 km/h\n"),
+        ("--mass", "1719,5 kg", "--mass 1719,5 kg: a comma in a number; write 1719.5 kg\n"),
     ],
 )
 def test_a_bad_what_if_is_refused_in_one_line_naming_the_option(option, value, expected, tmp_path, capsys):
@@ -168,6 +172,16 @@ def test_a_bad_what_if_is_refused_in_one_line_naming_the_option(option, value, e
     assert code == 2 and err.count("\n") == 1 and "Traceback" not in err
     assert expected in err, err
     assert not out.exists()
+
+
+@pytest.mark.parametrize("dt", ["0.5 ms", "0.0005"])
+def test_dt_takes_a_unit_as_speed_and_mass_do(tmp_path, dt):
+    """--dt "0.5 ms" is 0.5 ms; a plain number is seconds."""
+    path, out = tmp_path / "p.yaml", tmp_path / "out"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t", "duration": "0.05 s"}]})))
+    assert main(["simulate", str(path), "--dt", dt, "--out", str(out), "--no-figures"]) == 0
+    time = np.loadtxt(out / "t/response.csv", delimiter=",", skiprows=1, usecols=0)
+    assert np.diff(time) == pytest.approx(5e-4, rel=1e-9) and time[-1] == pytest.approx(0.05)
 
 
 def _simulated(tmp_path, name: str, tests: list[str], out) -> int:

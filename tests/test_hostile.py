@@ -75,6 +75,7 @@ def refused(tmp_path: Path, capsys, raw_or_text, expected: str, command: str = "
         ({"tests": [{"name": "t", "speed": "-56 km/h"}]}, "tests.0.speed: must not be negative"),
         ({"tests": [{"name": "t", "duration": "-0.2 s"}]}, "tests.0.duration: must be positive"),
         ({"simulation": {"dt": 0}}, "simulation.dt: must be positive"),
+        ({"simulation": {"dt": "10 ms"}}, "p.yaml: simulation.dt 0.01 s: 20 output steps over 0.2 s"),
         ({"model": {"spring": {"values": ["nan kN"] * 8}}}, "model.spring: "),
         ({"estimate": {"vehicle.cg_above_impact": {"bounds": [0, "inf m"]}}}, "estimate.vehicle.cg_above_impact: "),
     ],
@@ -83,7 +84,7 @@ def test_values_the_model_cannot_integrate_are_refused_with_their_key(tmp_path, 
     refused(tmp_path, capsys, merge(BASE, changes), expected, command="simulate")
 
 
-@pytest.mark.parametrize("dt", ["0", "-1e-4", "nan", "inf", "1e-12"])
+@pytest.mark.parametrize("dt", ["0", "-1e-4", "nan", "inf", "1e-12", "0.5", "5 ms", "1e300", "0.1 mss"])
 def test_bad_dt_is_refused(tmp_path, capsys, dt):
     path = tmp_path / "p.yaml"
     path.write_text(yaml.safe_dump(BASE))

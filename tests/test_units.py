@@ -74,3 +74,23 @@ def test_an_unreadable_table_is_ignored(fresh):
     table.write_text("{not json")
     units._remembered.cache_clear()
     assert to_si("56 km/h", "m/s") == pytest.approx(56 / 3.6)
+
+
+@pytest.mark.parametrize(
+    ("text", "unit", "expected"),
+    [
+        ("40,5 km/h", "m/s", "a comma in a number; write 40.5 km/h"),  # pint reads 405 km/h
+        ("1719,5 kg", "kg", "a comma in a number; write 1719.5 kg"),
+        ("1,000 kg", "kg", "a comma in a number; write 1.000 kg or 1000 kg"),  # a decimal comma or thousands?
+        ("1,719.5 kg", "kg", "a comma in a number; write numbers with a decimal point and no thousands separator"),
+    ],
+)
+def test_a_comma_in_a_number_is_refused_and_never_remembered(fresh, monkeypatch, text, unit, expected):
+    """pint drops a comma: refused before the table, also where an older table holds pint's reading."""
+    with pytest.raises(UnitError, match=f"^{expected}$"):
+        to_si(text, unit)
+    assert not list(fresh.glob("units-pint-*.json"))
+    units._remember({f"{text}\t{unit}": 112.5})  # what a table written before the refusal may hold
+    new_process(monkeypatch)
+    with pytest.raises(UnitError, match=f"^{expected}$"):
+        to_si(text, unit)

@@ -2,6 +2,8 @@
 
 Plain numbers are taken as SI. In crash work "g" next to an acceleration means
 standard gravity, not gram, so that one case is resolved by the dimension asked for.
+A comma is refused: pint drops it ("40,5 km/h" would be 405 km/h), and a decimal comma
+and a thousands separator cannot be told apart.
 
 pint converts. Building its registry costs a quarter of a second in every process,
 more than the rest of reading a problem, so each conversion pint has made is
@@ -58,12 +60,24 @@ def to_si(value: float | int | str, unit: str) -> float:
         return float(text)
     except ValueError:
         pass
+    if "," in text:  # before the table: a refused text is never looked up nor remembered
+        raise UnitError(_comma(text))
     known = _remembered()
     key = f"{text}\t{unit}"
     if key not in known:
         known[key] = _convert(value, text, unit)
         _remember(known)
     return known[key]
+
+
+def _comma(text: str) -> str:
+    """Why a text with a comma is refused, and the text to write: for a single comma between
+    digits and no point, the comma as a decimal point (and without it too where three digits
+    follow, as in a thousands separator)."""
+    if text.count(",") != 1 or "." in text or not re.search(r"\d,\d", text):
+        return "a comma in a number; write numbers with a decimal point and no thousands separator"
+    thousands = f" or {text.replace(',', '')}" if re.search(r",\d{3}(?!\d)", text) else ""
+    return f"a comma in a number; write {text.replace(',', '.')}{thousands}"
 
 
 def _convert(value: str, text: str, unit: str) -> float:

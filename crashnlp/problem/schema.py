@@ -43,7 +43,7 @@ from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, cor
 
 from crashnlp.base.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
-from crashnlp.base.units import to_si
+from crashnlp.base.units import UnitError, to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
@@ -119,13 +119,30 @@ def _impact_speed(v: float | None) -> float | None:
     return _speed(v)
 
 
+def stated_speed(value: QuantityIn) -> QuantityIn:
+    """A speed given outside a problem file, refused (UnitError) as text without a unit: a plain
+    "64" would be 64 m/s (230 km/h), and no data stand against a what-if's speed or init's to
+    catch it (a fit's data do, crashnlp.case.testcase). A Python number stays SI."""
+    if not isinstance(value, str):
+        return value
+    try:
+        number = float(value)
+    except ValueError:
+        return value
+    if not math.isfinite(number):
+        return value
+    raise UnitError(f'give its unit, e.g. "{number:g} km/h" or "{number:g} m/s"')
+
+
 def what_if(speed: QuantityIn | None, mass: QuantityIn | None, prefix: str = "") -> tuple[float | None, float | None]:
-    """A speed and a mass given outside a problem file ("64 km/h", "1650 kg"; a plain number is
-    SI), in SI and checked as a file's are; a ProblemError names `prefix` + speed or mass."""
+    """A speed and a mass given outside a problem file ("64 km/h", "1650 kg"; a Python number is
+    SI, a speed's text needs its unit: stated_speed), in SI and checked as a file's are; a
+    ProblemError names `prefix` + speed or mass."""
     out = []
     for name, value, unit, check in (("speed", speed, "m/s", _impact_speed), ("mass", mass, "kg", _mass)):
         try:
-            si = None if value is None else to_si(value, unit)
+            given = stated_speed(value) if name == "speed" and value is not None else value
+            si = None if given is None else to_si(given, unit)
             if si is not None and not math.isfinite(si):
                 raise ValueError("not a finite number")
             out.append(check(si))
