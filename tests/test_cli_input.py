@@ -205,6 +205,7 @@ def test_a_record_naming_files_outside_its_folder_removes_nothing_there(tmp_path
     assert outside.read_text() == "mine"
 
 
+@pytest.mark.integration
 def test_what_derives_from_a_run_goes_with_it_when_a_run_replaces_it(tmp_path, capsys):
     """A report and a pulse export of a simulation are listed in its folder's record; the next
     run into the folder removes them and says so, but keeps a derived file changed since, the
