@@ -88,7 +88,7 @@ def design(problem: Problem | str | Path, verbose: bool = False, progress: TextI
 
 def simulate(
     problem: Problem | str | Path | Result,
-    params: Result | dict[str, Any] | None = None,
+    params: Result | str | Path | dict[str, Any] | None = None,
     dt: float | None = None,
     speed: float | str | None = None,
     mass: float | str | None = None,
@@ -97,28 +97,34 @@ def simulate(
     array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.base.outputs
     lists them), with the test's crash metrics.
 
-    `params` a Result: the identified vehicle it carries is put into the problem first
-    (crashnlp.results.identified.apply: the problem may be the minimal one it was fitted from, or name
-    only a new speed, mass or duration; a problem file may leave out its vehicle and model, which
-    then come from the result), and each test also gets 95 % intervals of its metrics, bands of
-    its curves and how far it lies past the identified range (crashnlp.analysis.prediction).
+    `params` a Result, or a result.json or its folder: the identified vehicle it carries is put
+    into the problem first (crashnlp.results.identified.apply: the problem may be the minimal one
+    it was fitted from, or name only a new speed, mass or duration; a problem file may leave out
+    its vehicle and model, which then come from the result), and each test also gets 95 %
+    intervals of its metrics, bands of its curves and how far it lies past the identified range
+    (crashnlp.analysis.prediction).
     `params` a dict of dotted paths: those values replace the problem's.
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
-    data (PredictedTest.data) and a note saying why."""
-    from crashnlp.analysis.prediction import own_tests, predict
+    data (PredictedTest.data) and a note saying why.
+    Each test's `source` records the problem file and the fit (crashnlp.results.source: a file's
+    path, name, sha256, status and form; a Result in memory, the sha256 of its JSON form)."""
+    from crashnlp.analysis.prediction import own_tests, predict, traced
     from crashnlp.case.case import case_of
     from crashnlp.problem.schema import what_if
     from crashnlp.results.identified import apply, load_applied
+    from crashnlp.results.source import simulation_source
 
     new_speed, new_mass = what_if(speed, mass)
     if isinstance(problem, Result):
         if params is not None:
             raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
-        return predict(case_of(own_tests(problem, problem.name)).at(new_speed, new_mass), problem.identified, dt)
+        tests = predict(case_of(own_tests(problem, problem.name)).at(new_speed, new_mass), problem.identified, dt)
+        return traced(tests, simulation_source(None, problem))
     source = _source(problem)
-    identified = params.identified if isinstance(params, Result) else None
+    fit = _result(params) if isinstance(params, (str, Path)) else params
+    identified = fit.identified if isinstance(fit, Result) else None
     if identified is not None:
         problem = (
             apply(problem, identified, problem.name)
@@ -127,9 +133,17 @@ def simulate(
         )
     else:
         problem = _problem(problem)
-        values = params.parameters if isinstance(params, Result) else params
+        values = fit.parameters if isinstance(fit, Result) else fit
         problem = problem.with_values(values) if values else problem
-    return predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
+    tests = predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
+    given = params if isinstance(params, (Result, str, Path)) else None
+    return traced(tests, simulation_source(source, given, params if isinstance(params, dict) else None))
+
+
+def _result(path: str | Path) -> Result:
+    """The fit of a result.json, or of its folder."""
+    folder = Path(path)
+    return Result.load(folder if folder.is_dir() else folder.parent)
 
 
 def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] = COMPARED) -> Comparison:

@@ -28,7 +28,7 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED, current_names
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, run_name
+from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 RESULTS = Path("results")
@@ -127,19 +127,30 @@ def cmd_simulate(args) -> int:
         prepared = _simulation(args)
         if prepared is None:
             return 0
-        case, identified, out, dt = prepared
-        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, write_simulation
+        case, identified, out, dt, source = prepared
+        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced, write_simulation
+        from crashnlp.results.source import source_line
 
-        with claim(out, run_name("simulate", case.name)):
+        fit = _fit_folder(source)
+        with deriving(fit, out) if fit else nullcontext(), claim(out, run_name("simulate", case.name)):
             with _computing(args):
-                predicted = predict(case, identified, dt)
+                predicted = traced(predict(case, identified, dt), source)
             write_simulation(case.name, predicted, out)
             if figures is not None:
                 figures.draw(simulation_figure_jobs(case.name, predicted, out), out)
     for test in predicted.values():
         _print_prediction(test)
+    print(f"source: {source_line(source)}")
     print(f"wrote {out}/")
     return 0
+
+
+def _fit_folder(source: dict) -> Path | None:
+    """The folder of the result.json a simulation took its parameters from (None: none)."""
+    path = (source.get("result") or {}).get("path")
+    if path is None:
+        return None
+    return Path(path) if Path(path).is_dir() else Path(path).parent
 
 
 def _print_prediction(test) -> None:
@@ -183,12 +194,14 @@ def _result_alone(path: str, params: str | None):
 
 
 def _simulation(args):
-    """(case, identified model or None, output folder, --dt in s or None) of the problem file, every
-    check made and the folder checked (crashnlp.results.files.check_output), or None after `--check`."""
+    """(case, identified model or None, output folder, --dt in s or None, source:
+    crashnlp.results.source) of the problem file, every check made and the folder checked
+    (crashnlp.results.files.check_output), or None after `--check`."""
     from crashnlp.analysis.prediction import check_steps
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
+    from crashnlp.results.source import simulation_source
 
     dt = None if args.dt is None else _quantity_option("--dt", args.dt, "s")
     check_steps(None, dt, "--dt")
@@ -196,8 +209,10 @@ def _simulation(args):
     folder = Path(args.problem) / "result.json"
     if Path(args.problem).is_dir() and not folder.is_file():
         raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
+    fit = args.params
     if args.problem.endswith(".json") or folder.is_file():
         problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
+        fit = args.problem
     elif args.params:
         problem, identified = _with_params(args.problem, args.params)
     else:
@@ -209,7 +224,7 @@ def _simulation(args):
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    return case, identified, out, dt
+    return case, identified, out, dt, simulation_source(args.problem, fit)
 
 
 def _figure_process(args):
@@ -484,11 +499,13 @@ def _export_curves(args, folder: Path) -> int:
     curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
-        print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
+        with deriving(folder, out):
+            print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
     own = folder / f"{result.name}.k"
     out = check_writable_file(Path(args.out) if args.out else own, own=own)
-    export.write_keyword_file(out, result.name, folder, curves)
+    with deriving(folder, out):
+        export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
     return 0
 
@@ -508,7 +525,8 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
     out = check_writable_file(Path(args.out) if args.out else own, own=own)
-    export.write_pulse(out, name, test, pulse)
+    with deriving(folder, out):
+        export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())
     print(f"wrote {out}")
     return 0

@@ -16,7 +16,8 @@ from builders import BASE, ROOT, merge
 from pydantic import BaseModel
 
 from crashnlp.cli import main
-from crashnlp.results.files import RECORD, claim
+from crashnlp.results.files import RECORD, claim, deriving
+from crashnlp.results.jsonfile import write_json
 
 DATA = {
     "file": str(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"),
@@ -216,6 +217,56 @@ def test_a_record_naming_files_outside_its_folder_removes_nothing_there(tmp_path
     (out / RECORD).write_text(json.dumps({"run": "simulate a", "entries": ["../precious.txt", "/etc/hostname"]}))
     assert _simulated(tmp_path, "a", ["t1"], out) == 0
     assert outside.read_text() == "mine"
+
+
+@pytest.mark.integration
+def test_what_derives_from_a_run_goes_with_it_when_a_run_replaces_it(tmp_path, capsys):
+    """A report and a pulse export of a simulation are listed in its folder's record; the next
+    run into the folder removes them and says so, but keeps a derived file changed since, the
+    user's own file, and an export written outside the folder."""
+    out, outside = tmp_path / "out", tmp_path / "pulse-of-mine.csv"
+    assert _simulated(tmp_path, "a", ["t1"], out) == 0
+    assert main(["report", str(out)]) == 0
+    assert main(["export", str(out), "--format", "pulse"]) == 0
+    assert main(["export", str(out), "--format", "pulse", "--out", str(outside)]) == 0
+    assert main(["export", str(out), "--format", "pulse", "--out", str(out / "edited.csv")]) == 0
+    assert set(json.loads((out / RECORD).read_text())["derived"]) == {"report.html", "t1-pulse.csv", "edited.csv"}
+    (out / "my-notes.txt").write_text("mine")
+    with open(out / "edited.csv", "a") as fh:
+        fh.write("# my remark\n")
+    capsys.readouterr()
+    assert _simulated(tmp_path, "a", ["t1"], out) == 0
+    err = capsys.readouterr().err
+    assert f"crashnlp: {out}: removed report.html, t1-pulse.csv: derived from the run replaced" in err
+    assert f"crashnlp: {out}: kept edited.csv: derived from the run replaced, but changed since" in err
+    assert sorted(p.name for p in out.iterdir()) == [RECORD, "edited.csv", "my-notes.txt", "simulation.json", "t1"]
+    assert outside.is_file()
+    assert "derived" not in json.loads((out / RECORD).read_text())
+
+
+def test_a_simulation_of_a_replaced_fit_goes_with_it_unless_run_again_since(tmp_path, capsys):
+    """A simulation written inside a fit's folder from its result (crashnlp simulate FIT) goes when
+    the fit is replaced; one written there afterwards from something else, and another run's
+    folder there, stay."""
+    fit = tmp_path / "fit"
+    with claim(fit, "identify x"):
+        write_json(fit / "result.json", {"fit": 1})
+    derived, again, other = fit / "simulation", fit / "again", fit / "other"
+    for sim in (derived, again):
+        with deriving(fit, sim), claim(sim, "simulate x"):
+            write_json(sim / "simulation.json", {"from": 1})
+            write_json(sim / "t1" / "response.json", {"from": 1})
+    with claim(again, "simulate x"):
+        write_json(again / "simulation.json", {"from": "another problem"})
+    with claim(other, "simulate y"):
+        write_json(other / "simulation.json", {"from": 2})
+    capsys.readouterr()
+    with claim(fit, "identify x"):
+        write_json(fit / "result.json", {"fit": 2})
+    assert sorted(p.name for p in fit.iterdir()) == [RECORD, "again", "other", "result.json"]
+    assert (again / "simulation.json").is_file() and (other / "simulation.json").is_file()
+    err = capsys.readouterr().err
+    assert "removed simulation/" in err and "kept again/" in err
 
 
 def test_a_run_that_fails_leaves_no_folder_it_made(tmp_path):

@@ -4,6 +4,7 @@ and two-speed fits predicting the third speed."""
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import json
 
 import numpy as np
@@ -77,6 +78,30 @@ def test_the_result_simulates_the_minimal_file_it_was_fitted_from(fitted, capsys
     assert sim["extrapolation"] == {}  # the fit's own test is inside its range
     header = (out / "t1" / "response.csv").read_text().splitlines()[0].split(",")
     assert {"crush_m_low", "crush_m_high", "accel_g_low", "accel_g_high"} <= set(header)
+
+
+@pytest.mark.integration
+def test_a_simulation_records_the_fit_it_came_from_and_goes_when_the_fit_is_replaced(fitted, capsys):
+    """simulation.json and the console name the problem and the fit (path as given, name, sha256
+    of its result.json, status, form); the API records the same, and for a Result in memory the
+    sha256 of the result.json it saves. A simulation inside the fit's folder goes with the fit."""
+    folder, path, _, result, _ = fitted
+    fit = folder / "fit"
+    raw = json.loads((fit / "result.json").read_text())
+    digest = hashlib.sha256((fit / "result.json").read_bytes()).hexdigest()
+    expected = {"path": str(fit), "name": result.name, "sha256": digest, "status": "ok"}
+    expected["form"] = raw["identified_model"]["model"].get("form", "pendulum")
+    out = fit / "simulation"
+    capsys.readouterr()
+    assert main(["simulate", str(path), "--params", str(fit), "--out", str(out), "--no-figures"]) == 0
+    assert json.loads((out / "simulation.json").read_text())["source"] == {"problem": str(path), "result": expected}
+    line = next(s for s in capsys.readouterr().out.splitlines() if s.startswith("source: "))
+    assert str(path) in line and f"parameters of {fit}: {result.name}, status ok" in line and digest in line
+    assert crashnlp.simulate(path, params=fit)["t1"].source == {"problem": str(path), "result": expected}
+    memory = crashnlp.simulate(path, params=result)["t1"].source["result"]
+    assert memory["path"] is None and memory["sha256"] == digest and "in memory" in memory["note"]
+    result.save(fit, figures=False)  # the fit again: the simulation of it goes
+    assert not out.exists() and "removed simulation/: derived from the run replaced" in capsys.readouterr().err
 
 
 @pytest.mark.integration

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import base64
+import hashlib
 import html
 import json
 import re
@@ -15,6 +16,7 @@ import numpy as np
 import pytest
 from builders import ROOT
 
+from crashnlp.analysis.prediction import read_simulation
 from crashnlp.base.outputs import named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import main
@@ -162,6 +164,23 @@ def test_a_simulation_report_gives_the_intervals_and_the_extrapolation(fit, tmp_
         assert f"<td>[{low:.1f}, {high:.1f}]</td>" in page
         if test["extrapolation"]:
             assert "extrapolates:" in page
+    digest = hashlib.sha256((fit / "result.json").read_bytes()).hexdigest()
+    assert f"source: from {problem}, with the parameters of {fit / 'result.json'}: pickup-56kph, status ok" in page
+    assert f"sha256 {digest}" in page
+
+
+@pytest.mark.integration
+def test_a_simulation_written_before_its_source_was_recorded_still_reads(fit, tmp_path):
+    sim = tmp_path / "sim"
+    problem = ROOT / "problems/pickup-40kph.yaml"
+    assert main(["simulate", str(problem), "--params", str(fit / "result.json"), "--out", str(sim), "--no-figures"]) == 0
+    raw = json.loads((sim / "simulation.json").read_text())
+    del raw["source"]  # as crashnlp wrote it before it recorded the source
+    (sim / "simulation.json").write_text(json.dumps(raw))
+    name, tests = read_simulation(sim)
+    assert name == "pickup-40kph" and tests and all(t.source == {} and t.intervals for t in tests.values())
+    assert main(["report", str(sim)]) == 0
+    assert "source: not recorded (written before crashnlp kept it)" in (sim / "report.html").read_text(encoding="utf-8")
 
 
 def study_row(case: int, pitch: str, k_front: str, ok: bool = True) -> dict:

@@ -48,7 +48,7 @@ from __future__ import annotations
 
 import json
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -103,6 +103,8 @@ class PredictedTest(Mapping[str, np.ndarray]):
     response bands (output name -> (low, high)), how far it lies past the identified range, each
     metric's interval parts (also where its form term is not calibrated), the calibrated q of each
     form term, and the calibration they came from (crashnlp.analysis.calibration.Calibration.named).
+    `source`: the problem and the fit the prediction came from (crashnlp.results.source; empty
+    where nobody said, or in a simulation.json written before crashnlp recorded it).
     `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
     conditions they were recorded at; empty otherwise, with a note saying why."""
 
@@ -119,6 +121,7 @@ class PredictedTest(Mapping[str, np.ndarray]):
     parts: dict[str, IntervalParts] = field(default_factory=dict)
     form_q: dict[str, float] = field(default_factory=dict)
     calibration: dict[str, Any] = field(default_factory=dict)
+    source: dict[str, Any] = field(default_factory=dict)  # crashnlp.results.source: the problem and the fit it came from
 
     @cached_property
     def _arrays(self) -> dict[str, np.ndarray]:
@@ -525,10 +528,11 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
 
 def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
     """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
-    simulated test, and simulation.json, into a folder that then holds this simulation only
-    (crashnlp.results.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
+    simulated test, and simulation.json (with the tests' source), into a folder that then holds
+    this simulation only (crashnlp.results.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
     (crashnlp.results.drawing)."""
-    summary: dict[str, Any] = {"name": name, "tests": {}}
+    source = next((test.source for test in tests.values() if test.source), None)
+    summary: dict[str, Any] = {"name": name, **({"source": source} if source else {}), "tests": {}}
     with claim(out, run_name("simulate", name), option=None):
         for test in tests.values():
             r = test.response
@@ -570,8 +574,14 @@ def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
             bands,
             current_names(dict(entry.get("extrapolation", {})), RENAMED_EXTRAPOLATION),
             tuple(entry.get("notes", ())),
+            source=dict(raw.get("source") or {}),  # none in a simulation.json written before it was recorded
         )
     return str(raw["name"]), tests
+
+
+def traced(tests: dict[str, PredictedTest], source: dict[str, Any]) -> dict[str, PredictedTest]:
+    """The predicted tests, each with the `source` it came from (crashnlp.results.source)."""
+    return {name: replace(test, source=source) for name, test in tests.items()}
 
 
 def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:

@@ -21,9 +21,10 @@ import numpy as np
 
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
-from crashnlp.results.files import atomic_open, check_writable_file
+from crashnlp.results.files import atomic_open, check_writable_file, deriving
 from crashnlp.results.identified import Z95
 from crashnlp.results.result import Result, pull_text
+from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
 
 if TYPE_CHECKING:
@@ -42,7 +43,8 @@ TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp com
 
 
 def write_report(folder: Path, out: Path | None = None) -> Path:
-    """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all."""
+    """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all;
+    inside `folder`, listed in its record as derived from its run (crashnlp.results.files.deriving)."""
     kind = folder_kind(folder)
     out = check_writable_file(out or folder / REPORT, own=folder / REPORT)
     if kind == "result":
@@ -51,7 +53,7 @@ def write_report(folder: Path, out: Path | None = None) -> Path:
         page = simulation_page(*read_simulation(folder), folder)
     else:
         page = study_page(folder.name, read_study(folder), folder)
-    with atomic_open(out) as fh:
+    with deriving(folder, out), atomic_open(out) as fh:
         fh.write(page)
     return out
 
@@ -186,8 +188,9 @@ def _parameter(
 
 # --------------------------------------------------------------------------- a simulation
 def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) -> str:
-    """The page of a simulation: per predicted test its metrics with their 95 % intervals, how far
-    it lies past the identified range, its notes and its figure with the bands."""
+    """The page of a simulation: where it came from (the problem, the fit whose parameters it
+    took: crashnlp.results.source), per predicted test its metrics with their 95 % intervals, how
+    far it lies past the identified range, its notes and its figure with the bands."""
     pages = []
     for test in tests.values():
         rows = []
@@ -208,7 +211,10 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
                 "figures": embedded_figures(folder / test.name, ["response.png"], f"test {test.name}, 95 % bands shaded"),
             }
         )
-    return TEMPLATES.get_template("simulation.html.j2").render(title=f"{name}: simulation", tests=pages)
+    source = source_line(next((test.source for test in tests.values() if test.source), {}))
+    return TEMPLATES.get_template("simulation.html.j2").render(
+        title=f"{name}: simulation", tests=pages, source=source or "not recorded (written before crashnlp kept it)"
+    )
 
 
 def _extrapolation(test: PredictedTest) -> str:

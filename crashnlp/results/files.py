@@ -9,14 +9,23 @@ the folder, names the run and the files it wrote (every file goes through `atomi
 figure through crashnlp.results.drawing or crashnlp.results.plots, which note them, and a study notes the cases
 it keeps); nothing else is ever removed: a user's own files, a run's folder nested in another's
 (a simulation inside its fit's folder).
+
+What is derived from a run (`deriving`: a report, an export, a simulation of its result) and
+written inside its folder is listed in its record too, with the sha256 of what was written: the
+next run into the folder replaces that run, and removes these files with it (a nested
+simulation derived from it with all its files), naming them on stderr, so that nothing of an
+old fit sits beside a new one unannounced. A derived file changed since crashnlp wrote it is
+kept, and named.
 """
 
 from __future__ import annotations
 
 import csv
 import fcntl
+import hashlib
 import json
 import os
+import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -108,6 +117,7 @@ class _Claim:
 
 
 _held: dict[Path, _Claim] = {}  # folders this process has claimed (resolved)
+_deriving: dict[Path, set[str]] = {}  # folders whose run this process derives files from (`deriving`), and the files
 
 
 def run_name(command: str, name: str) -> str:
@@ -148,22 +158,60 @@ def claim(out: Path, run: str, option: str | None = "--out") -> Iterator[Path]:
         try:
             yield out
         except BaseException:
-            _keep(out, fd, run, before | mine.entries, made)
+            _keep(out, fd, run, before | mine.entries, made, _derived_of(earlier))
             raise
         _remove(out, before - mine.entries)
+        _remove_derived(out, _derived_of(earlier), mine.entries)
         _keep(out, fd, run, mine.entries, made)
     finally:
         _held.pop(key, None)
         os.close(fd)
 
 
+@contextmanager
+def deriving(folder: Path, target: Path) -> Iterator[None]:
+    """Around the writing of `target` (a file or a folder) from the run in `folder`: a report, an
+    export, a simulation of its result. Where `target` lies inside `folder` and a run's record is
+    there, the files written in the block are listed in that record as derived from its run, each
+    with the sha256 of what was written, for the next run into `folder`, which replaces it, to
+    remove (`claim`). A file written outside the folder is the user's to keep; a folder this
+    process has claimed counts the file among the run's own. InputError for a folder another
+    run is writing in now."""
+    key = folder.resolve()
+    if not target.resolve().is_relative_to(key) or key in _held or not _read_record(folder / RECORD):
+        yield
+        return
+    fd = _lock(folder, None)
+    try:
+        names: set[str] = set()
+        _deriving[key] = names
+        yield
+        record = _read_record(folder / RECORD)
+        entries = set(record.get("entries", ()))
+        derived = _derived_of(record) | {n: file_sha256(folder / n) for n in names - entries if (folder / n).is_file()}
+        _write_record(fd, {**record, "derived": dict(sorted(derived.items()))})
+    finally:
+        _deriving.pop(key, None)
+        os.close(fd)
+
+
 def note_output(path: Path) -> None:
     """Count `path` among the files of the run that has claimed the folder it lies in: a file
-    written, a figure drawn, or one it keeps (a study's case finished by an earlier run)."""
+    written, a figure drawn, or one it keeps (a study's case finished by an earlier run); and
+    among those derived from the run of a folder it lies in (`deriving`)."""
     path = path.resolve()
     for folder, held in _held.items():
         if path.is_relative_to(folder) and path != folder:
             held.entries.add(path.relative_to(folder).as_posix())
+    for folder, names in _deriving.items():
+        if path.is_relative_to(folder) and path != folder:
+            names.add(path.relative_to(folder).as_posix())
+
+
+def file_sha256(path: Path) -> str:
+    """The sha256 of a file's bytes, in hex."""
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
 
 
 def _lock(out: Path, option: str | None) -> int:
@@ -206,31 +254,106 @@ def _refuse_another(out: Path, holder: str | None, run: str, option: str | None)
         )
 
 
+def _derived_of(record: dict[str, Any]) -> dict[str, str]:
+    """A record's derived files (`deriving`): name -> sha256 ({} for none, or not a mapping of text)."""
+    derived = record.get("derived")
+    if not isinstance(derived, dict):
+        return {}
+    return {k: v for k, v in derived.items() if isinstance(k, str) and isinstance(v, str)}
+
+
+def _inside(out: Path, name: str) -> bool:
+    """Whether out/name lies inside `out` (a record edited to name ../x or /x names nothing there)."""
+    path = out / name
+    return path.parent.resolve().is_relative_to(out.resolve()) and path.name not in ("", ".", "..")
+
+
 def _remove(out: Path, names: set[str]) -> None:
-    """Remove the files an earlier run wrote and this one did not, and the folders inside `out`
-    that this leaves empty (nothing else: never a folder with anything else in it)."""
-    root = out.resolve()
+    """Remove the named files inside `out` (an earlier run's that this one did not write), and the
+    folders inside `out` that this leaves empty (nothing else: never a folder with anything else in it)."""
     for name in sorted(names - {RECORD}):
         path = out / name
-        inside = path.parent.resolve().is_relative_to(root) and path.name not in ("", ".", "..")
-        if inside and not path.is_dir():  # a record edited to name ../x removes nothing outside
+        if _inside(out, name) and not path.is_dir():
             path.unlink(missing_ok=True)
-            for folder in path.parents:
-                if folder == out:
-                    break
-                try:
-                    folder.rmdir()
-                except OSError:
-                    break
+            _prune(path, out)
 
 
-def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path]) -> None:
-    """Write the record in place (under the lock), or where the run has no file there, remove it
-    and the folders the claim made."""
+def _prune(path: Path, out: Path) -> None:
+    """Remove the folders between `path` and `out` (not `out`) that are empty, innermost first."""
+    for folder in path.parents:
+        if folder == out:
+            break
+        try:
+            folder.rmdir()
+        except OSError:
+            break
+
+
+def _remove_derived(out: Path, derived: dict[str, str], written: set[str]) -> None:
+    """Remove the files derived from the run this one replaces (`deriving`), and say so on
+    stderr: each that still holds what crashnlp wrote, and a run nested in `out` (a simulation
+    of the replaced result) every file of which derived from it as it is now, with its record.
+    A file changed since, or a nested run written again since, is kept and named."""
+    removed, kept = [], []
+    nested: dict[Path, set[str]] = {}  # a nested run's folder -> its files derived from the replaced run, as written
+    for name, digest in sorted(derived.items()):
+        path = out / name
+        if name in written or not _inside(out, name) or not path.is_file():
+            continue
+        same = file_sha256(path) == digest
+        run = next((f for f in path.parents if f != out and f.is_relative_to(out) and (f / RECORD).is_file()), None)
+        if run is not None:
+            nested.setdefault(run, set()).update({path.relative_to(run).as_posix()} if same else set())
+        elif same:
+            _remove(out, {name})
+            removed.append(name)
+        else:
+            kept.append(name)
+    for folder, as_written in nested.items():
+        name = f"{folder.relative_to(out).as_posix()}/"
+        own = set(_read_record(folder / RECORD).get("entries", ()))
+        if own and own <= as_written and _remove_run(folder, out, as_written - own):
+            removed.append(name)
+        else:
+            kept.append(name)
+    if removed:
+        print(f"crashnlp: {out}: removed {', '.join(removed)}: derived from the run replaced", file=sys.stderr)
+    if kept:
+        print(f"crashnlp: {out}: kept {', '.join(kept)}: derived from the run replaced, but changed since", file=sys.stderr)
+
+
+def _remove_run(folder: Path, out: Path, extra: set[str]) -> bool:
+    """Remove the run in `folder` (inside `out`): the files its record lists, those derived from
+    it that are as written, its record, and the `extra` files in it; False, removing nothing,
+    where another run holds it."""
+    try:
+        fd = _lock(folder, None)
+    except InputError:
+        return False
+    try:
+        record = _read_record(folder / RECORD)
+        _remove(folder, set(record.get("entries", ())) | extra)
+        _remove_derived(folder, _derived_of(record), set())
+        (folder / RECORD).unlink(missing_ok=True)
+    finally:
+        os.close(fd)
+    _prune(folder / RECORD, out)
+    return True
+
+
+def _write_record(fd: int, record: dict[str, Any]) -> None:
+    """Write a record in place, through its locked descriptor."""
+    os.ftruncate(fd, 0)
+    os.pwrite(fd, json.dumps(record, indent=1).encode(), 0)
+
+
+def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path], derived: dict[str, str] | None = None) -> None:
+    """Write the record in place (under the lock), with the files `derived` from the run still
+    there, or where the run has no file there, remove it and the folders the claim made."""
     present = sorted(name for name in entries if (out / name).is_file())
-    if present:
-        os.ftruncate(fd, 0)
-        os.pwrite(fd, json.dumps({"run": run, "entries": present}, indent=1).encode(), 0)
+    kept = {name: digest for name, digest in (derived or {}).items() if (out / name).is_file()}
+    if present or kept:
+        _write_record(fd, {"run": run, "entries": present} | ({"derived": kept} if kept else {}))
         return
     (out / RECORD).unlink(missing_ok=True)
     for folder in made:

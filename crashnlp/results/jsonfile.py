@@ -26,8 +26,12 @@ def clean(value: Any) -> Any:
     return value
 
 
+def json_text(obj: Any) -> str:
+    """The text `write_json` writes of `obj` (cleaned, indented, a final line end)."""
+    return json.dumps(clean(obj), indent=2) + "\n"
+
+
 def write_json(path: Path, obj: Any) -> None:
     """Write JSON atomically (a reader never sees half a file), mode 0666 less the umask."""
     with atomic_open(path) as fh:
-        json.dump(clean(obj), fh, indent=2)
-        fh.write("\n")
+        fh.write(json_text(obj))
