@@ -18,12 +18,13 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, nullcontext, redirect_stderr
 from pathlib import Path
 
 import numpy as np
 
+from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED, current_names
@@ -252,6 +253,11 @@ def _cell(value, factor: float) -> str:
     return "-" if value is None else f"{value * factor:.4g}"
 
 
+def _unit_suffix(unit: str) -> str:
+    """What follows a value in `unit` on the console (" N/m"); nothing for a number without one."""
+    return f" {unit}" if unit else ""
+
+
 def _consistency_line(c: dict) -> str:
     """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency)."""
     parts = [
@@ -263,8 +269,9 @@ def _consistency_line(c: dict) -> str:
     return f"channel consistency (one mass): {'; '.join(parts)}; impulse wall / accelerometers {c['impulse_ratio']:.3f}"
 
 
-def _print_solution(result) -> None:
-    """The console summary of a Result: status, parameters with std, metrics, fit, active constraints."""
+def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
+    """The console summary of a Result: status, parameters with their SI `units` (by path; none
+    where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import still_moving
     from crashnlp.results.result import pull_text
 
@@ -277,7 +284,7 @@ def _print_solution(result) -> None:
         f"objective {objective}, {timing})"
     )
     for path, value in result.parameters.items():
-        text = _numbers(value, 5)
+        text = _numbers(value, 5) + _unit_suffix((units or {}).get(path, ""))
         if path in result.std_errors:
             text += f"  (std {_numbers(result.std_errors[path], 2, np.inf)})"
         print(f"  {path} = {text}")
@@ -300,16 +307,14 @@ def _print_solution(result) -> None:
             if m and (words := still_moving(m)):
                 print(f"    {who} {words}")
         if t.fit:
-            print(
-                "    rmse      "
-                + ", ".join(f"{c} {f.rmse * OUTPUT[c].factor:.3g} {OUTPUT[c].report_unit}" for c, f in t.fit.items())
-            )
+            print("    rmse      " + ", ".join(f"{c} {OUTPUT[c].shown(f.rmse)}" for c, f in t.fit.items()))
             print("    ISO 18571 " + ", ".join(f"{c} {f.iso18571['overall']:.3f}" for c, f in t.fit.items() if f.iso18571))
         if t.consistency:
             print(f"    {_consistency_line(t.consistency)}")
         if t.energy:
             print(
-                f"    energy balance error {t.energy['balance_error_relative']:.2e} of {t.energy['impact_kinetic'] / 1e3:.1f} kJ"
+                f"    relative energy balance error {t.energy['balance_error_relative']:.2e}"
+                f" (impact energy {t.energy['impact_kinetic'] / 1e3:.1f} kJ)"
             )
     for c in result.active_constraints:
         print(f"  active: {c.name} at {c.points} points, multiplier {c.multiplier:.4g}")
@@ -337,7 +342,7 @@ def _solve(args, kind: str) -> int:
                 from crashnlp.report import write_report
 
                 write_report(out)
-    _print_solution(result)
+    _print_solution(result, {path: case.problem.unit_at(path) for path in result.parameters})
     print(f"wrote {out}/")
     if not result.ok:
         print(f"crashnlp: {result.name}: {result.status}", file=sys.stderr)
@@ -372,8 +377,8 @@ def cmd_design(args) -> int:
 
 FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute, factor, format
     ("objective", "objective", 1.0, ".4g"),
-    ("pitch RMSE (deg)", "pitch_rmse", 180 / math.pi, ".3f"),
-    ("displacement error (mm)", "displacement_error", 1e3, ".1f"),
+    ("pitch RMSE (deg)", "pitch_rmse_rad", 180 / math.pi, ".3f"),
+    ("displacement error (mm)", "displacement_error_m", 1e3, ".1f"),
     ("identified parameters", "parameters", 1, "d"),
     ("held-out rel. RMSE", "held_out_score", 1.0, ".4f"),
     ("BIC", "bic", 1.0, ".1f"),
@@ -562,6 +567,7 @@ def parser() -> argparse.ArgumentParser:
         prog="crashnlp",
         description="Frontal rigid-barrier crash models (pendulum, rigid body): simulate, identify, compare, design, study.",
     )
+    ap.add_argument("--version", action="version", version=f"crashnlp {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("simulate", help="simulate every test of a problem with the forward integrator")

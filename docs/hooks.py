@@ -1,7 +1,7 @@
 """mkdocs hooks of the crashnlp site (mkdocs.yml `hooks:`).
 
-- The problem-file reference (`reference/problem-file.md`) is generated from the JSON Schema of
-  problem files (what `crashnlp schema` prints: the pydantic schema of the top-level
+- The problem-file reference (`reference/problem-file.md`) gets its table at each build, from the
+  JSON Schema of problem files (what `crashnlp schema` prints: the pydantic schema of the top-level
   `crashnlp.problem.Problem`): every key by dotted path, its type, SI unit, default and
   description. Only the JSON Schema is read, never the schema module's class names, so the page
   follows any refactoring of the pydantic models.
@@ -9,8 +9,10 @@
   are those of results/docs-numbers.json, which `make docs-numbers` writes
   (scripts/docs_numbers.py): a page whose marked block or number differs from the file, or that
   types a number that is neither marked nor a definition, fails the build, naming it.
-- The crash-metric reference (`reference/metrics.md`) is generated from the metric registry
-  (crashnlp.base.outputs: METRICS, and RENAMED for the keys older files used).
+- The crash-metric reference (`reference/metrics.md`) gets its table at each build, from the metric
+  registry (crashnlp.base.outputs: METRICS, and RENAMED for the keys older files used).
+  Both pages are in docs/ with their prose, so that a link to them resolves in the repository
+  too, where they say how to see the table without a build (TABLES).
 - The figures under results/readme/ and results/bench-scaling.png, CHANGELOG.md and
   results/bench.md live outside docs/; they are added to the site as generated files, so the
   pages link them by their site paths (figures/..., changelog.md, bench-results.md).
@@ -51,8 +53,6 @@ def on_files(files: Files, config: Any) -> Files:
             files.append(File.generated(config, uri, abs_src_path=str(path)))
     for uri, path in PAGES.items():
         files.append(File.generated(config, uri, content=_page(path)))
-    files.append(File.generated(config, "reference/problem-file.md", content=problem_reference()))
-    files.append(File.generated(config, "reference/metrics.md", content=metrics_reference()))
     return files
 
 
@@ -83,6 +83,8 @@ def on_page_markdown(markdown: str, page: Page, config: Any, files: Files) -> st
         raise PluginError(f"{page.file.src_uri}: {'; '.join(drift)}: run make docs-numbers")
     if page.file.src_uri in PROSE and (typed := NUMBERS.typed(markdown, DEFINITIONS)):
         raise PluginError(f"{page.file.src_uri}: typed by hand, not from a build: {'; '.join(typed)}")
+    if (table := TABLES.get(page.file.src_uri)) is not None:
+        return markdown.rstrip("\n") + "\n\n" + table()
     return markdown
 
 
@@ -108,18 +110,11 @@ def file_schema() -> dict:
 
 
 def problem_reference() -> str:
+    """The table of docs/reference/problem-file.md: every key of a problem file."""
     schema = file_schema()
     rows: list[list[str]] = []
     _walk(schema, schema, "", rows, set(), _shipped_units())
     lines = [
-        "# Problem-file reference",
-        "",
-        "Generated at each docs build from the JSON Schema that `crashnlp schema` prints for editors",
-        "(the pydantic schema of `crashnlp.problem.Problem`). Keys are dotted paths (`tests[]` is every entry of the",
-        "list `tests`). Plain numbers are SI; a quantity also accepts a string with units",
-        '("56 km/h", "70 kN/m"). The unit column is the SI unit a quantity is stored in.',
-        "See [Problem files](../problem-files.md) for a worked example and what may be left out.",
-        "",
         "| key | type | unit (SI) | default | description |",
         "| --- | --- | --- | --- | --- |",
     ]
@@ -129,21 +124,13 @@ def problem_reference() -> str:
 
 # --------------------------------------------------------------------------- crash-metric reference
 def metrics_reference() -> str:
-    """The crash metrics as result.json, simulation.json, a study's table and compare-results'
-    metrics.csv name them, and the keys files written before a rename used: the registry's own."""
+    """The table of docs/reference/metrics.md: the crash metrics as result.json, simulation.json, a
+    study's table and compare-results' metrics.csv name them, and the keys files written before a
+    rename used: the registry's own."""
     from crashnlp.base.outputs import METRICS, RENAMED, RENAMED_EXTRAPOLATION
 
     before = {new: old for old, new in RENAMED.items()}
     lines = [
-        "# Crash-metric reference",
-        "",
-        "Generated at each docs build from the metric registry (`crashnlp/base/outputs.py`, `METRICS`). The key",
-        "is the metric's name in `result.json` (`tests.<test>.metrics.model` and `.data`), in `simulation.json`",
-        "(`tests.<test>.metrics` and `.intervals`) and in a study's table (`<test>.<key>`); its suffix is the unit",
-        "of the stored value. The console, the reports and the CSV of compare-results show it in the unit",
-        "of the last columns. `displacement` is the CG's travel since impact, `crush` the front end's",
-        "shortening along the crush force's line of action: two quantities, two names.",
-        "",
         "| key | what | shown in | CSV column | key in older files |",
         "| --- | --- | --- | --- | --- |",
     ]
@@ -157,6 +144,12 @@ def metrics_reference() -> str:
         + " (`RENAMED_EXTRAPOLATION`).",
     ]
     return "\n".join(lines) + "\n"
+
+
+TABLES: dict[str, Callable[[], str]] = {  # page -> its generated table, put after the page's own text
+    "reference/problem-file.md": problem_reference,
+    "reference/metrics.md": metrics_reference,
+}
 
 
 def _old(key: str | None) -> str:

@@ -46,7 +46,7 @@ WHAT_IF = "name: pickup-what-ifs\ntests:\n  - {name: 64kph, speed: 64 km/h, dura
 PARTS = ("wall", "accelerometers")  # the channels a load-cell barrier's test measures the impact with, each on its own
 # the lines of the Camry's fit the README quotes, by how they start (indentation aside)
 BRIEF = ("nhtsa-10146: ok", "test ", "max displacement", "time of zero velocity", "peak deceleration", "rebound", "OLC")
-BRIEF += ("ISO 18571", "energy balance")
+BRIEF += ("ISO 18571", "relative energy balance")
 
 
 # --------------------------------------------------------------------------- the runs
@@ -93,6 +93,12 @@ def channels_apart(consistency: dict[str, Any]) -> dict[str, str]:
         out[f"barrier.{name}.max_displacement_mm"] = f"{consistency[name]['max_displacement_m'] * 1e3:.0f}"
         out[f"barrier.{name}.rebound_mps"] = f"{consistency[name]['rebound_velocity_mps']:.1f}"
     return out
+
+
+def spring_std(prefix: str, folder: str) -> dict[str, str]:
+    """The largest finite standard error of a fit's spring values (MN; docs/barrier.md)."""
+    std = json.loads(Path(folder, "result.json").read_text())["std_errors"]["model.spring.values"]
+    return {f"{prefix}.spring_std_max_mn": f"{max(s for s in std if s is not None) / 1e6:.2g}"}
 
 
 def displacement_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
@@ -570,7 +576,8 @@ def _barrier() -> Quoted:
     test = fitted_test("results/nhtsa-10146-barrier", "10146")
     blocks = {"barrier-consistency": "\n".join(line for line in console if "channel consistency" in line)}
     stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
-    return blocks, table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
+    numbers = table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
+    return blocks, numbers | spring_std("barrier", BARRIER_FITS["both_fit"]) | spring_std("camry", BARRIER_FITS["accel_fit"])
 
 
 CRUSH_TABLE = (0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.65)  # m: the columns of docs/barrier.md's force-crush table

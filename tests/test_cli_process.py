@@ -99,3 +99,11 @@ def test_a_command_through_the_console_entry_writes_what_main_writes(tmp_path):
         [sys.executable, "-m", "crashnlp", "identify", str(tmp_path / "none.yaml")], capture_output=True, text=True
     )
     assert (bad.returncode, bad.stdout) == (2, "") and bad.stderr.count("\n") == 1 and "none.yaml" in bad.stderr
+
+
+def test_the_version_is_the_packages():
+    """`crashnlp --version` prints the package's version and ends with 0, before any command."""
+    from crashnlp import __version__
+
+    proc = subprocess.run([sys.executable, "-m", "crashnlp", "--version"], cwd=ROOT, capture_output=True, text=True, timeout=60)
+    assert (proc.returncode, proc.stdout, proc.stderr) == (0, f"crashnlp {__version__}\n", "")

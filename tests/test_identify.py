@@ -19,6 +19,7 @@ from crashnlp.results.result import VOLATILE
 
 TRUTH = {"values": [0.0, 380e3, 520e3, 900e3], "offset": 0.2}
 NOISE = {"accel_g": 0.5, "vel_mps": 0.02, "disp_m": 0.001, "pitch_deg": 0.05}
+UNITS = {"accel": "g", "velocity": "m/s", "displacement": "mm", "pitch": "deg"}  # a fit's rmse on the console
 MS = {"method": "multiple-shooting", "intervals": 60, "substeps": 2}
 COLLOCATION = {"method": "collocation", "intervals": 60, "degree": 3, "scheme": "radau"}
 
@@ -270,8 +271,14 @@ def test_the_console_gives_a_value_not_identified_an_infinite_std(data_file, tmp
     path.write_text(yaml.safe_dump(problem, sort_keys=False))
     assert main(["identify", str(path), "--out", str(tmp_path / "out"), "--no-figures"]) == 0
     lines = capsys.readouterr().out.splitlines()
-    assert any(line.strip().startswith("model.unloading.stiffness = ") and line.endswith("(std inf)") for line in lines), lines
+    assert any(line.strip().startswith("model.unloading.stiffness = ") and line.endswith(" N/m  (std inf)") for line in lines)
+    assert any(line.strip().startswith("model.spring.values = [") and " N  (std [" in line for line in lines), lines
     assert "  not identified (infinite std): model.unloading.stiffness" in lines
+    # the fit's RMSE in the units of the metric table (mm, g, deg); the energy balance's error is relative
+    rmse = next(line.strip().removeprefix("rmse").strip() for line in lines if line.strip().startswith("rmse"))
+    assert {c: u for c, _, u in (part.split() for part in rmse.split(", "))} == UNITS
+    energy = next(line for line in lines if "energy balance" in line)
+    assert energy.strip().startswith("relative energy balance error ") and energy.endswith(" kJ)") and "(impact energy " in energy
 
 
 @pytest.mark.integration

@@ -17,12 +17,14 @@ import pytest
 from builders import ROOT
 
 from crashnlp.analysis.prediction import read_simulation
-from crashnlp.base.outputs import named_test, shown_unit
+from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import main
 from crashnlp.data.instrument import as_recorded as filtered
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
+from crashnlp.results.files import claim, run_name
+from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.result import Result
 from crashnlp.studies.store import CaseStore
 
@@ -74,6 +76,18 @@ def test_a_result_read_back_keeps_each_channels_ratings(fit):
     back = Result.load(fit).tests["56kph"].fit
     assert {c: f.iso18571 for c, f in back.items()} == {c: f["iso18571"] for c, f in raw.items()}
     assert back["accel"].rmse * 1 / G0 == pytest.approx(raw["accel"]["rmse"])
+
+
+@pytest.mark.integration
+def test_the_identified_channel_rmse_says_its_si_unit_and_an_older_file_reads_the_same(fit):
+    raw = json.loads((fit / "result.json").read_text())
+    saved, fits = raw["identified_model"]["channel_rmse"], raw["tests"]["56kph"]["fit"]
+    assert set(saved) == {OUTPUT[c].key for c in fits} and "accel_mps2" in saved
+    assert fits["accel"]["unit"] == "g" and saved["accel_mps2"] == pytest.approx(fits["accel"]["rmse"] * G0)  # one test
+    now = Result.load(fit).identified
+    assert now is not None and set(now.channel_rmse) == set(fits)
+    older = {**raw["identified_model"], "channel_rmse": {c: saved[OUTPUT[c].key] for c in fits}}  # the channel's name alone
+    assert IdentifiedModel.from_json(older).channel_rmse == now.channel_rmse
 
 
 def read_curves(path: Path) -> dict[str, np.ndarray]:
@@ -209,6 +223,15 @@ def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
     assert len(self_contained(page)) == 3  # objective, max displacement, peak deceleration over the grid
     assert page.count("<tr>") == 1 + 4 and "t: peak deceleration (g)" in page and "<td>500</td>" not in page
     assert "<td>510</td>" in page  # max displacement 0.51 m in mm, as the console shows it
+
+
+def test_a_study_report_is_titled_by_the_studys_name_not_its_folders(tmp_path):
+    folder = tmp_path / "studydask"
+    with claim(folder, run_name("study", "pitch-bound"), option=None):
+        CaseStore(folder / "cases").save("case-000", "key", study_row(0, "4 deg", "50 kN/m"), None)
+    assert main(["report", str(folder)]) == 0
+    page = (folder / "report.html").read_text(encoding="utf-8")
+    assert "<title>pitch-bound: study</title>" in page and "studydask" not in page
 
 
 def test_a_zip_study_has_no_map(tmp_path):

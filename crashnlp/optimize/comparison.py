@@ -81,8 +81,8 @@ class FormScore:
     form: str
     status: str
     objective: float | None = None
-    pitch_rmse: float | None = None  # rad, over the fitted tests' pitch channels
-    displacement_error: float | None = None  # m, worst |model - measured| max displacement (the CG's travel)
+    pitch_rmse_rad: float | None = None  # over the fitted tests' pitch channels
+    displacement_error_m: float | None = None  # worst |model - measured| max displacement (the CG's travel)
     parameters: int = 0  # identified
     samples: int = 0  # fitted data points
     aic: float | None = None

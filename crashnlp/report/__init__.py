@@ -21,7 +21,7 @@ import numpy as np
 
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
-from crashnlp.results.files import atomic_open, check_writable_file, deriving
+from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
 from crashnlp.results.identified import Z95
 from crashnlp.results.result import Result, pull_text
 from crashnlp.results.source import source_line
@@ -52,7 +52,7 @@ def write_report(folder: Path, out: Path | None = None) -> Path:
     elif kind == "simulation":
         page = simulation_page(*read_simulation(folder), folder)
     else:
-        page = study_page(folder.name, read_study(folder), folder)
+        page = study_page(recorded_name(folder, "study") or folder.name, read_study(folder), folder)
     with deriving(folder, out), atomic_open(out) as fh:
         fh.write(page)
     return out

@@ -125,6 +125,13 @@ def run_name(command: str, name: str) -> str:
     return f"{command} {name}"
 
 
+def recorded_name(folder: Path, command: str) -> str | None:
+    """The problem's or study's name the `command` run that wrote `folder` recorded (`run_name`),
+    None where its record names no such run."""
+    recorded, _, name = str(_read_record(folder / RECORD).get("run", "")).partition(" ")
+    return name if recorded == command and name else None
+
+
 def check_output(out: str | Path, run: str, option: str = "--out") -> Path:
     """check_writable, and refuse a folder that holds another run's results (its record names
     another `run` than this, e.g. "identify pickup-56kph"); read only, so --check may call it."""

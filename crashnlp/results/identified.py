@@ -23,6 +23,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import OUTPUT, OUTPUTS
 
 if TYPE_CHECKING:
     from crashnlp.problem.schema import Problem
@@ -122,7 +123,7 @@ class IdentifiedModel:
             "bounds": [[_finite(lo), _finite(hi)] for lo, hi in self.bounds],
             "range": self.range.to_json(),
             "discrepancy": self.discrepancy,
-            "channel_rmse": self.channel_rmse,
+            "channel_rmse": {OUTPUT[c].key: v for c, v in self.channel_rmse.items()},  # the SI unit in the key
             "accel_filter": self.accel_filter,
         }
 
@@ -140,7 +141,7 @@ class IdentifiedModel:
             bounds,
             IdentifiedRange.from_json(raw["range"]),
             dict(raw.get("discrepancy", {})),
-            dict(raw.get("channel_rmse", {})),
+            _by_channel(raw.get("channel_rmse", {})),
             raw.get("accel_filter"),
         )
 
@@ -195,6 +196,13 @@ def without_entries(covariance: np.ndarray, left_out: np.ndarray) -> np.ndarray:
     """`covariance` with the rows and columns of the `left_out` entries zero: what it says of the
     others, for a quantity those entries do not shape (their own may be infinite)."""
     return np.where(left_out[:, None] | left_out[None, :], 0.0, covariance)
+
+
+def _by_channel(rmse: dict[str, float]) -> dict[str, float]:
+    """`channel_rmse` as result.json keeps it, by the channel's key with its SI unit ("accel_mps2"),
+    keyed by channel name; files written before the key said the unit have the name alone."""
+    names = {o.key: o.name for o in OUTPUTS}
+    return {names.get(key, key): value for key, value in rmse.items()}
 
 
 def _finite(x: float) -> float | None:
