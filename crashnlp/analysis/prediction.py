@@ -32,12 +32,15 @@ to how far the curve has moved from what the model knows exactly (zero force, th
 state): so the band at a metric's instant is that metric's interval, and there is no band after
 the vehicle has left the barrier or at t = 0.
 
-A metric whose fitted tests' records end before it (a vehicle still moving at the record's end
-has no stop, rebound or max displacement in it) has no miss of the fit's own: where the curve it
-is read from was fitted, its interval holds the curves' miss and the calibrated form term, and a
-note says so. A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
-interval, nor does anything when an estimated value is not determined by the data: the
-prediction says so in `notes`, instead of a band that only looks narrow.
+A simulated test that ends before its vehicle stops gives no metric its record does not hold
+(crashnlp.analysis.summary.metrics: no max displacement, stop, peak deceleration, rebound or max
+pitch), nor their intervals or the bands scaled to them, and a note says where it ends and how fast
+it still moves. A metric whose fitted tests' records end before it (the same rule) has no miss of
+the fit's own: where the curve it is read from was fitted, its interval holds the curves' miss and
+the calibrated form term, and a note says so. A metric or curve that no fitted test measured
+(pitch, without a pitch channel) gets no interval, nor does anything when an estimated value is
+not determined by the data: the prediction says so in `notes`, instead of a band that only looks
+narrow.
 
 `write_simulation` writes what `crashnlp simulate` writes of the predicted tests, and
 `simulation_figure_jobs` are their figures.
@@ -56,7 +59,7 @@ import numpy as np
 
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
-from crashnlp.analysis.summary import data_curves, response_metrics
+from crashnlp.analysis.summary import UNFINISHED, data_curves, response_metrics, still_moving
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     COLUMNS,
@@ -190,11 +193,11 @@ def predict(
         other = test.other_conditions(mass)
         data = data_curves(test) if other is None else {}
         first = (other,) if other is not None else ()
-        drift = _drift(test.name, response) or _let_go(test.name, response)
+        drift = _moving(test.name, metrics) + (_drift(test.name, response) or _let_go(test.name, response))
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
-        beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
+        beyond = identified.range.beyond(float(np.max(response["displacement"])), test.speed, mass)
         chosen = calibration or shipped(case.problem.model.form)
         if chosen is None:
             note = uncalibrated(test.name, case.problem.model.form)
@@ -229,16 +232,21 @@ def uncalibrated(name: str, form: str) -> str:
     )
 
 
+def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:
+    """A note when the simulation ends before the vehicle stops (crashnlp.analysis.summary.still_moving):
+    which metrics it does not give, where it ends and how fast the vehicle still moves there."""
+    words = still_moving(metrics)
+    return (f"{name}: the simulation {words}",) if words else ()
+
+
 def _drift(name: str, response: Response) -> tuple[str, ...]:
     """A note when the vehicle ends its record still moving toward the barrier without touching
-    it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off), and its
-    max displacement is its travel at the end, not where it stopped."""
+    it: the model's pitch lifted its front end off (crashnlp.analysis.metrics.lift_off)."""
     velocity, contact = float(response["velocity"][-1]), float(response["contact_force"][-1])
     if velocity <= DRIFT or contact > 0:
         return ()
     return (
-        f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
-        "lifted the front end off): its max displacement is its travel at the end of the record, not a stop",
+        f"{name}: the vehicle ends without contact, {velocity:.2f} m/s toward the barrier: its pitch lifted the front end off",
     )
 
 
@@ -300,6 +308,8 @@ def _uncertainty(
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
         if miss is None or value is None or not np.isfinite(value):
+            if value is None and key in UNFINISHED and still_moving(metrics):
+                continue  # the simulation's still-moving note says so (_moving)
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue

@@ -13,6 +13,23 @@ from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.results.response import Response
 
+# what a record that ends before the vehicle stops does not hold: the crash goes on past its end,
+# so its largest travel, crush, deceleration and pitch so far, its velocity change and its rebound
+# are only where the record leaves them (lower limits), and it has no stop. Its OLC is held where
+# the occupant gets to 300 mm within the record: it is read from the pulse up to there alone.
+UNFINISHED = (
+    "max_displacement_m",
+    "time_max_displacement_s",
+    "max_front_end_crush_m",
+    "time_zero_velocity_s",
+    "peak_decel_g",
+    "rebound_velocity_mps",
+    "delta_v_mps",
+    "esw_g",
+    "tesw_g",
+    "max_pitch_deg",
+)
+
 
 def metrics(
     t: np.ndarray,
@@ -22,7 +39,10 @@ def metrics(
     pitch: np.ndarray | None,
     crush: np.ndarray | None = None,
 ) -> dict:
-    """The crash metrics result.json reports, in the units their names say.
+    """The crash metrics result.json reports, in the units their names say; None for a metric the
+    record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), and
+    the UNFINISHED ones of a record that ends before the vehicle stops (`still_moving` says where
+    it ends). The one rule for test data, fitted models and predictions alike.
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
     travel, for data and model alike, so the two compare. A model also reports its largest front-end crush
@@ -36,7 +56,9 @@ def metrics(
         "record_end_s": float(t[-1]),
         "max_pitch_deg": float(np.degrees(np.max(pitch))) if pitch is not None else None,
     }
-    return {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
+    out = {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
+    out = {key: None if value is None or not np.isfinite(value) else value for key, value in out.items()}
+    return {**out, **dict.fromkeys(UNFINISHED)} if still_moving(out) else out
 
 
 def still_moving(metrics: Mapping[str, float | None]) -> str | None:
@@ -46,7 +68,7 @@ def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
         return None
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
-    return f"{moving} (no stop: its travel there is no max displacement)"
+    return f"{moving} (no stop: no max displacement, stop, peak deceleration or rebound in it)"
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -56,19 +78,14 @@ def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def data_metrics(test: TestCase) -> dict | None:
-    """Metrics of the measured curves, on the accel channel's time base. A record that ends before
-    the vehicle stops has no max displacement, and no ESW from it: its last sample is not one
-    (None; `still_moving` says where it ends)."""
+    """Metrics of the measured curves, on the accel channel's time base (`metrics`)."""
     ch = test.data.channels if test.data is not None else {}
     if not {"accel", "velocity", "displacement"} <= set(ch):
         return None
     t = ch["accel"].time
     t = t[(t >= max(c.time[0] for c in ch.values())) & (t <= min(c.time[-1] for c in ch.values()))]
     pitch = resample(ch["pitch"], t) if "pitch" in ch else None
-    out = metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
-    if still_moving(out):
-        out.update(max_displacement_m=None, time_max_displacement_s=None, esw_g=None)
-    return out
+    return metrics(t, resample(ch["accel"], t), resample(ch["velocity"], t), resample(ch["displacement"], t), pitch)
 
 
 def response_metrics(r: Response, accel_filter: str | None = None) -> dict:
