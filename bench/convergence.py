@@ -28,7 +28,7 @@ from pathlib import Path
 import crashnlp
 from bench.common import PROBLEMS, load
 from bench.corpus import PICKUP
-from bench.cross_speed import prediction_problem, truth_metrics
+from bench.cross_speed import errors, prediction_problem, truth_metrics
 from bench.studies import GRID_64, K_FRONT, PITCH
 
 JOINT = PROBLEMS / "pickup-joint.yaml"
@@ -63,10 +63,7 @@ def prediction_errors(result: crashnlp.Result) -> dict[str, float]:
     with tempfile.TemporaryDirectory(prefix="crashnlp-convergence-") as tmp:
         test = crashnlp.simulate(prediction_problem(JOINT, PREDICT_KMH, Path(tmp)), params=result)[f"{PREDICT_KMH:.0f}kph"]
     real = truth_metrics(PICKUP, PREDICT_KMH)
-    return {
-        "displacement_rel": test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
-        "peak_rel": test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
-    }
+    return {key: value for key, value in errors(test.metrics, real).items() if key in ("displacement_rel", "peak_rel")}
 
 
 def run(quick: bool = False) -> dict:

@@ -23,9 +23,11 @@ checked for covering the generator's max displacement and peak deceleration.
 from __future__ import annotations
 
 import dataclasses
+import math
 import re
 import tempfile
 import time
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -127,6 +129,23 @@ def prediction_problem(fit_path: Path, kmh: float, folder: Path, mass: float | N
     return crashnlp.load(path)
 
 
+def given(metrics: Mapping[str, float | None], key: str) -> float:
+    """A prediction's metric as a number: NaN where it gives none (crashnlp.analysis.summary.metrics:
+    a simulation that ends before its vehicle stops gives no max displacement, stop, peak or pitch)."""
+    value = metrics.get(key)
+    return math.nan if value is None else float(value)
+
+
+def errors(metrics: Mapping[str, float | None], real: dict[str, float]) -> dict[str, float]:
+    """A prediction's max displacement and peak deceleration relative to the generator's, less one,
+    and its stop's error (s); NaN where the prediction or the generator has none (`given`)."""
+    return {
+        "displacement_rel": given(metrics, "max_displacement_m") / real["max_displacement_m"] - 1.0,
+        "peak_rel": given(metrics, "peak_decel_g") / real["peak_decel_g"] - 1.0,
+        "stop_err_s": given(metrics, "time_zero_velocity_s") - real["time_zero_velocity_s"],
+    }
+
+
 def truth_metrics(v: Vehicle, kmh: float) -> dict[str, float]:
     """The generator's noise-free crash metrics at `kmh`, under the keys predictions report them,
     its acceleration as the fitted tests' accelerometers record it (ACCEL_FILTER), as a
@@ -168,10 +187,8 @@ def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None, tra
     test = crashnlp.simulate(prediction_problem(path, target, folder), params=result)[f"{target:.0f}kph"]
     real = truth_metrics(v, target)
     row.update(
-        displacement_rel=test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
-        peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
-        stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
-        pitch_err_deg=test.metrics["max_pitch_deg"] - real["max_pitch_deg"],
+        **errors(test.metrics, real),
+        pitch_err_deg=given(test.metrics, "max_pitch_deg") - real["max_pitch_deg"],
         covered={
             key: bool(test.intervals[key][0] <= real[key] <= test.intervals[key][1]) if test.intervals.get(key) else False
             for key in INTERVAL_METRICS
@@ -202,8 +219,9 @@ def within_targets(row: dict) -> bool:
     )
 
 
-def _worst(rows: list[dict], key: str) -> float:
-    return float(max((abs(r[key]) for r in rows), default=float("nan")))
+def worst(rows: list[dict], key: str) -> float:
+    """The largest |error| over the rows that have one (a prediction that gives no metric has none)."""
+    return float(max((abs(r[key]) for r in rows if np.isfinite(r[key])), default=float("nan")))
 
 
 def summary(rows: list[dict]) -> dict:
@@ -215,9 +233,9 @@ def summary(rows: list[dict]) -> dict:
             "fits": sum(r["split"] == split for r in rows),
             "ok": len(ok),
             "within_targets": sum(within_targets(r) for r in ok),
-            "displacement_rel_max": _worst(ok, "displacement_rel"),
-            "peak_rel_max": _worst(ok, "peak_rel"),
-            "stop_err_max_s": _worst(ok, "stop_err_s"),
+            "displacement_rel_max": worst(ok, "displacement_rel"),
+            "peak_rel_max": worst(ok, "peak_rel"),
+            "stop_err_max_s": worst(ok, "stop_err_s"),
             "iterations_max": max((r["iterations"] for r in rows if r["split"] == split), default=0),
         }
     pairs = [c for r in rows if r["status"] == "ok" for c in r["covered"].values()]

@@ -40,9 +40,12 @@ from bench.cross_speed import (
     SPLITS,
     TARGETS,
     at_speed,
+    errors,
     fit_problem,
+    given,
     prediction_problem,
     truth_metrics,
+    worst,
 )
 from crashnlp.analysis.metrics import lift_off
 from crashnlp.case.case import Case
@@ -120,10 +123,8 @@ def judge(v, form: str, split: str, folder: Path) -> dict:
     truth_release_s, truth_release_mps = release(truth["time"], truth["velocity"], truth["barrier_force"])
     row.update(
         pitch_rmse_deg=None if pitch is None else float(np.degrees(pitch)),
-        displacement_rel=test.metrics["max_displacement_m"] / real["max_displacement_m"] - 1.0,
-        peak_rel=test.metrics["peak_decel_g"] / real["peak_decel_g"] - 1.0,
-        stop_err_s=test.metrics["time_zero_velocity_s"] - real["time_zero_velocity_s"],
-        stop_s=test.metrics["time_zero_velocity_s"],  # NaN where the prediction never comes to rest
+        **errors(test.metrics, real),
+        stop_s=given(test.metrics, "time_zero_velocity_s"),  # NaN where the prediction never comes to rest
         stop_true_s=real["time_zero_velocity_s"],  # NaN where the generator never does
         lift_off_s=off,
         lift_off_mps=None if off is None else float(np.interp(off, test.response.time, test.response.outputs["velocity"])),
@@ -178,9 +179,9 @@ def _summary(rows: list[dict], split: str) -> dict:
         ),
         "pitch_rmse_median_deg": float(np.median(pitch)) if pitch else float("nan"),
         "pitch_rmse_max_deg": float(np.max(pitch)) if pitch else float("nan"),
-        "displacement_rel_max": float(max((abs(r["displacement_rel"]) for r in ok), default=float("nan"))),
-        "peak_rel_max": float(max((abs(r["peak_rel"]) for r in ok), default=float("nan"))),
-        "stop_err_max_s": float(max((abs(r["stop_err_s"]) for r in ok if np.isfinite(r["stop_err_s"])), default=float("nan"))),
+        "displacement_rel_max": worst(ok, "displacement_rel"),
+        "peak_rel_max": worst(ok, "peak_rel"),
+        "stop_err_max_s": worst(ok, "stop_err_s"),
         "no_stop": sum(bool(np.isnan(r["stop_s"])) for r in ok),  # predictions that never come to rest
         "no_stop_in_truth": sum(bool(np.isnan(r["stop_true_s"])) for r in ok),  # nor does the generator at that speed
         "lift_offs": sum(r["lift_off_s"] is not None for r in ok),

@@ -155,8 +155,9 @@ def _fit_folder(source: dict) -> Path | None:
 
 
 def _print_prediction(test) -> None:
-    """One line of metrics per simulated test (with their 95 % intervals when the identified model
-    gave them), and one line for a test past the identified range."""
+    """One line of the metrics each simulated test gives (with their 95 % intervals when the
+    identified model gave them; none where it gives none), one line for a test past the
+    identified range, and its notes (which say why a metric is not given)."""
     from crashnlp.analysis.prediction import extrapolation_line
 
     parts = []
@@ -169,7 +170,8 @@ def _print_prediction(test) -> None:
         if band is not None:
             text += f" {m.band(band)}"
         parts.append(f"{text} {m.unit}")
-    print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
+    if parts:
+        print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
     for note in test.notes:

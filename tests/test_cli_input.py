@@ -15,6 +15,7 @@ import yaml
 from builders import BASE, ROOT, merge
 from pydantic import BaseModel
 
+from crashnlp.analysis.summary import UNFINISHED
 from crashnlp.cli import main
 from crashnlp.results.files import RECORD, claim, deriving
 from crashnlp.results.jsonfile import write_json
@@ -344,11 +345,18 @@ def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
     path.write_text(yaml.safe_dump(merge(fit, {"transcription": {"method": "multiple-shooting", "intervals": 45}})))
     assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
     printed = capsys.readouterr().out
-    assert re.search(r"max displacement \(mm\) +\d+\.\d +-\n", printed)  # the model's travel; the data's none
+    for row in ("max displacement (mm)", "time of zero velocity (ms)", "peak deceleration (g)", "rebound velocity (m/s)"):
+        assert re.search(rf"{re.escape(row)} +- +-\n", printed)  # neither the model nor the data has it, one sign for both
+    assert "nan" not in printed
     assert "the test record ends at 45.0 ms still moving toward the barrier at 6.5" in printed
     assert "the model ends at 45.0 ms still moving toward the barrier at 6.5" in printed
-    notes = json.loads((out / "result.json").read_text())["notes"]
-    assert any(n.startswith("test cut: the record ends at 45.0 ms still moving") for n in notes)
+    saved = json.loads((out / "result.json").read_text())
+    assert any(n.startswith("test cut: the record ends at 45.0 ms still moving") for n in saved["notes"])
+    assert any(n.startswith("test cut: the model ends at 45.0 ms still moving") for n in saved["notes"])
+    for who in ("model", "data"):  # the model's travel at 45 ms is no more its max displacement than the data's
+        metrics = saved["tests"]["cut"]["metrics"][who]
+        assert all(metrics[k] is None for k in UNFINISHED), who
+        assert metrics["end_velocity_mps"] == pytest.approx(6.5, abs=0.05)
 
 
 def _forms(annotation) -> list:

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from crashnlp.analysis.metrics import crash_metrics, olc
-from crashnlp.analysis.summary import data_metrics, metrics, still_moving
+from crashnlp.analysis.summary import UNFINISHED, data_metrics, metrics, still_moving
 from crashnlp.base.units import G0
 from crashnlp.case import testcase
 from crashnlp.data import Channel, TestData
@@ -75,16 +75,55 @@ def _recorded(t, a, v, x) -> testcase.TestCase:
     return testcase.TestCase(schema.Test(name="half-sine"), float(v[0]), float(t[-1]), TestData(channels), {})
 
 
-def test_a_record_that_ends_moving_has_no_max_displacement():
+def test_a_record_that_ends_moving_holds_no_max_displacement_stop_peak_or_rebound():
+    """Cut at 50 ms of an 80 ms half-sine, the vehicle still moves at 4.4 m/s: its travel (440 mm of
+    600), largest deceleration (the peak is at 40 ms here, but a record cannot tell) and pitch so
+    far are lower limits, and it has no stop or rebound; data and model alike, the words the same."""
     t, a, v, x, _ = half_sine(15.0, 0.08, end=0.05)
     moving = data_metrics(_recorded(t, a, v, x))
-    assert moving["max_displacement_m"] is None and moving["time_max_displacement_s"] is None and moving["esw_g"] is None
     assert moving["record_end_s"] == pytest.approx(0.05, abs=1e-4)
+    assert moving["end_velocity_mps"] == pytest.approx(15.0 * (1 + np.cos(np.pi * 0.05 / 0.08)) / 2, rel=1e-3)
     assert still_moving(moving) == (
         f"ends at 50.0 ms still moving toward the barrier at {moving['end_velocity_mps']:.3g} m/s"
-        " (no stop: its travel there is no max displacement)"
+        " (no stop: no max displacement, stop, peak deceleration or rebound in it)"
     )
-    model = metrics(t, a, v, x, None)  # a model's response keeps its travel, and the words
-    assert model["max_displacement_m"] == pytest.approx(x[-1]) and still_moving(model) == still_moving(moving)
+    model = metrics(t, a, v, x, np.linspace(0.0, 0.05, t.size), np.maximum(x, 0.0))  # a model's response: the same rule
+    for m in (moving, model):
+        assert {k for k, value in m.items() if value is None} == set(UNFINISHED) | {"olc_g"}  # the occupant gets no 300 mm
+    assert still_moving(model) == still_moving(moving)
     stopped = data_metrics(_recorded(*half_sine(15.0, 0.08)[:4]))
     assert stopped["max_displacement_m"] == pytest.approx(0.6, rel=1e-3) and still_moving(stopped) is None
+    assert stopped["rebound_velocity_mps"] == pytest.approx(0.0, abs=1e-3)  # stopped without rebound: a rebound of 0
+
+
+def test_a_record_that_ends_moving_keeps_an_olc_the_occupant_reaches_in_it():
+    """A square wave of 20 g from 30 m/s stops at 153 ms; the occupant's 300 mm end at 119 ms, so a
+    record cut at 130 ms (still moving at 4.5 m/s) holds the OLC in closed form, and nothing that
+    needs the stop."""
+    D, v0 = 20 * G0, 30.0
+    t = np.arange(0, 0.13, 1e-5)
+    v, x = v0 - D * t, v0 * t - D * t**2 / 2
+    t1 = np.sqrt(2 * 0.065 / D)
+    t2 = 2 * 0.300 / (D * t1)
+    m = metrics(t, np.full(t.size, -D), v, x, None)
+    assert m["olc_g"] == pytest.approx(D * t2 / (t2 - t1) / G0, rel=1e-4)
+    assert m["peak_decel_g"] is None and m["time_zero_velocity_s"] is None and m["delta_v_mps"] is None
+
+
+def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
+    """An 80 ms half-sine pulse that takes 14.5 of 15 m/s, the vehicle then drifting on at 0.5 m/s
+    without contact (a pitch that lifted the front end off): the record ends still moving, but not
+    mid-crash (MID_CRASH), so its peak, velocity change and OLC stand; it has no stop, and the data
+    no max displacement (the model's is its travel at the end, as its note says)."""
+    t = np.arange(0.0, 0.15, 1e-4)
+    pulse = t < 0.08
+    a = np.where(pulse, -14.5 * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
+    v = np.where(pulse, 15.0 - 14.5 * (1 - np.cos(np.pi * t / 0.08)) / 2, 0.5)
+    x = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2 * np.diff(t))])
+    model = metrics(t, a, v, x, None)
+    assert model["peak_decel_g"] == pytest.approx(14.5 * np.pi / 0.16 / G0, rel=1e-4)
+    assert model["delta_v_mps"] == pytest.approx(14.5, rel=1e-3) and model["olc_g"] is not None
+    assert model["time_zero_velocity_s"] is None and model["max_displacement_m"] == pytest.approx(x[-1])
+    assert still_moving(model).endswith("(no stop: its travel there is no max displacement)")
+    data = data_metrics(_recorded(t, a, v, x))
+    assert data["max_displacement_m"] is None and data["peak_decel_g"] == pytest.approx(model["peak_decel_g"])

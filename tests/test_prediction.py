@@ -20,6 +20,7 @@ from crashnlp.analysis.calibration import shipped
 from crashnlp.analysis.limits import METRIC_RANGE, limited_band, limited_interval
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
+from crashnlp.analysis.summary import UNFINISHED
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.base.units import G0
@@ -129,7 +130,7 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
 @pytest.mark.integration
 def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_calibrated_form_term(tmp_path):
     """A record cut at 50 ms, the vehicle still moving: the fit has no miss of its own of the stop,
-    the rebound or the max displacement, yet a prediction at another speed carries their
+    the rebound, the max displacement or the peak, yet a prediction at another speed carries their
     calibrated form term, says where it comes from, and covers the generator's values."""
     v = dataclasses.replace(random_vehicle(3, 2030, speed=56 / 3.6), speed=48 / 3.6)
     write_csv(tmp_path / "t1.csv", measured(v, simulate(v)))
@@ -139,7 +140,7 @@ def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_cali
     path.write_text(yaml.safe_dump(raw, sort_keys=False))
     result = crashnlp.identify(path)
     assert result.ok
-    ended = ("max_displacement_m", "time_zero_velocity_s", "rebound_velocity_mps")
+    ended = ("max_displacement_m", "time_zero_velocity_s", "rebound_velocity_mps", "peak_decel_g")
     assert not set(ended) & set(result.identified.discrepancy)  # the record reaches none of them
     prediction = crashnlp.simulate(_new_speed(tmp_path, raw, 40), params=result)["new"]
     real = simulate(dataclasses.replace(v, speed=40 / 3.6))
@@ -149,7 +150,34 @@ def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_cali
         assert low <= value <= high, (key, value, (low, high))
         assert prediction.parts[key].unit > 0  # the calibrated form term carries it
         assert any(n.startswith(f"new: {key}: the fitted tests' records end before it") for n in prediction.notes)
-    assert not any("records end before" in n and "peak_decel_g" in n for n in prediction.notes)  # the record holds the peak
+    assert any(  # nor the peak: the deceleration may still grow after 50 ms
+        n.startswith("new: peak_decel_g: the fitted tests' records end before it") for n in prediction.notes
+    )
+
+
+@pytest.mark.integration
+def test_a_simulation_that_ends_before_the_stop_gives_no_metric_it_does_not_hold(fitted, capsys):
+    """The fitted vehicle at its own speed over 30 ms, still moving: its travel, largest deceleration
+    and stop so far are not the test's, so neither simulation.json nor the console gives them or
+    their intervals, and a note names the test and how fast it still moves; the console and the
+    file say the same."""
+    folder, _, raw, result, _ = fitted
+    short = {**raw, "tests": [{"name": "short", "speed": "48 km/h", "duration": 0.03}]}
+    path = folder / "short.yaml"
+    path.write_text(yaml.safe_dump(short, sort_keys=False))
+    out = folder / "short-sim"
+    assert main(["simulate", str(path), "--params", str(folder / "fit" / "result.json"), "--out", str(out), "--no-figures"]) == 0
+    printed = capsys.readouterr().out
+    sim = json.loads((out / "simulation.json").read_text())["tests"]["short"]
+    assert all(sim["metrics"][k] is None for k in UNFINISHED)
+    assert all(sim["intervals"][k] is None for k in PREDICTED_KEYS if k in UNFINISHED)
+    end = sim["metrics"]["end_velocity_mps"]
+    assert end > 5.0  # 48 km/h is 13.3 m/s: far from stopped at 30 ms
+    note = f"short: the simulation ends at 30.0 ms still moving toward the barrier at {end:.3g} m/s"
+    assert [n for n in sim["notes"] if n.startswith(note)] == [n for n in printed.splitlines() if n.startswith(note)] != []
+    rest = "\n".join(line for line in printed.splitlines() if not line.startswith(note))
+    for shown in ("max displacement", "zero velocity", "peak decel", "rebound", "nan", "["):
+        assert shown not in rest, shown
 
 
 @pytest.mark.integration

@@ -33,12 +33,16 @@ state): so the band at a metric's instant is that metric's interval, and there i
 the vehicle has left the barrier or at t = 0. Intervals and bands are cut to what is physically
 certain (crashnlp.analysis.limits), with a note for each interval cut.
 
-A metric whose fitted tests' records end before it (a vehicle still moving at the record's end
-has no stop, rebound or max displacement in it) has no miss of the fit's own: where the curve it
-is read from was fitted, its interval holds the curves' miss and the calibrated form term, and a
-note says so. A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
-interval, nor does anything when an estimated value is not determined by the data: the
-prediction says so in `notes`, instead of a band that only looks narrow.
+A simulated test that ends mid-crash, before its vehicle stops and while it still decelerates
+(crashnlp.analysis.summary.MID_CRASH), gives no metric its record does not hold (no max
+displacement, stop, peak deceleration, rebound or max pitch), nor their intervals or the bands
+scaled to them, and a note says where it ends and how fast it still moves; one that ends drifting
+on after the pulse says so, its max displacement its travel at the end. A metric whose fitted tests' records end before it (the same rule) has no miss of
+the fit's own: where the curve it is read from was fitted, its interval holds the curves' miss and
+the calibrated form term, and a note says so. A metric or curve that no fitted test measured
+(pitch, without a pitch channel) gets no interval, nor does anything when an estimated value is
+not determined by the data: the prediction says so in `notes`, instead of a band that only looks
+narrow.
 
 `write_simulation` writes what `crashnlp simulate` writes of the predicted tests, and
 `simulation_figure_jobs` are their figures.
@@ -58,7 +62,15 @@ import numpy as np
 from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
-from crashnlp.analysis.summary import accel_filter, accel_spec, as_recorded, data_curves, response_metrics
+from crashnlp.analysis.summary import (
+    UNFINISHED,
+    accel_filter,
+    accel_spec,
+    as_recorded,
+    data_curves,
+    response_metrics,
+    still_moving,
+)
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     COLUMNS,
@@ -206,11 +218,11 @@ def predict(
         other = test.other_conditions(mass)
         data = data_curves(test) if other is None else {}
         first = (other,) if other is not None else ()
-        drift = _drift(test.name, response) or _let_go(test.name, response)
+        drift = _drift(test.name, response) or _let_go(test.name, response) or _moving(test.name, metrics)
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
-        beyond = identified.range.beyond(float(metrics["max_displacement_m"] or 0.0), test.speed, mass)
+        beyond = identified.range.beyond(float(np.max(response["displacement"])), test.speed, mass)
         chosen = calibration or shipped(case.problem.model.form)
         if chosen is None:
             note = uncalibrated(test.name, case.problem.model.form)
@@ -253,6 +265,13 @@ def uncalibrated(name: str, form: str) -> str:
         f"{name}: no intervals: model form {form} has no calibration table (crashnlp/analysis/calibration.json, "
         "make calibrate), and another form's misses are not its own"
     )
+
+
+def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:
+    """A note when the simulation ends before the vehicle stops (crashnlp.analysis.summary.still_moving):
+    which metrics it does not give, where it ends and how fast the vehicle still moves there."""
+    words = still_moving(metrics)
+    return (f"{name}: the simulation {words}",) if words else ()
 
 
 def _drift(name: str, response: Response) -> tuple[str, ...]:
@@ -328,6 +347,8 @@ def _uncertainty(
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
         if miss is None or value is None or not np.isfinite(value):
+            if value is None and key in UNFINISHED and still_moving(metrics):
+                continue  # the simulation's still-moving note says so (_moving)
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue

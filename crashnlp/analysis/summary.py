@@ -15,6 +15,27 @@ from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.problem.schema import ChannelSpec
 from crashnlp.results.response import Response
 
+# what a record that ends mid-crash (MID_CRASH) does not hold: the crash goes on past its end, so
+# its largest travel, crush, deceleration and pitch so far, its velocity change and its rebound are
+# only where the record leaves them (lower limits), and it has no stop. Its OLC is held where the
+# occupant gets to 300 mm within the record: it is read from the pulse up to there alone.
+UNFINISHED = (
+    "max_displacement_m",
+    "time_max_displacement_s",
+    "max_front_end_crush_m",
+    "time_zero_velocity_s",
+    "peak_decel_g",
+    "rebound_velocity_mps",
+    "delta_v_mps",
+    "esw_g",
+    "tesw_g",
+    "max_pitch_deg",
+)
+# a record that ends still moving toward the barrier ends mid-crash where its deceleration there is
+# at least this share of its peak; below it the pulse is over and the vehicle drifts on without
+# contact (its pitch lifted the front end off), and the record holds the pulse whole
+MID_CRASH = 0.1
+
 
 def metrics(
     t: np.ndarray,
@@ -24,7 +45,10 @@ def metrics(
     pitch: np.ndarray | None,
     crush: np.ndarray | None = None,
 ) -> dict:
-    """The crash metrics result.json reports, in the units their names say.
+    """The crash metrics result.json reports, in the units their names say; None for a metric the
+    record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), and
+    the UNFINISHED ones of a record that ends mid-crash (MID_CRASH; `still_moving` says where it
+    ends). The one rule for test data, fitted models and predictions alike.
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
     travel, for data and model alike, so the two compare. A model also reports its largest front-end crush
@@ -38,16 +62,27 @@ def metrics(
         "record_end_s": float(t[-1]),
         "max_pitch_deg": float(np.degrees(np.max(pitch))) if pitch is not None else None,
     }
-    return {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
+    out = {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
+    out = {key: None if value is None or not np.isfinite(value) else value for key, value in out.items()}
+    return {**out, **dict.fromkeys(UNFINISHED)} if still_moving(out) and _mid_crash(accel) else out
+
+
+def _mid_crash(accel: np.ndarray) -> bool:
+    """Whether a record ends while the vehicle still decelerates by MID_CRASH of its peak or more."""
+    peak = float(np.max(-accel))
+    return peak > 0 and float(-accel[-1]) >= MID_CRASH * peak
 
 
 def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record that ends before the vehicle stops (no time of zero velocity in
-    it); None for one that stops."""
+    it): mid-crash, without the UNFINISHED metrics, or drifting on after the pulse, without a max
+    displacement; None for one that stops."""
     stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
     if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
         return None
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
+    if metrics.get("peak_decel_g") is None:
+        return f"{moving} (no stop: no max displacement, stop, peak deceleration or rebound in it)"
     return f"{moving} (no stop: its travel there is no max displacement)"
 
 
@@ -58,9 +93,9 @@ def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
 
 
 def data_metrics(test: TestCase) -> dict | None:
-    """Metrics of the measured curves, on the accel channel's time base. A record that ends before
-    the vehicle stops has no max displacement, and no ESW from it: its last sample is not one
-    (None; `still_moving` says where it ends)."""
+    """Metrics of the measured curves, on the accel channel's time base (`metrics`). A record that
+    ends drifting on after the pulse has no max displacement either, and no ESW from it: its last
+    sample is not one."""
     ch = test.data.channels if test.data is not None else {}
     if not {"accel", "velocity", "displacement"} <= set(ch):
         return None
