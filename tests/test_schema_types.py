@@ -78,3 +78,11 @@ def test_with_values_makes_a_changed_copy_that_leaves_unset_entries_unset():
     assert faster.vehicle.model_fields_set == problem.vehicle.model_fields_set
     assert "gravity" not in faster.vehicle.model_fields_set and "solver" not in faster.model_fields_set
     assert faster.base_dir == problem.base_dir
+
+
+@pytest.mark.parametrize("method", ["multiple-shooting", "collocation"])
+def test_an_error_inside_the_transcription_names_the_file_s_key_not_its_tag(method):
+    """pydantic locates an error in a tagged union under the tag ("transcription.collocation.
+    intervals"); the file has no such key, so the message names the one it has."""
+    with pytest.raises(ProblemError, match=r"^problem: transcription\.intervals: Input should be greater than or equal to 2$"):
+        problem_from_dict(pickup(transcription={"method": method, "intervals": 0}), PICKUP.parent)

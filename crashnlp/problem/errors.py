@@ -28,8 +28,16 @@ class ProblemError(InputError):
     """Bad input: the message is the one line the user sees (exit status 2)."""
 
 
+# keys whose value is a union tagged by one of its fields (crashnlp.problem.schema: the
+# transcription by its `method`): pydantic puts the tag into an error's location after the key,
+# where the file has none ("transcription.multiple-shooting.intervals")
+TAGGED = frozenset({"transcription"})
+
+
 def _loc(loc: tuple[int | str, ...]) -> str:
-    return ".".join(str(p) for p in loc if p not in ("function-after", "function-before"))
+    """An error's location as the file's keys, dotted: without pydantic's validator steps and tags."""
+    parts = [p for p in loc if p not in ("function-after", "function-before")]
+    return ".".join(str(p) for i, p in enumerate(parts) if i == 0 or parts[i - 1] not in TAGGED)
 
 
 def _text(err: Any) -> str:
