@@ -212,7 +212,7 @@ def predict(
     for test in case.tests:
         p = case.test_parameters(test)
         cfc = read_through(test, identified)
-        response = as_recorded(case.simulate_test(test, p, dt), cfc)
+        response = _simulated(case, test, p, dt, cfc)
         metrics = response_metrics(response)
         mass = float(p[case.layout.index("vehicle.mass")][0])
         other = test.other_conditions(mass)
@@ -247,6 +247,11 @@ def predict(
             chosen.named(),
         )
     return out
+
+
+def _simulated(case: Case, test: TestCase, p: np.ndarray, dt: float | None, cfc: str | None) -> Response:
+    """A test simulated at the full parameters `p`, its acceleration read through CFC class `cfc`."""
+    return as_recorded(case.simulate_test(test, p, dt), cfc)
 
 
 def read_through(test: TestCase, identified: IdentifiedModel | None) -> str | None:
@@ -513,7 +518,7 @@ def _sensitivities(
         up, down = min(p[k] + std[j], hi), max(p[k] - std[j], lo)
         if up <= down:
             continue
-        r_up, r_down = (as_recorded(case.simulate_test(test, _with(p, k, value), dt), cfc) for value in (up, down))
+        r_up, r_down = (_simulated(case, test, _with(p, k, value), dt, cfc) for value in (up, down))
         m_up, m_down = response_metrics(r_up), response_metrics(r_down)
         gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in PREDICTED_KEYS]
         for name in BAND_METRIC:
