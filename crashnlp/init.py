@@ -27,6 +27,7 @@ import os
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
@@ -44,6 +45,9 @@ from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
 from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
 from crashnlp.results.files import atomic_open, check_writable_file
+
+if TYPE_CHECKING:
+    from crashnlp.case.case import Case
 
 UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
 # upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
@@ -671,8 +675,8 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     draft, suspension = draft_for(paths, options)
     out_dir = Path(out).resolve().parent
     drafted = problem_from_dict(problem_dict(draft, suspension, paths[0]), out_dir, source=str(paths[0]))
-    _check_given(drafted, options)
     case = Case(drafted)
+    _check_given(case, options)
     problem = case.problem
     if case.resolution is not None:
         draft.notes.append(f"Spring: {case.resolution.note}.")
@@ -716,16 +720,15 @@ def _data_files(paths: list[Path], fmt: str) -> set[Path]:
     return {p.resolve() for p in files}
 
 
-def _check_given(problem: Problem, options: Options) -> None:
-    """Refuse a --speed or --mass the test's data contradict, as identify would (crashnlp.case.testcase):
-    the file written would not be fitted."""
+def _check_given(case: Case, options: Options) -> None:
+    """Refuse a --speed or --mass the test's data (as the case read them) contradict, as identify
+    would (crashnlp.case.testcase): the file written would not be fitted."""
     from crashnlp.case.testcase import mass_contradicted, speed_contradicted
 
-    test = problem.tests[0]
+    test = case.tests[0]
     assert test.data is not None  # init writes the test with its data
-    data = load_test_data(test.data, problem.vehicle.speed)
     given = (("--speed", options.speed, speed_contradicted), ("--mass", options.mass, mass_contradicted))
     for option, value, contradicted in given:
-        why = None if value is None else contradicted(value, test, data)
+        why = None if value is None else contradicted(value, test.spec, test.data)
         if why is not None:
             raise InputError(f"{option}: {why}")
