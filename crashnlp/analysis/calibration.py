@@ -23,8 +23,10 @@ tests reached adds, a rule's guess that the calibration scales like the form ter
 split-conformal quantile of the scores of the calibration corpus: the smallest q with which each
 held-out interval, its other parts as they were, would have covered the generator's value
 (`IntervalParts.score`), its rank from the number of vehicles (one vehicle's predictions of a
-class miss alike). The power says how the miss grows with the distance, set from the corpus per
-metric (bench/calibration.py). At a fitted test's own energy the terms are zero, and the
+class miss alike); and at least the score that 95 % of each generator form's predictions do not
+exceed: a vehicle's form is not known when it is predicted, so the interval must hold for every
+form the corpus has, not only for their mix. The power says how the miss grows with the
+distance, set from the corpus per metric (bench/calibration.py). At a fitted test's own energy the terms are zero, and the
 interval is what the fitted tests say of themselves.
 
 Each model form has its own table, calibrated on that form's fits of the corpus: a form's miss
