@@ -400,5 +400,6 @@ def test_a_blank_cell_names_its_column_and_line(tmp_path, capsys):
     path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "a", "data": {**DATA, "file": str(csv)}}]})))
     assert main(["simulate", str(path), "--out", str(tmp_path / "out")]) == 2
     err = capsys.readouterr().err
-    assert err == f"crashnlp: error: {csv}: channel displacement (column disp_x_m): line 301: a blank cell\n"
+    key = "tests.0.data.channels.displacement"
+    assert err == f"crashnlp: error: {path}: {key}: {csv}: channel displacement (column disp_x_m): line 301: a blank cell\n"
     assert not (tmp_path / "out").exists()

@@ -17,7 +17,10 @@ import pytest
 import yaml
 from builders import BASE, ROOT, command, descendants, merge
 
+import crashnlp
+from crashnlp.base.errors import InputError
 from crashnlp.cli import main
+from crashnlp.problem import problem_from_dict
 from crashnlp.results.jsonfile import write_json
 from crashnlp.studies.store import CaseStore
 
@@ -180,6 +183,54 @@ def test_a_time_unit_that_makes_the_sample_rate_absurd_is_refused(tmp_path, caps
 def test_identify_refuses_a_duration_its_data_window_overrides(tmp_path, capsys):
     raw = pickup({"tests": [{**pickup()["tests"][0], "duration": "0.25 s"}]})
     refused(tmp_path, capsys, raw, "tests.0.duration: 0.25 s would be ignored")
+
+
+def _bad_cell(tmp_path: Path) -> dict:
+    """The pickup problem reading a copy of its CSV whose accel cell on line 101 is not a number."""
+    source = Path(pickup()["tests"][0]["data"]["file"])
+    lines = source.read_text().splitlines()
+    lines[100] = ",".join([lines[100].split(",")[0], "abc", *lines[100].split(",")[2:]])
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    return pickup({"tests": [merge(pickup()["tests"][0], {"data": {"file": str(tmp_path / "bad.csv")}})]})
+
+
+EV5 = ROOT / "problems/data/nhtsa-10146/v10146.EV5"
+CSV = ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"
+
+
+@pytest.mark.parametrize(
+    "raw, expected",
+    [
+        (
+            lambda _: camry({}, {"data": {**camry({}, {})["tests"][0]["data"], "channels": {"accel": {"curves": [93, 999]}}}}),
+            f"tests.0.data.channels.accel: {EV5}: channel accel (curve 999): curve not in the INSTRUMENTATION card\n",
+        ),
+        (
+            lambda _: pickup({"tests": [merge(pickup()["tests"][0], {"data": {"channels": {"velocity": {"column": "vel_x"}}}})]}),
+            f"tests.0.data.channels.velocity: {CSV}: channel velocity: no column 'vel_x' (columns time_s,",
+        ),
+        (
+            _bad_cell,
+            "tests.0.data.channels.accel: {tmp}/bad.csv: channel accel (column accel_x_g): line 101: 'abc' is not a number\n",
+        ),
+        (
+            lambda _: pickup({"tests": [merge(pickup()["tests"][0], {"data": {"time": {"column": "time_s", "unit": "kg"}}})]}),
+            f"tests.0.data.time: {CSV}: channel time: unit 'kg' is not a time\n",
+        ),
+        (
+            lambda _: pickup({"tests": [merge(pickup()["tests"][0], {"data": {"window": ["5 s", "6 s"]}})]}),
+            f"tests.0.data.window: {CSV}: channel accel: window 5 s to 6 s holds no samples\n",
+        ),
+    ],
+    ids=["ev5-curve", "csv-column", "csv-cell", "csv-time-unit", "window"],
+)
+def test_a_data_error_names_the_problem_key_and_the_data_file(tmp_path, capsys, raw, expected):
+    """The one line names the problem file and the key that led to the data, then the data file and
+    what in it is wrong; through the Python API the problem's name and the same key."""
+    raw, expected = raw(tmp_path), expected.replace("{tmp}", str(tmp_path))
+    refused(tmp_path, capsys, raw, f"crashnlp: error: {tmp_path / 'p.yaml'}: {expected}")
+    with pytest.raises(InputError, match=f"^{raw['name']}: {re.escape(expected.rstrip())}"):
+        crashnlp.identify(problem_from_dict(raw, tmp_path))
 
 
 # --------------------------------------------------------------------------- files

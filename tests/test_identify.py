@@ -109,6 +109,12 @@ def test_recovers_known_parameters_within_three_standard_errors(data_file, trans
     assert np.all(np.abs(estimate - truth)[reached] <= 3 * std[reached]), (estimate, truth, std)
     # and the fit moved far from where it started, relative to its uncertainty
     assert np.all(np.abs(start - truth)[reached] > 10 * std[reached])
+    # the fit's response: once the front end lets go, its crush stays at the permanent set (to its
+    # damper's spring-back) while the vehicle moves away, the line of action 50 mm and more past it
+    fitted = sol.tests[0]
+    gone = np.arange(fitted.time.size) > np.flatnonzero(fitted["contact_force"] > 0)[-1]
+    np.testing.assert_allclose(fitted["crush"][gone], fitted["crush"][-1], rtol=0, atol=1e-3)
+    assert fitted["approach"][-1] < fitted["crush"][-1] - 0.05
 
 
 @pytest.mark.integration

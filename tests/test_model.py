@@ -81,9 +81,16 @@ def test_energy_balance_with_dissipation(law):
     assert np.max(np.abs(total - total[0])) < 1e-6 * total[0]
 
 
-def test_plastic_unloading_leaves_permanent_set_and_never_pulls():
+@pytest.fixture(scope="module")
+def released():
+    """Per unloading law, a case whose vehicle leaves the barrier well within its 0.3 s, and its response."""
     cases = {law: make_case({"model": {"unloading": {"law": law}}, "tests": [{"name": "t56", "duration": 0.3}]}) for law in LAWS}
-    plastic, elastic = (cases[law].simulate()["t56"] for law in LAWS)
+    return {law: (case, case.simulate()["t56"]) for law, case in cases.items()}
+
+
+def test_plastic_unloading_leaves_permanent_set_and_never_pulls(released):
+    cases = {law: case for law, (case, _) in released.items()}
+    plastic, elastic = (released[law][1] for law in LAWS)
     for law, r in zip(LAWS, (plastic, elastic)):
         assert_contact_force_is_the_front_ends(cases[law], r, cases[law].test_parameters(cases[law].tests[0]))
     # the elastic spring and the rebounding damper would pull before the crush is back at zero
@@ -103,6 +110,28 @@ def test_plastic_unloading_leaves_permanent_set_and_never_pulls():
     assert abs(crush_at_separation(elastic)) < 0.02 * peak
     # rebound: the elastic spring returns far more energy
     assert -np.min(plastic["velocity"]) < 0.5 * -np.min(elastic["velocity"])
+
+
+@pytest.mark.parametrize("law", LAWS)
+def test_the_crush_stays_at_the_permanent_set_once_the_front_end_lets_go(released, law):
+    """Once contact ends the vehicle moves away, and the shortening of the front end's line of
+    action falls with the growing gap; the front end's crush stays at what its unloading law
+    leaves at zero force: where the unloading line from the largest crush meets zero (plastic),
+    none (elastic). Its largest value, the barrier force and the motion are the same."""
+    case, r = released[law]
+    p = case.test_parameters(case.tests[0])
+    gone = np.arange(r.time.size) > np.flatnonzero(r["contact_force"] > 0)[-1]
+    largest = r.states[case.model.nx - 1][-1]
+    stiffness = p[case.layout.index("model.unloading.stiffness")][0]
+    permanent = largest - case.loading_curve(p)(np.array([largest]))[0] / stiffness if law == "plastic" else 0.0
+    assert 0 <= permanent < largest
+    assert r["approach"][-1] < permanent - 0.05  # the vehicle has moved 50 mm and more away
+    # springing back past the end of contact (the damper let go first), then at the set
+    np.testing.assert_allclose(r["crush"][gone], np.maximum(r["approach"][gone], permanent), rtol=0, atol=1e-9)
+    assert r["crush"][-1] == pytest.approx(permanent, abs=1e-9)
+    np.testing.assert_array_equal(r["crush"][~gone], r["approach"][~gone])  # while it touches: the line of action's
+    assert np.all(r["barrier_force"][gone] == 0)
+    assert np.max(r["crush"]) == np.max(r["approach"])
 
 
 def _sympy_accelerations(v: dict, state, contact: float) -> np.ndarray:

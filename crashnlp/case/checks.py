@@ -11,18 +11,15 @@ from contextlib import contextmanager
 
 from crashnlp.base.errors import InputError
 from crashnlp.case.testcase import check_data, load_tests
-from crashnlp.data.channels import DataError
 from crashnlp.problem import Problem
 from crashnlp.problem.load import check_fit_keys
 
 
 @contextmanager
 def named(source: str) -> Iterator[None]:
-    """An input error raised inside names `source` (unless it does already; a data error names its file)."""
+    """An input error raised inside names `source` (unless it does already)."""
     try:
         yield
-    except DataError:
-        raise
     except InputError as exc:
         raise InputError(exc if str(exc).startswith(source) else f"{source}: {exc}") from None
 

@@ -13,7 +13,7 @@ import numpy as np
 
 from crashnlp.base.errors import InputError
 from crashnlp.data import TestData, load_test_data
-from crashnlp.data.channels import END_TOLERANCE, median_interval
+from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
 from crashnlp.problem import Problem, Test
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
@@ -79,9 +79,21 @@ class TestCase:
 def load_tests(problem: Problem) -> tuple[Problem, list[TestCase]]:
     """The problem (with the vehicle mass from a test or a data header when it gives none) and
     its tests, their data read."""
-    loaded = [load_test_data(t.data, problem.speed(t)) if t.data else None for t in problem.tests]
+    loaded = [_read(problem, i, t) for i, t in enumerate(problem.tests)]
     problem = _with_vehicle_mass(problem, loaded)
     return problem, [_test_case(problem, i, t, d) for i, (t, d) in enumerate(zip(problem.tests, loaded))]
+
+
+def _read(problem: Problem, i: int, test: Test) -> TestData | None:
+    """A test's data (None without), an error in them naming the key of the problem that led
+    there (tests.0.data.channels.accel; tests.0.data.file for the file as a whole) before the
+    data file and what in it is wrong."""
+    if test.data is None:
+        return None
+    try:
+        return load_test_data(test.data, problem.speed(test))
+    except DataError as exc:
+        raise InputError(f"tests.{i}.data.{exc.key or 'file'}: {exc}") from None
 
 
 def _with_vehicle_mass(problem: Problem, loaded: list[TestData | None]) -> Problem:

@@ -2,7 +2,8 @@
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -13,7 +14,22 @@ from crashnlp.problem.schema import CHANNEL_UNITS
 
 
 class DataError(InputError):
-    """Bad test data: the message is one line naming the file and the channel."""
+    """Bad test data: the message is one line naming the file and the channel; `key` is the key of
+    the test's data (DataSpec) that led there, e.g. 'channels.accel' (None: the file as a whole)."""
+
+    def __init__(self, message: str, key: str | None = None):
+        super().__init__(message)
+        self.key = key
+
+
+@contextmanager
+def of_key(key: str) -> Iterator[None]:
+    """A DataError raised inside came of `key` of the test's data (DataSpec), e.g. 'channels.accel'."""
+    try:
+        yield
+    except DataError as exc:
+        exc.key = exc.key or key
+        raise
 
 
 @dataclass

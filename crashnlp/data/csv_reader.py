@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.base.units import unit_scale
-from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_samples, of_key, si_factor, where
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 
 DELIMITERS = ",;\t"  # the most frequent on the first line splits the file; with none of them, runs of spaces do
@@ -175,20 +175,22 @@ def read_csv(spec: DataSpec) -> TestData:
     """
     path = spec.file
     table = Table.read(path)
-    try:
-        scale = unit_scale(spec.time.unit, "s")
-    except Exception:
-        raise DataError(f"{where(path, 'time')}: unit {spec.time.unit!r} is not a time") from None
-    time = table.values(table.index(spec.time.column, "time"), "time") * scale
+    with of_key("time"):
+        try:
+            scale = unit_scale(spec.time.unit, "s")
+        except Exception:
+            raise DataError(f"{where(path, 'time')}: unit {spec.time.unit!r} is not a time") from None
+        time = table.values(table.index(spec.time.column, "time"), "time") * scale
     channels: dict[str, Channel] = {}
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        if ch.column is None:
-            raise DataError(f"{where(path, name)}: no column given (a CSV channel needs `column`)")
-        k = table.index(ch.column, name)
-        at = where(path, name, f"column {table.label(k)}")
-        values = table.values(k, name) * (si_factor(ch.unit, name, at) if ch.unit else 1.0)
-        check_samples(time, values, at)
-        channels[name] = Channel(time.copy(), values, CHANNEL_UNITS[name], f"{path.name}:{table.label(k)}")
+        with of_key(f"channels.{name}"):
+            if ch.column is None:
+                raise DataError(f"{where(path, name)}: no column given (a CSV channel needs `column`)")
+            k = table.index(ch.column, name)
+            at = where(path, name, f"column {table.label(k)}")
+            values = table.values(k, name) * (si_factor(ch.unit, name, at) if ch.unit else 1.0)
+            check_samples(time, values, at)
+            channels[name] = Channel(time.copy(), values, CHANNEL_UNITS[name], f"{path.name}:{table.label(k)}")
     return TestData(channels, {})

@@ -16,7 +16,7 @@ from pathlib import Path, PurePosixPath
 import numpy as np
 
 from crashnlp.base.units import to_si
-from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_samples, of_key, si_factor, where
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 
 _CHANNEL_LINE = re.compile(r"name of channel\s+(\d+)", re.IGNORECASE)
@@ -122,18 +122,19 @@ def read_mme(spec: DataSpec) -> TestData:
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        if not ch.code:
-            raise DataError(f"{where(path, name)}: no code given (an ISO-MME channel needs `code`)")
-        code = ch.code.strip().upper()
-        if code not in codes:
-            raise DataError(f"{where(store.label(chn_name), name, f'code {code}')}: code not in the channel list")
-        obj = obj or (code[0] if code[0].isdigit() and code[0] != "0" else "1")
-        wanted = f"{chn_name.rsplit('.', 1)[0]}.{codes[code]}"
-        file = store.name(wanted)
-        at = where(store.label(file or wanted), name, f"code {code}")
-        if file is None:
-            raise DataError(f"{at}: channel file missing")
-        channels[name] = _channel(store.text(file), ch.unit, name, at, f"{PurePosixPath(file).name}:{code}")
+        with of_key(f"channels.{name}"):
+            if not ch.code:
+                raise DataError(f"{where(path, name)}: no code given (an ISO-MME channel needs `code`)")
+            code = ch.code.strip().upper()
+            if code not in codes:
+                raise DataError(f"{where(store.label(chn_name), name, f'code {code}')}: code not in the channel list")
+            obj = obj or (code[0] if code[0].isdigit() and code[0] != "0" else "1")
+            wanted = f"{chn_name.rsplit('.', 1)[0]}.{codes[code]}"
+            file = store.name(wanted)
+            at = where(store.label(file or wanted), name, f"code {code}")
+            if file is None:
+                raise DataError(f"{at}: channel file missing")
+            channels[name] = _channel(store.text(file), ch.unit, name, at, f"{PurePosixPath(file).name}:{code}")
 
     header, _ = _pairs(store.text(mme_name))
     meta: dict[str, float] = {}

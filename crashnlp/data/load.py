@@ -11,7 +11,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, sample_interval, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_channel import read_channel_files
@@ -67,45 +67,48 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        c = raw.channels[name]
-        check_sampling(c.time, where(path, name))
-        values = c.values * ch.sign
-        if name in DEFAULT_FILTER:
-            notes.append(f"{name}: {_filter_note(name, ch.filter)}")
-        if name in BIASED and spec.bias_window is not None:
-            try:
-                values = remove_bias(c.time, values, spec.bias_window)
-            except ValueError as exc:
-                raise DataError(f"{where(path, name)}: {exc}") from None
-        c = Channel(c.time, values, c.unit, c.source)
-        if name == "accel":
-            accel_unfiltered = c
-        out[name] = Channel(c.time, _filtered(c, ch.filter, where(path, name)), c.unit, c.source)
+        with of_key(f"channels.{name}"):
+            c = raw.channels[name]
+            check_sampling(c.time, where(path, name))
+            values = c.values * ch.sign
+            if name in DEFAULT_FILTER:
+                notes.append(f"{name}: {_filter_note(name, ch.filter)}")
+            if name in BIASED and spec.bias_window is not None:
+                try:
+                    values = remove_bias(c.time, values, spec.bias_window)
+                except ValueError as exc:
+                    raise DataError(f"{where(path, name)}: {exc}", "bias_window") from None
+            c = Channel(c.time, values, c.unit, c.source)
+            if name == "accel":
+                accel_unfiltered = c
+            out[name] = Channel(c.time, _filtered(c, ch.filter, where(path, name)), c.unit, c.source)
 
     v0 = speed if speed is not None else raw.meta.get("speed")
     for name, ch in spec.channels.items():
         if ch.derive is None:
             continue
-        at = where(path, name)
-        if name not in ("velocity", "displacement"):
-            raise DataError(f"{at}: only velocity and displacement can be derived by integration")
-        if accel_unfiltered is None:
-            raise DataError(f"{at}: integration needs an accel channel read from the file")
-        if v0 is None:
-            raise DataError(f"{at}: integration needs the impact speed (give the test's speed)")
-        cfc = ch.filter or spec.channels["accel"].filter
-        accel = _filtered(accel_unfiltered, cfc, where(path, "accel"))
-        try:
-            velocity, displacement = integrate(accel_unfiltered.time, accel, v0)
-        except ValueError as exc:
-            raise DataError(f"{at}: {exc}") from None
-        values = velocity if name == "velocity" else displacement
-        source = f"integral of {accel_unfiltered.source}" + (f" at {cfc}" if cfc else "")
-        out[name] = Channel(accel_unfiltered.time, values, CHANNEL_UNITS[name], source)
+        with of_key(f"channels.{name}"):
+            at = where(path, name)
+            if name not in ("velocity", "displacement"):
+                raise DataError(f"{at}: only velocity and displacement can be derived by integration")
+            if accel_unfiltered is None:
+                raise DataError(f"{at}: integration needs an accel channel read from the file")
+            if v0 is None:
+                raise DataError(f"{at}: integration needs the impact speed (give the test's speed)")
+            cfc = ch.filter or spec.channels["accel"].filter
+            accel = _filtered(accel_unfiltered, cfc, where(path, "accel"))
+            try:
+                velocity, displacement = integrate(accel_unfiltered.time, accel, v0)
+            except ValueError as exc:
+                raise DataError(f"{at}: {exc}") from None
+            values = velocity if name == "velocity" else displacement
+            source = f"integral of {accel_unfiltered.source}" + (f" at {cfc}" if cfc else "")
+            out[name] = Channel(accel_unfiltered.time, values, CHANNEL_UNITS[name], source)
 
     if spec.window is not None:
         for channel in out:
             out[channel] = cut(out[channel], spec.window)
             if out[channel].time.size < 2:
-                raise DataError(f"{where(path, channel)}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples")
+                at = where(path, channel)
+                raise DataError(f"{at}: window {spec.window[0]:g} s to {spec.window[1]:g} s holds no samples", "window")
     return TestData(out, dict(raw.meta), notes)

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from crashnlp.data.channels import Channel, DataError, TestData, check_samples, si_factor, where
+from crashnlp.data.channels import Channel, DataError, TestData, check_samples, of_key, si_factor, where
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.nhtsa_ev5 import combine
 from crashnlp.problem.schema import CHANNEL_FILE, ChannelSpec, DataSpec
@@ -53,17 +53,20 @@ def read_channel_files(spec: DataSpec) -> TestData:
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        if ch.unit is None:
-            raise DataError(f"{where(spec.file, name)}: no unit (an NHTSA channel file carries none: give `unit`, e.g. g)")
-        read = []
-        for number in _numbers(spec.file, name, ch):
-            file = files.get(number)
-            if file is None:
-                raise DataError(f"{where(spec.file, name, f'curve {number}')}: no channel file of the test numbered {number:03d}")
-            table = Table.read(file)
-            at = where(file, name)
-            time, values = table.values(0, name), table.values(1, name) * si_factor(ch.unit, name, at)
-            check_samples(time, values, at)
-            read.append((file, time, values))
-        channels[name] = combine(read, name)
+        with of_key(f"channels.{name}"):
+            if ch.unit is None:
+                raise DataError(f"{where(spec.file, name)}: no unit (an NHTSA channel file carries none: give `unit`, e.g. g)")
+            read = []
+            for number in _numbers(spec.file, name, ch):
+                file = files.get(number)
+                if file is None:
+                    raise DataError(
+                        f"{where(spec.file, name, f'curve {number}')}: no channel file of the test numbered {number:03d}"
+                    )
+                table = Table.read(file)
+                at = where(file, name)
+                time, values = table.values(0, name), table.values(1, name) * si_factor(ch.unit, name, at)
+                check_samples(time, values, at)
+                read.append((file, time, values))
+            channels[name] = combine(read, name)
     return TestData(channels, {})

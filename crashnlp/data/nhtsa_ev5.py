@@ -23,7 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, TestData, check_samples, median_interval, si_factor, where
+from crashnlp.data.channels import (
+    END_TOLERANCE,
+    Channel,
+    DataError,
+    TestData,
+    check_samples,
+    median_interval,
+    of_key,
+    si_factor,
+    where,
+)
 from crashnlp.data.csv_reader import Table
 from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
@@ -220,20 +230,21 @@ def read_ev5(spec: DataSpec) -> TestData:
     for name, ch in spec.channels.items():
         if ch.derive is not None:
             continue
-        numbers, note = _curve_numbers(header, curves, name, ch)
-        notes += [note] if note else []
-        read = []
-        for number in numbers:
-            if number not in curves:
-                raise DataError(f"{where(header, name, f'curve {number}')}: curve not in the INSTRUMENTATION card")
-            curve = curves[number]
-            vehicle = curve.vehicle or vehicle
-            file = header.with_suffix(f".{number:03d}")
-            time, values = _read_curve(file, header, curve, name)
-            unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
-            values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
-            read.append((file, time, values))
-        channels[name] = combine(read, name)
+        with of_key(f"channels.{name}"):
+            numbers, note = _curve_numbers(header, curves, name, ch)
+            notes += [note] if note else []
+            read = []
+            for number in numbers:
+                if number not in curves:
+                    raise DataError(f"{where(header, name, f'curve {number}')}: curve not in the INSTRUMENTATION card")
+                curve = curves[number]
+                vehicle = curve.vehicle or vehicle
+                file = header.with_suffix(f".{number:03d}")
+                time, values = _read_curve(file, header, curve, name)
+                unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
+                values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
+                read.append((file, time, values))
+            channels[name] = combine(read, name)
     for row in cards.get("VEHICLE", []):
         if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass

@@ -30,7 +30,17 @@ import numpy as np
 
 from crashnlp.base.outputs import NAMES
 from crashnlp.models import stored as model_store
-from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS, Expr, damper_force, engagement, hinge, never_pulling, with_tail
+from crashnlp.models.laws import (
+    PERMANENT_SETS,
+    SPRING_LAWS,
+    UNLOADING_LAWS,
+    Expr,
+    damper_force,
+    engagement,
+    hinge,
+    never_pulling,
+    with_tail,
+)
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.problem.forms import FORMS
 from crashnlp.problem.schema import EstimateSpec, Problem
@@ -331,6 +341,20 @@ class CrashModel(ABC):
         if key not in self._functions:
             self._functions[key] = build()
         return self._functions[key]
+
+    def front_end_crush(self, crush: np.ndarray, history: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """The front end's crush, its deformation, on a grid where its `crush` output (the
+        shortening of its line of action) and history state (HISTORY) take the values `crush` and
+        `history`: that crush, or where it is smaller the permanent set the unloading law leaves
+        once its force is zero (PERMANENT_SETS: none for the elastic law) from the largest crush
+        so far, the history state's value, the set neither
+        negative nor past the largest crush the grid reached. After separation the line of
+        action's shortening keeps falling as the vehicle moves away; that gap is not crush, and
+        the front end stays at its permanent set. Its largest value is the line of action's."""
+        at_largest = np.asarray(self.loading_curve.map(history.size)(history[None, :], np.repeat(p[:, None], history.size, 1)))
+        stiffness = float(p[self.layout.index("model.unloading.stiffness")][0])
+        permanent = PERMANENT_SETS[self.structure.unloading_law](at_largest.ravel(), history, stiffness)
+        return np.maximum(crush, np.clip(permanent, 0.0, np.maximum.accumulate(crush)))
 
     # ---------------------------------------------------------------- simulation form
     @cached_property

@@ -7,8 +7,8 @@ may be smoothed, max(z, 0) ~ (z + sqrt(z^2 + eps^2)) / 2, which keeps IPOPT
 away from kinks at the breakpoints.
 
 A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
-added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS; either's name also goes
-into crashnlp.base.choices, where the schema reads it. Past the last
+added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS and one of PERMANENT_SETS;
+either's name also goes into crashnlp.base.choices, where the schema reads it. Past the last
 breakpoint a law continues its last segment, unless `with_tail` bends it into a line.
 """
 
@@ -165,3 +165,20 @@ def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffn
 
 UnloadingLaw = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr, float], tuple[Expr, Expr | None]]
 UNLOADING_LAWS: dict[str, UnloadingLaw] = {"elastic": elastic_unloading, "plastic": plastic_unloading}
+
+
+def no_set(at_largest: Expr, largest: Expr, stiffness: Expr) -> Expr:
+    """The elastic law's permanent set: none, the front end springs back along its loading curve."""
+    return 0 * largest
+
+
+def plastic_set(at_largest: Expr, largest: Expr, stiffness: Expr) -> Expr:
+    """The plastic law's permanent set: the crush where the unloading line from the largest crush
+    (whose loading force is `at_largest`) meets zero force."""
+    return largest - at_largest / stiffness
+
+
+# unloading law -> the crush it leaves once its force is zero, of (the loading force at the largest
+# crush so far, that crush, the unloading stiffness)
+PermanentSet = Callable[[Expr, Expr, Expr], Expr]
+PERMANENT_SETS: dict[str, PermanentSet] = {"elastic": no_set, "plastic": plastic_set}

@@ -12,7 +12,7 @@ from crashnlp.numerics.compiled import Evaluator, compiled
 from crashnlp.numerics.integrators import rk4
 from crashnlp.numerics.runtime import mapped
 from crashnlp.problem.schema import Simulation
-from crashnlp.results.response import Response
+from crashnlp.results.response import APPROACH, Response
 
 
 def _key(grid: np.ndarray, options: Simulation) -> tuple:
@@ -50,15 +50,15 @@ def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool 
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
     the named outputs at every step, all mapped over the parameter sets, as a
-    what-if study needs. The result has len(OUTPUTS) rows and n * (steps + 1)
-    columns, simulation k in columns k * (steps + 1) onwards. `jit` compiles one
-    simulation to C (crashnlp.numerics.compiled: about a second, once per machine)."""
+    what-if study needs. The result has len(OUTPUTS) rows and the history state's below
+    them, and n * (steps + 1) columns, simulation k in columns k * (steps + 1) onwards. `jit`
+    compiles one simulation to C (crashnlp.numerics.compiled: about a second, once per machine)."""
     x, p = ca.SX.sym("x", model.nx + len(ABSORBED)), model.p
     step = rk4(model.augmented_rhs, dt)
     outputs = ca.Function("y", [x, p], [model.outputs(x[: model.nx], p)])
     x0, pm = ca.MX.sym("x0", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
-    y = outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1))
+    y = ca.vertcat(outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1)), states[model.nx - 1, :])
     one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
     return mapped(compiled(one) if jit else one, n)
 
@@ -68,13 +68,15 @@ def simulate_batch(
 ) -> dict[str, np.ndarray]:
     """Simulate every column of P (full parameter vectors) by fixed-step RK4 of step dt.
 
-    Returns "time" and each named output as an array of shape (simulations, times)."""
+    Returns "time" and each named output as an array of shape (simulations, times), the crush
+    the front end's own and the shortening of its line of action APPROACH (`with_front_end`)."""
     n, steps = P.shape[1], int(round(duration / dt))
     X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
     batch = model.cached(("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
     (y,) = batch(x0=X0, p=P)
-    y = y.reshape(len(OUTPUTS), n, steps + 1)
-    return {"time": dt * np.arange(steps + 1), **{name: y[i] for i, name in enumerate(OUTPUTS)}}
+    y = y.reshape(len(OUTPUTS) + 1, n, steps + 1)
+    each = [with_front_end(model, {name: y[i, k] for i, name in enumerate(OUTPUTS)}, y[-1, k], P[:, k]) for k in range(n)]
+    return {"time": dt * np.arange(steps + 1), **{name: np.stack([one[name] for one in each]) for name in each[0]}}
 
 
 def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
@@ -99,10 +101,26 @@ def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
     return model.cached(("outputs", n), build)
 
 
+def with_front_end(
+    model: CrashModel, outputs: dict[str, np.ndarray], history: np.ndarray, p: np.ndarray
+) -> dict[str, np.ndarray]:
+    """A simulation's outputs (the model's, on a grid) with its crush the front end's own
+    (CrashModel.front_end_crush, from the history state's values `history`), the shortening of
+    its line of action kept as APPROACH."""
+    return {**outputs, APPROACH: outputs["crush"], "crush": model.front_end_crush(outputs["crush"], history, p)}
+
+
 def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
     """Outputs on a grid from states (rows: the model's states()[, the ABSORBED works])."""
     (y,) = _outputs_on_grid(model, states.shape[1])(x=states[: model.nx], p=p)
-    outputs = {name: y[i] for i, name in enumerate(OUTPUTS)}
+    return response_of_outputs(model, p, grid, np.asarray(y), states)
+
+
+def response_of_outputs(model: CrashModel, p: np.ndarray, grid: np.ndarray, y: np.ndarray, states: np.ndarray) -> Response:
+    """The response of the model's outputs `y` (rows: OUTPUTS) at `states` (rows: the model's
+    states()[, the ABSORBED works]) with parameters `p`: its crush the front end's own
+    (`with_front_end`), and where the states carry them the works and what they leave."""
+    outputs = with_front_end(model, {name: y[i] for i, name in enumerate(OUTPUTS)}, states[model.nx - 1], p)
     if states.shape[0] > model.nx:  # the works, and what was absorbed less what the front end still stores
         work = dict(zip(ABSORBED, states[model.nx :]))
         outputs["front_work"], outputs["front_damper_work"] = work["barrier_power"], work["front_damper_power"]

@@ -12,7 +12,7 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.case.completion import measured_pulse, repaired_start
-from crashnlp.models.form import OUTPUTS
+from crashnlp.models.simulation import response_of_outputs
 from crashnlp.models.tail import tail_start
 from crashnlp.numerics.nlp import ACCEPTABLE
 from crashnlp.optimize.fit import FitObjective, Residual, add_fit_objective
@@ -116,10 +116,11 @@ def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[Response]:
     values = [
         np.asarray(v) for v in ocp.nlp.evaluate([x for tr in ocp.transcripts for x in (tr.outputs, tr.trajectory.states)], z)
     ]
+    p = ocp.free.full(ocp.nlp.value("theta", z).ravel())
     out = []
     for k, tr in enumerate(ocp.transcripts):
         y, states = values[2 * k], values[2 * k + 1]
-        out.append(Response(tr.trajectory.times, {name: y[i] for i, name in enumerate(OUTPUTS)}, states))
+        out.append(response_of_outputs(ocp.case.model, ocp.case.test_parameters(tr.test, p), tr.trajectory.times, y, states))
     return out
 
 
