@@ -50,15 +50,16 @@ def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool 
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
     the named outputs at every step, all mapped over the parameter sets, as a
-    what-if study needs. The result has len(OUTPUTS) rows and the history state's below
-    them, and n * (steps + 1) columns, simulation k in columns k * (steps + 1) onwards. `jit`
+    what-if study needs. The result has len(OUTPUTS) rows, the history state's and the loading
+    force at it below them, and n * (steps + 1) columns, simulation k in columns k * (steps + 1) onwards. `jit`
     compiles one simulation to C (crashnlp.numerics.compiled: about a second, once per machine)."""
     x, p = ca.SX.sym("x", model.nx + len(ABSORBED)), model.p
     step = rk4(model.augmented_rhs, dt)
     outputs = ca.Function("y", [x, p], [model.outputs(x[: model.nx], p)])
     x0, pm = ca.MX.sym("x0", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
-    y = ca.vertcat(outputs.map(steps + 1)(states, ca.repmat(pm, 1, steps + 1)), states[model.nx - 1, :])
+    history, each = states[model.nx - 1, :], ca.repmat(pm, 1, steps + 1)
+    y = ca.vertcat(outputs.map(steps + 1)(states, each), history, model.loading_curve.map(steps + 1)(history, each))
     one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
     return mapped(compiled(one) if jit else one, n)
 
@@ -74,9 +75,9 @@ def simulate_batch(
     X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
     batch = model.cached(("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
     (y,) = batch(x0=X0, p=P)
-    y = y.reshape(len(OUTPUTS) + 1, n, steps + 1)
-    each = [with_front_end(model, {name: y[i, k] for i, name in enumerate(OUTPUTS)}, y[-1, k], P[:, k]) for k in range(n)]
-    return {"time": dt * np.arange(steps + 1), **{name: np.stack([one[name] for one in each]) for name in each[0]}}
+    y = y.reshape(len(OUTPUTS) + 2, n, steps + 1)
+    outputs = with_front_end(model, {name: y[i] for i, name in enumerate(OUTPUTS)}, y[-2], P, y[-1])
+    return {"time": dt * np.arange(steps + 1), **outputs}
 
 
 def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
@@ -102,12 +103,12 @@ def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
 
 
 def with_front_end(
-    model: CrashModel, outputs: dict[str, np.ndarray], history: np.ndarray, p: np.ndarray
+    model: CrashModel, outputs: dict[str, np.ndarray], history: np.ndarray, p: np.ndarray, at_largest: np.ndarray | None = None
 ) -> dict[str, np.ndarray]:
-    """A simulation's outputs (the model's, on a grid) with its crush the front end's own
-    (CrashModel.front_end_crush, from the history state's values `history`), the shortening of
-    its line of action kept as APPROACH."""
-    return {**outputs, APPROACH: outputs["crush"], "crush": model.front_end_crush(outputs["crush"], history, p)}
+    """A simulation's outputs (the model's, on a grid; or n simulations', n x times, with `p`
+    parameters x n) with its crush the front end's own (CrashModel.front_end_crush, from the
+    history state's values `history`), the shortening of its line of action kept as APPROACH."""
+    return {**outputs, APPROACH: outputs["crush"], "crush": model.front_end_crush(outputs["crush"], history, p, at_largest)}
 
 
 def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
