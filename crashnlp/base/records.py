@@ -677,27 +677,53 @@ SCALARS: dict[Any, Callable[[Any, tuple, _Errors], Any]] = {float: _float, int: 
 JSON_TYPES = {float: "number", int: "integer", bool: "boolean", str: "string", type(None): "null"}
 
 
+JSON_LIMITS = {"ge": "minimum", "gt": "exclusiveMinimum", "le": "maximum", "lt": "exclusiveMaximum"}
+
+
 def _record_schema(cls: type[Record], defs: dict[str, Any]) -> dict[str, Any]:
+    import inspect  # a docstring's indentation taken off as pydantic's schema did; only when a schema is asked for
+
     properties, required = {}, []
     for name, info in cls.model_fields.items():
-        node = {**_schema(info.annotation, info.metadata, defs), "title": name.replace("_", " ").title()}
-        if info.description:
-            node["description"] = info.description
+        properties[name] = _field_schema(name, info, defs)
         if info.is_required():
             required.append(name)
-        elif info.default_factory is None:
-            node["default"] = _dump(info.default, "json", False, False)
-        node.update(
-            {key: bound for key, bound in info.limits.items()} | ({"minItems": info.min_length} if info.min_length else {})
-        )
-        properties[name] = node
     out: dict[str, Any] = {"additionalProperties": False, "properties": properties}
     if required:
         out["required"] = required
     out |= {"title": cls.__name__, "type": "object"}
     if cls.__doc__:
-        out["description"] = cls.__doc__.strip()
-    return out
+        out["description"] = inspect.cleandoc(cls.__doc__)
+    return dict(sorted(out.items()))
+
+
+def _field_schema(name: str, info: FieldInfo, defs: dict[str, Any]) -> dict[str, Any]:
+    """A field's JSON Schema: its type's, its limits (on the form that is not None), title, default and description."""
+    node = _schema(info.annotation, info.metadata, defs)
+    if info.discriminator is not None:
+        forms = [get_args(f.model_fields[info.discriminator].annotation)[0] for f in get_args(info.annotation)]
+        mapping = {tag: ref["$ref"] for tag, ref in zip(forms, node["anyOf"])}
+        node = {
+            "discriminator": {"mapping": dict(sorted(mapping.items())), "propertyName": info.discriminator},
+            "oneOf": node["anyOf"],
+        }
+    forms = node.get("anyOf", [node])
+    limited = next((f for f in forms if f.get("type") != "null"), node)
+    limits = {JSON_LIMITS[key]: bound for key, bound in info.limits.items()}
+    if info.min_length:
+        limits["minItems" if limited.get("type") == "array" else "minProperties"] = info.min_length
+    if limited is node:
+        node = {**node, **limits}
+    else:
+        forms[forms.index(limited)] = dict(sorted({**limited, **limits}.items()))
+    refs = [f for f in forms if f.get("type") != "null"]
+    if not (len(refs) == 1 and "$ref" in refs[0]):  # a section's own title stands for it
+        node["title"] = name.replace("_", " ").title()
+    if info.description:
+        node["description"] = info.description
+    if not info.is_required() and info.default_factory is None:
+        node["default"] = _dump(info.default, "json", False, False)
+    return dict(sorted(node.items()))
 
 
 def _schema(tp: Any, metadata: list[Any], defs: dict[str, Any]) -> dict[str, Any]:
@@ -712,11 +738,14 @@ def _schema(tp: Any, metadata: list[Any], defs: dict[str, Any]) -> dict[str, Any
         inner, more = _split(tp)
         return _schema(inner, more, defs)
     if origin in (Union, types.UnionType):
-        return {"anyOf": [_schema(a, [], defs) for a in get_args(tp)]}
+        forms = [_schema(a, [], defs) for a in get_args(tp)]
+        flat = [f for form in forms for f in (form["anyOf"] if list(form) == ["anyOf"] else [form])]
+        return {"oneOf" if any(isinstance(m, Discriminator) for m in metadata) else "anyOf": flat}
     if origin is Literal:
         values = list(get_args(tp))
         kinds = {JSON_TYPES.get(type(v)) for v in values}
-        return {"enum": values, **({"type": kinds.pop()} if len(kinds) == 1 else {})}
+        kind = {"type": kinds.pop()} if len(kinds) == 1 else {}
+        return {"const": values[0], **kind} if len(values) == 1 else {"enum": values, **kind}
     if origin is list:
         return {"items": _schema(get_args(tp)[0], [], defs), "type": "array"}
     if origin is tuple:
@@ -728,7 +757,9 @@ def _schema(tp: Any, metadata: list[Any], defs: dict[str, Any]) -> dict[str, Any
             "type": "array",
         }
     if origin is dict:
-        return {"additionalProperties": _schema(get_args(tp)[1], [], defs), "type": "object"}
+        key, value = get_args(tp)
+        names = {"propertyNames": {"enum": list(get_args(key))}} if get_origin(key) is Literal else {}
+        return {"additionalProperties": True if value is Any else _schema(value, [], defs), **names, "type": "object"}
     if isinstance(tp, type) and issubclass(tp, Record):
         if tp.__name__ not in defs:
             defs[tp.__name__] = {}
