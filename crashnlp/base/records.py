@@ -230,6 +230,8 @@ class Record:
         validators: dict[str, list[_Validator]] = {k: list(v) for k, v in cls._field_validators.items()}
         before, after = list(cls._model_before), list(cls._model_after)
         for name, annotation in vars(cls).get("__annotations__", {}).items():
+            if isinstance(annotation, str):  # `from __future__ import annotations` in the record's module
+                raise TypeError(f"{cls.__name__}.{name}: a record's annotations are read as objects, not strings")
             if get_origin(annotation) is ClassVar:
                 continue
             value = vars(cls).get(name, REQUIRED)
@@ -445,7 +447,8 @@ def _value(
         value = _typed(tp, value, loc, errors, context)
     if value is INVALID:
         return INVALID
-    if info is not None and not _within(info, value, loc, errors):
+    declared = [m for m in (info, *metadata) if isinstance(m, FieldInfo)]  # a field's, and an Annotated Field's
+    if not all(_within(d, value, loc, errors) for d in declared):
         return INVALID
     try:
         for m in metadata:

@@ -6,13 +6,11 @@ the problem schema has, so a typo fails at once with one line instead of making
 every case fail.
 """
 
-from __future__ import annotations
-
 import copy
 import types
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union, get_args, get_origin
+from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 
 from crashnlp.base.errors import InputError
 from crashnlp.base.records import Field, Record, ValidationError, model_validator
@@ -44,7 +42,7 @@ class StudySpec(Record):
     )
 
     @model_validator(mode="after")
-    def _seeds_or_depth(self) -> StudySpec:
+    def _seeds_or_depth(self) -> Self:
         if self.seeds is not None and self.max_depth is not None:
             raise ValueError("give seeds or max_depth, not both")
         return self
