@@ -202,11 +202,6 @@ class ValidationInfo:
         self.data = data
 
 
-def ConfigDict(**settings: Any) -> dict[str, Any]:  # noqa: N802  # pydantic's spelling, for the callers' reading
-    """A record's settings: `extra="forbid"`, `frozen=True`, `allow_inf_nan=False` are the only ones, and always on."""
-    return settings
-
-
 # --------------------------------------------------------------------------- records
 def _split(annotation: Any) -> tuple[Any, list[Any]]:
     """(type, metadata) of a field's annotation: Annotated's metadata apart, its Field merged in."""
@@ -216,9 +211,8 @@ def _split(annotation: Any) -> tuple[Any, list[Any]]:
 
 
 class Record:
-    """A section of a file: unknown keys refused, frozen once validated."""
+    """A section of a file: unknown keys refused, no number that is not finite, frozen once validated."""
 
-    model_config: ClassVar[dict[str, Any]] = {}
     model_fields: ClassVar[dict[str, FieldInfo]] = {}
     _field_validators: ClassVar[dict[str, list[_Validator]]] = {}
     _model_before: ClassVar[list[_Validator]] = []

@@ -26,7 +26,6 @@ from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
 from crashnlp.base.records import (
     AfterValidator,
     BeforeValidator,
-    ConfigDict,
     Conversion,
     CustomError,
     Discriminator,
@@ -182,8 +181,6 @@ Bound = tuple[SIValue | None, SIValue | None]
 
 class Strict(Record):
     """A section of a problem: unknown keys refused, and frozen once validated."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
