@@ -400,21 +400,23 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
 def _field(
     cls: type[Record], name: str, info: FieldInfo, value: Any, loc: tuple, errors: _Errors, context: Any, data: dict
 ) -> Any:
+    """A field's value: its before validators, its type, its after validators; INVALID at the first that fails."""
     validators = cls._field_validators.get(name, ())
     vinfo = ValidationInfo(context, data)
-    try:
-        for v in validators:
-            if v.mode == "before":
-                value = v(cls, value, vinfo)
-    except (ValueError, AssertionError) as exc:
-        return errors.raised(loc, exc, value)
+    value = _run(cls, [v for v in validators if v.mode == "before"], value, vinfo, loc, errors)
+    if value is INVALID:
+        return INVALID
     value = _value(info.annotation, info.metadata, value, loc, errors, context, info)
     if value is INVALID:
         return INVALID
+    return _run(cls, [v for v in validators if v.mode == "after"], value, vinfo, loc, errors)
+
+
+def _run(cls: type[Record], validators: list[_Validator], value: Any, info: ValidationInfo, loc: tuple, errors: _Errors) -> Any:
+    """`value` through field validators in turn, or INVALID with the error the first raised."""
     try:
         for v in validators:
-            if v.mode == "after":
-                value = v(cls, value, vinfo)
+            value = v(cls, value, info)
     except (ValueError, AssertionError) as exc:
         return errors.raised(loc, exc, value)
     return value
