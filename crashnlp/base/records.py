@@ -475,7 +475,10 @@ def _within(info: FieldInfo, value: Any, loc: tuple, errors: _Errors) -> bool:
         for key, bound in info.limits.items():
             kind, words, holds = LIMITS[key]
             if not holds(value, bound):
-                errors.add(loc, kind, f"Input should be {words} {bound}", value)
+                shown = (
+                    int(bound) if isinstance(bound, float) and bound.is_integer() else bound
+                )  # 0.0 as 0, as pydantic-core says
+                errors.add(loc, kind, f"Input should be {words} {shown}", value)
                 return False
     return True
 
