@@ -31,11 +31,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 import yaml
-from pydantic import ValidationError
 
 from crashnlp.analysis.metrics import STOPPED, zero_crossing
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError
+from crashnlp.base.records import ValidationError
 from crashnlp.base.units import unit_scale
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data

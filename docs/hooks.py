@@ -1,10 +1,10 @@
 """mkdocs hooks of the crashnlp site (mkdocs.yml `hooks:`).
 
 - The problem-file reference (`reference/problem-file.md`) gets its table at each build, from the
-  JSON Schema of problem files (what `crashnlp schema` prints: the pydantic schema of the top-level
+  JSON Schema of problem files (what `crashnlp schema` prints: the schema of the top-level
   `crashnlp.problem.Problem`): every key by dotted path, its type, SI unit, default and
   description. Only the JSON Schema is read, never the schema module's class names, so the page
-  follows any refactoring of the pydantic models.
+  follows any refactoring of the schema's records.
 - The numbers a page quotes from the shipped runs (console blocks, a fit's crush and stop time)
   are those of results/docs-numbers.json, which `make docs-numbers` writes
   (scripts/docs_numbers.py): a page whose marked block or number differs from the file, or that
@@ -97,7 +97,7 @@ def _page(path: Path) -> str:
 
 # --------------------------------------------------------------------------- problem-file reference
 def file_schema() -> dict:
-    """The JSON Schema of problem files: what `crashnlp schema` prints, else the pydantic schema of
+    """The JSON Schema of problem files: what `crashnlp schema` prints, else the schema of
     `crashnlp.problem.Problem` it is made from."""
     command = Path(sys.executable).with_name("crashnlp")
     if command.exists():

@@ -779,7 +779,7 @@ def definitions() -> frozenset[float]:
     return frozenset(values)
 
 
-BOUNDS = ("default", "ge", "gt", "le", "lt")  # pydantic Field's default and limits
+BOUNDS = ("default", "ge", "gt", "le", "lt")  # a schema Field's default and limits (crashnlp.base.records)
 
 
 def constants(tree: ast.Module) -> Iterator[float]:

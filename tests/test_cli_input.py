@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 import yaml
 from builders import BASE, ROOT, merge
-from pydantic import BaseModel
 
 from crashnlp.analysis.summary import UNFINISHED
+from crashnlp.base.records import Record
 from crashnlp.cli import main
 from crashnlp.results.files import RECORD, claim, deriving
 from crashnlp.results.jsonfile import write_json
@@ -368,7 +368,7 @@ def _forms(annotation) -> list:
     return [] if annotation is type(None) else [annotation]
 
 
-def _union_keys(model: type[BaseModel], seen: set) -> set[str]:
+def _union_keys(model: type[Record], seen: set) -> set[str]:
     """The keys of a model and the models inside it whose type allows more than one form."""
     keys = set()
     for name, info in model.model_fields.items():
@@ -376,7 +376,7 @@ def _union_keys(model: type[BaseModel], seen: set) -> set[str]:
         keys |= {name} if len(forms) > 1 and not all(get_origin(f) is Literal for f in forms) else set()
         inner = [a for f in forms for a in (f, *get_args(f)) for a in _forms(a)]
         for sub in inner:
-            if isinstance(sub, type) and issubclass(sub, BaseModel) and sub not in seen:
+            if isinstance(sub, type) and issubclass(sub, Record) and sub not in seen:
                 seen.add(sub)
                 keys |= _union_keys(sub, seen)
     return keys
@@ -386,8 +386,8 @@ def test_every_key_of_several_forms_says_them_in_words():
     from crashnlp.problem.errors import UNION_FORMS
     from crashnlp.problem.schema import Problem
 
-    named_by_pydantic = {"transcription"}  # its `method` picks the form, and pydantic names the methods
-    assert _union_keys(Problem, set()) - named_by_pydantic == set(UNION_FORMS)
+    named_by_tag = {"transcription"}  # its `method` picks the form, and the error names the methods
+    assert _union_keys(Problem, set()) - named_by_tag == set(UNION_FORMS)
 
 
 def test_a_blank_cell_names_its_column_and_line(tmp_path, capsys):

@@ -3,7 +3,7 @@ schema, and the implementations above it, keyed by these names.
 
 The schema takes its choices from these without importing the layers that implement
 them (CasADi's, the readers'), and the command line its `--format` choices without importing
-the schema (pydantic); hence the lowest layer. tests/test_registries.py holds each implementation registry to
+the schema (crashnlp.problem.schema); hence the lowest layer. tests/test_registries.py holds each implementation registry to
 its names. Adding a law or a data format is its implementation, its entry in the implementation
 registry, and its name here. The model forms' registry is crashnlp.problem.forms; a transcription's
 name is its spec class's `method` in the schema (each has fields of its own), held to

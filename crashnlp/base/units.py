@@ -7,18 +7,18 @@ and a thousands separator cannot be told apart.
 
 pint converts. Building its registry costs a quarter of a second in every process,
 more than the rest of reading a problem, so each conversion pint has made is
-remembered in the crashnlp cache (units-<pint version>.json: text and target unit
+remembered in the crashnlp cache (units-pint-<version>.json: text and target unit
 -> SI value), and pint is loaded only for a text it has not converted before. The
 remembered value is pint's own, to the last bit; failures are never remembered.
 """
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import re
 from contextlib import suppress
 from functools import cache
-from importlib.metadata import version
 from pathlib import Path
 from typing import Any
 
@@ -101,7 +101,22 @@ def _convert(value: str, text: str, unit: str) -> float:
 
 
 def _table() -> Path:
-    return cache_dir() / f"units-pint-{version('pint')}.json"
+    return cache_dir() / f"units-pint-{pint_version()}.json"
+
+
+@cache
+def pint_version() -> str:
+    """The installed pint's version, from the name of its dist-info folder beside the package
+    (pint-0.25.3.dist-info): importlib.metadata's import alone costs more than reading a problem.
+    Where that folder is not there to read (pint installed otherwise), importlib.metadata's."""
+    spec = importlib.util.find_spec("pint")
+    if spec is not None and spec.origin is not None:
+        found = sorted(Path(spec.origin).parent.parent.glob("pint-*.dist-info"))
+        if len(found) == 1:
+            return found[0].name.removeprefix("pint-").removesuffix(".dist-info")
+    from importlib.metadata import version
+
+    return version("pint")
 
 
 @cache

@@ -10,18 +10,18 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-from pydantic import BaseModel
 
+from crashnlp.base.records import Record
 from crashnlp.problem.schema import Problem, Strict
 
 ROOTS = ("vehicle", "model")
 
 
-def _walk(node: BaseModel, prefix: str):
+def _walk(node: Record, prefix: str):
     for name in type(node).model_fields:
         value = getattr(node, name)
         path = f"{prefix}.{name}"
-        if isinstance(value, BaseModel):
+        if isinstance(value, Record):
             yield from _walk(value, path)
         elif isinstance(node, Strict) and node.unit_of(name) is not None and value is not None:
             if isinstance(value, list) or isinstance(value, (int, float)) and not isinstance(value, bool):

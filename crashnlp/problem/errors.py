@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import ValidationError
-
 from crashnlp.base.errors import InputError
+from crashnlp.base.records import ValidationError
 
 # What a key of several forms (a union in crashnlp.problem.schema) accepts, in plain words: said in
-# place of pydantic's error per form, which names the forms by their types.
+# place of the error per form, which names the forms by their types.
 UNION_FORMS = {
     "crush_breakpoints": "a list of crush values, or {count: N} with N from 2 to 30",
     "tail": "trend, segment, or {start: a crush, slope: a stiffness}",
@@ -17,7 +16,7 @@ UNION_FORMS = {
     "column": "a column's name, or its number counted from 1",
     "initial": "a number, or a list of numbers",
 }
-# pydantic error types that say a value is not of a form at all (rather than wrong inside it)
+# error types (crashnlp.base.records) that say a value is not of a form at all (rather than wrong inside it)
 NOT_THIS_FORM = frozenset(
     {"list_type", "dict_type", "model_type", "model_attributes_type", "literal_error", "string_type", "int_type"}
     | {"int_from_float", "int_parsing", "float_type", "float_parsing", "tuple_type", "union_tag_invalid"}
@@ -29,14 +28,14 @@ class ProblemError(InputError):
 
 
 # keys whose value is a union tagged by one of its fields (crashnlp.problem.schema: the
-# transcription by its `method`): pydantic puts the tag into an error's location after the key,
+# transcription by its `method`): validation puts the tag into an error's location after the key,
 # where the file has none ("transcription.multiple-shooting.intervals")
 TAGGED = frozenset({"transcription"})
 
 
 def _loc(loc: tuple[int | str, ...]) -> str:
-    """An error's location as the file's keys, dotted: without pydantic's validator steps and tags."""
-    parts = [p for p in loc if p not in ("function-after", "function-before")]
+    """An error's location as the file's keys, dotted: without the tags of tagged unions."""
+    parts = list(loc)
     return ".".join(str(p) for i, p in enumerate(parts) if i == 0 or parts[i - 1] not in TAGGED)
 
 

@@ -9,9 +9,8 @@ values by the law, a channel's sigma by the channel, bounds by what they bound) 
 markers also let `estimate` and `sweep` entries name fields by dotted path and give bounds
 with units. A validated problem is frozen: `Problem.with_values` makes a changed copy.
 
-The annotations are objects, not strings (no `from __future__ import annotations`): pydantic
-would evaluate each field's string as its class is built, 3 to 4 ms of the import
-(docs/design-notes.md, "The problem schema's cost").
+The sections are records of crashnlp.base.records, which reads their annotations as the classes
+are defined: objects, not strings (no `from __future__ import annotations`).
 """
 
 import copy
@@ -20,17 +19,19 @@ import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, Self, TypeVar, cast, get_args
+from typing import Annotated, Any, Literal, Self, TypeVar, get_args
 
-from pydantic import (
+from crashnlp.base.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
+from crashnlp.base.records import (
     AfterValidator,
-    BaseModel,
     BeforeValidator,
-    ConfigDict,
+    Conversion,
+    CustomError,
     Discriminator,
     Field,
-    GetCoreSchemaHandler,
-    GetJsonSchemaHandler,
+    InitErrorDetails,
+    Record,
     Tag,
     ValidationError,
     ValidationInfo,
@@ -38,18 +39,13 @@ from pydantic import (
     field_validator,
     model_validator,
 )
-from pydantic.json_schema import JsonSchemaValue
-from pydantic_core import CoreSchema, InitErrorDetails, PydanticCustomError, core_schema
-
-from crashnlp.base.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
-from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
 from crashnlp.base.units import UnitError, to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
 
 QuantityIn = float | str  # what a file may give for a quantity: a number (SI) or a string with units
-QUANTITY_IN_SCHEMA: JsonSchemaValue = {"anyOf": [{"type": "number"}, {"type": "string"}]}
+QUANTITY_IN_SCHEMA: dict[str, Any] = {"anyOf": [{"type": "number"}, {"type": "string"}]}
 LARGEST = 1e12  # no quantity of this model comes near it in SI; beyond it is a typo or an attack
 
 
@@ -152,16 +148,16 @@ def what_if(speed: QuantityIn | None, mass: QuantityIn | None, prefix: str = "")
 
 
 @dataclass(frozen=True)
-class Unit:
+class Unit(Conversion):
     """Marks a float field as a physical quantity in SI `si`: the file gives a `QuantityIn`,
     which validation converts (`si`), and the field holds the SI float."""
 
     si: str
 
-    def __get_pydantic_core_schema__(self, source: Any, handler: GetCoreSchemaHandler) -> CoreSchema:
-        return core_schema.no_info_before_validator_function(lambda v: si(v, self.si), handler(source))
+    def before(self, value: Any) -> float:
+        return si(value, self.si)
 
-    def __get_pydantic_json_schema__(self, schema: CoreSchema, handler: GetJsonSchemaHandler) -> JsonSchemaValue:
+    def json_schema(self) -> dict[str, Any]:
         return {**QUANTITY_IN_SCHEMA, "description": f"SI unit {self.si}"}
 
 
@@ -183,10 +179,8 @@ SIValue = Annotated[float, WithJsonSchema(QUANTITY_IN_SCHEMA)]  # a float in SI;
 Bound = tuple[SIValue | None, SIValue | None]
 
 
-class Strict(BaseModel):
+class Strict(Record):
     """A section of a problem: unknown keys refused, and frozen once validated."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
@@ -196,18 +190,6 @@ class Strict(BaseModel):
         if any(isinstance(m, Structural) for m in info.metadata):
             return None
         return _find_unit([info.annotation, *info.metadata])
-
-
-def _no_entries() -> dict[Any, Any]:
-    """A fresh empty mapping: a section's default. A function of Python rather than `dict` or `list`:
-    pydantic reads a default factory's signature as the class is built, and a builtin's it parses
-    from text with tokenize, whose first use compiles its patterns (2 ms of the import)."""
-    return {}
-
-
-def _no_items() -> list[Any]:
-    """A fresh empty list: a section's default (a function of Python, as `_no_entries` says why)."""
-    return []
 
 
 _S = TypeVar("_S", bound=Strict)
@@ -224,8 +206,7 @@ def _filled_in(value: _T | None, path: str) -> _T:
 def with_fields(section: _S, **values: Any) -> _S:
     """A copy of a validated section with fields replaced, that leaves what the file gave
     (`model_fields_set`) as it was: a section filled in from the data is not given by the file."""
-    copied = type(section).model_construct(_fields_set=set(section.model_fields_set), **{**dict(section), **values})
-    return cast(_S, copied)  # model_construct of type(section) builds a type(section); the mypy plugin types it as Strict
+    return type(section).model_construct(_fields_set=section.model_fields_set, **{**dict(section), **values})
 
 
 def _find_unit(items: list[Any]) -> str | None:
@@ -467,9 +448,10 @@ SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summ
 
 
 def _not_bool(v: Any) -> Any:
-    """Refuse true and false where a number counts: pydantic would read them as 1 and 0."""
+    """Refuse true and false where a number counts: the lax conversion of an int (crashnlp.base.records)
+    would read them as 1 and 0."""
     if isinstance(v, bool):
-        raise PydanticCustomError("int_type", "Input should be a number, not true or false")
+        raise CustomError("int_type", "Input should be a number, not true or false")
     return v
 
 
@@ -629,7 +611,7 @@ def _bound_in_si(bound: Any, unit: str | None) -> Any:
 class Constraints(Strict):
     monotone_crush: bool = Field(False, description="crush does not decrease until its maximum")
     monotone_spring: bool = Field(False, description="spring values non-decreasing")
-    bounds: dict[OutputName, Bound] = Field(default_factory=_no_entries)
+    bounds: dict[OutputName, Bound] = Field(default_factory=dict)
 
     @model_validator(mode="before")
     @classmethod
@@ -674,7 +656,7 @@ TranscriptionSpec = Annotated[MultipleShootingSpec | CollocationSpec, Field(disc
 
 
 class Solver(Strict):
-    ipopt: dict[str, Any] = Field(default_factory=_no_entries, description="options passed to IPOPT")
+    ipopt: dict[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
@@ -690,7 +672,7 @@ class Solver(Strict):
     def _ipopt(cls, v: dict[str, Any]) -> dict[str, Any]:
         """Refuse what IPOPT would refuse, each error at its key (solver.ipopt.max_itr)."""
         errors = [
-            InitErrorDetails(type=PydanticCustomError("ipopt_option", "{why}", {"why": why}), loc=(name,), input=v[name])
+            InitErrorDetails(type=CustomError("ipopt_option", "{why}", {"why": why}), loc=(name,), input=v[name])
             for name, why in check_ipopt(v).items()
         ]
         if errors:
@@ -702,7 +684,7 @@ class Uncertainty(Strict):
     """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
 
     profile: list[str] = Field(
-        default_factory=_no_items,
+        default_factory=list,
         description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]",
     )
     points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
@@ -760,7 +742,7 @@ class Problem(Strict):
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
-    estimate: dict[str, EstimateSpec] = Field(default_factory=_no_entries)  # last: it takes the units of the entries it names
+    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
 
     @field_validator("estimate", mode="before")
     @classmethod
@@ -778,7 +760,7 @@ class Problem(Strict):
                 try:
                     converted[path] = _estimate_in_si(spec, _unit_at(info.data, path))
                 except ValueError as exc:
-                    why = PydanticCustomError("estimate", "{why}", {"why": str(exc)})
+                    why = CustomError("estimate", "{why}", {"why": str(exc)})
                     errors.append(InitErrorDetails(type=why, loc=(path,), input=spec))
         if errors:
             raise ValidationError.from_exception_data("estimate", errors)
@@ -813,7 +795,7 @@ class Problem(Strict):
         """The value of an entry named by dotted path, or None when the problem has none there."""
         node: Any = self
         for key in path.split("."):
-            node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+            node = getattr(node, key, None) if isinstance(node, Record) else None
         return node
 
     def speed(self, test: Test) -> float | None:
@@ -856,7 +838,7 @@ def _unit_at(sections: Mapping[str, Any], path: str) -> str | None:
     *parents, leaf = rest.split(".")
     node: Any = sections.get(first)
     for key in parents:
-        node = getattr(node, key, None) if isinstance(node, BaseModel) else None
+        node = getattr(node, key, None) if isinstance(node, Record) else None
     return node.unit_of(leaf) if isinstance(node, Strict) else None
 
 

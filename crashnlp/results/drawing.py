@@ -2,7 +2,7 @@
 
 matplotlib takes about a third of a second to import, as long as the solve of a
 shipped problem, and drawing the figures of an identification as long again. A
-process forked as the command starts (before CasADi, pydantic and the problem)
+process forked as the command starts (before CasADi and the problem)
 imports matplotlib alone on the other core while this one reads the problem and
 solves (or simulates). Once the result files are written this one sends it the
 figures as plain data (crashnlp.results.result.figure_jobs), and it draws them on every core, in processes

@@ -9,7 +9,7 @@ problem of the same vehicle (a new speed, mass or duration), so that a predictio
 more than the fit's result and a problem that names what is new.
 
 The dataclasses need numpy only, as a Result read back does (crashnlp.results); the functions
-that make problems import the problem schema (pydantic) when they are called.
+that make problems import the problem schema when they are called.
 """
 
 from __future__ import annotations
@@ -165,7 +165,7 @@ class IdentifiedModel:
     def as_problem(self, name: str) -> Problem:
         """The identified vehicle as a problem of one data-free test at its speed: what reads the
         model without its data (the units of its entries, its model's functions) takes this."""
-        from crashnlp.problem.schema import problem_from_dict  # pydantic: not for a result read back
+        from crashnlp.problem.schema import problem_from_dict  # the schema: not for a result read back
 
         raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
         return problem_from_dict(raw, Path("."), name)

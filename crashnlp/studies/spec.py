@@ -6,17 +6,14 @@ the problem schema has, so a typo fails at once with one line instead of making
 every case fail.
 """
 
-from __future__ import annotations
-
 import copy
 import types
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Annotated, Any, Literal, Union, get_args, get_origin
-
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.records import Field, Record, ValidationError, model_validator
 from crashnlp.base.units import to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.load import read_yaml
@@ -25,10 +22,8 @@ from crashnlp.problem.schema import OUTPUT_UNITS, FolderName, Problem, problem_f
 Key = str | int
 
 
-class StudySpec(BaseModel):
+class StudySpec(Record):
     """What a study file may say."""
-
-    model_config = ConfigDict(extra="forbid")
 
     name: FolderName
     problem: Path = Field(description="base problem file, relative to the study file")
@@ -47,7 +42,7 @@ class StudySpec(BaseModel):
     )
 
     @model_validator(mode="after")
-    def _seeds_or_depth(self) -> StudySpec:
+    def _seeds_or_depth(self) -> Self:
         if self.seeds is not None and self.max_depth is not None:
             raise ValueError("give seeds or max_depth, not both")
         return self
@@ -197,7 +192,7 @@ def _child(tp: Any, key: str) -> Any:
     if origin in (Union, types.UnionType):
         found = [c for c in (_child(_unwrap(a), key) for a in get_args(tp)) if c is not None]
         return found[0] if found else None
-    if isinstance(tp, type) and issubclass(tp, BaseModel):
+    if isinstance(tp, type) and issubclass(tp, Record):
         info = tp.model_fields.get(key)
         return None if info is None or info.exclude else info.annotation
     if origin is dict:
