@@ -128,6 +128,17 @@ def test_every_error_of_a_file_is_said_in_one_line_at_its_key(changes, expected)
     assert str(err.value) == f"problem: {expected}"
 
 
+@pytest.mark.parametrize(("given", "got"), [(None, "nothing"), ([1, 2], "a list"), ("fast", "a text")])
+def test_a_section_given_as_something_else_says_what_it_got_in_a_file_s_words(given, got):
+    """`simulation:` left empty, or given a list or a text: the key, what belongs there and what
+    came, not a Python class's name."""
+    raw = pickup()
+    raw["simulation"] = given
+    with pytest.raises(ProblemError) as err:
+        problem_from_dict(raw, PICKUP.parent)
+    assert str(err.value) == f"problem: simulation: Input should be a section of keys (key: value), got {got}"
+
+
 def test_a_lax_value_is_read_as_its_type():
     """A whole number given as text or as a float, and yes/no for a switch, read as their types."""
     problem = problem_from_dict(

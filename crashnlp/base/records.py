@@ -342,6 +342,15 @@ def _dump(value: Any, mode: str, exclude_none: bool, exclude_unset: bool) -> Any
 
 
 # --------------------------------------------------------------------------- validation
+def _kind(value: Any) -> str:
+    """What a file gave where a section of keys belongs, in a file's words (not a Python class's)."""
+    if value is None:
+        return "nothing"
+    if isinstance(value, bool):
+        return "true or false"
+    return {list: "a list", str: "a text", int: "a number", float: "a number"}.get(type(value), type(value).__name__)
+
+
 def _validate_model(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: Any) -> Any:
     """A record of `cls` from `data` (a record of it as it is), its errors recorded."""
     if isinstance(data, cls):
@@ -369,7 +378,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
         except (ValueError, AssertionError) as exc:
             return errors.raised(loc, exc, data)
     if not isinstance(data, dict):
-        return errors.add(loc, "model_type", f"Input should be a valid dictionary or instance of {cls.__name__}", data)
+        return errors.add(loc, "model_type", f"Input should be a section of keys (key: value), got {_kind(data)}", data)
     n_before = len(errors.items)
     values: dict[str, Any] = {}
     for name, info in cls.model_fields.items():
