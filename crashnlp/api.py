@@ -141,9 +141,10 @@ def simulate(
 
 
 def _result(path: str | Path) -> Result:
-    """The fit of a result.json, or of its folder."""
-    folder = Path(path)
-    return Result.load(folder if folder.is_dir() else folder.parent)
+    """The fit of a result.json, or of its folder (crashnlp.results.result.fit_folder)."""
+    from crashnlp.results.result import fit_folder
+
+    return Result.load(fit_folder(path))
 
 
 def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] = COMPARED) -> Comparison:

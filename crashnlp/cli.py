@@ -41,7 +41,9 @@ def _out(args, name: str) -> Path:
 
 def _read_params(path: str) -> dict:
     """The content of a result.json (or of a fit's folder's): a mapping with a 'parameters' mapping."""
-    p = Path(path) / "result.json" if Path(path).is_dir() else Path(path)
+    from crashnlp.results.result import result_file
+
+    p = result_file(path)
     try:
         raw = current_names(json.loads(p.read_text(encoding="utf-8")))  # a result written before a rename too
         params = raw["parameters"]
@@ -148,10 +150,12 @@ def cmd_simulate(args) -> int:
 
 def _fit_folder(source: dict) -> Path | None:
     """The folder of the result.json a simulation took its parameters from (None: none)."""
+    from crashnlp.results.result import result_file
+
     path = (source.get("result") or {}).get("path")
     if path is None:
         return None
-    return Path(path) if Path(path).is_dir() else Path(path).parent
+    return result_file(path).parent
 
 
 def _print_prediction(test) -> None:
@@ -182,15 +186,14 @@ def _result_alone(path: str, params: str | None):
     """(problem, identified model) of a result.json given in place of a problem: its own tests
     with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
     from crashnlp.analysis.prediction import own_tests
-    from crashnlp.results.result import Result
+    from crashnlp.results.result import Result, fit_folder
 
     if params is not None:
         raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
     _read_params(path)  # one line for a file that is not a result.json
-    if Path(path).name != "result.json":
-        raise InputError(f"{path}: a result is simulated from its folder, as RESULT_DIR/result.json")
+    folder = fit_folder(path)
     try:
-        result = Result.load(Path(path).parent)
+        result = Result.load(folder)
     except (OSError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{path}: not a result folder crashnlp wrote ({exc})") from None
     return own_tests(result, path), result.identified
@@ -204,12 +207,13 @@ def _simulation(args):
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
+    from crashnlp.results.result import RESULT_FILE
     from crashnlp.results.source import simulation_source
 
     dt = None if args.dt is None else _quantity_option("--dt", args.dt, "s")
     check_steps(None, dt, "--dt")
     speed, mass = what_if(args.speed, args.mass, prefix="--")
-    folder = Path(args.problem) / "result.json"
+    folder = Path(args.problem) / RESULT_FILE
     if Path(args.problem).is_dir() and not folder.is_file():
         raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
     fit = args.params

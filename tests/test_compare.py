@@ -141,3 +141,21 @@ def test_bad_folders_are_one_line_exit_2_and_nothing_written(folders, tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_the_api_takes_a_fit_from_its_result_json_and_refuses_a_file_it_would_not_read(folders, tmp_path):
+    """`crashnlp.simulate(params=...)`: a fit's result.json or its folder, and its source's sha256 is
+    that file's; a file of another name is refused, as the command refuses it, where the API read
+    the folder's result.json while its source named and hashed the other file."""
+    import crashnlp
+    from crashnlp.base.errors import InputError
+    from crashnlp.results.files import file_sha256
+
+    fit = shutil.copytree(folders["fit"], tmp_path / "fit")
+    problem = ROOT / "problems/pickup-40kph.yaml"
+    for given in (fit, fit / "result.json"):
+        test = next(iter(crashnlp.simulate(problem, params=given).values()))
+        assert test.source["result"]["sha256"] == file_sha256(fit / "result.json")
+    shutil.copy(fit / "result.json", fit / "other.json")
+    with pytest.raises(InputError, match="RESULT_DIR/result.json"):
+        crashnlp.simulate(problem, params=fit / "other.json")

@@ -4,7 +4,7 @@ A `Record` subclass declares its fields as annotated class attributes, as pydant
 and takes the part of pydantic's API the schemas use (`Field`, `field_validator`,
 `model_validator`, `Annotated` validators, tagged unions, `model_validate`, `model_copy`,
 `model_dump`, `model_fields_set`, `model_json_schema`), with pydantic's lax conversions and its
-error types, locations and messages: a file's errors read as they did. It is plain Python, read
+error types and messages, each at the file's key: a file's errors read as they did. It is plain Python, read
 as a class is defined: pydantic's import and the building of its validators were most of a
 warm command's time beyond numpy and CasADi (docs/design-notes.md, "The problem schema's cost").
 
@@ -35,26 +35,19 @@ class ValidationError(ValueError):
     def errors(self) -> list[dict[str, Any]]:
         return self._errors
 
-    @classmethod
-    def from_exception_data(cls, title: str, errors: list[dict[str, Any]]) -> ValidationError:
-        """From errors as `InitErrorDetails` gives them (their `type` a `CustomError`)."""
-        return cls(
-            title, [{"type": e["type"].type, "loc": e["loc"], "msg": e["type"].message, "input": e["input"]} for e in errors]
-        )
-
 
 class CustomError(ValueError):
-    """An error of a given type and message (pydantic's PydanticCustomError): `template` formatted with `context`."""
+    """A validator's error of a given type (pydantic's PydanticCustomError) and message."""
 
-    def __init__(self, type: str, template: str, context: dict[str, Any] | None = None) -> None:
+    def __init__(self, type: str, message: str) -> None:
         self.type = type
-        self.message = template.format(**(context or {}))
-        super().__init__(self.message)
+        self.message = message
+        super().__init__(message)
 
 
-def InitErrorDetails(type: CustomError, loc: tuple[int | str, ...], input: Any) -> dict[str, Any]:  # noqa: N802
-    """One error of `ValidationError.from_exception_data`."""
-    return {"type": type, "loc": loc, "input": input}
+def error(type: str, loc: tuple[int | str, ...], msg: str, value: Any) -> dict[str, Any]:
+    """One error of a ValidationError, at `loc` (keys into the data)."""
+    return {"type": type, "loc": loc, "msg": msg, "input": value}
 
 
 class FrozenError(AttributeError):
@@ -68,7 +61,7 @@ class _Errors:
         self.items: list[dict[str, Any]] = []
 
     def add(self, loc: tuple[int | str, ...], type: str, msg: str, value: Any) -> Any:
-        self.items.append({"type": type, "loc": loc, "msg": msg, "input": value})
+        self.items.append(error(type, loc, msg, value))
         return INVALID
 
     def raised(self, loc: tuple[int | str, ...], exc: Exception, value: Any) -> Any:
@@ -79,8 +72,7 @@ class _Errors:
             return INVALID
         if isinstance(exc, CustomError):
             return self.add(loc, exc.type, exc.message, value)
-        kind = "assertion_error" if isinstance(exc, AssertionError) else "value_error"
-        return self.add(loc, kind, f"{'Assertion failed' if kind == 'assertion_error' else 'Value error'}, {exc}", value)
+        return self.add(loc, "value_error", str(exc), value)
 
 
 # --------------------------------------------------------------------------- declarations
@@ -261,14 +253,12 @@ class Record:
             raise ValidationError(cls.__name__, errors.items)
         return record
 
-    @classmethod
-    def model_construct(cls, _fields_set: set[str] | None = None, **values: Any) -> Self:
-        """A record of trusted values, unvalidated; defaults fill the fields not given."""
-        record = cls.__new__(cls)
-        full = {name: values[name] if name in values else info.get_default() for name, info in cls.model_fields.items()}
-        record.__dict__.update(full)
-        given = set(values) & set(cls.model_fields) if _fields_set is None else set(_fields_set)
-        object.__setattr__(record, "__fields_set__", given)
+    def replaced(self, update: dict[str, Any], given: set[str]) -> Self:
+        """A copy with the fields of `update` replaced, unvalidated; `given`: the fields that count
+        as given by the data (model_fields_set)."""
+        record = type(self).__new__(type(self))
+        record.__dict__.update({**self.__dict__, **update})
+        object.__setattr__(record, "__fields_set__", set(given))
         return record
 
     @property
@@ -278,8 +268,7 @@ class Record:
 
     def model_copy(self, *, update: dict[str, Any] | None = None) -> Self:
         """A copy with fields replaced, unvalidated; the replaced ones count as given."""
-        values = {**dict(self), **(update or {})}
-        return type(self).model_construct(_fields_set=self.model_fields_set | set(update or ()), **values)
+        return self.replaced(update or {}, self.model_fields_set | set(update or ()))
 
     def model_dump(
         self,
@@ -375,7 +364,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
     for v in cls._model_before:
         try:
             data = v(cls, data, ValidationInfo(context, {}))
-        except (ValueError, AssertionError) as exc:
+        except ValueError as exc:
             return errors.raised(loc, exc, data)
     if not isinstance(data, dict):
         return errors.add(loc, "model_type", f"Input should be a section of keys (key: value), got {_kind(data)}", data)
@@ -401,7 +390,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
     for v in cls._model_after:
         try:
             v.func(record)
-        except (ValueError, AssertionError) as exc:
+        except ValueError as exc:
             return errors.raised(loc, exc, data)
     return record
 
@@ -426,7 +415,7 @@ def _run(cls: type[Record], validators: list[_Validator], value: Any, info: Vali
     try:
         for v in validators:
             value = v(cls, value, info)
-    except (ValueError, AssertionError) as exc:
+    except ValueError as exc:
         return errors.raised(loc, exc, value)
     return value
 
@@ -441,7 +430,7 @@ def _value(
                 value = m.func(value)
             elif isinstance(m, Conversion):
                 value = m.before(value)
-    except (ValueError, AssertionError) as exc:
+    except ValueError as exc:
         return errors.raised(loc, exc, value)
     discriminator = next((m for m in metadata if isinstance(m, Discriminator)), None)
     if discriminator is not None:
@@ -459,7 +448,7 @@ def _value(
         for m in metadata:
             if isinstance(m, AfterValidator):
                 value = m.func(value)
-    except (ValueError, AssertionError) as exc:
+    except ValueError as exc:
         return errors.raised(loc, exc, value)
     return value
 
@@ -597,7 +586,7 @@ def _tagged(key: str, tp: Any, value: Any, loc: tuple, errors: _Errors, context:
         expected = ", ".join(f"'{t}'" for t in forms)
         msg = f"Input tag '{tag}' found using '{key}' does not match any of the expected tags: {expected}"
         return errors.add(loc, "union_tag_invalid", msg, value)
-    return _typed(forms[tag], value, (*loc, tag), errors, context)
+    return _typed(forms[tag], value, loc, errors, context)  # the tag is a value of the file's, not a key
 
 
 def _tagged_by(discriminator: Discriminator, tp: Any, value: Any, loc: tuple, errors: _Errors, context: Any) -> Any:

@@ -342,28 +342,16 @@ class CrashModel(ABC):
             self._functions[key] = build()
         return self._functions[key]
 
-    def front_end_crush(
-        self, crush: np.ndarray, history: np.ndarray, p: np.ndarray, at_largest: np.ndarray | None = None
-    ) -> np.ndarray:
-        """The front end's crush, its deformation, on a grid where its `crush` output (the
-        shortening of its line of action) and history state (HISTORY) take the values `crush` and
-        `history`: that crush, or where it is smaller the permanent set the unloading law leaves
-        once its force is zero (PERMANENT_SETS: none for the elastic law) from the largest crush
-        so far, the history state's value, the set neither negative nor past the largest crush the
-        grid reached. After separation the line of action's shortening keeps falling as the
-        vehicle moves away; that gap is not crush, and the front end stays at its permanent set.
-        Its largest value is the line of action's. One simulation (arrays of times, parameters
-        `p`) or n at once (n x times, `p` parameters x n, and `at_largest`, the loading force at
-        `history`, which the batch simulator computes in its own graph; evaluated here when not
-        given)."""
-        crushes, histories = np.atleast_2d(crush), np.atleast_2d(history)
-        P = np.asarray(p, float).reshape(self.layout.size, -1)
-        if at_largest is None:
-            at_largest = np.asarray(self.loading_curve(histories.reshape(1, -1), P)).reshape(histories.shape)
-        stiffness = P[self.layout.index("model.unloading.stiffness")].reshape(-1, 1)
-        permanent = PERMANENT_SETS[self.structure.unloading_law](np.atleast_2d(at_largest), histories, stiffness)
-        front = np.maximum(crushes, np.clip(permanent, 0.0, np.maximum.accumulate(crushes, axis=1)))
-        return front.reshape(np.shape(crush))
+    @cached_property
+    def permanent_set(self) -> ca.Function:
+        """(x, p) -> the crush the unloading law leaves once its force is zero, from the largest
+        crush so far (the history state HISTORY): PERMANENT_SETS, none for the elastic law. Past
+        separation the front end's crush stays there (crashnlp.models.simulation.front_end_crush)."""
+        largest = self.x[self.nx - 1]
+        stiffness = self._par("model.unloading.stiffness")
+        at_largest = self.loading_curve(largest, self.p)
+        permanent = PERMANENT_SETS[self.structure.unloading_law](at_largest, largest, stiffness)
+        return ca.Function("permanent_set", [self.x, self.p], [permanent], ["x", "p"], ["set"])
 
     # ---------------------------------------------------------------- simulation form
     @cached_property

@@ -58,8 +58,8 @@ def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool 
     outputs = ca.Function("y", [x, p], [model.outputs(x[: model.nx], p)])
     x0, pm = ca.MX.sym("x0", model.nx + len(ABSORBED)), ca.MX.sym("p", model.layout.size)
     states = ca.horzcat(x0, step.mapaccum("steps", steps)(x0, ca.repmat(pm, 1, steps)))
-    history, each = states[model.nx - 1, :], ca.repmat(pm, 1, steps + 1)
-    y = ca.vertcat(outputs.map(steps + 1)(states, each), history, model.loading_curve.map(steps + 1)(history, each))
+    each = ca.repmat(pm, 1, steps + 1)
+    y = ca.vertcat(outputs.map(steps + 1)(states, each), model.permanent_set.map(steps + 1)(states[: model.nx, :], each))
     one = ca.Function(f"trajectory_{steps}", [x0, pm], [y], ["x0", "p"], ["y"])
     return mapped(compiled(one) if jit else one, n)
 
@@ -75,9 +75,8 @@ def simulate_batch(
     X0 = np.vstack([np.asarray(model.initial_state.map(n)(P, speed)), np.zeros((len(ABSORBED), n))])
     batch = model.cached(("batch", steps, dt, n, jit), lambda: Evaluator(batch_simulator(model, steps, dt, n, jit)))
     (y,) = batch(x0=X0, p=P)
-    y = y.reshape(len(OUTPUTS) + 2, n, steps + 1)
-    outputs = with_front_end(model, {name: y[i] for i, name in enumerate(OUTPUTS)}, y[-2], P, y[-1])
-    return {"time": dt * np.arange(steps + 1), **outputs}
+    y = y.reshape(len(OUTPUTS) + 1, n, steps + 1)
+    return {"time": dt * np.arange(steps + 1), **with_front_end({name: y[i] for i, name in enumerate(OUTPUTS)}, y[-1])}
 
 
 def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, options: Simulation) -> Response:
@@ -91,37 +90,50 @@ def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, o
 
 
 def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
-    """The compiled outputs at n points of one simulation (the parameters shared)."""
+    """The compiled outputs at n points of one simulation (the parameters shared), and below them
+    the front end's permanent set (CrashModel.permanent_set)."""
 
     def build() -> Evaluator:
         outputs = model.cached(("outputs",), lambda: compiled(model.outputs))
+        permanent = model.cached(("permanent_set",), lambda: compiled(model.permanent_set))
         x, p = ca.MX.sym("x", model.nx, n), ca.MX.sym("p", model.layout.size)
-        y = outputs.map(n)(x, ca.repmat(p, 1, n))  # serial: threads cost more than they save here
+        each = ca.repmat(p, 1, n)
+        y = ca.vertcat(outputs.map(n)(x, each), permanent.map(n)(x, each))  # serial: threads cost more than they save here
         return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
 
     return model.cached(("outputs", n), build)
 
 
-def with_front_end(
-    model: CrashModel, outputs: dict[str, np.ndarray], history: np.ndarray, p: np.ndarray, at_largest: np.ndarray | None = None
-) -> dict[str, np.ndarray]:
-    """A simulation's outputs (the model's, on a grid; or n simulations', n x times, with `p`
-    parameters x n) with its crush the front end's own (CrashModel.front_end_crush, from the
-    history state's values `history`), the shortening of its line of action kept as APPROACH."""
-    return {**outputs, APPROACH: outputs["crush"], "crush": model.front_end_crush(outputs["crush"], history, p, at_largest)}
+def front_end_crush(crush: np.ndarray, permanent: np.ndarray) -> np.ndarray:
+    """The front end's crush, its deformation, where its `crush` output (the shortening of its line
+    of action) and its permanent set (CrashModel.permanent_set) take these values over time (the
+    last axis): that crush, or where it is smaller the permanent set, neither negative nor past the
+    largest crush so far. After separation the line of action's shortening keeps falling as the
+    vehicle moves away; that gap is not crush, and the front end stays at its permanent set. Its
+    largest value is the line of action's."""
+    return np.maximum(crush, np.clip(permanent, 0.0, np.maximum.accumulate(crush, axis=-1)))
+
+
+def with_front_end(outputs: dict[str, np.ndarray], permanent: np.ndarray) -> dict[str, np.ndarray]:
+    """A simulation's outputs (the model's, on a grid; or n simulations', n x times) with its crush
+    the front end's own (`front_end_crush`), the shortening of its line of action kept as APPROACH."""
+    return {**outputs, APPROACH: outputs["crush"], "crush": front_end_crush(outputs["crush"], permanent)}
 
 
 def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
     """Outputs on a grid from states (rows: the model's states()[, the ABSORBED works])."""
     (y,) = _outputs_on_grid(model, states.shape[1])(x=states[: model.nx], p=p)
-    return response_of_outputs(model, p, grid, np.asarray(y), states)
+    y = np.asarray(y)
+    return response_of_outputs(model, grid, y[:-1], y[-1], states)
 
 
-def response_of_outputs(model: CrashModel, p: np.ndarray, grid: np.ndarray, y: np.ndarray, states: np.ndarray) -> Response:
-    """The response of the model's outputs `y` (rows: OUTPUTS) at `states` (rows: the model's
-    states()[, the ABSORBED works]) with parameters `p`: its crush the front end's own
+def response_of_outputs(
+    model: CrashModel, grid: np.ndarray, y: np.ndarray, permanent: np.ndarray, states: np.ndarray
+) -> Response:
+    """The response of the model's outputs `y` (rows: OUTPUTS) and its permanent set at `states`
+    (rows: the model's states()[, the ABSORBED works]): its crush the front end's own
     (`with_front_end`), and where the states carry them the works and what they leave."""
-    outputs = with_front_end(model, {name: y[i] for i, name in enumerate(OUTPUTS)}, states[model.nx - 1], p)
+    outputs = with_front_end({name: y[i] for i, name in enumerate(OUTPUTS)}, permanent)
     if states.shape[0] > model.nx:  # the works, and what was absorbed less what the front end still stores
         work = dict(zip(ABSORBED, states[model.nx :]))
         outputs["front_work"], outputs["front_damper_work"] = work["barrier_power"], work["front_damper_power"]

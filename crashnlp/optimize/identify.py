@@ -120,7 +120,9 @@ def evaluate(ocp: OptimalControl, z: np.ndarray) -> list[Response]:
     out = []
     for k, tr in enumerate(ocp.transcripts):
         y, states = values[2 * k], values[2 * k + 1]
-        out.append(response_of_outputs(ocp.case.model, ocp.case.test_parameters(tr.test, p), tr.trajectory.times, y, states))
+        model, pt = ocp.case.model, ocp.case.test_parameters(tr.test, p)
+        permanent = np.asarray(model.permanent_set(states[: model.nx], pt)).ravel()
+        out.append(response_of_outputs(model, tr.trajectory.times, y, permanent, states))
     return out
 
 

@@ -27,16 +27,9 @@ class ProblemError(InputError):
     """Bad input: the message is the one line the user sees (exit status 2)."""
 
 
-# keys whose value is a union tagged by one of its fields (crashnlp.problem.schema: the
-# transcription by its `method`): validation puts the tag into an error's location after the key,
-# where the file has none ("transcription.multiple-shooting.intervals")
-TAGGED = frozenset({"transcription"})
-
-
 def _loc(loc: tuple[int | str, ...]) -> str:
-    """An error's location as the file's keys, dotted: without the tags of tagged unions."""
-    parts = list(loc)
-    return ".".join(str(p) for i, p in enumerate(parts) if i == 0 or parts[i - 1] not in TAGGED)
+    """An error's location as the file's keys, dotted."""
+    return ".".join(map(str, loc))
 
 
 def _text(err: Any) -> str:
@@ -44,7 +37,7 @@ def _text(err: Any) -> str:
         return "unknown key"
     if err["type"] == "missing":
         return "missing key"
-    return str(err["msg"]).removeprefix("Value error, ")
+    return str(err["msg"])
 
 
 def _message(err: Any) -> str:

@@ -30,12 +30,12 @@ from crashnlp.base.records import (
     CustomError,
     Discriminator,
     Field,
-    InitErrorDetails,
     Record,
     Tag,
     ValidationError,
     ValidationInfo,
     WithJsonSchema,
+    error,
     field_validator,
     model_validator,
 )
@@ -206,7 +206,7 @@ def _filled_in(value: _T | None, path: str) -> _T:
 def with_fields(section: _S, **values: Any) -> _S:
     """A copy of a validated section with fields replaced, that leaves what the file gave
     (`model_fields_set`) as it was: a section filled in from the data is not given by the file."""
-    return type(section).model_construct(_fields_set=section.model_fields_set, **{**dict(section), **values})
+    return section.replaced(values, section.model_fields_set)
 
 
 def _find_unit(items: list[Any]) -> str | None:
@@ -671,12 +671,9 @@ class Solver(Strict):
     @classmethod
     def _ipopt(cls, v: dict[str, Any]) -> dict[str, Any]:
         """Refuse what IPOPT would refuse, each error at its key (solver.ipopt.max_itr)."""
-        errors = [
-            InitErrorDetails(type=CustomError("ipopt_option", "{why}", {"why": why}), loc=(name,), input=v[name])
-            for name, why in check_ipopt(v).items()
-        ]
+        errors = [error("ipopt_option", (name,), why, v[name]) for name, why in check_ipopt(v).items()]
         if errors:
-            raise ValidationError.from_exception_data("ipopt", errors)
+            raise ValidationError("ipopt", errors)
         return v
 
 
@@ -760,10 +757,9 @@ class Problem(Strict):
                 try:
                     converted[path] = _estimate_in_si(spec, _unit_at(info.data, path))
                 except ValueError as exc:
-                    why = CustomError("estimate", "{why}", {"why": str(exc)})
-                    errors.append(InitErrorDetails(type=why, loc=(path,), input=spec))
+                    errors.append(error("estimate", (path,), str(exc), spec))
         if errors:
-            raise ValidationError.from_exception_data("estimate", errors)
+            raise ValidationError("estimate", errors)
         return converted
 
     @model_validator(mode="after")

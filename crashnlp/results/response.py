@@ -15,7 +15,7 @@ from crashnlp.results.files import write_columns
 
 # A response's output of the shortening of the front end's line of action, which its crush is while
 # the front end touches the barrier; past separation it keeps falling as the vehicle moves away, where
-# the crush stays at the permanent set (crashnlp.models.form.CrashModel.front_end_crush). The forward
+# the crush stays at the permanent set (crashnlp.models.simulation.front_end_crush). The forward
 # check compares it, a function of the states as the NLP's are (crashnlp.optimize.verify).
 APPROACH = "approach"
 OWN_ACCEL = "model_accel_g"  # response.csv's column of the model's own acceleration, beside the one read through a CFC class

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
 from crashnlp.results.identified import IdentifiedModel
@@ -100,6 +101,24 @@ class LoadingCurve:
     band: tuple[np.ndarray, np.ndarray] | None = None
 
 
+RESULT_FILE = "result.json"  # what `Result.save` writes into a fit's folder, and `Result.load` reads
+
+
+def result_file(path: str | Path) -> Path:
+    """The result.json a path names: the file itself, or the one in a fit's folder."""
+    path = Path(path)
+    return path / RESULT_FILE if path.is_dir() else path
+
+
+def fit_folder(path: str | Path) -> Path:
+    """The folder of the fit a path names (a result.json or its folder), whose whole Result
+    `Result.load` reads; InputError for a file of another name, which it would not read."""
+    file = result_file(path)
+    if file.name != RESULT_FILE:
+        raise InputError(f"{path}: a result is simulated from its folder, as RESULT_DIR/{RESULT_FILE}")
+    return file.parent
+
+
 @dataclass(frozen=True)
 class Result:
     """What a solve produced, judged honestly, in SI."""
@@ -167,7 +186,7 @@ class Result:
         and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
         ratings, its node arrays are empty."""
         folder = Path(folder)
-        raw = current_names(json.loads((folder / "result.json").read_text()))
+        raw = current_names(json.loads((folder / RESULT_FILE).read_text()))
         tests = {}
         for name, t in raw["tests"].items():
             response = read_response(folder / name / "response.csv", t.get("accel_filter"))
@@ -253,7 +272,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
         fc = result.force_crush
         if fc is not None:
             write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
-        write_json(out / "result.json", result.to_json())
+        write_json(out / RESULT_FILE, result.to_json())
         if figures:
             write_figures(result, out)
 

@@ -15,7 +15,7 @@ from pathlib import Path
 from typing import Any
 
 from crashnlp.results.jsonfile import json_text
-from crashnlp.results.result import Result
+from crashnlp.results.result import Result, result_file
 
 IN_MEMORY = "a Result in memory, no file: sha256 of its JSON form"
 
@@ -33,7 +33,7 @@ def simulation_source(
         raw = result.to_json()
         source["result"] = {"path": None, **_fit(raw, json_text(raw).encode()), "note": IN_MEMORY}
     elif result is not None:
-        file = Path(result) / "result.json" if Path(result).is_dir() else Path(result)
+        file = result_file(result)
         data = file.read_bytes()
         source["result"] = {"path": str(result), **_fit(json.loads(data), data)}
     return source
