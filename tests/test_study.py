@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import threading
 import time
 import types
 from concurrent.futures.process import BrokenProcessPool
@@ -313,6 +314,32 @@ def test_a_task_whose_worker_is_killed_runs_again_on_a_fresh_worker(tmp_path):
     assert all(Path(item).exists() for item in items)
     assert isinstance(last[0], BrokenProcessPool)
     assert (tmp_path / "tally").read_text().count("ran") == WORKER_DEATHS + 1
+
+
+@pytest.mark.integration
+def test_an_aborted_executor_leaves_no_worker_and_no_thread_of_its_pools():
+    """Abort mid-task ends the workers and waits for the pools' threads: a queue's feeder thread
+    cut short by the process's end leaves the resource tracker's warning on the terminal."""
+    before = set(threading.enumerate())
+    executor = LocalExecutor(2)
+    for lane in range(2):
+        executor.submit(lane, time.sleep, 60)
+    pids = {p for pool in executor.pools for p in pool._processes}
+    executor.abort()
+    assert len(pids) == 2 and not [p for p in pids if Path(f"/proc/{p}").exists()]
+    assert [t for t in threading.enumerate() if t not in before and t.is_alive()] == []
+
+
+def test_signals_that_arrive_while_a_worker_starts_are_handled_once_it_has_started():
+    seen: list[int] = []
+    previous = signal.signal(signal.SIGTERM, lambda signum, frame: seen.append(signum))
+    try:
+        with executors._signals_held():
+            signal.raise_signal(signal.SIGTERM)
+            assert seen == []
+        assert seen == [signal.SIGTERM]
+    finally:
+        signal.signal(signal.SIGTERM, previous)
 
 
 @pytest.mark.integration

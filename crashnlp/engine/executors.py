@@ -37,6 +37,8 @@ from crashnlp.numerics.compile_job import stop_compiles
 
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
+ABORT_WAIT = 5.0  # s: how long an aborted study's worker has to end after SIGTERM before it is killed
+HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
 # a LocalCluster's housekeeping, which shares the cores with the cases it runs: no statistical
 # profiler sampling every worker's stacks (it holds the GIL a solve's callbacks need), the
@@ -148,7 +150,7 @@ class LocalExecutor:
         self._start(_Task(lane, fn, item))
 
     def _start(self, task: _Task) -> None:
-        with _workers_skip_main_script():
+        with _workers_skip_main_script(), _signals_held():
             try:
                 future = self.pools[task.lane].submit(task.fn, task.item)
             except BrokenProcessPool:  # its worker died on an earlier task
@@ -177,18 +179,45 @@ class LocalExecutor:
             pool.shutdown(cancel_futures=True)
 
     def abort(self) -> None:
-        """Stop at once (a signal): end the workers mid-case instead of waiting for their cases."""
+        """Stop at once (a signal): end the workers mid-case instead of waiting for their cases, then
+        wait for each pool's threads. A pool's queue feeder thread drops its semaphores as it ends,
+        and the command ends the process right after: a thread cut short between removing a
+        semaphore and telling multiprocessing's resource tracker leaves the tracker warning on
+        the user's terminal about a semaphore it cannot find."""
         processes = [p for pool in self.pools for p in (getattr(pool, "_processes", None) or {}).values()]
         for process in processes:
             process.terminate()
-        for pool in self.pools:
-            pool.shutdown(wait=False, cancel_futures=True)
         for process in processes:
-            process.join(timeout=5)
+            process.join(timeout=ABORT_WAIT)
+            if process.is_alive():
+                process.kill()
+                process.join()
+        for pool in self.pools:
+            pool.shutdown(wait=True, cancel_futures=True)
 
 
 def _new_pool() -> ProcessPoolExecutor:
     return ProcessPoolExecutor(max_workers=1, mp_context=_context(), initializer=_worker_init)
+
+
+@contextmanager
+def _signals_held() -> Iterator[None]:
+    """SIGINT and SIGTERM that arrive while a worker starts are handled once it has started and its
+    pool knows it (in the main thread; elsewhere nothing is held). A signal handled mid-start
+    leaves a worker that `abort` cannot see: it goes on reading its start message after the
+    command has removed that message's semaphores, and prints a traceback."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    held: list[int] = []
+    previous = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in HELD_SIGNALS}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+        for signum in held:
+            signal.raise_signal(signum)
 
 
 @contextmanager
