@@ -17,6 +17,8 @@ from builders import BASE, ROOT, merge
 from crashnlp.analysis.summary import UNFINISHED
 from crashnlp.base.records import Record
 from crashnlp.cli import main
+from crashnlp.problem.load import read_yaml
+from crashnlp.problem.parse import UniqueKeyLoader
 from crashnlp.results.files import RECORD, claim, deriving
 from crashnlp.results.jsonfile import write_json
 
@@ -106,6 +108,47 @@ def test_bad_yaml_says_where_and_what(tmp_path, capsys, text, expected):
     path.write_text(text)
     assert main(["simulate", str(path)]) == 2
     assert capsys.readouterr().err == f"crashnlp: error: {path}: {expected}\n"
+
+
+def _typed(value):
+    """`value` with the type of every part beside it: 1 and 1.0, or True and 1, differ."""
+    if isinstance(value, dict):
+        return {k: _typed(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_typed(v) for v in value]
+    return type(value).__name__, value
+
+
+def test_a_file_read_again_gives_its_values_of_the_same_types_and_a_changed_file_its_new_ones(tmp_path, monkeypatch):
+    """The second read of a text comes from the cache (not PyYAML), with the values and types
+    PyYAML gave; a changed text, or a kept file that cannot be read, is parsed again."""
+    monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "p.yaml"
+    path.write_text("name: a\nvalues: [1, 2.5, -0.0, 1e300, .inf, true, null, '3', 0x1f]\nnested: {k: [x, {y: 2}]}\n")
+    parsed = yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    first = read_yaml(path)
+    (kept,) = (tmp_path / "cache").glob("yaml-*.json")
+    kept.write_text(json.dumps({"name": "from the cache"}))
+    assert read_yaml(path) == {"name": "from the cache"}  # the second read is the kept file's
+    kept.unlink()
+    assert _typed(read_yaml(path)) == _typed(first) == _typed(parsed)
+    assert _typed(read_yaml(path)) == _typed(parsed)  # read back from the file just kept
+    kept.write_text("{not json")
+    assert _typed(read_yaml(path)) == _typed(parsed)
+    path.write_text("name: b\n")
+    assert read_yaml(path) == {"name": "b"}
+
+
+@pytest.mark.parametrize(
+    "text", ["when: 2026-12-05\n", "1: x\n", "at: 2026-12-05 10:00:00\n", "blob: !!binary aGk=\n", "s: !!set {a: null}\n"]
+)
+def test_yaml_values_json_cannot_hold_are_parsed_on_every_read(tmp_path, monkeypatch, text):
+    monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    parsed = yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
+    assert read_yaml(path) == read_yaml(path) == parsed
+    assert not list((tmp_path / "cache").glob("yaml-*.json"))
 
 
 def test_bad_yaml_and_missing_problem(tmp_path, capsys):

@@ -173,12 +173,17 @@ def test_a_result_imports_with_numpy_alone():
     assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
 
 
+UNUSED_ON_A_RUN = ("matplotlib", "numpy.ma", "scipy", "yaml", "tempfile", "statistics", "zipfile", "difflib")
+
+
 @pytest.mark.integration  # processes of their own, and fits or simulations
 @pytest.mark.parametrize("command", ["identify", "simulate"])
 def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, command):
     """`crashnlp identify` and `simulate` with `--no-figures`, run after a `simulate` of the same
     problem, load neither matplotlib nor scipy nor numpy.ma (which np.median and np.percentile
-    import on their first call: a third of numpy's own import). The first run may: pint, reading a
+    import on their first call: a third of numpy's own import), nor the standard library's
+    tempfile, statistics, zipfile and difflib (milliseconds each, with what they import, for what
+    a run of a shipped problem never does). The first run may: pint, reading a
     unit the cache's table has not seen yet, imports scipy. The runs have a cache of their own: the
     table is written whole, so a process of another test may drop what the first run wrote."""
     env = {**os.environ, "CRASHNLP_CACHE": str(tmp_path / "cache")}  # its own: no other test's process rewrites the units
@@ -186,7 +191,7 @@ def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, 
         code = (
             "import sys; from crashnlp.cli import main;"
             f" code = main([{run!r}, {str(ROOT / 'problems/pickup-56kph.yaml')!r}, '--out', {str(tmp_path / run)!r},"
-            " '--no-figures']); print(code, sorted(m for m in ('matplotlib', 'numpy.ma', 'scipy') if m in sys.modules))"
+            f" '--no-figures']); print(code, sorted(m for m in {UNUSED_ON_A_RUN!r} if m in sys.modules))"
         )
         printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, env=env).stdout
     assert printed.splitlines()[-1] == "0 []", printed

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+from statistics import NormalDist
 
 import numpy as np
 import pytest
@@ -32,7 +33,7 @@ from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
-from crashnlp.results.identified import shaping_nothing_short_of
+from crashnlp.results.identified import Z95, shaping_nothing_short_of
 from crashnlp.results.response import Response
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}
@@ -62,6 +63,11 @@ def _new_speed(folder, raw: dict, kmh: float):
     path = folder / f"at-{kmh:g}.yaml"
     path.write_text(yaml.safe_dump(new, sort_keys=False))
     return path
+
+
+def test_the_interval_quantile_is_the_normal_distributions_two_sided_95_percent():
+    assert Z95 == NormalDist().inv_cdf(0.975)
+    assert NormalDist().cdf(Z95) - NormalDist().cdf(-Z95) == pytest.approx(0.95, abs=1e-15)
 
 
 @pytest.mark.integration

@@ -41,7 +41,7 @@ import json
 import math
 from dataclasses import dataclass
 from functools import cache
-from importlib import resources
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -213,8 +213,9 @@ class Calibration:
 
 @cache
 def tables() -> dict[str, Calibration]:
-    """The tables shipped with the package (crashnlp/analysis/calibration.json), by model form."""
-    raw = json.loads(resources.files("crashnlp.analysis").joinpath(FILE).read_text())
+    """The tables shipped with the package (crashnlp/analysis/calibration.json), by model form. Read
+    beside this file: importlib.resources would import tempfile and zipfile into every simulation."""
+    raw = json.loads(Path(__file__).with_name(FILE).read_text())
     return {form: Calibration.from_json(table) for form, table in raw.items()}
 
 

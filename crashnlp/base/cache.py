@@ -1,5 +1,6 @@
 """The crashnlp cache folder: compiled functions (with a lock file each: crashnlp.numerics.compiled),
-derived models (crashnlp.models.stored) and remembered unit conversions.
+derived models (crashnlp.models.stored), remembered unit conversions (crashnlp.base.units) and the
+values of YAML files read before (crashnlp.problem.load).
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
@@ -8,22 +9,39 @@ CRASHNLP_CACHE_MB (crashnlp.numerics.compiled).
 
 from __future__ import annotations
 
+import importlib.util
 import os
-import tempfile
+from functools import cache
 from pathlib import Path
 
 CACHE_ENV = "CRASHNLP_CACHE"
+NAME_TRIES = 100  # random temporary names tried before giving up (each clashes with odds 2^-64)
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "crashnlp")
 
 
+def temporary_file(folder: Path, prefix: str = "") -> tuple[int, str]:
+    """A new file in `folder`, open for reading and writing, under a random name no other file has
+    (O_EXCL), made with the mode `open` gives a new file (0666 less the umask): to be renamed over
+    its target (`os.replace`). The standard library's tempfile.mkstemp makes it 0600, and importing
+    tempfile costs a command milliseconds."""
+    flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
+    for _ in range(NAME_TRIES):
+        path = os.path.join(folder, f"{prefix}{os.urandom(8).hex()}.tmp")
+        try:
+            return os.open(path, flags, 0o666), path
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"{folder}: no free temporary name in {NAME_TRIES} tries")
+
+
 def write_atomic(path: Path, text: str) -> None:
     """Write `text` under a temporary name beside `path`, then rename it in place: a reader sees
     the whole file or none, and two writers of the same file the one or the other."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    fd, tmp = temporary_file(path.parent, f".{path.name}.")
     try:
         with os.fdopen(fd, "w") as f:
             f.write(text)
@@ -31,3 +49,21 @@ def write_atomic(path: Path, text: str) -> None:
     except BaseException:
         Path(tmp).unlink(missing_ok=True)
         raise
+
+
+@cache
+def installed_version(package: str, distribution: str) -> str:
+    """The installed version of `distribution` (which installs the import package `package`), for
+    the names of cache files that depend on it: from the name of its dist-info folder beside the
+    package (pint-0.25.3.dist-info), since importing importlib.metadata costs more than reading a
+    problem; importlib.metadata's answer where no such folder is there to read."""
+    spec = importlib.util.find_spec(package)
+    if spec is not None and spec.origin is not None:
+        prefix = f"{distribution.lower()}-"
+        site = Path(spec.origin).parent.parent
+        found = [p.name for p in site.glob("*.dist-info") if p.name.lower().startswith(prefix)]
+        if len(found) == 1:
+            return found[0][len(prefix) :].removesuffix(".dist-info")
+    from importlib.metadata import version
+
+    return version(distribution)

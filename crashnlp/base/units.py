@@ -14,7 +14,6 @@ remembered value is pint's own, to the last bit; failures are never remembered.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import re
 from contextlib import suppress
@@ -22,7 +21,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from crashnlp.base.cache import cache_dir, write_atomic
+from crashnlp.base.cache import cache_dir, installed_version, write_atomic
 
 G0 = 9.80665  # standard gravity, m/s^2
 
@@ -101,22 +100,7 @@ def _convert(value: str, text: str, unit: str) -> float:
 
 
 def _table() -> Path:
-    return cache_dir() / f"units-pint-{pint_version()}.json"
-
-
-@cache
-def pint_version() -> str:
-    """The installed pint's version, from the name of its dist-info folder beside the package
-    (pint-0.25.3.dist-info): importlib.metadata's import alone costs more than reading a problem.
-    Where that folder is not there to read (pint installed otherwise), importlib.metadata's."""
-    spec = importlib.util.find_spec("pint")
-    if spec is not None and spec.origin is not None:
-        found = sorted(Path(spec.origin).parent.parent.glob("pint-*.dist-info"))
-        if len(found) == 1:
-            return found[0].name.removeprefix("pint-").removesuffix(".dist-info")
-    from importlib.metadata import version
-
-    return version("pint")
+    return cache_dir() / f"units-pint-{installed_version('pint', 'pint')}.json"
 
 
 @cache

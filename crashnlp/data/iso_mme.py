@@ -10,7 +10,6 @@ and then the samples, one per line.
 from __future__ import annotations
 
 import re
-import zipfile
 from pathlib import Path, PurePosixPath
 
 import numpy as np
@@ -26,6 +25,8 @@ class _Store:
     """Files of one test (folder or zip) by relative path, looked up case-insensitively."""
 
     def __init__(self, path: Path):
+        import zipfile  # here, not at the top: every command imports this reader, few read a zip
+
         self.path = path
         self.zipped = path.is_file() and zipfile.is_zipfile(path)
         self.base = path if path.is_dir() or self.zipped else path.parent
@@ -46,6 +47,8 @@ class _Store:
 
     def text(self, name: str) -> str:
         if self.zipped:
+            import zipfile
+
             with zipfile.ZipFile(self.path) as archive:
                 return archive.read(name).decode("latin-1")
         return (self.base / name).read_text(encoding="latin-1")

@@ -89,17 +89,16 @@ def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, o
     return response_from_states(model, p, grid, states)
 
 
-def _outputs_on_grid(model: CrashModel, n: int) -> Evaluator:
-    """The compiled outputs at n points of one simulation (the parameters shared), and below them
-    the front end's permanent set (CrashModel.permanent_set)."""
+def _outputs_on_grid(model: CrashModel, n: int) -> tuple[Evaluator, Evaluator]:
+    """The compiled outputs, and the front end's permanent set (CrashModel.permanent_set), each
+    mapped over the n points of one simulation and evaluated on its arrays directly: a CasADi
+    graph around the two (its parameters repeated n times) costs more to build than they cost
+    to evaluate, for every length of simulation."""
 
-    def build() -> Evaluator:
+    def build() -> tuple[Evaluator, Evaluator]:
         outputs = model.cached(("outputs",), lambda: compiled(model.outputs))
         permanent = model.cached(("permanent_set",), lambda: compiled(model.permanent_set))
-        x, p = ca.MX.sym("x", model.nx, n), ca.MX.sym("p", model.layout.size)
-        each = ca.repmat(p, 1, n)
-        y = ca.vertcat(outputs.map(n)(x, each), permanent.map(n)(x, each))  # serial: threads cost more than they save here
-        return Evaluator(ca.Function("outputs_on_grid", [x, p], [y], ["x", "p"], ["y"]))
+        return Evaluator(outputs.map(n)), Evaluator(permanent.map(n))
 
     return model.cached(("outputs", n), build)
 
@@ -122,9 +121,11 @@ def with_front_end(outputs: dict[str, np.ndarray], permanent: np.ndarray) -> dic
 
 def response_from_states(model: CrashModel, p: np.ndarray, grid: np.ndarray, states: np.ndarray) -> Response:
     """Outputs on a grid from states (rows: the model's states()[, the ABSORBED works])."""
-    (y,) = _outputs_on_grid(model, states.shape[1])(x=states[: model.nx], p=p)
-    y = np.asarray(y)
-    return response_of_outputs(model, grid, y[:-1], y[-1], states)
+    x = states[: model.nx]
+    outputs, permanent = _outputs_on_grid(model, x.shape[1])
+    each = np.broadcast_to(np.asarray(p, dtype=float).reshape(-1, 1), (np.size(p), x.shape[1]))
+    (y,), (held,) = outputs(x=x, p=each), permanent(x=x, p=each)
+    return response_of_outputs(model, grid, y, held[0], states)
 
 
 def response_of_outputs(

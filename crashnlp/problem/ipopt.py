@@ -10,7 +10,6 @@ missing from the list is asked of IPOPT itself by building a solver with only th
 from __future__ import annotations
 
 import contextlib
-import difflib
 import hashlib
 import io
 import json
@@ -97,6 +96,8 @@ def _undocumented(name: str, value: Any, known: dict[str, IpoptOption]) -> str |
     except RuntimeError as exc:
         if "No such IPOPT option" not in str(exc):
             return f"{value!r} is refused by IPOPT (wrong type or value)"
+        import difflib  # here, not at the top: only a misspelt option needs it
+
         close = difflib.get_close_matches(name, list(known), n=1)
         return "no such IPOPT option" + (f" (did you mean {close[0]}?)" if close else "")
     return None

@@ -2,50 +2,25 @@
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+import hashlib
+import json
+from contextlib import suppress
+from functools import cache
 from pathlib import Path
 from typing import Any
 
-import yaml
-
+from crashnlp.base.cache import cache_dir, installed_version, write_atomic
 from crashnlp.problem.errors import ProblemError
 from crashnlp.problem.schema import Problem, problem_from_dict
 
-MAX_ALIASES = 100  # YAML aliases in one file: a few share channel lists; thousands are a "billion laughs"
-
-
-class UniqueKeyLoader(yaml.SafeLoader):
-    """YAML's safe loader, refusing a mapping that gives a key twice (YAML would keep the last)
-    and a file of more than MAX_ALIASES aliases (nested aliases expand exponentially)."""
-
-    aliases = 0
-
-    def compose_node(self, parent: yaml.Node | None, index: int) -> yaml.Node | None:
-        if self.check_event(yaml.events.AliasEvent):
-            self.aliases += 1
-            if self.aliases > MAX_ALIASES:
-                raise yaml.composer.ComposerError(None, None, f"more than {MAX_ALIASES} aliases", self.peek_event().start_mark)
-        return super().compose_node(parent, index)
-
-    def construct_mapping(self, node: yaml.MappingNode, deep: bool = False) -> dict[Hashable, Any]:
-        if isinstance(node, yaml.MappingNode):
-            seen: set[Hashable] = set()
-            for key_node, _ in node.value:
-                if key_node.tag == "tag:yaml.org,2002:merge":
-                    continue
-                key = self.construct_object(key_node, deep=True)
-                try:
-                    duplicate = key in seen
-                except TypeError:  # an unhashable key: the base loader says so
-                    break
-                if duplicate:
-                    raise yaml.constructor.ConstructorError(None, None, f"duplicate key {key!r}", key_node.start_mark)
-                seen.add(key)
-        return super().construct_mapping(node, deep)
-
 
 def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Parse a YAML file, turning every read, encoding or syntax failure into a ProblemError."""
+    """Parse a YAML file, turning every read, encoding or syntax failure into a ProblemError.
+
+    A file's values are kept in the crashnlp cache under a hash of its text, PyYAML's version and
+    the parser's code (`_parsed_file`), as JSON where JSON holds them exactly: a later read of the
+    same text loads them without importing PyYAML, whose import and pure-Python parse cost a
+    command some 15 ms (docs/design-notes.md, "Reading the problem without PyYAML")."""
     path = Path(path)
     if not path.is_file():
         raise ProblemError(f"{path}: file not found")
@@ -55,17 +30,38 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         raise ProblemError(f"{path}: not valid UTF-8 text (byte {exc.start})") from None
     except OSError as exc:
         raise ProblemError(f"{path}: cannot read ({exc.strerror})") from None
-    try:
-        raw = yaml.load(text, Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f" line {mark.line + 1}" if mark else ""
-        problem = getattr(exc, "problem", None) or ""
-        why = ": a tab, where YAML indents and separates with spaces" if "'\\t'" in problem else f": {problem}" if problem else ""
-        raise ProblemError(f"{path}:{where} not valid YAML{why}") from None
-    except RecursionError:
-        raise ProblemError(f"{path}: not valid YAML (nested too deeply)") from None
+    kept = _parsed_file(text)
+    with suppress(OSError, ValueError):
+        return json.loads(kept.read_text())
+    from crashnlp.problem.parse import parse_yaml  # here, not at the top: only a text not read before needs PyYAML
+
+    raw = parse_yaml(text, path)
+    if _plain(raw):
+        with suppress(OSError):
+            write_atomic(kept, json.dumps(raw))
     return raw
+
+
+def _parsed_file(text: str) -> Path:
+    """Where the values of the YAML `text` are kept (`read_yaml`)."""
+    key = hashlib.sha256("\0".join((text, *_parser())).encode()).hexdigest()[:32]
+    return cache_dir() / f"yaml-{key}.json"
+
+
+@cache
+def _parser() -> tuple[str, str]:
+    """What else fixes a text's values: the parser's code (crashnlp.problem.parse) and PyYAML's version."""
+    return Path(__file__).with_name("parse.py").read_text(), installed_version("yaml", "PyYAML")
+
+
+def _plain(value: Any) -> bool:
+    """Whether JSON gives `value` back as it is: mappings with text keys, lists, text, numbers,
+    booleans and nulls (not YAML's dates, sets, binary or other keys)."""
+    if isinstance(value, dict):
+        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
+    if isinstance(value, list):
+        return all(_plain(v) for v in value)
+    return value is None or isinstance(value, (str, int, float))
 
 
 def check_fit_keys(problem: Problem, source: str | Path) -> None:

@@ -26,7 +26,6 @@ import hashlib
 import json
 import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
@@ -35,26 +34,8 @@ from typing import IO, Any
 
 import numpy as np
 
+from crashnlp.base.cache import temporary_file
 from crashnlp.base.errors import InputError
-
-
-def umask() -> int:
-    """The process umask (read by setting and restoring it)."""
-    mask = os.umask(0o022)
-    os.umask(mask)
-    return mask
-
-
-def public_mode(fd: int) -> None:
-    """Give a file made by `tempfile.mkstemp` (mode 0600) the mode `open` would: 0666 less the umask."""
-    os.fchmod(fd, 0o666 & ~umask())
-
-
-def atomic_temp(folder: Path) -> tuple[int, str]:
-    """A temporary file in `folder` with the usual mode, to be renamed over its target (`os.replace`)."""
-    fd, tmp = tempfile.mkstemp(dir=folder, suffix=".tmp")
-    public_mode(fd)
-    return fd, tmp
 
 
 @contextmanager
@@ -62,7 +43,7 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
     """A file written in full or not at all: a temporary file beside `path`, renamed over it
     when the block ends (a reader never sees half a file), with the usual mode."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = atomic_temp(path.parent)
+    fd, tmp = temporary_file(path.parent)
     try:
         newline = None if "b" in mode else ""  # csv writes its own line ends
         with open(fd, mode, newline=newline) as fh:
@@ -100,8 +81,9 @@ def check_writable(out: str | Path, option: str = "--out") -> Path:
     if not probe.is_dir():
         raise InputError(f"{option} {out}: {probe} is not a folder")
     try:
-        with tempfile.TemporaryFile(dir=probe):
-            pass
+        fd, made = temporary_file(probe)
+        os.close(fd)
+        os.unlink(made)
     except OSError as exc:
         raise InputError(f"{option} {out}: cannot write in {probe} ({exc.strerror or exc})") from None
     return out
