@@ -139,6 +139,15 @@ def test_a_file_read_again_gives_its_values_of_the_same_types_and_a_changed_file
     assert read_yaml(path) == {"name": "b"}
 
 
+def test_values_an_alias_shares_are_copies_on_the_first_read_as_on_later_ones(tmp_path, monkeypatch):
+    monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "p.yaml"
+    path.write_text("a: &shared [1, 2]\nb: *shared\n")
+    for _ in range(2):
+        values = read_yaml(path)
+        assert values == {"a": [1, 2], "b": [1, 2]} and values["a"] is not values["b"]
+
+
 @pytest.mark.parametrize(
     "text", ["when: 2026-12-05\n", "1: x\n", "at: 2026-12-05 10:00:00\n", "blob: !!binary aGk=\n", "s: !!set {a: null}\n"]
 )

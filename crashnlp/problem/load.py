@@ -36,10 +36,12 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
     from crashnlp.problem.parse import parse_yaml  # here, not at the top: only a text not read before needs PyYAML
 
     raw = parse_yaml(text, path)
-    if _plain(raw):
-        with suppress(OSError):
-            write_atomic(kept, json.dumps(raw))
-    return raw
+    if not _plain(raw):
+        return raw
+    values = json.dumps(raw)
+    with suppress(OSError):
+        write_atomic(kept, values)
+    return json.loads(values)  # what a later read gets: a copy wherever YAML's aliases shared one value
 
 
 def _parsed_file(text: str) -> Path:
