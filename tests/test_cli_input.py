@@ -14,7 +14,7 @@ import pytest
 import yaml
 from builders import BASE, ROOT, merge
 
-from crashnlp.analysis.summary import UNFINISHED
+from crashnlp.base.outputs import UNFINISHED
 from crashnlp.base.records import Record
 from crashnlp.cli import main
 from crashnlp.problem.load import read_yaml

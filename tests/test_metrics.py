@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 
 from crashnlp.analysis.metrics import crash_metrics, olc
-from crashnlp.analysis.summary import UNFINISHED, data_metrics, metrics, still_moving
+from crashnlp.analysis.summary import data_metrics, metrics, still_moving
+from crashnlp.base.outputs import UNFINISHED
 from crashnlp.base.units import G0
 from crashnlp.case import testcase
 from crashnlp.data import Channel, TestData

@@ -18,12 +18,11 @@ from bench.corpus import PICKUP, engine_vehicle, measured, random_vehicle, simul
 from bench.cross_speed import Family, fit_problem, judge, prediction_problem, within_targets
 from bench.robustness import minimal_problem
 from crashnlp.analysis.calibration import shipped
-from crashnlp.analysis.limits import METRIC_RANGE, limited_band, limited_interval
+from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
-from crashnlp.analysis.summary import UNFINISHED
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import PREDICTED_KEYS
+from crashnlp.base.outputs import METRIC_RANGE, PREDICTED_KEYS, UNFINISHED
 from crashnlp.base.units import G0
 from crashnlp.case.testcase import Recorded
 from crashnlp.cli import main

@@ -7,7 +7,8 @@ A limit holds the truth for certain, so an interval or band cut at it covers the
 the uncut one did: the cut never lowers coverage. An interval or band that reaches a limit says
 only that the data say nothing beyond it.
 
-- **Metrics** (model frame, crashnlp.analysis.metrics: x toward the barrier, impact at t = 0):
+- **Metrics** (model frame, crashnlp.analysis.metrics: x toward the barrier, impact at t = 0; their
+  ranges are the metric registry's, crashnlp.base.outputs.METRIC_RANGE):
   max displacement and max pitch are the largest of curves that start at zero, peak deceleration
   is max(-a) over a record that starts with no force, rebound velocity is max(0, -min v) (a speed
   away from the barrier), and OLC is the constant deceleration that brings the occupant, free at
@@ -36,17 +37,8 @@ import math
 
 import numpy as np
 
-from crashnlp.base.outputs import METRIC
+from crashnlp.base.outputs import METRIC, METRIC_RANGE
 
-# each metric's physical range (SI, as predicted); None: the record's end
-METRIC_RANGE: dict[str, tuple[float, float | None]] = {
-    "max_displacement_m": (0.0, math.inf),
-    "time_zero_velocity_s": (0.0, None),
-    "peak_decel_g": (0.0, math.inf),
-    "rebound_velocity_mps": (0.0, math.inf),
-    "olc_g": (0.0, math.inf),
-    "max_pitch_deg": (0.0, math.inf),
-}
 FORCE_RANGE = (0.0, math.inf)  # N: a barrier, and a front end, only push
 BAND_RANGE: dict[str, tuple[float, float]] = {"barrier_force": FORCE_RANGE}
 AT_IMPACT = {"barrier_force": 0.0, "accel": 0.0, "displacement": 0.0, "crush": 0.0, "pitch": 0.0}  # and the impact speed

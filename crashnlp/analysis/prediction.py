@@ -63,7 +63,6 @@ from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shi
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import (
-    UNFINISHED,
     accel_filter,
     accel_spec,
     as_recorded,
@@ -79,6 +78,7 @@ from crashnlp.base.outputs import (
     PANELS,
     PREDICTED_KEYS,
     RENAMED_EXTRAPOLATION,
+    UNFINISHED,
     current_names,
     named_test,
 )

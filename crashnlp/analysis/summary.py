@@ -8,29 +8,13 @@ from dataclasses import replace
 import numpy as np
 
 from crashnlp.analysis.metrics import crash_metrics
-from crashnlp.base.outputs import METRICS
+from crashnlp.base.outputs import METRICS, UNFINISHED
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.problem.schema import ChannelSpec
 from crashnlp.results.response import Response
 
-# what a record that ends mid-crash (MID_CRASH) does not hold: the crash goes on past its end, so
-# its largest travel, crush, deceleration and pitch so far, its velocity change and its rebound are
-# only where the record leaves them (lower limits), and it has no stop. Its OLC is held where the
-# occupant gets to 300 mm within the record: it is read from the pulse up to there alone.
-UNFINISHED = (
-    "max_displacement_m",
-    "time_max_displacement_s",
-    "max_front_end_crush_m",
-    "time_zero_velocity_s",
-    "peak_decel_g",
-    "rebound_velocity_mps",
-    "delta_v_mps",
-    "esw_g",
-    "tesw_g",
-    "max_pitch_deg",
-)
 # a record that ends still moving toward the barrier ends mid-crash where its deceleration there is
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
 # contact (its pitch lifted the front end off), and the record holds the pulse whole

@@ -87,6 +87,8 @@ class Metric:
     channel: str | None = None  # the fitted channel it is read from (the channel's report unit is the metric's)
     extreme: float = 0.0  # the channel's instant it is: +1 its max, -1 its min, 0 no one instant
     plotted: bool = False  # a study plots it against a swept entry
+    whole_pulse: bool = True  # only a record that holds the whole pulse gives it (UNFINISHED below)
+    bounds: tuple[float, float | None] = (-math.inf, math.inf)  # its physical range, SI (METRIC_RANGE below)
 
     @property
     def heading(self) -> str:
@@ -113,22 +115,24 @@ class Metric:
 # fmt: off
 METRICS: tuple[Metric, ...] = (
     Metric("max_displacement_m", "max displacement", "mm", 1e3, "max_displacement", short="max displacement",
-           channel="displacement", extreme=1.0, plotted=True),
+           channel="displacement", extreme=1.0, plotted=True, bounds=(0.0, math.inf)),
     Metric("time_max_displacement_s", "time of max displacement", "ms", 1e3, "t_max_displacement"),
     Metric("max_front_end_crush_m", "max front-end crush", "mm", 1e3, None),
-    Metric("time_zero_velocity_s", "time of zero velocity", "ms", 1e3, "t_zero_velocity", short="zero velocity", digits=2),
+    Metric("time_zero_velocity_s", "time of zero velocity", "ms", 1e3, "t_zero_velocity", short="zero velocity", digits=2,
+           bounds=(0.0, None)),
     Metric("peak_decel_g", "peak deceleration", "g", 1.0, "peak_decel", G0, short="peak decel",
-           channel="accel", extreme=-1.0, plotted=True),
+           channel="accel", extreme=-1.0, plotted=True, bounds=(0.0, math.inf)),
     Metric("rebound_velocity_mps", "rebound velocity", "m/s", 1.0, "rebound_velocity", short="rebound", digits=2,
-           channel="velocity", extreme=-1.0),
+           channel="velocity", extreme=-1.0, bounds=(0.0, math.inf)),
     Metric("delta_v_mps", "delta-V", "m/s", 1.0, "delta_v", table=False),
     Metric("esw_g", "ESW", "g", 1.0, "esw", G0, table=False),
     Metric("tesw_g", "TESW", "g", 1.0, "tesw", G0, table=False),
-    Metric("olc_g", "OLC", "g", 1.0, "olc", G0, short="OLC", channel="accel", plotted=True),
-    Metric("record_end_s", "end of the record", "ms", 1e3, None, table=False),
-    Metric("end_velocity_mps", "velocity at the record's end", "m/s", 1.0, "end_velocity", table=False),
+    Metric("olc_g", "OLC", "g", 1.0, "olc", G0, short="OLC", channel="accel", plotted=True, whole_pulse=False,
+           bounds=(0.0, math.inf)),
+    Metric("record_end_s", "end of the record", "ms", 1e3, None, table=False, whole_pulse=False),
+    Metric("end_velocity_mps", "velocity at the record's end", "m/s", 1.0, "end_velocity", table=False, whole_pulse=False),
     Metric("max_pitch_deg", "max pitch", "deg", 1.0, None, short="max pitch", digits=2,
-           channel="pitch", extreme=1.0, plotted=True),
+           channel="pitch", extreme=1.0, plotted=True, bounds=(0.0, math.inf)),
 )
 # fmt: on
 METRIC: dict[str, Metric] = {m.key: m for m in METRICS}
@@ -137,6 +141,15 @@ TABLED: tuple[Metric, ...] = tuple(m for m in METRICS if m.table)  # a fit's met
 PREDICTED: tuple[Metric, ...] = tuple(m for m in METRICS if m.short)
 PREDICTED_KEYS: tuple[str, ...] = tuple(m.key for m in PREDICTED)
 PLOTTED: tuple[str, ...] = tuple(m.key for m in METRICS if m.plotted)
+# what a record that ends mid-crash (crashnlp.analysis.summary.MID_CRASH) does not hold: the crash
+# goes on past its end, so its largest travel, crush, deceleration and pitch so far, its velocity
+# change and its rebound are only where the record leaves them (lower limits), and it has no stop.
+# Its OLC is held where the occupant gets to 300 mm within the record: it is read from the pulse up
+# to there alone.
+UNFINISHED: tuple[str, ...] = tuple(m.key for m in METRICS if m.whole_pulse)
+# each predicted metric's physical range (SI; None: the record's end): why each, and how an interval
+# is cut to it, in crashnlp.analysis.limits
+METRIC_RANGE: dict[str, tuple[float, float | None]] = {m.key: m.bounds for m in PREDICTED}
 
 # the keys of the CG's travel that files written before issue 40's rename called crush: old name ->
 # current name. RENAMED: the crash metrics' keys, wherever a file keeps them (result.json's and
