@@ -111,12 +111,13 @@ def test_bad_yaml_says_where_and_what(tmp_path, capsys, text, expected):
 
 
 def _typed(value):
-    """`value` with the type of every part beside it: 1 and 1.0, or True and 1, differ."""
+    """`value` with the type of every part beside it, floats by their repr: 1 and 1.0, True and 1,
+    or -0.0 and 0.0 differ."""
     if isinstance(value, dict):
         return {k: _typed(v) for k, v in value.items()}
     if isinstance(value, list):
         return [_typed(v) for v in value]
-    return type(value).__name__, value
+    return type(value).__name__, repr(value) if isinstance(value, float) else value
 
 
 def test_a_file_read_again_gives_its_values_of_the_same_types_and_a_changed_file_its_new_ones(tmp_path, monkeypatch):
@@ -124,7 +125,7 @@ def test_a_file_read_again_gives_its_values_of_the_same_types_and_a_changed_file
     PyYAML gave; a changed text, or a kept file that cannot be read, is parsed again."""
     monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
     path = tmp_path / "p.yaml"
-    path.write_text("name: a\nvalues: [1, 2.5, -0.0, 1e300, .inf, true, null, '3', 0x1f]\nnested: {k: [x, {y: 2}]}\n")
+    path.write_text("name: a\nvalues: [1, 2.5, -0.0, 1.0e+300, .inf, true, null, '3', 0x1f]\nnested: {k: [x, {y: 2}]}\n")
     parsed = yaml.load(path.read_text(), Loader=UniqueKeyLoader)  # noqa: S506 - a SafeLoader subclass
     first = read_yaml(path)
     (kept,) = (tmp_path / "cache").glob("yaml-*.json")
@@ -139,13 +140,34 @@ def test_a_file_read_again_gives_its_values_of_the_same_types_and_a_changed_file
     assert read_yaml(path) == {"name": "b"}
 
 
-def test_values_an_alias_shares_are_copies_on_the_first_read_as_on_later_ones(tmp_path, monkeypatch):
+def test_values_an_alias_shares_are_parsed_on_every_read_and_stay_shared(tmp_path, monkeypatch):
     monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
     path = tmp_path / "p.yaml"
     path.write_text("a: &shared [1, 2]\nb: *shared\n")
     for _ in range(2):
         values = read_yaml(path)
-        assert values == {"a": [1, 2], "b": [1, 2]} and values["a"] is not values["b"]
+        assert values == {"a": [1, 2], "b": [1, 2]} and values["a"] is values["b"]
+    assert not list((tmp_path / "cache").glob("yaml-*.json"))
+
+
+ALIAS_BOMB = "l0: &l0 [x]\n" + "".join(f"l{i}: &l{i} [*l{i - 1}, *l{i - 1}]\n" for i in range(1, 40))
+
+
+@pytest.mark.parametrize(
+    "text",
+    [ALIAS_BOMB, "a: &x [1, *x]\n", "x: 0x" + "f" * 4000 + "\n"],
+    ids=["aliases doubling 39 times", "a list holding itself", "an integer of 4,800 digits"],
+)
+def test_a_file_json_would_blow_up_or_fail_on_is_one_line_at_once_and_not_kept(tmp_path, monkeypatch, capsys, text):
+    """JSON would write the doubling aliases out 2^39 times, recurse for ever into the list that
+    holds itself, and refuse the integer (Python's limit on digits turned into text)."""
+    monkeypatch.setenv("CRASHNLP_CACHE", str(tmp_path / "cache"))
+    path = tmp_path / "p.yaml"
+    path.write_text(text)
+    assert main(["simulate", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {path}: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert not list((tmp_path / "cache").glob("yaml-*.json"))
 
 
 @pytest.mark.parametrize(

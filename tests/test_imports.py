@@ -181,7 +181,8 @@ UNUSED_ON_A_RUN = ("matplotlib", "numpy.ma", "scipy", "yaml", "tempfile", "stati
 def test_a_command_without_figures_imports_no_library_it_does_not_use(tmp_path, command):
     """`crashnlp identify` and `simulate` with `--no-figures`, run after a `simulate` of the same
     problem, load neither matplotlib nor scipy nor numpy.ma (which np.median and np.percentile
-    import on their first call: a third of numpy's own import), nor the standard library's
+    import on their first call: a third of numpy's own import), nor PyYAML (the problem's values
+    come from the cache once read), nor the standard library's
     tempfile, statistics, zipfile and difflib (milliseconds each, with what they import, for what
     a run of a shipped problem never does). The first run may: pint, reading a
     unit the cache's table has not seen yet, imports scipy. The runs have a cache of their own: the

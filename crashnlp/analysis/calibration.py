@@ -213,8 +213,8 @@ class Calibration:
 
 @cache
 def tables() -> dict[str, Calibration]:
-    """The tables shipped with the package (crashnlp/analysis/calibration.json), by model form. Read
-    beside this file: importlib.resources would import tempfile and zipfile into every simulation."""
+    """The tables shipped with the package (crashnlp/analysis/calibration.json, beside this module), by
+    model form."""
     raw = json.loads(Path(__file__).with_name(FILE).read_text())
     return {form: Calibration.from_json(table) for form, table in raw.items()}
 

@@ -1,6 +1,6 @@
 """The crashnlp cache folder: compiled functions (with a lock file each: crashnlp.numerics.compiled),
 derived models (crashnlp.models.stored), remembered unit conversions (crashnlp.base.units) and the
-values of YAML files read before (crashnlp.problem.load).
+values of the YAML files (problems, studies) read before (crashnlp.problem.load).
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
@@ -25,8 +25,8 @@ def cache_dir() -> Path:
 def temporary_file(folder: Path, prefix: str = "") -> tuple[int, str]:
     """A new file in `folder`, open for reading and writing, under a random name no other file has
     (O_EXCL), made with the mode `open` gives a new file (0666 less the umask): to be renamed over
-    its target (`os.replace`). The standard library's tempfile.mkstemp makes it 0600, and importing
-    tempfile costs a command milliseconds."""
+    its target (`os.replace`). Not tempfile's: its files are 0600, and its import costs a command
+    milliseconds."""
     flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
     for _ in range(NAME_TRIES):
         path = os.path.join(folder, f"{prefix}{os.urandom(8).hex()}.tmp")

@@ -88,7 +88,7 @@ class Metric:
     extreme: float = 0.0  # the channel's instant it is: +1 its max, -1 its min, 0 no one instant
     plotted: bool = False  # a study plots it against a swept entry
     whole_pulse: bool = True  # only a record that holds the whole pulse gives it (UNFINISHED below)
-    bounds: tuple[float, float | None] = (-math.inf, math.inf)  # its physical range, SI (METRIC_RANGE below)
+    bounds: tuple[float, float | None] | None = None  # a predicted metric's physical range, SI (METRIC_RANGE below)
 
     @property
     def heading(self) -> str:
@@ -149,7 +149,7 @@ PLOTTED: tuple[str, ...] = tuple(m.key for m in METRICS if m.plotted)
 UNFINISHED: tuple[str, ...] = tuple(m.key for m in METRICS if m.whole_pulse)
 # each predicted metric's physical range (SI; None: the record's end): why each, and how an interval
 # is cut to it, in crashnlp.analysis.limits
-METRIC_RANGE: dict[str, tuple[float, float | None]] = {m.key: m.bounds for m in PREDICTED}
+METRIC_RANGE: dict[str, tuple[float, float | None]] = {m.key: m.bounds for m in PREDICTED if m.bounds is not None}
 
 # the keys of the CG's travel that files written before issue 40's rename called crush: old name ->
 # current name. RENAMED: the crash metrics' keys, wherever a file keeps them (result.json's and

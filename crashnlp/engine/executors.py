@@ -26,7 +26,7 @@ import time
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from contextlib import contextmanager, suppress
+from contextlib import ExitStack, contextmanager, suppress
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
@@ -37,7 +37,7 @@ from crashnlp.numerics.compile_job import stop_compiles
 
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker
 LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left while nothing finishes
-ABORT_WAIT = 5.0  # s: how long an aborted study's worker has to end after SIGTERM before it is killed
+ABORT_WAIT = 5.0  # s: how long an aborted study's workers have to end after SIGTERM before they are killed
 HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
 # a LocalCluster's housekeeping, which shares the cores with the cases it runs: no statistical
@@ -187,8 +187,9 @@ class LocalExecutor:
         processes = [p for pool in self.pools for p in (getattr(pool, "_processes", None) or {}).values()]
         for process in processes:
             process.terminate()
+        deadline = time.monotonic() + ABORT_WAIT
         for process in processes:
-            process.join(timeout=ABORT_WAIT)
+            process.join(timeout=max(0.0, deadline - time.monotonic()))
             if process.is_alive():
                 process.kill()
                 process.join()
@@ -210,12 +211,16 @@ def _signals_held() -> Iterator[None]:
         yield
         return
     held: list[int] = []
-    previous = {s: signal.signal(s, lambda signum, frame: held.append(signum)) for s in HELD_SIGNALS}
     try:
-        yield
+        with ExitStack() as restore:  # every handler put back, even where a signal interrupts one of them
+            for s in HELD_SIGNALS:
+                previous = signal.getsignal(s)
+                if previous is None:  # a handler set outside Python: left alone
+                    continue
+                restore.callback(signal.signal, s, previous)
+                signal.signal(s, lambda signum, frame: held.append(signum))
+            yield
     finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
         for signum in held:
             signal.raise_signal(signum)
 

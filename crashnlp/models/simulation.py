@@ -91,9 +91,8 @@ def simulate(model: CrashModel, p: np.ndarray, speed: float, grid: np.ndarray, o
 
 def _outputs_on_grid(model: CrashModel, n: int) -> tuple[Evaluator, Evaluator]:
     """The compiled outputs, and the front end's permanent set (CrashModel.permanent_set), each
-    mapped over the n points of one simulation and evaluated on its arrays directly: a CasADi
-    graph around the two (its parameters repeated n times) costs more to build than they cost
-    to evaluate, for every length of simulation."""
+    mapped over the n points of one simulation, to be evaluated on its arrays (the parameters
+    broadcast to every point)."""
 
     def build() -> tuple[Evaluator, Evaluator]:
         outputs = model.cached(("outputs",), lambda: compiled(model.outputs))

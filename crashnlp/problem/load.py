@@ -14,13 +14,15 @@ from crashnlp.problem.errors import ProblemError
 from crashnlp.problem.schema import Problem, problem_from_dict
 
 
-def read_yaml(path: str | Path) -> dict[str, Any]:
-    """Parse a YAML file, turning every read, encoding or syntax failure into a ProblemError.
+def read_yaml(path: str | Path) -> Any:
+    """The values of a YAML file, every read, encoding or syntax failure a ProblemError.
 
-    A file's values are kept in the crashnlp cache under a hash of its text, PyYAML's version and
-    the parser's code (`_parsed_file`), as JSON where JSON holds them exactly: a later read of the
-    same text loads them without importing PyYAML, whose import and pure-Python parse cost a
-    command some 15 ms (docs/design-notes.md, "Reading the problem without PyYAML")."""
+    A file's values are kept in the crashnlp cache, as JSON, under a hash of its text, PyYAML's
+    version and the code that parses and keeps them (`_kept_file`), where JSON gives them back as
+    they are (`_as_json`): a later read of the same text loads them without importing PyYAML,
+    whose import and pure-Python parse cost a command some 15 ms (docs/design-notes.md, "Reading
+    the problem without PyYAML"). Kept files are the size of their text; the cache's limit does
+    not prune them."""
     path = Path(path)
     if not path.is_file():
         raise ProblemError(f"{path}: file not found")
@@ -30,40 +32,64 @@ def read_yaml(path: str | Path) -> dict[str, Any]:
         raise ProblemError(f"{path}: not valid UTF-8 text (byte {exc.start})") from None
     except OSError as exc:
         raise ProblemError(f"{path}: cannot read ({exc.strerror})") from None
-    kept = _parsed_file(text)
-    with suppress(OSError, ValueError):
-        return json.loads(kept.read_text())
+    kept = _kept_file(text)
+    if kept is not None:
+        with suppress(OSError, ValueError):
+            return json.loads(kept.read_text())
     from crashnlp.problem.parse import parse_yaml  # here, not at the top: only a text not read before needs PyYAML
 
     raw = parse_yaml(text, path)
-    if not _plain(raw):
-        return raw
-    values = json.dumps(raw)
-    with suppress(OSError):
-        write_atomic(kept, values)
-    return json.loads(values)  # what a later read gets: a copy wherever YAML's aliases shared one value
+    values = _as_json(raw)
+    if values is not None and kept is not None:
+        with suppress(OSError):
+            write_atomic(kept, values)
+    return raw
 
 
-def _parsed_file(text: str) -> Path:
-    """Where the values of the YAML `text` are kept (`read_yaml`)."""
-    key = hashlib.sha256("\0".join((text, *_parser())).encode()).hexdigest()[:32]
+def _kept_file(text: str) -> Path | None:
+    """Where the values of the YAML `text` are kept (`read_yaml`); None where the code that parses
+    and keeps them cannot be read to key them (an installation without sources)."""
+    parser = _parser()
+    if parser is None:
+        return None
+    key = hashlib.sha256("\0".join((text, *parser)).encode()).hexdigest()[:32]
     return cache_dir() / f"yaml-{key}.json"
 
 
 @cache
-def _parser() -> tuple[str, str]:
-    """What else fixes a text's values: the parser's code (crashnlp.problem.parse) and PyYAML's version."""
-    return Path(__file__).with_name("parse.py").read_text(), installed_version("yaml", "PyYAML")
+def _parser() -> tuple[str, ...] | None:
+    """What else fixes a text's kept values: the code that parses (crashnlp.problem.parse) and keeps
+    them (this module's), and PyYAML's version; None where the code cannot be read."""
+    try:
+        code = tuple(Path(__file__).with_name(name).read_text() for name in ("parse.py", "load.py"))
+    except OSError:
+        return None
+    return (*code, installed_version("yaml", "PyYAML"))
 
 
-def _plain(value: Any) -> bool:
-    """Whether JSON gives `value` back as it is: mappings with text keys, lists, text, numbers,
-    booleans and nulls (not YAML's dates, sets, binary or other keys)."""
-    if isinstance(value, dict):
-        return all(isinstance(k, str) and _plain(v) for k, v in value.items())
-    if isinstance(value, list):
-        return all(_plain(v) for v in value)
-    return value is None or isinstance(value, (str, int, float))
+def _as_json(values: Any) -> str | None:
+    """`values` as JSON text, where JSON gives them back as they are (`_plain`); else None."""
+    if not _plain(values, set()):
+        return None
+    try:
+        return json.dumps(values)
+    except ValueError:  # an integer of more digits than Python turns into text
+        return None
+
+
+def _plain(value: Any, seen: set[int]) -> bool:
+    """Whether JSON gives `value` back as it is: a tree of mappings with text keys, lists, text,
+    numbers, booleans and nulls. Not YAML's dates, sets, binary data or other keys; nor a list or
+    mapping reached twice (`seen`), as YAML's aliases make: JSON would copy it at every place, as
+    often as the aliases nest (exponentially), or for ever where it holds itself."""
+    if isinstance(value, dict | list):
+        if id(value) in seen:
+            return False
+        seen.add(id(value))
+        if isinstance(value, dict):
+            return all(isinstance(k, str) and _plain(v, seen) for k, v in value.items())
+        return all(_plain(v, seen) for v in value)
+    return value is None or isinstance(value, str | int | float)
 
 
 def check_fit_keys(problem: Problem, source: str | Path) -> None:

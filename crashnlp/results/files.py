@@ -43,7 +43,7 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
     """A file written in full or not at all: a temporary file beside `path`, renamed over it
     when the block ends (a reader never sees half a file), with the usual mode."""
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = temporary_file(path.parent)
+    fd, tmp = temporary_file(path.parent, f".{path.name}.")
     try:
         newline = None if "b" in mode else ""  # csv writes its own line ends
         with open(fd, mode, newline=newline) as fh:
@@ -81,9 +81,11 @@ def check_writable(out: str | Path, option: str = "--out") -> Path:
     if not probe.is_dir():
         raise InputError(f"{option} {out}: {probe} is not a folder")
     try:
-        fd, made = temporary_file(probe)
-        os.close(fd)
-        os.unlink(made)
+        fd, made = temporary_file(probe, ".crashnlp-probe.")
+        try:
+            os.close(fd)
+        finally:
+            os.unlink(made)
     except OSError as exc:
         raise InputError(f"{option} {out}: cannot write in {probe} ({exc.strerror or exc})") from None
     return out
