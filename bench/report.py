@@ -958,6 +958,25 @@ def detectors_md(r: dict) -> list[str]:
     ]
 
 
+def truncated_md(r: dict) -> list[str]:
+    """MID_CRASH on records cut short, vehicles of every generator kind (bench/truncated.py)."""
+    rows = [[kind, q["held"], q["held_short"], q["mid_crash"], q["mid_crash_whole"]] for kind, q in r["kinds"].items()]
+    head = ["kind", "held whole", "of them short of the peak", "mid-crash", "of them with the peak in the record"]
+    return [
+        "## Records cut short: the mid-crash rule on a seed it was not set on",
+        "",
+        f"{r['count']} vehicles of each generator kind (seed {r['seed']}), noise-free at "
+        f"{', '.join(f'{k:g}' for k in r['speeds_kmh'])} km/h, each record cut every {r['step_s'] * 1e3:g} ms before "
+        f"its stop while still moving toward the barrier. Held whole: the deceleration at the cut below "
+        f"{r['mid_crash']:g} of the peak so far, so the record's peak and pulse stand; short: its peak more than "
+        f"{r['short']:.0%} below the whole record's (a silent failure). Mid-crash: no peak, stop or rebound given; "
+        "of them with the peak in the record: the caution's cost.",
+        "",
+        *_table(head, rows),
+        "",
+    ]
+
+
 SECTIONS = {
     "identification": identification_md,
     "simulation": simulation_md,
@@ -970,6 +989,7 @@ SECTIONS = {
     "intervals": calibration.markdown,
     "whole_process": whole_process_md,
     "detectors": detectors_md,
+    "truncated": truncated_md,
 }
 
 

@@ -28,6 +28,7 @@ from bench import (  # noqa: E402
     self_consistency,
     simulation,
     studies,
+    truncated,
     whole_process,
 )
 from bench.common import RESULTS, machine, wait_for_compiles  # noqa: E402
@@ -45,6 +46,7 @@ SECTIONS = {
     "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
     "detectors": detectors,  # the watch's rules: set on one corpus seed, checked on another
+    "truncated": truncated,  # records cut short: MID_CRASH checked on a seed it was not set on
     "convergence": convergence,  # reads the corpus, scaling and studies sections' fits: bench/report.py
 }
 
