@@ -8,6 +8,7 @@ import statistics
 from pathlib import Path
 
 from bench import calibration, convergence
+from crashnlp.base.outputs import METRIC
 
 
 def _met(ok: bool | None) -> str:
@@ -960,16 +961,29 @@ def detectors_md(r: dict) -> list[str]:
 
 def truncated_md(r: dict) -> list[str]:
     """MID_CRASH on records cut short, vehicles of every generator kind (bench/truncated.py)."""
-    rows = [[kind, q["held"], q["held_short"], q["mid_crash"], q["mid_crash_whole"]] for kind, q in r["kinds"].items()]
-    head = ["kind", "held whole", "of them short of the peak", "mid-crash", "of them with the peak in the record"]
+    held = list(next(iter(r["kinds"].values()))["held_short"])
+    rows = [
+        [kind, q["held"], *(q["held_short"][k] for k in held), q["mid_crash"], q["mid_crash_whole"]]
+        for kind, q in r["kinds"].items()
+    ]
+    head = [
+        "kind",
+        "held whole",
+        *(f"of them {METRIC[k].label} short" for k in held),
+        "mid-crash",
+        "of them with the peak in the record",
+    ]
+    floors = ", ".join(f"{v:g} {METRIC[k].unit} of {METRIC[k].label}" for k, v in r["floor"].items())
+    vehicles = f"{r['count']} vehicle{'s' if r['count'] != 1 else ''}"
     return [
         "## Records cut short: the mid-crash rule on a seed it was not set on",
         "",
-        f"{r['count']} vehicles of each generator kind (seed {r['seed']}), noise-free at "
+        f"{vehicles} of each generator kind (seed {r['seed']}), noise-free at "
         f"{', '.join(f'{k:g}' for k in r['speeds_kmh'])} km/h, each record cut every {r['step_s'] * 1e3:g} ms before "
         f"its stop while still moving toward the barrier. Held whole: the deceleration at the cut below "
-        f"{r['mid_crash']:g} of the peak so far, so the record's peak and pulse stand; short: its peak more than "
-        f"{r['short']:.0%} below the whole record's (a silent failure). Mid-crash: no peak, stop or rebound given; "
+        f"{r['mid_crash']:g} of the peak so far, so the record gives its peak, velocity change, rebound and max pitch; "
+        f"short: one of them more than {r['short']:.0%} (and at least {floors}) below the whole record's, a silent "
+        "failure. Mid-crash: none of them given; "
         "of them with the peak in the record: the caution's cost.",
         "",
         *_table(head, rows),

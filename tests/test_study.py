@@ -329,6 +329,20 @@ def test_an_aborted_executor_leaves_no_worker_and_no_thread_of_its_pools():
     assert len(threads) == 4 and not [t for t in threads if t is not None and t.is_alive()]
 
 
+def test_a_held_signal_is_handled_as_the_hold_ends_and_every_handler_is_put_back():
+    seen: list[int] = []
+    ours = {s: lambda signum, frame: seen.append(signum) for s in executors.HELD_SIGNALS}
+    previous = {s: signal.signal(s, handler) for s, handler in ours.items()}
+    try:
+        with executors._signals_held():
+            signal.raise_signal(signal.SIGTERM)
+            assert seen == [] and all(signal.getsignal(s) is not h for s, h in ours.items())
+        assert seen == [signal.SIGTERM] and all(signal.getsignal(s) is h for s, h in ours.items())
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+
+
 @pytest.mark.integration
 def test_a_signal_while_a_worker_starts_is_handled_once_its_pool_knows_the_worker(monkeypatch):
     """SIGTERM raised while a worker process is being started: the command's handler runs only
@@ -485,6 +499,19 @@ def test_an_interrupted_study_resumes_without_redoing_finished_cases(small, calm
     # nothing left to do: no solve at all, the same table
     run_study(study, out, executor="dask", address="tcp://127.0.0.1:1", progress=False)  # never connects
     assert {p.name: p.stat().st_mtime_ns for p in cases.glob("*.json")} == restamp
+
+
+def test_a_sweep_of_one_tests_entry_is_that_tests_alone_where_the_tests_share_it_by_an_alias(tmp_path):
+    """The shipped two-test pickup gives its tests one channel list by a YAML alias: sweeping the
+    first test's accelerometer filter leaves the second's as the file gives it."""
+    study = tmp_path / "filter.yaml"
+    study.write_text(
+        f"name: filter\nproblem: {ROOT / 'problems/pickup-joint.yaml'}\n"
+        "sweep:\n  tests.0.data.channels.accel.filter: [CFC180]\nmode: grid\n"
+    )
+    spec = load_study(study)
+    raw = case_problem(spec, plan_cases(spec)[0])
+    assert [t["data"]["channels"]["accel"]["filter"] for t in raw["tests"]] == ["CFC180", "CFC60"]
 
 
 @pytest.mark.integration

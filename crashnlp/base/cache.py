@@ -16,6 +16,7 @@ from pathlib import Path
 
 CACHE_ENV = "CRASHNLP_CACHE"
 NAME_TRIES = 100  # random temporary names tried before giving up (each clashes with odds 2^-64)
+PREFIX_CHARS = 64  # of a temporary name's prefix (a target's own name): a long one would pass the system's limit
 
 
 def cache_dir() -> Path:
@@ -29,7 +30,7 @@ def temporary_file(folder: Path, prefix: str = "") -> tuple[int, str]:
     milliseconds."""
     flags = os.O_RDWR | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0)
     for _ in range(NAME_TRIES):
-        path = os.path.join(folder, f"{prefix}{os.urandom(8).hex()}.tmp")
+        path = os.path.join(folder, f"{prefix[:PREFIX_CHARS]}{os.urandom(8).hex()}.tmp")
         try:
             return os.open(path, flags, 0o666), path
         except FileExistsError:

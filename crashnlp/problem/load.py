@@ -13,16 +13,21 @@ from crashnlp.base.cache import cache_dir, installed_version, write_atomic
 from crashnlp.problem.errors import ProblemError
 from crashnlp.problem.schema import Problem, problem_from_dict
 
+# values kept of a YAML text: at most this many a character of it, and EXPANSION_FLOOR more (aliases
+# that share a channel list write it out once more for each test; a flood of them is no problem file)
+EXPANSION, EXPANSION_FLOOR = 4, 1000
+
 
 def read_yaml(path: str | Path) -> Any:
     """The values of a YAML file, every read, encoding or syntax failure a ProblemError.
 
     A file's values are kept in the crashnlp cache, as JSON, under a hash of its text, PyYAML's
     version and the code that parses and keeps them (`_kept_file`), where JSON gives them back as
-    they are (`_as_json`): a later read of the same text loads them without importing PyYAML,
-    whose import and pure-Python parse cost a command some 15 ms (docs/design-notes.md, "Reading
-    the problem without PyYAML"). Kept files are the size of their text; the cache's limit does
-    not prune them."""
+    they are (`_as_json`: values aliases point to come back as a copy at each place, on the first
+    read as on later ones; a text not kept gives PyYAML's values): a later read of the same text
+    loads them without importing PyYAML, whose import and pure-Python parse cost a command some
+    15 ms (docs/design-notes.md, "Reading the problem without PyYAML"). Kept files are a few
+    times the size of their text; the cache's limit does not prune them."""
     path = Path(path)
     if not path.is_file():
         raise ProblemError(f"{path}: file not found")
@@ -39,11 +44,13 @@ def read_yaml(path: str | Path) -> Any:
     from crashnlp.problem.parse import parse_yaml  # here, not at the top: only a text not read before needs PyYAML
 
     raw = parse_yaml(text, path)
-    values = _as_json(raw)
-    if values is not None and kept is not None:
+    values = _as_json(raw, len(text))
+    if values is None:
+        return raw
+    if kept is not None:
         with suppress(OSError):
             write_atomic(kept, values)
-    return raw
+    return json.loads(values)  # what a later read gets: a copy wherever aliases point to one value
 
 
 def _kept_file(text: str) -> Path | None:
@@ -67,9 +74,10 @@ def _parser() -> tuple[str, ...] | None:
     return (*code, installed_version("yaml", "PyYAML"))
 
 
-def _as_json(values: Any) -> str | None:
-    """`values` as JSON text, where JSON gives them back as they are (`_plain`); else None."""
-    if not _plain(values, set()):
+def _as_json(values: Any, size: int) -> str | None:
+    """`values` (of a YAML text of `size` characters) as JSON text, where JSON gives them back as
+    they are (`_plain`); else None."""
+    if not _plain(values, set(), [EXPANSION * size + EXPANSION_FLOOR]):
         return None
     try:
         return json.dumps(values)
@@ -77,18 +85,24 @@ def _as_json(values: Any) -> str | None:
         return None
 
 
-def _plain(value: Any, seen: set[int]) -> bool:
-    """Whether JSON gives `value` back as it is: a tree of mappings with text keys, lists, text,
-    numbers, booleans and nulls. Not YAML's dates, sets, binary data or other keys; nor a list or
-    mapping reached twice (`seen`), as YAML's aliases make: JSON would copy it at every place, as
-    often as the aliases nest (exponentially), or for ever where it holds itself."""
+def _plain(value: Any, ancestors: set[int], budget: list[int]) -> bool:
+    """Whether JSON gives `value` back as it is: mappings with text keys, lists, text, numbers,
+    booleans and nulls; not YAML's dates, sets, binary data or other keys. A list or mapping that
+    aliases reach from several places is written out at each, as a copy, within `budget` values
+    in all (EXPANSION): JSON would write out nested aliases 2^n times for n doublings, and for
+    ever a list that holds itself (one of its `ancestors`)."""
+    budget[0] -= 1
+    if budget[0] < 0:
+        return False
+    if isinstance(value, dict) and not all(isinstance(k, str) for k in value):
+        return False
     if isinstance(value, dict | list):
-        if id(value) in seen:
+        if id(value) in ancestors:
             return False
-        seen.add(id(value))
-        if isinstance(value, dict):
-            return all(isinstance(k, str) and _plain(v, seen) for k, v in value.items())
-        return all(_plain(v, seen) for v in value)
+        ancestors.add(id(value))
+        plain = all(_plain(v, ancestors, budget) for v in (value.values() if isinstance(value, dict) else value))
+        ancestors.discard(id(value))
+        return plain
     return value is None or isinstance(value, str | int | float)
 
 

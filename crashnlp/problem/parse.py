@@ -56,3 +56,5 @@ def parse_yaml(text: str, path: Path) -> Any:
         raise ProblemError(f"{path}:{where} not valid YAML{why}") from None
     except RecursionError:
         raise ProblemError(f"{path}: not valid YAML (nested too deeply)") from None
+    except ValueError as exc:  # an integer of more digits than Python reads
+        raise ProblemError(f"{path}: not valid YAML ({exc})") from None
