@@ -15,9 +15,9 @@ one record. The corpus of one seed (SET_SEED) sets the calibration: per metric t
 distance (power), then per class of prediction and metric the split-conformal quantile (LEVEL)
 of the records' scores, its rank from the number of vehicles, or where larger the share LEVEL of any
 one generator form's scores (a vehicle's form is not known when it is predicted); the corpus of
-another (CHECK_SEED), which it never saw, checks it: coverage, median half-width and accuracy per
-scenario and metric, and per form; and so does a population of another form (HIDDEN,
-HIDDEN_SEED). The records hold what a model form's fits and predictions give: each model form
+another (CHECK_SEED), whose records set no q, checks it: coverage, median half-width and accuracy
+per scenario and metric, and per form; and so does a population of another form (HIDDEN,
+HIDDEN_SEED). Both did choose between candidate rules for version 8 (docs/design-notes.md). The records hold what a model form's fits and predictions give: each model form
 (MODEL_FORMS) is fitted to the same vehicles and gets its own table, set and checked the same way
 (`make calibrate`). `--forms FORM ...` makes the named forms' tables only: the other forms' tables,
 held-out records and parts of the bench section stay as they were.
@@ -547,7 +547,7 @@ def markdown(section: dict) -> list[str]:
         "Each is fitted from minimal problem files at 56 km/h, at 40 + 56 and at 40 + 64 km/h, and predicts the speeds "
         "it was not fitted at, and at 56 km/h with 20 % more and 15 % less mass. Each model form's table "
         f"(crashnlp/analysis/calibration.json, version {cal['version']}) is set on its own fits of seed {section['set_seed']} "
-        f"(conformal level {cal['coverage']}) and checked on seed {section['check_seed']}, which it never saw, and on "
+        f"(conformal level {cal['coverage']}) and checked on seed {section['check_seed']}, whose records set no q, and on "
         f"{hidden} vehicles of a form the corpus does not hold, {', '.join(HIDDEN)} (seed {HIDDEN_SEED}). Per metric: the "
         "share of predictions whose 95 % interval holds the generator's value (a failed fit, or one that gives no "
         "interval, counts as a miss; in brackets the share of those with an interval), the median half-width and the "

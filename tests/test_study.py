@@ -28,6 +28,7 @@ from crashnlp.optimize.identify import identify
 from crashnlp.problem import problem_from_dict
 from crashnlp.studies import load_study, run_study
 from crashnlp.studies.plan import case_indices, case_problem, corners, lattice, plan_cases, warm_start_plan
+from crashnlp.studies.spec import set_path
 from crashnlp.studies.table import figure_jobs
 
 PITCH = "constraints.bounds.pitch"
@@ -512,6 +513,16 @@ def test_a_sweep_of_one_tests_entry_is_that_tests_alone_where_the_tests_share_it
     spec = load_study(study)
     raw = case_problem(spec, plan_cases(spec)[0])
     assert [t["data"]["channels"]["accel"]["filter"] for t in raw["tests"]] == ["CFC180", "CFC60"]
+
+
+def test_a_swept_entry_that_values_share_is_changed_at_its_place_alone():
+    """However the problem's values came (a file's aliases that its reading kept shared, or a
+    problem built in Python), a sweep writes its own copy of what it walks through."""
+    channels = {"accel": {"filter": "CFC60"}}
+    raw = {"tests": [{"data": {"channels": channels}}, {"data": {"channels": channels}}]}
+    set_path(raw, ("tests", 0, "data", "channels", "accel", "filter"), "CFC180")
+    assert [t["data"]["channels"]["accel"]["filter"] for t in raw["tests"]] == ["CFC180", "CFC60"]
+    assert channels == {"accel": {"filter": "CFC60"}}
 
 
 @pytest.mark.integration

@@ -11,8 +11,11 @@ from __future__ import annotations
 
 import importlib.util
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
+from typing import IO, Any
 
 CACHE_ENV = "CRASHNLP_CACHE"
 NAME_TRIES = 100  # random temporary names tried before giving up (each clashes with odds 2^-64)
@@ -38,18 +41,26 @@ def temporary_file(folder: Path, prefix: str = "") -> tuple[int, str]:
     raise FileExistsError(f"{folder}: no free temporary name in {NAME_TRIES} tries")
 
 
-def write_atomic(path: Path, text: str) -> None:
-    """Write `text` under a temporary name beside `path`, then rename it in place: a reader sees
-    the whole file or none, and two writers of the same file the one or the other."""
+@contextmanager
+def replaced_atomically(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
+    """A file written in full or not at all: a temporary file beside `path`, renamed over it when
+    the block ends (a reader sees the whole file or none, and of two writers the one or the other)."""
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = temporary_file(path.parent, f".{path.name}.")
     try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
+        newline = None if "b" in mode else ""  # csv writes its own line ends
+        with open(fd, mode, newline=newline) as fh:
+            yield fh
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    finally:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+
+
+def write_atomic(path: Path, text: str) -> None:
+    """Write `text` to `path` in full or not at all (`replaced_atomically`)."""
+    with replaced_atomically(path) as fh:
+        fh.write(text)
 
 
 @cache

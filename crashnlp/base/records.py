@@ -241,7 +241,10 @@ class Record:
 
     def __init__(self, **values: Any) -> None:
         """A record validated from keyword values (ValidationError: every error)."""
-        _validate_record(type(self), values, (), _Errors(), None, self)
+        errors = _Errors()
+        _record(type(self), values, (), errors, None, self)
+        if errors.items:
+            raise ValidationError(type(self).__name__, errors.items)
 
     # ---- pydantic's API, as the schemas' callers use it
     @classmethod
@@ -344,23 +347,12 @@ def _validate_model(cls: type[Record], data: Any, loc: tuple, errors: _Errors, c
     """A record of `cls` from `data` (a record of it as it is), its errors recorded."""
     if isinstance(data, cls):
         return data
-    return _validate_record(cls, data, loc, errors, context, None)
-
-
-def _validate_record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: Any, into: Record | None) -> Any:
-    """The record of `cls` from `data` (filled into `into` when given, for a direct construction)."""
-    outer = errors
-    errors = _Errors()
-    try:
-        result = _record(cls, data, loc, errors, context, into)
-    finally:
-        outer.items.extend(errors.items)
-    if into is not None and errors.items:
-        raise ValidationError(cls.__name__, errors.items)
-    return result
+    return _record(cls, data, loc, errors, context, None)
 
 
 def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: Any, into: Record | None) -> Any:
+    """The record of `cls` from `data` (filled into `into` when given, for a direct construction),
+    or INVALID with its errors recorded."""
     for v in cls._model_before:
         try:
             data = v(cls, data, ValidationInfo(context, {}))

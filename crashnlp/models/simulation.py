@@ -50,8 +50,8 @@ def batch_simulator(model: CrashModel, steps: int, dt: float, n: int, jit: bool 
 
     Fixed-step RK4 of the simulation ODE accumulated over the steps (mapaccum),
     the named outputs at every step, all mapped over the parameter sets, as a
-    what-if study needs. The result has len(OUTPUTS) rows, the history state's and the loading
-    force at it below them, and n * (steps + 1) columns, simulation k in columns k * (steps + 1) onwards. `jit`
+    what-if study needs. The result has len(OUTPUTS) rows, the front end's permanent set
+    (CrashModel.permanent_set) below them, and n * (steps + 1) columns, simulation k in columns k * (steps + 1) onwards. `jit`
     compiles one simulation to C (crashnlp.numerics.compiled: about a second, once per machine)."""
     x, p = ca.SX.sym("x", model.nx + len(ABSORBED)), model.p
     step = rk4(model.augmented_rhs, dt)

@@ -34,25 +34,17 @@ from typing import IO, Any
 
 import numpy as np
 
-from crashnlp.base.cache import temporary_file
+from crashnlp.base.cache import replaced_atomically, temporary_file
 from crashnlp.base.errors import InputError
 
 
 @contextmanager
 def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
-    """A file written in full or not at all: a temporary file beside `path`, renamed over it
-    when the block ends (a reader never sees half a file), with the usual mode."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = temporary_file(path.parent, f".{path.name}.")
-    try:
-        newline = None if "b" in mode else ""  # csv writes its own line ends
-        with open(fd, mode, newline=newline) as fh:
-            yield fh
-        os.replace(tmp, path)
-        note_output(path)
-    finally:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
+    """An output file written in full or not at all (crashnlp.base.cache.replaced_atomically),
+    noted as the run's once written (`note_output`)."""
+    with replaced_atomically(path, mode) as fh:
+        yield fh
+    note_output(path)
 
 
 def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:

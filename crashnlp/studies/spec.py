@@ -208,14 +208,18 @@ def _child(tp: Any, key: str) -> Any:
 
 
 def set_path(raw: dict, keys: tuple[Key, ...], value: Any) -> None:
-    """Replace the entry at `keys` in a raw problem, creating mappings on the way."""
+    """Replace the entry at `keys` in a raw problem, creating mappings on the way. Each list or
+    mapping on the way is replaced by a copy of its own first: a file's alias may give one value
+    to several places (a two-test problem's shared channels), and the change is this place's."""
     node: Any = raw
     for key in keys[:-1]:
         if isinstance(node, dict):
-            if not isinstance(node.get(key), (dict, list)):
-                node[key] = {}
+            child = node.get(key)
+            node[key] = copy.copy(child) if isinstance(child, (dict, list)) else {}
             node = node[key]
         elif isinstance(node, list) and isinstance(key, int) and key < len(node):
+            if isinstance(node[key], (dict, list)):
+                node[key] = copy.copy(node[key])
             node = node[key]
         else:
             raise InputError(f"{'.'.join(map(str, keys))}: the problem has no entry {key!r} to change")
