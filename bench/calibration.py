@@ -63,7 +63,7 @@ from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 
-VERSION = 8
+VERSION = 9
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
 # predictions of a class, 56 -> 64 and 40 + 56 -> 64, miss alike): docs/design-notes.md
 LEVEL = 0.95

@@ -273,13 +273,13 @@ class Body:
         return np.array([*body, s[8], engine_accel - body[3]])
 
 
-def simulate(v: Vehicle, body_type: type[Body] = Body) -> dict[str, np.ndarray]:
-    """Noise-free response at 10 kHz: time, accel, velocity, displacement, pitch, barrier force and
-    the part of it that meets the engine (SI), of `body_type`'s equations of motion."""
+def simulate(v: Vehicle, body_type: type[Body] = Body, duration: float = DURATION) -> dict[str, np.ndarray]:
+    """Noise-free response at 10 kHz for `duration`: time, accel, velocity, displacement, pitch,
+    barrier force and the part of it that meets the engine (SI), of `body_type`'s equations of motion."""
     body = body_type(v)
-    t = DT * np.arange(int(round(DURATION / DT)) + 1)
+    t = DT * np.arange(int(round(duration / DT)) + 1)
     start = [0, 0, 0, v.speed, 0, 0, 0] + ([0, 0] if v.engine else [])
-    sol = solve_ivp(body.rhs, (0.0, DURATION), start, method="LSODA", t_eval=t, rtol=1e-9, atol=1e-11, max_step=5e-5)
+    sol = solve_ivp(body.rhs, (0.0, duration), start, method="LSODA", t_eval=t, rtol=1e-9, atol=1e-11, max_step=5e-5)
     if not sol.success:
         raise RuntimeError(f"{v.name}: {sol.message}")
     X, Z, phi, Xd = sol.y[:4]

@@ -8,7 +8,7 @@ import statistics
 from pathlib import Path
 
 from bench import calibration, convergence
-from crashnlp.base.outputs import METRIC
+from crashnlp.base.outputs import METRIC, UNSETTLED
 
 
 def _met(ok: bool | None) -> str:
@@ -961,15 +961,24 @@ def detectors_md(r: dict) -> list[str]:
 
 def truncated_md(r: dict) -> list[str]:
     """MID_CRASH on records cut short, vehicles of every generator kind (bench/truncated.py)."""
-    held = list(next(iter(r["kinds"].values()))["held_short"])
+    judged = list(next(iter(r["kinds"].values()))["held_short"])
+    withheld = [k for k in judged if k in UNSETTLED]
     rows = [
-        [kind, q["held"], *(q["held_short"][k] for k in held), q["mid_crash"], q["mid_crash_whole"]]
+        [
+            kind,
+            q["held"],
+            *(q["held_short"][k] for k in judged),
+            *(q["held_withheld"][k] for k in withheld),
+            q["mid_crash"],
+            q["mid_crash_whole"],
+        ]
         for kind, q in r["kinds"].items()
     ]
     head = [
         "kind",
         "held whole",
-        *(f"of them {METRIC[k].label} short" for k in held),
+        *(f"of them giving {METRIC[k].label} short" for k in judged),
+        *(f"of them without {METRIC[k].label}, whole already" for k in withheld),
         "mid-crash",
         "of them with the peak in the record",
     ]
@@ -981,10 +990,11 @@ def truncated_md(r: dict) -> list[str]:
         f"{vehicles} of each generator kind (seed {r['seed']}), noise-free at "
         f"{', '.join(f'{k:g}' for k in r['speeds_kmh'])} km/h, each record cut every {r['step_s'] * 1e3:g} ms before "
         f"its stop while still moving toward the barrier. Held whole: the deceleration at the cut below "
-        f"{r['mid_crash']:g} of the peak so far, so the record gives its peak, velocity change, rebound and max pitch; "
-        f"short: one of them more than {r['short']:.0%} (and at least {floors}) below the whole record's, a silent "
-        "failure. Mid-crash: none of them given; "
-        "of them with the peak in the record: the caution's cost.",
+        f"{r['mid_crash']:g} of the peak so far, so the record gives its peak, and no velocity change, rebound or max "
+        "pitch (the vehicle meets the barrier again). Giving one short: more than "
+        f"{r['short']:.0%} (and at least {floors}) below the whole record's, a silent failure. Without one, whole "
+        "already: the caution's cost. Mid-crash: none of them given; of them with the peak in the record: the "
+        "caution's cost.",
         "",
         *_table(head, rows),
         "",

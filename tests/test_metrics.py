@@ -10,7 +10,7 @@ from bench.corpus import tall_vehicle
 from bench.truncated import cuts
 from crashnlp.analysis.metrics import crash_metrics, olc
 from crashnlp.analysis.summary import data_metrics, metrics, still_moving
-from crashnlp.base.outputs import UNFINISHED
+from crashnlp.base.outputs import UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
 from crashnlp.case import testcase
 from crashnlp.data import Channel, TestData
@@ -120,27 +120,34 @@ def test_a_record_that_ends_moving_keeps_an_olc_the_occupant_reaches_in_it():
 def test_a_generator_record_cut_short_and_held_whole_has_its_peak_in_it(index, kmh):
     """MID_CRASH on vehicles of a seed it was not set on (bench/truncated.py checks every kind): a
     van whose pitch lifted its front end off is held whole from some cut on, and no cut record held
-    whole misses a later peak; held whatever its deceleration (the rule off), some would. (Its max
-    pitch comes later: bench/truncated.py counts it.)"""
-    records = list(cuts(replace(tall_vehicle(index, truncated.SEED), speed=kmh / 3.6)))
-    held = [short for _, whole, short in records if whole]
-    assert len(held) >= 10 and not any(short["peak_decel_g"] for short in held)
+    whole misses a later peak; held whatever its deceleration (the rule off), some would. It drifts
+    on and meets the barrier again past 0.2 s, so a held record's rebound and velocity change so far
+    are short of the crash's every time, and its max pitch some of the time: it gives none of them."""
+    held = [c for c in cuts(replace(tall_vehicle(index, truncated.SEED), speed=kmh / 3.6)) if c.held]
+    assert len(held) >= 10 and not any(c.short["peak_decel_g"] for c in held)
+    assert not any(c.given & set(UNSETTLED) for c in held)
+    assert all(c.short["rebound_velocity_mps"] and c.short["delta_v_mps"] for c in held)
+    assert any(c.short["max_pitch_deg"] for c in held)
 
 
 def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
     """An 80 ms half-sine pulse that takes 14.5 of 15 m/s, the vehicle then drifting on at 0.5 m/s
     without contact (a pitch that lifted the front end off): the record ends still moving, but not
-    mid-crash (MID_CRASH), so its peak, velocity change and OLC stand; it has no stop, and the data
-    no max displacement (the model's is its travel at the end, as its note says)."""
+    mid-crash (MID_CRASH), so its peak and OLC stand; it has no stop, no velocity change, rebound or
+    max pitch (the vehicle meets the barrier again), and the data no max displacement (the model's
+    is its travel at the end, as its note says)."""
     t = np.arange(0.0, 0.15, 1e-4)
     pulse = t < 0.08
     a = np.where(pulse, -14.5 * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
     v = np.where(pulse, 15.0 - 14.5 * (1 - np.cos(np.pi * t / 0.08)) / 2, 0.5)
     x = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2 * np.diff(t))])
-    model = metrics(t, a, v, x, None)
-    assert model["peak_decel_g"] == pytest.approx(14.5 * np.pi / 0.16 / G0, rel=1e-4)
-    assert model["delta_v_mps"] == pytest.approx(14.5, rel=1e-3) and model["olc_g"] is not None
+    model = metrics(t, a, v, x, np.radians(4.0) * np.sin(np.pi * t / 0.3))
+    assert model["peak_decel_g"] == pytest.approx(14.5 * np.pi / 0.16 / G0, rel=1e-4) and model["olc_g"] is not None
+    assert all(model[k] is None for k in UNSETTLED) and {"delta_v_mps", "rebound_velocity_mps", "max_pitch_deg"} <= set(UNSETTLED)
     assert model["time_zero_velocity_s"] is None and model["max_displacement_m"] == pytest.approx(x[-1])
-    assert still_moving(model).endswith("(no stop: its travel there is no max displacement)")
+    assert still_moving(model).endswith(
+        "(no stop: it meets the barrier again, so no rebound velocity, delta-V or max pitch in it;"
+        " its travel there is no max displacement)"
+    )
     data = data_metrics(_recorded(t, a, v, x))
     assert data["max_displacement_m"] is None and data["peak_decel_g"] == pytest.approx(model["peak_decel_g"])

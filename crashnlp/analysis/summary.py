@@ -8,7 +8,7 @@ from dataclasses import replace
 import numpy as np
 
 from crashnlp.analysis.metrics import crash_metrics
-from crashnlp.base.outputs import METRICS, UNFINISHED
+from crashnlp.base.outputs import METRIC, METRICS, UNFINISHED, UNSETTLED
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
@@ -19,6 +19,8 @@ from crashnlp.results.response import Response
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
 # contact (its pitch lifted the front end off), and the record holds the pulse whole
 MID_CRASH = 0.1
+# what a record that ends drifting on does not give, in still_moving's words
+_UNSETTLED_WORDS = ", ".join(METRIC[k].label for k in UNSETTLED[:-1]) + f" or {METRIC[UNSETTLED[-1]].label}"
 
 
 def metrics(
@@ -30,8 +32,9 @@ def metrics(
     crush: np.ndarray | None = None,
 ) -> dict:
     """The crash metrics result.json reports, in the units their names say; None for a metric the
-    record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), and
-    the UNFINISHED ones of a record that ends mid-crash (MID_CRASH; `still_moving` says where it
+    record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), the
+    UNFINISHED ones of a record that ends mid-crash (MID_CRASH), and the UNSETTLED ones of a record
+    that ends drifting on toward the barrier after the pulse (`still_moving` says where either
     ends). The one rule for test data, fitted models and predictions alike.
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
@@ -48,7 +51,9 @@ def metrics(
     }
     out = {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
     out = {key: None if value is None or not np.isfinite(value) else value for key, value in out.items()}
-    return {**out, **dict.fromkeys(UNFINISHED)} if still_moving(out) and _mid_crash(accel) else out
+    if not still_moving(out):
+        return out
+    return {**out, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
 
 
 def _mid_crash(accel: np.ndarray) -> bool:
@@ -59,15 +64,16 @@ def _mid_crash(accel: np.ndarray) -> bool:
 
 def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record that ends before the vehicle stops (no time of zero velocity in
-    it): mid-crash, without the UNFINISHED metrics, or drifting on after the pulse, without a max
-    displacement; None for one that stops."""
+    it): mid-crash, without the UNFINISHED metrics, or drifting on after the pulse, without the
+    UNSETTLED ones and without a max displacement; None for one that stops."""
     stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
     if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
         return None
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
     if metrics.get("peak_decel_g") is None:
         return f"{moving} (no stop: no max displacement, stop, peak deceleration or rebound in it)"
-    return f"{moving} (no stop: its travel there is no max displacement)"
+    again = f"it meets the barrier again, so no {_UNSETTLED_WORDS} in it"
+    return f"{moving} (no stop: {again}; its travel there is no max displacement)"
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
