@@ -134,7 +134,7 @@ def cmd_simulate(args) -> int:
         from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced, write_simulation
         from crashnlp.results.source import source_line
 
-        fit = _fit_folder(source)
+        fit = _params_folder(source)
         with deriving(fit, out) if fit else nullcontext(), claim(out, run_name("simulate", case.name)):
             with _computing(args):
                 predicted = traced(predict(case, identified, dt), source)
@@ -148,8 +148,12 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def _fit_folder(source: dict) -> Path | None:
-    """The folder of the result.json a simulation took its parameters from (None: none)."""
+def _params_folder(source: dict) -> Path | None:
+    """The folder of the file a simulation took its parameters from, as its source records it
+    (crashnlp.results.source), whatever that file is named (`--params other.json` too); None where
+    they came from no file. The simulation's output counts as derived from the run in that folder
+    (crashnlp.results.files.deriving). Unlike crashnlp.results.result.fit_folder, which refuses a
+    file not named result.json (Result.load would not read it), it refuses nothing."""
     from crashnlp.results.result import result_file
 
     path = (source.get("result") or {}).get("path")
