@@ -118,19 +118,6 @@ def _with_params(file: str, source: str):
         raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
 
 
-def _speed_option(text: str | None) -> str | None:
-    """init's --speed as given, refused without a unit (crashnlp.problem.schema.stated_speed)."""
-    from crashnlp.base.units import UnitError
-    from crashnlp.problem.schema import stated_speed
-
-    if text is not None:
-        try:
-            stated_speed(text)
-        except UnitError as exc:
-            raise InputError(f"--speed {text}: {exc}") from None
-    return text
-
-
 def cmd_simulate(args) -> int:
     with _figure_process(args) as figures:
         prepared = _simulation(args)
@@ -438,8 +425,8 @@ def cmd_compare_forms(args) -> int:
 
 
 def cmd_init(args) -> int:
-    from crashnlp.base.units import UnitError, to_si
     from crashnlp.init import Options, init_problem
+    from crashnlp.problem.schema import what_if
 
     columns: dict[str, str] = {}
     for item in args.column:
@@ -449,13 +436,8 @@ def cmd_init(args) -> int:
         if channel in columns:
             raise InputError(f"--column {item}: {channel} is given twice (--column {channel}={columns[channel]})")
         columns[channel] = name
-    given: dict[str, float | None] = {}
-    for option, text, unit in (("mass", args.mass, "kg"), ("speed", _speed_option(args.speed), "m/s")):
-        try:
-            given[option] = None if text is None else to_si(text, unit)
-        except UnitError as exc:
-            raise InputError(f"--{option}: {exc}") from None
-    options = Options(args.format, given["mass"], given["speed"], columns, args.name, args.force)
+    speed, mass = what_if(args.speed, args.mass, prefix="--")  # as simulate's what-if: one message for one mistake
+    options = Options(args.format, mass, speed, columns, args.name, args.force)
     paths = [Path(p) for p in args.data]
     problem, notes = init_problem(paths, Path(args.out), options)
     print(
