@@ -54,6 +54,7 @@ from crashnlp.analysis.calibration import (  # noqa: E402
     conformal_quantile,
     reach,
     scale,
+    share_quantile,
     shipped,
 )
 from crashnlp.analysis.prediction import PredictedTest, predict  # noqa: E402
@@ -322,7 +323,7 @@ def _form_quantile(scores: list[float]) -> float:
     ceil(n LEVEL)-th smallest of n): the form's own coverage on the corpus, without the finite-sample
     rank, which would be its largest score (20 vehicles: ceil(21 * 0.95) = 20) and let one vehicle's
     miss set a class's width (docs/design-notes.md, "Made again (version 8)")."""
-    return float(np.sort(scores)[math.ceil(round(len(scores) * LEVEL, 9)) - 1])
+    return share_quantile(scores, LEVEL)
 
 
 def calibrate(rows: list[dict], seed: int, model_form: str = DEFAULT_FORM) -> Calibration:

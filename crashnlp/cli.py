@@ -21,16 +21,20 @@ import warnings
 from collections.abc import Iterator, Mapping
 from contextlib import contextmanager, nullcontext, redirect_stderr
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED, current_names
+from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
+
+if TYPE_CHECKING:
+    from crashnlp.results.result import ResultFile  # at run time where a command reads one
 
 RESULTS = Path("results")
 
@@ -39,14 +43,15 @@ def _out(args, name: str) -> Path:
     return Path(args.out) if args.out else RESULTS / name
 
 
-def _read_params(path: str) -> dict:
-    """The content of a result.json (or of a fit's folder's): a mapping with a 'parameters' mapping."""
-    from crashnlp.results.result import result_file
+def _read_params(path: str) -> ResultFile:
+    """A result.json (or a fit's folder's) read once, its content (a result written before a rename
+    too: ResultFile.current) a mapping with a 'parameters' mapping."""
+    from crashnlp.results.result import ResultFile, result_file
 
     p = result_file(path)
     try:
-        raw = current_names(json.loads(p.read_text(encoding="utf-8")))  # a result written before a rename too
-        params = raw["parameters"]
+        file = ResultFile.read(p)
+        params = file.current["parameters"]
     except FileNotFoundError:
         raise InputError(f"{p}: file not found") from None
     except (IsADirectoryError, PermissionError) as exc:
@@ -55,7 +60,7 @@ def _read_params(path: str) -> dict:
         raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
     if not isinstance(params, dict):
         raise InputError(f"{p}: 'parameters' is not a mapping")
-    return raw
+    return file
 
 
 def _identified(source: str, raw: dict):
@@ -72,18 +77,19 @@ def _identified(source: str, raw: dict):
 
 
 def _with_params(file: str, source: str):
-    """(problem, identified model) of a problem file and a result.json: its identified vehicle put
-    into the problem (what the file leaves out of vehicle and model comes from it), or for a result
-    that carries only parameters, its values entry by entry, refusing what does not fit (the
-    identified model is then None)."""
+    """(problem, identified model, the result.json read) of a problem file and a result.json: its
+    identified vehicle put into the problem (what the file leaves out of vehicle and model comes
+    from it), or for a result that carries only parameters, its values entry by entry, refusing
+    what does not fit (the identified model is then None)."""
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import LARGEST
     from crashnlp.results.identified import load_applied
 
-    raw = _read_params(source)
+    read = _read_params(source)
+    raw = read.current
     identified = _identified(source, raw)
     if identified is not None:
-        return load_applied(file, identified, source), identified
+        return load_applied(file, identified, source), identified, read
     problem = load_problem(file)
     params = raw["parameters"]
     for path, value in params.items():
@@ -105,24 +111,11 @@ def _with_params(file: str, source: str):
         if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
             raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
     try:
-        return problem.with_values(params), None
+        return problem.with_values(params), None, read
     except KeyError as exc:
         raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
     except InputError as exc:
         raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
-
-
-def _speed_option(text: str | None) -> str | None:
-    """init's --speed as given, refused without a unit (crashnlp.problem.schema.stated_speed)."""
-    from crashnlp.base.units import UnitError
-    from crashnlp.problem.schema import stated_speed
-
-    if text is not None:
-        try:
-            stated_speed(text)
-        except UnitError as exc:
-            raise InputError(f"--speed {text}: {exc}") from None
-    return text
 
 
 def cmd_simulate(args) -> int:
@@ -134,7 +127,7 @@ def cmd_simulate(args) -> int:
         from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced, write_simulation
         from crashnlp.results.source import source_line
 
-        fit = _fit_folder(source)
+        fit = _params_folder(source)
         with deriving(fit, out) if fit else nullcontext(), claim(out, run_name("simulate", case.name)):
             with _computing(args):
                 predicted = traced(predict(case, identified, dt), source)
@@ -148,8 +141,12 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def _fit_folder(source: dict) -> Path | None:
-    """The folder of the result.json a simulation took its parameters from (None: none)."""
+def _params_folder(source: dict) -> Path | None:
+    """The folder of the file a simulation took its parameters from, as its source records it
+    (crashnlp.results.source), whatever that file is named (`--params other.json` too); None where
+    they came from no file. The simulation's output counts as derived from the run in that folder
+    (crashnlp.results.files.deriving). Unlike crashnlp.results.result.fit_folder, which refuses a
+    file not named result.json (Result.load would not read it), it refuses nothing."""
     from crashnlp.results.result import result_file
 
     path = (source.get("result") or {}).get("path")
@@ -183,20 +180,20 @@ def _print_prediction(test) -> None:
 
 
 def _result_alone(path: str, params: str | None):
-    """(problem, identified model) of a result.json given in place of a problem: its own tests
-    with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
+    """(problem, identified model, the result.json read) of a result.json given in place of a
+    problem: its own tests with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
     from crashnlp.analysis.prediction import own_tests
     from crashnlp.results.result import Result, fit_folder
 
     if params is not None:
         raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
-    _read_params(path)  # one line for a file that is not a result.json
+    read = _read_params(path)  # one line for a file that is not a result.json
     folder = fit_folder(path)
     try:
-        result = Result.load(folder)
+        result = Result.load(folder, read)
     except (OSError, KeyError, TypeError, ValueError) as exc:
         raise InputError(f"{path}: not a result folder crashnlp wrote ({exc})") from None
-    return own_tests(result, path), result.identified
+    return own_tests(result, path), result.identified, read
 
 
 def _simulation(args):
@@ -218,12 +215,12 @@ def _simulation(args):
         raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
     fit = args.params
     if args.problem.endswith(".json") or folder.is_file():
-        problem, identified = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
+        problem, identified, read = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
         fit = args.problem
     elif args.params:
-        problem, identified = _with_params(args.problem, args.params)
+        problem, identified, read = _with_params(args.problem, args.params)
     else:
-        problem, identified = load_problem(args.problem), None
+        problem, identified, read = load_problem(args.problem), None, None
     case = case_of(problem, args.problem).at(speed, mass)
     check_steps(case, dt, "--dt", args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
@@ -231,7 +228,7 @@ def _simulation(args):
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
-    return case, identified, out, dt, simulation_source(args.problem, fit)
+    return case, identified, out, dt, simulation_source(args.problem, fit, file=read)
 
 
 def _figure_process(args):
@@ -428,8 +425,8 @@ def cmd_compare_forms(args) -> int:
 
 
 def cmd_init(args) -> int:
-    from crashnlp.base.units import UnitError, to_si
     from crashnlp.init import Options, init_problem
+    from crashnlp.problem.schema import what_if
 
     columns: dict[str, str] = {}
     for item in args.column:
@@ -439,13 +436,8 @@ def cmd_init(args) -> int:
         if channel in columns:
             raise InputError(f"--column {item}: {channel} is given twice (--column {channel}={columns[channel]})")
         columns[channel] = name
-    given: dict[str, float | None] = {}
-    for option, text, unit in (("mass", args.mass, "kg"), ("speed", _speed_option(args.speed), "m/s")):
-        try:
-            given[option] = None if text is None else to_si(text, unit)
-        except UnitError as exc:
-            raise InputError(f"--{option}: {exc}") from None
-    options = Options(args.format, given["mass"], given["speed"], columns, args.name, args.force)
+    speed, mass = what_if(args.speed, args.mass, prefix="--")  # as simulate's what-if: one message for one mistake
+    options = Options(args.format, mass, speed, columns, args.name, args.force)
     paths = [Path(p) for p in args.data]
     problem, notes = init_problem(paths, Path(args.out), options)
     print(

@@ -93,6 +93,16 @@ def test_the_conformal_quantile_is_the_rank_ceil_n_plus_one_times_the_coverage()
     assert conformal_quantile(scores + scores, 0.5, units=19) == 10.0
 
 
+def test_the_share_quantile_is_the_smallest_score_the_share_does_not_exceed():
+    scores = list(np.arange(1.0, 21.0)[::-1])  # 20 scores: 95 % of them do not exceed the 19th
+    share_quantile = analysis_calibration.share_quantile
+    assert share_quantile(scores, 0.95) == 19.0
+    assert share_quantile(scores, 1.0) == 20.0
+    assert share_quantile(scores, 1.05) == math.inf
+    # 35 x (29 / 35) is 29.000000000000004 in floating point: still the 29th, not the 30th
+    assert share_quantile(list(np.arange(1.0, 36.0)), 29 / 35) == 29.0
+
+
 def test_the_scales_are_the_value_the_impact_speed_for_the_rebound_and_a_floor_for_the_pitch():
     assert scale("max_displacement_m", 0.6, 15.0) == 0.6
     assert scale("rebound_velocity_mps", 0.2, 15.0) == 15.0

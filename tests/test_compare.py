@@ -33,6 +33,22 @@ def folders(tmp_path_factory) -> dict[str, Path]:
     return out
 
 
+def test_a_simulation_of_a_fit_reads_its_result_json_once(folders, tmp_path, monkeypatch):
+    """crashnlp simulate FIT: the parameters, the fit and the source's sha256 come from one read of
+    its result.json (the bytes hashed are the bytes parsed)."""
+    opened: list[Path] = []
+    path_open = Path.open
+
+    def counted(self: Path, *args, **kwargs):
+        if self.name == "result.json":
+            opened.append(self)
+        return path_open(self, *args, **kwargs)
+
+    monkeypatch.setattr(Path, "open", counted)
+    assert main(["simulate", str(folders["fit"]), "--out", str(tmp_path / "sim"), "--no-figures"]) == 0
+    assert opened == [folders["fit"] / "result.json"]
+
+
 def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page(folders, tmp_path, capsys):
     out = tmp_path / "cmp"
     assert main(["compare-results", str(folders["48"]), str(folders["fit"]), str(folders["64"]), "--out", str(out)]) == 0

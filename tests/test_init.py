@@ -267,7 +267,10 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
             "--column accel=2:g: accel is given twice (--column accel=accel_x_g:g)",
         ),
         ("p.yaml", ["--speed", "56"], '--speed 56: give its unit, e.g. "56 km/h" or "56 m/s"'),
-        ("p.yaml", ["--speed", "56 kg"], "--speed: '56 kg' does not convert to m/s"),
+        ("p.yaml", ["--speed", "56 kg"], "--speed 56 kg: '56 kg' does not convert to m/s"),
+        # as simulate's what-if (crashnlp.problem.schema.what_if): these ended in a traceback's last line, exit 1
+        ("p.yaml", ["--speed", "0 km/h"], "--speed 0 km/h: 0 m/s is no impact"),
+        ("p.yaml", ["--mass", "nan"], "--mass nan: not a finite number"),
     ],
 )
 def test_init_refuses_a_careless_out_or_option_before_any_work(tmp_path, capsys, out, options, message):

@@ -28,19 +28,14 @@ from crashnlp.base.outputs import (
     current_names,
 )
 from crashnlp.data.load import READERS
-from crashnlp.models.laws import PERMANENT_SETS, SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.problem import schema
 from crashnlp.transcription import TRANSCRIPTIONS
 
 
 def test_laws_and_formats_hold_the_schemas_names():
     assert tuple(SPRING_LAWS) == tuple(choices.SPRING_LAWS) == get_args(schema.Spring.model_fields["law"].annotation)
-    assert (
-        tuple(UNLOADING_LAWS)
-        == tuple(PERMANENT_SETS)
-        == choices.UNLOADING_LAWS
-        == get_args(schema.Unloading.model_fields["law"].annotation)
-    )
+    assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
     assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
 
 

@@ -145,15 +145,20 @@ def scale(metric: str, value: float, speed: float) -> float:
     return abs(value)
 
 
+def share_quantile(scores: list[float], share: float) -> float:
+    """The smallest score that at least `share` of the scores do not exceed: the ceil(n share)-th
+    smallest of n, n share rounded to 9 digits first (35 x (29 / 35) is 29.000000000000004 in
+    floating point, and must rank 29); inf where no score is (a share past 1, or a rank below 1)."""
+    rank = math.ceil(round(len(scores) * share, 9))
+    return float(np.sort(scores)[rank - 1]) if share <= 1 and rank >= 1 else math.inf
+
+
 def conformal_quantile(scores: list[float], coverage: float, units: int | None = None) -> float:
     """Split-conformal: of n scores from `units` exchangeable units (each unit's scores alike: one
     vehicle's predictions; n units by default), the score at the share ceil((units + 1) coverage)
     / units of them, the ceil((n + 1) coverage)-th smallest for n units (inf when too few)."""
-    n = len(scores)
-    units = units or n
-    share = math.ceil((units + 1) * coverage) / units
-    rank = math.ceil(round(n * share, 9))
-    return float(np.sort(scores)[rank - 1]) if share <= 1 and rank >= 1 else math.inf
+    units = units or len(scores)
+    return share_quantile(scores, math.ceil((units + 1) * coverage) / units)
 
 
 @dataclass(frozen=True)

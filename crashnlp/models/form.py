@@ -31,7 +31,6 @@ import numpy as np
 from crashnlp.base.outputs import NAMES
 from crashnlp.models import stored as model_store
 from crashnlp.models.laws import (
-    PERMANENT_SETS,
     SPRING_LAWS,
     UNLOADING_LAWS,
     Expr,
@@ -232,7 +231,7 @@ class CrashModel(ABC):
             return law(x, bps, vals, s.eps_crush)[0]
 
         stiffness = self._par("model.unloading.stiffness")
-        spring, stored = UNLOADING_LAWS[s.unloading_law](load, crush, x_max, stiffness, s.eps_crush)
+        spring, stored = UNLOADING_LAWS[s.unloading_law].force(load, crush, x_max, stiffness, s.eps_crush)
         if stored is None:
             stored = law(ca.fmax(crush, 0), bps, vals, s.eps_crush)[1]
         force, damper = spring, 0
@@ -345,12 +344,12 @@ class CrashModel(ABC):
     @cached_property
     def permanent_set(self) -> ca.Function:
         """(x, p) -> the crush the unloading law leaves once its force is zero, from the largest
-        crush so far (the history state HISTORY): PERMANENT_SETS, none for the elastic law. Past
+        crush so far (the history state HISTORY): the law's own (UNLOADING_LAWS), none for the elastic law. Past
         separation the front end's crush stays there (crashnlp.models.simulation.front_end_crush)."""
         largest = self.x[self.nx - 1]
         stiffness = self._par("model.unloading.stiffness")
         at_largest = self.loading_curve(largest, self.p)
-        permanent = PERMANENT_SETS[self.structure.unloading_law](at_largest, largest, stiffness)
+        permanent = UNLOADING_LAWS[self.structure.unloading_law].permanent_set(at_largest, largest, stiffness)
         return ca.Function("permanent_set", [self.x, self.p], [permanent], ["x", "p"], ["set"])
 
     # ---------------------------------------------------------------- simulation form

@@ -7,14 +7,15 @@ may be smoothed, max(z, 0) ~ (z + sqrt(z^2 + eps^2)) / 2, which keeps IPOPT
 away from kinks at the breakpoints.
 
 A new spring law is a function (x, breakpoints, values, eps) -> (force, energy)
-added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS and one of PERMANENT_SETS;
-either's name also goes into crashnlp.base.choices, where the schema reads it. Past the last
+added to SPRING_LAWS; a new unloading law one entry of UNLOADING_LAWS, its force and its permanent
+set; either's name also goes into crashnlp.base.choices, where the schema reads it. Past the last
 breakpoint a law continues its last segment, unless `with_tail` bends it into a line.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
@@ -163,10 +164,6 @@ def plastic_unloading(load: Callable[[Expr], Expr], x: Expr, x_max: Expr, stiffn
     return force, 0.5 * ca.fmax(force, 0) ** 2 / stiffness
 
 
-UnloadingLaw = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr, float], tuple[Expr, Expr | None]]
-UNLOADING_LAWS: dict[str, UnloadingLaw] = {"elastic": elastic_unloading, "plastic": plastic_unloading}
-
-
 def no_set(at_largest: Expr, largest: Expr, stiffness: Expr) -> Expr:
     """The elastic law's permanent set: none, the front end springs back along its loading curve."""
     return 0 * largest
@@ -178,7 +175,24 @@ def plastic_set(at_largest: Expr, largest: Expr, stiffness: Expr) -> Expr:
     return largest - at_largest / stiffness
 
 
-# unloading law -> the crush it leaves once its force is zero, of (the loading force at the largest
-# crush so far, that crush, the unloading stiffness)
+# (the loading curve, crush, largest crush so far, unloading stiffness, eps) -> (force, stored energy;
+# None: the loading curve's own)
+UnloadingForce = Callable[[Callable[[Expr], Expr], Expr, Expr, Expr, float], tuple[Expr, Expr | None]]
+# (the loading force at the largest crush so far, that crush, the unloading stiffness) -> the crush
+# the law leaves once its force is zero
 PermanentSet = Callable[[Expr, Expr, Expr], Expr]
-PERMANENT_SETS: dict[str, PermanentSet] = {"elastic": no_set, "plastic": plastic_set}
+
+
+@dataclass(frozen=True)
+class UnloadingLaw:
+    """An unloading law: its force (crashnlp.models.form's front end) and the permanent set it
+    leaves (CrashModel.permanent_set), kept together so that a new law is one entry."""
+
+    force: UnloadingForce
+    permanent_set: PermanentSet
+
+
+UNLOADING_LAWS: dict[str, UnloadingLaw] = {
+    "elastic": UnloadingLaw(elastic_unloading, no_set),
+    "plastic": UnloadingLaw(plastic_unloading, plastic_set),
+}

@@ -110,6 +110,25 @@ def result_file(path: str | Path) -> Path:
     return path / RESULT_FILE if path.is_dir() else path
 
 
+@dataclass(frozen=True)
+class ResultFile:
+    """A result.json read once: its bytes (what a simulation's source hashes, crashnlp.results.source),
+    its JSON document as written, and `current`, the same with today's names (current_names: a result
+    written before a rename reads as one written now), for a command that reads it in several places."""
+
+    data: bytes
+    document: Any
+    current: Any
+
+    @classmethod
+    def read(cls, file: Path) -> ResultFile:
+        """`file` read and parsed as UTF-8 JSON; OSError, UnicodeDecodeError or json.JSONDecodeError
+        as reading, decoding and parsing raise them."""
+        data = file.read_bytes()
+        document = json.loads(data.decode("utf-8"))
+        return cls(data, document, current_names(document))
+
+
 def fit_folder(path: str | Path) -> Path:
     """The folder of the fit a path names (a result.json or its folder), whose whole Result
     `Result.load` reads; InputError for a file of another name, which it would not read."""
@@ -181,12 +200,13 @@ class Result:
         write_result(self, Path(folder), figures=figures)
 
     @classmethod
-    def load(cls, folder: str | Path) -> Result:
-        """A Result read back from a folder `save` wrote (responses from response.csv). The data
-        and the fitted nodes are not in the folder: each channel's fit keeps its RMSE, sigma and
-        ratings, its node arrays are empty."""
+    def load(cls, folder: str | Path, file: ResultFile | None = None) -> Result:
+        """A Result read back from a folder `save` wrote (responses from response.csv); `file`, its
+        result.json where the caller has read it already, is not read again. The data and the fitted
+        nodes are not in the folder: each channel's fit keeps its RMSE, sigma and ratings, its node
+        arrays are empty."""
         folder = Path(folder)
-        raw = current_names(json.loads((folder / RESULT_FILE).read_text()))
+        raw = (file or ResultFile.read(folder / RESULT_FILE)).current
         tests = {}
         for name, t in raw["tests"].items():
             response = read_response(folder / name / "response.csv", t.get("accel_filter"))

@@ -10,22 +10,25 @@ the sha256 of its JSON form (the bytes `Result.save` would write as result.json)
 from __future__ import annotations
 
 import hashlib
-import json
 from pathlib import Path
 from typing import Any
 
 from crashnlp.results.jsonfile import json_text
-from crashnlp.results.result import Result, result_file
+from crashnlp.results.result import Result, ResultFile, result_file
 
 IN_MEMORY = "a Result in memory, no file: sha256 of its JSON form"
 
 
 def simulation_source(
-    problem: str | Path | None, result: Result | str | Path | None, values: dict[str, Any] | None = None
+    problem: str | Path | None,
+    result: Result | str | Path | None,
+    values: dict[str, Any] | None = None,
+    file: ResultFile | None = None,
 ) -> dict[str, Any]:
     """The source of a simulation of `problem` (a file as given; None: a Problem in memory) with
     the parameters of `result` (a Result, a result.json or its folder as given; None: none), or
-    the `values` given in their place (dotted path -> value, kept as given)."""
+    the `values` given in their place (dotted path -> value, kept as given). `file`: the result.json
+    `result` names where the caller has read it already, not read again."""
     source: dict[str, Any] = {"problem": None if problem is None else str(problem)}
     if values:
         source["values"] = values
@@ -33,9 +36,8 @@ def simulation_source(
         raw = result.to_json()
         source["result"] = {"path": None, **_fit(raw, json_text(raw).encode()), "note": IN_MEMORY}
     elif result is not None:
-        file = result_file(result)
-        data = file.read_bytes()
-        source["result"] = {"path": str(result), **_fit(json.loads(data), data)}
+        file = file or ResultFile.read(result_file(result))
+        source["result"] = {"path": str(result), **_fit(file.document, file.data)}
     return source
 
 
