@@ -37,7 +37,8 @@ A simulated test that ends mid-crash, before its vehicle stops and while it stil
 (crashnlp.analysis.summary.MID_CRASH), gives no metric its record does not hold (no max
 displacement, stop, peak deceleration, rebound or max pitch), nor their intervals or the bands
 scaled to them, and a note says where it ends and how fast it still moves; one that ends drifting
-on after the pulse says so, its max displacement its travel at the end. A metric whose fitted
+on after the pulse says so, gives no velocity change, rebound or max pitch (the vehicle meets the
+barrier again: UNSETTLED), and its max displacement is its travel at the end. A metric whose fitted
 tests' records end before it (the same rule) has no miss of the fit's own: where the curve it is
 read from was fitted, its interval holds the curves' miss and the calibrated form term, and a note
 says so. A metric or curve that no fitted test measured (pitch, without a pitch channel) gets no
