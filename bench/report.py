@@ -324,6 +324,11 @@ def _goal(target: dict) -> str:
     return f"{100 * target['displacement_rel']:g} % / {100 * target['peak_rel']:g} %"
 
 
+def _signed(error: float, factor: float = 1.0, digits: int = 1) -> str:
+    """An error in a table, signed; "none" where the prediction or the generator gives no value (NaN)."""
+    return f"{error * factor:+.{digits}f}" if math.isfinite(error) else "none"
+
+
 def cross_speed_md(r: dict) -> list[str]:
     ok = lambda x: x["status"] == "ok"  # noqa: E731
     rows = [
@@ -333,12 +338,12 @@ def cross_speed_md(r: dict) -> list[str]:
             x["split"],
             x["status"],
             x["iterations"],
-            f"{100 * x['displacement_rel']:+.1f}" if ok(x) else "",
-            f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
-            f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
+            _signed(x["displacement_rel"], 100) if ok(x) else "",
+            _signed(x["peak_rel"], 100) if ok(x) else "",
+            _signed(x["stop_err_s"], 1e3, 2) if ok(x) else "",
             f"{sum(x['covered'].values())} of {len(x['covered'])}" if ok(x) else "",
             f"{x['load_rise']:.2f}" if "load_rise" in x else "",
-            f"{x['pitch_err_deg']:+.1f}" if ok(x) else "",
+            _signed(x["pitch_err_deg"]) if ok(x) else "",
             f"{x['pitch_rmse_deg']:.2f}" if x.get("pitch_rmse_deg") is not None else "",
         ]
         for x in r["fits"]

@@ -485,7 +485,7 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down, down40 = check["one test down, 56 -> 48"], check["one test down, 56 -> 40"]
     out = {
-        "intervals_vehicles": str(down["max_displacement_m"]["n"]),
+        "intervals_vehicles": str(intervals["vehicles"][str(intervals["check_seed"])]),
         "intervals_coverage_lowest_pct": f"{min(m['coverage'] for sc in check.values() for m in sc.values()) * 100:.0f}",
         "intervals_down48_displacement_pct": f"{down['max_displacement_m']['half_width_median'] * 100:.1f}",
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
