@@ -12,10 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from crashnlp.base.cache import cache_dir
+from crashnlp.base.cache import KEPT_YAML, cache_dir
 from crashnlp.base.errors import InputError
 from crashnlp.numerics import compile_job, compiled
 from crashnlp.optimize import oracle
+from crashnlp.problem.load import read_yaml
 from tests.test_compile_once import fake_compiler, starts, twice
 
 pytestmark = pytest.mark.integration
@@ -23,14 +24,20 @@ pytestmark = pytest.mark.integration
 MB = 1_000_000
 
 
+def cached_file(name: str, megabytes: float, age_s: float) -> Path:
+    """A file of `megabytes` in the cache, last used `age_s` ago."""
+    path = cache_dir() / name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_bytes(b"\0" * int(megabytes * MB))
+    when = path.stat().st_mtime - age_s
+    os.utime(path, (when, when))
+    return path
+
+
 def library_of(name: str, megabytes: float, age_s: float) -> Path:
     """A library of `megabytes` in the cache, with its list of names, last used `age_s` ago."""
-    library = cache_dir() / f"{name}.so"
-    library.parent.mkdir(parents=True, exist_ok=True)
-    library.write_bytes(b"\0" * int(megabytes * MB))
+    library = cached_file(f"{name}.so", megabytes, age_s)
     library.with_suffix(".names").write_text("nlp\n")
-    when = library.stat().st_mtime - age_s
-    os.utime(library, (when, when))
     return library
 
 
@@ -51,6 +58,25 @@ def test_a_compile_first_removes_the_least_recently_used_libraries_down_to_the_l
     assert oldest.exists() and oldest.with_suffix(".names").exists() and held.exists()
     assert not older.exists() and not older.with_suffix(".names").exists() and not newest.exists()
     assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 7 * MB
+
+
+def test_a_compile_removes_kept_yaml_values_with_the_libraries_least_recently_used_first(tmp_path, monkeypatch):
+    """The values of YAML files read before (crashnlp.problem.load.read_yaml) go as libraries do: a
+    library and a kept file of 3 MB each, older than a second library, and a limit of 4 MB: both
+    go, the newer library stays; a kept file written long ago but read since stays, used then."""
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setenv(compiled.LIMIT_ENV, "4")
+    problem = tmp_path / "problem.yaml"
+    problem.write_text("vehicle: {mass: 1500}\n")
+    read_yaml(problem)
+    (read,) = cache_dir().glob(KEPT_YAML.format(key="*"))
+    os.utime(read, (0, 0))
+    assert read_yaml(problem) == {"vehicle": {"mass": 1500}}
+    oldest, kept, newer = library_of("a", 3, 400), cached_file(KEPT_YAML.format(key="0" * 32), 3, 300), library_of("b", 3, 100)
+    assert compiled.compiled(twice()).class_name() == "External"
+    assert not oldest.exists() and not kept.exists()
+    assert newer.exists() and read.exists()
+    assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 4 * MB
 
 
 def test_a_cache_within_its_limit_keeps_every_library(tmp_path, monkeypatch):

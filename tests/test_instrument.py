@@ -5,7 +5,7 @@ import pytest
 from scipy.signal import filtfilt
 
 from crashnlp.base.units import G0
-from crashnlp.data.instrument import PRE_IMPACT, acceleration, as_recorded, rate, recorded, recording
+from crashnlp.data.instrument import PRE_IMPACT, acceleration, cfc_recorded, rate, recorded, recording
 from crashnlp.data.signal import cfc_coefficients, cfc_filter
 
 
@@ -14,7 +14,7 @@ def pulse(t: np.ndarray) -> np.ndarray:
     return -(30.0 + 150.0 * np.sin(np.pi * t / 0.08) ** 2 + 200.0 * np.maximum(0.0, 1.0 - np.abs(t - 0.03) / 0.006)) * (t < 0.08)
 
 
-def test_as_recorded_is_the_j211_filter_of_a_record_at_rest_before_impact():
+def test_cfc_recorded_is_the_j211_filter_of_a_record_at_rest_before_impact():
     """At 10 kHz: scipy's filtfilt of the J211 biquad over 20 ms of zeros and the pulse, padded by
     odd reflection as cfc_filter pads, read from impact on."""
     dt = 1e-4
@@ -22,19 +22,19 @@ def test_as_recorded_is_the_j211_filter_of_a_record_at_rest_before_impact():
     before = round(PRE_IMPACT / dt)
     b, a = cfc_coefficients(60.0, dt)
     ref = filtfilt(b, a, np.concatenate([np.zeros(before), pulse(t)]), padtype="odd", padlen=round(0.01 / dt))[before:]
-    np.testing.assert_allclose(as_recorded(t, pulse(t), 60.0), ref, atol=1e-9 * 380.0)
+    np.testing.assert_allclose(cfc_recorded(t, pulse(t), 60.0), ref, atol=1e-9 * 380.0)
 
 
 @pytest.mark.parametrize(("cfc", "size"), [(60.0, 151), (180.0, 151), (60.0, 8)])
 def test_the_filters_banded_equations_record_every_signal_as_the_filter_does(cfc, size):
-    """The forward and backward passes solved from their banded equations give as_recorded's
+    """The forward and backward passes solved from their banded equations give cfc_recorded's
     samples (CFC 180 on a 1 ms grid filters between the samples; 7 ms: the end's reflection
     reaches into the record's zeros), and the equations have at most three nonzeros a row."""
     t = np.linspace(0.0, 0.001 * (size - 1), size)
     signal = pulse(t) + np.random.default_rng(0).normal(0.0, 20.0, t.size)
     rec = recording(t, cfc)
     _, backward = rec.solve(signal)
-    np.testing.assert_allclose(backward[rec.at], as_recorded(t, signal, cfc), atol=1e-9 * 400.0)
+    np.testing.assert_allclose(backward[rec.at], cfc_recorded(t, signal, cfc), atol=1e-9 * 400.0)
     assert np.bincount(rec.lower(rec.a)[0]).max() == 3
 
 
@@ -44,7 +44,7 @@ def test_on_a_coarse_grid_the_recording_is_the_fine_records_at_its_samples():
     fine = np.arange(0.0, 0.15 + 5e-5, 1e-4)
     coarse = fine[::10]
     truth = cfc_filter(np.concatenate([np.zeros(200), pulse(fine)]), 1e-4, 60.0)[200:][::10]
-    seen = as_recorded(coarse, pulse(coarse), 60.0)
+    seen = cfc_recorded(coarse, pulse(coarse), 60.0)
     peak = np.max(np.abs(pulse(fine)))
     assert np.max(np.abs(seen - truth)) < 0.02 * peak
     assert np.max(np.abs(truth)) < 0.93 * peak  # the filter rounds the peak: what the fit must see
@@ -54,7 +54,7 @@ def test_a_class_the_model_grid_cannot_carry_is_filtered_on_a_finer_one():
     """CFC 180 needs 3 kHz for ten samples a period of its -3 dB frequency (300 Hz): on a 1 ms grid
     the signal is filtered between the samples, not refused."""
     t = np.linspace(0.0, 0.15, 151)
-    seen = as_recorded(t, pulse(t), 180.0)
+    seen = cfc_recorded(t, pulse(t), 180.0)
     assert np.all(np.isfinite(seen)) and np.max(np.abs(seen - pulse(t))) < 0.2 * 380.0
 
 
@@ -70,7 +70,7 @@ def test_the_exported_pulse_is_recorded_from_rest_as_the_fit_compares_it():
     velocity = 15.0 + np.concatenate([[0.0], np.cumsum(0.5 * (step[1:] + step[:-1]) * np.diff(time))])
     p = pulse(Response(time, {"accel": step, "velocity": velocity}, np.zeros((1, time.size))), 15.0, 1e4, 60.0)
     assert p.accel[0] == pytest.approx(0.5 * step[0], rel=0.05)  # the step is half a sample before it
-    assert np.allclose(p.accel, as_recorded(time, step, 60.0))
+    assert np.allclose(p.accel, cfc_recorded(time, step, 60.0))
 
 
 @pytest.mark.parametrize("size", [2, 3, 4, 5, 151])
@@ -112,7 +112,7 @@ def test_the_recorded_acceleration_moves_smoothly_as_the_end_of_contact_crosses_
 
     left, right = slopes(lambda end: recorded(t, _unloading(end, t), "accel", 60.0))
     assert np.max(np.abs(right - left)) < 1e-3 * np.max(np.abs(left))
-    left, right = slopes(lambda end: as_recorded(t, _unloading(end, t)["accel"], 60.0))
+    left, right = slopes(lambda end: cfc_recorded(t, _unloading(end, t)["accel"], 60.0))
     assert np.max(np.abs(right - left)) > 0.2 * np.max(np.abs(left))
 
 
@@ -147,4 +147,4 @@ def test_the_fit_compares_the_acceleration_the_report_reads(tmp_path):
     response = evaluate(ocp, start)[0]
     model = np.asarray(ocp.nlp.evaluate([accel.model], start)[0]).ravel()
     np.testing.assert_allclose(model, accel.seen(response.time, response.outputs), rtol=1e-9, atol=1e-9 * G0)
-    assert not np.allclose(model, as_recorded(response.time, response.outputs["accel"], 60.0)[accel.columns], atol=1e-3 * G0)
+    assert not np.allclose(model, cfc_recorded(response.time, response.outputs["accel"], 60.0)[accel.columns], atol=1e-3 * G0)

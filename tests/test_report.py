@@ -20,7 +20,7 @@ from crashnlp.analysis.prediction import read_simulation
 from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import main
-from crashnlp.data.instrument import as_recorded as filtered
+from crashnlp.data.instrument import cfc_recorded
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.results.files import claim, run_name
@@ -161,7 +161,7 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert response.accel_filter == "CFC60" and response.own_accel is not None
     resampled = np.interp(t, response.time, response["accel"])
     assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
-    assert np.max(np.abs(filtered(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
+    assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
 
 
 @pytest.mark.integration

@@ -4,7 +4,8 @@ values of the YAML files (problems, studies) read before (crashnlp.problem.load)
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
-CRASHNLP_CACHE_MB (crashnlp.numerics.compiled).
+CRASHNLP_CACHE_MB, removing the least recently used libraries and kept YAML values
+(crashnlp.numerics.compiled).
 """
 
 from __future__ import annotations
@@ -12,7 +13,7 @@ from __future__ import annotations
 import importlib.util
 import os
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from functools import cache
 from pathlib import Path
 from typing import IO, Any
@@ -20,10 +21,18 @@ from typing import IO, Any
 CACHE_ENV = "CRASHNLP_CACHE"
 NAME_TRIES = 100  # random temporary names tried before giving up (each clashes with odds 2^-64)
 PREFIX_CHARS = 64  # of a temporary name's prefix (a target's own name): a long one would pass the system's limit
+KEPT_YAML = "yaml-{key}.json"  # the values of a YAML text read before (crashnlp.problem.load), under a hash of it
 
 
 def cache_dir() -> Path:
     return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "crashnlp")
+
+
+def used(path: Path) -> None:
+    """Mark the cached file `path` as used now (its modification time): the cache's limit removes
+    the least recently used files first (crashnlp.numerics.compiled)."""
+    with suppress(OSError):
+        os.utime(path)
 
 
 def temporary_file(folder: Path, prefix: str = "") -> tuple[int, str]:

@@ -574,23 +574,27 @@ def _tagged(key: str, tp: Any, value: Any, loc: tuple, errors: _Errors, context:
     if isinstance(value, dict) and key not in value:
         return errors.add(loc, "union_tag_not_found", f"Unable to extract tag using discriminator '{key}'", value)
     tag = value[key] if isinstance(value, dict) else getattr(value, key)
-    if tag not in forms:
-        expected = ", ".join(f"'{t}'" for t in forms)
-        msg = f"Input tag '{tag}' found using '{key}' does not match any of the expected tags: {expected}"
-        return errors.add(loc, "union_tag_invalid", msg, value)
-    return _typed(forms[tag], value, loc, errors, context)  # the tag is a value of the file's, not a key
+    # the tag is a value of the file's, not a key: the form's errors are the union's own
+    return _form_tagged(forms, tag, f" found using '{key}'", value, loc, loc, errors, context)
 
 
 def _tagged_by(discriminator: Discriminator, tp: Any, value: Any, loc: tuple, errors: _Errors, context: Any) -> Any:
     """A union whose forms carry a `Tag`, picked by the discriminator's function of the value."""
     forms = {next(m.tag for m in f.__metadata__ if isinstance(m, Tag)): f for f in get_args(tp)}
     tag = discriminator.func(value)
+    return _form_tagged(forms, tag, "", value, loc, (*loc, tag), errors, context)
+
+
+def _form_tagged(
+    forms: dict[Any, Any], tag: Any, found: str, value: Any, loc: tuple, inside: tuple, errors: _Errors, context: Any
+) -> Any:
+    """`value` as the form of a tagged union (tag -> form) its `tag` picks, that form's errors located
+    at `inside`; where no form has the tag, the union's error at `loc` (`found`: how the tag was got)."""
     if tag not in forms:
         expected = ", ".join(f"'{t}'" for t in forms)
-        return errors.add(
-            loc, "union_tag_invalid", f"Input tag '{tag}' does not match any of the expected tags: {expected}", value
-        )
-    return _typed(forms[tag], value, (*loc, tag), errors, context)
+        msg = f"Input tag '{tag}'{found} does not match any of the expected tags: {expected}"
+        return errors.add(loc, "union_tag_invalid", msg, value)
+    return _typed(forms[tag], value, inside, errors, context)
 
 
 def _literal(tp: Any, value: Any, loc: tuple, errors: _Errors) -> Any:

@@ -5,7 +5,7 @@ before impact on; the data a fit compares with, and the metrics reported of them
 ISO 18571), are of the filtered signal. The model's samples are not filtered by anything, so a
 fit that compares them with the data asks an unfiltered pulse to match a filtered one: even a
 fit of the model's own data then misses its parameters, and the model's peak is compared with a
-rounded one. `as_recorded` applies to the model's samples what the data went through:
+rounded one. `cfc_recorded` applies to the model's samples what the data went through:
 
 - before impact the channel reads zero (the vehicle at rest in its own frame: no deceleration,
   no wall force, no pitch), so the record the filter sees starts PRE_IMPACT seconds earlier at
@@ -64,7 +64,7 @@ def _grid(time: np.ndarray, cfc: float) -> tuple[int, float, int]:
     return steps, fine_dt, math.ceil(PRE_IMPACT / fine_dt)
 
 
-def as_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
+def cfc_recorded(time: np.ndarray, values: np.ndarray, cfc: float) -> np.ndarray:
     """A model output sampled on a uniform grid from impact (`time[0] = 0`, zero before), filtered
     at CFC `cfc` as the test's record of it is, at the same samples."""
     time, values = np.asarray(time, dtype=float), np.asarray(values, dtype=float)
@@ -111,21 +111,21 @@ def from_velocity(name: str, time: np.ndarray, cfc: float) -> bool:
 
 def recorded(time: np.ndarray, outputs: Mapping[str, np.ndarray], name: str, cfc: float) -> np.ndarray:
     """The model's output `name` on a uniform grid from impact as the test records it at CFC `cfc`:
-    `as_recorded` of its samples, the acceleration's made from the velocity's where `from_velocity`."""
+    `cfc_recorded` of its samples, the acceleration's made from the velocity's where `from_velocity`."""
     values = acceleration(outputs["velocity"], float(time[1] - time[0])) if from_velocity(name, time, cfc) else outputs[name]
-    return as_recorded(time, np.asarray(values, dtype=float), cfc)
+    return cfc_recorded(time, np.asarray(values, dtype=float), cfc)
 
 
 @dataclass(frozen=True)
 class Recording:
-    """`as_recorded` on a fixed grid as the filter's own equations, linear and banded, for an NLP.
+    """`cfc_recorded` on a fixed grid as the filter's own equations, linear and banded, for an NLP.
 
     The record the filter passes over is `extend @ y` (y the samples: joined linearly onto the
     filter's grid from impact on, then cfc_filter's odd reflection past the end); the forward
     pass u solves `lower(a) u = lower(b) record` from rest (before impact the record is zero, and
     so is the pass); the backward pass s, over u reversed, solves `lower(a) s = lower(b) u[::-1] +
     start * u[-1]` (cfc_filter starts each pass in steady state); the recorded samples are
-    `s[at]`. Equal to `as_recorded` (tested), with a few nonzeros a row where its matrix is dense.
+    `s[at]`. Equal to `cfc_recorded` (tested), with a few nonzeros a row where its matrix is dense.
     """
 
     extend: np.ndarray  # record samples x y samples

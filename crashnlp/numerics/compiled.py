@@ -30,8 +30,9 @@ lock it holds, and every other library's whose lock no compile holds, taken shar
 none starts. A running compile's files are never removed.
 
 What a compile may take (`start`): the cache within CRASHNLP_CACHE_MB, the least recently used
-libraries removed first (`used`, `_make_room`); and no more than half the memory available, else
-it is not started (`TooLarge`) and the functions stay in CasADi's virtual machine.
+libraries and kept YAML values removed first (`used`, `_make_room`); and no more than half the
+memory available, else it is not started (`TooLarge`) and the functions stay in CasADi's virtual
+machine.
 """
 
 from __future__ import annotations
@@ -45,14 +46,14 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager, suppress
+from contextlib import contextmanager, nullcontext, suppress
 from functools import cache
 from pathlib import Path
 
 import casadi as ca
 import numpy as np
 
-from crashnlp.base.cache import CACHE_ENV, cache_dir
+from crashnlp.base.cache import CACHE_ENV, KEPT_YAML, cache_dir, used
 from crashnlp.base.errors import InputError
 from crashnlp.numerics import compile_job
 
@@ -78,7 +79,7 @@ SWITCH_ENV = "CRASHNLP_COMPILE"  # "0": CasADi's virtual machine only; "model": 
 FLAGS = ("-O2", "-fPIC", "-shared")
 TRY_WAIT_S = 0.5  # how long a compile's try waits out lookers: a look holds the lock for microseconds
 TRY_POLL_S = 0.001
-LIMIT_ENV = "CRASHNLP_CACHE_MB"  # the cache's size (MB) past which a compile first removes the least recently used libraries
+LIMIT_ENV = "CRASHNLP_CACHE_MB"  # the cache's size (MB) past which a compile first removes the least recently used files
 DEFAULT_LIMIT_MB = 2048.0
 # gcc's peak memory per byte of CasADi's C, measured at the NLPs' -O1: 99 to 117 for 4 to 14 MB of
 # C, 150 and more for 47 MB (docs/design-notes.md, "What a compile takes"); the model's functions,
@@ -293,12 +294,6 @@ def _remove(files: list[Path]) -> None:
         path.unlink(missing_ok=True)
 
 
-def used(library: Path) -> None:
-    """Mark `library` as used now (its modification time), for `_make_room`'s order."""
-    with suppress(OSError):
-        os.utime(library)
-
-
 def cache_limit() -> float:
     """The cache's size limit in bytes: CRASHNLP_CACHE_MB megabytes, DEFAULT_LIMIT_MB where unset."""
     raw = os.environ.get(LIMIT_ENV, "").strip()
@@ -312,21 +307,24 @@ def cache_limit() -> float:
 
 
 def _make_room(adding: Path) -> None:
-    """Remove the least recently used libraries (`used`) of `adding`'s folder, each with its list of
-    names, until the folder's files take at most `cache_limit()`: not `adding`, nor a library
-    whose lock a compile holds (looked at meanwhile, `_looked_at`, so that none starts). A process
-    that has a removed library loaded keeps it; the next that needs it compiles it again."""
+    """Remove the least recently used (`used`) libraries of `adding`'s folder, each with its list of
+    names, and kept values of YAML files (KEPT_YAML), until the folder's files take at most
+    `cache_limit()`: not `adding`, nor a library whose lock a compile holds (looked at meanwhile,
+    `_looked_at`, so that none starts). A process that has a removed library loaded keeps it; the
+    next that needs it compiles it again, as the next read of a removed YAML file parses it."""
     files = {path: path.stat() for path in adding.parent.iterdir() if path.is_file()}
     total, limit = sum(s.st_size for s in files.values()), cache_limit()
-    libraries = sorted((p for p in files if p.suffix == adding.suffix and p != adding), key=lambda p: files[p].st_mtime)
-    for library in libraries:
+    yaml = KEPT_YAML.format(key="*")
+    removable = (p for p in files if p != adding and (p.suffix == adding.suffix or p.match(yaml)))
+    for path in sorted(removable, key=lambda p: files[p].st_mtime):
         if total <= limit:
             return
-        with _looked_at(library) as free:
+        kept = path.match(yaml)  # written whole or not at all, and read again if gone: no lock
+        with nullcontext(True) if kept else _looked_at(path) as free:
             if free:
-                names = library.with_suffix(".names")
-                total -= files[library].st_size + (files[names].st_size if names in files else 0)
-                _remove([library, names])
+                gone = [path] if kept else [path, path.with_suffix(".names")]
+                total -= sum(files[p].st_size for p in gone if p in files)
+                _remove(gone)
 
 
 def refused(library: Path) -> bool:

@@ -9,7 +9,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from crashnlp.base.cache import cache_dir, installed_version, write_atomic
+from crashnlp.base.cache import KEPT_YAML, cache_dir, installed_version, used, write_atomic
 from crashnlp.problem.errors import ProblemError
 from crashnlp.problem.schema import Problem, problem_from_dict
 
@@ -27,7 +27,8 @@ def read_yaml(path: str | Path) -> Any:
     read as on later ones; a text not kept gives PyYAML's values): a later read of the same text
     loads them without importing PyYAML, whose import and pure-Python parse cost a command some
     15 ms (docs/design-notes.md, "Reading the problem without PyYAML"). Kept files are a few
-    times the size of their text; the cache's limit does not prune them."""
+    times the size of their text; a read marks its file used, and the cache's limit removes the
+    least recently used ones with the compiled libraries (crashnlp.numerics.compiled)."""
     path = Path(path)
     if not path.is_file():
         raise ProblemError(f"{path}: file not found")
@@ -40,6 +41,7 @@ def read_yaml(path: str | Path) -> Any:
     kept = _kept_file(text)
     if kept is not None:
         with suppress(OSError, ValueError):
+            used(kept)
             return json.loads(kept.read_text())
     from crashnlp.problem.parse import parse_yaml  # here, not at the top: only a text not read before needs PyYAML
 
@@ -60,7 +62,7 @@ def _kept_file(text: str) -> Path | None:
     if parser is None:
         return None
     key = hashlib.sha256("\0".join((text, *parser)).encode()).hexdigest()[:32]
-    return cache_dir() / f"yaml-{key}.json"
+    return cache_dir() / KEPT_YAML.format(key=key)
 
 
 @cache

@@ -26,7 +26,7 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.base.units import G0
 from crashnlp.data.channels import SAMPLE_INTERVALS
-from crashnlp.data.instrument import as_recorded
+from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
@@ -210,7 +210,7 @@ class Pulse:
 def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     """The acceleration of a response to an impact at `speed`, resampled at `rate` Hz over its
     record and CFC-filtered (J211) as a test's accelerometer records it, at rest before impact
-    (crashnlp.data.instrument.as_recorded: the filter a fit compares the model through, and the one
+    (crashnlp.data.instrument.cfc_recorded: the filter a fit compares the model through, and the one
     its reported peak and ratings are read through). A response read through that class already
     (Response.accel_filter: a fit's or a prediction's, as the fitted tests' accelerometers record
     it) is only resampled; at another class the model's own acceleration is filtered: never twice."""
@@ -225,7 +225,7 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
         time = time[time <= response.time[-1] + 1e-12]
         cfc_coefficients(cfc, 1.0 / rate)  # a rate the class cannot be sampled at is refused
         accel = np.interp(time, response.time, response["accel"] if read else own)
-        accel = accel if read else as_recorded(time - time[0], accel, cfc)
+        accel = accel if read else cfc_recorded(time - time[0], accel, cfc)
     except ValueError as exc:
         raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]
