@@ -493,6 +493,8 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
         "intervals_extrap_peak_miss_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['error_max'] * 100:.0f}",
     }
     calibration = intervals["calibration"]
+    corpus = calibration["corpus"]["vehicles"]
+    out["iv.corpus.vehicles"], out["iv.corpus.tall"] = str(sum(corpus.values())), str(corpus["tall vans and SUVs"])
     for metric, short in METRIC_KEYS.items():
         out[f"iv.power.{short}"] = f"{calibration['power'][metric]:g}"
     for label, seed in (("check", intervals["check_seed"]), ("hidden", intervals["hidden_seed"])):
