@@ -146,8 +146,8 @@ def held_out(
     model_form: str = DEFAULT_FORM,
 ) -> list[dict]:
     """One record per scenario (of `scenarios`): each fit once (minimal problem of `model_form`,
-    with `transcription`), each of its predictions' interval parts, class, the fit's own tests and
-    the generator's metrics."""
+    with `transcription`), each of its predictions' interval parts, class and the fit's own tests,
+    and the generator's metrics as a record of the predicted test holds them (a failed fit's too)."""
     out = []
     for fitted in dict.fromkeys(SCENARIOS[s][0] for s in scenarios):
         path = with_form(fit_problem(v, fitted, folder, transcription, {"ipopt": {"max_iter": FIT_MAX_ITER}}), model_form)
@@ -156,9 +156,10 @@ def held_out(
             speeds, target = SCENARIOS[scenario]
             if speeds != fitted:
                 continue
+            ratio = MASS_RATIOS.get(scenario, 1.0)
             row = {"vehicle": v.name, "form": form, "scenario": scenario, "status": result.status}
+            row["truth"] = truth_metrics(with_payload(v, ratio), target, as_a_test_gives=True)
             if result.ok:
-                ratio = MASS_RATIOS.get(scenario, 1.0)
                 problem = prediction_problem(path, target, folder, v.mass * ratio if ratio != 1.0 else None)
                 predicted = prediction(problem, result, model_form)[f"{target:.0f}kph"]
                 klass, distance = reach(result.identified.range, predicted.speed, predicted.mass)
@@ -170,7 +171,6 @@ def held_out(
                     "extrapolation": predicted.extrapolation,
                     "parts": {k: p.to_json() for k, p in predicted.parts.items()},
                     "fit": _fit_record(result),
-                    "truth": truth_metrics(with_payload(v, ratio), target, as_a_test_gives=True),
                 }
             out.append(row)
     return out
@@ -264,8 +264,8 @@ def _scored(rows: list[dict], metric: str, power: float = 1.0) -> list[tuple[dic
     have `metric`, with its parts and its truth."""
     out = []
     for row in rows:
-        parts, truth = _parts(row, metric, power), row.get("truth", {}).get(metric)
-        if parts is not None and truth is not None and np.isfinite(truth) and row["distance"] > 0:
+        parts, truth = _parts(row, metric, power), row["truth"][metric]
+        if parts is not None and np.isfinite(truth) and row["distance"] > 0:
             out.append((row, parts, truth))
     return out
 
@@ -357,9 +357,9 @@ def judged(row: dict, metric: str, calibration: Calibration) -> dict | None:
     if "parts" not in row:
         return None
     parts = _parts(row, metric, calibration.power[metric])
-    truth = row.get("truth", {}).get(metric)
+    truth = row["truth"][metric]
     q = calibration.q(klass(row), metric) if row["distance"] > 0 else 0.0
-    if parts is None or truth is None or q is None or not np.isfinite(q):
+    if parts is None or not np.isfinite(truth) or q is None or not np.isfinite(q):
         return None
     low, high = parts.interval(q)
     per = scale(metric, parts.value, row["speed_mps"])
@@ -373,14 +373,15 @@ def judged(row: dict, metric: str, calibration: Calibration) -> dict | None:
 def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     """Per scenario and metric: predictions, coverage, median half-width, median and largest error
     (relative); a failed fit or a prediction without a value or an interval counts as not covered,
-    a prediction whose generator does not reach the metric in its record (no stop) not at all.
+    a prediction whose generator's record does not hold the metric (NaN: no stop, or a record that
+    ends still moving withholds it, crashnlp.analysis.summary.withheld) not at all.
     `coverage_given` is the coverage of the predictions that have an interval: the calibration's
     part, without the fits' failures."""
     out: dict = {}
     for scenario in SCENARIOS:
         out[scenario] = {}
         for metric in PREDICTED_KEYS:
-            mine = [r for r in rows if r["scenario"] == scenario and np.isfinite(r.get("truth", {}).get(metric, 0.0))]
+            mine = [r for r in rows if r["scenario"] == scenario and np.isfinite(r["truth"][metric])]
             got = [judged(r, metric, calibration) for r in mine]
             seen = [g for g in got if g is not None]
             out[scenario][metric] = {

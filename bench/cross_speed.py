@@ -38,9 +38,8 @@ import crashnlp
 from bench.common import PROBLEMS
 from bench.corpus import PICKUP, Vehicle, measured, random_vehicle, simulate, tall_vehicle, write_csv
 from bench.robustness import ACCEL_FILTER, WINDOW, minimal_problem
-from crashnlp.analysis.metrics import crash_metrics
-from crashnlp.analysis.summary import metrics as record_metrics
-from crashnlp.base.units import G0
+from crashnlp.analysis.summary import values, withheld
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES
 
@@ -151,26 +150,15 @@ def truth_metrics(v: Vehicle, kmh: float, as_a_test_gives: bool = False) -> dict
     """The generator's noise-free crash metrics at `kmh`, under the keys predictions report them,
     its acceleration as the fitted tests' accelerometers record it (ACCEL_FILTER), as a
     prediction's is (crashnlp.analysis.prediction.read_through): each its value over the record,
-    the curves compared over the same window (NaN: no stop in it). With `as_a_test_gives`, NaN too
-    where a test of the record's length would give none (crashnlp.analysis.summary.metrics: one
-    that ends mid-crash, or drifting on toward the barrier), as an interval is judged against what
-    crashnlp would report of that test."""
+    the curves compared over the same window (NaN: none in it, e.g. no stop). With
+    `as_a_test_gives`, NaN too where crashnlp's rule for a record that ends still moving withholds
+    it (crashnlp.analysis.summary.withheld), as it reads a model's record: an interval is judged
+    against what a record of the prediction's length holds."""
     truth = simulate(at_speed(v, kmh))
-    t, velocity, displacement = truth["time"], truth["velocity"], truth["displacement"]
-    accel = recorded(t, truth, "accel", CFC_CLASSES[ACCEL_FILTER])
-    m = crash_metrics(t, accel, velocity, displacement)
-    values = {
-        "max_displacement_m": m.max_displacement,
-        "peak_decel_g": m.peak_decel / G0,
-        "time_zero_velocity_s": m.t_zero_velocity,
-        "rebound_velocity_mps": m.rebound_velocity,
-        "olc_g": m.olc / G0,
-        "max_pitch_deg": float(np.degrees(np.max(truth["pitch"]))),
-    }
-    if not as_a_test_gives:
-        return values
-    given = record_metrics(t, accel, velocity, displacement, truth["pitch"])
-    return {key: value if given[key] is not None else math.nan for key, value in values.items()}
+    accel = recorded(truth["time"], truth, "accel", CFC_CLASSES[ACCEL_FILTER])
+    record = values(truth["time"], accel, truth["velocity"], truth["displacement"], truth["pitch"])
+    shown = withheld(record, accel) if as_a_test_gives else record
+    return {key: math.nan if shown[key] is None else shown[key] for key in PREDICTED_KEYS}
 
 
 def judge(v: Vehicle, split: str, folder: Path, shipped: Path | None = None, transcription: dict | None = None) -> dict:

@@ -15,6 +15,11 @@ def _met(ok: bool | None) -> str:
     return "n/a" if ok is None else ("met" if ok else "**missed**")
 
 
+def _signed(error: float, factor: float = 1.0, digits: int = 1) -> str:
+    """An error in a table, signed; "none" where the prediction or the generator gives no value (NaN)."""
+    return f"{error * factor:+.{digits}f}" if math.isfinite(error) else "none"
+
+
 def targets(results: dict) -> list[tuple[str, str, bool | None]]:
     """(target, measured, met) for every target of the issue; None when the section did not run."""
     rows = []
@@ -283,8 +288,8 @@ def _regularized_md(r: dict | None) -> list[str]:
             x["status"],
             x["iterations"],
             f"{x['wall_s']:.2f} ({'compiled' if x.get('compiled') else 'VM'})",
-            f"{100 * x['displacement_rel']:+.1f}" if ok(x) else "",
-            f"{100 * x['peak_rel']:+.1f}" if ok(x) else "",
+            _signed(x["displacement_rel"], 100) if ok(x) else "",
+            _signed(x["peak_rel"], 100) if ok(x) else "",
         ]
         for x in r["regularized"]
     ]
@@ -322,11 +327,6 @@ def _grid_md(g: dict | None) -> list[str]:
 
 def _goal(target: dict) -> str:
     return f"{100 * target['displacement_rel']:g} % / {100 * target['peak_rel']:g} %"
-
-
-def _signed(error: float, factor: float = 1.0, digits: int = 1) -> str:
-    """An error in a table, signed; "none" where the prediction or the generator gives no value (NaN)."""
-    return f"{error * factor:+.{digits}f}" if math.isfinite(error) else "none"
 
 
 def cross_speed_md(r: dict) -> list[str]:
@@ -673,9 +673,9 @@ def corpus_md(r: dict) -> list[str]:
             f"{x['speed_kmh']:.1f}",
             x["status"],
             f"{x['displacement_true_m'] * 1e3:.0f}" if ok(x) else "",
-            f"{100 * x['displacement_rel']:+.2f}" if ok(x) else "",
+            _signed(x["displacement_rel"], 100, 2) if ok(x) else "",
             f"{x['stop_true_s'] * 1e3:.1f}" if ok(x) else "",
-            f"{1e3 * x['stop_err_s']:+.2f}" if ok(x) else "",
+            _signed(x["stop_err_s"], 1e3, 2) if ok(x) else "",
             f"{x['force_rating']:.3f}" if ok(x) else "",
             x["iterations"],
             f"{x['wall_s']:.2f}",
@@ -863,8 +863,8 @@ def _hidden_md(h: dict | None) -> list[str]:
             *(
                 [
                     f"{f['pitch_rmse_deg']:.2f}",
-                    f"{100 * f['displacement_rel']:+.1f}",
-                    f"{100 * f['peak_rel']:+.1f}",
+                    _signed(f["displacement_rel"], 100),
+                    _signed(f["peak_rel"], 100),
                     f"{1e3 * f['stop_err_s']:+.2f}" if math.isfinite(f["stop_err_s"]) else "no stop",
                     _lift_off_cell(f),
                     _met(f["within_hidden"]),

@@ -268,7 +268,7 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
         ),
         ("p.yaml", ["--speed", "56"], '--speed 56: give its unit, e.g. "56 km/h" or "56 m/s"'),
         ("p.yaml", ["--speed", "56 kg"], "--speed 56 kg: '56 kg' does not convert to m/s"),
-        # as simulate's what-if (crashnlp.problem.schema.what_if): these ended in a traceback's last line, exit 1
+        # as simulate's what-if reads them (crashnlp.problem.schema.what_if): one line, exit 2
         ("p.yaml", ["--speed", "0 km/h"], "--speed 0 km/h: 0 m/s is no impact"),
         ("p.yaml", ["--mass", "nan"], "--mass nan: not a finite number"),
     ],

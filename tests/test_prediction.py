@@ -20,9 +20,10 @@ from bench.robustness import minimal_problem
 from crashnlp.analysis.calibration import shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import crash_metrics
-from crashnlp.analysis.prediction import _drift, _let_go, simulation_figure_jobs
+from crashnlp.analysis.prediction import _drift, _let_go, _slope, ending_notes, simulation_figure_jobs
+from crashnlp.analysis.summary import metrics
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import METRIC_RANGE, PREDICTED_KEYS, UNFINISHED
+from crashnlp.base.outputs import METRIC, METRIC_RANGE, PREDICTED_KEYS, UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
 from crashnlp.case.testcase import Recorded
 from crashnlp.cli import main
@@ -590,6 +591,38 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
     assert note.startswith("t1:") and "0.30 m/s" in note
     assert _drift("t1", ending(-0.1, 0.0)) == ()  # rebounded: a stop
     assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
+
+
+def test_a_prediction_that_ends_drifting_says_which_metrics_it_does_not_give():
+    """A half-sine pulse taking 14.5 of 15 m/s, the vehicle then drifting on at 0.5 m/s without
+    contact: the drift's note, and the still-moving note naming the UNSETTLED metrics the record
+    withholds (its intervals are skipped on that note: crashnlp.analysis.prediction._uncertainty)."""
+    t = np.arange(0.0, 0.15, 1e-4)
+    pulse = t < 0.08
+    a = np.where(pulse, -14.5 * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
+    v = np.where(pulse, 15.0 - 14.5 * (1 - np.cos(np.pi * t / 0.08)) / 2, 0.5)
+    x = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2 * np.diff(t))])
+    contact = np.where(pulse, -a * 1500.0, 0.0)
+    response = Response(t, {"velocity": v, "contact_force": contact}, np.zeros((0, t.size)))
+    given = metrics(t, a, v, x, np.radians(4.0) * np.sin(np.pi * t / 0.3))
+    drift, moving = ending_notes("t1", response, given)
+    assert "without contact" in drift and "0.50 m/s" in drift
+    assert all(METRIC[k].label in moving for k in UNSETTLED) and all(given[k] is None for k in UNSETTLED)
+    rebound = np.where(pulse, v, -0.2)  # the same pulse, then moving away: a stop, nothing to say
+    away = Response(t, {"velocity": rebound, "contact_force": contact}, np.zeros((0, t.size)))
+    assert ending_notes("t1", away, metrics(t, a, rebound, x, None)) == ()
+
+
+def test_a_metric_one_end_of_a_difference_does_not_give_takes_its_slope_from_the_estimate():
+    """m = 3 + 2 v about v = 1, the value moved to 1.5 and 0.5: central where both ends give the
+    metric; where one end's record withholds it (a drift past its end), the other end's one-sided
+    difference from the estimate, not 0 (a parameter part that would vanish); 0 where neither does."""
+    ends = (1.5, 0.5, 1.0)
+    assert _slope(6.0, 4.0, 5.0, ends) == pytest.approx(2.0)
+    assert _slope(None, 4.0, 5.0, ends) == pytest.approx(2.0)
+    assert _slope(6.0, float("nan"), 5.0, ends) == pytest.approx(2.0)
+    assert _slope(None, None, 5.0, ends) == 0.0
+    assert _slope(6.0, None, 5.0, (1.0, 0.5, 1.0)) == 0.0  # the estimate at its bound: no difference to take
 
 
 def test_a_front_end_that_lets_go_while_the_cg_moves_on_is_said_so():

@@ -219,7 +219,7 @@ def predict(
         other = test.other_conditions(mass)
         data = data_curves(test) if other is None else {}
         first = (other,) if other is not None else ()
-        drift = _drift(test.name, response) or _let_go(test.name, response) or _moving(test.name, metrics)
+        drift = ending_notes(test.name, response, metrics)
         if identified is None:
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, notes=first + drift, data=data)
             continue
@@ -271,6 +271,13 @@ def uncalibrated(name: str, form: str) -> str:
         f"{name}: no intervals: model form {form} has no calibration table (crashnlp/analysis/calibration.json, "
         "make calibrate), and another form's misses are not its own"
     )
+
+
+def ending_notes(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
+    """The notes on how a simulated test ends: a drift without contact or a front end that lets go
+    while the CG moves on (`_drift`, else `_let_go`), and where it ends still moving, what its
+    record does not give (`_moving`)."""
+    return (_drift(name, response) or _let_go(name, response)) + _moving(name, metrics)
 
 
 def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:
@@ -342,7 +349,7 @@ def _uncertainty(
         return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
     unseen = ", ".join(label for label, s, out in zip(identified.labels, std, unused) if out and not np.isfinite(s))
     notes = [f"{test.name}: {unseen}, which the data do not determine, shape no force it goes through"] if unseen else []
-    gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt, cfc)
+    gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt, cfc, metrics)
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
@@ -505,11 +512,19 @@ def past_the_reach(
 
 
 def _sensitivities(
-    case: Case, test: TestCase, p: np.ndarray, identified: IdentifiedModel, std: np.ndarray, dt: float | None, cfc: str | None
+    case: Case,
+    test: TestCase,
+    p: np.ndarray,
+    identified: IdentifiedModel,
+    std: np.ndarray,
+    dt: float | None,
+    cfc: str | None,
+    metrics: dict[str, float | None],
 ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
     """d metric / d value (values x metrics) and d output / d value (output -> values x times):
     central differences over one standard error each way, clipped to the estimate's bounds, the
-    acceleration read through CFC class `cfc`."""
+    acceleration read through CFC class `cfc`; one-sided from `metrics`, the estimate's, where one
+    end's record does not give a metric (`_slope`)."""
     slices = case.layout.slices()
     gm = np.zeros((len(identified.labels), len(PREDICTED_KEYS)))
     gy: dict[str, np.ndarray] = {}
@@ -521,7 +536,8 @@ def _sensitivities(
             continue
         r_up, r_down = (_simulated(case, test, _with(p, k, value), dt, cfc) for value in (up, down))
         m_up, m_down = response_metrics(r_up), response_metrics(r_down)
-        gm[j] = [_difference(m_up.get(key), m_down.get(key)) / (up - down) for key in PREDICTED_KEYS]
+        ends = (up, down, float(p[k]))
+        gm[j] = [_slope(m_up.get(key), m_down.get(key), metrics.get(key), ends) for key in PREDICTED_KEYS]
         for name in BAND_METRIC:
             gy.setdefault(name, np.zeros((len(identified.labels), r_up.time.size)))[j] = (r_up[name] - r_down[name]) / (up - down)
     return gm, gy
@@ -533,8 +549,20 @@ def _with(p: np.ndarray, k: int, value: float) -> np.ndarray:
     return q
 
 
-def _difference(a: float | None, b: float | None) -> float:
-    return 0.0 if a is None or b is None or not (np.isfinite(a) and np.isfinite(b)) else a - b
+def _slope(high: float | None, low: float | None, here: float | None, ends: tuple[float, float, float]) -> float:
+    """A metric's change per unit of a value, from the metric at the value's two ends and at the
+    estimate (`ends`: the value up, down and estimated): central where both ends give the metric;
+    one-sided where one does and the estimate does (a record that ends drifting, or mid-crash, at
+    one end withholds what the crash goes on to change: crashnlp.analysis.summary.withheld); 0
+    where neither end does."""
+    up, down, estimate = ends
+    given = [(x, m) for x, m in ((up, high), (down, low)) if m is not None and np.isfinite(m)]
+    if len(given) == 2:
+        return (given[0][1] - given[1][1]) / (up - down)
+    if len(given) == 1 and here is not None and np.isfinite(here) and given[0][0] != estimate:
+        x, m = given[0]
+        return (m - here) / (x - estimate)
+    return 0.0
 
 
 def _position(slices: dict[str, slice], label: str) -> int:

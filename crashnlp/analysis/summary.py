@@ -34,7 +34,7 @@ def metrics(
     """The crash metrics result.json reports, in the units their names say; None for a metric the
     record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), the
     UNFINISHED ones of a record that ends mid-crash (MID_CRASH), and the UNSETTLED ones of a record
-    that ends drifting on toward the barrier after the pulse (`still_moving` says where either
+    that ends still moving toward the barrier after the pulse (`still_moving` says where either
     ends). The one rule for test data, fitted models and predictions alike.
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
@@ -43,6 +43,19 @@ def metrics(
     crush bound limits); the two differ by the pitch and the geometry. `record_end_s` and
     `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
     """
+    return withheld(values(t, accel, velocity, displacement, pitch, crush), accel)
+
+
+def values(
+    t: np.ndarray,
+    accel: np.ndarray,
+    velocity: np.ndarray,
+    displacement: np.ndarray,
+    pitch: np.ndarray | None,
+    crush: np.ndarray | None = None,
+) -> dict:
+    """Every crash metric as far as the record goes (None: none in it, a stop or an OLC it does not
+    reach), before `withheld`: what the benchmarks compare two curves by over the same record."""
     m = crash_metrics(t, accel, velocity, displacement)
     others = {
         "max_front_end_crush_m": float(np.max(crush)) if crush is not None else None,
@@ -50,10 +63,15 @@ def metrics(
         "max_pitch_deg": float(np.degrees(np.max(pitch))) if pitch is not None else None,
     }
     out = {k.key: others[k.key] if k.read is None else getattr(m, k.read) / k.per for k in METRICS}
-    out = {key: None if value is None or not np.isfinite(value) else value for key, value in out.items()}
-    if not still_moving(out):
-        return out
-    return {**out, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
+    return {key: None if value is None or not np.isfinite(value) else value for key, value in out.items()}
+
+
+def withheld(record: dict, accel: np.ndarray) -> dict:
+    """A record's `values` without those its crash goes on to change, where it ends before the
+    vehicle stops: the UNFINISHED ones mid-crash, the UNSETTLED ones after the pulse."""
+    if not still_moving(record):
+        return record
+    return {**record, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
 
 
 def _mid_crash(accel: np.ndarray) -> bool:
@@ -72,8 +90,8 @@ def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
     if metrics.get("peak_decel_g") is None:
         return f"{moving} (no stop: no max displacement, stop, peak deceleration or rebound in it)"
-    again = f"it meets the barrier again, so no {_UNSETTLED_WORDS} in it"
-    return f"{moving} (no stop: {again}; its travel there is no max displacement)"
+    rest = f"the crash goes on past it, so no {_UNSETTLED_WORDS} in it"
+    return f"{moving} (no stop: {rest}; its travel there is no max displacement)"
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:

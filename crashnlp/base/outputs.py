@@ -148,11 +148,10 @@ PLOTTED: tuple[str, ...] = tuple(m.key for m in METRICS if m.plotted)
 # Its OLC is held where the occupant gets to 300 mm within the record: it is read from the pulse up
 # to there alone.
 UNFINISHED: tuple[str, ...] = tuple(m.key for m in METRICS if m.whole_pulse)
-# what a record that ends after the pulse, the vehicle drifting on toward the barrier without
-# contact (its pitch lifted the front end off), does not hold either: the vehicle meets the barrier
-# again, so its velocity change and rebound are not over, and its pitch goes on as it drifts and
-# when it meets the barrier (bench/truncated.py: a tall van's max pitch was short in 265 of 338
-# such records, and an engine van's rebound in 29 of 29)
+# what a record that ends after the pulse with the vehicle still moving toward the barrier (its
+# pitch lifted the front end off, or a last creep) does not hold either: the crash goes on past
+# it, so its velocity change and rebound are not over, and its pitch goes on as it drifts and when
+# it meets the barrier again (bench/truncated.py, "Records cut short")
 UNSETTLED: tuple[str, ...] = tuple(m.key for m in METRICS if m.whole_crash)
 # each predicted metric's physical range (SI; None: the record's end): why each, and how an interval
 # is cut to it, in crashnlp.analysis.limits
