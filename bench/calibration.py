@@ -231,8 +231,9 @@ def collect(
             fitted_as = "" if model_form == DEFAULT_FORM else f"{model_form}-"
             stem = re.sub(r"\W+", "-", f"{fitted_as}{seed}-{form}-{v.name}")
             stored = cache / f"{stem}.json" if cache is not None else None
-            if stored is not None and stored.exists():
-                rows += json.loads(stored.read_text())
+            kept = json.loads(stored.read_text()) if stored is not None and stored.exists() else []
+            if kept and all("truth" in row for row in kept):  # a record made before every row had its truth is made again
+                rows += kept
                 continue
             folder = Path(tmp) / stem
             folder.mkdir()

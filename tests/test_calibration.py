@@ -155,6 +155,25 @@ def test_the_method_finds_how_the_miss_grows_with_the_distance_and_covers_record
         assert covered >= 0.9, (metric, covered)
 
 
+def test_a_metric_the_generator_s_record_does_not_hold_is_judged_on_no_prediction():
+    """The coverage counts a failed fit as a miss of what the generator's record holds, and judges
+    no prediction, failed or not, on a metric the record withholds (NaN: no stop, a drift's rebound
+    and max pitch): those do not count at all."""
+    calibration = calibrate(_synthetic(1, 1.0), 1)
+    rows = _synthetic(2, 1.0, vehicles=4)
+    drifting = {"time_zero_velocity_s", "rebound_velocity_mps", "max_pitch_deg"}
+    for row in rows[:8]:  # the first vehicle drifts in every scenario
+        row["truth"] = {m: math.nan if m in drifting else v for m, v in row["truth"].items()}
+    for row in rows[8:16]:  # the second one's fits fail
+        row["status"] = "solver failed: Maximum_Iterations_Exceeded"
+        del row["parts"]
+    assert all(judged(row, m, calibration) is None for row in rows[:8] for m in drifting)
+    held = evaluate(rows, calibration)
+    for by in held.values():
+        assert all(by[m]["n"] == 3 for m in drifting) and all(by[m]["n"] == 4 for m in set(PREDICTED_KEYS) - drifting)
+        assert all(by[m]["coverage"] <= 3 / 4 for m in set(PREDICTED_KEYS) - drifting)  # the failed fit: a miss
+
+
 def test_the_table_covers_each_generator_form_not_only_their_mix():
     """A corpus of a common form and a rare one whose misses are three times as large: the pooled
     quantile alone would cover the mix and leave the rare form short (79 to 89 % per metric here); the table

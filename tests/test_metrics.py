@@ -92,7 +92,7 @@ def test_a_record_that_ends_moving_holds_no_max_displacement_stop_peak_or_reboun
     assert moving["end_velocity_mps"] == pytest.approx(15.0 * (1 + np.cos(np.pi * 0.05 / 0.08)) / 2, rel=1e-3)
     assert still_moving(moving) == (
         f"ends at 50.0 ms still moving toward the barrier at {moving['end_velocity_mps']:.3g} m/s"
-        " (no stop: no max displacement, stop, peak deceleration or rebound in it)"
+        " (no stop: mid-crash, so no max displacement, peak deceleration, rebound velocity, delta-V or max pitch in it)"
     )
     model = metrics(t, a, v, x, np.linspace(0.0, 0.05, t.size), np.maximum(x, 0.0))  # a model's response: the same rule
     for m in (moving, model):
@@ -158,8 +158,8 @@ def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
     assert all(model[k] is None for k in UNSETTLED) and {"delta_v_mps", "rebound_velocity_mps", "max_pitch_deg"} <= set(UNSETTLED)
     assert model["time_zero_velocity_s"] is None and model["max_displacement_m"] == pytest.approx(x[-1])
     assert still_moving(model).endswith(
-        "(no stop: the crash goes on past it, so no rebound velocity, delta-V or max pitch in it;"
-        " its travel there is no max displacement)"
+        "(no stop: the crash goes on past it, so no rebound velocity, delta-V or max pitch in it)"
     )
     data = data_metrics(_recorded(t, a, v, x))
     assert data["max_displacement_m"] is None and data["peak_decel_g"] == pytest.approx(model["peak_decel_g"])
+    assert still_moving(data).endswith("so no max displacement, rebound velocity, delta-V or max pitch in it)")

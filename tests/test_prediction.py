@@ -588,7 +588,7 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
         return Response(t, {"velocity": np.full(5, velocity), "contact_force": np.full(5, contact)}, np.zeros((0, 5)))
 
     (note,) = _drift("t1", ending(0.3, 0.0))
-    assert note.startswith("t1:") and "0.30 m/s" in note
+    assert note.startswith("t1:") and "drifts on without contact" in note
     assert _drift("t1", ending(-0.1, 0.0)) == ()  # rebounded: a stop
     assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
 
@@ -606,8 +606,9 @@ def test_a_prediction_that_ends_drifting_says_which_metrics_it_does_not_give():
     response = Response(t, {"velocity": v, "contact_force": contact}, np.zeros((0, t.size)))
     given = metrics(t, a, v, x, np.radians(4.0) * np.sin(np.pi * t / 0.3))
     drift, moving = ending_notes("t1", response, given)
-    assert "without contact" in drift and "0.50 m/s" in drift
+    assert "without contact" in drift and "its max displacement is its travel" in drift and "0.5 m/s" in moving
     assert all(METRIC[k].label in moving for k in UNSETTLED) and all(given[k] is None for k in UNSETTLED)
+    assert "max displacement" not in moving and given["max_displacement_m"] is not None  # the two notes agree
     rebound = np.where(pulse, v, -0.2)  # the same pulse, then moving away: a stop, nothing to say
     away = Response(t, {"velocity": rebound, "contact_force": contact}, np.zeros((0, t.size)))
     assert ending_notes("t1", away, metrics(t, a, rebound, x, None)) == ()

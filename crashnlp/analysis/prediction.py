@@ -274,10 +274,11 @@ def uncalibrated(name: str, form: str) -> str:
 
 
 def ending_notes(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
-    """The notes on how a simulated test ends: a drift without contact or a front end that lets go
-    while the CG moves on (`_drift`, else `_let_go`), and where it ends still moving, what its
-    record does not give (`_moving`)."""
-    return (_drift(name, response) or _let_go(name, response)) + _moving(name, metrics)
+    """The notes on how a simulated test ends: a drift without contact whose travel at the end is
+    its max displacement (`_drift`), or a front end that lets go while the CG moves on (`_let_go`);
+    and where it ends still moving, what its record does not give (`_moving`)."""
+    drift = _drift(name, response) if metrics.get("max_displacement_m") is not None else ()
+    return (drift or _let_go(name, response)) + _moving(name, metrics)
 
 
 def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:
@@ -295,8 +296,8 @@ def _drift(name: str, response: Response) -> tuple[str, ...]:
     if velocity <= DRIFT or contact > 0:
         return ()
     return (
-        f"{name}: the vehicle ends still moving toward the barrier at {velocity:.2f} m/s without contact (its pitch "
-        "lifted the front end off): its max displacement is its travel at the end of the record, not a stop",
+        f"{name}: the vehicle drifts on without contact (its pitch lifted the front end off): its max displacement "
+        "is its travel at the end of the record, not a stop",
     )
 
 
@@ -554,7 +555,7 @@ def _slope(high: float | None, low: float | None, here: float | None, ends: tupl
     estimate (`ends`: the value up, down and estimated): central where both ends give the metric;
     one-sided where one does and the estimate does (a record that ends drifting, or mid-crash, at
     one end withholds what the crash goes on to change: crashnlp.analysis.summary.withheld); 0
-    where neither end does."""
+    where neither end does, the estimate does not, or the one end is the estimate (at its bound)."""
     up, down, estimate = ends
     given = [(x, m) for x, m in ((up, high), (down, low)) if m is not None and np.isfinite(m)]
     if len(given) == 2:

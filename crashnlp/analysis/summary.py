@@ -19,8 +19,11 @@ from crashnlp.results.response import Response
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
 # contact (its pitch lifted the front end off), and the record holds the pulse whole
 MID_CRASH = 0.1
-# what a record that ends drifting on does not give, in still_moving's words
-_UNSETTLED_WORDS = ", ".join(METRIC[k].label for k in UNSETTLED[:-1]) + f" or {METRIC[UNSETTLED[-1]].label}"
+# the metrics still_moving names where a record does not give them: the predicted ones the crash's
+# rest would change, and the velocity change (the stop is said apart)
+_WITHHELD: tuple[str, ...] = tuple(
+    m.key for m in METRICS if (m.short or m.key == "delta_v_mps") and m.whole_pulse and m.key != "time_zero_velocity_s"
+)
 
 
 def metrics(
@@ -82,16 +85,20 @@ def _mid_crash(accel: np.ndarray) -> bool:
 
 def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record that ends before the vehicle stops (no time of zero velocity in
-    it): mid-crash, without the UNFINISHED metrics, or drifting on after the pulse, without the
-    UNSETTLED ones and without a max displacement; None for one that stops."""
+    it), mid-crash or after the pulse, naming the predicted metrics it does not give (`withheld`,
+    and for data a drift's max displacement: `data_metrics`); None for one that stops."""
     stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
     if (stop is not None and np.isfinite(stop)) or end is None or speed is None:
         return None
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
-    if metrics.get("peak_decel_g") is None:
-        return f"{moving} (no stop: no max displacement, stop, peak deceleration or rebound in it)"
-    rest = f"the crash goes on past it, so no {_UNSETTLED_WORDS} in it"
-    return f"{moving} (no stop: {rest}; its travel there is no max displacement)"
+    where = "mid-crash" if metrics.get("peak_decel_g") is None else "the crash goes on past it"
+    return f"{moving} (no stop: {where}, so no {_listed(_WITHHELD, metrics)} in it)"
+
+
+def _listed(keys: tuple[str, ...], metrics: Mapping[str, float | None]) -> str:
+    """The labels of the metrics of `keys` that `metrics` does not give: "a, b or c"."""
+    labels = [METRIC[k].label for k in keys if metrics.get(k) is None]
+    return ", ".join(labels[:-1]) + f" or {labels[-1]}" if len(labels) > 1 else "".join(labels)
 
 
 def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
