@@ -10,10 +10,12 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+import casadi as ca
 import pytest
 
-from crashnlp.base.cache import KEPT_YAML, cache_dir
+from crashnlp.base.cache import KEPT_MODEL, KEPT_YAML, cache_dir
 from crashnlp.base.errors import InputError
+from crashnlp.models import stored as model_store
 from crashnlp.numerics import compile_job, compiled
 from crashnlp.optimize import oracle
 from crashnlp.problem.load import read_yaml
@@ -60,10 +62,11 @@ def test_a_compile_first_removes_the_least_recently_used_libraries_down_to_the_l
     assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 7 * MB
 
 
-def test_a_compile_removes_kept_yaml_values_with_the_libraries_least_recently_used_first(tmp_path, monkeypatch):
-    """The values of YAML files read before (crashnlp.problem.load.read_yaml) go as libraries do: a
-    library and a kept file of 3 MB each, older than a second library, and a limit of 4 MB: both
-    go, the newer library stays; a kept file written long ago but read since stays, used then."""
+def test_a_compile_removes_kept_files_with_the_libraries_least_recently_used_first(tmp_path, monkeypatch):
+    """The values of YAML files read before (crashnlp.problem.load.read_yaml) and stored models
+    (crashnlp.models.stored) go as libraries do: a library, a model of 1 MB and a kept file of 3 MB,
+    older than a second library, and a limit of 4 MB: all three go, the newer library stays; a kept
+    file and a model written long ago but read since stay, used then."""
     fake_compiler(tmp_path, monkeypatch, pause=0)
     monkeypatch.setenv(compiled.LIMIT_ENV, "4")
     problem = tmp_path / "problem.yaml"
@@ -72,10 +75,16 @@ def test_a_compile_removes_kept_yaml_values_with_the_libraries_least_recently_us
     (read,) = cache_dir().glob(KEPT_YAML.format(key="*"))
     os.utime(read, (0, 0))
     assert read_yaml(problem) == {"vehicle": {"mass": 1500}}
-    oldest, kept, newer = library_of("a", 3, 400), cached_file(KEPT_YAML.format(key="0" * 32), 3, 300), library_of("b", 3, 100)
+    x = ca.SX.sym("x")
+    stored = cache_dir() / KEPT_MODEL.format(form="pendulum", key="1" * 20)
+    stored.write_text(ca.Function("whole", [x], [2 * x]).serialize())
+    os.utime(stored, (0, 0))
+    assert float(model_store.read(stored)(3.0)) == 6.0
+    oldest, model = library_of("a", 3, 400), cached_file(KEPT_MODEL.format(form="pendulum", key="0" * 20), 1, 350)
+    kept, newer = cached_file(KEPT_YAML.format(key="0" * 32), 3, 300), library_of("b", 3, 100)
     assert compiled.compiled(twice()).class_name() == "External"
-    assert not oldest.exists() and not kept.exists()
-    assert newer.exists() and read.exists()
+    assert not oldest.exists() and not model.exists() and not kept.exists()
+    assert newer.exists() and read.exists() and stored.exists()
     assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 4 * MB
 
 

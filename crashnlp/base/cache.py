@@ -4,8 +4,8 @@ values of the YAML files (problems, studies) read before (crashnlp.problem.load)
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
-CRASHNLP_CACHE_MB, removing the least recently used libraries and kept YAML values
-(crashnlp.numerics.compiled).
+CRASHNLP_CACHE_MB, removing the least recently used libraries, kept YAML values and stored
+models (crashnlp.numerics.compiled).
 """
 
 from __future__ import annotations
@@ -22,6 +22,10 @@ CACHE_ENV = "CRASHNLP_CACHE"
 NAME_TRIES = 100  # random temporary names tried before giving up (each clashes with odds 2^-64)
 PREFIX_CHARS = 64  # of a temporary name's prefix (a target's own name): a long one would pass the system's limit
 KEPT_YAML = "yaml-{key}.json"  # the values of a YAML text read before (crashnlp.problem.load), under a hash of it
+KEPT_MODEL = "model-{form}-{key}.casadi"  # a model's expressions derived before (crashnlp.models.stored)
+# what the cache's limit removes without a lock, least recently used first (crashnlp.numerics.compiled):
+# files written whole or not at all, made again by the next process that needs one that is gone
+KEPT = (KEPT_YAML.format(key="*"), KEPT_MODEL.format(form="*", key="*"))
 
 
 def cache_dir() -> Path:

@@ -22,7 +22,7 @@ from pathlib import Path
 import casadi as ca
 
 from crashnlp.base import outputs
-from crashnlp.base.cache import cache_dir, write_atomic
+from crashnlp.base.cache import KEPT_MODEL, cache_dir, used, write_atomic
 
 
 @cache
@@ -39,13 +39,16 @@ def path_of(form: str, what: object) -> Path:
     """The cache file of the model of `form` whose expressions `what` fixes (the form's class,
     Structure and parameter layout, as a repr that names every field)."""
     key = hashlib.sha256("\0".join((repr(what), ca.CasadiMeta.version(), _sources())).encode()).hexdigest()[:20]
-    return cache_dir() / f"model-{form}-{key}.casadi"
+    return cache_dir() / KEPT_MODEL.format(form=form, key=key)
 
 
 def read(path: Path) -> ca.Function | None:
-    """The stored model (CrashModel.whole), or None where there is none, or it cannot be read."""
+    """The stored model (CrashModel.whole), marked used (the cache's limit removes the least
+    recently used first), or None where there is none, or it cannot be read."""
     with suppress(OSError, RuntimeError):
-        return ca.Function.deserialize(path.read_text())
+        whole = ca.Function.deserialize(path.read_text())
+        used(path)
+        return whole
     return None
 
 

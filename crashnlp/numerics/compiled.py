@@ -53,7 +53,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
-from crashnlp.base.cache import CACHE_ENV, KEPT_YAML, cache_dir, used
+from crashnlp.base.cache import CACHE_ENV, KEPT, cache_dir, used
 from crashnlp.base.errors import InputError
 from crashnlp.numerics import compile_job
 
@@ -308,23 +308,28 @@ def cache_limit() -> float:
 
 def _make_room(adding: Path) -> None:
     """Remove the least recently used (`used`) libraries of `adding`'s folder, each with its list of
-    names, and kept values of YAML files (KEPT_YAML), until the folder's files take at most
-    `cache_limit()`: not `adding`, nor a library whose lock a compile holds (looked at meanwhile,
-    `_looked_at`, so that none starts). A process that has a removed library loaded keeps it; the
-    next that needs it compiles it again, as the next read of a removed YAML file parses it."""
+    names, and kept files (KEPT: the values of YAML files, stored models), until the folder's files
+    take at most `cache_limit()`: not `adding`, nor a library whose lock a compile holds (looked at
+    meanwhile, `_looked_at`, so that none starts). A process that has a removed library loaded
+    keeps it; the next that needs it compiles it again, as the next that needs a removed kept file
+    makes it again."""
     files = {path: path.stat() for path in adding.parent.iterdir() if path.is_file()}
     total, limit = sum(s.st_size for s in files.values()), cache_limit()
-    yaml = KEPT_YAML.format(key="*")
-    removable = (p for p in files if p != adding and (p.suffix == adding.suffix or p.match(yaml)))
+    removable = (p for p in files if p != adding and (p.suffix == adding.suffix or _kept(p)))
     for path in sorted(removable, key=lambda p: files[p].st_mtime):
         if total <= limit:
             return
-        kept = path.match(yaml)  # written whole or not at all, and read again if gone: no lock
+        kept = _kept(path)
         with nullcontext(True) if kept else _looked_at(path) as free:
             if free:
                 gone = [path] if kept else [path, path.with_suffix(".names")]
                 total -= sum(files[p].st_size for p in gone if p in files)
                 _remove(gone)
+
+
+def _kept(path: Path) -> bool:
+    """Whether `path` is a kept file (KEPT), removed without a lock."""
+    return any(path.match(pattern) for pattern in KEPT)
 
 
 def refused(library: Path) -> bool:
