@@ -19,10 +19,10 @@ from crashnlp.results.response import Response
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
 # contact (its pitch lifted the front end off), and the record holds the pulse whole
 MID_CRASH = 0.1
-# the metrics still_moving names where a record does not give them: the predicted ones the crash's
-# rest would change, and the velocity change (the stop is said apart)
+# the metrics still_moving names where a record does not give them: the predicted and the whole
+# crash's ones that the crash's rest would change (the stop is said apart)
 _WITHHELD: tuple[str, ...] = tuple(
-    m.key for m in METRICS if (m.short or m.key == "delta_v_mps") and m.whole_pulse and m.key != "time_zero_velocity_s"
+    m.key for m in METRICS if (m.short or m.whole_crash) and m.whole_pulse and m.key != "time_zero_velocity_s"
 )
 
 

@@ -30,9 +30,9 @@ lock it holds, and every other library's whose lock no compile holds, taken shar
 none starts. A running compile's files are never removed.
 
 What a compile may take (`start`): the cache within CRASHNLP_CACHE_MB, the least recently used
-libraries and kept YAML values removed first (`used`, `_make_room`); and no more than half the
-memory available, else it is not started (`TooLarge`) and the functions stay in CasADi's virtual
-machine.
+libraries and kept files (KEPT: YAML values, stored models) removed first (`used`, `_make_room`);
+and no more than half the memory available, else it is not started (`TooLarge`) and the
+functions stay in CasADi's virtual machine.
 """
 
 from __future__ import annotations
