@@ -122,6 +122,7 @@ TARGETS = {
         "extrapolation": {"peak_decel_g": 0.30},
     },
 }
+SHARPNESS = {metric for widths in TARGETS["half_width"].values() for metric in widths}  # the metrics with a width line
 METHOD = (
     f"split-conformal: per class of prediction and metric, the ceil((n + 1) {LEVEL})-th smallest score of n held-out "
     "predictions (the rank's n the class's vehicles, its quantile over their predictions), or where larger the "
@@ -377,7 +378,11 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     a prediction whose generator's record does not hold the metric (NaN: no stop, or a record that
     ends still moving withholds it, crashnlp.analysis.summary.withheld) not at all.
     `coverage_given` is the coverage of the predictions that have an interval: the calibration's
-    part, without the fits' failures."""
+    part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
+    for every prediction of the scenario, that would hold the generator's value as often as issue
+    38's coverage line asks (`needed`), and `one_width_level` as often as LEVEL (a prediction
+    without a value is held by none), for the metrics with a sharpness line (SHARPNESS): what an
+    interval's median half-width cannot go below without knowing which predictions miss most."""
     out: dict = {}
     for scenario in SCENARIOS:
         out[scenario] = {}
@@ -385,6 +390,7 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
             mine = [r for r in rows if r["scenario"] == scenario and np.isfinite(r["truth"][metric])]
             got = [judged(r, metric, calibration) for r in mine]
             seen = [g for g in got if g is not None]
+            misses = [abs(g["error_rel"]) if g is not None else math.inf for g in got]
             out[scenario][metric] = {
                 "n": len(mine),
                 "coverage": sum(g["covered"] for g in seen) / len(mine) if mine else float("nan"),
@@ -393,7 +399,17 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
                 "error_median": float(np.median([abs(g["error_rel"]) for g in seen])) if seen else float("nan"),
                 "error_max": float(np.max([abs(g["error_rel"]) for g in seen])) if seen else float("nan"),
             }
+            if mine and metric in SHARPNESS:
+                out[scenario][metric] |= {
+                    "one_width": share_quantile(misses, needed(metric)),
+                    "one_width_level": share_quantile(misses, LEVEL),
+                }
     return out
+
+
+def needed(metric: str) -> float:
+    """Issue 38's coverage line of `metric`."""
+    return TARGETS["coverage"].get(metric, TARGETS["coverage_other"])
 
 
 def run(quick: bool = False) -> dict:
@@ -497,7 +513,8 @@ def _form_targets(section: dict) -> list[tuple[str, str, bool | None]]:
                     rows.append(
                         (
                             f"intervals {form}: {scenario}, {metric}: median half-width <= {width:.0%}",
-                            f"{e['half_width_median']:.1%}",
+                            f"{e['half_width_median']:.1%} (one width for all holds {needed(metric):.0%} at "
+                            f"{e['one_width']:.1%}, {LEVEL:.0%} at {e['one_width_level']:.1%})",
                             e["half_width_median"] <= width,
                         )
                     )
@@ -505,7 +522,7 @@ def _form_targets(section: dict) -> list[tuple[str, str, bool | None]]:
 
 
 def _coverage_target(what: str, metric: str, e: dict) -> list[tuple[str, str, bool | None]]:
-    need = TARGETS["coverage"].get(metric, TARGETS["coverage_other"])
+    need = needed(metric)
     return [(f"intervals {what}: cover >= {need:.0%}", f"{e['coverage']:.0%} of {e['n']}", e["coverage"] >= need)]
 
 

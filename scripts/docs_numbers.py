@@ -480,7 +480,8 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     lowest coverage of any scenario and metric, and the half-widths from one test down to 48 km/h;
     and on the check seed and the hidden population, each scenario's coverage and median
     half-width of each metric (iv.<seed: check, hidden>.<scenario>.<metric>.<cov, hw>), and the largest
-    miss of the max displacement from one test down to 40 km/h and of the extrapolated peak."""
+    miss of the max displacement from one test down to 40 km/h and of the extrapolated peak, and the
+    one width for all their predictions that holds 90 % of them (the extrapolated peak's: and 95 %)."""
     intervals = bench["intervals"]
     check = intervals["evaluation"][str(intervals["check_seed"])]["all"]
     down, down40 = check["one test down, 56 -> 48"], check["one test down, 56 -> 40"]
@@ -491,6 +492,11 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
         "intervals_down48_peak_pct": f"{down['peak_decel_g']['half_width_median'] * 100:.1f}",
         "intervals_down40_displacement_miss_pct": f"{down40['max_displacement_m']['error_max'] * 100:.0f}",
         "intervals_extrap_peak_miss_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['error_max'] * 100:.0f}",
+        "intervals_down40_displacement_one_width_pct": f"{down40['max_displacement_m']['one_width'] * 100:.1f}",
+        "intervals_extrap_peak_one_width_pct": f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['one_width'] * 100:.0f}",
+        "intervals_extrap_peak_one_width_level_pct": (
+            f"{check['extrapolation, 40 + 56 -> 64']['peak_decel_g']['one_width_level'] * 100:.0f}"
+        ),
     }
     calibration = intervals["calibration"]
     corpus = calibration["corpus"]["vehicles"]

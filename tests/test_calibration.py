@@ -174,6 +174,24 @@ def test_a_metric_the_generator_s_record_does_not_hold_is_judged_on_no_predictio
         assert all(by[m]["coverage"] <= 3 / 4 for m in set(PREDICTED_KEYS) - drifting)  # the failed fit: a miss
 
 
+def test_the_one_width_for_all_is_the_narrowest_that_holds_the_coverage_line_counting_a_failed_fit_as_unheld():
+    """One relative width for every prediction of a scenario: the smallest that holds the
+    generator's value in 90 % of the predictions (the coverage line) and in 95 % (the level); the
+    misses are N(0, 1) * 0.04 * distance of the value's scale, so the widths are near 1.645 and
+    1.96 of that (400 draws: within 15 %); a failed fit is held by no width, and half of them failed
+    leaves none that holds 90 %."""
+    calibration = calibrate(_synthetic(1, 1.0), 1)
+    rows = [r for r in _synthetic(3, 1.0, vehicles=400) if r["scenario"] == "one test down, 56 -> 40"]
+    e = evaluate(rows, calibration)["one test down, 56 -> 40"]["max_displacement_m"]
+    sigma = 0.04 * rows[0]["distance"]
+    assert e["one_width"] == pytest.approx(1.645 * sigma, rel=0.15)
+    assert e["one_width_level"] == pytest.approx(1.96 * sigma, rel=0.15)
+    for row in rows[::2]:
+        del row["parts"]
+    assert evaluate(rows, calibration)["one test down, 56 -> 40"]["max_displacement_m"]["one_width"] == math.inf
+    assert "one_width" not in evaluate(rows, calibration)["one test down, 56 -> 40"]["olc_g"]  # no sharpness line
+
+
 def test_the_table_covers_each_generator_form_not_only_their_mix():
     """A corpus of a common form and a rare one whose misses are three times as large: the pooled
     quantile alone would cover the mix and leave the rare form short (79 to 89 % per metric here); the table
