@@ -988,6 +988,7 @@ def truncated_md(r: dict) -> list[str]:
         "of them with the peak in the record",
     ]
     floors = ", ".join(f"{v:g} {METRIC[k].unit} of {METRIC[k].label}" for k, v in r["floor"].items())
+    met = sorted(m["s"] for q in r["kinds"].values() for m in q["met_again"])
     vehicles = f"{r['count']} vehicle{'s' if r['count'] != 1 else ''}"
     return [
         "## Records cut short: the mid-crash rule on a seed it was not set on",
@@ -1002,6 +1003,11 @@ def truncated_md(r: dict) -> list[str]:
         "them with the peak in the record: the caution's cost.",
         "",
         *_table(head, rows),
+        "",
+        f"Vehicles held whole at a cut that left the barrier after it and met it again before they stopped: "
+        f"{len(met)}, {met[0]:.2f} to {met[-1]:.2f} s after impact."
+        if met
+        else "No vehicle held whole at a cut left the barrier after it and met it again before it stopped.",
         "",
     ]
 

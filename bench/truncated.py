@@ -13,7 +13,9 @@ generator kinds (random, engine on mounts, tall, tall with an engine on mounts),
 SPEEDS_KMH, noise-free, every record cut every STEP from FIRST_CUT to its stop. Per kind: the cut
 records held whole that give their peak short of the whole record's by more than SHORT of it, and
 per UNSETTLED metric those that withhold it though it was whole already (within SHORT of it, or
-its FLOOR: the rule's caution); of the cut records called mid-crash, those with the peak already.
+its FLOOR: the rule's caution); of the cut records called mid-crash, those with the peak already;
+and when the vehicles held whole at a cut, off the barrier after it, meet it again before they stop
+(`met_again`: where their drift ends).
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ COUNT = 12  # vehicles of each kind
 SPEEDS_KMH = (40.0, 56.0, 64.0)
 FIRST_CUT, STEP = 0.010, 0.002  # s
 # the whole record's length: every vehicle of SEED stops within it (a tall van that lifts its front
-# end off drifts on past the corpus's 0.2 s and meets the barrier again up to 0.35 s after impact)
+# end off drifts on past the corpus's 0.2 s, and stops after it meets the barrier again: `met_again`)
 WHOLE = 0.5  # s
 SHORT = 0.01  # a given value more than this short of the whole record's (relative) is a silent failure
 JUDGED = ("peak_decel_g", *UNSETTLED)  # the extremes a cut record could give short
@@ -49,13 +51,15 @@ KINDS: dict[str, Callable[[int, int], Vehicle]] = {
 @dataclass(frozen=True)
 class Cut:
     """A record cut at `end` while still moving toward the barrier: whether `metrics` holds it
-    whole, which of JUDGED it gives, and which of them its pulse so far has short of the whole
-    record's (None: the whole record does not give it either)."""
+    whole, which of JUDGED it gives, which of them its pulse so far has short of the whole
+    record's (None: the whole record does not give it either), and when the vehicle next meets the
+    barrier after the cut, off it meanwhile (None: not before it stops)."""
 
     end: float
     held: bool
     given: frozenset[str]
     short: dict[str, bool | None]
+    meets_again: float | None
 
 
 def cuts(v: Vehicle) -> Iterator[Cut]:
@@ -67,6 +71,8 @@ def cuts(v: Vehicle) -> Iterator[Cut]:
     stop = whole["time_zero_velocity_s"]
     if stop is None:
         raise ValueError(f"{v.name} at {v.speed * 3.6:g} km/h does not stop within {WHOLE:g} s: no whole record to judge by")
+    force = truth["barrier_force"]
+    contacts = t[1:][(force[:-1] <= 0) & (force[1:] > 0)]  # when the barrier force rises from zero
     for end in np.arange(FIRST_CUT, stop, STEP):
         k = int(round(end / DT)) + 1
         so_far = values(t[:k], *(c[:k] for c in channels))
@@ -80,7 +86,9 @@ def cuts(v: Vehicle) -> Iterator[Cut]:
             for key in JUDGED
         }
         given = frozenset(key for key in JUDGED if cut[key] is not None)
-        yield Cut(float(t[k - 1]), cut["peak_decel_g"] is not None, given, short)
+        again = contacts[(contacts > t[k - 1]) & (contacts < stop)]
+        meets_again = float(again[0]) if again.size else None
+        yield Cut(float(t[k - 1]), cut["peak_decel_g"] is not None, given, short, meets_again)
 
 
 def run(quick: bool = False) -> dict:
@@ -91,25 +99,36 @@ def run(quick: bool = False) -> dict:
     kinds = {}
     for kind, make in KINDS.items():
         q: dict = {"held": 0, "held_short": dict.fromkeys(HELD_GIVES, 0), "held_withheld": dict.fromkeys(UNSETTLED, 0)}
-        q |= {"mid_crash": 0, "mid_crash_whole": 0, "failures": []}
+        q |= {"mid_crash": 0, "mid_crash_whole": 0, "failures": [], "met_again": []}
         for i in range(count):
             for kmh in SPEEDS_KMH:
-                v = replace(make(i, SEED), speed=kmh / 3.6)
-                for c in cuts(v):
-                    if c.held:
-                        _count_held(q, v, kmh, c)
-                    else:
-                        q["mid_crash"] += 1
-                        q["mid_crash_whole"] += c.short["peak_decel_g"] is False
+                _count(q, replace(make(i, SEED), speed=kmh / 3.6), kmh)
         kinds[kind] = q
         shorts, cautious = (", ".join(f"{key} {n}" for key, n in q[part].items()) for part in ("held_short", "held_withheld"))
         print(
             f"  {kind}: {q['held']} cut records held whole (given short: {shorts}; withheld, whole already: {cautious}); "
-            f"{q['mid_crash']} mid-crash, {q['mid_crash_whole']} of them with the peak",
+            f"{q['mid_crash']} mid-crash, {q['mid_crash_whole']} of them with the peak; "
+            f"{len(q['met_again'])} held whole meet the barrier again",
             flush=True,
         )
     out["kinds"] = kinds
     return out
+
+
+def _count(q: dict, v: Vehicle, kmh: float) -> None:
+    """`v`'s cuts into its kind's counts, and, where a cut held whole is off the barrier before `v`
+    meets it again and stops, the time after impact `v` meets it again (listed: its drift's end)."""
+    again = []
+    for c in cuts(v):
+        if not c.held:
+            q["mid_crash"] += 1
+            q["mid_crash_whole"] += c.short["peak_decel_g"] is False
+            continue
+        _count_held(q, v, kmh, c)
+        if c.meets_again is not None:
+            again.append(c.meets_again)
+    if again:
+        q["met_again"].append({"vehicle": v.name, "kmh": kmh, "s": max(again)})
 
 
 def _count_held(q: dict, v: Vehicle, kmh: float, c: Cut) -> None:
