@@ -8,7 +8,7 @@ import statistics
 from pathlib import Path
 
 from bench import calibration, convergence
-from crashnlp.base.outputs import METRIC, UNSETTLED
+from crashnlp.base.outputs import METRIC
 
 
 def _met(ok: bool | None) -> str:
@@ -966,8 +966,8 @@ def detectors_md(r: dict) -> list[str]:
 
 def truncated_md(r: dict) -> list[str]:
     """MID_CRASH on records cut short, vehicles of every generator kind (bench/truncated.py)."""
-    judged = list(next(iter(r["kinds"].values()))["held_short"])
-    withheld = [k for k in judged if k in UNSETTLED]
+    first = next(iter(r["kinds"].values()))
+    judged, withheld = list(first["held_short"]), list(first["held_withheld"])
     rows = [
         [
             kind,
@@ -988,6 +988,7 @@ def truncated_md(r: dict) -> list[str]:
         "of them with the peak in the record",
     ]
     floors = ", ".join(f"{v:g} {METRIC[k].unit} of {METRIC[k].label}" for k, v in r["floor"].items())
+    met = sorted(m["s"] for q in r["kinds"].values() for m in q["met_again"])
     vehicles = f"{r['count']} vehicle{'s' if r['count'] != 1 else ''}"
     return [
         "## Records cut short: the mid-crash rule on a seed it was not set on",
@@ -996,12 +997,17 @@ def truncated_md(r: dict) -> list[str]:
         f"{', '.join(f'{k:g}' for k in r['speeds_kmh'])} km/h, each record cut every {r['step_s'] * 1e3:g} ms before "
         f"its stop while still moving toward the barrier. Held whole: the deceleration at the cut below "
         f"{r['mid_crash']:g} of the peak so far, so the record gives its peak, and no velocity change, rebound or max "
-        "pitch (the vehicle meets the barrier again). Giving one short: more than "
-        f"{r['short']:.0%} (and at least {floors}) below the whole record's, a silent failure. Without one, whole "
-        "already: the caution's cost. Mid-crash: none of them given; of them with the peak in the record: the "
-        "caution's cost.",
+        f"pitch (the vehicle meets the barrier again). Giving the peak short: more than {r['short']:.0%} below the "
+        "whole record's, a silent failure. Without one, whole already: no more than that (or "
+        f"{floors}, where more) below the whole record's, the caution's cost. Mid-crash: none of them given; of "
+        "them with the peak in the record: the caution's cost.",
         "",
         *_table(head, rows),
+        "",
+        f"Vehicles held whole at a cut that left the barrier after it and met it again before they stopped: "
+        f"{len(met)}, {met[0]:.2f} to {met[-1]:.2f} s after impact."
+        if met
+        else "No vehicle held whole at a cut left the barrier after it and met it again before it stopped.",
         "",
     ]
 

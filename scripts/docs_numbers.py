@@ -125,7 +125,7 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     pages print it; the sections of make bench one function each."""
     parts = (
         *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
-        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _detectors),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _detectors, _truncated),
     )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
@@ -452,6 +452,13 @@ def _detectors(bench: dict[str, Any]) -> dict[str, str]:
             if rule in ("tail", "cycle", "steady", "unsettled"):
                 out[f"detectors.{role}.{rule}.false_alarms"] = str(q["false_alarms"])
     return out
+
+
+def _truncated(bench: dict[str, Any]) -> dict[str, str]:
+    """Records cut short (bench/truncated.py): the latest time after impact at which a vehicle held
+    whole at a cut, off the barrier after it, met the barrier again (the end of the longest drift)."""
+    met = [m["s"] for q in bench["truncated"]["kinds"].values() for m in q["met_again"]]
+    return {"truncated.met_again_s": f"{max(met):.2f}"}
 
 
 # scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers

@@ -13,11 +13,13 @@ from pathlib import Path
 import casadi as ca
 import pytest
 
-from crashnlp.base.cache import KEPT_MODEL, KEPT_YAML, cache_dir
+from crashnlp.base import units
+from crashnlp.base.cache import KEPT_IPOPT, KEPT_MODEL, KEPT_UNITS, KEPT_YAML, cache_dir
 from crashnlp.base.errors import InputError
 from crashnlp.models import stored as model_store
 from crashnlp.numerics import compile_job, compiled
 from crashnlp.optimize import oracle
+from crashnlp.problem import ipopt
 from crashnlp.problem.load import read_yaml
 from tests.test_compile_once import fake_compiler, starts, twice
 
@@ -85,6 +87,36 @@ def test_a_compile_removes_kept_files_with_the_libraries_least_recently_used_fir
     assert compiled.compiled(twice()).class_name() == "External"
     assert not oldest.exists() and not model.exists() and not kept.exists()
     assert newer.exists() and read.exists() and stored.exists()
+    assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 4 * MB
+
+
+def test_a_compile_removes_the_units_tables_and_ipopt_options_least_recently_used_first(tmp_path, monkeypatch):
+    """The conversions pint made (crashnlp.base.units) and IPOPT's options (crashnlp.problem.ipopt)
+    go as the other kept files do: a library of 3 MB, the table of another pint version and the
+    options of another CasADi installation (1 MB each), older than a second library of 3 MB, and a
+    limit of 4 MB: the first three go, the newer library stays; this installation's table and
+    options, written long ago but read since, stay, used then."""
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setenv(compiled.LIMIT_ENV, "4")
+    units._remembered.cache_clear()
+    ipopt.ipopt_options.cache_clear()
+    try:
+        speed = units.to_si("56 km/h", "m/s")
+        options = ipopt.ipopt_options()
+        (table,) = cache_dir().glob(KEPT_UNITS.format(version="*"))
+        for path in (table, ipopt.options_file()):
+            os.utime(path, (0, 0))
+        units._remembered.cache_clear()  # as in a new process: read from the cache
+        ipopt.ipopt_options.cache_clear()
+        assert units.to_si("56 km/h", "m/s") == speed and ipopt.ipopt_options() == options
+    finally:
+        units._remembered.cache_clear()
+        ipopt.ipopt_options.cache_clear()
+    oldest, stale_table = library_of("a", 3, 400), cached_file(KEPT_UNITS.format(version="0.1"), 1, 350)
+    stale_options, newer = cached_file(KEPT_IPOPT.format(key="0" * 16), 1, 300), library_of("b", 3, 100)
+    assert compiled.compiled(twice()).class_name() == "External"
+    assert not oldest.exists() and not stale_table.exists() and not stale_options.exists()
+    assert newer.exists() and table.exists() and ipopt.options_file().exists()
     assert sum(p.stat().st_size for p in cache_dir().iterdir() if p.is_file()) <= 4 * MB
 
 

@@ -129,6 +129,8 @@ def test_a_generator_record_cut_short_and_held_whole_has_its_peak_in_it(index, k
     assert not any(c.given & set(UNSETTLED) for c in held)
     assert all(c.short["rebound_velocity_mps"] and c.short["delta_v_mps"] for c in held)
     assert any(c.short["max_pitch_deg"] for c in held)
+    again = [c.meets_again for c in held if c.meets_again is not None]
+    assert again and 0.2 < max(again) < truncated.WHOLE  # off the barrier after a held cut, it meets it past 0.2 s
 
 
 def test_the_intervals_truth_is_what_a_record_of_the_test_holds():

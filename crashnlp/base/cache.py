@@ -1,11 +1,12 @@
 """The crashnlp cache folder: compiled functions (with a lock file each: crashnlp.numerics.compiled),
-derived models (crashnlp.models.stored), remembered unit conversions (crashnlp.base.units) and the
-values of the YAML files (problems, studies) read before (crashnlp.problem.load).
+derived models (crashnlp.models.stored), remembered unit conversions (crashnlp.base.units), the
+installed IPOPT's options (crashnlp.problem.ipopt) and the values of the YAML files (problems,
+studies) read before (crashnlp.problem.load).
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
-CRASHNLP_CACHE_MB, removing the least recently used libraries, kept YAML values and stored
-models (crashnlp.numerics.compiled).
+CRASHNLP_CACHE_MB, removing the least recently used libraries and kept files (KEPT: YAML values,
+stored models, unit conversions, IPOPT's options; crashnlp.numerics.compiled).
 """
 
 from __future__ import annotations
@@ -23,9 +24,16 @@ NAME_TRIES = 100  # random temporary names tried before giving up (each clashes 
 PREFIX_CHARS = 64  # of a temporary name's prefix (a target's own name): a long one would pass the system's limit
 KEPT_YAML = "yaml-{key}.json"  # the values of a YAML text read before (crashnlp.problem.load), under a hash of it
 KEPT_MODEL = "model-{form}-{key}.casadi"  # a model's expressions derived before (crashnlp.models.stored)
+KEPT_UNITS = "units-pint-{version}.json"  # the conversions pint made before (crashnlp.base.units), by pint's version
+KEPT_IPOPT = "ipopt-options-{key}.json"  # the installed IPOPT's options (crashnlp.problem.ipopt), by installation
 # what the cache's limit removes without a lock, least recently used first (crashnlp.numerics.compiled):
 # files written whole or not at all, made again by the next process that needs one that is gone
-KEPT = (KEPT_YAML.format(key="*"), KEPT_MODEL.format(form="*", key="*"))
+KEPT = (
+    KEPT_YAML.format(key="*"),
+    KEPT_MODEL.format(form="*", key="*"),
+    KEPT_UNITS.format(version="*"),
+    KEPT_IPOPT.format(key="*"),
+)
 
 
 def cache_dir() -> Path:

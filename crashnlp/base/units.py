@@ -9,7 +9,9 @@ pint converts. Building its registry costs a quarter of a second in every proces
 more than the rest of reading a problem, so each conversion pint has made is
 remembered in the crashnlp cache (units-pint-<version>.json: text and target unit
 -> SI value), and pint is loaded only for a text it has not converted before. The
-remembered value is pint's own, to the last bit; failures are never remembered.
+remembered value is pint's own, to the last bit; failures are never remembered. A read marks
+the table used: the cache's limit removes the least recently used kept files first
+(crashnlp.numerics.compiled).
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from crashnlp.base.cache import cache_dir, installed_version, write_atomic
+from crashnlp.base.cache import KEPT_UNITS, cache_dir, installed_version, used, write_atomic
 
 G0 = 9.80665  # standard gravity, m/s^2
 
@@ -100,16 +102,19 @@ def _convert(value: str, text: str, unit: str) -> float:
 
 
 def _table() -> Path:
-    return cache_dir() / f"units-pint-{installed_version('pint', 'pint')}.json"
+    return cache_dir() / KEPT_UNITS.format(version=installed_version("pint", "pint"))
 
 
 @cache
 def _remembered() -> dict[str, float]:
-    """The conversions pint made in earlier processes (empty when the table is unreadable)."""
+    """The conversions pint made in earlier processes (empty when the table is unreadable), the
+    table marked used."""
+    table = _table()
     try:
-        known = json.loads(_table().read_text())
+        known = json.loads(table.read_text())
     except (OSError, ValueError):
         return {}
+    used(table)
     return {k: float(v) for k, v in known.items()} if isinstance(known, dict) else {}
 
 

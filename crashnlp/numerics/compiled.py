@@ -30,9 +30,9 @@ lock it holds, and every other library's whose lock no compile holds, taken shar
 none starts. A running compile's files are never removed.
 
 What a compile may take (`start`): the cache within CRASHNLP_CACHE_MB, the least recently used
-libraries and kept files (KEPT: YAML values, stored models) removed first (`used`, `_make_room`);
-and no more than half the memory available, else it is not started (`TooLarge`) and the
-functions stay in CasADi's virtual machine.
+libraries and kept files (KEPT: YAML values, stored models, unit conversions, IPOPT's options)
+removed first (`used`, `_make_room`); and no more than half the memory available, else it is
+not started (`TooLarge`) and the functions stay in CasADi's virtual machine.
 """
 
 from __future__ import annotations
@@ -308,11 +308,11 @@ def cache_limit() -> float:
 
 def _make_room(adding: Path) -> None:
     """Remove the least recently used (`used`) libraries of `adding`'s folder, each with its list of
-    names, and kept files (KEPT: the values of YAML files, stored models), until the folder's files
-    take at most `cache_limit()`: not `adding`, nor a library whose lock a compile holds (looked at
-    meanwhile, `_looked_at`, so that none starts). A process that has a removed library loaded
-    keeps it; the next that needs it compiles it again, as the next that needs a removed kept file
-    makes it again."""
+    names, and kept files (KEPT: the values of YAML files, stored models, the units table, IPOPT's
+    options), until the folder's files take at most `cache_limit()`: not `adding`, nor a library
+    whose lock a compile holds (looked at meanwhile, `_looked_at`, so that none starts). A process
+    that has a removed library loaded keeps it; the next that needs it compiles it again, as the
+    next that needs a removed kept file makes it again."""
     files = {path: path.stat() for path in adding.parent.iterdir() if path.is_file()}
     total, limit = sum(s.st_size for s in files.values()), cache_limit()
     removable = (p for p in files if p != adding and (p.suffix == adding.suffix or _kept(p)))

@@ -3,7 +3,8 @@
 The list comes from the installed IPOPT itself: one solve of a one-variable NLP with
 `print_options_documentation` (about 15 ms), parsed for each option's name, type, valid
 range and settings, and kept in the crashnlp cache per CasADi installation, so a problem
-file pays a JSON read. IPOPT leaves a few options out of its documentation ("sb"); a name
+file pays a JSON read (which marks the file used: the cache's limit removes the least recently
+used kept files first, crashnlp.numerics.compiled). IPOPT leaves a few options out of its documentation ("sb"); a name
 missing from the list is asked of IPOPT itself by building a solver with only that option.
 """
 
@@ -20,7 +21,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any, Literal, cast
 
-from crashnlp.base.cache import cache_dir, write_atomic
+from crashnlp.base.cache import KEPT_IPOPT, cache_dir, used, write_atomic
 
 Kind = Literal["real", "integer", "string"]
 
@@ -105,16 +106,24 @@ def _undocumented(name: str, value: Any, known: dict[str, IpoptOption]) -> str |
 
 @cache
 def ipopt_options() -> dict[str, IpoptOption]:
-    """The installed IPOPT's documented options (from the cache, else read from IPOPT and cached)."""
-    path = cache_dir() / f"ipopt-options-{_installation()}.json"
+    """The installed IPOPT's documented options (from the cache, marked used, else read from IPOPT and
+    cached)."""
+    path = options_file()
     with contextlib.suppress(OSError, ValueError, TypeError, KeyError):
-        return _from_json(json.loads(path.read_text()))
+        options = _from_json(json.loads(path.read_text()))
+        used(path)
+        return options
     options = parse_documentation(ipopt_documentation())
     if not options:
         raise RuntimeError("IPOPT printed no documentation of its options")
     with contextlib.suppress(OSError):  # an unwritable cache: read IPOPT again next time
         write_atomic(path, json.dumps({name: asdict(o) for name, o in options.items()}))
     return options
+
+
+def options_file() -> Path:
+    """Where the installed IPOPT's options are kept in the cache (`ipopt_options`)."""
+    return cache_dir() / KEPT_IPOPT.format(key=_installation())
 
 
 def _installation() -> str:
