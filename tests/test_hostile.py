@@ -476,6 +476,31 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.integration
+def test_kill_with_the_pid_the_line_names_stops_the_compiler_too_and_leaves_no_file(tmp_path):
+    """`kill PID` with the compile's pid (the one the background line prints) ends its whole group,
+    cc1 too, and the compile removes its files."""
+    from crashnlp.numerics import compile_job
+
+    if shutil.which("cc") is None:
+        pytest.skip("no C compiler")
+    source = _big_source(tmp_path / "big.c")
+    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    try:
+        deadline = time.monotonic() + 10
+        while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
+            time.sleep(0.05)
+        group = descendants(job.pid) | {job.pid}
+        assert any("cc1" in command(p) for p in group)
+        os.kill(job.pid, signal.SIGTERM)
+        assert job.wait(timeout=10) == 1
+        time.sleep(0.2)
+        assert not [command(p) for p in group if _alive(p)]
+        assert list(tmp_path.iterdir()) == []
+    finally:
+        compile_job.stop_compiles([job])
+
+
 def _big_source(path: Path) -> Path:
     """C that takes cc several seconds: a compile that is still running when it is looked at."""
     path.write_text("".join(f"double f{i}(double x) {{ return x * {i} + x * x / {i + 1}; }}\n" for i in range(100_000)))

@@ -153,7 +153,19 @@ def _watch_starter() -> None:
     if received == RELEASE:
         os.setpriority(os.PRIO_PGRP, 0, BACKGROUND_NICE)
         return
-    os.killpg(0, signal.SIGTERM)  # this process only notes it (its handler); the compiler's processes end
+    _stop_group(signal.SIGTERM, None)
+
+
+_stopping = threading.Event()  # this process has sent its group SIGTERM
+
+
+def _stop_group(signum: int, frame: object) -> None:
+    """SIGTERM to this process (`kill PID`, the pid the starter's line names) stops its whole group,
+    the compiler's processes too, once: the group's own SIGTERM (`_watch_starter`, the time limit)
+    reaches this process as well, and is not sent again."""
+    if not _stopping.is_set():
+        _stopping.set()
+        os.killpg(0, signal.SIGTERM)
 
 
 def main(argv: list[str]) -> int:
@@ -162,14 +174,14 @@ def main(argv: list[str]) -> int:
         os.setpriority(os.PRIO_PROCESS, 0, int(argv[0]))
     library, source, *cleanup = (Path(f) for f in files)
     temporary = partial(library, os.getpid())
-    signal.signal(signal.SIGTERM, lambda signum, frame: None)  # a handler, not SIG_IGN: the compiler gets the default
+    signal.signal(signal.SIGTERM, _stop_group)  # a handler, not SIG_IGN: the compiler gets the default
     try:
         compiler = subprocess.Popen([*command, str(source), "-o", str(temporary), "-lm"], stdin=subprocess.DEVNULL)
         threading.Thread(target=_watch_starter, daemon=True).start()
         try:
             code = compiler.wait(timeout=TIME_LIMIT_S)
         except subprocess.TimeoutExpired:
-            os.killpg(0, signal.SIGTERM)
+            _stop_group(signal.SIGTERM, None)
             code = compiler.wait()
         if code == 0:
             os.replace(temporary, library)
