@@ -3,10 +3,11 @@
 `make calibrate` (`python bench/calibration.py`) writes crashnlp/analysis/calibration.json and the bench
 section `intervals`; `make bench` runs the section too.
 
-Each vehicle comes from bench/corpus.py in one of three generator forms (FORMS), none of them
+Each vehicle comes from bench/corpus.py in one of five generator forms (FORMS), none of them
 crashnlp's pendulum: a rigid body (random_vehicle), that body with an engine on mounts that meets
-the barrier late (engine_vehicle), and vans and tall SUVs (tall_vehicle); each is built for 56, 64
-or 72 km/h in turn. It is fitted from minimal
+the barrier late (engine_vehicle), vans and tall SUVs (tall_vehicle), those with an engine on
+mounts (tall_engine_vehicle), and the rigid body with a structure whose force grows with the crush
+rate (rate_vehicle); each is built for 56, 64 or 72 km/h in turn. It is fitted from minimal
 problem files, as a user would, at 56 km/h alone, at 40 + 56 and at 40 + 64 km/h, and each fit
 predicts the speeds it was not fitted at, and the 56 km/h fit the same vehicle heavier and
 lighter (SCENARIOS, MASS_RATIOS). A prediction's interval parts
@@ -16,8 +17,11 @@ distance (power), then per class of prediction and metric the split-conformal qu
 of the records' scores, its rank from the number of vehicles, or where larger the share LEVEL of any
 one generator form's scores (a vehicle's form is not known when it is predicted); the corpus of
 another (CHECK_SEED), whose records set no q, checks it: coverage, median half-width and accuracy
-per scenario and metric, and per form; and so does a population of another form (HIDDEN,
-HIDDEN_SEED). Both did choose between candidate rules for version 8 (docs/design-notes.md). The records hold what a model form's fits and predictions give: each model form
+per scenario and metric, and per form; and so does a population of a form no table or rule was
+set on (HIDDEN, HIDDEN_SEED: tall vans with an engine on mounts and a rate-sensitive structure,
+three mechanisms no vehicle of the corpus has together). The tall vans with
+an engine on mounts were that population up to version 9, and helped choose between candidate
+rules for version 8 (docs/design-notes.md); since version 10 they are a form of the corpus. The records hold what a model form's fits and predictions give: each model form
 (MODEL_FORMS) is fitted to the same vehicles and gets its own table, set and checked the same way
 (`make calibrate`). `--forms FORM ...` makes the named forms' tables only: the other forms' tables,
 held-out records and parts of the bench section stay as they were.
@@ -44,7 +48,15 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import crashnlp  # noqa: E402
 from bench.common import RESULTS, ROOT  # noqa: E402
-from bench.corpus import Vehicle, engine_vehicle, random_vehicle, tall_engine_vehicle, tall_vehicle  # noqa: E402
+from bench.corpus import (  # noqa: E402
+    Vehicle,
+    engine_vehicle,
+    random_vehicle,
+    rate_tall_engine_vehicle,
+    rate_vehicle,
+    tall_engine_vehicle,
+    tall_vehicle,
+)
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import (  # noqa: E402
     FILE,
@@ -64,27 +76,30 @@ from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 
-VERSION = 9
+VERSION = 10
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
 # predictions of a class, 56 -> 64 and 40 + 56 -> 64, miss alike): docs/design-notes.md
 LEVEL = 0.95
 POWER_STEP, POWER_RANGE = 0.05, (0.25, 1.5)  # the power of the distance in the form term's unit (power)
 SET_SEED, CHECK_SEED, HIDDEN_SEED = 3100, 3200, 3300
 BUILT_KMH = (56.0, 64.0, 72.0)  # the speed vehicle i's structure is built for: BUILT_KMH[i % 3]
-# the corpus's forms: a rigid body, one with an engine on mounts, and vans and tall SUVs, rigid bodies of
-# 2600-3200 kg whose CG sits 0.30-0.45 m above the impact point (the others': 0.04-0.26 m), which pitch more
+# the corpus's forms: a rigid body, one with an engine on mounts, vans and tall SUVs, rigid bodies of
+# 2600-3200 kg whose CG sits 0.30-0.45 m above the impact point (the others': 0.04-0.26 m), which pitch more,
+# those vans with an engine on mounts, and rigid bodies whose structure's force grows with the crush rate
 FORMS: dict[str, Callable[..., Vehicle]] = {
     "rigid body": random_vehicle,
     "engine on mounts": engine_vehicle,
     "tall vans and SUVs": tall_vehicle,
+    "tall vans with an engine on mounts": tall_engine_vehicle,
+    "rate-sensitive structures": rate_vehicle,
 }
-# a population of a form the calibration never saw: vans and tall SUVs with an engine on mounts
-HIDDEN: dict[str, Callable[..., Vehicle]] = {"tall vans with an engine on mounts": tall_engine_vehicle}
+# a population of a form the calibration never saw: tall vans with an engine on mounts and a rate-sensitive structure
+HIDDEN: dict[str, Callable[..., Vehicle]] = {"rate-sensitive tall vans with an engine on mounts": rate_tall_engine_vehicle}
 # seed -> (forms, vehicles of each form)
 POPULATIONS: dict[int, tuple[dict[str, Callable[..., Vehicle]], dict[str, int]]] = {
-    SET_SEED: (FORMS, {"rigid body": 20, "engine on mounts": 20, "tall vans and SUVs": 8}),
-    CHECK_SEED: (FORMS, {"rigid body": 12, "engine on mounts": 12, "tall vans and SUVs": 8}),
-    HIDDEN_SEED: (HIDDEN, {"tall vans with an engine on mounts": 10}),
+    SET_SEED: (FORMS, dict(zip(FORMS, (20, 20, 8, 8, 10)))),
+    CHECK_SEED: (FORMS, dict(zip(FORMS, (12, 12, 8, 8, 8)))),
+    HIDDEN_SEED: (HIDDEN, {"rate-sensitive tall vans with an engine on mounts": 10}),
 }
 # model form -> seed -> vehicles of each generator form its table is set and checked on (None: POPULATIONS');
 # each form's fits make its own table (crashnlp.analysis.calibration.shipped)

@@ -1,6 +1,6 @@
 """Random crash tests from models that are not crashnlp's pendulum (no crashnlp import here).
 
-Two generator forms. The first, a planar rigid body (mass m, pitch inertia I about the CG) hits a rigid wall. The front end
+Three generator forms. The first, a planar rigid body (mass m, pitch inertia I about the CG) hits a rigid wall. The front end
 touches it at a body point L ahead of and h below the CG. Its crush d is how far that point
 has passed the wall; the wall pushes back on it horizontally with the contact force F and
 vertically with nu F (nu of either sign), acting at the wall at the point's height, so the
@@ -16,6 +16,12 @@ decelerates, and once its gap to the barrier closes it meets the barrier too, th
 damped contact that never pulls. The accelerometer, velocity and displacement are the body's;
 the barrier force is the sum of both contacts. The engine's load arrives late and at once, which
 no single loading curve of the body's crush fitted below the gap foresees.
+
+The third, `rate_vehicle`, is the rigid body with a strain-rate sensitive structure: its loading
+force is the quasi-static curve times a Cowper-Symonds factor of the crush rate, the load curve
+being the force at the speed it is built for. The force falls as the crush slows within a crash,
+and a slower impact meets a softer structure, which a damper linear in the crush rate only
+approximates.
 
 Measured channels, like the synthetic pickup of the shared data: CG acceleration with
 structural ringing (two decaying sines) and white noise, velocity, displacement and pitch
@@ -65,6 +71,25 @@ class Vehicle:
     ringing: tuple[tuple[float, float, float], ...]  # (amplitude g, frequency Hz, decay time s)
     seed: int
     engine: Engine | None = None  # the second form: an engine on mounts that meets the barrier late
+    rate: RateSensitivity | None = None  # the third: a structure whose crush force grows with the crush rate
+
+
+@dataclass(frozen=True)
+class RateSensitivity:
+    """A structure whose loading force is its quasi-static curve times 1 + (rate / reference)^(1/exponent)
+    (Cowper-Symonds, the crush rate for the strain rate), the load curve being the force at
+    `design_rate`: the force falls as the crush slows, and a slower impact meets a softer structure."""
+
+    reference: float  # m/s
+    exponent: float
+    design_rate: float  # m/s: the crush rate at which the force is the load curve's
+
+    def factor(self, rate: float) -> float:
+        """The loading force over the load curve's at crush rate `rate` (m/s, 0 or more)."""
+        return self._raw(rate) / self._raw(self.design_rate)
+
+    def _raw(self, rate: float) -> float:
+        return 1.0 + (max(rate, 0.0) / self.reference) ** (1.0 / self.exponent)
 
 
 @dataclass(frozen=True)
@@ -185,6 +210,28 @@ def tall_engine_vehicle(index: int, seed: int, speed: float | None = None) -> Ve
     return replace(v, name=f"te{index:02d}")
 
 
+def rate_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle:
+    """A random vehicle whose structure is strain-rate sensitive (with_rate)."""
+    v = with_rate(random_vehicle(index, seed, speed=speed), np.random.default_rng([seed, index, 4]))
+    return replace(v, name=f"r{index:02d}")
+
+
+def rate_tall_engine_vehicle(index: int, seed: int, speed: float | None = None) -> Vehicle:
+    """A van or a tall SUV with an engine on mounts (tall_engine_vehicle) and a rate-sensitive structure (with_rate)."""
+    v = with_rate(tall_engine_vehicle(index, seed, speed=speed), np.random.default_rng([seed, index, 5]))
+    return replace(v, name=f"rte{index:02d}")
+
+
+def with_rate(v: Vehicle, rng: np.random.Generator) -> Vehicle:
+    """The vehicle with a rate-sensitive structure: at the speed it is built for its loading force is
+    1.15 to 1.5 times the quasi-static one (the dynamic increase of automotive steels at crash strain
+    rates), the exponent 3 to 6; its load curve the force at that speed; the linear crush damping
+    halved (the rate sensitivity takes over part of it)."""
+    increase, exponent = rng.uniform(0.15, 0.5), rng.uniform(3.0, 6.0)
+    rate = RateSensitivity(reference=float(v.speed / increase**exponent), exponent=float(exponent), design_rate=v.speed)
+    return replace(v, rate=rate, crush_damping=v.crush_damping / 2)
+
+
 def with_engine(v: Vehicle, rng: np.random.Generator) -> Vehicle:
     """The vehicle with 12-20 % of its mass in an engine on 8-15 Hz mounts (damping ratio 0.5), whose
     gap to the barrier closes at 55-90 % of the crush the vehicle is built for; the barrier stops
@@ -227,10 +274,15 @@ class Body:
         if d <= 0.0:
             return d, rate, 0.0, z_rel
         if d >= d_max - BAND and rate > 0.0:
-            force = float(self.load(d)) + v.crush_damping * rate
+            force = float(self.load(d)) * self.rate_factor(rate) + v.crush_damping * rate
         else:
-            force = min(float(self.load(d)), float(self.load(d_max)) - v.unloading_stiffness * (d_max - d))
+            static = self.rate_factor(0.0)
+            force = static * min(float(self.load(d)), float(self.load(d_max)) - v.unloading_stiffness * (d_max - d))
         return d, rate, max(force, 0.0), z_rel
+
+    def rate_factor(self, rate: float) -> float:
+        """The loading force over the load curve's at crush rate `rate` (1 without rate sensitivity)."""
+        return 1.0 if self.v.rate is None else self.v.rate.factor(rate)
 
     def engine_forces(self, s: np.ndarray) -> tuple[float, float]:
         """The mounts' pull on the body (toward the barrier positive) and the barrier's push on

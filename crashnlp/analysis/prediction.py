@@ -9,7 +9,7 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
 - the model's form: its miss on the fitted tests (each metric's relative miss, root mean square
   over the tests, scaled to the predicted value, and the RMSE of the curve the metric is read
   from), and the out-of-sample term calibrated on held-out predictions of a corpus of vehicles
-  of three generator forms, one table per model form (crashnlp.analysis.calibration): the fit
+  of five generator forms, one table per model form (crashnlp.analysis.calibration): the fit
   tunes the metrics of the tests it was fitted at, so their miss there understates the miss at
   another speed or mass. The calibrated
   term grows with the distance in impact energy from the nearest fitted test (to a power the
