@@ -26,8 +26,8 @@ from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
-    from crashnlp.analysis.prediction import PredictedTest
     from crashnlp.optimize.comparison import Comparison
+    from crashnlp.results.simulation import PredictedTest
 
 
 def load(path: str | Path) -> Problem:

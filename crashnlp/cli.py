@@ -124,7 +124,8 @@ def cmd_simulate(args) -> int:
         if prepared is None:
             return 0
         case, identified, out, dt, source = prepared
-        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced, write_simulation
+        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced
+        from crashnlp.results.simulation import write_simulation
         from crashnlp.results.source import source_line
 
         fit = _params_folder(source)

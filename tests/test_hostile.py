@@ -334,12 +334,12 @@ def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypa
 
 
 def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
-    import crashnlp.analysis.prediction
+    import crashnlp.results.simulation
 
     def fail(*a, **k):
         raise OSError(28, "No space left on device", str(tmp_path / "o/simulation.json"))
 
-    monkeypatch.setattr(crashnlp.analysis.prediction, "write_simulation", fail)
+    monkeypatch.setattr(crashnlp.results.simulation, "write_simulation", fail)
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": 0.05}]})))
     code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)
