@@ -561,6 +561,18 @@ def _quantity_option(option: str, text: str, unit: str) -> float:
         raise InputError(f"{option} {text}: {exc}") from None
 
 
+def _solve_parser(sub, kind: str, about: str, problem: str, func) -> None:
+    """The subcommand `kind` (identify or design, `about` its help): one NLP solve of a problem
+    file (`problem` its argument's help)."""
+    p = sub.add_parser(kind, help=about)
+    p.add_argument("problem", help=problem)
+    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
+    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
+    p.set_defaults(func=func)
+
+
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
@@ -582,21 +594,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="fit the estimated parameters to the tests' data by an NLP (IPOPT)")
-    p.add_argument("problem", help="problem YAML file with data (kind: identify, the default)")
-    p.add_argument("--out", help="output folder (default results/<problem name>)")
-    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
-    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
-    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
-    p.set_defaults(func=cmd_identify)
-
-    p = sub.add_parser("design", help="choose spring and damper values for a design goal by an NLP (no data)")
-    p.add_argument("problem", help="problem YAML file with kind: design")
-    p.add_argument("--out", help="output folder (default results/<problem name>)")
-    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
-    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
-    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
-    p.set_defaults(func=cmd_design)
+    about = "fit the estimated parameters to the tests' data by an NLP (IPOPT)"
+    _solve_parser(sub, "identify", about, "problem YAML file with data (kind: identify, the default)", cmd_identify)
+    about = "choose spring and damper values for a design goal by an NLP (no data)"
+    _solve_parser(sub, "design", about, "problem YAML file with kind: design", cmd_design)
 
     p = sub.add_parser("compare", help="fit every model form (model.form) and choose one by held-out prediction or BIC")
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
