@@ -154,9 +154,9 @@ def repair_start(case: Case) -> tuple[Case, str | None]:
         model = float(np.max(simulated[test.name]["displacement"]))  # the data's travel is the CG's
         if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_displacement)):
             return case.with_start(repaired_start(case.problem, case.tests)), (
-                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
-                f"reach {measured.max_displacement * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
-                "measured force-crush curve"
+                f"{case.name}: the initial values stop test {test.name} at a max displacement of {model * 1e3:.0f} mm, "
+                f"the data's is {measured.max_displacement * 1e3:.0f} mm; spring values and unloading stiffness restarted "
+                "from the measured force-crush curve"
             )
     return case, None
 
