@@ -19,8 +19,6 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-import numpy as np
-
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
@@ -44,36 +42,16 @@ def _source(problem: Problem | str | Path) -> str | None:
     return None if isinstance(problem, Problem) else str(problem)
 
 
-def solve(
-    problem: Problem | str | Path,
-    verbose: bool = False,
-    progress: TextIO | None = None,
-    warm: np.ndarray | None = None,
-    ratings: bool = True,
-) -> Result:
-    """Identify or design, as the problem's `kind` says (crashnlp.optimize.pipeline.solve_problem: a problem
-    it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
-    iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
-    return _solve(problem, None, verbose, progress, warm, ratings)
-
-
-def _solve(
-    problem: Problem | str | Path,
-    kind: str | None,
-    verbose: bool,
-    progress: TextIO | None,
-    warm: np.ndarray | None = None,
-    ratings: bool = True,
-) -> Result:
+def _solve(problem: Problem | str | Path, kind: str, verbose: bool, progress: TextIO | None) -> Result:
     """crashnlp.optimize.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
     for; its input errors name the file when it is given as one."""
     from crashnlp.optimize.pipeline import solve_problem
 
     validated = _problem(problem)
-    if kind is not None and validated.kind != kind:
+    if validated.kind != kind:
         other = "design" if kind == "identify" else "identify"
         raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
-    return solve_problem(validated, _source(problem), verbose, progress, warm, ratings)
+    return solve_problem(validated, _source(problem), verbose, progress)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:

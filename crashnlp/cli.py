@@ -356,7 +356,7 @@ def _solve(args, kind: str) -> int:
 
 def _prepared_case(args, kind: str):
     """(Case, output folder) of the problem file, or None after `--check`: crashnlp.optimize.pipeline's
-    checks, as crashnlp.api's solve runs them, its errors naming the file, and the folder's."""
+    checks, as crashnlp.identify and crashnlp.design run them, its errors naming the file, and the folder's."""
     from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
 
