@@ -176,9 +176,10 @@ def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalContr
 # forward simulation of its optimum departs from the NLP's trajectory (crashnlp.optimize.verify:
 # a stiff breakpoint crossed inside a step, which the NLP integrates a few mm/s off and the
 # plastic unloading from the largest crush then carries to the rebound), the fit is solved again
-# from where it got to with REFINE times the steps, up to MAX_SUBSTEPS: the pickup at 56 and 40
-# km/h and at a 4-degree pitch bound both finish at 4 steps, and so does the hidden population's
-# te01 at 40 + 56 km/h (bench/calibration.py), whose 56 km/h test departed by 3.5 mm of crush at 1.
+# from where it got to with REFINE times the steps, up to MAX_SUBSTEPS. A step's quadrature error
+# across a kink falls with the step squared, so a refinement cuts it sixteenfold; each multiplies
+# the integration's cost by REFINE, so a fit is refined at most twice, then reports how it ended
+# (the fits that were refined, and where they finished: docs/design-notes.md, "The 4-degree row").
 REFINE, MAX_SUBSTEPS = 4, 16
 
 
