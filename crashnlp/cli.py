@@ -465,12 +465,12 @@ def cmd_report(args) -> int:
     return 0
 
 
-def cmd_compare(args) -> int:
+def cmd_compare_results(args) -> int:
     """Fits and simulations side by side (crashnlp.report.compare): figures, metrics, a page."""
-    from crashnlp.report.compare import PAGE, compare, metric_table
+    from crashnlp.report.compare import PAGE, compare_results, metric_table
 
     out = Path(args.out) if args.out else RESULTS / "compare"
-    head, rows = metric_table(compare([Path(f) for f in args.folders], out))
+    head, rows = metric_table(compare_results([Path(f) for f in args.folders], out))
     for i, label in enumerate(head[1:]):
         print(f"[{i + 1}] {label}")
     print(f"  {'':<24}" + "".join(f"{f'[{i + 1}]':>24}" for i in range(len(head) - 1)))
@@ -643,7 +643,7 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare-results", help="fits and simulations on one set of axes with their bands, metrics side by side")
     p.add_argument("folders", nargs="+", help="two or more folders of fits (result.json) or simulations (simulation.json)")
     p.add_argument("--out", help="output folder (default results/compare)")
-    p.set_defaults(func=cmd_compare)
+    p.set_defaults(func=cmd_compare_results)
 
     p = sub.add_parser("export", help="a fit's curves for LS-DYNA or as CSV, or a test's crash pulse for a sled test")
     p.add_argument("folder", help="a fit's folder (result.json); for --format pulse also a simulation's")
