@@ -81,7 +81,8 @@ def simulate(
     its vehicle and model, which then come from the result), and each test also gets 95 %
     intervals of its metrics, bands of its curves and how far it lies past the identified range
     (crashnlp.analysis.prediction).
-    `params` a dict of dotted paths: those values replace the problem's.
+    `params` a dict of dotted paths: those values replace the problem's, refused where the command
+    line refuses a result.json's (crashnlp.problem.parameters: an InputError naming the key).
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
@@ -90,6 +91,7 @@ def simulate(
     path, name, sha256, status and form; a Result in memory, the sha256 of its JSON form)."""
     from crashnlp.analysis.prediction import own_tests, predict, traced
     from crashnlp.case.case import case_of
+    from crashnlp.problem.parameters import with_parameters
     from crashnlp.problem.schema import what_if
     from crashnlp.results.identified import apply, load_applied
     from crashnlp.results.source import simulation_source
@@ -110,9 +112,9 @@ def simulate(
             else load_applied(problem, identified, str(problem))
         )
     else:
-        problem = _problem(problem)
         values = fit.parameters if isinstance(fit, Result) else fit
-        problem = problem.with_values(values) if values else problem
+        named = str(params) if isinstance(params, (str, Path)) else "crashnlp.simulate"
+        problem = with_parameters(_problem(problem), values, named) if values else _problem(problem)
     tests = predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
     given = params if isinstance(params, (Result, str, Path)) else None
     return traced(tests, simulation_source(source, given, params if isinstance(params, dict) else None))

@@ -80,9 +80,9 @@ def _with_params(file: str, source: str):
     """(problem, identified model, the result.json read) of a problem file and a result.json: its
     identified vehicle put into the problem (what the file leaves out of vehicle and model comes
     from it), or for a result that carries only parameters, its values entry by entry, refusing
-    what does not fit (the identified model is then None)."""
+    what does not fit (crashnlp.problem.parameters, as crashnlp.simulate; the identified model is then None)."""
     from crashnlp.problem import load_problem
-    from crashnlp.problem.schema import LARGEST
+    from crashnlp.problem.parameters import with_parameters
     from crashnlp.results.identified import load_applied
 
     read = _read_params(source)
@@ -90,32 +90,7 @@ def _with_params(file: str, source: str):
     identified = _identified(source, raw)
     if identified is not None:
         return load_applied(file, identified, source), identified, read
-    problem = load_problem(file)
-    params = raw["parameters"]
-    for path, value in params.items():
-        try:
-            problem.unit_at(path)
-        except ValueError:
-            raise InputError(f"{source}: parameters.{path}: not a parameter of {problem.name}") from None
-        try:
-            array = np.atleast_1d(np.asarray(value, dtype=float))
-        except (TypeError, ValueError):
-            raise InputError(f"{source}: parameters.{path}: not a number or a list of numbers") from None
-        current = problem.value_at(path)
-        size = len(current) if isinstance(current, list) else 1
-        if array.ndim != 1 or array.size != size:
-            raise InputError(
-                f"{source}: parameters.{path}: {array.size} values, but {problem.name} has {size} "
-                f"(length mismatch: the result comes from another problem)"
-            )
-        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
-            raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
-    try:
-        return problem.with_values(params), None, read
-    except KeyError as exc:
-        raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
-    except InputError as exc:
-        raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
+    return with_parameters(load_problem(file), raw["parameters"], source), None, read
 
 
 def cmd_simulate(args) -> int:
