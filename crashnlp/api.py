@@ -19,15 +19,13 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
-import numpy as np
-
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
-    from crashnlp.analysis.prediction import PredictedTest
     from crashnlp.optimize.comparison import Comparison
+    from crashnlp.results.simulation import PredictedTest
 
 
 def load(path: str | Path) -> Problem:
@@ -44,36 +42,16 @@ def _source(problem: Problem | str | Path) -> str | None:
     return None if isinstance(problem, Problem) else str(problem)
 
 
-def solve(
-    problem: Problem | str | Path,
-    verbose: bool = False,
-    progress: TextIO | None = None,
-    warm: np.ndarray | None = None,
-    ratings: bool = True,
-) -> Result:
-    """Identify or design, as the problem's `kind` says (crashnlp.optimize.pipeline.solve_problem: a problem
-    it refuses, the command line refuses too); `progress`: a stream for a line every ten IPOPT
-    iterations; `warm`: a Result.z of the same shape; `ratings`: ISO/TS 18571 ratings of the fits."""
-    return _solve(problem, None, verbose, progress, warm, ratings)
-
-
-def _solve(
-    problem: Problem | str | Path,
-    kind: str | None,
-    verbose: bool,
-    progress: TextIO | None,
-    warm: np.ndarray | None = None,
-    ratings: bool = True,
-) -> Result:
+def _solve(problem: Problem | str | Path, kind: str, verbose: bool, progress: TextIO | None) -> Result:
     """crashnlp.optimize.pipeline.solve_problem on the problem, refusing another `kind` than the one asked
     for; its input errors name the file when it is given as one."""
     from crashnlp.optimize.pipeline import solve_problem
 
     validated = _problem(problem)
-    if kind is not None and validated.kind != kind:
+    if validated.kind != kind:
         other = "design" if kind == "identify" else "identify"
         raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
-    return solve_problem(validated, _source(problem), verbose, progress, warm, ratings)
+    return solve_problem(validated, _source(problem), verbose, progress)
 
 
 def identify(problem: Problem | str | Path, verbose: bool = False, progress: TextIO | None = None) -> Result:
@@ -103,7 +81,8 @@ def simulate(
     its vehicle and model, which then come from the result), and each test also gets 95 %
     intervals of its metrics, bands of its curves and how far it lies past the identified range
     (crashnlp.analysis.prediction).
-    `params` a dict of dotted paths: those values replace the problem's.
+    `params` a dict of dotted paths: those values replace the problem's, refused where the command
+    line refuses a result.json's (crashnlp.problem.parameters: an InputError naming the key).
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
@@ -112,6 +91,7 @@ def simulate(
     path, name, sha256, status and form; a Result in memory, the sha256 of its JSON form)."""
     from crashnlp.analysis.prediction import own_tests, predict, traced
     from crashnlp.case.case import case_of
+    from crashnlp.problem.parameters import with_parameters
     from crashnlp.problem.schema import what_if
     from crashnlp.results.identified import apply, load_applied
     from crashnlp.results.source import simulation_source
@@ -132,9 +112,9 @@ def simulate(
             else load_applied(problem, identified, str(problem))
         )
     else:
-        problem = _problem(problem)
         values = fit.parameters if isinstance(fit, Result) else fit
-        problem = problem.with_values(values) if values else problem
+        named = str(params) if isinstance(params, (str, Path)) else "crashnlp.simulate"
+        problem = with_parameters(_problem(problem), values, named) if values else _problem(problem)
     tests = predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
     given = params if isinstance(params, (Result, str, Path)) else None
     return traced(tests, simulation_source(source, given, params if isinstance(params, dict) else None))

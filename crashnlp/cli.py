@@ -80,9 +80,9 @@ def _with_params(file: str, source: str):
     """(problem, identified model, the result.json read) of a problem file and a result.json: its
     identified vehicle put into the problem (what the file leaves out of vehicle and model comes
     from it), or for a result that carries only parameters, its values entry by entry, refusing
-    what does not fit (the identified model is then None)."""
+    what does not fit (crashnlp.problem.parameters, as crashnlp.simulate; the identified model is then None)."""
     from crashnlp.problem import load_problem
-    from crashnlp.problem.schema import LARGEST
+    from crashnlp.problem.parameters import with_parameters
     from crashnlp.results.identified import load_applied
 
     read = _read_params(source)
@@ -90,32 +90,7 @@ def _with_params(file: str, source: str):
     identified = _identified(source, raw)
     if identified is not None:
         return load_applied(file, identified, source), identified, read
-    problem = load_problem(file)
-    params = raw["parameters"]
-    for path, value in params.items():
-        try:
-            problem.unit_at(path)
-        except ValueError:
-            raise InputError(f"{source}: parameters.{path}: not a parameter of {problem.name}") from None
-        try:
-            array = np.atleast_1d(np.asarray(value, dtype=float))
-        except (TypeError, ValueError):
-            raise InputError(f"{source}: parameters.{path}: not a number or a list of numbers") from None
-        current = problem.value_at(path)
-        size = len(current) if isinstance(current, list) else 1
-        if array.ndim != 1 or array.size != size:
-            raise InputError(
-                f"{source}: parameters.{path}: {array.size} values, but {problem.name} has {size} "
-                f"(length mismatch: the result comes from another problem)"
-            )
-        if not np.all(np.isfinite(array)) or np.any(np.abs(array) > LARGEST):
-            raise InputError(f"{source}: parameters.{path}: not finite, or beyond any physical value")
-    try:
-        return problem.with_values(params), None, read
-    except KeyError as exc:
-        raise InputError(f"{source}: parameters.{exc.args[0]}: not a parameter of {problem.name}") from None
-    except InputError as exc:
-        raise InputError(f"{source}: {str(exc).removeprefix('with_values: ')}") from None
+    return with_parameters(load_problem(file), raw["parameters"], source), None, read
 
 
 def cmd_simulate(args) -> int:
@@ -124,7 +99,8 @@ def cmd_simulate(args) -> int:
         if prepared is None:
             return 0
         case, identified, out, dt, source = prepared
-        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced, write_simulation
+        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced
+        from crashnlp.results.simulation import write_simulation
         from crashnlp.results.source import source_line
 
         fit = _params_folder(source)
@@ -355,7 +331,7 @@ def _solve(args, kind: str) -> int:
 
 def _prepared_case(args, kind: str):
     """(Case, output folder) of the problem file, or None after `--check`: crashnlp.optimize.pipeline's
-    checks, as crashnlp.api's solve runs them, its errors naming the file, and the folder's."""
+    checks, as crashnlp.identify and crashnlp.design run them, its errors naming the file, and the folder's."""
     from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
 
@@ -464,12 +440,12 @@ def cmd_report(args) -> int:
     return 0
 
 
-def cmd_compare(args) -> int:
+def cmd_compare_results(args) -> int:
     """Fits and simulations side by side (crashnlp.report.compare): figures, metrics, a page."""
-    from crashnlp.report.compare import PAGE, compare, metric_table
+    from crashnlp.report.compare import PAGE, compare_results, metric_table
 
     out = Path(args.out) if args.out else RESULTS / "compare"
-    head, rows = metric_table(compare([Path(f) for f in args.folders], out))
+    head, rows = metric_table(compare_results([Path(f) for f in args.folders], out))
     for i, label in enumerate(head[1:]):
         print(f"[{i + 1}] {label}")
     print(f"  {'':<24}" + "".join(f"{f'[{i + 1}]':>24}" for i in range(len(head) - 1)))
@@ -560,6 +536,18 @@ def _quantity_option(option: str, text: str, unit: str) -> float:
         raise InputError(f"{option} {text}: {exc}") from None
 
 
+def _solve_parser(sub, kind: str, about: str, problem: str, func) -> None:
+    """The subcommand `kind` (identify or design, `about` its help): one NLP solve of a problem
+    file (`problem` its argument's help)."""
+    p = sub.add_parser(kind, help=about)
+    p.add_argument("problem", help=problem)
+    p.add_argument("--out", help="output folder (default results/<problem name>)")
+    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
+    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
+    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
+    p.set_defaults(func=func)
+
+
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
@@ -581,21 +569,10 @@ def parser() -> argparse.ArgumentParser:
     p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
     p.set_defaults(func=cmd_simulate)
 
-    p = sub.add_parser("identify", help="fit the estimated parameters to the tests' data by an NLP (IPOPT)")
-    p.add_argument("problem", help="problem YAML file with data (kind: identify, the default)")
-    p.add_argument("--out", help="output folder (default results/<problem name>)")
-    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
-    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
-    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
-    p.set_defaults(func=cmd_identify)
-
-    p = sub.add_parser("design", help="choose spring and damper values for a design goal by an NLP (no data)")
-    p.add_argument("problem", help="problem YAML file with kind: design")
-    p.add_argument("--out", help="output folder (default results/<problem name>)")
-    p.add_argument("--verbose", action="store_true", help="show IPOPT's own log")
-    p.add_argument("--no-figures", action="store_true", help="write the result files only (batch use)")
-    p.add_argument("--report", action="store_true", help="write report.html too (crashnlp report)")
-    p.set_defaults(func=cmd_design)
+    about = "fit the estimated parameters to the tests' data by an NLP (IPOPT)"
+    _solve_parser(sub, "identify", about, "problem YAML file with data (kind: identify, the default)", cmd_identify)
+    about = "choose spring and damper values for a design goal by an NLP (no data)"
+    _solve_parser(sub, "design", about, "problem YAML file with kind: design", cmd_design)
 
     p = sub.add_parser("compare", help="fit every model form (model.form) and choose one by held-out prediction or BIC")
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
@@ -641,7 +618,7 @@ def parser() -> argparse.ArgumentParser:
     p = sub.add_parser("compare-results", help="fits and simulations on one set of axes with their bands, metrics side by side")
     p.add_argument("folders", nargs="+", help="two or more folders of fits (result.json) or simulations (simulation.json)")
     p.add_argument("--out", help="output folder (default results/compare)")
-    p.set_defaults(func=cmd_compare)
+    p.set_defaults(func=cmd_compare_results)
 
     p = sub.add_parser("export", help="a fit's curves for LS-DYNA or as CSV, or a test's crash pulse for a sled test")
     p.add_argument("folder", help="a fit's folder (result.json); for --format pulse also a simulation's")

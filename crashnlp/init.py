@@ -49,6 +49,7 @@ from crashnlp.results.files import atomic_open, check_writable_file
 if TYPE_CHECKING:
     from crashnlp.case.case import Case
 
+ACCEL_FILTER = "CFC60"  # a drafted accelerometer's filter: SAE J211's class for a vehicle's structural accelerations
 UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
 # upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
 VEHICLE_CLASSES = (
@@ -133,23 +134,25 @@ def _ev5_barrier(path: Path, curves: dict, draft: Draft) -> None:
     )
 
 
+def _accel_draft(name: str, accel: dict, why: str) -> Draft:
+    """A draft whose data are one accelerometer channel (`accel`: which curves of the file, `why`
+    its comment) read through ACCEL_FILTER, with the velocity and displacement integrated from it."""
+    channels = {
+        "accel": {**accel, "filter": ACCEL_FILTER},
+        **{ch: {"derive": "integrate"} for ch in ("velocity", "displacement")},
+    }
+    draft = Draft(name, {"channels": channels})
+    draft.comments = {"accel": why, "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    return draft
+
+
 def ev5_draft(path: Path) -> Draft:
     """Mass, speed, wheelbase, CG and overhang from the TEST and VEHICLE cards; the accelerometers."""
     from crashnlp.data.nhtsa_ev5 import card_number, read_header
 
     cards, curves = read_header(path)
     numbers, why = _ev5_accelerometers(curves)
-    draft = Draft(
-        path.stem,
-        {
-            "channels": {
-                "accel": {"curves": numbers, "filter": "CFC60"},
-                "velocity": {"derive": "integrate"},
-                "displacement": {"derive": "integrate"},
-            }
-        },
-    )
-    draft.comments = {"accel": why, "velocity": "integrated from the impact speed", "displacement": "integrated twice"}
+    draft = _accel_draft(path.stem, {"curves": numbers}, why)
     _ev5_barrier(path, curves, draft)
     speed = card_number(cards["TEST"][0], 15)
     if speed:
@@ -182,21 +185,7 @@ def mme_draft(path: Path) -> Draft:
         raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
     at_cg = [c for c in accels if "CG" in c[6:12]]
     code = (at_cg or accels)[0]
-    draft = Draft(
-        path.stem,
-        {
-            "channels": {
-                "accel": {"code": code, "filter": "CFC60"},
-                "velocity": {"derive": "integrate"},
-                "displacement": {"derive": "integrate"},
-            }
-        },
-    )
-    draft.comments = {
-        "accel": f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}",
-        "velocity": "integrated from the impact speed",
-        "displacement": "integrated twice",
-    }
+    draft = _accel_draft(path.stem, {"code": code}, f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}")
     for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
         text = header.get(key, "")
         try:
@@ -331,7 +320,7 @@ def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
     time = found.pop("time")
     channels: dict[str, dict] = {ch: {"column": name, "unit": unit} for ch, (name, unit) in found.items()}
     if "accel" in channels:
-        channels["accel"]["filter"] = "CFC60"
+        channels["accel"]["filter"] = ACCEL_FILTER
     draft = Draft(path.stem, {"time": {"column": time[0], "unit": time[1]}, "channels": channels})
     draft.comments = {ch: f"column {name!r} in {unit}" for ch, (name, unit) in found.items()}
     if unread:
@@ -387,7 +376,7 @@ def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
         missing = [f"{n:03d}" for n in numbers if n not in files]
         if missing:
             raise InputError(f"{option}: no channel file {', '.join(missing)} of the test beside {paths[0]}")
-        channels[ch] = {"curves": numbers, "unit": unit, **({"filter": "CFC60"} if ch == "accel" else {})}
+        channels[ch] = {"curves": numbers, "unit": unit, **({"filter": ACCEL_FILTER} if ch == "accel" else {})}
         comments[ch] = f"channel files {', '.join(files[n].name for n in numbers)} in {unit}" + (
             ", averaged" if len(numbers) > 1 else ""
         )

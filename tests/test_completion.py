@@ -176,7 +176,7 @@ def test_repaired_start_reaches_the_measured_crush():
     original = case.base.copy()
     repaired, note = repair_start(case)
     assert note.startswith(
-        f"pickup-56kph: the initial values stop test 56kph at {short * 1e3:.0f} mm of crush, the data reach 594 mm"
+        f"pickup-56kph: the initial values stop test 56kph at a max displacement of {short * 1e3:.0f} mm, the data's is 594 mm"
     )
     assert np.array_equal(repaired.base, start) and np.array_equal(case.base, original)  # a copy; the case is kept
     assert repair_start(repaired) == (repaired, None)  # repaired once, then it reaches

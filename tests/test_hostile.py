@@ -261,6 +261,32 @@ def test_params_of_another_problem_name_the_length_mismatch(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+BAD_PARAMS = {
+    "not a parameter": {"vehicle.colour": 1.0},
+    "another problem's length": {"model.spring.values": [1e5] * 9},
+    "not finite": {"vehicle.mass": float("nan")},
+    "beyond any physical value": {"vehicle.mass": 1e13},
+    "not a number": {"vehicle.mass": "heavy"},
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_PARAMS))
+def test_the_api_and_the_command_line_refuse_the_same_params(tmp_path, capsys, name):
+    """`crashnlp.simulate(params={...})` and `crashnlp simulate --params result.json` check a fit's
+    parameters in one place (crashnlp.problem.parameters): one line naming the key, the same but
+    for the source (the file, or crashnlp.simulate); exit 2 and nothing written."""
+    problem = tmp_path / "p.yaml"
+    problem.write_text(yaml.safe_dump(BASE))
+    params = tmp_path / "result.json"
+    params.write_text(json.dumps({"parameters": BAD_PARAMS[name]}))
+    code, _, err = run(["simulate", str(problem), "--params", str(params), "--out", str(tmp_path / "o")], capsys)
+    with pytest.raises(InputError) as api:
+        crashnlp.simulate(problem, params=BAD_PARAMS[name])
+    assert str(api.value).startswith("crashnlp.simulate: ") and "\n" not in str(api.value)
+    assert code == 2 and err == f"crashnlp: error: {str(api.value).replace('crashnlp.simulate', str(params), 1)}\n"
+    assert not (tmp_path / "o").exists()
+
+
 def test_an_output_folder_that_cannot_be_written_is_refused_before_solving(tmp_path, capsys):
     blocker = tmp_path / "file"
     blocker.write_text("")
@@ -334,12 +360,12 @@ def test_an_integrator_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypa
 
 
 def test_a_write_failure_is_one_line_and_exit_1(tmp_path, capsys, monkeypatch):
-    import crashnlp.analysis.prediction
+    import crashnlp.results.simulation
 
     def fail(*a, **k):
         raise OSError(28, "No space left on device", str(tmp_path / "o/simulation.json"))
 
-    monkeypatch.setattr(crashnlp.analysis.prediction, "write_simulation", fail)
+    monkeypatch.setattr(crashnlp.results.simulation, "write_simulation", fail)
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": 0.05}]})))
     code, _, err = run(["simulate", str(problem), "--out", str(tmp_path / "o")], capsys)

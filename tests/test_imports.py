@@ -159,18 +159,41 @@ def test_a_cycle_is_found():
     assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [{"a", "b", "c"}]
 
 
+def plain_imports(code: str) -> set[str]:
+    """The top-level packages a fresh process loads to run `code`; none of CasADi, pydantic,
+    matplotlib or PyYAML may be among them (asserted here), crashnlp and numpy must."""
+    measured = (
+        f"import sys; before = set(sys.modules); {code};"
+        " print(sorted({m.partition('.')[0] for m in set(sys.modules) - before}))"
+    )
+    printed = subprocess.run([sys.executable, "-c", measured], capture_output=True, text=True, check=True).stdout
+    loaded = set(ast.literal_eval(printed))
+    assert "crashnlp" in loaded and "numpy" in loaded
+    assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
+    return loaded
+
+
 @pytest.mark.integration  # a process of its own
 def test_a_result_imports_with_numpy_alone():
     """`crashnlp.Result` and the plain types in it load without CasADi, pydantic or matplotlib: a
     result read back, a report or a table of results pays for none of them."""
-    code = (
-        "import sys; before = set(sys.modules); import crashnlp; from crashnlp import Result; Result.load;"
-        " print(sorted({m.partition('.')[0] for m in set(sys.modules) - before}))"
+    plain_imports("import crashnlp; from crashnlp import Result; Result.load")
+
+
+@pytest.mark.integration  # a process of its own
+def test_a_simulation_folder_reads_with_numpy_alone(tmp_path):
+    """A simulation's folder is written and read back (as `crashnlp report` reads it) without
+    CasADi, pydantic or matplotlib: its predicted tests are plain results (crashnlp.results.simulation)."""
+    plain_imports(
+        "from pathlib import Path; import numpy as np;"
+        " from crashnlp.base.outputs import COLUMNS; from crashnlp.report.folders import read_simulation;"
+        " from crashnlp.results.response import Response;"
+        " from crashnlp.results.simulation import PredictedTest, write_simulation;"
+        " t = np.linspace(0.0, 0.1, 5); r = Response(t, {o.name: t for o in COLUMNS}, np.zeros((0, 5)));"
+        f" out = Path({str(tmp_path / 'sim')!r});"
+        " write_simulation('x', {'t1': PredictedTest('t1', 15.0, 2000.0, r, {'peak_decel_g': 30.0})}, out);"
+        " name, tests = read_simulation(out); assert name == 'x' and tests['t1'].metrics == {'peak_decel_g': 30.0}"
     )
-    printed = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    loaded = set(ast.literal_eval(printed))
-    assert "crashnlp" in loaded and "numpy" in loaded
-    assert not loaded & {"casadi", "pydantic", "matplotlib", "yaml"}, sorted(loaded)
 
 
 UNUSED_ON_A_RUN = ("matplotlib", "numpy.ma", "scipy", "yaml", "tempfile", "statistics", "zipfile", "difflib")

@@ -16,7 +16,6 @@ import numpy as np
 import pytest
 from builders import ROOT
 
-from crashnlp.analysis.prediction import read_simulation
 from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import main
@@ -26,6 +25,7 @@ from crashnlp.models.parameters import ParameterLayout
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.result import Result
+from crashnlp.results.simulation import read_simulation
 from crashnlp.studies.store import CaseStore
 
 EMBEDDED = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')

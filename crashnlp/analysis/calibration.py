@@ -48,60 +48,12 @@ import numpy as np
 
 from crashnlp.problem.forms import DEFAULT_FORM
 from crashnlp.results.identified import IdentifiedRange
+from crashnlp.results.simulation import IntervalParts as IntervalParts  # its scores calibrate the tables (bench/calibration.py)
 
 FILE = "calibration.json"  # model form -> its table
 PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
 SAME_ENERGY = 1e-3  # relative: fitted tests closer than this in energy count as one
 CLASSES = ("down", "between", "up", "mass-down")
-
-
-@dataclass(frozen=True)
-class IntervalParts:
-    """A metric's 95 % interval, part by part, in the metric's unit: the parameters' half-width,
-    the model's miss on the fitted tests, the force past the reach as crashnlp.analysis.prediction
-    estimates it, and `unit`, the calibrated form term per unit of q (scale times distance to the
-    calibrated power)."""
-
-    value: float
-    parameters: float
-    fitted: float
-    past_the_reach: float
-    unit: float
-
-    def form(self, q: float) -> float:
-        """The model form's half-width: its miss on the fitted tests and the calibrated out-of-sample term."""
-        return math.hypot(self.fitted, q * self.unit)
-
-    def past(self, q: float) -> float:
-        """The force past the reach's half-width: its estimate, scaled by q as calibrated."""
-        return q * self.past_the_reach
-
-    def half(self, q: float) -> float:
-        return math.sqrt(self.parameters**2 + self.form(q) ** 2 + self.past(q) ** 2)
-
-    def interval(self, q: float) -> tuple[float, float]:
-        half = self.half(q)
-        return self.value - half, self.value + half
-
-    def shares(self, q: float) -> dict[str, float]:
-        """Each part's half-width."""
-        return {"parameters": self.parameters, "form": self.form(q), "past_the_reach": self.past(q)}
-
-    def score(self, truth: float) -> float:
-        """The smallest q whose interval covers `truth` (0 when the parameters and the fitted miss
-        do; inf where nothing q scales can)."""
-        rest = (truth - self.value) ** 2 - self.parameters**2 - self.fitted**2
-        if rest <= 0.0:
-            return 0.0
-        per_q = math.hypot(self.unit, self.past_the_reach)
-        return math.sqrt(rest) / per_q if per_q > 0 else math.inf
-
-    def to_json(self) -> dict[str, float]:
-        return {k: getattr(self, k) for k in ("value", "parameters", "fitted", "past_the_reach", "unit")}
-
-    @classmethod
-    def from_json(cls, raw: dict[str, float]) -> IntervalParts:
-        return cls(**raw)
 
 
 def energies(fitted: IdentifiedRange) -> tuple[float, ...]:

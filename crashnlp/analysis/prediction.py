@@ -1,6 +1,6 @@
 """Predictions: an identified vehicle simulated at new speeds, masses or durations, with 95 % intervals.
 
-Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.analysis.calibration.IntervalParts):
+Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.results.simulation.IntervalParts):
 
 - the parameters: their covariance (the fit's sandwich, with the smoothness prior as the
   information it adds) pushed through the output's sensitivities, taken as central
@@ -45,22 +45,19 @@ says so. A metric or curve that no fitted test measured (pitch, without a pitch 
 interval, nor does anything when an estimated value is not determined by the data: the prediction
 says so in `notes`, instead of a band that only looks narrow.
 
-`write_simulation` writes what `crashnlp simulate` writes of the predicted tests, and
-`simulation_figure_jobs` are their figures.
+The predicted tests are crashnlp.results.simulation's `PredictedTest`s, and its `write_simulation`
+writes what `crashnlp simulate` writes of them; `simulation_figure_jobs` are their figures.
 """
 
 from __future__ import annotations
 
-import json
-from collections.abc import Iterator, Mapping
 from dataclasses import dataclass, field, replace
-from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.analysis.calibration import Calibration, IntervalParts, reach, shipped
+from crashnlp.analysis.calibration import Calibration, reach, shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import (
@@ -72,26 +69,15 @@ from crashnlp.analysis.summary import (
     still_moving,
 )
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import (
-    COLUMNS,
-    METRIC,
-    OUTPUT,
-    PANELS,
-    PREDICTED_KEYS,
-    RENAMED_EXTRAPOLATION,
-    UNFINISHED,
-    current_names,
-    named_test,
-)
+from crashnlp.base.outputs import METRIC, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, named_test
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
-from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import Z95, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
-from crashnlp.results.jsonfile import write_json
-from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
+from crashnlp.results.response import Response
 from crashnlp.results.result import Result
+from crashnlp.results.simulation import IntervalParts, PredictedTest
 
 if TYPE_CHECKING:
     from crashnlp.results.plots import Job  # not at run time: matplotlib
@@ -107,56 +93,6 @@ BAND_METRIC = {
     "barrier_force": "peak_decel_g",
     "pitch": "max_pitch_deg",
 }
-
-
-@dataclass(frozen=True)
-class PredictedTest(Mapping[str, np.ndarray]):
-    """One simulated test: output key -> array in SI ("time_s", "crush_m", as crashnlp.base.outputs
-    names them), its crash metrics, and with an identified model their 95 % intervals, the
-    response bands (output name -> (low, high)), how far it lies past the identified range, each
-    metric's interval parts (also where its form term is not calibrated), the calibrated q of each
-    form term, and the calibration they came from (crashnlp.analysis.calibration.Calibration.named).
-    `source`: the problem and the fit the prediction came from (crashnlp.results.source; empty
-    where nobody said, or in a simulation.json written before crashnlp recorded it).
-    `data`: the test's measured curves (channel -> (time, values), SI) where it runs at the
-    conditions they were recorded at; empty otherwise, with a note saying why."""
-
-    name: str
-    speed: float
-    mass: float
-    response: Response
-    metrics: dict[str, float | None]
-    intervals: dict[str, tuple[float, float] | None] = field(default_factory=dict)
-    bands: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    extrapolation: dict[str, float] = field(default_factory=dict)
-    notes: tuple[str, ...] = ()
-    data: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
-    parts: dict[str, IntervalParts] = field(default_factory=dict)
-    form_q: dict[str, float] = field(default_factory=dict)
-    calibration: dict[str, Any] = field(default_factory=dict)
-    source: dict[str, Any] = field(default_factory=dict)  # crashnlp.results.source: the problem and the fit it came from
-
-    @cached_property
-    def _arrays(self) -> dict[str, np.ndarray]:
-        r = self.response
-        return {"time_s": r.time, **{OUTPUT[k].key: v for k, v in r.outputs.items() if k in OUTPUT}}
-
-    def __getitem__(self, key: str) -> np.ndarray:
-        return self._arrays[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._arrays)
-
-    def __len__(self) -> int:
-        return len(self._arrays)
-
-    def shares(self) -> dict[str, dict[str, float | str]]:
-        """Per metric with an interval: each part's 95 % half-width, and which part dominates."""
-        out: dict[str, dict[str, float | str]] = {}
-        for key, q in self.form_q.items():
-            shares = self.parts[key].shares(q)
-            out[key] = {**shares, "dominant": max(shares, key=lambda k: shares[k])}
-        return out
 
 
 def own_tests(result: Result, source: str) -> Problem:
@@ -570,69 +506,6 @@ def _position(slices: dict[str, slice], label: str) -> int:
     """Index in the full parameter vector of a label ("vehicle.mass", "model.spring.values[3]")."""
     path, _, rest = label.partition("[")
     return slices[path].start + (int(rest.rstrip("]")) if rest else 0)
-
-
-def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
-    """response.csv's columns beyond the response: <column>_low and <column>_high of every band."""
-    out = {}
-    for o in COLUMNS:
-        band = test.bands.get(o.name)
-        if band is not None:
-            out[f"{o.column}_low"], out[f"{o.column}_high"] = band[0] * o.factor, band[1] * o.factor
-    return out
-
-
-def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
-    """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
-    simulated test, and simulation.json (with the tests' source), into a folder that then holds
-    this simulation only (crashnlp.results.files.claim); the figures are `simulation_figure_jobs`, drawn by the caller
-    (crashnlp.results.drawing)."""
-    source = next((test.source for test in tests.values() if test.source), None)
-    summary: dict[str, Any] = {"name": name, **({"source": source} if source else {}), "tests": {}}
-    with claim(out, run_name("simulate", name), option=None):
-        for test in tests.values():
-            r = test.response
-            write_response_csv(out / test.name / "response.csv", r, response_columns(test))
-            entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
-            entry["accel_filter"] = r.accel_filter
-            if test.intervals:
-                entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
-                entry["interval_parts"] = test.shares()
-                entry["extrapolation"] = test.extrapolation
-                summary["calibration"] = test.calibration
-            if test.notes:
-                entry["notes"] = list(test.notes)
-            summary["tests"][test.name] = entry
-        write_json(out / "simulation.json", summary)
-    return summary
-
-
-def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
-    """The name and the predicted tests `write_simulation` wrote into `folder`, back in SI: the
-    responses and bands from each response.csv, the rest from simulation.json."""
-    raw = current_names(json.loads((folder / "simulation.json").read_text(encoding="utf-8")))
-    tests = {}
-    for name, entry in raw["tests"].items():
-        columns = read_columns(folder / name / "response.csv")
-        bands = {
-            o.name: (columns[f"{o.column}_low"] / o.factor, columns[f"{o.column}_high"] / o.factor)
-            for o in COLUMNS
-            if f"{o.column}_low" in columns
-        }
-        intervals = {k: None if v is None else (float(v[0]), float(v[1])) for k, v in entry.get("intervals", {}).items()}
-        tests[name] = PredictedTest(
-            name,
-            float(entry["speed_mps"]),
-            float(entry["mass_kg"]),
-            response_of(columns, entry.get("accel_filter")),
-            entry["metrics"],
-            intervals,
-            bands,
-            current_names(dict(entry.get("extrapolation", {})), RENAMED_EXTRAPOLATION),
-            tuple(entry.get("notes", ())),
-            source=dict(raw.get("source") or {}),  # none in a simulation.json written before it was recorded
-        )
-    return str(raw["name"]), tests
 
 
 def traced(tests: dict[str, PredictedTest], source: dict[str, Any]) -> dict[str, PredictedTest]:

@@ -19,7 +19,9 @@ from typing import TYPE_CHECKING, Any
 if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
-COLD_WORK = 5.0  # a cold solve against a warm one (pickup studies: cold 35-340 IPOPT iterations, warm mostly 13-60)
+# a cold solve's work in warm ones: a cold start takes several times the iterations of a warm start
+# from a neighbouring case (measured: docs/design-notes.md, "A cold solve's weight in a study")
+COLD_WORK = 5.0
 
 
 def children(parent: Mapping[int, int | None]) -> dict[int, list[int]]:

@@ -23,9 +23,9 @@ the body, so a second contact is one more generalised force.
 What a problem leaves out of `vehicle.engine` is filled in (`complete`): the engine's mass a
 share ENGINE_SHARE of the vehicle's, mounts at MOUNT_FREQUENCY with damping ratio MOUNT_DAMPING,
 the gap from the recorded pulse (`second_rise`), and the contact from the body's mean crush force
-(CONTACT_STOP). A fit estimates the gap (`own_estimate`) and none of the others by default: with
-a contact far softer than these, a fit estimating the gap wandered for hundreds of iterations, and
-a gap fixed 20 to 30 % off its vehicle's misfits the pitch and the peak (CHANGELOG.md).
+(CONTACT_STOP). A fit estimates the gap (`own_estimate`) and none of the others by default: the
+gap read from the pulse can be a quarter off its vehicle's, and a gap that far off misfits the
+pitch and the peak (measured: docs/design-notes.md, "The engine on its mounts").
 """
 
 from __future__ import annotations

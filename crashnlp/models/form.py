@@ -55,10 +55,10 @@ HISTORY_GATE = 5e-3  # m: the largest crush stops following a reloading crush th
 # crashnlp.models.laws.plastic_unloading), exact outside it (crashnlp.models.laws.rounded_hinge).
 # Unrounded, its slope falls from the unloading stiffness to zero at one instant, and a fit of the
 # model as the test records it, whose filtered data read above zero after the pulse, sits on that
-# kink at a shooting node, its dual infeasibility held up at any integration step (a tall van fitted
-# at 40 + 56 km/h cycled past 300 iterations; 19 rounded). At impact the band closes
-# (`_separation_width`): a band there would start contact with a jump of force, on which corpus
-# vehicles cycled instead (docs/design-notes.md).
+# kink at a shooting node, its dual infeasibility held up at any integration step, and the fit
+# cycles. At impact the band closes (`_separation_width`): a band there would start contact with a
+# jump of force, on which fits cycle instead (measured: docs/design-notes.md, "The end of contact,
+# once the model is recorded").
 SEPARATION = 0.1
 OPEN_AT_IMPACT = 1e-9  # of the band at impact, or before a contact touches (a join of zero width divides by zero)
 OUTPUTS = NAMES  # the registry's order (crashnlp.base.outputs)
@@ -263,8 +263,9 @@ class CrashModel(ABC):
         The gate acts only where x_max lies above the crush. A simulation never puts it below
         (the rate's hinge is at least the crush rate), but a shooting node's states are free
         variables: there x_max keeps growing with the crush instead of stalling behind it, so
-        that the node's defect can close (a gate on both sides makes corpus vehicles 13 and 17
-        wander for hundreds of iterations: docs/design-notes.md)."""
+        that the node's defect can close (a gate on both sides holds a node's x_max behind a crush
+        a step moved past it, and the fit wanders: docs/design-notes.md, "The largest crush at a
+        shooting node")."""
         gap = ca.fmax(x_max - crush, 0) / HISTORY_GATE
         return hinge(rate, self.structure.eps_rate) / (1 + gap**4)
 

@@ -20,8 +20,8 @@ than a mention: Kass and Raftery, 1995). A fit alone never chooses: a form with 
 at least as well. A held-out prediction that lets the front end go while the CG still moves
 toward the barrier (crashnlp.analysis.metrics.lift_off), where the measured test was still being
 decelerated then, is named beside the choice, but does not pass a form over: its cost is in the
-score already, and a rule that passed such forms over chose forms whose held-out error was 2.4 to
-6.7 times the one passed over (docs/design-notes.md, "Which form: the score, not the lift-off").
+score already, and passing a form over for it would choose by one symptom against the whole
+held-out error (measured: docs/design-notes.md, "Which form: the score, not the lift-off").
 
 `forms` names the forms to fit (default COMPARED: the pendulum and the rigid body; the
 engine-on-mounts form is fitted when named, since its fits cost many times the others').

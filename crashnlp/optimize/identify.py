@@ -154,9 +154,9 @@ def repair_start(case: Case) -> tuple[Case, str | None]:
         model = float(np.max(simulated[test.name]["displacement"]))  # the data's travel is the CG's
         if measured is not None and np.any((breakpoints > model) & (breakpoints < measured.max_displacement)):
             return case.with_start(repaired_start(case.problem, case.tests)), (
-                f"{case.name}: the initial values stop test {test.name} at {model * 1e3:.0f} mm of crush, the data "
-                f"reach {measured.max_displacement * 1e3:.0f} mm; spring values and unloading stiffness restarted from the "
-                "measured force-crush curve"
+                f"{case.name}: the initial values stop test {test.name} at a max displacement of {model * 1e3:.0f} mm, "
+                f"the data's is {measured.max_displacement * 1e3:.0f} mm; spring values and unloading stiffness restarted "
+                "from the measured force-crush curve"
             )
     return case, None
 
@@ -176,9 +176,10 @@ def fit_ocp(case: Case, prior_weight: float | None = None) -> tuple[OptimalContr
 # forward simulation of its optimum departs from the NLP's trajectory (crashnlp.optimize.verify:
 # a stiff breakpoint crossed inside a step, which the NLP integrates a few mm/s off and the
 # plastic unloading from the largest crush then carries to the rebound), the fit is solved again
-# from where it got to with REFINE times the steps, up to MAX_SUBSTEPS: the pickup at 56 and 40
-# km/h and at a 4-degree pitch bound both finish at 4 steps, and so does the hidden population's
-# te01 at 40 + 56 km/h (bench/calibration.py), whose 56 km/h test departed by 3.5 mm of crush at 1.
+# from where it got to with REFINE times the steps, up to MAX_SUBSTEPS. A step's quadrature error
+# across a kink falls with the step squared, so a refinement cuts it sixteenfold; each multiplies
+# the integration's cost by REFINE, so a fit is refined at most twice, then reports how it ended
+# (the fits that were refined, and where they finished: docs/design-notes.md, "The 4-degree row").
 REFINE, MAX_SUBSTEPS = 4, 16
 
 

@@ -51,9 +51,9 @@ WARM_OPTIONS = {
 }
 # IPOPT's options for a least-squares fit (designs keep IPOPT's own); the measurements behind
 # them, and the options screened beside them, are in docs/design-notes.md ("IPOPT options of a fit"):
-# - tol 1e-5: near a fit that leaves residuals Gauss-Newton converges linearly (the KKT error
-#   falls about 3x per iteration on the pickup); from 1e-5 to 1e-8 a quarter of the iterations
-#   moved the shipped fits' parameters by less than 5e-6 of their standard errors.
+# - tol 1e-5: near a fit that leaves residuals Gauss-Newton converges only linearly, and the
+#   iterations from 1e-5 to IPOPT's 1e-8 move no parameter by a share of its standard error that
+#   matters.
 # - tau_min 0.8: early steps go at most 80 % of the way to a bound, not 99 %. Gauss-Newton
 #   sends weakly determined parameters (the unloading stiffness, spring values beyond the
 #   largest crush) toward their bounds; a step to 99 % of a bound changes the dynamics so much

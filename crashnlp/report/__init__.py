@@ -28,7 +28,7 @@ from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
 
 if TYPE_CHECKING:
-    from crashnlp.analysis.prediction import PredictedTest
+    from crashnlp.results.simulation import PredictedTest
 
 REPORT = "report.html"
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating

@@ -45,7 +45,7 @@ class Curve:
     intervals: dict[str, tuple[float, float] | None]
 
 
-def compare(folders: list[Path], out: Path) -> list[Curve]:
+def compare_results(folders: list[Path], out: Path) -> list[Curve]:
     """The comparison of `folders` written into `out`; InputError, with nothing written, for fewer
     than two folders, or one that is not a fit's or a simulation's."""
     if len(folders) < 2:

@@ -1,7 +1,7 @@
 """What a folder crashnlp wrote holds, read back through the loaders that wrote it.
 
 A fit or a design (result.json: `Result.load`), a simulation (simulation.json:
-crashnlp.analysis.prediction.read_simulation) or a study (cases/: crashnlp.studies.store.CaseStore).
+crashnlp.results.simulation.read_simulation) or a study (cases/: crashnlp.studies.store.CaseStore).
 The report and the exports read folders here; a folder that is none of these, or whose files
 do not read as crashnlp writes them, is an InputError naming it (one line, exit 2).
 """
@@ -11,14 +11,13 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import TYPE_CHECKING, Literal
+from typing import Literal
 
 from crashnlp.base.errors import InputError
+from crashnlp.results import simulation
 from crashnlp.results.result import Result
+from crashnlp.results.simulation import PredictedTest
 from crashnlp.studies.store import CaseStore
-
-if TYPE_CHECKING:
-    from crashnlp.analysis.prediction import PredictedTest
 
 Kind = Literal["result", "simulation", "study"]
 MARKERS: tuple[tuple[Kind, str], ...] = (("result", "result.json"), ("simulation", "simulation.json"), ("study", "cases"))
@@ -42,10 +41,8 @@ def read_result(folder: Path) -> Result:
 
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
     """The name and the predicted tests of the simulation in `folder`."""
-    from crashnlp.analysis.prediction import read_simulation as read  # CasADi: only a simulation's folder needs it
-
     with _reading(folder / "simulation.json"):
-        return read(folder)
+        return simulation.read_simulation(folder)
 
 
 def read_study(folder: Path) -> list[dict]:

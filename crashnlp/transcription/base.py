@@ -1,9 +1,9 @@
 """The base of every transcription: grid, impact interval, outputs at points.
 
-The model carries its own history (the largest crush so far is its fifth
-state), so one right-hand side serves the whole horizon: where loading ends is
-the model's own crush-rate zero, found by the NLP, never fixed from the data
-(docs/model.md, the history state).
+The model carries its own history (the largest crush so far is its last state,
+crashnlp.models.form.HISTORY), so one right-hand side serves the whole horizon: where
+loading ends is the model's own crush-rate zero, found by the NLP, never fixed from the
+data (docs/model.md, the history state).
 """
 
 from __future__ import annotations

@@ -8,15 +8,13 @@ import numpy as np
 from crashnlp.numerics.nlp import DYNAMICS
 from crashnlp.transcription.base import Transcription, per_row
 
-# The KKT systems of a collocation fit are ill-conditioned (condition 2e11 for the pickup at 56 and
-# 40 km/h, 200 intervals: Gauss-Newton entries of 2e4 beside a near null space of the dynamics'
-# multipliers). MUMPS's pivoting then can report a wrong inertia although the Gauss-Newton
-# Hessian is positive semi-definite; IPOPT regularizes the Hessian by up to 1e8 and the steps
-# stall (without what follows that fit takes 25 to 391 iterations over 50 to 300 intervals). A
-# small permanent regularization of the constraint block (delta_c = 1e-10 mu^0.25: IPOPT's
-# `perturb_always_cd`) removes the near null space: 14 to 41 iterations (docs/design-notes.md).
-# Shooting fits do not need it, and their iterations move with it (paper-configuration 53
-# instead of 51), so only collocation asks for it.
+# The KKT systems of a collocation fit are ill-conditioned: large Gauss-Newton entries beside a near
+# null space of the dynamics' multipliers. MUMPS's pivoting then can report a wrong inertia although
+# the Gauss-Newton Hessian is positive semi-definite; IPOPT regularizes the Hessian heavily and the
+# steps stall. A small permanent regularization of the constraint block (delta_c = 1e-10 mu^0.25:
+# IPOPT's `perturb_always_cd`) removes the near null space. Shooting fits do not need it, and their
+# iterations move with it, so only collocation asks for it (measured: docs/design-notes.md, "A
+# regularized constraint block for collocation").
 GAUSS_NEWTON_OPTIONS = {"perturb_always_cd": "yes", "jacobian_regularization_value": 1e-10}
 
 
