@@ -166,11 +166,7 @@ def _print_prediction(test) -> None:
         value = test.metrics.get(m.key)
         if value is None:
             continue
-        text = f"{m.short} {m.shown(value)}"
-        band = test.intervals.get(m.key)
-        if band is not None:
-            text += f" {m.band(band)}"
-        parts.append(f"{text} {m.unit}")
+        parts.append(f"{m.short} {m.cell(value, test.intervals.get(m.key))} {m.unit}")
     if parts:
         print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
     if test.extrapolation:
@@ -252,10 +248,6 @@ def _numbers(value, digits: int, missing: float = np.nan) -> str:
 HEADINGS = max(len(m.heading) for m in TABLED)  # the width of the metric table's first column
 
 
-def _cell(value, factor: float) -> str:
-    return "-" if value is None else f"{value * factor:.4g}"
-
-
 def _unit_suffix(unit: str) -> str:
     """What follows a value in `unit` on the console (" N/m"); nothing for a number without one."""
     return f" {unit}" if unit else ""
@@ -304,7 +296,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<{HEADINGS - 2}}{'model':>10}{'test' if data else '':>10}")
         for row in TABLED:
-            cells = _cell(model.get(row.key), row.factor), _cell(data.get(row.key), row.factor) if data else ""
+            cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
             print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := still_moving(m)):

@@ -104,20 +104,22 @@ def spring_std(prefix: str, folder: str) -> dict[str, str]:
 def displacement_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
     """Max displacement (mm) and time of zero velocity (ms) as the console's metric table prints them."""
     return {
-        f"{prefix}.max_displacement_mm": console_digits(metrics["max_displacement_m"] * 1e3),
-        f"{prefix}.stop_ms": console_digits(metrics["time_zero_velocity_s"] * 1e3),
+        f"{prefix}.max_displacement_mm": tabled(metrics, "max_displacement_m"),
+        f"{prefix}.stop_ms": tabled(metrics, "time_zero_velocity_s"),
     }
 
 
 def peak(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
     """Peak deceleration (g) as the console's metric table prints it (the model's as the test
     recorded it)."""
-    return {f"{prefix}.peak_g": console_digits(metrics["peak_decel_g"])}
+    return {f"{prefix}.peak_g": tabled(metrics, "peak_decel_g")}
 
 
-def console_digits(value: float) -> str:
-    """Four significant digits, as the console's metric table prints them."""
-    return f"{value:.4g}"
+def tabled(metrics: dict[str, Any], key: str) -> str:
+    """A crash metric of result.json as the console's metric table prints it (Metric.tabled)."""
+    from crashnlp.base.outputs import METRIC
+
+    return METRIC[key].tabled(metrics[key])
 
 
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
@@ -577,7 +579,7 @@ def _barrier() -> Quoted:
     console = run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
     test = fitted_test("results/nhtsa-10146-barrier", "10146")
     blocks = {"barrier-consistency": "\n".join(line for line in console if "channel consistency" in line)}
-    stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
+    stop = {"barrier.stop_ms": tabled(test["metrics"]["model"], "time_zero_velocity_s")}
     numbers = table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
     return blocks, numbers | spring_std("barrier", BARRIER_FITS["both_fit"]) | spring_std("camry", BARRIER_FITS["accel_fit"])
 

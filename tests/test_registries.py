@@ -6,6 +6,7 @@ the ones the metrics of a pulse carry, in result.json's order."""
 
 from __future__ import annotations
 
+import math
 from typing import get_args
 
 import numpy as np
@@ -68,6 +69,9 @@ def test_metric_rows_read_as_they_say():
     travel = METRIC["max_displacement_m"]
     assert travel.heading == "max displacement (mm)" and travel.column == "max_displacement_mm"
     assert travel.shown(0.61234) == "612.3" and travel.band((0.6, 0.625)) == "[600.0, 625.0]"
+    assert travel.cell(0.61234, (0.6, 0.625)) == "612.3 [600.0, 625.0]" and travel.cell(0.61234) == "612.3"
+    assert travel.cell(None, (0.6, 0.625)) == "-"  # no value: no cell, whatever its interval
+    assert travel.tabled(0.61234) == "612.3" and travel.tabled(None) == travel.tabled(math.nan) == "-"
     assert METRIC["rebound_velocity_mps"].column == "rebound_velocity_mps"
     for m in METRICS:
         assert m.channel is None or m.channel in OUTPUT

@@ -109,6 +109,26 @@ class Metric:
         """A 95 % interval as a prediction's line prints it: "[low, high]"."""
         return f"[{self.shown(band[0])}, {self.shown(band[1])}]"
 
+    def cell(self, value: float | None, band: tuple[float, float] | list[float] | None = None) -> str:
+        """A stored value as a prediction's line and a comparison's table print it, with its 95 %
+        interval where it has one: "612.3 [600.0, 625.0]"; "-" where there is no value."""
+        if value is None:
+            return "-"
+        return self.shown(value) if band is None else f"{self.shown(value)} {self.band(band)}"
+
+    def tabled(self, value: float | None) -> str:
+        """A stored value as a fit's metric table prints it (the console's, the report's, the
+        docs' numbers of it): in the shown unit, `significant`."""
+        return significant(value, self.factor)
+
+
+def significant(value: float | None, factor: float = 1.0, digits: int = 4) -> str:
+    """A number in the unit `factor` converts it to, to `digits` significant digits, as a fit's
+    tables print it; "-" where there is none (None, or not finite)."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value * factor:.{digits}g}"
+
 
 # result.json's crash metrics, in its order (crashnlp.analysis.summary.metrics writes them). Two
 # quantities, two names: displacement is the CG's travel since impact (NHTSA's "maximum dynamic crush"

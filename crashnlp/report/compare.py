@@ -137,14 +137,7 @@ def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     head = ["metric", *(c.label for c in curves)]
     rows = []
     for m in PREDICTED:
-        cells = []
-        for c in curves:
-            value, band = c.metrics.get(m.key), c.intervals.get(m.key)
-            text = "-" if value is None else m.shown(value)
-            if value is not None and band is not None:
-                text += f" {m.band(band)}"
-            cells.append(text)
-        rows.append([f"{m.short} ({m.unit})", *cells])
+        rows.append([f"{m.short} ({m.unit})", *(m.cell(c.metrics.get(m.key), c.intervals.get(m.key)) for c in curves)])
     return head, rows
 
 
