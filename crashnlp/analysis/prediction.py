@@ -75,6 +75,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     COLUMNS,
     METRIC,
+    METRICS,
     OUTPUT,
     PANELS,
     PREDICTED_KEYS,
@@ -98,15 +99,12 @@ if TYPE_CHECKING:
 
 # the fitted channels that determine the CG's motion, and with it every metric but the pitch
 MOTION = ("accel", "velocity", "displacement")
-# response columns and the metric whose non-parameter half-width their band carries
-BAND_METRIC = {
-    "displacement": "max_displacement_m",
-    "crush": "max_displacement_m",
-    "velocity": "rebound_velocity_mps",
-    "accel": "peak_decel_g",
-    "barrier_force": "peak_decel_g",
-    "pitch": "max_pitch_deg",
-}
+# response columns and the metric whose non-parameter half-width their band carries: each channel
+# a metric is one instant of (Metric.extreme), and the outputs that move with one of those channels
+# (the front end's crush with the CG's travel, the barrier force with the deceleration)
+_AT_EXTREME = {str(m.channel): m.key for m in METRICS if m.extreme}
+MOVES_WITH = {"crush": "displacement", "barrier_force": "accel"}
+BAND_METRIC = _AT_EXTREME | {name: _AT_EXTREME[channel] for name, channel in MOVES_WITH.items()}
 
 
 @dataclass(frozen=True)
