@@ -28,7 +28,7 @@ import numpy as np
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
+from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
@@ -254,14 +254,21 @@ def _unit_suffix(unit: str) -> str:
 
 
 def _consistency_line(c: dict) -> str:
-    """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency)."""
+    """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency):
+    each channel's impulse, and its metrics in their shown units, to the digits a one-mass reading merits."""
     parts = [
-        f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {s['time_zero_velocity_s'] * 1e3:.1f} ms"
-        f" after {s['max_displacement_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
+        f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {_metric_text(s, 'time_zero_velocity_s', 1)}"
+        f" after {_metric_text(s, 'max_displacement_m', 0)}, rebound {_metric_text(s, 'rebound_velocity_mps', 1)}"
         for name, s in c.items()
         if isinstance(s, dict)
     ]
     return f"channel consistency (one mass): {'; '.join(parts)}; impulse wall / accelerometers {c['impulse_ratio']:.3f}"
+
+
+def _metric_text(metrics: Mapping[str, float], key: str, digits: int) -> str:
+    """A crash metric with its unit, as the registry shows it, `digits` after the point: "62.3 ms"."""
+    m = METRIC[key]
+    return f"{m.shown(metrics[key], digits)} {m.unit}"
 
 
 def _print_solution(result, units: Mapping[str, str] | None = None) -> None:

@@ -101,9 +101,10 @@ class Metric:
         """Its column in a CSV of shown values: the key with the shown unit, "max_displacement_mm"."""
         return f"{self.key.rsplit('_', 1)[0]}_{self.unit.replace('/', 'p')}"
 
-    def shown(self, value: float) -> str:
-        """A stored value as a prediction's line prints it: in the shown unit, `digits` after the point."""
-        return f"{value * self.factor:.{self.digits}f}"
+    def shown(self, value: float, digits: int | None = None) -> str:
+        """A stored value as a prediction's line prints it: in the shown unit, `digits` after the
+        point (the metric's own where not given)."""
+        return f"{value * self.factor:.{self.digits if digits is None else digits}f}"
 
     def band(self, band: tuple[float, float] | list[float]) -> str:
         """A 95 % interval as a prediction's line prints it: "[low, high]"."""
