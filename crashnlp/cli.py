@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import io
 import json
-import math
 import re
 import signal
 import sys
@@ -377,10 +376,11 @@ def cmd_design(args) -> int:
     return _solve(args, "design")
 
 
+_PITCH, _TRAVEL = OUTPUT["pitch"], METRIC["max_displacement_m"]  # what a form's pitch RMSE and displacement error are of
 FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute, factor, format
     ("objective", "objective", 1.0, ".4g"),
-    ("pitch RMSE (deg)", "pitch_rmse_rad", 180 / math.pi, ".3f"),
-    ("displacement error (mm)", "displacement_error_m", 1e3, ".1f"),
+    (f"pitch RMSE ({_PITCH.report_unit})", "pitch_rmse_rad", _PITCH.factor, ".3f"),
+    (f"displacement error ({_TRAVEL.unit})", "displacement_error_m", _TRAVEL.factor, ".1f"),
     ("identified parameters", "parameters", 1, "d"),
     ("held-out rel. RMSE", "held_out_score", 1.0, ".4f"),
     ("BIC", "bic", 1.0, ".1f"),
