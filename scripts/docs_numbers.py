@@ -24,6 +24,7 @@ import io
 import json
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import chdir, redirect_stdout
@@ -456,25 +457,24 @@ def _detectors(bench: dict[str, Any]) -> dict[str, str]:
     return out
 
 
-# scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
-SCENARIO_KEYS = {
-    "one test down, 56 -> 40": "down40",
-    "one test down, 56 -> 48": "down48",
-    "one test up, 56 -> 64": "up64",
-    "interpolation, 40 + 56 -> 48": "between48",
-    "interpolation, 40 + 64 -> 56": "between56",
-    "extrapolation, 40 + 56 -> 64": "extrap64",
-    "one test, mass +20 %, 56 -> 56": "mass120",
-    "one test, mass -15 %, 56 -> 56": "mass85",
-}
-METRIC_KEYS = {
-    "max_displacement_m": "displacement",
-    "time_zero_velocity_s": "stop",
-    "peak_decel_g": "peak",
-    "rebound_velocity_mps": "rebound",
-    "olc_g": "olc",
-    "max_pitch_deg": "pitch",
-}
+def intervals_keys() -> tuple[dict[str, str], dict[str, str]]:
+    """The short names of bench/calibration.py's scenarios and metrics in the keys of the intervals'
+    numbers: a scenario's, its kind and predicted speed ("down40", "between48", "extrap64": the
+    target against its fitted speeds) or its mass ratio in % ("mass120"); a metric's, the last word of
+    its name in the calibration's tables, in lower case ("max pitch": "pitch")."""
+    if str(ROOT) not in sys.path:  # bench/ is imported as make bench runs it, from the repository root
+        sys.path.insert(0, str(ROOT))
+    from bench.calibration import MASS_RATIOS, SCENARIOS, SHORT
+
+    scenarios = {}
+    for name, (fitted, target) in SCENARIOS.items():
+        if name in MASS_RATIOS:
+            scenarios[name] = f"mass{MASS_RATIOS[name] * 100:.0f}"
+            continue
+        beyond = "up" if len(fitted) == 1 else "extrap"
+        kind = "down" if target < min(fitted) else "between" if target <= max(fitted) else beyond
+        scenarios[name] = f"{kind}{target:.0f}"
+    return scenarios, {metric: short.split()[-1].lower() for metric, short in SHORT.items()}
 
 
 def _intervals(bench: dict[str, Any]) -> dict[str, str]:
@@ -497,12 +497,13 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     calibration = intervals["calibration"]
     corpus = calibration["corpus"]["vehicles"]
     out["iv.corpus.vehicles"], out["iv.corpus.tall"] = str(sum(corpus.values())), str(corpus["tall vans and SUVs"])
-    for metric, short in METRIC_KEYS.items():
+    scenario_keys, metric_keys = intervals_keys()
+    for metric, short in metric_keys.items():
         out[f"iv.power.{short}"] = f"{calibration['power'][metric]:g}"
     for label, seed in (("check", intervals["check_seed"]), ("hidden", intervals["hidden_seed"])):
         for scenario, by in intervals["evaluation"][str(seed)]["all"].items():
             for metric, e in by.items():
-                key = f"iv.{label}.{SCENARIO_KEYS[scenario]}.{METRIC_KEYS[metric]}"
+                key = f"iv.{label}.{scenario_keys[scenario]}.{metric_keys[metric]}"
                 out[f"{key}.cov"] = f"{e['coverage'] * 100:.0f}"
                 out[f"{key}.hw"] = f"{e['half_width_median'] * 100:.{1 if e['half_width_median'] < 0.1 else 0}f}"
     return out
