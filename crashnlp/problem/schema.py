@@ -39,7 +39,7 @@ from crashnlp.base.records import (
     field_validator,
     model_validator,
 )
-from crashnlp.base.units import UnitError, to_si
+from crashnlp.base.units import G0, UnitError, to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
@@ -270,7 +270,7 @@ class Vehicle(Strict):
         0.0,
         description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
-    gravity: Acceleration = 9.80665
+    gravity: Acceleration = G0
     engine: Engine | None = Field(None, description="an engine on mounts (model.form engine-on-mounts)")
 
     @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
