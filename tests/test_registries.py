@@ -14,6 +14,7 @@ import pytest
 
 from crashnlp.analysis.summary import metrics
 from crashnlp.base import choices
+from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     BOUNDED,
     COLUMNS,
@@ -29,7 +30,10 @@ from crashnlp.base.outputs import (
     current_names,
 )
 from crashnlp.data.load import READERS
+from crashnlp.data.signal import CFC_CLASSES
+from crashnlp.engine.executors import LocalExecutor, make_executor
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.optimize.design import DESIGN_OBJECTIVES
 from crashnlp.problem import schema
 from crashnlp.transcription import TRANSCRIPTIONS
 
@@ -38,6 +42,17 @@ def test_laws_and_formats_hold_the_schemas_names():
     assert tuple(SPRING_LAWS) == tuple(choices.SPRING_LAWS) == get_args(schema.Spring.model_fields["law"].annotation)
     assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
     assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
+
+
+def test_filters_executors_and_design_objectives_hold_the_schemas_names():
+    assert tuple(choices.CFC_CLASSES) == get_args(schema.CFC) and choices.CFC_CLASSES is CFC_CLASSES  # the filters
+    assert choices.EXECUTORS == get_args(schema.Uncertainty.model_fields["executor"].annotation)
+    objectives = get_args(schema.Design.model_fields["minimize"].annotation)
+    assert set(DESIGN_OBJECTIVES) == set(choices.DESIGN_OBJECTIVES) and choices.DESIGN_OBJECTIVES == objectives
+    assert schema.Design().minimize == choices.DESIGN_OBJECTIVES[0]
+    assert isinstance(make_executor("local", workers=1), LocalExecutor)
+    with pytest.raises(InputError, match="none of local, dask"):
+        make_executor("ray")
 
 
 def test_each_transcription_has_its_spec_class():
