@@ -529,7 +529,7 @@ Quoted = tuple[dict[str, str], dict[str, str]]  # blocks, numbers
 
 def code_numbers() -> dict[str, str]:
     """Numbers the pages quote from the code itself: the normal quantile of a 95 % interval."""
-    from crashnlp.results.identified import Z95
+    from crashnlp.base.outputs import Z95
 
     return {"z95": f"{Z95:.2f}"}
 

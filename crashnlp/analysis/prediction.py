@@ -81,6 +81,7 @@ from crashnlp.base.outputs import (
     PREDICTED_KEYS,
     RENAMED_EXTRAPOLATION,
     UNFINISHED,
+    Z95,
     current_names,
     named_test,
 )
@@ -89,7 +90,7 @@ from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.files import claim, run_name
-from crashnlp.results.identified import Z95, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
+from crashnlp.results.identified import IdentifiedModel, applied, shaping_nothing_short_of, without_entries
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
 from crashnlp.results.result import Result

@@ -15,6 +15,11 @@ from typing import Any
 
 from crashnlp.base.units import G0
 
+# the normal quantile of every 95 % interval crashnlp gives (two-sided: a metric's, a band's, a
+# parameter's): statistics.NormalDist().inv_cdf(0.975) to its last bit, typed because a run imports
+# no statistics (tests/test_imports.py); tests/test_prediction.py holds it to the computed value
+Z95 = 1.9599639845400536
+
 
 @dataclass(frozen=True)
 class Output:

@@ -19,10 +19,9 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
-from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit, significant
+from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.identified import Z95
 from crashnlp.results.result import Result, pull_text
 from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
