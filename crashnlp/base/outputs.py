@@ -4,7 +4,11 @@ metrics (key, label, shown unit, factor, digits, how each is read).
 The symbolic model evaluates its outputs in this order; the simulator, the
 result files, the figures, the console and the problem schema (the channels a
 test can measure, the outputs a bound may limit) all read their names and units
-from here; every console line, table, CSV and report of a crash metric reads METRICS.
+from here. Every table and column of crash metrics reads METRICS: the console's
+metric table, prediction lines and channel consistency, the report's and
+compare-results' tables, metrics.csv and a study's columns. A sentence of a note
+or a warning that quotes one value (a stop time, where a record ends) formats it
+where it is written.
 """
 
 from __future__ import annotations
