@@ -20,7 +20,7 @@ from typing import Any
 
 import numpy as np
 
-from crashnlp.base.units import G0
+from crashnlp.base.outputs import OUTPUT
 from crashnlp.case.case import Case, TestCase
 from crashnlp.data.signal import resample
 from crashnlp.models.simulation import simulate
@@ -35,7 +35,6 @@ RESULTS = ROOT / "results"
 PICKUP_56 = PROBLEMS / "pickup-56kph.yaml"
 PICKUP_40 = PROBLEMS / "pickup-40kph.yaml"
 TRANSCRIPTIONS = ("multiple-shooting", "collocation")
-DISPLAY = {"accel": (1 / G0, "g"), "velocity": (1.0, "m/s"), "displacement": (1.0, "m"), "pitch": (180 / np.pi, "deg")}
 
 
 def transcription(method: str, intervals: int) -> MultipleShootingSpec | CollocationSpec:
@@ -132,13 +131,13 @@ def fine_outputs(case: Case, p: np.ndarray) -> list[dict[str, np.ndarray]]:
 
 
 def judge_fit(case: Case, p: np.ndarray, targets: list[Target]) -> dict:
-    """Common evaluator: objective and RMSE per channel (display units) of a full parameter vector."""
+    """Common evaluator: objective and RMSE per channel (its report unit, as result.json gives it) of a full parameter vector."""
     outputs = fine_outputs(case, p)
     rmse = {}
     for t in targets:
-        factor, unit = DISPLAY[t.channel]
-        err = (outputs[t.test][t.channel][t.columns] - t.data) * factor
-        rmse[f"{case.tests[t.test].name}.{t.channel}"] = {"rmse": float(np.sqrt(np.mean(err**2))), "unit": unit}
+        shown = OUTPUT[t.channel]
+        err = (outputs[t.test][t.channel][t.columns] - t.data) * shown.factor
+        rmse[f"{case.tests[t.test].name}.{t.channel}"] = {"rmse": float(np.sqrt(np.mean(err**2))), "unit": shown.report_unit}
     return {"objective": float(np.sum(residual_vector(targets, outputs) ** 2)), "rmse": rmse}
 
 

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import io
 import json
-import math
 import re
 import signal
 import sys
@@ -28,7 +27,7 @@ import numpy as np
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
+from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
@@ -142,11 +141,7 @@ def _print_prediction(test) -> None:
         value = test.metrics.get(m.key)
         if value is None:
             continue
-        text = f"{m.short} {m.shown(value)}"
-        band = test.intervals.get(m.key)
-        if band is not None:
-            text += f" {m.band(band)}"
-        parts.append(f"{text} {m.unit}")
+        parts.append(f"{m.short} {m.cell(value, test.intervals.get(m.key))} {m.unit}")
     if parts:
         print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
     if test.extrapolation:
@@ -228,24 +223,27 @@ def _numbers(value, digits: int, missing: float = np.nan) -> str:
 HEADINGS = max(len(m.heading) for m in TABLED)  # the width of the metric table's first column
 
 
-def _cell(value, factor: float) -> str:
-    return "-" if value is None else f"{value * factor:.4g}"
-
-
 def _unit_suffix(unit: str) -> str:
     """What follows a value in `unit` on the console (" N/m"); nothing for a number without one."""
     return f" {unit}" if unit else ""
 
 
 def _consistency_line(c: dict) -> str:
-    """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency)."""
+    """The one printed line of a channel consistency (crashnlp.analysis.summary.channel_consistency):
+    each channel's impulse, and its metrics in their shown units, to the digits a one-mass reading merits."""
     parts = [
-        f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {s['time_zero_velocity_s'] * 1e3:.1f} ms"
-        f" after {s['max_displacement_m'] * 1e3:.0f} mm, rebound {s['rebound_velocity_mps']:.1f} m/s"
+        f"{name} {s['impulse_Ns'] / 1e3:.2f} kN s, stop {_metric_text(s, 'time_zero_velocity_s', 1)}"
+        f" after {_metric_text(s, 'max_displacement_m', 0)}, rebound {_metric_text(s, 'rebound_velocity_mps', 1)}"
         for name, s in c.items()
         if isinstance(s, dict)
     ]
     return f"channel consistency (one mass): {'; '.join(parts)}; impulse wall / accelerometers {c['impulse_ratio']:.3f}"
+
+
+def _metric_text(metrics: Mapping[str, float], key: str, digits: int) -> str:
+    """A crash metric with its unit, as the registry shows it, `digits` after the point: "62.3 ms"."""
+    m = METRIC[key]
+    return f"{m.shown(metrics[key], digits)} {m.unit}"
 
 
 def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
@@ -280,7 +278,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         model, data = t.metrics, t.data_metrics
         print(f"  test {name:<{HEADINGS - 2}}{'model':>10}{'test' if data else '':>10}")
         for row in TABLED:
-            cells = _cell(model.get(row.key), row.factor), _cell(data.get(row.key), row.factor) if data else ""
+            cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
             print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := still_moving(m)):
@@ -354,10 +352,11 @@ def cmd_design(args) -> int:
     return _solve(args, "design")
 
 
+_PITCH, _TRAVEL = OUTPUT["pitch"], METRIC["max_displacement_m"]  # what a form's pitch RMSE and displacement error are of
 FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute, factor, format
     ("objective", "objective", 1.0, ".4g"),
-    ("pitch RMSE (deg)", "pitch_rmse_rad", 180 / math.pi, ".3f"),
-    ("displacement error (mm)", "displacement_error_m", 1e3, ".1f"),
+    (f"pitch RMSE ({_PITCH.report_unit})", "pitch_rmse_rad", _PITCH.factor, ".3f"),
+    (f"displacement error ({_TRAVEL.unit})", "displacement_error_m", _TRAVEL.factor, ".1f"),
     ("identified parameters", "parameters", 1, "d"),
     ("held-out rel. RMSE", "held_out_score", 1.0, ".4f"),
     ("BIC", "bic", 1.0, ".1f"),

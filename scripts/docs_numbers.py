@@ -24,6 +24,7 @@ import io
 import json
 import os
 import re
+import sys
 import tempfile
 from collections.abc import Iterator
 from contextlib import chdir, redirect_stdout
@@ -104,20 +105,22 @@ def spring_std(prefix: str, folder: str) -> dict[str, str]:
 def displacement_and_stop(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
     """Max displacement (mm) and time of zero velocity (ms) as the console's metric table prints them."""
     return {
-        f"{prefix}.max_displacement_mm": console_digits(metrics["max_displacement_m"] * 1e3),
-        f"{prefix}.stop_ms": console_digits(metrics["time_zero_velocity_s"] * 1e3),
+        f"{prefix}.max_displacement_mm": tabled(metrics, "max_displacement_m"),
+        f"{prefix}.stop_ms": tabled(metrics, "time_zero_velocity_s"),
     }
 
 
 def peak(prefix: str, metrics: dict[str, Any]) -> dict[str, str]:
     """Peak deceleration (g) as the console's metric table prints it (the model's as the test
     recorded it)."""
-    return {f"{prefix}.peak_g": console_digits(metrics["peak_decel_g"])}
+    return {f"{prefix}.peak_g": tabled(metrics, "peak_decel_g")}
 
 
-def console_digits(value: float) -> str:
-    """Four significant digits, as the console's metric table prints them."""
-    return f"{value:.4g}"
+def tabled(metrics: dict[str, Any], key: str) -> str:
+    """A crash metric of result.json as the console's metric table prints it (Metric.tabled)."""
+    from crashnlp.base.outputs import METRIC
+
+    return METRIC[key].tabled(metrics[key])
 
 
 def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
@@ -461,25 +464,24 @@ def _truncated(bench: dict[str, Any]) -> dict[str, str]:
     return {"truncated.met_again_s": f"{max(met):.2f}"}
 
 
-# scenario of bench/calibration.py -> its short name in the keys of the intervals' numbers
-SCENARIO_KEYS = {
-    "one test down, 56 -> 40": "down40",
-    "one test down, 56 -> 48": "down48",
-    "one test up, 56 -> 64": "up64",
-    "interpolation, 40 + 56 -> 48": "between48",
-    "interpolation, 40 + 64 -> 56": "between56",
-    "extrapolation, 40 + 56 -> 64": "extrap64",
-    "one test, mass +20 %, 56 -> 56": "mass120",
-    "one test, mass -15 %, 56 -> 56": "mass85",
-}
-METRIC_KEYS = {
-    "max_displacement_m": "displacement",
-    "time_zero_velocity_s": "stop",
-    "peak_decel_g": "peak",
-    "rebound_velocity_mps": "rebound",
-    "olc_g": "olc",
-    "max_pitch_deg": "pitch",
-}
+def intervals_keys() -> tuple[dict[str, str], dict[str, str]]:
+    """The short names of bench/calibration.py's scenarios and metrics in the keys of the intervals'
+    numbers: a scenario's, its kind and predicted speed ("down40", "between48", "extrap64": the
+    target against its fitted speeds) or its mass ratio in % ("mass120"); a metric's, the last word of
+    its name in the calibration's tables, in lower case ("max pitch": "pitch")."""
+    if str(ROOT) not in sys.path:  # bench/ is imported as make bench runs it, from the repository root
+        sys.path.insert(0, str(ROOT))
+    from bench.calibration import MASS_RATIOS, SCENARIOS, SHORT
+
+    scenarios = {}
+    for name, (fitted, target) in SCENARIOS.items():
+        if name in MASS_RATIOS:
+            scenarios[name] = f"mass{MASS_RATIOS[name] * 100:.0f}"
+            continue
+        beyond = "up" if len(fitted) == 1 else "extrap"
+        kind = "down" if target < min(fitted) else "between" if target <= max(fitted) else beyond
+        scenarios[name] = f"{kind}{target:.0f}"
+    return scenarios, {metric: short.split()[-1].lower() for metric, short in SHORT.items()}
 
 
 def _intervals(bench: dict[str, Any]) -> dict[str, str]:
@@ -508,12 +510,13 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
     calibration = intervals["calibration"]
     corpus = calibration["corpus"]["vehicles"]
     out["iv.corpus.vehicles"], out["iv.corpus.tall"] = str(sum(corpus.values())), str(corpus["tall vans and SUVs"])
-    for metric, short in METRIC_KEYS.items():
+    scenario_keys, metric_keys = intervals_keys()
+    for metric, short in metric_keys.items():
         out[f"iv.power.{short}"] = f"{calibration['power'][metric]:g}"
     for label, seed in (("check", intervals["check_seed"]), ("hidden", intervals["hidden_seed"])):
         for scenario, by in intervals["evaluation"][str(seed)]["all"].items():
             for metric, e in by.items():
-                key = f"iv.{label}.{SCENARIO_KEYS[scenario]}.{METRIC_KEYS[metric]}"
+                key = f"iv.{label}.{scenario_keys[scenario]}.{metric_keys[metric]}"
                 out[f"{key}.cov"] = f"{e['coverage'] * 100:.0f}"
                 out[f"{key}.hw"] = f"{e['half_width_median'] * 100:.{1 if e['half_width_median'] < 0.1 else 0}f}"
     return out
@@ -539,7 +542,7 @@ Quoted = tuple[dict[str, str], dict[str, str]]  # blocks, numbers
 
 def code_numbers() -> dict[str, str]:
     """Numbers the pages quote from the code itself: the normal quantile of a 95 % interval."""
-    from crashnlp.results.identified import Z95
+    from crashnlp.base.outputs import Z95
 
     return {"z95": f"{Z95:.2f}"}
 
@@ -590,7 +593,7 @@ def _barrier() -> Quoted:
     console = run("identify", "problems/nhtsa-10146-barrier.yaml", "--no-figures")
     test = fitted_test("results/nhtsa-10146-barrier", "10146")
     blocks = {"barrier-consistency": "\n".join(line for line in console if "channel consistency" in line)}
-    stop = {"barrier.stop_ms": console_digits(test["metrics"]["model"]["time_zero_velocity_s"] * 1e3)}
+    stop = {"barrier.stop_ms": tabled(test["metrics"]["model"], "time_zero_velocity_s")}
     numbers = table_row("barrier", test) | stop | channels_apart(test["consistency"]) | walls_and_fits()
     return blocks, numbers | spring_std("barrier", BARRIER_FITS["both_fit"]) | spring_std("camry", BARRIER_FITS["accel_fit"])
 

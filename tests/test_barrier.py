@@ -7,6 +7,7 @@ import pytest
 import yaml
 from builders import ROOT
 
+from bench.common import PROBLEMS, fine_outputs, fit_targets, judge_fit, load_case
 from crashnlp.cli import main
 from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_ev5 import Curve, valid_until
@@ -80,3 +81,15 @@ def test_a_curve_valid_to_67_ms_is_never_read_past_it():
 def test_status_and_comment_say_how_far_a_curve_is_valid(status, comment, until):
     curve = Curve(1, 1, "", "XG", "NWT", -500, 2999, 1e-4, status, comment)
     assert valid_until(curve) == until
+
+
+def test_the_benchmarks_judge_rates_a_fitted_wall_force_in_the_channels_report_units():
+    """bench/common.judge_fit on a problem that fits the barrier force: every fitted channel rated,
+    each in its report unit (result.json's), the acceleration in g."""
+    case = load_case(PROBLEMS / "nhtsa-10146-barrier.yaml")
+    targets = fit_targets(case)
+    rmse = judge_fit(case, case.base, targets)["rmse"]
+    assert {k: r["unit"] for k, r in rmse.items()} == {"10146.accel": "g", "10146.velocity": "m/s", "10146.barrier_force": "N"}
+    accel = next(t for t in targets if t.channel == "accel")
+    miss = fine_outputs(case, case.base)[0]["accel"][accel.columns] - accel.data
+    assert rmse["10146.accel"]["rmse"] == pytest.approx(np.sqrt(np.mean(miss**2)) / 9.80665)

@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import importlib.util
+import json
 import re
 
 import pytest
@@ -30,6 +31,16 @@ def test_the_pages_quote_every_block_and_number_the_runs_give():
     text = "".join(p.read_text() for p in PAGES.values())
     used = {m["key"] for m in numbers.BLOCK.finditer(text)} | {m["key"] for m in numbers.INLINE.finditer(text)}
     assert used == set(QUOTED["blocks"]) | set(QUOTED["numbers"])
+
+
+def test_the_benchmarks_numbers_read_now_are_the_quoted_ones():
+    """results/bench.json read as make docs-numbers reads it gives every bench number the pages
+    quote, under the same keys (the intervals' scenario and metric names from bench/calibration.py)."""
+    quoted = {key: value for key, value in QUOTED["numbers"].items() if key.startswith("bench.")}
+    assert numbers.bench_numbers(json.loads(numbers.BENCH.read_text())) == quoted
+    scenarios, metrics = numbers.intervals_keys()
+    assert scenarios["one test down, 56 -> 40"] == "down40" and metrics["max_displacement_m"] == "displacement"
+    assert len(set(scenarios.values())) == len(scenarios) and len(set(metrics.values())) == len(metrics)
 
 
 def unmarked(text: str) -> str:

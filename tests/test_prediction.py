@@ -23,7 +23,7 @@ from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, _slope, ending_notes, simulation_figure_jobs
 from crashnlp.analysis.summary import metrics
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import METRIC, METRIC_RANGE, PREDICTED_KEYS, UNFINISHED, UNSETTLED
+from crashnlp.base.outputs import METRIC, METRIC_RANGE, PREDICTED_KEYS, UNFINISHED, UNSETTLED, Z95
 from crashnlp.base.units import G0
 from crashnlp.case.testcase import Recorded
 from crashnlp.cli import main
@@ -33,7 +33,7 @@ from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.prior import smoothness_prior
 from crashnlp.problem import ProblemError, problem_from_dict
 from crashnlp.problem.schema import EstimateSpec
-from crashnlp.results.identified import Z95, shaping_nothing_short_of
+from crashnlp.results.identified import shaping_nothing_short_of
 from crashnlp.results.response import Response
 
 SMALL = {"method": "multiple-shooting", "intervals": 50, "substeps": 2}

@@ -6,6 +6,7 @@ the ones the metrics of a pulse carry, in result.json's order."""
 
 from __future__ import annotations
 
+import math
 from typing import get_args
 
 import numpy as np
@@ -13,6 +14,7 @@ import pytest
 
 from crashnlp.analysis.summary import metrics
 from crashnlp.base import choices
+from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import (
     BOUNDED,
     COLUMNS,
@@ -28,7 +30,10 @@ from crashnlp.base.outputs import (
     current_names,
 )
 from crashnlp.data.load import READERS
+from crashnlp.data.signal import CFC_CLASSES
+from crashnlp.engine.executors import LocalExecutor, make_executor
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.optimize.design import DESIGN_OBJECTIVES
 from crashnlp.problem import schema
 from crashnlp.transcription import TRANSCRIPTIONS
 
@@ -37,6 +42,17 @@ def test_laws_and_formats_hold_the_schemas_names():
     assert tuple(SPRING_LAWS) == tuple(choices.SPRING_LAWS) == get_args(schema.Spring.model_fields["law"].annotation)
     assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
     assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
+
+
+def test_filters_executors_and_design_objectives_hold_the_schemas_names():
+    assert tuple(choices.CFC_CLASSES) == get_args(schema.CFC) and choices.CFC_CLASSES is CFC_CLASSES  # the filters
+    assert choices.EXECUTORS == get_args(schema.Uncertainty.model_fields["executor"].annotation)
+    objectives = get_args(schema.Design.model_fields["minimize"].annotation)
+    assert set(DESIGN_OBJECTIVES) == set(choices.DESIGN_OBJECTIVES) and choices.DESIGN_OBJECTIVES == objectives
+    assert schema.Design().minimize == choices.DESIGN_OBJECTIVES[0]
+    assert isinstance(make_executor("local", workers=1), LocalExecutor)
+    with pytest.raises(InputError, match="none of local, dask"):
+        make_executor("ray")
 
 
 def test_each_transcription_has_its_spec_class():
@@ -68,6 +84,9 @@ def test_metric_rows_read_as_they_say():
     travel = METRIC["max_displacement_m"]
     assert travel.heading == "max displacement (mm)" and travel.column == "max_displacement_mm"
     assert travel.shown(0.61234) == "612.3" and travel.band((0.6, 0.625)) == "[600.0, 625.0]"
+    assert travel.cell(0.61234, (0.6, 0.625)) == "612.3 [600.0, 625.0]" and travel.cell(0.61234) == "612.3"
+    assert travel.cell(None, (0.6, 0.625)) == "-"  # no value: no cell, whatever its interval
+    assert travel.tabled(0.61234) == "612.3" and travel.tabled(None) == travel.tabled(math.nan) == "-"
     assert METRIC["rebound_velocity_mps"].column == "rebound_velocity_mps"
     for m in METRICS:
         assert m.channel is None or m.channel in OUTPUT

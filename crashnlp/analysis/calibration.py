@@ -42,7 +42,7 @@ import math
 from dataclasses import dataclass
 from functools import cache
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal, get_args
 
 import numpy as np
 
@@ -53,7 +53,8 @@ from crashnlp.results.simulation import IntervalParts as IntervalParts  # its sc
 FILE = "calibration.json"  # model form -> its table
 PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
 SAME_ENERGY = 1e-3  # relative: fitted tests closer than this in energy count as one
-CLASSES = ("down", "between", "up", "mass-down")
+Reach = Literal["down", "between", "up", "mass-down"]  # a prediction's class against the fitted tests (`reach`)
+CLASSES: tuple[Reach, ...] = get_args(Reach)
 
 
 def energies(fitted: IdentifiedRange) -> tuple[float, ...]:
@@ -69,7 +70,7 @@ def _outside(value: float, bounds: tuple[float, float]) -> float:
     return abs(math.log(value / min(max(value, low), high)))
 
 
-def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[str, float]:
+def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[Reach, float]:
     """The class of a prediction at `speed` and `mass` against the fitted tests, and its distance
     |ln(E / E_nearest)|. A lighter vehicle that goes further below the fitted masses than beside
     the fitted speeds (|ln| of the mass ratio against twice the speed ratio's) is `mass-down`; any

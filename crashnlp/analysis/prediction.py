@@ -69,12 +69,12 @@ from crashnlp.analysis.summary import (
     still_moving,
 )
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import METRIC, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, named_test
+from crashnlp.base.outputs import METRIC, METRICS, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, Z95, named_test
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
-from crashnlp.results.identified import Z95, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
+from crashnlp.results.identified import IdentifiedModel, applied, shaping_nothing_short_of, without_entries
 from crashnlp.results.response import Response
 from crashnlp.results.result import Result
 from crashnlp.results.simulation import IntervalParts, PredictedTest
@@ -84,15 +84,12 @@ if TYPE_CHECKING:
 
 # the fitted channels that determine the CG's motion, and with it every metric but the pitch
 MOTION = ("accel", "velocity", "displacement")
-# response columns and the metric whose non-parameter half-width their band carries
-BAND_METRIC = {
-    "displacement": "max_displacement_m",
-    "crush": "max_displacement_m",
-    "velocity": "rebound_velocity_mps",
-    "accel": "peak_decel_g",
-    "barrier_force": "peak_decel_g",
-    "pitch": "max_pitch_deg",
-}
+# response columns and the metric whose non-parameter half-width their band carries: each channel
+# a metric is one instant of (Metric.extreme), and the outputs that move with one of those channels
+# (the front end's crush with the CG's travel, the barrier force with the deceleration)
+_AT_EXTREME = {str(m.channel): m.key for m in METRICS if m.extreme}
+MOVES_WITH = {"crush": "displacement", "barrier_force": "accel"}
+BAND_METRIC = _AT_EXTREME | {name: _AT_EXTREME[channel] for name, channel in MOVES_WITH.items()}
 
 
 def own_tests(result: Result, source: str) -> Problem:

@@ -4,7 +4,11 @@ metrics (key, label, shown unit, factor, digits, how each is read).
 The symbolic model evaluates its outputs in this order; the simulator, the
 result files, the figures, the console and the problem schema (the channels a
 test can measure, the outputs a bound may limit) all read their names and units
-from here; every console line, table, CSV and report of a crash metric reads METRICS.
+from here. Every table and column of crash metrics reads METRICS: the console's
+metric table, prediction lines and channel consistency, the report's and
+compare-results' tables, metrics.csv and a study's columns. A sentence of a note
+or a warning that quotes one value (a stop time, where a record ends) formats it
+where it is written.
 """
 
 from __future__ import annotations
@@ -14,6 +18,11 @@ from dataclasses import dataclass
 from typing import Any
 
 from crashnlp.base.units import G0
+
+# the normal quantile of every 95 % interval crashnlp gives (two-sided: a metric's, a band's, a
+# parameter's): statistics.NormalDist().inv_cdf(0.975) to its last bit, typed because a run imports
+# no statistics (tests/test_imports.py); tests/test_prediction.py holds it to the computed value
+Z95 = 1.9599639845400536
 
 
 @dataclass(frozen=True)
@@ -101,13 +110,34 @@ class Metric:
         """Its column in a CSV of shown values: the key with the shown unit, "max_displacement_mm"."""
         return f"{self.key.rsplit('_', 1)[0]}_{self.unit.replace('/', 'p')}"
 
-    def shown(self, value: float) -> str:
-        """A stored value as a prediction's line prints it: in the shown unit, `digits` after the point."""
-        return f"{value * self.factor:.{self.digits}f}"
+    def shown(self, value: float, digits: int | None = None) -> str:
+        """A stored value as a prediction's line prints it: in the shown unit, `digits` after the
+        point (the metric's own where not given)."""
+        return f"{value * self.factor:.{self.digits if digits is None else digits}f}"
 
     def band(self, band: tuple[float, float] | list[float]) -> str:
         """A 95 % interval as a prediction's line prints it: "[low, high]"."""
         return f"[{self.shown(band[0])}, {self.shown(band[1])}]"
+
+    def cell(self, value: float | None, band: tuple[float, float] | list[float] | None = None) -> str:
+        """A stored value as a prediction's line and a comparison's table print it, with its 95 %
+        interval where it has one: "612.3 [600.0, 625.0]"; "-" where there is no value."""
+        if value is None:
+            return "-"
+        return self.shown(value) if band is None else f"{self.shown(value)} {self.band(band)}"
+
+    def tabled(self, value: float | None) -> str:
+        """A stored value as a fit's metric table prints it (the console's, the report's, the
+        docs' numbers of it): in the shown unit, `significant`."""
+        return significant(value, self.factor)
+
+
+def significant(value: float | None, factor: float = 1.0, digits: int = 4) -> str:
+    """A number in the unit `factor` converts it to, to `digits` significant digits, as a fit's
+    tables print it; "-" where there is none (None, or not finite)."""
+    if value is None or not math.isfinite(value):
+        return "-"
+    return f"{value * factor:.{digits}g}"
 
 
 # result.json's crash metrics, in its order (crashnlp.analysis.summary.metrics writes them). Two

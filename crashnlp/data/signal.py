@@ -6,9 +6,8 @@ import math
 
 import numpy as np
 
+from crashnlp.base.choices import CFC_CLASSES
 from crashnlp.data.channels import Channel, DataError
-
-CFC_CLASSES = {"CFC60": 60.0, "CFC180": 180.0, "CFC600": 600.0, "CFC1000": 1000.0}
 
 
 def cfc_coefficients(cfc: float, dt: float) -> tuple[np.ndarray, np.ndarray]:

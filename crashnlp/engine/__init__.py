@@ -4,6 +4,5 @@ chains) and crashnlp.studies (a study's cases); the submodules load on first use
 command line starts without them.
 """
 
-EXECUTORS = ("local", "dask")  # where tasks run: crashnlp.engine.executors
 CONNECT_TIMEOUT = 10.0  # s: how long a dask scheduler at --address may take to answer
 DASK_EXTRA = "pip install 'crashnlp[dask]'"  # what brings dask.distributed, which --executor dask needs

@@ -31,8 +31,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol
 
+from crashnlp.base.choices import EXECUTORS
 from crashnlp.base.errors import InputError, RunError
-from crashnlp.engine import CONNECT_TIMEOUT, DASK_EXTRA, EXECUTORS
+from crashnlp.engine import CONNECT_TIMEOUT, DASK_EXTRA
 from crashnlp.numerics.compile_job import stop_compiles
 
 WORKER_DEATHS = 2  # a task runs again on a fresh worker after at most this many deaths of its worker

@@ -22,6 +22,7 @@ from crashnlp.case.case import Case
 from crashnlp.optimize.identify import Solution, finish
 from crashnlp.optimize.ocp import OptimalControl, Transcript
 from crashnlp.optimize.solve import solve
+from crashnlp.problem.schema import Design
 
 
 def _epigraph(ocp: OptimalControl, name: str, rows: Callable[[Transcript], ca.MX], scale: float) -> None:
@@ -83,7 +84,7 @@ DESIGN_OBJECTIVES: dict[str, Callable[[OptimalControl], None]] = {
 
 def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdout, warm: np.ndarray | None = None) -> Solution:
     """Solve a design problem."""
-    goal = case.problem.design.minimize if case.problem.design else "peak_decel"
+    goal = (case.problem.design or Design()).minimize  # the file's design section, or the default one
     ocp = OptimalControl(case)
     if ocp.free.size == 0:
         raise InputError(f"{case.name}: estimate names no design variable")

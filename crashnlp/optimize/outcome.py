@@ -19,14 +19,14 @@ from crashnlp.analysis.summary import (
     response_metrics,
     still_moving,
 )
-from crashnlp.base.outputs import PREDICTED_KEYS
+from crashnlp.base.outputs import PREDICTED_KEYS, Z95
 from crashnlp.case.case import Case, TestCase
 from crashnlp.case.completion import measured_pulse, measured_pulses
 from crashnlp.models.tail import trend_tail
 from crashnlp.numerics.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.problem.forms import DEFAULT_FORM
-from crashnlp.results.identified import Z95, IdentifiedModel, IdentifiedRange, shaping_nothing_short_of, without_entries
+from crashnlp.results.identified import IdentifiedModel, IdentifiedRange, shaping_nothing_short_of, without_entries
 from crashnlp.results.response import Response
 from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 

@@ -23,13 +23,13 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.outputs import Z95
 from crashnlp.case.case import Case
 from crashnlp.engine.executors import Executor
 from crashnlp.engine.schedule import map_all
 from crashnlp.optimize.identify import Solution, fit_ocp
 from crashnlp.optimize.solvers import build_solver
 from crashnlp.problem.schema import Problem
-from crashnlp.results.identified import Z95
 
 STEP = 0.75  # standard errors between profile points
 

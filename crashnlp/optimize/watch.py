@@ -68,7 +68,9 @@ WANDER_START, WANDER_RISE, WANDER_VIOLATION = 25, 2.0, 1e-3
 # round, and the exact Hessian started there converges. No threshold of its own: the cycle's are
 # the cycle rule's, the acceptable test's the settle's. Measured: docs/design-notes.md, "A cycle
 # that does not settle".
-Look = Literal["tail", "settle", Stop]  # what the Watch looks for: the slow tail, the stops, and a settle's cycle
+# what the Watch looks for: the slow tail, a cycle, a wander, and a settle's cycle (which stops it
+# as "unsettled", a Stop and no look)
+Look = Literal["tail", "cycle", "wander", "settle"]
 
 
 class Watch(ca.Callback):

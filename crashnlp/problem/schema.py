@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self, TypeVar, get_args
 
-from crashnlp.base.choices import DATA_FORMATS, SPRING_LAWS, UNLOADING_LAWS
+from crashnlp.base.choices import CFC_CLASSES, DATA_FORMATS, DESIGN_OBJECTIVES, EXECUTORS, SPRING_LAWS, UNLOADING_LAWS
 from crashnlp.base.outputs import BOUNDED, MEASURABLE, OUTPUT
 from crashnlp.base.records import (
     AfterValidator,
@@ -39,7 +39,7 @@ from crashnlp.base.records import (
     field_validator,
     model_validator,
 )
-from crashnlp.base.units import UnitError, to_si
+from crashnlp.base.units import G0, UnitError, to_si
 from crashnlp.problem.errors import ProblemError, all_errors
 from crashnlp.problem.forms import DEFAULT_FORM, FORMS
 from crashnlp.problem.ipopt import check_ipopt
@@ -270,7 +270,7 @@ class Vehicle(Strict):
         0.0,
         description="distance of the crush force's line of action from the pivot-CG line; > 0 pitches nose-down",
     )
-    gravity: Acceleration = 9.80665
+    gravity: Acceleration = G0
     engine: Engine | None = Field(None, description="an engine on mounts (model.form engine-on-mounts)")
 
     @field_validator("mass", "cg_to_impact", "cg_to_front_axle", "cg_to_rear_axle", "gravity")
@@ -442,7 +442,8 @@ class Model(Strict):
 CHANNEL_UNITS = {name: OUTPUT[name].unit for name in MEASURABLE}
 ChannelName = Literal[MEASURABLE]  # type: ignore[valid-type]  # the channels a problem names: the measurable outputs
 DataFormat = Literal[DATA_FORMATS]  # type: ignore[valid-type]  # crashnlp.base.choices
-CFC = Literal["CFC60", "CFC180", "CFC600", "CFC1000"]
+FILTER_CLASSES = tuple(CFC_CLASSES)  # their names, a filter a channel may give
+CFC = Literal[FILTER_CLASSES]  # type: ignore[valid-type]  # crashnlp.base.choices
 DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
 SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
 
@@ -677,6 +678,9 @@ class Solver(Strict):
         return v
 
 
+Executor = Literal[EXECUTORS]  # type: ignore[valid-type]  # crashnlp.base.choices
+
+
 class Uncertainty(Strict):
     """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
 
@@ -685,7 +689,7 @@ class Uncertainty(Strict):
         description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]",
     )
     points: int = Field(4, ge=2, le=20, description="re-optimisations on each side, 0.75 std apart")
-    executor: Literal["local", "dask"] = Field("local", description="where the profiles run in parallel (the study executors)")
+    executor: Executor = Field("local", description="where the profiles run in parallel (the study executors)")
     workers: int | None = Field(None, ge=1)
 
 
@@ -700,8 +704,11 @@ class Simulation(Strict):
     _positive = field_validator("dt", "duration")(lambda v: _positive(v))
 
 
+DesignObjective = Literal[DESIGN_OBJECTIVES]  # type: ignore[valid-type]  # crashnlp.base.choices
+
+
 class Design(Strict):
-    minimize: Literal["peak_decel", "olc", "crush"] = "peak_decel"
+    minimize: DesignObjective = DESIGN_OBJECTIVES[0]
 
 
 class ForceCrush(Strict):

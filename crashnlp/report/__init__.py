@@ -19,10 +19,9 @@ from typing import TYPE_CHECKING, Any
 import jinja2
 import numpy as np
 
-from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, shown_unit
+from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.identified import Z95
 from crashnlp.results.result import Result, pull_text
 from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
@@ -114,13 +113,13 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     """One test: its figures, its metrics (model against test), RMSE and ISO 18571 ratings."""
     t = result.tests[name]
     data = t.data_metrics or {}
-    metrics = [(m.heading, _cell(t.metrics.get(m.key), m.factor), _cell(data.get(m.key), m.factor)) for m in TABLED]
+    metrics = [(m.heading, m.tabled(t.metrics.get(m.key)), m.tabled(data.get(m.key))) for m in TABLED]
     fits = [
         {
             "channel": c,
             "rmse": OUTPUT[c].shown(f.rmse),
             "sigma": OUTPUT[c].shown(f.sigma),
-            "ratings": [_cell((f.iso18571 or {}).get(k), 1.0, 3) for k in RATINGS],
+            "ratings": [significant((f.iso18571 or {}).get(k), 1.0, 3) for k in RATINGS],
         }
         for c, f in t.fit.items()
     ]
@@ -176,11 +175,11 @@ def _parameter(
         interval, how = None, without
     return {
         "label": label,
-        "value": _cell(value, factor, 5),
-        "std": _cell(std, factor, 2),
-        "interval": "-" if interval is None else f"[{_cell(interval[0], factor)}, {_cell(interval[1], factor)}]",
+        "value": significant(value, factor, 5),
+        "std": significant(std, factor, 2),
+        "interval": "-" if interval is None else f"[{significant(interval[0], factor)}, {significant(interval[1], factor)}]",
         "how": how,
-        "bounds": "-" if bounds is None else f"[{_cell(bounds[0], factor)}, {_cell(bounds[1], factor)}]",
+        "bounds": "-" if bounds is None else f"[{significant(bounds[0], factor)}, {significant(bounds[1], factor)}]",
         "unit": name,
         "at_bound": pull_text(result.at_bound[label]) if label in result.at_bound else "",
     }
@@ -233,7 +232,7 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
     metrics = [(k, *shown) for k in keys if (shown := shown_column(k)) is not None]
     columns = ["case", *swept, "status", "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
-    body = [[_text(r.get(c)) for c in columns] + [_cell(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
+    body = [[_text(r.get(c)) for c in columns] + [significant(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
     figures = embedded_figures(folder / "figures", sorted(p.name for p in (folder / "figures").glob("*.png")), "")
     maps = _maps(name, rows, swept, metrics) if len(swept) == 2 else []
     return TEMPLATES.get_template("study.html.j2").render(
@@ -283,13 +282,6 @@ def embedded_figures(folder: Path, names: list[str], caption: str) -> list[dict[
 
 def data_uri(png: bytes) -> str:
     return "data:image/png;base64," + base64.b64encode(png).decode("ascii")
-
-
-def _cell(value: float | None, factor: float, digits: int = 4) -> str:
-    """A number in the unit `factor` converts to, to `digits` significant digits; '-' if none."""
-    if value is None or not math.isfinite(value):
-        return "-"
-    return f"{value * factor:.{digits}g}"
 
 
 def _text(value: Any) -> str:

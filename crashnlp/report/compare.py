@@ -113,22 +113,23 @@ def _over_time(name: str, curves: list[Curve]) -> tuple[str, str, str, list[Seri
 
 
 def _force_crush(curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
-    """The barrier force against the crush for every curve (kN, mm), and while the crush grows
+    """The barrier force against the crush for every curve (in their figures' units), and while the crush grows
     (to its max: a band that turns back would cover itself) the force's band along the crush,
     else the crush's band across the force, whichever the prediction has."""
+    x, y = OUTPUT["crush"], OUTPUT["barrier_force"]
     series: list[Series] = []
     for c in curves:
-        crush, force = c.response["crush"] * 1e3, c.response["barrier_force"] * 1e-3
+        crush, force = c.response["crush"] * x.plot_factor, c.response["barrier_force"] * y.plot_factor
         loading = slice(0, int(np.argmax(crush)) + 1)
         band: tuple[np.ndarray, np.ndarray] | None = None
         if "barrier_force" in c.bands:
-            low, high = (b[loading] * 1e-3 for b in c.bands["barrier_force"])
+            low, high = (b[loading] * y.plot_factor for b in c.bands["barrier_force"])
             band = _outline(crush[loading], low, high)
         elif "crush" in c.bands:
-            low, high = (b[loading] * 1e3 for b in c.bands["crush"])
+            low, high = (b[loading] * x.plot_factor for b in c.bands["crush"])
             band = _outline(force[loading], low, high)[::-1]
         series.append((c.label, crush, force, band))
-    return "barrier force against crush", "crush (mm)", OUTPUT["barrier_force"].label, series
+    return "barrier force against crush", x.label, y.label, series
 
 
 def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
@@ -137,14 +138,7 @@ def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     head = ["metric", *(c.label for c in curves)]
     rows = []
     for m in PREDICTED:
-        cells = []
-        for c in curves:
-            value, band = c.metrics.get(m.key), c.intervals.get(m.key)
-            text = "-" if value is None else m.shown(value)
-            if value is not None and band is not None:
-                text += f" {m.band(band)}"
-            cells.append(text)
-        rows.append([f"{m.short} ({m.unit})", *cells])
+        rows.append([f"{m.short} ({m.unit})", *(m.cell(c.metrics.get(m.key), c.intervals.get(m.key)) for c in curves)])
     return head, rows
 
 

@@ -24,7 +24,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.base.units import G0
+from crashnlp.base.outputs import OUTPUT
 from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
@@ -239,4 +239,5 @@ def write_pulse(path: Path, name: str, test: str, p: Pulse) -> None:
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),
     )
-    write_columns(path, {"time_s": p.time, "accel_g": p.accel / G0}, comments)
+    accel = OUTPUT["accel"]
+    write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments)

@@ -36,7 +36,6 @@ SAME_GEOMETRY = 1e-4
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
 SPRING_VALUES = "model.spring.values"
-Z95 = 1.9599639845400536  # two-sided 95 %: statistics.NormalDist().inv_cdf(0.975), to its last bit (as results were computed)
 
 
 @dataclass(frozen=True)

@@ -82,18 +82,19 @@ def force_crush_figure(
     """Force against crush: named curves (x m, F N), optional breakpoint markers, the first curve's
     95 % band (x, low, high) shaded, and behind them measured curves in grey."""
     fig, ax = plt.subplots(figsize=(6.5, 4.5))
+    crush, force = OUTPUT["crush"].plot_factor, OUTPUT["contact_force"].plot_factor  # the front end's
     for i, (label, (x, f)) in enumerate((measured or {}).items()):
-        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, lw=1.0, color=f"{0.55 + 0.1 * i:.2f}", label=label)
+        ax.plot(np.asarray(x) * crush, np.asarray(f) * force, lw=1.0, color=f"{0.55 + 0.1 * i:.2f}", label=label)
     if band is not None:
         x, low, high = (np.asarray(v) for v in band)
-        ax.fill_between(x * 1e3, low / 1e3, high / 1e3, color="C0", alpha=0.2, lw=0, label="95 %")
+        ax.fill_between(x * crush, low * force, high * force, color="C0", alpha=0.2, lw=0, label="95 %")
     for i, (label, (x, f)) in enumerate(curves.items()):
         style = "--" if label.startswith("unloading") else "-"
-        ax.plot(np.asarray(x) * 1e3, np.asarray(f) / 1e3, style, lw=1.6, color=f"C{i}", label=label)
+        ax.plot(np.asarray(x) * crush, np.asarray(f) * force, style, lw=1.6, color=f"C{i}", label=label)
     if points is not None:
-        ax.plot(np.asarray(points[0]) * 1e3, np.asarray(points[1]) / 1e3, "o", color="C0", ms=4)
-    ax.set_xlabel("crush (mm)")
-    ax.set_ylabel("force (kN)")
+        ax.plot(np.asarray(points[0]) * crush, np.asarray(points[1]) * force, "o", color="C0", ms=4)
+    ax.set_xlabel(OUTPUT["crush"].label)
+    ax.set_ylabel(f"force ({OUTPUT['contact_force'].plot_unit})")
     ax.grid(alpha=0.3)
     ax.legend(fontsize=8)
     ax.set_title(title)

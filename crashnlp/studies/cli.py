@@ -6,7 +6,8 @@ import argparse
 import math
 from pathlib import Path
 
-from crashnlp.engine import CONNECT_TIMEOUT, EXECUTORS
+from crashnlp.base.choices import EXECUTORS
+from crashnlp.engine import CONNECT_TIMEOUT
 
 DESCRIPTION = """\
 Solve a base problem again for every combination (grid) or every position (zip)
