@@ -72,6 +72,10 @@ CASES = {
         {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": True}}}}]},
         "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
     ),
+    "bias window past impact": (
+        {"tests": [{"name": "a", "data": {**DATA, "bias_window": ["0 s", "0.05 s"]}}]},
+        "tests.0.data.bias_window: ends at 0.05 s, after impact (t = 0)",
+    ),
     "curves true": (
         {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"curves": [93, False]}}}}]},
         "tests.0.data.channels.accel.curves: a list of curve numbers, or all-valid-barrier-fx (1: Input should be a number,"

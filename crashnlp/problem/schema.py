@@ -515,7 +515,9 @@ class DataSpec(Strict):
     )
     time: TimeColumn = TimeColumn(column="time_s")
     window: tuple[Time, Time] | None = None
-    bias_window: tuple[Time, Time] | None = Field(None, description="pre-impact samples whose mean is removed")
+    bias_window: tuple[Time, Time] | None = Field(
+        None, description="pre-impact samples (ending at t = 0 or before), their mean removed"
+    )
     channels: dict[ChannelName, ChannelSpec]
 
     @model_validator(mode="before")
@@ -552,6 +554,14 @@ class DataSpec(Strict):
     def _ordered(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
         if v is not None and v[1] <= v[0]:
             raise ValueError("window end must be after its start")
+        return v
+
+    @field_validator("bias_window")
+    @classmethod
+    def _pre_impact(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        """A bias window before impact (t = 0): a mean taken over the crash pulse is no sensor offset."""
+        if v is not None and v[1] > 0:
+            raise ValueError(f"ends at {v[1]:g} s, after impact (t = 0): the bias is the mean of pre-impact samples")
         return v
 
     @model_validator(mode="after")
