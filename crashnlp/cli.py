@@ -30,7 +30,7 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
+from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
@@ -439,7 +439,7 @@ def cmd_init(args) -> int:
     speed, mass = what_if(args.speed, args.mass, prefix="--")  # as simulate's what-if: one message for one mistake
     options = Options(args.format, mass, speed, columns, args.name, args.force)
     paths = [Path(p) for p in args.data]
-    problem, notes = init_problem(paths, Path(args.out), options)
+    problem, notes = init_problem(paths, file_option(args.out), options)
     print(
         f"wrote {args.out}: {problem.name}, {len(problem.model.spring.known_values)} breakpoints to "
         f"{problem.model.spring.placed_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
@@ -460,7 +460,7 @@ def cmd_report(args) -> int:
     """The page of a fit's, a simulation's or a study's folder (crashnlp.report)."""
     from crashnlp.report import write_report
 
-    print(f"wrote {write_report(Path(args.folder), Path(args.out) if args.out else None)}")
+    print(f"wrote {write_report(Path(args.folder), file_option(args.out) if args.out else None)}")
     return 0
 
 
@@ -506,7 +506,7 @@ def _export_curves(args, folder: Path) -> int:
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
     own = folder / f"{result.name}.k"
-    out = check_writable_file(Path(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     with deriving(folder, out):
         export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
@@ -527,7 +527,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
-    out = check_writable_file(Path(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())

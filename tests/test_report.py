@@ -282,6 +282,9 @@ def test_a_figure_names_a_test_once():
     [
         (["report", "--out", "{tmp}"], "is a folder; name the file to write"),
         (["export", "--format", "ls-dyna", "--out", "{tmp}"], "is a folder; name the file to write"),
+        (["report", "--out", "{tmp}/new/dir/"], "--out {tmp}/new/dir/: a folder; name the file to write"),
+        (["export", "--format", "ls-dyna", "--out", "{tmp}/new/"], "--out {tmp}/new/: a folder; name the file to write"),
+        (["export", "--format", "pulse", "--out", "{tmp}/new/"], "--out {tmp}/new/: a folder; name the file to write"),
         (["export", "--format", "pulse", "--test", "nope"], "--test nope: {fit} has tests 56kph"),
         (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
         (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
@@ -297,7 +300,7 @@ def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, caps
     argv = [options[0], str(fit), *(o.format(tmp=tmp_path, fit=fit) for o in options[1:])]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message.format(fit=fit) in err, err
+    assert err.count("\n") == 1 and message.format(fit=fit, tmp=tmp_path) in err, err
     assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
 
 

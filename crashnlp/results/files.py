@@ -346,6 +346,14 @@ def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path], der
             return
 
 
+def file_option(text: str, option: str = "--out") -> Path:
+    """The file an option names; a name that ends in a separator names a folder (Path drops the
+    separator, so a missing folder `new/dir/` would be written as a file `dir`): refused."""
+    if text.endswith(("/", os.sep)):
+        raise InputError(f"{option} {text}: a folder; name the file to write")
+    return Path(text)
+
+
 def check_writable_file(path: str | Path, option: str = "--out", own: Path | None = None) -> Path:
     """Refuse, before any work, a file to write that is a folder, whose folder cannot be written,
     or that a run's record lists (a fit's result.json, a test's response.csv: written over, that
