@@ -3,8 +3,8 @@
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
 solver, the integrator, a cluster, the file system) exits 1 with one line;
-SIGINT and SIGTERM exit 130 and 143 with one line. No traceback unless
-`--debug` asks for it.
+SIGINT and SIGTERM exit 130 and 143 with one line; a reader of stdout that
+left (`| head`) ends it with 141 and none. No traceback unless `--debug` asks for it.
 """
 
 from __future__ import annotations
@@ -13,6 +13,7 @@ import argparse
 import io
 import json
 import math
+import os
 import re
 import signal
 import sys
@@ -748,20 +749,32 @@ def _fail(message: str, code: int, debug: bool) -> int:
     return code
 
 
+PIPE_CLOSED = 141  # 128 + SIGPIPE's 13: a shell's status for a writer ended by its reader leaving (`| head`)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; every ending is an exit status and at most one line on stderr. A command
-    that succeeded lets the compiles it started finish for the next run, at nice 19 and saying so
-    on a line of its own (crashnlp.numerics.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
-    them); any other ending stops them, its one line the only one."""
+    that succeeded, or whose reader of stdout left (PIPE_CLOSED, no line), lets the compiles it
+    started finish for the next run, at nice 19 and saying so on a line of its own
+    (crashnlp.numerics.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops them); any other
+    ending stops them, its one line the only one."""
     code = 1
     try:
         code = _command(list(sys.argv[1:] if argv is None else argv))
         return code
     finally:
-        if code == 0:
+        if code in (0, PIPE_CLOSED):
             release_compiles()
         else:
             stop_compiles()
+
+
+def _quiet_stdout() -> None:
+    """Send what is still to be written to stdout, its reader gone, to the null device, so that
+    the interpreter's flush at exit raises no BrokenPipeError of its own."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _command(argv: list[str]) -> int:
@@ -784,6 +797,9 @@ def _command(argv: list[str]) -> int:
         return _fail("interrupted (SIGINT)", 130, debug)
     except InputError as exc:
         return _fail(f"error: {' '.join(str(exc).split())}", 2, debug)
+    except BrokenPipeError:  # stdout's reader left: not the run's failure (Python's note on SIGPIPE)
+        _quiet_stdout()
+        return PIPE_CLOSED
     except Exception as exc:  # noqa: BLE001 - the one place that turns any failure into one line
         if _received:  # a signal that arrived inside compiled code comes back as another exception
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)
