@@ -99,6 +99,29 @@ def test_bad_problem_file(name, tmp_path, capsys):
     assert not out.exists()
 
 
+SPRING = {"model.spring.values": {"bounds": ["0 kN", "2 MN"]}}
+
+
+@pytest.mark.parametrize(
+    ("command", "changes", "expected"),
+    [
+        ("identify", {"estimate": SPRING}, "tests: no test has data to fit"),
+        ("identify", {"tests": [{"name": "a", "data": DATA}]}, "estimate: names no parameter to identify"),
+        ("design", {"kind": "design", "design": {"minimize": "peak_decel"}}, "estimate: names no design variable"),
+    ],
+)
+@pytest.mark.parametrize("check", [["--check"], []])
+def test_nothing_to_solve_for_is_refused_naming_file_and_key_by_check_too(tmp_path, capsys, command, changes, expected, check):
+    """A fit with no test data or no estimate, a design with no design variable: `--check` says so
+    as the run does (it said ok), the line naming the file and its key."""
+    path = tmp_path / "nothing.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, changes)))
+    out = tmp_path / "out"
+    assert main([command, str(path), "--out", str(out), *check]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {path}: {expected}\n"
+    assert not out.exists()
+
+
 @pytest.mark.parametrize(
     ("text", "expected"),
     [
