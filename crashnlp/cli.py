@@ -277,7 +277,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import still_moving
-    from crashnlp.results.result import pull_text
+    from crashnlp.results.result import pull_texts
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -294,9 +294,11 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
-    if result.at_bound:
-        pulls = ", ".join(f"{label} ({pull_text(pull)})" for label, pull in result.at_bound.items())
+    if result.at_bound and result.kind == "identify":
+        pulls = ", ".join(f"{label} ({pull})" for label, pull in pull_texts(result).items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
+    elif result.at_bound:
+        print(f"  at a bound: {', '.join(result.at_bound)}")
     if result.resolution:
         print(f"  {result.resolution['note']}")
     for note in result.identified.tail_notes() if result.identified is not None else ():
