@@ -49,7 +49,9 @@ class ChannelFit:
 class ActiveConstraint:
     """An inequality at its bound: its kind, its test (None for shared), where and what it is worth.
 
-    `multiplier` sums |lambda| over the points: d objective / d bound (objective units per SI unit)."""
+    `multiplier` sums -lambda over the points: d objective / d bound (objective units per SI unit),
+    negative where raising the bound lowers the objective; `max_multiplier` is the point's of
+    largest magnitude (crashnlp.optimize.outcome.active_constraints)."""
 
     kind: str  # "bound", "monotone_crush", "monotone_spring", "design", "parameter_bound", ...
     name: str
