@@ -30,6 +30,7 @@ DATA = {
 
 CASES = {
     "unknown key": ({"vehicle": {"masss": "1 kg"}}, "vehicle.masss: unknown key"),
+    "internal key": ({"base_dir": "/etc"}, "base_dir: unknown key"),
     "wrong type": ({"vehicle": {"suspension": "stiff"}}, "vehicle.suspension:"),
     "wrong unit": ({"vehicle": {"mass": "2550 m"}}, "vehicle.mass:"),
     "unreadable quantity": ({"vehicle": {"cg_to_impact": "far away"}}, "vehicle.cg_to_impact: cannot read"),
@@ -244,6 +245,7 @@ def test_schema_lists_the_problem_keys(capsys):
     assert main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
     assert {"vehicle", "model", "tests", "estimate", "constraints", "transcription"} <= set(schema["properties"])
+    assert "base_dir" not in schema["properties"]  # where a loaded problem's paths start: the loader's, no file's key
 
 
 def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):

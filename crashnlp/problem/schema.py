@@ -748,7 +748,7 @@ class Problem(Strict):
     uncertainty: Uncertainty = Uncertainty()
     design: Design | None = None
     reference: Reference = Reference()
-    base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
+    base_dir: Path = Field(Path("."), exclude=True)  # where its relative paths start: problem_from_dict's, never a file's
     estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
 
     @field_validator("estimate", mode="before")
