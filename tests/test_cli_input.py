@@ -19,7 +19,7 @@ from crashnlp.base.records import Record
 from crashnlp.cli import main
 from crashnlp.problem.load import read_yaml
 from crashnlp.problem.parse import UniqueKeyLoader
-from crashnlp.results.files import RECORD, claim, deriving
+from crashnlp.results.files import RECORD, claim, deriving, write_columns
 from crashnlp.results.jsonfile import write_json
 
 DATA = {
@@ -374,6 +374,12 @@ def test_a_simulation_of_a_replaced_fit_goes_with_it_unless_run_again_since(tmp_
     assert (again / "simulation.json").is_file() and (other / "simulation.json").is_file()
     err = capsys.readouterr().err
     assert "removed simulation/" in err and "kept again/" in err
+
+
+def test_a_csv_column_writes_a_zero_as_0_not_minus_0(tmp_path):
+    """A crush of -0.0 at t = 0 (a product of a negative and a zero) was written "-0"."""
+    write_columns(tmp_path / "c.csv", {"time_s": np.array([0.0, 1e-3]), "crush_m": np.array([-0.0, -2.5e-7])})
+    assert (tmp_path / "c.csv").read_text().splitlines() == ["time_s,crush_m", "0,0", "0.001,-2.5e-07"]
 
 
 def test_a_run_that_fails_leaves_no_folder_it_made(tmp_path):

@@ -48,13 +48,14 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
 
 
 def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:
-    """A CSV of numeric columns (header: their names), nine significant digits; `comments` go
-    first, each a line starting with "# " (what the columns are, a check of them)."""
+    """A CSV of numeric columns (header: their names), nine significant digits, a zero as 0 (not
+    -0: adding 0.0 makes -0.0 0.0); `comments` go first, each a line starting with "# " (what the
+    columns are, a check of them)."""
     with atomic_open(path) as fh:
         fh.writelines(f"# {line}\n" for line in comments)
         writer = csv.writer(fh)
         writer.writerow(columns)
-        for row in zip(*(np.asarray(c, dtype=float) for c in columns.values())):
+        for row in zip(*(np.asarray(c, dtype=float) + 0.0 for c in columns.values())):
             writer.writerow([f"{v:.9g}" for v in row])
 
 
