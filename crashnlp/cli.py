@@ -3,8 +3,8 @@
 One error path: bad input (a file, a key, an option) exits 2 with one line
 naming it, and nothing is written; a failure the input did not cause (the
 solver, the integrator, a cluster, the file system) exits 1 with one line;
-SIGINT and SIGTERM exit 130 and 143 with one line. No traceback unless
-`--debug` asks for it.
+SIGINT and SIGTERM exit 130 and 143 with one line; a reader of stdout that
+left (`| head`) ends it with 141 and none. No traceback unless `--debug` asks for it.
 """
 
 from __future__ import annotations
@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import re
 import signal
 import sys
@@ -29,7 +30,7 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, run_name
+from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
@@ -250,7 +251,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import still_moving
-    from crashnlp.results.result import pull_text
+    from crashnlp.results.result import pull_texts
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -267,9 +268,11 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
-    if result.at_bound:
-        pulls = ", ".join(f"{label} ({pull_text(pull)})" for label, pull in result.at_bound.items())
+    if result.at_bound and result.kind == "identify":
+        pulls = ", ".join(f"{label} ({pull})" for label, pull in pull_texts(result).items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
+    elif result.at_bound:
+        print(f"  at a bound: {', '.join(result.at_bound)}")
     if result.resolution:
         print(f"  {result.resolution['note']}")
     for note in result.identified.tail_notes() if result.identified is not None else ():
@@ -414,7 +417,7 @@ def cmd_init(args) -> int:
     speed, mass = what_if(args.speed, args.mass, prefix="--")  # as simulate's what-if: one message for one mistake
     options = Options(args.format, mass, speed, columns, args.name, args.force)
     paths = [Path(p) for p in args.data]
-    problem, notes = init_problem(paths, Path(args.out), options)
+    problem, notes = init_problem(paths, file_option(args.out), options)
     print(
         f"wrote {args.out}: {problem.name}, {len(problem.model.spring.known_values)} breakpoints to "
         f"{problem.model.spring.placed_breakpoints[-1] * 1e3:.0f} mm, estimates {', '.join(problem.estimate)}"
@@ -435,7 +438,7 @@ def cmd_report(args) -> int:
     """The page of a fit's, a simulation's or a study's folder (crashnlp.report)."""
     from crashnlp.report import write_report
 
-    print(f"wrote {write_report(Path(args.folder), Path(args.out) if args.out else None)}")
+    print(f"wrote {write_report(Path(args.folder), file_option(args.out) if args.out else None)}")
     return 0
 
 
@@ -481,7 +484,7 @@ def _export_curves(args, folder: Path) -> int:
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
         return 0
     own = folder / f"{result.name}.k"
-    out = check_writable_file(Path(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     with deriving(folder, out):
         export.write_keyword_file(out, result.name, folder, curves)
     print(f"wrote {out}")
@@ -502,7 +505,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
-    out = check_writable_file(Path(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse)
     print(pulse.check_line())
@@ -724,20 +727,32 @@ def _fail(message: str, code: int, debug: bool) -> int:
     return code
 
 
+PIPE_CLOSED = 141  # 128 + SIGPIPE's 13: a shell's status for a writer ended by its reader leaving (`| head`)
+
+
 def main(argv: list[str] | None = None) -> int:
     """Run one command; every ending is an exit status and at most one line on stderr. A command
-    that succeeded lets the compiles it started finish for the next run, at nice 19 and saying so
-    on a line of its own (crashnlp.numerics.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops
-    them); any other ending stops them, its one line the only one."""
+    that succeeded, or whose reader of stdout left (PIPE_CLOSED, no line), lets the compiles it
+    started finish for the next run, at nice 19 and saying so on a line of its own
+    (crashnlp.numerics.compile_job.release_compiles; CRASHNLP_KEEP_COMPILING=0 stops them); any other
+    ending stops them, its one line the only one."""
     code = 1
     try:
         code = _command(list(sys.argv[1:] if argv is None else argv))
         return code
     finally:
-        if code == 0:
+        if code in (0, PIPE_CLOSED):
             release_compiles()
         else:
             stop_compiles()
+
+
+def _quiet_stdout() -> None:
+    """Send what is still to be written to stdout, its reader gone, to the null device, so that
+    the interpreter's flush at exit raises no BrokenPipeError of its own."""
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(devnull, sys.stdout.fileno())
+    os.close(devnull)
 
 
 def _command(argv: list[str]) -> int:
@@ -760,6 +775,9 @@ def _command(argv: list[str]) -> int:
         return _fail("interrupted (SIGINT)", 130, debug)
     except InputError as exc:
         return _fail(f"error: {' '.join(str(exc).split())}", 2, debug)
+    except BrokenPipeError:  # stdout's reader left: not the run's failure (Python's note on SIGPIPE)
+        _quiet_stdout()
+        return PIPE_CLOSED
     except Exception as exc:  # noqa: BLE001 - the one place that turns any failure into one line
         if _received:  # a signal that arrived inside compiled code comes back as another exception
             return _fail(f"interrupted ({_received[0].signame})", _received[0].code, debug)

@@ -19,7 +19,7 @@ from crashnlp.base.records import Record
 from crashnlp.cli import main
 from crashnlp.problem.load import read_yaml
 from crashnlp.problem.parse import UniqueKeyLoader
-from crashnlp.results.files import RECORD, claim, deriving
+from crashnlp.results.files import RECORD, claim, deriving, write_columns
 from crashnlp.results.jsonfile import write_json
 
 DATA = {
@@ -30,6 +30,7 @@ DATA = {
 
 CASES = {
     "unknown key": ({"vehicle": {"masss": "1 kg"}}, "vehicle.masss: unknown key"),
+    "internal key": ({"base_dir": "/etc"}, "base_dir: unknown key"),
     "wrong type": ({"vehicle": {"suspension": "stiff"}}, "vehicle.suspension:"),
     "wrong unit": ({"vehicle": {"mass": "2550 m"}}, "vehicle.mass:"),
     "unreadable quantity": ({"vehicle": {"cg_to_impact": "far away"}}, "vehicle.cg_to_impact: cannot read"),
@@ -72,6 +73,10 @@ CASES = {
         {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"column": True}}}}]},
         "tests.0.data.channels.accel.column: a column's name, or its number counted from 1\n",
     ),
+    "bias window past impact": (
+        {"tests": [{"name": "a", "data": {**DATA, "bias_window": ["0 s", "0.05 s"]}}]},
+        "tests.0.data.bias_window: ends at 0.05 s, after impact (t = 0)",
+    ),
     "curves true": (
         {"tests": [{"name": "a", "data": {**DATA, "channels": {"accel": {"curves": [93, False]}}}}]},
         "tests.0.data.channels.accel.curves: a list of curve numbers, or all-valid-barrier-fx (1: Input should be a number,"
@@ -92,6 +97,29 @@ def test_bad_problem_file(name, tmp_path, capsys):
     assert err.count("\n") == 1 and "Traceback" not in err
     assert expected in err, err
     assert str(path) in err
+    assert not out.exists()
+
+
+SPRING = {"model.spring.values": {"bounds": ["0 kN", "2 MN"]}}
+
+
+@pytest.mark.parametrize(
+    ("command", "changes", "expected"),
+    [
+        ("identify", {"estimate": SPRING}, "tests: no test has data to fit"),
+        ("identify", {"tests": [{"name": "a", "data": DATA}]}, "estimate: names no parameter to identify"),
+        ("design", {"kind": "design", "design": {"minimize": "peak_decel"}}, "estimate: names no design variable"),
+    ],
+)
+@pytest.mark.parametrize("check", [["--check"], []])
+def test_nothing_to_solve_for_is_refused_naming_file_and_key_by_check_too(tmp_path, capsys, command, changes, expected, check):
+    """A fit with no test data or no estimate, a design with no design variable: `--check` says so
+    as the run does (it said ok), the line naming the file and its key."""
+    path = tmp_path / "nothing.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, changes)))
+    out = tmp_path / "out"
+    assert main([command, str(path), "--out", str(out), *check]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {path}: {expected}\n"
     assert not out.exists()
 
 
@@ -217,6 +245,7 @@ def test_schema_lists_the_problem_keys(capsys):
     assert main(["schema"]) == 0
     schema = json.loads(capsys.readouterr().out)
     assert {"vehicle", "model", "tests", "estimate", "constraints", "transcription"} <= set(schema["properties"])
+    assert "base_dir" not in schema["properties"]  # where a loaded problem's paths start: the loader's, no file's key
 
 
 def test_an_ipopt_option_typo_stops_identify_before_any_solve(tmp_path, capsys):
@@ -345,6 +374,12 @@ def test_a_simulation_of_a_replaced_fit_goes_with_it_unless_run_again_since(tmp_
     assert (again / "simulation.json").is_file() and (other / "simulation.json").is_file()
     err = capsys.readouterr().err
     assert "removed simulation/" in err and "kept again/" in err
+
+
+def test_a_csv_column_writes_a_zero_as_0_not_minus_0(tmp_path):
+    """A crush of -0.0 at t = 0 (a product of a negative and a zero) was written "-0"."""
+    write_columns(tmp_path / "c.csv", {"time_s": np.array([0.0, 1e-3]), "crush_m": np.array([-0.0, -2.5e-7])})
+    assert (tmp_path / "c.csv").read_text().splitlines() == ["time_s,crush_m", "0,0", "0.001,-2.5e-07"]
 
 
 def test_a_run_that_fails_leaves_no_folder_it_made(tmp_path):

@@ -101,6 +101,18 @@ def test_a_command_through_the_console_entry_writes_what_main_writes(tmp_path):
     assert (bad.returncode, bad.stdout) == (2, "") and bad.stderr.count("\n") == 1 and "none.yaml" in bad.stderr
 
 
+def test_a_reader_of_stdout_that_leaves_ends_the_command_quietly():
+    """`crashnlp schema | head -1` whose reader left before the command wrote: no line on stderr
+    (it said "crashnlp: error: Broken pipe", exit 1) and the status of a writer ended by SIGPIPE."""
+    read, write = os.pipe()
+    os.close(read)  # the reader has left before the command writes its first line
+    proc = subprocess.run(
+        [sys.executable, "-m", "crashnlp", "schema"], cwd=ROOT, stdout=write, stderr=subprocess.PIPE, timeout=60
+    )
+    os.close(write)
+    assert (proc.returncode, proc.stderr) == (141, b"")  # crashnlp.cli.PIPE_CLOSED
+
+
 def test_the_version_is_the_packages():
     """`crashnlp --version` prints the package's version and ends with 0, before any command."""
     from crashnlp import __version__

@@ -76,6 +76,7 @@ def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page
     assert len(self_contained(page)) == len(FIGURES)
     assert all(label in page and label in console for label in labels)
     assert f"{sim['metrics']['max_displacement_m'] * 1e3:.1f} [" in page  # 64 km/h: value and interval in one cell
+    assert "written by crashnlp compare-results:" in page  # the command that wrote it (it said crashnlp report)
 
 
 def test_two_fits_of_one_vehicle_are_told_apart_by_their_folders(folders, tmp_path):

@@ -115,6 +115,16 @@ def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
     assert err.endswith("56 is 3.6 times the data's: a plain number is m/s, not km/h\n")
 
 
+def test_a_velocity_channel_in_the_wrong_unit_is_named_not_the_speed(tmp_path, capsys):
+    """The speed has its unit and the velocity column is in m/s, read as km/h: the channel's unit is
+    at fault, named as the key (it said `vehicle.speed: ... a plain number is m/s, not km/h`)."""
+    test = pickup()["tests"][0]
+    channels = {**test["data"]["channels"], "velocity": {"column": "vel_x_mps", "unit": "km/h"}}
+    raw = pickup({"tests": [{**test, "data": {**test["data"], "channels": channels}}]})
+    err = refused(tmp_path, capsys, raw, "tests.0.data.channels.velocity.unit: 15.5556 m/s (56 km/h), but the velocity data")
+    assert err.endswith("the column's numbers are the speed in m/s: the velocity channel's unit is not km/h\n")
+
+
 @pytest.mark.parametrize(
     ("rows", "expected"),
     [

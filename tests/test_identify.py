@@ -330,7 +330,12 @@ def test_pitch_bound_below_the_optimum_becomes_active(data_file):
 
     active = {c.name: c for c in active_constraints(tight)}
     upper = active["t56.bound.pitch.upper"]
-    assert upper.multiplier > 0 and (upper.kind, upper.test) == ("bound", "t56")
+    assert upper.multiplier < 0 and (upper.kind, upper.test) == ("bound", "t56")
+    # d objective / d bound, signed (it was |lambda|): a looser bound fits better, by as much
+    step = 1e-3 * bound
+    looser = solve(fit_problem(data_file, constraints={"monotone_crush": True, "bounds": {"pitch": [None, float(bound + step)]}}))
+    slope = (looser.result.objective - tight.result.objective) / step
+    assert upper.multiplier == pytest.approx(slope, rel=0.02)
     assert {c.kind for c in active.values()} <= {"bound", "monotone_crush"}  # no dynamics reported as a bound
     assert "t56.bound.pitch.upper" not in {c.name for c in active_constraints(free)}
 

@@ -260,6 +260,7 @@ def test_init_refuses_a_column_of_no_channel_in_one_line(tmp_path, capsys, data,
     [
         ("pickup.csv", [], "--out {tmp}/pickup.csv: is one of the test's data files; name the problem file to write"),
         (".", [], "--out {tmp}: is a folder; name the file to write"),
+        ("new/dir/", [], "--out {tmp}/new/dir/: a folder; name the file to write"),
         ("pickup.csv/p.yaml", [], "--out {tmp}/pickup.csv: exists and is not a folder"),
         (
             "p.yaml",

@@ -189,7 +189,7 @@ ACCEL = {"accel": {"column": "accel_x_g", "unit": "g"}}
         ("0,1\n0.001,1\n", {"accel": {"column": "accel_x_g", "unit": "kg"}}, {}, r"channel accel.*unit 'kg'"),
         ("0,1\n0.001,1\n", ACCEL, {"window": (1.0, 2.0)}, r"channel accel: window .* holds no samples"),
         ("0,1\n0.001,1\n", {**ACCEL, "velocity": {"derive": "integrate"}}, {}, r"channel velocity: .*impact speed"),
-        ("0,1\n0.001,1\n", ACCEL, {"bias_window": (1.0, 2.0)}, r"channel accel: bias window"),
+        ("0,1\n0.001,1\n", ACCEL, {"bias_window": (-2.0, -1.0)}, r"channel accel: bias window"),
     ],
 )
 def test_csv_bad_data_gives_one_line_naming_file_and_channel(tmp_path, rows, channels, kw, message):

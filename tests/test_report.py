@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import base64
+import dataclasses
 import hashlib
 import html
 import json
@@ -18,13 +19,14 @@ from builders import ROOT
 
 from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
-from crashnlp.cli import main
+from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
+from crashnlp.report import result_page
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
-from crashnlp.results.result import Result
+from crashnlp.results.result import LoadingCurve, Result, figure_jobs
 from crashnlp.results.simulation import read_simulation
 from crashnlp.studies.store import CaseStore
 
@@ -68,6 +70,33 @@ def test_identify_report_is_one_page_with_the_figures_metrics_ratings_and_every_
     assert "correlation of the estimates" in page
     for note in raw["notes"]:
         assert note in html.unescape(page)
+
+
+@pytest.mark.integration
+def test_a_design_speaks_of_its_design_not_of_data_pulling_or_standard_errors(fit, tmp_path, capsys):
+    """The fit's result as a design's is (a design has no standard errors, its bound pulls 0): the
+    console, the page and the force-crush figure speak of a designed loading curve and of values
+    at a bound, not of how far past it the data pull (it said "(0 std)"), nor of what is not identified."""
+    result = Result.load(fit)
+    label = next(iter(result.at_bound), "model.spring.values[0]")
+    crush = np.linspace(0.0, 0.6, 7)
+    design = dataclasses.replace(
+        result,
+        kind="design",
+        std_errors={},
+        correlation={},
+        not_identified=(),
+        at_bound={label: 0.0},
+        force_crush=LoadingCurve(crush, 1e6 * crush, crush, 1e6 * crush),
+    )
+    _print_solution(design)
+    console = capsys.readouterr().out
+    page = result_page(design, fit)
+    (job,) = [args for kind, args in figure_jobs(design, tmp_path) if kind == "force_crush_figure"]
+    assert f"  at a bound: {label}\n" in console and "std" not in console and "data pull" not in console
+    assert "designed loading curve" in page and "identified loading curve" not in page
+    assert "Not identified" not in page and "data pull" not in page and " std)" not in page
+    assert job[3] == f"{result.name}: designed loading curve" and "designed loading curve" in job[1]
 
 
 @pytest.mark.integration
@@ -282,6 +311,9 @@ def test_a_figure_names_a_test_once():
     [
         (["report", "--out", "{tmp}"], "is a folder; name the file to write"),
         (["export", "--format", "ls-dyna", "--out", "{tmp}"], "is a folder; name the file to write"),
+        (["report", "--out", "{tmp}/new/dir/"], "--out {tmp}/new/dir/: a folder; name the file to write"),
+        (["export", "--format", "ls-dyna", "--out", "{tmp}/new/"], "--out {tmp}/new/: a folder; name the file to write"),
+        (["export", "--format", "pulse", "--out", "{tmp}/new/"], "--out {tmp}/new/: a folder; name the file to write"),
         (["export", "--format", "pulse", "--test", "nope"], "--test nope: {fit} has tests 56kph"),
         (["export", "--format", "pulse", "--rate", "0"], "--rate 0: must be a positive number of Hz"),
         (["export", "--format", "pulse", "--rate", "100 Hz"], "CFC 60 needs a sample rate above"),
@@ -297,7 +329,7 @@ def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, caps
     argv = [options[0], str(fit), *(o.format(tmp=tmp_path, fit=fit) for o in options[1:])]
     assert main(argv) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and message.format(fit=fit) in err, err
+    assert err.count("\n") == 1 and message.format(fit=fit, tmp=tmp_path) in err, err
     assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
 
 

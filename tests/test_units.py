@@ -34,6 +34,7 @@ def new_process(monkeypatch) -> None:
     [
         ("56 km/h", "m/s", 56 / 3.6),
         ("30 g", "m/s^2", 30 * G0),  # g of an acceleration is standard gravity, not gram
+        ("30 G", "m/s^2", 30 * G0),  # and G, as NHTSA's files write it, not gauss
         ("2550 kg", "kg", 2550.0),
         ("4800 kg*m^2", "kg*m^2", 4800.0),
         ("70 kN/m", "N/m", 70e3),

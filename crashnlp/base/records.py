@@ -77,7 +77,9 @@ class _Errors:
 
 # --------------------------------------------------------------------------- declarations
 class FieldInfo:
-    """A field's declaration: its type (Annotated's metadata apart), default, limits and description."""
+    """A field's declaration: its type (Annotated's metadata apart), default, limits and description.
+    An `exclude`d field is the code's, not the data's: set from its default (and by model_copy),
+    a key of that name in the data is refused as unknown, and it is in no dump and no JSON Schema."""
 
     def __init__(
         self,
@@ -363,7 +365,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
     n_before = len(errors.items)
     values: dict[str, Any] = {}
     for name, info in cls.model_fields.items():
-        if name in data:
+        if name in data and not info.exclude:
             value = _field(cls, name, info, data[name], (*loc, name), errors, context, values)
             if value is not INVALID:
                 values[name] = value
@@ -372,7 +374,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
         else:
             values[name] = info.get_default()
     for key in data:
-        if key not in cls.model_fields:
+        if key not in cls.model_fields or cls.model_fields[key].exclude:
             errors.add((*loc, key), "extra_forbidden", "Extra inputs are not permitted", data[key])
     if len(errors.items) > n_before:
         return INVALID
@@ -680,7 +682,7 @@ def _record_schema(cls: type[Record], defs: dict[str, Any]) -> dict[str, Any]:
     import inspect  # a docstring's indentation taken off as pydantic's schema did; only when a schema is asked for
 
     properties, required = {}, []
-    for name, info in cls.model_fields.items():
+    for name, info in [(name, info) for name, info in cls.model_fields.items() if not info.exclude]:
         properties[name] = _field_schema(name, info, defs)
         if info.is_required():
             required.append(name)

@@ -1,7 +1,7 @@
 """Unit conversion at the edges: strings such as "56 km/h" become SI floats.
 
-Plain numbers are taken as SI. In crash work "g" next to an acceleration means
-standard gravity, not gram, so that one case is resolved by the dimension asked for.
+Plain numbers are taken as SI. In crash work "g" (or "G") next to an acceleration means
+standard gravity, not gram (nor gauss), so that one case is resolved by the dimension asked for.
 A comma is refused: pint drops it ("40,5 km/h" would be 405 km/h), and a decimal comma
 and a thousands separator cannot be told apart.
 
@@ -27,7 +27,7 @@ from crashnlp.base.cache import KEPT_UNITS, cache_dir, installed_version, used, 
 
 G0 = 9.80665  # standard gravity, m/s^2
 
-_G_TOKEN = re.compile(r"(?<![A-Za-z_])g(?![A-Za-z_0-9])")
+_G_TOKEN = re.compile(r"(?<![A-Za-z_])[gG](?![A-Za-z_0-9])")  # g, or G as NHTSA's files and init write it
 
 
 class UnitError(ValueError):

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.units import to_si
 from crashnlp.data import TestData, load_test_data
 from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
 from crashnlp.problem import Problem, Test
@@ -171,7 +172,8 @@ def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
     """Refuse a test speed the data contradict (speed_contradicted), naming its key."""
     why = speed_contradicted(speed, test, data)
     if why is not None:
-        raise InputError(f"{f'tests.{i}.speed' if test.speed is not None else 'vehicle.speed'}: {why}")
+        key = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+        raise InputError(f"{f'tests.{i}.data.channels.velocity.unit' if _unit_at_fault(speed, test, data) else key}: {why}")
 
 
 def check_mass(i: int, mass: float, test: Test, data: TestData) -> None:
@@ -187,7 +189,9 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
 
     Speeds are said in m/s and km/h, since a problem may give either. A plain number is m/s, so
     `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs into the iteration limit
-    without ever saying why, and the message says so where the speed is that.
+    without ever saying why, and the message says so where the speed is that. Where instead the
+    velocity column's numbers read as m/s are the speed, the channel's unit is at fault
+    (`unit: km/h` for a column in m/s), and the message says that.
     """
     apart = f"more than {SPEED_TOLERANCE * 100:g} %"
     header = data.meta.get("speed")
@@ -202,9 +206,28 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
         late = f" at {begins * 1e3:g} ms, where the record begins after impact" if begins > 0 else ""
         return (
             f"{_speed(speed)}, but the velocity data of test {test.name} start at {_speed(start)}{late} "
-            f"({test.data.file.name}); speed and data disagree by {apart}{_plain_number(speed, start)}"
+            f"({test.data.file.name}); speed and data disagree by {apart}{_velocity_hint(speed, start, test, data)}"
         )
     return None
+
+
+def _velocity_hint(speed: float, start: float, test: Test, data: TestData) -> str:
+    """Why the speed and the velocity data part: the channel's unit, or km/h as a plain number."""
+    unit = _unit_at_fault(speed, test, data)
+    if unit is None:
+        return _plain_number(speed, start)
+    return f"; the column's numbers are the speed in m/s: the velocity channel's unit is not {unit}"
+
+
+def _unit_at_fault(speed: float, test: Test, data: TestData) -> str | None:
+    """The unit the problem gives a measured velocity channel where, read as m/s instead, the
+    column starts at the test's speed; None otherwise."""
+    start = _velocity_start(test, data)
+    unit = test.data.channels["velocity"].unit if start is not None and test.data is not None else None
+    if unit is None or start is None:
+        return None
+    column = start / to_si(f"1 {unit}", "m/s")
+    return unit if column != start and abs(column - speed) <= SPEED_TOLERANCE * abs(speed) else None
 
 
 def _speed(v: float) -> str:

@@ -17,7 +17,6 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.analysis.metrics import OLC_FREE, OLC_RESTRAINED
-from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.optimize.identify import Solution, finish
 from crashnlp.optimize.ocp import OptimalControl, Transcript
@@ -86,8 +85,6 @@ def design(case: Case, verbose: bool = False, progress: TextIO | None = sys.stdo
     """Solve a design problem."""
     goal = (case.problem.design or Design()).minimize  # the file's design section, or the default one
     ocp = OptimalControl(case)
-    if ocp.free.size == 0:
-        raise InputError(f"{case.name}: estimate names no design variable")
     DESIGN_OBJECTIVES[goal](ocp)
     if warm is not None:
         ocp.set_guess(warm)

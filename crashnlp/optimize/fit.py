@@ -17,6 +17,7 @@ import casadi as ca
 import numpy as np
 
 from crashnlp.base.units import G0
+from crashnlp.case.testcase import TestCase
 from crashnlp.data.instrument import AT_REST, RECORDED, Recording, acceleration, from_velocity, recorded, recording
 from crashnlp.data.signal import CFC_CLASSES, resample
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
@@ -64,17 +65,23 @@ class Residual:
         return np.sqrt(self.weight / len(self.columns)) / self.sigma
 
 
+def fitted_channels(test: TestCase) -> list[str]:
+    """The channels of a test's data its fit compares with the model: read, and of weight above 0."""
+    spec = test.spec.data
+    if spec is None or test.data is None:
+        return []
+    return [name for name, ch in spec.channels.items() if name in test.data.channels and ch.weight > 0]
+
+
 def channel_residuals(nlp: NLPBuilder, tr: Transcript) -> list[Residual]:
-    """Residuals of every measured channel of a test on the node grid."""
-    spec = tr.test.spec.data
-    if spec is None or tr.test.data is None:
+    """Residuals of every fitted channel of a test on the node grid."""
+    spec, test_data = tr.test.spec.data, tr.test.data
+    if spec is None or test_data is None:
         return []
     out = []
     times = tr.trajectory.times
-    for name, ch_spec in spec.channels.items():
-        channel = tr.test.data.channels.get(name)
-        if channel is None or ch_spec.weight == 0:
-            continue
+    for name in fitted_channels(tr.test):
+        ch_spec, channel = spec.channels[name], test_data.channels[name]
         cols = np.flatnonzero((times >= channel.time[0] - 1e-12) & (times <= channel.time[-1] + 1e-12))
         sigma = float(ch_spec.sigma) if ch_spec.sigma is not None else DEFAULT_SIGMA[name]  # SI once validated
         cfc = _recorded_class(name, ch_spec.filter if ch_spec.derive is None else None)

@@ -9,7 +9,6 @@ from typing import TextIO
 
 import numpy as np
 
-from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.case.completion import measured_pulse, repaired_start
 from crashnlp.models.simulation import response_of_outputs
@@ -192,10 +191,6 @@ def identify(case: Case, verbose: bool = False, progress: TextIO | None = sys.st
     notes = [note] if note else []
     _say(note, progress)
     ocp, fit = fit_ocp(case)
-    if ocp.free.size == 0:
-        raise InputError(f"{case.name}: estimate names no parameter to identify")
-    if not fit.residuals:
-        raise InputError(f"{case.name}: no test has data to fit")
     from_neighbour = warm is not None and ocp.set_guess(warm)
     theta0 = ocp.nlp.value("theta", ocp.nlp.bounds()["x0"]).ravel()
     result = solve(ocp.nlp, case.problem.solver, verbose, None if verbose else progress, from_neighbour, _refinable(case))

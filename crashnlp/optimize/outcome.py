@@ -219,8 +219,10 @@ def _named(solution: Solution, values: np.ndarray) -> dict:
 def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: float = 1e-6) -> list[ActiveConstraint]:
     """Inequality blocks with points at their bound and a nonzero multiplier.
 
-    The multiplier, summed over the block's points, is what a unit of the bound
-    is worth: d objective / d bound (objective units per SI unit)."""
+    The multiplier, summed over the block's points, is what a unit of the bound is worth:
+    d objective / d bound (objective units per SI unit), -lambda in IPOPT's sign (lambda >= 0 at an
+    upper bound, <= 0 at a lower): negative where raising the bound lowers the objective (an
+    upper bound that holds the optimum back), positive at a lower bound."""
     res, nlp = solution.result, solution.ocp.nlp
     if res is None:
         return []
@@ -235,20 +237,25 @@ def active_constraints(solution: Solution, lam_tol: float = 1e-6, slack_tol: flo
         bound = np.where(np.abs(g - lo) < np.abs(hi - g), lo, hi)
         active = np.flatnonzero((np.abs(lam) > lam_tol) & (slack <= slack_tol * (1 + np.abs(bound))))
         if active.size:
-            worth = np.abs(lam[active])
-            out.append(ActiveConstraint(c.kind, c.name, c.test, int(active.size), float(worth.sum()), float(worth.max())))
+            worth = -lam[active]
+            out.append(ActiveConstraint(c.kind, c.name, c.test, int(active.size), float(worth.sum()), _largest(worth)))
     return out
 
 
+def _largest(worth: np.ndarray) -> float:
+    """The entry of largest magnitude, with its sign."""
+    return float(worth[np.argmax(np.abs(worth))])
+
+
 def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
-    """Parameters at a bound, as active constraints (their multiplier is IPOPT's lam_x)."""
+    """Parameters at a bound, as active constraints: d objective / d bound, -lam_x in SI."""
     if solution.result is None:
         return []
     block = solution.ocp.nlp.blocks["theta"]
-    lam = solution.result.lam_x[block.offset : block.offset + block.shape[0]] / block.scale.ravel()
+    worth = 0.0 - solution.result.lam_x[block.offset : block.offset + block.shape[0]] / block.scale.ravel()  # no -0.0
     labels = solution.ocp.free.labels()
     return [
-        ActiveConstraint("parameter_bound", f"bound.{labels[i]}", None, 1, float(abs(lam[i])), float(abs(lam[i])))
+        ActiveConstraint("parameter_bound", f"bound.{labels[i]}", None, 1, float(worth[i]), float(worth[i]))
         for i in np.flatnonzero(solution.at_bound())
     ]
 

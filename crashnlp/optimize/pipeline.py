@@ -14,9 +14,11 @@ from typing import TextIO
 
 import numpy as np
 
+from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case, case_of
 from crashnlp.case.checks import check_keys, named
 from crashnlp.optimize.design import design
+from crashnlp.optimize.fit import fitted_channels
 from crashnlp.optimize.free import FreeParameters
 from crashnlp.optimize.identify import Solution, identify
 from crashnlp.optimize.outcome import result_of
@@ -27,14 +29,24 @@ from crashnlp.results.result import Result
 def prepare_case(problem: Problem, source: str | None = None) -> Case:
     """The Case of a problem to solve, after every check: its keys (crashnlp.case.checks), the tests'
     data against its speed and mass (Case.check_data: a fit to data that contradict the problem is
-    refused, not run), and the estimate as the solve lays it out (FreeParameters: an initial
-    value of another size than its entry is refused here, not once the output folder is held)."""
+    refused, not run), the estimate as the solve lays it out (FreeParameters: an initial
+    value of another size than its entry is refused here, not once the output folder is held),
+    and something to solve for (check_solvable)."""
     check_keys(problem, source)
     case = case_of(problem, source)
     with named(source or problem.name):
         case.check_data()
-        FreeParameters(case.layout, case.base, case.problem.estimate)
+        check_solvable(case, FreeParameters(case.layout, case.base, case.problem.estimate).size)
     return case
+
+
+def check_solvable(case: Case, free: int) -> None:
+    """Refuse a problem with nothing to solve for: an estimate of no parameter (`free`, the
+    decision variables it lays out), or an identification with no test data to fit."""
+    if free == 0:
+        raise InputError(f"estimate: names no {'design variable' if case.problem.kind == 'design' else 'parameter to identify'}")
+    if case.problem.kind == "identify" and not any(fitted_channels(test) for test in case.tests):
+        raise InputError("tests: no test has data to fit")
 
 
 def solve_case(

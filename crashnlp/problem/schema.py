@@ -516,7 +516,9 @@ class DataSpec(Strict):
     )
     time: TimeColumn = TimeColumn(column="time_s")
     window: tuple[Time, Time] | None = None
-    bias_window: tuple[Time, Time] | None = Field(None, description="pre-impact samples whose mean is removed")
+    bias_window: tuple[Time, Time] | None = Field(
+        None, description="pre-impact samples (ending at t = 0 or before), their mean removed"
+    )
     channels: dict[ChannelName, ChannelSpec]
 
     @model_validator(mode="before")
@@ -553,6 +555,14 @@ class DataSpec(Strict):
     def _ordered(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
         if v is not None and v[1] <= v[0]:
             raise ValueError("window end must be after its start")
+        return v
+
+    @field_validator("bias_window")
+    @classmethod
+    def _pre_impact(cls, v: tuple[float, float] | None) -> tuple[float, float] | None:
+        """A bias window before impact (t = 0): a mean taken over the crash pulse is no sensor offset."""
+        if v is not None and v[1] > 0:
+            raise ValueError(f"ends at {v[1]:g} s, after impact (t = 0): the bias is the mean of pre-impact samples")
         return v
 
     @model_validator(mode="after")
@@ -745,7 +755,7 @@ class Problem(Strict):
     uncertainty: Uncertainty = Uncertainty()
     design: Design | None = None
     reference: Reference = Reference()
-    base_dir: Annotated[Path, WithJsonSchema({"type": "null"})] = Field(Path("."), exclude=True)
+    base_dir: Path = Field(Path("."), exclude=True)  # where its relative paths start: problem_from_dict's, never a file's
     estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
 
     @field_validator("estimate", mode="before")

@@ -22,7 +22,7 @@ import numpy as np
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.result import Result, pull_text
+from crashnlp.results.result import Result, loading_curve_name, pull_texts
 from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
 
@@ -62,7 +62,7 @@ def result_page(result: Result, folder: Path) -> str:
     """The page of a fit or design: the problem in brief, per test its figures, metrics and
     ratings, the estimates with their errors and intervals, their correlations, what sits at a
     bound or is not identified, and the notes."""
-    figures = embedded_figures(folder, ["force_crush.png"], "the identified loading curve")
+    figures = embedded_figures(folder, ["force_crush.png"], f"the {loading_curve_name(result.kind)}")
     correlation = result.correlation
     if correlation.get("labels"):
         from crashnlp.results import plots  # matplotlib: only when a page draws
@@ -78,7 +78,7 @@ def result_page(result: Result, folder: Path) -> str:
         figures=figures,
         parameters=_parameters(result),
         not_identified=result.not_identified,
-        at_bound={label: pull_text(pull) for label, pull in result.at_bound.items()},
+        at_bound=pull_texts(result),
         active=result.active_constraints,
         notes=result.notes,
     )
@@ -181,7 +181,7 @@ def _parameter(
         "how": how,
         "bounds": "-" if bounds is None else f"[{significant(bounds[0], factor)}, {significant(bounds[1], factor)}]",
         "unit": name,
-        "at_bound": pull_text(result.at_bound[label]) if label in result.at_bound else "",
+        "at_bound": pull_texts(result).get(label, ""),
     }
 
 

@@ -48,13 +48,14 @@ def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
 
 
 def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:
-    """A CSV of numeric columns (header: their names), nine significant digits; `comments` go
-    first, each a line starting with "# " (what the columns are, a check of them)."""
+    """A CSV of numeric columns (header: their names), nine significant digits, a zero as 0 (not
+    -0: adding 0.0 makes -0.0 0.0); `comments` go first, each a line starting with "# " (what the
+    columns are, a check of them)."""
     with atomic_open(path) as fh:
         fh.writelines(f"# {line}\n" for line in comments)
         writer = csv.writer(fh)
         writer.writerow(columns)
-        for row in zip(*(np.asarray(c, dtype=float) for c in columns.values())):
+        for row in zip(*(np.asarray(c, dtype=float) + 0.0 for c in columns.values())):
             writer.writerow([f"{v:.9g}" for v in row])
 
 
@@ -344,6 +345,14 @@ def _keep(out: Path, fd: int, run: str, entries: set[str], made: list[Path], der
             folder.rmdir()
         except OSError:
             return
+
+
+def file_option(text: str, option: str = "--out") -> Path:
+    """The file an option names; a name that ends in a separator names a folder (Path drops the
+    separator, so a missing folder `new/dir/` would be written as a file `dir`): refused."""
+    if text.endswith(("/", os.sep)):
+        raise InputError(f"{option} {text}: a folder; name the file to write")
+    return Path(text)
 
 
 def check_writable_file(path: str | Path, option: str = "--out", own: Path | None = None) -> Path:

@@ -49,7 +49,9 @@ class ChannelFit:
 class ActiveConstraint:
     """An inequality at its bound: its kind, its test (None for shared), where and what it is worth.
 
-    `multiplier` sums |lambda| over the points: d objective / d bound (objective units per SI unit)."""
+    `multiplier` sums -lambda over the points: d objective / d bound (objective units per SI unit),
+    negative where raising the bound lowers the objective; `max_multiplier` is the point's of
+    largest magnitude (crashnlp.optimize.outcome.active_constraints)."""
 
     kind: str  # "bound", "monotone_crush", "monotone_spring", "design", "parameter_bound", ...
     name: str
@@ -88,7 +90,7 @@ class TestResult:
 
 @dataclass(frozen=True)
 class LoadingCurve:
-    """The identified loading curve, its breakpoints, a reference curve if the problem has one,
+    """The identified (or designed) loading curve, its breakpoints, a reference curve if the problem has one,
     per test with data its measured m |a| (spring and damper) against CG travel while loading,
     and the curve's 95 % band (low, high: None without a covariance)."""
 
@@ -248,10 +250,18 @@ class Result:
         )
 
 
-def pull_text(pull: float | None) -> str:
-    """A value's pull past its bound as the console and the report give it: in standard errors,
-    or that the data do not determine the value (`Result.at_bound`'s None)."""
-    return "not identified" if pull is None else f"{pull:.2g} std"
+def pull_texts(result: Result) -> dict[str, str]:
+    """Each value at a bound, and how far past it the data pull as the console and the report give
+    it: in standard errors, or that the data do not determine the value (`Result.at_bound`'s None);
+    a design's, which has no data and no standard errors, only sits there."""
+    if result.kind != "identify":
+        return dict.fromkeys(result.at_bound, "at its bound")
+    return {label: "not identified" if pull is None else f"{pull:.2g} std" for label, pull in result.at_bound.items()}
+
+
+def loading_curve_name(kind: str) -> str:
+    """What a result's loading curve is: identified from data, or designed."""
+    return "identified loading curve" if kind == "identify" else "designed loading curve"
 
 
 def _number(value: Any) -> float:
@@ -333,13 +343,13 @@ def _fit_notes(t: TestResult) -> dict[str, str]:
 
 
 def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
-    """The force-crush figure: the identified loading curve (to the tail's start, then the tail
+    """The force-crush figure: the identified or designed loading curve (to the tail's start, then the tail
     predictions follow) and its 95 % band, the unloading from each test's largest crush, the
     reference, and behind them each test's measured m |a| while loading."""
     model = result.identified.model if result.identified is not None else {}
     tail = model.get("spring", {}).get("tail")
     inside = fc.crush <= tail["start"] if isinstance(tail, dict) else np.ones(fc.crush.size, bool)
-    curves = {"identified loading curve": (fc.crush[inside], fc.force[inside])}
+    curves = {loading_curve_name(result.kind): (fc.crush[inside], fc.force[inside])}
     if isinstance(tail, dict):
         x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
         at_start = np.interp(tail["start"], fc.crush, fc.force)
@@ -356,6 +366,6 @@ def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
         curves["reference"] = fc.reference
     several = len(fc.measured) > 1
     measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
-    title = f"{result.name}: identified loading curve"
+    title = f"{result.name}: {loading_curve_name(result.kind)}"
     band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
     return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))
