@@ -65,6 +65,37 @@ def _new_speed(folder, raw: dict, kmh: float):
     return path
 
 
+def test_a_fit_that_did_not_converge_is_simulated_without_intervals_and_says_so(fitted, capsys):
+    """A fit whose status is not ok (IPOPT stopped it): its values are simulated, by the API and
+    the command line alike, with no interval or band, and a note names its status."""
+    folder, path, raw, result, _ = fitted
+    status = "solver failed: Maximum_Iterations_Exceeded"
+    failed = dataclasses.replace(result, status=status)
+    converged = crashnlp.simulate(_new_speed(folder, raw, 40), params=result)["new"]
+    predicted = crashnlp.simulate(_new_speed(folder, raw, 40), params=failed)["new"]
+    assert any(converged.intervals.values()) and converged.bands
+    assert predicted.metrics == converged.metrics
+    assert not any(predicted.intervals.values()) and not predicted.bands and not predicted.parts
+    assert any(status in note and "no intervals" in note for note in predicted.notes)
+    failed.save(folder / "failed", figures=False)
+    assert (
+        main(
+            [
+                "simulate",
+                str(_new_speed(folder, raw, 40)),
+                "--params",
+                str(folder / "failed"),
+                "--no-figures",
+                "--out",
+                str(folder / "failed-40"),
+            ]
+        )
+        == 0
+    )
+    out = capsys.readouterr().out
+    assert "95 % intervals" not in out and f"no intervals: the fit ended {status}" in out
+
+
 def test_the_interval_quantile_is_the_normal_distributions_two_sided_95_percent():
     assert Z95 == NormalDist().inv_cdf(0.975)
 

@@ -506,8 +506,21 @@ def _position(slices: dict[str, slice], label: str) -> int:
 
 
 def traced(tests: dict[str, PredictedTest], source: dict[str, Any]) -> dict[str, PredictedTest]:
-    """The predicted tests, each with the `source` it came from (crashnlp.results.source)."""
-    return {name: replace(test, source=source) for name, test in tests.items()}
+    """The predicted tests, each with the `source` it came from (crashnlp.results.source). Where
+    that source's fit did not converge (its status is not ok), its values are simulated as they
+    are, without intervals or bands: its covariance and its misses are not a converged fit's; a
+    note says so."""
+    status = (source.get("result") or {}).get("status")
+    if status in (None, "ok"):
+        return {name: replace(test, source=source) for name, test in tests.items()}
+    return {name: _unconverged(replace(test, source=source), status) for name, test in tests.items()}
+
+
+def _unconverged(test: PredictedTest, status: str) -> PredictedTest:
+    """`test` without its intervals, bands and their parts, and a note naming the fit's status."""
+    note = f"{test.name}: no intervals: the fit ended {status}, not converged; its values are simulated as they are"
+    none: dict[str, tuple[float, float] | None] = {k: None for k in test.intervals}
+    return replace(test, intervals=none, bands={}, parts={}, form_q={}, notes=(*test.notes, note))
 
 
 def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
