@@ -499,11 +499,7 @@ def test_a_stopped_compile_ends_its_whole_group_and_leaves_no_file(tmp_path):
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
-    source = _big_source(tmp_path / "big.c")
-    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
-    deadline = time.monotonic() + 10
-    while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
-        time.sleep(0.05)
+    job = _compiling(tmp_path)
     group = descendants(job.pid) | {job.pid}
     assert any("cc1" in command(p) for p in group)
     compile_job.stop_compiles()
@@ -520,12 +516,8 @@ def test_kill_with_the_pid_the_line_names_stops_the_compiler_too_and_leaves_no_f
 
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
-    source = _big_source(tmp_path / "big.c")
-    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    job = _compiling(tmp_path)
     try:
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
-            time.sleep(0.05)
         group = descendants(job.pid) | {job.pid}
         assert any("cc1" in command(p) for p in group)
         os.kill(job.pid, signal.SIGTERM)
@@ -535,6 +527,18 @@ def test_kill_with_the_pid_the_line_names_stops_the_compiler_too_and_leaves_no_f
         assert list(tmp_path.iterdir()) == []
     finally:
         compile_job.stop_compiles([job])
+
+
+def _compiling(tmp_path: Path):
+    """A compile of `_big_source` into tmp_path, once its cc1 runs (or 10 s on)."""
+    from crashnlp.numerics import compile_job
+
+    source = _big_source(tmp_path / "big.c")
+    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    deadline = time.monotonic() + 10
+    while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
+        time.sleep(0.05)
+    return job
 
 
 def _big_source(path: Path) -> Path:
@@ -556,12 +560,8 @@ def test_a_released_compile_goes_on_at_the_lowest_priority_and_says_so(tmp_path,
     if shutil.which("cc") is None:
         pytest.skip("no C compiler")
     monkeypatch.delenv(compile_job.KEEP_ENV, raising=False)
-    source = _big_source(tmp_path / "big.c")
-    job = compile_job.start("cc", source, tmp_path / "big.so", ("-O2", "-fPIC", "-shared"), cleanup=(source,))
+    job = _compiling(tmp_path)
     try:
-        deadline = time.monotonic() + 10
-        while time.monotonic() < deadline and not any("cc1" in command(p) for p in descendants(job.pid)):
-            time.sleep(0.05)
         assert _nice(job.pid) < compile_job.BACKGROUND_NICE  # the command's own priority while it runs
         assert compile_job.release_compiles() == [job.pid]
         deadline = time.monotonic() + 5
