@@ -395,9 +395,10 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     `coverage_given` is the coverage of the predictions that have an interval: the calibration's
     part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
     for every prediction of the scenario, that would hold the generator's value as often as issue
-    38's coverage line asks (`needed`), and `one_width_level` as often as LEVEL (a prediction
-    without a value is held by none), for the metrics with a sharpness line (SHARPNESS): what an
-    interval's median half-width cannot go below without knowing which predictions miss most."""
+    38's coverage line asks (`needed`), and `one_width_level` as often as LEVEL (a failed fit, or
+    a prediction without a value or an interval, is held by none), for the metrics with a sharpness
+    line in some scenario (SHARPNESS), in every scenario: what an interval's median half-width
+    cannot go below without knowing which predictions miss most."""
     out: dict = {}
     for scenario in SCENARIOS:
         out[scenario] = {}

@@ -21,7 +21,9 @@ The third, `rate_vehicle`, is the rigid body with a strain-rate sensitive struct
 force is the quasi-static curve times a Cowper-Symonds factor of the crush rate, the load curve
 being the force at the speed it is built for. The force falls as the crush slows within a crash,
 and a slower impact meets a softer structure, which a damper linear in the crush rate only
-approximates.
+approximates. Unloading, the whole line is scaled by the quasi-static factor (its stiffness k_u
+times it): it starts from the force where the loading ended, at a crush rate of zero, and its
+permanent set is the rate-free form's.
 
 Measured channels, like the synthetic pickup of the shared data: CG acceleration with
 structural ringing (two decaying sines) and white noise, velocity, displacement and pitch

@@ -80,7 +80,8 @@ def simulate(
     it was fitted from, or name only a new speed, mass or duration; a problem file may leave out
     its vehicle and model, which then come from the result), and each test also gets 95 %
     intervals of its metrics, bands of its curves and how far it lies past the identified range
-    (crashnlp.analysis.prediction).
+    (crashnlp.analysis.prediction); a fit that did not converge gives no intervals or bands, and
+    a note says so.
     `params` a dict of dotted paths: those values replace the problem's, refused where the command
     line refuses a result.json's (crashnlp.problem.parameters: an InputError naming the key).
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.

@@ -135,7 +135,7 @@ def _print_prediction(test) -> None:
     """One line of the metrics each simulated test gives (with their 95 % intervals when the
     identified model gave them; none where it gives none), one line for a test past the
     identified range, and its notes (which say why a metric is not given)."""
-    from crashnlp.analysis.prediction import extrapolation_line
+    from crashnlp.results.simulation import extrapolation_line
 
     parts = []
     for m in PREDICTED:

@@ -10,7 +10,8 @@ import pytest
 import yaml
 from builders import ROOT
 
-from bench.corpus import random_vehicle
+from bench.corpus import Body, random_vehicle, rate_vehicle, simulate
+from bench.cross_speed import at_speed
 from bench.robustness import SEED, judge, write_test
 from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
@@ -131,3 +132,21 @@ def test_early_steps_leave_every_parameter_a_fifth_of_its_way_to_a_bound(tmp_pat
     path, _ = write_test(random_vehicle(8, SEED), tmp_path, FAST)
     assert least_room(path, None) >= 0.2 - 1e-6  # IPOPT relaxes the bounds by 1e-8
     assert least_room(path, 0.99) < 0.05
+
+
+def test_a_rate_sensitive_structure_is_its_load_curve_at_the_built_speed_and_softer_below_it():
+    """The generator's rate-sensitive form: its loading force is the load curve's at the speed it is
+    built for, 1.15 to 1.5 times the quasi-static one; the force is continuous where the loading
+    ends (crush rate to zero) and the unloading begins; a vehicle tested slower keeps the structure
+    (the same design rate) and crushes further than the same body without rate sensitivity."""
+    v = rate_vehicle(0, 7, speed=56 / 3.6)
+    assert v.rate is not None and v.rate.factor(v.rate.design_rate) == pytest.approx(1.0)
+    assert 1 / 1.5 <= v.rate.factor(0.0) <= 1 / 1.15
+    d = 0.5 * v.load_crush[-3]
+    loading = Body(v).contact(d, 0.0, 1e-12, 0.0, d)[2]
+    unloading = Body(v).contact(d, 0.0, -1e-12, 0.0, d)[2]
+    assert loading == pytest.approx(unloading, rel=0.02) and unloading == pytest.approx(v.rate.factor(0.0) * Body(v).load(d))
+    slow = at_speed(v, 40.0)
+    assert slow.rate == v.rate
+    plain = dataclasses.replace(slow, rate=None)
+    assert simulate(slow)["displacement"].max() > simulate(plain)["displacement"].max()

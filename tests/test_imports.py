@@ -182,17 +182,20 @@ def test_a_result_imports_with_numpy_alone():
 
 @pytest.mark.integration  # a process of its own
 def test_a_simulation_folder_reads_with_numpy_alone(tmp_path):
-    """A simulation's folder is written and read back (as `crashnlp report` reads it) without
-    CasADi, pydantic or matplotlib: its predicted tests are plain results (crashnlp.results.simulation)."""
+    """A simulation's folder is written, read back and its page rendered (as `crashnlp report` does)
+    without CasADi, pydantic or matplotlib, a test past the identified range too: its predicted
+    tests are plain results (crashnlp.results.simulation)."""
     plain_imports(
         "from pathlib import Path; import numpy as np;"
         " from crashnlp.base.outputs import COLUMNS; from crashnlp.report.folders import read_simulation;"
-        " from crashnlp.results.response import Response;"
+        " from crashnlp.report import simulation_page; from crashnlp.results.response import Response;"
         " from crashnlp.results.simulation import PredictedTest, write_simulation;"
         " t = np.linspace(0.0, 0.1, 5); r = Response(t, {o.name: t for o in COLUMNS}, np.zeros((0, 5)));"
         f" out = Path({str(tmp_path / 'sim')!r});"
-        " write_simulation('x', {'t1': PredictedTest('t1', 15.0, 2000.0, r, {'peak_decel_g': 30.0})}, out);"
-        " name, tests = read_simulation(out); assert name == 'x' and tests['t1'].metrics == {'peak_decel_g': 30.0}"
+        " past = {'t1': PredictedTest('t1', 15.0, 2000.0, r, {'peak_decel_g': 30.0}, extrapolation={'speed_mps': 2.0})};"
+        " write_simulation('x', past, out);"
+        " name, tests = read_simulation(out); assert name == 'x' and tests['t1'].metrics == {'peak_decel_g': 30.0};"
+        " assert 'extrapolates: speed 7.2 km/h above the fastest' in simulation_page(name, past, out)"
     )
 
 

@@ -75,7 +75,7 @@ def test_a_fit_that_did_not_converge_is_simulated_without_intervals_and_says_so(
     predicted = crashnlp.simulate(_new_speed(folder, raw, 40), params=failed)["new"]
     assert any(converged.intervals.values()) and converged.bands
     assert predicted.metrics == converged.metrics
-    assert not any(predicted.intervals.values()) and not predicted.bands and not predicted.parts
+    assert not predicted.intervals and not predicted.bands and not predicted.parts and not predicted.calibration
     assert any(status in note and "no intervals" in note for note in predicted.notes)
     failed.save(folder / "failed", figures=False)
     assert (

@@ -519,8 +519,7 @@ def traced(tests: dict[str, PredictedTest], source: dict[str, Any]) -> dict[str,
 def _unconverged(test: PredictedTest, status: str) -> PredictedTest:
     """`test` without its intervals, bands and their parts, and a note naming the fit's status."""
     note = f"{test.name}: no intervals: the fit ended {status}, not converged; its values are simulated as they are"
-    none: dict[str, tuple[float, float] | None] = {k: None for k in test.intervals}
-    return replace(test, intervals=none, bands={}, parts={}, form_q={}, notes=(*test.notes, note))
+    return replace(test, intervals={}, bands={}, parts={}, form_q={}, calibration={}, notes=(*test.notes, note))
 
 
 def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:
@@ -535,18 +534,3 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         title = f"{named_test(name, predicted.name)}: {at}"
         jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs
-
-
-def extrapolation_line(beyond: dict[str, float]) -> str:
-    """How far a prediction lies past the identified range (`PredictedTest.extrapolation`), in words."""
-    parts = []
-    if "displacement_m" in beyond:
-        travel, rel = beyond["displacement_m"], beyond["displacement_rel"]
-        parts.append(f"max displacement {travel * 1e3:.0f} mm ({rel * 100:.0f} %) past the largest fitted")
-    if "speed_mps" in beyond:
-        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
-        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
-    if "mass_kg" in beyond:
-        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
-        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
-    return "extrapolates: " + "; ".join(parts)

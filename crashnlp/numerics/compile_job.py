@@ -156,15 +156,15 @@ def _watch_starter() -> None:
     _stop_group(signal.SIGTERM, None)
 
 
-_stopping = threading.Event()  # this process has sent its group SIGTERM
+_stopping = [False]  # this process has sent its group SIGTERM (a plain flag: set from a signal handler too)
 
 
 def _stop_group(signum: int, frame: object) -> None:
     """SIGTERM to this process (`kill PID`, the pid the starter's line names) stops its whole group,
     the compiler's processes too, once: the group's own SIGTERM (`_watch_starter`, the time limit)
     reaches this process as well, and is not sent again."""
-    if not _stopping.is_set():
-        _stopping.set()
+    if not _stopping[0]:
+        _stopping[0] = True
         os.killpg(0, signal.SIGTERM)
 
 
@@ -177,6 +177,8 @@ def main(argv: list[str]) -> int:
     signal.signal(signal.SIGTERM, _stop_group)  # a handler, not SIG_IGN: the compiler gets the default
     try:
         compiler = subprocess.Popen([*command, str(source), "-o", str(temporary), "-lm"], stdin=subprocess.DEVNULL)
+        if _stopping[0]:  # stopped while the compiler started: it was not in the group yet
+            compiler.terminate()
         threading.Thread(target=_watch_starter, daemon=True).start()
         try:
             code = compiler.wait(timeout=TIME_LIMIT_S)

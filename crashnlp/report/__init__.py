@@ -23,6 +23,7 @@ from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
 from crashnlp.results.result import Result, loading_curve_name, pull_texts
+from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import source_line
 from crashnlp.studies.table import number, shown_column
 
@@ -217,8 +218,6 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
 
 
 def _extrapolation(test: PredictedTest) -> str:
-    from crashnlp.analysis.prediction import extrapolation_line
-
     return extrapolation_line(test.extrapolation) if test.extrapolation else ""
 
 

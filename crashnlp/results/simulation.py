@@ -148,8 +148,9 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
             if test.intervals:
                 entry["intervals"] = {k: None if v is None else list(v) for k, v in test.intervals.items()}
                 entry["interval_parts"] = test.shares()
-                entry["extrapolation"] = test.extrapolation
                 summary["calibration"] = test.calibration
+            if test.intervals or test.extrapolation:
+                entry["extrapolation"] = test.extrapolation
             if test.notes:
                 entry["notes"] = list(test.notes)
             summary["tests"][test.name] = entry
@@ -183,3 +184,18 @@ def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
             source=dict(raw.get("source") or {}),  # none in a simulation.json written before it was recorded
         )
     return str(raw["name"]), tests
+
+
+def extrapolation_line(beyond: dict[str, float]) -> str:
+    """How far a prediction lies past the identified range (`PredictedTest.extrapolation`), in words."""
+    parts = []
+    if "displacement_m" in beyond:
+        travel, rel = beyond["displacement_m"], beyond["displacement_rel"]
+        parts.append(f"max displacement {travel * 1e3:.0f} mm ({rel * 100:.0f} %) past the largest fitted")
+    if "speed_mps" in beyond:
+        side = "above the fastest" if beyond["speed_mps"] > 0 else "below the slowest"
+        parts.append(f"speed {abs(beyond['speed_mps']) * 3.6:.1f} km/h {side} fitted test")
+    if "mass_kg" in beyond:
+        side = "above the heaviest" if beyond["mass_kg"] > 0 else "below the lightest"
+        parts.append(f"mass {abs(beyond['mass_kg']):.0f} kg {side} fitted test")
+    return "extrapolates: " + "; ".join(parts)
