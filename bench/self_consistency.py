@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from bench.common import PICKUP_56
+from crashnlp.base.outputs import Z95
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
@@ -90,7 +91,7 @@ def run(quick: bool = False) -> dict:
     out["coverage"] = {
         "replicates": 4 if quick else 12,
         "pairs": int(z.size),
-        "coverage_95": float(np.mean(np.abs(z) <= 1.96)),
+        "coverage_95": float(np.mean(np.abs(z) <= Z95)),
         "rms_z": float(np.sqrt(np.mean(z**2))),
         "z": z.round(3).tolist(),
     }

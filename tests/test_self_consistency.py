@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from builders import BASE, ROOT, merge, write_channels
 
+from crashnlp.base.outputs import Z95
 from crashnlp.case.case import Case
 from crashnlp.optimize.identify import identify
 from crashnlp.optimize.pipeline import profile
@@ -175,7 +176,7 @@ def test_ninety_five_percent_intervals_cover_the_truth(tmp_path):
         free = ~sol.at_bound()
         z.extend(((est - truth) / sol.std_errors)[free])
     z = np.asarray(z)
-    coverage = np.mean(np.abs(z) <= 1.96)
+    coverage = np.mean(np.abs(z) <= Z95)
     assert coverage >= 0.85, (coverage, z)  # 0.90 of 80 when written
     assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z  # and the intervals are not too wide either
 
@@ -190,7 +191,7 @@ def test_profile_intervals_run_in_parallel_and_agree_with_the_sandwich_near_line
     profile(sol)  # the step after the fit, on the executor the uncertainty section names
     for label in labels:
         p, i = sol.profiles[label], sol.ocp.free.labels().index(label)
-        half = 1.96 * sol.std_errors[i]
+        half = Z95 * sol.std_errors[i]
         assert p["lower"] < p["estimate"] < p["upper"]
         # each end where the re-optimised objective rose by the threshold, near the sandwich's
         assert p["estimate"] - p["lower"] == pytest.approx(half, rel=0.3)
