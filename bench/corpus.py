@@ -21,9 +21,8 @@ The third, `rate_vehicle`, is the rigid body with a strain-rate sensitive struct
 force is the quasi-static curve times a Cowper-Symonds factor of the crush rate, the load curve
 being the force at the speed it is built for. The force falls as the crush slows within a crash,
 and a slower impact meets a softer structure, which a damper linear in the crush rate only
-approximates. Unloading, the whole line is scaled by the quasi-static factor (its stiffness k_u
-times it): it starts from the force where the loading ended, at a crush rate of zero, and its
-permanent set is the rate-free form's.
+approximates. Unloading is elastic, rate-free: the line of stiffness k_u starts from the
+quasi-static force where the loading ended (the loading force at a crush rate of zero).
 
 Measured channels, like the synthetic pickup of the shared data: CG acceleration with
 structural ringing (two decaying sines) and white noise, velocity, displacement and pitch
@@ -278,8 +277,8 @@ class Body:
         if d >= d_max - BAND and rate > 0.0:
             force = float(self.load(d)) * self.rate_factor(rate) + v.crush_damping * rate
         else:
-            static = self.rate_factor(0.0)
-            force = static * min(float(self.load(d)), float(self.load(d_max)) - v.unloading_stiffness * (d_max - d))
+            static = self.rate_factor(0.0)  # the quasi-static curve's share: no crush rate while unloading
+            force = min(static * float(self.load(d)), static * float(self.load(d_max)) - v.unloading_stiffness * (d_max - d))
         return d, rate, max(force, 0.0), z_rel
 
     def rate_factor(self, rate: float) -> float:
