@@ -11,7 +11,7 @@ rate (rate_vehicle); each is built for 56, 64 or 72 km/h in turn. It is fitted f
 problem files, as a user would, at 56 km/h alone, at 40 + 56 and at 40 + 64 km/h, and each fit
 predicts the speeds it was not fitted at, and the 56 km/h fit the same vehicle heavier and
 lighter (SCENARIOS, MASS_RATIOS). A prediction's interval parts
-(crashnlp.analysis.calibration.IntervalParts), its fit's range and the generator's noise-free metrics make
+(crashnlp.results.simulation.IntervalParts), its fit's range and the generator's noise-free metrics make
 one record. The corpus of one seed (SET_SEED) sets the calibration: per metric the power of the
 distance (power), then per class of prediction and metric the split-conformal quantile (LEVEL)
 of the records' scores, its rank from the number of vehicles, or where larger the share LEVEL of any
@@ -62,19 +62,19 @@ from crashnlp.analysis.calibration import (  # noqa: E402
     FILE,
     PITCH_FLOOR,
     Calibration,
-    IntervalParts,
     conformal_quantile,
     reach,
     scale,
     share_quantile,
     shipped,
 )
-from crashnlp.analysis.prediction import PredictedTest, predict  # noqa: E402
+from crashnlp.analysis.prediction import predict  # noqa: E402
 from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
 from crashnlp.case.case import case_of  # noqa: E402
 from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
+from crashnlp.results.simulation import IntervalParts, PredictedTest  # noqa: E402
 
 VERSION = 10
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two

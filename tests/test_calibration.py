@@ -29,10 +29,11 @@ from bench.calibration import (
 from bench.corpus import random_vehicle
 from bench.cross_speed import fit_problem, prediction_problem
 from crashnlp.analysis import calibration as analysis_calibration
-from crashnlp.analysis.calibration import CLASSES, Calibration, IntervalParts, conformal_quantile, reach, scale, shipped, tables
+from crashnlp.analysis.calibration import CLASSES, Calibration, conformal_quantile, reach, scale, shipped, tables
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.problem.forms import COMPARED, FORMS
 from crashnlp.results.identified import IdentifiedRange
+from crashnlp.results.simulation import IntervalParts
 
 
 def _range(*tests: tuple[float, float]) -> IdentifiedRange:

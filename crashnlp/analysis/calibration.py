@@ -22,7 +22,7 @@ past_the_reach is crashnlp.analysis.prediction's estimate of what the force past
 tests reached adds, a rule's guess that the calibration scales like the form term. q is the
 split-conformal quantile of the scores of the calibration corpus: the smallest q with which each
 held-out interval, its other parts as they were, would have covered the generator's value
-(`IntervalParts.score`), its rank from the number of vehicles (one vehicle's predictions of a
+(`crashnlp.results.simulation.IntervalParts.score`), its rank from the number of vehicles (one vehicle's predictions of a
 class miss alike); and at least the score that 95 % of each generator form's predictions do not
 exceed: a vehicle's form is not known when it is predicted, so the interval must hold for every
 form the corpus has, not only for their mix. The power says how the miss grows with the
@@ -48,7 +48,6 @@ import numpy as np
 
 from crashnlp.problem.forms import DEFAULT_FORM
 from crashnlp.results.identified import IdentifiedRange
-from crashnlp.results.simulation import IntervalParts as IntervalParts  # its scores calibrate the tables (bench/calibration.py)
 
 FILE = "calibration.json"  # model form -> its table
 PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
