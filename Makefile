@@ -45,7 +45,7 @@ docs-numbers: $(STAMP)
 	$(BIN)/python scripts/docs_numbers.py
 
 # the intervals' out-of-sample form term: crashnlp/analysis/calibration.json from held-out predictions of a
-# corpus of two generator forms (bench/calibration.py), and the intervals section of results/bench.*
+# corpus of several generator forms (bench/calibration.py: FORMS), a table per model form, and the intervals section of results/bench.*
 calibrate: $(STAMP)
 	$(BIN)/python bench/calibration.py
 
