@@ -1,4 +1,4 @@
-"""crashnlp: frontal-crash models (the elastic pendulum, a rigid body), identified and designed by NLP.
+"""crashnlp: frontal-crash models (pendulum, rigid body, engine on mounts), identified and designed by NLP.
 
 The Python API (crashnlp.api): `load`, `identify`, `design`, `simulate`,
 `compare`, `study`, and the plain `Result` they return. They are imported on first use,

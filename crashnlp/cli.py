@@ -553,7 +553,8 @@ def _solve_parser(sub, kind: str, about: str, problem: str, func) -> None:
 def parser() -> argparse.ArgumentParser:
     ap = Parser(
         prog="crashnlp",
-        description="Frontal rigid-barrier crash models (pendulum, rigid body): simulate, identify, compare, design, study.",
+        description="Frontal rigid-barrier crash models (pendulum, rigid body, engine on mounts):"
+        " simulate, identify, compare, design, study.",
     )
     ap.add_argument("--version", action="version", version=f"crashnlp {__version__}")
     sub = ap.add_subparsers(dest="command", required=True)
@@ -576,7 +577,8 @@ def parser() -> argparse.ArgumentParser:
     about = "choose spring and damper values for a design goal by an NLP (no data)"
     _solve_parser(sub, "design", about, "problem YAML file with kind: design", cmd_design)
 
-    p = sub.add_parser("compare", help="fit every model form (model.form) and choose one by held-out prediction or BIC")
+    about = "fit the model forms (pendulum and rigid body, or those --forms names) and choose one by held-out prediction or BIC"
+    p = sub.add_parser("compare", help=about)
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
     p.add_argument("--out", help="output folder (default results/<problem name>-compare)")
     p.add_argument(

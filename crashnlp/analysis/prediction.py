@@ -16,8 +16,8 @@ Each crash metric's interval adds, in quadrature, 95 % half-widths of (crashnlp.
   calibration sets per metric), and is zero at a fitted test's own;
 - the force past the crush the model reached in the fitted tests, which no test measured: the
   identified loading curve follows its trend there (crashnlp.models.tail), and how well that
-  rule predicts is measured on the identified curve itself, breakpoint by breakpoint inside
-  the reach (`trend_misses`). That miss of the force, grown in proportion to the distance past
+  rule predicts is measured on the identified curve itself, breakpoint by breakpoint over the
+  reach's second half (`trend_misses`). That miss of the force, grown in proportion to the distance past
   the reach over the breakpoint spacing, moves the max displacement (by the energy it adds or takes),
   the stop with it, and the peak deceleration where the peak lies past the reach. That is a
   rule's guess, so the calibrated q scales it as it scales the form term; a peak the force past

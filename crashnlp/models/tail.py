@@ -14,8 +14,9 @@ slope over the mean breakpoint spacing (across the segment before) stands in. Th
 never negative: a falling force continued without end would reach zero and stop resisting
 crush, which no front end does.
 
-`trend_misses` measures the rule on the identified curve itself: from each breakpoint inside the
-reach, the trend of the curve before it predicts the force one spacing on. Those misses, grown
+`trend_misses` measures the rule on the identified curve itself: from each breakpoint of the
+reach's second half, the trend of the curve before it predicts the force one spacing on (the
+first half holds the bumper's first peak, which says nothing of the structure behind it). Those misses, grown
 in proportion to the distance past the reach, are the part of a prediction's interval that the
 data cannot narrow (crashnlp.analysis.prediction).
 """
