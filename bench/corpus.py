@@ -1,6 +1,6 @@
 """Random crash tests from models that are not crashnlp's pendulum (no crashnlp import here).
 
-Three generator forms. The first, a planar rigid body (mass m, pitch inertia I about the CG) hits a rigid wall. The front end
+Three generator mechanisms. The first, a planar rigid body (mass m, pitch inertia I about the CG) hits a rigid wall. The front end
 touches it at a body point L ahead of and h below the CG. Its crush d is how far that point
 has passed the wall; the wall pushes back on it horizontally with the contact force F and
 vertically with nu F (nu of either sign), acting at the wall at the point's height, so the
@@ -23,6 +23,11 @@ being the force at the speed it is built for. The force falls as the crush slows
 and a slower impact meets a softer structure, which a damper linear in the crush rate only
 approximates. Unloading is elastic, rate-free: the line of stiffness k_u starts from the
 quasi-static force where the loading ended (the loading force at a crush rate of zero).
+
+Each mechanism is drawn with a car's or pickup's dimensions (`random_vehicle`, `engine_vehicle`,
+`rate_vehicle`) or a van's or tall SUV's (`tall_vehicle`, `tall_engine_vehicle`, and
+`rate_tall_engine_vehicle`, which has all three at once); bench/calibration.py counts each maker
+as a generator form.
 
 Measured channels, like the synthetic pickup of the shared data: CG acceleration with
 structural ringing (two decaying sines) and white noise, velocity, displacement and pitch

@@ -1,4 +1,4 @@
-"""crashnlp compare: every form fitted, the choice made on what the fits did not see."""
+"""crashnlp compare: the forms fitted (COMPARED, or those --forms names), the choice made on what the fits did not see."""
 
 from __future__ import annotations
 
