@@ -90,7 +90,7 @@ def simulate(
     data (PredictedTest.data) and a note saying why.
     Each test's `source` records the problem file and the fit (crashnlp.results.source: a file's
     path, name, sha256, status and form; a Result in memory, the sha256 of its JSON form)."""
-    from crashnlp.analysis.prediction import own_tests, predict, traced
+    from crashnlp.analysis.prediction import own_tests, traced
     from crashnlp.case.case import case_of
     from crashnlp.problem.parameters import with_parameters
     from crashnlp.problem.schema import what_if
@@ -101,8 +101,8 @@ def simulate(
     if isinstance(problem, Result):
         if params is not None:
             raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
-        tests = predict(case_of(own_tests(problem, problem.name)).at(new_speed, new_mass), problem.identified, dt)
-        return traced(tests, simulation_source(None, problem))
+        case = case_of(own_tests(problem, problem.name)).at(new_speed, new_mass)
+        return traced(case, problem.identified, dt, simulation_source(None, problem))
     source = _source(problem)
     fit = _result(params) if isinstance(params, (str, Path)) else params
     identified = fit.identified if isinstance(fit, Result) else None
@@ -116,9 +116,9 @@ def simulate(
         values = fit.parameters if isinstance(fit, Result) else fit
         named = str(params) if isinstance(params, (str, Path)) else "crashnlp.simulate"
         problem = with_parameters(_problem(problem), values, named) if values else _problem(problem)
-    tests = predict(case_of(problem, source).at(new_speed, new_mass), identified, dt)
     given = params if isinstance(params, (Result, str, Path)) else None
-    return traced(tests, simulation_source(source, given, params if isinstance(params, dict) else None))
+    source_record = simulation_source(source, given, params if isinstance(params, dict) else None)
+    return traced(case_of(problem, source).at(new_speed, new_mass), identified, dt, source_record)
 
 
 def _result(path: str | Path) -> Result:

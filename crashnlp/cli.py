@@ -99,14 +99,14 @@ def cmd_simulate(args) -> int:
         if prepared is None:
             return 0
         case, identified, out, dt, source = prepared
-        from crashnlp.analysis.prediction import predict, simulation_figure_jobs, traced
+        from crashnlp.analysis.prediction import simulation_figure_jobs, traced
         from crashnlp.results.simulation import write_simulation
         from crashnlp.results.source import source_line
 
         fit = _params_folder(source)
         with deriving(fit, out) if fit else nullcontext(), claim(out, run_name("simulate", case.name)):
             with _computing(args):
-                predicted = traced(predict(case, identified, dt), source)
+                predicted = traced(case, identified, dt, source)
             write_simulation(case.name, predicted, out)
             if figures is not None:
                 figures.draw(simulation_figure_jobs(case.name, predicted, out), out)

@@ -109,12 +109,19 @@ SPRING = {"model.spring.values": {"bounds": ["0 kN", "2 MN"]}}
         ("identify", {"estimate": SPRING}, "tests: no test has data to fit"),
         ("identify", {"tests": [{"name": "a", "data": DATA}]}, "estimate: names no parameter to identify"),
         ("design", {"kind": "design", "design": {"minimize": "peak_decel"}}, "estimate: names no design variable"),
+        (
+            "identify",
+            {"model": {"form": "rigid-body"}, "tests": [{"name": "a", "data": DATA}], "estimate": {"vehicle.crush_offset": {}}},
+            "estimate.vehicle.crush_offset: model.form rigid-body does not read it (no equation of the form depends on it);"
+            " leave it out",
+        ),
     ],
 )
 @pytest.mark.parametrize("check", [["--check"], []])
 def test_nothing_to_solve_for_is_refused_naming_file_and_key_by_check_too(tmp_path, capsys, command, changes, expected, check):
-    """A fit with no test data or no estimate, a design with no design variable: `--check` says so
-    as the run does (it said ok), the line naming the file and its key."""
+    """A fit with no test data or no estimate, a design with no design variable, a fit of a value
+    its form does not read (its std infinite, every prediction without intervals): `--check` says
+    so as the run does (it said ok), the line naming the file and its key."""
     path = tmp_path / "nothing.yaml"
     path.write_text(yaml.safe_dump(merge(BASE, changes)))
     out = tmp_path / "out"

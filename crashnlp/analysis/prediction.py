@@ -133,12 +133,18 @@ def check_steps(case: Case | None, dt: float | None, name: str = "dt", source: s
 
 
 def predict(
-    case: Case, identified: IdentifiedModel | None = None, dt: float | None = None, calibration: Calibration | None = None
+    case: Case,
+    identified: IdentifiedModel | None = None,
+    dt: float | None = None,
+    calibration: Calibration | None = None,
+    status: str = "ok",
 ) -> dict[str, PredictedTest]:
     """Every test of `case` simulated (`case` built from a problem the identified model was
     applied to, crashnlp.results.identified.apply); with `identified`, intervals and extrapolation too,
     their form terms from `calibration` (by default the shipped table of the problem's model
-    form). A test's data come with it only where it runs at the speed, mass and duration they
+    form). A fit whose `status` is not ok (it did not converge) gives its values simulated as they
+    are, without intervals or bands: its covariance and its misses are not a converged fit's; a
+    note says so. A test's data come with it only where it runs at the speed, mass and duration they
     were recorded at (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
     positive step, or too many steps, is refused (check_steps)."""
     check_steps(case, dt)
@@ -158,8 +164,8 @@ def predict(
             continue
         beyond = identified.range.beyond(float(np.max(response["displacement"])), test.speed, mass)
         chosen = calibration or shipped(case.problem.model.form)
-        if chosen is None:
-            note = uncalibrated(test.name, case.problem.model.form)
+        if chosen is None or status != "ok":
+            note = uncalibrated(test.name, case.problem.model.form) if status == "ok" else unconverged(test.name, status)
             none: dict[str, tuple[float, float] | None] = {k: None for k in PREDICTED_KEYS}
             notes = first + drift + (note,)
             out[test.name] = PredictedTest(test.name, test.speed, mass, response, metrics, none, {}, beyond, notes, data)
@@ -505,21 +511,18 @@ def _position(slices: dict[str, slice], label: str) -> int:
     return slices[path].start + (int(rest.rstrip("]")) if rest else 0)
 
 
-def traced(tests: dict[str, PredictedTest], source: dict[str, Any]) -> dict[str, PredictedTest]:
-    """The predicted tests, each with the `source` it came from (crashnlp.results.source). Where
-    that source's fit did not converge (its status is not ok), its values are simulated as they
-    are, without intervals or bands: its covariance and its misses are not a converged fit's; a
-    note says so."""
-    status = (source.get("result") or {}).get("status")
-    if status in (None, "ok"):
-        return {name: replace(test, source=source) for name, test in tests.items()}
-    return {name: _unconverged(replace(test, source=source), status) for name, test in tests.items()}
+def traced(
+    case: Case, identified: IdentifiedModel | None, dt: float | None, source: dict[str, Any]
+) -> dict[str, PredictedTest]:
+    """`predict`'s tests, each with the `source` it came from (crashnlp.results.source), with
+    intervals where that source's fit converged (its status ok, or no fit named)."""
+    status = (source.get("result") or {}).get("status") or "ok"
+    return {name: replace(test, source=source) for name, test in predict(case, identified, dt, status=status).items()}
 
 
-def _unconverged(test: PredictedTest, status: str) -> PredictedTest:
-    """`test` without its intervals, bands and their parts, and a note naming the fit's status."""
-    note = f"{test.name}: no intervals: the fit ended {status}, not converged; its values are simulated as they are"
-    return replace(test, intervals={}, bands={}, parts={}, form_q={}, calibration={}, notes=(*test.notes, note))
+def unconverged(name: str, status: str) -> str:
+    """The note of a test predicted from a fit that did not converge."""
+    return f"{name}: no intervals: the fit ended {status}, not converged; its values are simulated as they are"
 
 
 def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path) -> list[Job]:

@@ -335,6 +335,15 @@ class CrashModel(ABC):
         names = (["x", "p", "crush", "v0"], ["xdot", "y", "force", "x0"])
         return ca.Function("model", [self.x, self.p, crush, v0], [xdot, y, force, x0], *names)
 
+    def unread(self, paths: Sequence[str]) -> list[str]:
+        """The entries of `paths` (dotted parameter paths) that none of the form's equations
+        reads (its outputs, right-hand side and initial state): a value a fit cannot determine
+        and a design cannot move, such as the pendulum's crush offset in a rigid body."""
+        v0 = ca.SX.sym("v0")
+        reads = ca.vertcat(self.outputs(self.x, self.p), self.rhs(self.x, self.p), self.initial_state(self.p, v0))
+        slices = self.layout.slices()
+        return [path for path in paths if not ca.depends_on(reads, self.p[slices[path]])]
+
     def cached(self, key: tuple, build: Callable[[], Any]) -> Any:
         """What `build` makes, built once per model and key: the simulator's integrators and
         compiled functions, which repeat with the same shapes."""

@@ -37,7 +37,6 @@ from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import TextIO
 
-import casadi as ca
 import numpy as np
 
 from crashnlp.analysis.metrics import lift_off
@@ -125,14 +124,8 @@ def with_form(problem: Problem, form: str) -> Problem:
     """The problem with `model.form` set to `form`, less the estimate entries the form's
     equations do not read (its outputs, right-hand side and initial state)."""
     changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
-    model = case_of(changed).model  # refuses a problem the form cannot model
-    if not changed.estimate:
-        return changed
-    v0 = ca.SX.sym("v0")
-    reads = ca.vertcat(model.outputs(model.x, model.p), model.rhs(model.x, model.p), model.initial_state(model.p, v0))
-    slices = model.layout.slices()
-    used = {path: spec for path, spec in changed.estimate.items() if ca.depends_on(reads, model.p[slices[path]])}
-    return changed.model_copy(update={"estimate": used})
+    unread = case_of(changed).model.unread(list(changed.estimate))  # refuses a problem the form cannot model
+    return changed.model_copy(update={"estimate": {k: v for k, v in changed.estimate.items() if k not in unread}})
 
 
 def compare(

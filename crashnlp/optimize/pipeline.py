@@ -31,13 +31,25 @@ def prepare_case(problem: Problem, source: str | None = None) -> Case:
     data against its speed and mass (Case.check_data: a fit to data that contradict the problem is
     refused, not run), the estimate as the solve lays it out (FreeParameters: an initial
     value of another size than its entry is refused here, not once the output folder is held),
-    and something to solve for (check_solvable)."""
+    no entry its model form does not read (check_read), and something to solve for (check_solvable)."""
     check_keys(problem, source)
     case = case_of(problem, source)
     with named(source or problem.name):
         case.check_data()
+        check_read(case)
         check_solvable(case, FreeParameters(case.layout, case.base, case.problem.estimate).size)
     return case
+
+
+def check_read(case: Case) -> None:
+    """Refuse an estimate entry that no equation of the problem's model form reads: the data
+    would not determine it, and every prediction of the fit would go without intervals."""
+    unread = case.model.unread(list(case.problem.estimate))
+    if unread:
+        raise InputError(
+            f"estimate.{unread[0]}: model.form {case.problem.model.form} does not read it (no equation of the form "
+            "depends on it); leave it out"
+        )
 
 
 def check_solvable(case: Case, free: int) -> None:
