@@ -511,9 +511,7 @@ def _position(slices: dict[str, slice], label: str) -> int:
     return slices[path].start + (int(rest.rstrip("]")) if rest else 0)
 
 
-def traced(
-    case: Case, identified: IdentifiedModel | None, dt: float | None, source: dict[str, Any]
-) -> dict[str, PredictedTest]:
+def traced(case: Case, identified: IdentifiedModel | None, dt: float | None, source: dict[str, Any]) -> dict[str, PredictedTest]:
     """`predict`'s tests, each with the `source` it came from (crashnlp.results.source), with
     intervals where that source's fit converged (its status ok, or no fit named)."""
     status = (source.get("result") or {}).get("status") or "ok"
