@@ -480,15 +480,23 @@ def _export_curves(args, folder: Path) -> int:
     curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
+        _say_unconverged(export.unconverged(result.status))
         with deriving(folder, out):
-            print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves)))
+            print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves, result.status)))
         return 0
     own = folder / f"{result.name}.k"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    _say_unconverged(export.unconverged(result.status))
     with deriving(folder, out):
-        export.write_keyword_file(out, result.name, folder, curves)
+        export.write_keyword_file(out, result.name, folder, curves, result.status)
     print(f"wrote {out}")
     return 0
+
+
+def _say_unconverged(line: str | None) -> None:
+    """An export of a fit that did not converge says so on the console, as its file does."""
+    if line:
+        print(f"crashnlp: {line}")
 
 
 def _export_pulse(args, folder: Path, kind: str) -> int:
@@ -498,16 +506,18 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
 
     if kind == "result":
         result = read_result(folder)
-        name, responses = result.name, {test: (t.response, t.speed) for test, t in result.tests.items()}
+        name, responses, status = result.name, {test: (t.response, t.speed) for test, t in result.tests.items()}, result.status
     else:
         name, tests = read_simulation(folder)
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
+        status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
     test = _chosen_test(folder, responses, args.test)
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    _say_unconverged(export.unconverged(status))
     with deriving(folder, out):
-        export.write_pulse(out, name, test, pulse)
+        export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())
     print(f"wrote {out}")
     return 0

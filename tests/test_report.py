@@ -9,6 +9,7 @@ import hashlib
 import html
 import json
 import re
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -191,6 +192,31 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     resampled = np.interp(t, response.time, response["accel"])
     assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
     assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
+
+
+@pytest.mark.integration
+def test_an_export_of_a_fit_that_did_not_converge_says_so_in_every_file_and_on_the_console(fit, tmp_path, capsys):
+    """Curves and a pulse handed on from a fit IPOPT stopped carry its status: the first comment
+    of the .k file, of each curve CSV and of the pulse, and a console line; a converged fit's do not."""
+    failed = tmp_path / "failed"
+    shutil.copytree(fit, failed)
+    raw = json.loads((failed / "result.json").read_text())
+    status = "solver failed: Maximum_Iterations_Exceeded"
+    (failed / "result.json").write_text(json.dumps({**raw, "status": status}))
+    said = f"NOT CONVERGED: the fit ended {status}"
+    for folder in (fit, failed):
+        capsys.readouterr()
+        assert main(["export", str(folder), "--format", "ls-dyna", "--out", str(tmp_path / f"{folder.name}.k")]) == 0
+        assert main(["export", str(folder), "--format", "csv", "--out", str(tmp_path / f"{folder.name}-curves")]) == 0
+        assert main(["export", str(folder), "--format", "pulse", "--out", str(tmp_path / f"{folder.name}-pulse.csv")]) == 0
+        firsts = [(tmp_path / f"{folder.name}.k").read_text().splitlines()[1]]
+        firsts += [f.read_text().splitlines()[0] for f in sorted((tmp_path / f"{folder.name}-curves").iterdir())]
+        firsts.append((tmp_path / f"{folder.name}-pulse.csv").read_text().splitlines()[0])
+        out = capsys.readouterr().out
+        if folder is failed:
+            assert all(said in line for line in firsts) and out.count(said) == 3
+        else:
+            assert not any("NOT CONVERGED" in line for line in firsts) and "NOT CONVERGED" not in out
 
 
 @pytest.mark.integration

@@ -103,9 +103,19 @@ def _evaluated(expr: ca.DM) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- ls-dyna
-def keyword_file(name: str, source: Path, curves: Curves) -> str:
-    """The .k text: *KEYWORD, the comment block, a *DEFINE_CURVE_TITLE per curve, *END."""
-    lines = ["*KEYWORD", *(f"$ {line}" for line in _keyword_comments(name, source, curves))]
+def unconverged(status: str | None) -> str | None:
+    """The line an export of a fit that did not converge carries (its IPOPT status), None for
+    one that did or names none."""
+    if status in (None, "ok"):
+        return None
+    return f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model"
+
+
+def keyword_file(name: str, source: Path, curves: Curves, status: str | None = None) -> str:
+    """The .k text: *KEYWORD, the comment block (the fit's status first where it did not
+    converge), a *DEFINE_CURVE_TITLE per curve, *END."""
+    said = [line for line in (unconverged(status),) if line]
+    lines = ["*KEYWORD", *(f"$ {line}" for line in [*said, *_keyword_comments(name, source, curves)])]
     crush, force = curves.loading
     lines += _curve(FIRST_ID, f"{name} loading: force (kN) against crush (mm)", crush * MM, force * KN)
     recovered, back = curves.unloading
@@ -157,18 +167,20 @@ def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
     return ["*DEFINE_CURVE_TITLE", title[:80], names, head, "$#                a1                  o1", *points]
 
 
-def write_keyword_file(path: Path, name: str, source: Path, curves: Curves) -> None:
+def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
     with atomic_open(path) as fh:
-        fh.write(keyword_file(name, source, curves))
+        fh.write(keyword_file(name, source, curves, status))
 
 
-def write_curves_csv(folder: Path, curves: Curves) -> list[Path]:
-    """loading.csv, unloading.csv and (with a damper) damper.csv in `folder`, SI; the paths written."""
+def write_curves_csv(folder: Path, curves: Curves, status: str | None = None) -> list[Path]:
+    """loading.csv, unloading.csv and (with a damper) damper.csv in `folder`, SI, each under the
+    fit's status where it did not converge; the paths written."""
     tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
     if curves.damper is not None:
         tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    said = tuple(line for line in (unconverged(status),) if line)
     for file, (x_name, (x, y)) in tables.items():
-        write_columns(folder / file, {x_name: x, "force_N": y})
+        write_columns(folder / file, {x_name: x, "force_N": y}, said)
     return [folder / f for f in tables]
 
 
@@ -232,9 +244,11 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(-velocity[-1]))
 
 
-def write_pulse(path: Path, name: str, test: str, p: Pulse) -> None:
-    """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is."""
+def write_pulse(path: Path, name: str, test: str, p: Pulse, status: str | None = None) -> None:
+    """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is (the
+    fit's status first where it did not converge)."""
     comments = (
+        *(line for line in (unconverged(status),) if line),
         f"crashnlp export of {name}, test {test}: the model's acceleration, sled-test input",
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),
