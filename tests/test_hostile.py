@@ -115,6 +115,25 @@ def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
     assert err.endswith("56 is 3.6 times the data's: a plain number is m/s, not km/h\n")
 
 
+@pytest.mark.parametrize(("kmh", "refuses"), [(56, True), (40, False)])
+def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_after_the_pulse(tmp_path, capsys, kmh, refuses):
+    """The 40 km/h pickup's acceleration alone (no velocity to start at the speed, no header): told
+    56 km/h, its integral leaves the vehicle moving toward the barrier at 3 m/s once its pulse is
+    over, which a rigid barrier cannot (it fitted and said ok); told 40 km/h it is taken."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-40kph.csv").read_text().splitlines()
+    (tmp_path / "accel.csv").write_text("\n".join(",".join(row.split(",")[:2]) for row in [header, *lines]) + "\n")
+    test = pickup()["tests"][0]
+    data = {**test["data"], "file": str(tmp_path / "accel.csv"), "channels": {"accel": test["data"]["channels"]["accel"]}}
+    raw = pickup({"vehicle": {"speed": f"{kmh} km/h"}, "tests": [{"name": "a", "data": data}]})
+    if refuses:
+        err = refused(tmp_path, capsys, raw, "vehicle.speed: 15.5556 m/s (56 km/h), but the acceleration of test a (accel.csv)")
+        drift = float(re.search(r"toward the barrier at ([\d.]+) m/s once its pulse is over", err)[1])
+        assert 2.0 < drift < 4.0  # 56 - 40 km/h less the rebound
+    else:
+        (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+        assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+
+
 def test_a_velocity_channel_in_the_wrong_unit_is_named_not_the_speed(tmp_path, capsys):
     """The speed has its unit and the velocity column is in m/s, read as km/h: the channel's unit is
     at fault, named as the key (it said `vehicle.speed: ... a plain number is m/s, not km/h`)."""

@@ -15,6 +15,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.units import to_si
 from crashnlp.data import TestData, load_test_data
 from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
+from crashnlp.data.signal import integrate
 from crashnlp.problem import Problem, Test
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
@@ -22,6 +23,14 @@ SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's spee
 # to the kg; ballast and instrumentation differences are a few percent, pounds taken for kg 2.2 times
 MASS_TOLERANCE = 0.10
 SAME_CONDITIONS = 0.01  # relative: a simulated test this close to its data's speed, mass and end runs as they were recorded
+# A rigid barrier brings a vehicle to rest or throws it back. An acceleration that, integrated from
+# the test's speed, still moves the vehicle toward the barrier faster than DRIFT_LIMIT of that speed
+# once its pulse is over (the record's last PULSE_OVER below PULSE_QUIET of its peak) was recorded at
+# another speed, or read in another unit. A van whose pitch lifts its front end off drifts on at a
+# few percent of its speed, and a sensor offset the bias window leaves adds about as much.
+DRIFT_LIMIT = 0.1
+PULSE_OVER = 0.01  # s
+PULSE_QUIET = 0.1
 
 
 @dataclass(frozen=True)
@@ -208,7 +217,31 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
             f"{_speed(speed)}, but the velocity data of test {test.name} start at {_speed(start)}{late} "
             f"({test.data.file.name}); speed and data disagree by {apart}{_velocity_hint(speed, start, test, data)}"
         )
+    drift = _drift_after_pulse(speed, test, data)
+    if drift is not None and drift > DRIFT_LIMIT * speed:
+        file = test.data.file.name if test.data is not None else "the data"
+        return (
+            f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, leaves the "
+            f"vehicle moving toward the barrier at {drift:.3g} m/s once its pulse is over, more than "
+            f"{DRIFT_LIMIT * 100:g} % of the speed: a rigid barrier stops it, so the data were recorded at a lower "
+            "speed, or the accel channel's unit is off"
+        )
     return None
+
+
+def _drift_after_pulse(speed: float, test: Test, data: TestData) -> float | None:
+    """Where no velocity is measured, the velocity the accel channel integrated from `speed` (m/s)
+    leaves over the record's last PULSE_OVER, where its pulse is over (below PULSE_QUIET of its
+    peak); None with a measured velocity, without an accel channel from impact on, or where the
+    pulse goes on to the record's end (a record that ends early)."""
+    accel = data.channels.get("accel")
+    if _velocity_start(test, data) is not None or accel is None or not accel.time[0] <= 0.0 < accel.time[-1] - PULSE_OVER:
+        return None
+    quiet = accel.time >= accel.time[-1] - PULSE_OVER
+    if np.max(np.abs(accel.values[quiet])) > PULSE_QUIET * np.max(np.abs(accel.values)):
+        return None
+    velocity, _ = integrate(accel.time, accel.values, speed)
+    return float(np.mean(velocity[quiet]))
 
 
 def _velocity_hint(speed: float, start: float, test: Test, data: TestData) -> str:
