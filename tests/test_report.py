@@ -101,6 +101,16 @@ def test_a_design_speaks_of_its_design_not_of_data_pulling_or_standard_errors(fi
 
 
 @pytest.mark.integration
+def test_a_response_read_back_is_a_mapping_of_its_named_arrays(fit):
+    """A fitted response iterates and converts like a dict: time, then every output, one length
+    (it raised KeyError: 0, having only __getitem__)."""
+    response = Result.load(fit).tests["56kph"].response
+    table = dict(response)
+    assert list(table)[0] == "time" and set(table) == {"time", *response.outputs}
+    assert {len(v) for v in table.values()} == {response.time.size}
+
+
+@pytest.mark.integration
 def test_a_result_read_back_keeps_each_channels_ratings(fit):
     raw = json.loads((fit / "result.json").read_text())["tests"]["56kph"]["fit"]
     back = Result.load(fit).tests["56kph"].fit

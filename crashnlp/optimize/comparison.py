@@ -67,8 +67,8 @@ class HeldOut:
     status: str
     score: float | None = None  # relative RMSE, mean over the measured channels
     channels: dict[str, float] = field(default_factory=dict)  # relative RMSE per channel
-    max_displacement_error: float | None = None  # relative
-    peak_decel_error: float | None = None  # relative
+    max_displacement_error_rel: float | None = None
+    peak_decel_error_rel: float | None = None
     stop_error_s: float | None = None
     lift_off_s: float | None = None  # the front end lets go while the CG moves on, and the data say it did not
 

@@ -5,6 +5,7 @@ Light (numpy and the outputs registry): a result read back from its files needs 
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -36,6 +37,13 @@ class Response:
 
     def __getitem__(self, name: str) -> np.ndarray:
         return self.time if name == "time" else self.outputs[name]
+
+    def __iter__(self) -> Iterator[str]:
+        """The names it is indexed by: "time", then its outputs."""
+        return iter(("time", *self.outputs))
+
+    def keys(self) -> list[str]:
+        return list(self)
 
     @property
     def loading_end(self) -> float:
