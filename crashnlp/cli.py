@@ -250,7 +250,7 @@ def _metric_text(metrics: Mapping[str, float], key: str, digits: int) -> str:
 def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
-    from crashnlp.analysis.summary import still_moving
+    from crashnlp.analysis.summary import goes_on
     from crashnlp.results.result import pull_texts
 
     s = result.solver
@@ -284,7 +284,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
             cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
             print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
         for who, m in (("the model", model), ("the test record", data)):
-            if m and (words := still_moving(m)):
+            if m and (words := goes_on(m)):
                 print(f"    {who} {words}")
         if t.fit:
             print("    rmse      " + ", ".join(f"{c} {OUTPUT[c].shown(f.rmse)}" for c, f in t.fit.items()))

@@ -10,7 +10,7 @@ from bench.corpus import tall_vehicle
 from bench.cross_speed import truth_metrics
 from bench.truncated import cuts
 from crashnlp.analysis.metrics import crash_metrics, olc
-from crashnlp.analysis.summary import data_metrics, metrics, still_moving
+from crashnlp.analysis.summary import data_metrics, goes_on, metrics, still_moving
 from crashnlp.base.outputs import UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
 from crashnlp.case import testcase
@@ -165,3 +165,29 @@ def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
     data = data_metrics(_recorded(t, a, v, x))
     assert data["max_displacement_m"] is None and data["peak_decel_g"] == pytest.approx(model["peak_decel_g"])
     assert still_moving(data).endswith("so no max displacement, rebound velocity, delta-V or max pitch in it)")
+
+
+def test_a_record_that_ends_while_the_barrier_still_pushes_the_vehicle_back_holds_no_rebound():
+    """An 80 ms half-sine that stops the vehicle, then 20 ms of 200 m/s^2 pushing it back (4 m/s):
+    cut at 90 ms, mid-push, the stop, travel and peak stand, but its rebound (2 m/s so far),
+    velocity change and max pitch are not the crash's, and it gives none of them, data and model
+    alike, saying why (it gave the rebound so far); held whole, it gives them."""
+
+    def pushed(end: float) -> tuple[np.ndarray, ...]:
+        t = np.arange(-0.005, end, 1e-5)
+        a = np.where((t >= 0) & (t <= 0.08), -np.pi * 15.0 / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
+        a = np.where((t > 0.08) & (t <= 0.1), -200.0, a)
+        v, x = integrate(t, a, 15.0)
+        return t, a, v, x
+
+    cut = data_metrics(_recorded(*pushed(0.09)))
+    model = metrics(*pushed(0.09), np.zeros(pushed(0.09)[0].size))
+    for m in (cut, model):
+        assert m["time_zero_velocity_s"] == pytest.approx(0.08, abs=1e-4) and m["max_displacement_m"] is not None
+        assert all(m[k] is None for k in UNSETTLED) and still_moving(m) is None
+        assert goes_on(m) == (
+            "ends at 90.0 ms while the barrier still pushes the vehicle back (its rebound goes on past it,"
+            " so no rebound velocity, delta-V or max pitch in it)"
+        )
+    whole = data_metrics(_recorded(*pushed(0.15)))
+    assert whole["rebound_velocity_mps"] == pytest.approx(4.0, rel=1e-3) and goes_on(whole) is None

@@ -65,8 +65,8 @@ from crashnlp.analysis.summary import (
     accel_spec,
     as_recorded,
     data_curves,
+    goes_on,
     response_metrics,
-    still_moving,
 )
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import METRIC, METRICS, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, Z95, named_test
@@ -221,9 +221,9 @@ def ending_notes(name: str, response: Response, metrics: dict[str, float | None]
 
 
 def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:
-    """A note when the simulation ends before the vehicle stops (crashnlp.analysis.summary.still_moving):
+    """A note when the simulation ends before its crash does (crashnlp.analysis.summary.goes_on):
     which metrics it does not give, where it ends and how fast the vehicle still moves there."""
-    words = still_moving(metrics)
+    words = goes_on(metrics)
     return (f"{name}: the simulation {words}",) if words else ()
 
 
@@ -300,7 +300,7 @@ def _uncertainty(
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
         if miss is None or value is None or not np.isfinite(value):
-            if value is None and key in UNFINISHED and still_moving(metrics):
+            if value is None and key in UNFINISHED and goes_on(metrics):
                 continue  # the simulation's still-moving note says so (_moving)
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
             notes.append(f"{test.name}: no interval for {key}: {why}")

@@ -70,11 +70,15 @@ def values(
 
 
 def withheld(record: dict, accel: np.ndarray) -> dict:
-    """A record's `values` without those its crash goes on to change, where it ends before the
-    vehicle stops: the UNFINISHED ones mid-crash, the UNSETTLED ones after the pulse."""
-    if not still_moving(record):
-        return record
-    return {**record, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
+    """A record's `values` without those its crash goes on to change: where it ends before the
+    vehicle stops, the UNFINISHED ones mid-crash and the UNSETTLED ones after the pulse; where it
+    ends after the stop while the barrier still pushes the vehicle back (MID_CRASH of its peak or
+    more), the UNSETTLED ones, its rebound not over (`goes_on` says so)."""
+    if still_moving(record):
+        return {**record, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
+    if record.get("time_zero_velocity_s") is not None and _mid_crash(accel):
+        return {**record, **dict.fromkeys(UNSETTLED)}
+    return record
 
 
 def _mid_crash(accel: np.ndarray) -> bool:
@@ -93,6 +97,24 @@ def still_moving(metrics: Mapping[str, float | None]) -> str | None:
     moving = f"ends at {end * 1e3:.1f} ms still moving toward the barrier at {speed:.3g} m/s"
     where = "mid-crash" if metrics.get("peak_decel_g") is None else "the crash goes on past it"
     return f"{moving} (no stop: {where}, so no {_listed(_WITHHELD, metrics)} in it)"
+
+
+def goes_on(metrics: Mapping[str, float | None]) -> str | None:
+    """The words for a record whose crash goes on past its end, naming what it does not give: one
+    that ends still moving (`still_moving`), or still pushed back (`_ends_pushed`); None otherwise."""
+    return still_moving(metrics) or _ends_pushed(metrics)
+
+
+def _ends_pushed(metrics: Mapping[str, float | None]) -> str | None:
+    """The words for a record that stops but ends while the barrier still pushes the vehicle back
+    (`withheld`: a stop, and no rebound), naming what it does not give; None otherwise."""
+    stop, end = metrics.get("time_zero_velocity_s"), metrics.get("record_end_s")
+    if stop is None or end is None or metrics.get("rebound_velocity_mps") is not None:
+        return None
+    return (
+        f"ends at {end * 1e3:.1f} ms while the barrier still pushes the vehicle back (its rebound goes on past it, "
+        f"so no {_listed(UNSETTLED, metrics)} in it)"
+    )
 
 
 def _listed(keys: tuple[str, ...], metrics: Mapping[str, float | None]) -> str:

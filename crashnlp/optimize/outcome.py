@@ -16,8 +16,8 @@ from crashnlp.analysis.summary import (
     as_recorded,
     channel_consistency,
     data_metrics,
+    goes_on,
     response_metrics,
-    still_moving,
 )
 from crashnlp.base.outputs import PREDICTED_KEYS, Z95
 from crashnlp.case.case import Case, TestCase
@@ -160,7 +160,7 @@ def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
     notes = []
     for name, t in tests.items():
         for who, metrics in (("record", t.data_metrics), ("model", t.metrics)):
-            text = still_moving(metrics) if metrics is not None else None
+            text = goes_on(metrics) if metrics is not None else None
             notes += [f"test {name}: the {who} {text}"] if text else []
     return tuple(notes)
 
