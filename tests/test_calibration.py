@@ -57,6 +57,10 @@ def test_a_prediction_s_class_and_distance_follow_its_energy_and_its_mass_agains
     assert reach(two, 48 / 3.6, 1500.0) == ("between", pytest.approx(2 * math.log(56 / 48)))
     assert reach(two, 64 / 3.6, 1500.0) == ("up", pytest.approx(2 * math.log(64 / 56)))
     assert reach(two, 32 / 3.6, 1500.0)[0] == "down"
+    # a fitted energy reached by another speed and mass goes somewhere: twice the speed's ratio, or the mass's
+    same = 1500.0 * (56 / 50) ** 2  # kg: 50 km/h with the energy of the 56 km/h test
+    assert reach(one, 50 / 3.6, same) == ("between", pytest.approx(2 * math.log(56 / 50)))
+    assert reach(one, 60 / 3.6, 1500.0 * (56 / 60) ** 2) == ("between", pytest.approx(2 * math.log(60 / 56)))
 
 
 def test_a_result_without_energies_takes_them_from_its_range():

@@ -11,7 +11,9 @@ another trim: its crush stays within the fitted one at the fitted speed); any ot
 energy (m v^2 / 2) against theirs, `down`, `between` or `up`. A heavier vehicle (a payload) is
 `up`: its crush goes past the fitted tests' as a faster vehicle's does, and so do its misses. Its
 distance is |ln(E / E_nearest)|, E_nearest the fitted test's energy closest to its own: a speed
-ratio and a mass ratio in one number. A metric's 95 % half-width adds in quadrature the
+ratio and a mass ratio in one number; or, where larger, how far its speed (twice, its share of
+the energy) or its mass lies outside the fitted ones (|ln| of the ratio): a what-if that trades
+speed for mass at a fitted energy still goes somewhere. A metric's 95 % half-width adds in quadrature the
 parameters' half-width, the model's miss on the fitted tests, and what q scales:
 
     q[class][metric] * scale(metric) * distance ** power[metric]    (the out-of-sample form term)
@@ -71,13 +73,15 @@ def _outside(value: float, bounds: tuple[float, float]) -> float:
 
 def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[Reach, float]:
     """The class of a prediction at `speed` and `mass` against the fitted tests, and its distance
-    |ln(E / E_nearest)|. A lighter vehicle that goes further below the fitted masses than beside
+    (module docstring): |ln(E / E_nearest)|, or twice how far its speed, or how far its mass, lies
+    outside the fitted ones where larger. A lighter vehicle that goes further below the fitted masses than beside
     the fitted speeds (|ln| of the mass ratio against twice the speed ratio's) is `mass-down`; any
     other is `down`, `between` or `up` by its energy against the fitted tests' (a heavier vehicle
     `up`: its crush goes past theirs)."""
     known = np.asarray(energies(fitted))
     energy = 0.5 * mass * speed**2
-    distance = float(np.min(np.abs(np.log(energy / known))))
+    apart = float(np.min(np.abs(np.log(energy / known))))
+    distance = max(apart, 2 * _outside(speed, fitted.speeds), _outside(mass, fitted.masses))
     if mass < fitted.masses[0] and _outside(mass, fitted.masses) > 2 * _outside(speed, fitted.speeds):
         return "mass-down", distance
     if energy < known.min() * (1 - SAME_ENERGY):
