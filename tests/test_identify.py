@@ -448,3 +448,26 @@ def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
     assert gn.result.objective == pytest.approx(exact.result.objective, rel=1e-7)
     # relative to each parameter's scale: a spring value at its zero bound may sit a few newtons inside it
     assert np.all(np.abs(gn.theta - exact.theta) <= 1e-4 * np.abs(exact.theta) + 1e-7 * gn.ocp.free.scale)
+
+
+@pytest.mark.integration
+def test_a_record_cut_mid_crash_does_not_determine_the_unloading_line_and_its_predictions_say_so(tmp_path, capsys):
+    """The shipped pickup cut at 40 ms, still crushing, with the unloading stiffness estimated:
+    nothing in the record unloads, so the fit reports the stiffness not identified (it gave a
+    std of 1e14 N/m, and a 56 km/h prediction intervals of +-3e9 mm), and a prediction, which
+    unloads, gives no intervals and names it."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    raw["tests"][0]["data"]["window"] = ["0 s", "0.04 s"]
+    raw["estimate"]["model.unloading.stiffness"] = {"bounds": ["1 MN/m", "1000 MN/m"]}
+    path = tmp_path / "cut.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["identify", str(path), "--out", str(tmp_path / "fit"), "--no-figures"]) == 0
+    result = json.loads((tmp_path / "fit/result.json").read_text())
+    assert "model.unloading.stiffness" in result["not_identified"]
+    raw["tests"] = [{"name": "own", "speed": "56 km/h", "duration": "0.2 s"}]
+    path.write_text(yaml.safe_dump(raw))
+    capsys.readouterr()
+    assert main(["simulate", str(path), "--params", str(tmp_path / "fit"), "--out", str(tmp_path / "sim"), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    assert "no intervals: the data do not determine model.unloading.stiffness" in out and "95 % intervals" not in out

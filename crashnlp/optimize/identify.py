@@ -22,7 +22,7 @@ from crashnlp.optimize.solved import SolveResult, after
 from crashnlp.optimize.uncertainty import Covariance, SensitivityEvaluator, sensitivity_function
 from crashnlp.optimize.verify import Verification, verify
 from crashnlp.problem.schema import MultipleShootingSpec
-from crashnlp.results.identified import shaping_nothing_short_of
+from crashnlp.results.identified import UNLOADING_STIFFNESS, shaping_nothing_short_of
 from crashnlp.results.response import Response
 
 
@@ -94,9 +94,15 @@ class Solution:
 
     def unreached(self) -> np.ndarray:
         """Per estimated entry, whether the fitted tests never reach it: a spring value whose
-        breakpoints lie past the tail's start (crashnlp.models.tail.tail_start) of the reach."""
+        breakpoints lie past the tail's start (crashnlp.models.tail.tail_start) of the reach, and
+        the unloading stiffness where no fitted test's model unloads (its crush never falls within
+        the record: a record that ends mid-crash)."""
+        labels = self.ocp.free.labels()
         start = tail_start(self.reach, self.case.problem.model.smoothing.crush)
-        return shaping_nothing_short_of(self.ocp.free.labels(), self.breakpoints, start)
+        out = shaping_nothing_short_of(labels, self.breakpoints, start)
+        if all(np.isnan(t.loading_end) for t in self.tests):
+            out |= np.array([label == UNLOADING_STIFFNESS for label in labels], bool)
+        return out
 
 
 def judge(result: SolveResult, theta0: np.ndarray, theta: np.ndarray, scale: np.ndarray) -> str:

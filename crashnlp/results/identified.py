@@ -36,6 +36,7 @@ SAME_GEOMETRY = 1e-4
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
 SPRING_VALUES = "model.spring.values"
+UNLOADING_STIFFNESS = "model.unloading.stiffness"
 
 
 @dataclass(frozen=True)
