@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -31,6 +32,20 @@ def test_the_lowest_held_out_score_wins_but_a_tie_keeps_the_default():
     assert choose([_score("pendulum", held=0.10), _score("rigid-body", held=near)], "held-out")[0] == DEFAULT_FORM
     assert choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-100.0 - 0.5 * BIC_TIE)], "bic")[0] == DEFAULT_FORM
     assert choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-100.0 - 3 * BIC_TIE)], "bic")[0] == "rigid-body"
+
+
+def test_a_form_chosen_without_a_measured_pitch_says_so():
+    """An accelerometer-only test (no pitch channel: the scores' pitch RMSE is None): a choice
+    other than the default says it rests on the other channels alone; with pitch, or for the
+    default, it does not."""
+    unmeasured = "no test measures pitch"
+    choice, reason = choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-120.0)], "bic")
+    assert choice == "rigid-body" and unmeasured in reason
+    pitched = [
+        dataclasses.replace(_score(f, bic=b), pitch_rmse_rad=0.01) for f, b in (("pendulum", -100.0), ("rigid-body", -120.0))
+    ]
+    assert unmeasured not in choose(pitched, "bic")[1]
+    assert unmeasured not in choose([_score("pendulum", bic=-120.0), _score("rigid-body", bic=-100.0)], "bic")[1]
 
 
 def test_a_failed_fit_is_not_chosen_while_another_form_serves():
