@@ -14,8 +14,19 @@ import crashnlp
 from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
 from crashnlp.cli import main
-from crashnlp.optimize.comparison import BIC_TIE, PUSHED, TIE, FormScore, HeldOut, _lift_off, choose, with_form
-from crashnlp.problem import problem_from_dict
+from crashnlp.optimize.comparison import (
+    BIC_TIE,
+    PUSHED,
+    TIE,
+    FormScore,
+    HeldOut,
+    _lift_off,
+    check_comparable,
+    choose,
+    with_form,
+)
+from crashnlp.optimize.pipeline import prepare_case
+from crashnlp.problem import load_problem, problem_from_dict
 from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
 from crashnlp.results.response import Response
 
@@ -83,6 +94,12 @@ def test_a_form_fits_only_the_estimate_entries_its_equations_read():
     rigid = with_form(problem, "rigid-body")
     assert rigid.model.form == "rigid-body"
     assert set(rigid.estimate) == {"model.spring.values", "vehicle.pitch_inertia"}
+    # the shipped pickup as a rigid body, estimating it: refused by identify, compared as each form reads it
+    pickup = load_problem(ROOT / "problems/pickup-56kph.yaml")
+    as_rigid = pickup.model_copy(update={"model": pickup.model.model_copy(update={"form": "rigid-body"})})
+    with pytest.raises(InputError, match="estimate.vehicle.crush_offset: model.form rigid-body does not read it"):
+        prepare_case(as_rigid)
+    check_comparable(as_rigid, None, COMPARED)
 
 
 WINDOW = 0.09

@@ -132,6 +132,10 @@ def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_afte
     else:
         (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
         assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+    # read with the wrong sign, the pulse speeds the vehicle up: the channel's sign is named, not the speed
+    flipped = {**data, "channels": {"accel": {**data["channels"]["accel"], "sign": -data["channels"]["accel"].get("sign", 1)}}}
+    err = refused(tmp_path, capsys, pickup({"vehicle": {"speed": "40 km/h"}, "tests": [{"name": "a", "data": flipped}]}), "")
+    assert "tests.0.data.channels.accel.sign: 11.1111 m/s (40 km/h)" in err and "reads with the wrong sign" in err
 
 
 def test_a_velocity_channel_in_the_wrong_unit_is_named_not_the_speed(tmp_path, capsys):

@@ -186,8 +186,8 @@ def test_a_record_that_ends_while_the_barrier_still_pushes_the_vehicle_back_hold
         assert m["time_zero_velocity_s"] == pytest.approx(0.08, abs=1e-4) and m["max_displacement_m"] is not None
         assert all(m[k] is None for k in UNSETTLED) and still_moving(m) is None
         assert goes_on(m) == (
-            "ends at 90.0 ms while the barrier still pushes the vehicle back (its rebound goes on past it,"
-            " so no rebound velocity, delta-V or max pitch in it)"
+            "ends at 90.0 ms after its stop, still decelerating by a tenth of its peak or more (its rebound goes on"
+            " past it, so no rebound velocity, delta-V or max pitch in it)"
         )
     whole = data_metrics(_recorded(*pushed(0.15)))
     assert whole["rebound_velocity_mps"] == pytest.approx(4.0, rel=1e-3) and goes_on(whole) is None

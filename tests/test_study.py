@@ -566,6 +566,20 @@ def test_a_swept_mass_the_data_header_contradicts_is_refused_before_any_solve(tm
     assert not (tmp_path / "out").exists()
 
 
+def test_a_swept_form_that_does_not_read_an_estimated_entry_is_refused_before_any_solve(tmp_path):
+    """The shipped pickup estimates the pendulum's crush offset, which a rigid body does not read:
+    its solve refuses that case, so the study's check does too (it said ok, then failed the case)."""
+    study = write_study(
+        tmp_path, problem=str(ROOT / "problems/pickup-56kph.yaml"), sweep={"model.form": ["pendulum", "rigid-body"]}
+    )
+    expected = (
+        r"sweep: case-001 \(model.form = rigid-body\): estimate.vehicle.crush_offset: model.form rigid-body does not read it"
+    )
+    with pytest.raises(InputError, match=expected):
+        run_study(study, tmp_path / "out", workers=1, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
 def test_cli_refuses_a_bad_swept_value_with_exit_2_and_writes_nothing(small, tmp_path, capsys):
     from crashnlp.cli import main
 

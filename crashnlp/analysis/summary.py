@@ -72,8 +72,8 @@ def values(
 def withheld(record: dict, accel: np.ndarray) -> dict:
     """A record's `values` without those its crash goes on to change: where it ends before the
     vehicle stops, the UNFINISHED ones mid-crash and the UNSETTLED ones after the pulse; where it
-    ends after the stop while the barrier still pushes the vehicle back (MID_CRASH of its peak or
-    more), the UNSETTLED ones, its rebound not over (`goes_on` says so)."""
+    ends after the stop still decelerating by MID_CRASH of its peak or more, the UNSETTLED ones,
+    its rebound not over (`goes_on` says so)."""
     if still_moving(record):
         return {**record, **dict.fromkeys(UNFINISHED if _mid_crash(accel) else UNSETTLED)}
     if record.get("time_zero_velocity_s") is not None and _mid_crash(accel):
@@ -101,19 +101,21 @@ def still_moving(metrics: Mapping[str, float | None]) -> str | None:
 
 def goes_on(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record whose crash goes on past its end, naming what it does not give: one
-    that ends still moving (`still_moving`), or still pushed back (`_ends_pushed`); None otherwise."""
+    that ends still moving (`still_moving`), or still decelerating after its stop (`_ends_pushed`);
+    None otherwise."""
     return still_moving(metrics) or _ends_pushed(metrics)
 
 
 def _ends_pushed(metrics: Mapping[str, float | None]) -> str | None:
-    """The words for a record that stops but ends while the barrier still pushes the vehicle back
-    (`withheld`: a stop, and no rebound), naming what it does not give; None otherwise."""
+    """The words for a record that stops but ends still decelerating by MID_CRASH of its peak or
+    more, its rebound still gathering speed (`withheld`: a stop, and no rebound), naming what it
+    does not give; None otherwise."""
     stop, end = metrics.get("time_zero_velocity_s"), metrics.get("record_end_s")
     if stop is None or end is None or metrics.get("rebound_velocity_mps") is not None:
         return None
     return (
-        f"ends at {end * 1e3:.1f} ms while the barrier still pushes the vehicle back (its rebound goes on past it, "
-        f"so no {_listed(UNSETTLED, metrics)} in it)"
+        f"ends at {end * 1e3:.1f} ms after its stop, still decelerating by a tenth of its peak or more (its rebound "
+        f"goes on past it, so no {_listed(UNSETTLED, metrics)} in it)"
     )
 
 

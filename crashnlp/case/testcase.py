@@ -31,6 +31,9 @@ SAME_CONDITIONS = 0.01  # relative: a simulated test this close to its data's sp
 DRIFT_LIMIT = 0.1
 PULSE_OVER = 0.01  # s
 PULSE_QUIET = 0.1
+# A pulse read with the wrong sign speeds the vehicle up by its velocity change: it leaves it at
+# about twice its speed. Past FLIPPED times the speed the accel channel's sign, not the speed, is at fault.
+FLIPPED = 1.5
 
 
 @dataclass(frozen=True)
@@ -182,7 +185,11 @@ def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
     why = speed_contradicted(speed, test, data)
     if why is not None:
         key = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
-        raise InputError(f"{f'tests.{i}.data.channels.velocity.unit' if _unit_at_fault(speed, test, data) else key}: {why}")
+        if _unit_at_fault(speed, test, data):
+            key = f"tests.{i}.data.channels.velocity.unit"
+        elif _sign_at_fault(speed, test, data):
+            key = f"tests.{i}.data.channels.accel.sign"
+        raise InputError(f"{key}: {why}")
 
 
 def check_mass(i: int, mass: float, test: Test, data: TestData) -> None:
@@ -220,13 +227,23 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
     drift = _drift_after_pulse(speed, test, data)
     if drift is not None and drift > DRIFT_LIMIT * speed:
         file = test.data.file.name if test.data is not None else "the data"
+        why = (
+            "the accel channel reads with the wrong sign (its pulse speeds the vehicle up)"
+            if drift > FLIPPED * speed
+            else "the data were recorded at a lower speed, or the accel channel's unit is off"
+        )
         return (
             f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, leaves the "
             f"vehicle moving toward the barrier at {drift:.3g} m/s once its pulse is over, more than "
-            f"{DRIFT_LIMIT * 100:g} % of the speed: a rigid barrier stops it, so the data were recorded at a lower "
-            "speed, or the accel channel's unit is off"
+            f"{DRIFT_LIMIT * 100:g} % of the speed: a rigid barrier stops it, so {why}"
         )
     return None
+
+
+def _sign_at_fault(speed: float, test: Test, data: TestData) -> bool:
+    """Whether the acceleration alone contradicts the speed by a pulse read with the wrong sign."""
+    drift = _drift_after_pulse(speed, test, data)
+    return drift is not None and drift > FLIPPED * speed
 
 
 def _drift_after_pulse(speed: float, test: Test, data: TestData) -> float | None:

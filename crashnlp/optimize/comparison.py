@@ -45,6 +45,7 @@ from crashnlp.analysis.summary import data_metrics
 from crashnlp.base.errors import InputError, RunError
 from crashnlp.base.units import G0
 from crashnlp.case.case import case_of
+from crashnlp.case.checks import check_keys
 from crashnlp.optimize.pipeline import prepare_case, solve_problem
 from crashnlp.problem import Problem
 from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
@@ -120,11 +121,12 @@ class Comparison:
         }
 
 
-def with_form(problem: Problem, form: str) -> Problem:
+def with_form(problem: Problem, form: str, source: str | None = None) -> Problem:
     """The problem with `model.form` set to `form`, less the estimate entries the form's
-    equations do not read (its outputs, right-hand side and initial state)."""
+    equations do not read (its outputs, right-hand side and initial state); its input errors
+    naming `source`."""
     changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
-    unread = case_of(changed).model.unread(list(changed.estimate))  # refuses a problem the form cannot model
+    unread = case_of(changed, source).model.unread(list(changed.estimate))  # refuses a problem the form cannot model
     return changed.model_copy(update={"estimate": {k: v for k, v in changed.estimate.items() if k not in unread}})
 
 
@@ -159,7 +161,8 @@ def check_comparable(problem: Problem, source: str | None, forms: Sequence[str],
     unknown = [form for form in forms if form not in FORMS]
     if unknown:
         raise InputError(f"{where}: {unknown[0]!r} is none of {', '.join(FORMS)}")
-    prepare_case(problem, source)
+    check_keys(problem, source)
+    prepare_case(with_form(problem, problem.model.form, source), source)  # as its own form fits it
 
 
 def _say(progress: TextIO | None, line: str) -> None:

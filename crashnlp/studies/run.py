@@ -28,7 +28,7 @@ from crashnlp.case.checks import check_keys, check_tests
 from crashnlp.engine import CONNECT_TIMEOUT
 from crashnlp.engine.executors import default_workers, discard_started_clusters, make_executor, start_cluster, start_early
 from crashnlp.engine.schedule import run_tree
-from crashnlp.problem import problem_from_dict
+from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.jsonfile import clean
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
@@ -188,9 +188,10 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
 
 
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
-    """Refuse a case whose problem is not valid, or whose data contradict it (crashnlp.case.checks:
-    those of a solve, short of building the model), naming the study file, the case and its
-    values. Data are read once per distinct set of tests, speed and mass (`checked`)."""
+    """Refuse a case whose problem is not valid, whose data contradict it (crashnlp.case.checks),
+    or whose estimate names an entry its model form does not read (`_check_read`): those of a
+    solve, naming the study file, the case and its values. Data are read once per distinct set of
+    tests, speed and mass, the model built once per form and estimate (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
     try:
         problem = problem_from_dict(raw, study.base_dir, source="problem")
@@ -200,9 +201,23 @@ def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> 
         if tests not in checked:
             check_tests(problem, "problem")
             checked.add(tests)
+        _check_read(problem, checked)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
+
+
+def _check_read(problem: Problem, checked: set[str]) -> None:
+    """Refuse an estimate entry the case's model form does not read (crashnlp.optimize.pipeline.check_read),
+    as its solve would; the model is built once per form and estimate (`checked`)."""
+    key = json.dumps(["reads", problem.model.form, sorted(problem.estimate)])
+    if key in checked:
+        return
+    from crashnlp.case.case import case_of  # the model: once per form and estimate, not per case
+    from crashnlp.optimize.pipeline import check_read
+
+    check_read(case_of(problem, "problem"))
+    checked.add(key)
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
