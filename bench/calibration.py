@@ -60,6 +60,7 @@ from bench.corpus import (  # noqa: E402
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import (  # noqa: E402
     FILE,
+    IMPACT_SPEED,
     PITCH_FLOOR,
     Calibration,
     conformal_quantile,
@@ -76,11 +77,13 @@ from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 from crashnlp.results.simulation import IntervalParts, PredictedTest  # noqa: E402
 
-VERSION = 10
+VERSION = 11
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
 # predictions of a class, 56 -> 64 and 40 + 56 -> 64, miss alike): docs/design-notes.md
 LEVEL = 0.95
 POWER_STEP, POWER_RANGE = 0.05, (0.25, 1.5)  # the power of the distance in the form term's unit (power)
+# the rebound's floors tried (shares of the impact speed; IMPACT_SPEED: the impact speed itself, the rule before version 11)
+REBOUND_FLOORS = (0.02, 0.05, 0.1, 0.2, IMPACT_SPEED)
 SET_SEED, CHECK_SEED, HIDDEN_SEED = 3100, 3200, 3300
 BUILT_KMH = (56.0, 64.0, 72.0)  # the speed vehicle i's structure is built for: BUILT_KMH[i % 3]
 # the corpus's forms: a rigid body, one with an engine on mounts, vans and tall SUVs, rigid bodies of
@@ -143,8 +146,9 @@ METHOD = (
     "predictions (the rank's n the class's vehicles, its quantile over their predictions), or where larger the "
     f"ceil(n {LEVEL})-th smallest of the n predictions of any one generator form, a score the smallest q "
     "whose interval covers the generator's value; q scales the form term (the metric's scale times the distance to "
-    "a power, the slope of the log root mean square miss against the log distance within the classes) and the "
-    "force past the reach"
+    "a power, the slope of the log root mean square miss against the log distance within the classes; the "
+    "rebound's scale at least the floor share of the impact speed whose intervals on the corpus are narrowest) and "
+    "the force past the reach"
 )
 
 
@@ -261,13 +265,13 @@ def collect(
     return rows
 
 
-def _parts(row: dict, metric: str, power: float = 1.0) -> IntervalParts | None:
-    """A record's interval parts of `metric`, its form term's unit the metric's scale times the
-    distance to `power`."""
+def _parts(row: dict, metric: str, power: float = 1.0, floor: float = IMPACT_SPEED) -> IntervalParts | None:
+    """A record's interval parts of `metric`, its form term's unit the metric's scale (the rebound's
+    with `floor`) times the distance to `power`."""
     raw = row.get("parts", {}).get(metric)
     if raw is None:
         return None
-    unit = scale(metric, raw["value"], row["speed_mps"]) * row["distance"] ** power if row["distance"] > 0 else 0.0
+    unit = scale(metric, raw["value"], row["speed_mps"], floor) * row["distance"] ** power if row["distance"] > 0 else 0.0
     return IntervalParts(raw["value"], raw["parameters"], raw["fitted"], raw["past_the_reach"], unit)
 
 
@@ -276,24 +280,26 @@ def klass(row: dict) -> str:
     return reach(IdentifiedRange.from_json(row["fit"]["range"]), row["speed_mps"], row["mass_kg"])[0]
 
 
-def _scored(rows: list[dict], metric: str, power: float = 1.0) -> list[tuple[dict, IntervalParts, float]]:
+def _scored(
+    rows: list[dict], metric: str, power: float = 1.0, floor: float = IMPACT_SPEED
+) -> list[tuple[dict, IntervalParts, float]]:
     """The records that go somewhere (a distance above zero) whose prediction and generator both
-    have `metric`, with its parts and its truth."""
+    have `metric`, with its parts (`_parts`) and its truth."""
     out = []
     for row in rows:
-        parts, truth = _parts(row, metric, power), row["truth"][metric]
+        parts, truth = _parts(row, metric, power, floor), row["truth"][metric]
         if parts is not None and np.isfinite(truth) and row["distance"] > 0:
             out.append((row, parts, truth))
     return out
 
 
-def power(rows: list[dict], metric: str) -> float:
+def power(rows: list[dict], metric: str, floor: float = IMPACT_SPEED) -> float:
     """How the miss of `metric` grows with the distance: within each class, the root mean square
     of the relative miss (|miss| / scale) of each distance the class's records go to; the slope of
     its logarithm against the distance's, each class about its own mean (least squares, weighted
     by the records), to POWER_STEP within POWER_RANGE (1 where no class goes to two distances)."""
     groups: dict[tuple[str, float], list[float]] = {}
-    for row, parts, truth in _scored(rows, metric):
+    for row, parts, truth in _scored(rows, metric, floor=floor):
         groups.setdefault((klass(row), round(row["distance"], 3)), []).append(
             abs(truth - parts.value) / (parts.unit / row["distance"])
         )
@@ -316,7 +322,7 @@ def _about_mean(points: list[tuple[float, float, int]]) -> tuple[np.ndarray, np.
     return x - np.average(x, weights=w), y - np.average(y, weights=w), w
 
 
-def _table(rows: list[dict], metric: str, grown: float) -> dict[str, tuple[float, int]]:
+def _table(rows: list[dict], metric: str, grown: float, floor: float = IMPACT_SPEED) -> dict[str, tuple[float, int]]:
     """q per class of one metric, and the records it came from: the conformal quantile of the
     class's scores, its rank from the number of vehicles (crashnlp.analysis.calibration.conformal_quantile),
     or, where larger, one generator form's own share (_form_quantile): a pooled quantile covers the
@@ -324,7 +330,7 @@ def _table(rows: list[dict], metric: str, grown: float) -> dict[str, tuple[float
     scores: dict[str, list[float]] = {}
     by_form: dict[str, dict[str, list[float]]] = {}
     units: dict[str, set[tuple[str, str]]] = {}
-    for row, parts, truth in _scored(rows, metric, grown):
+    for row, parts, truth in _scored(rows, metric, grown, floor):
         score, k = parts.score(truth), klass(row)
         scores.setdefault(k, []).append(score)
         by_form.setdefault(k, {}).setdefault(row["form"], []).append(score)
@@ -344,10 +350,11 @@ def _form_quantile(scores: list[float]) -> float:
 
 
 def calibrate(rows: list[dict], seed: int, model_form: str = DEFAULT_FORM) -> Calibration:
-    """The calibration of `model_form` from its records of one seed: per metric the power of the
-    distance (power), then q per class (_table)."""
-    grown = {m: power(rows, m) for m in PREDICTED_KEYS}
-    per_metric = {m: _table(rows, m, grown[m]) for m in PREDICTED_KEYS}
+    """The calibration of `model_form` from its records of one seed: the rebound's floor
+    (`rebound_floor`), per metric the power of the distance (power), then q per class (_table)."""
+    floor = rebound_floor(rows)
+    grown = {m: power(rows, m, floor) for m in PREDICTED_KEYS}
+    per_metric = {m: _table(rows, m, grown[m], floor) for m in PREDICTED_KEYS}
     classes = sorted({k for t in per_metric.values() for k in t})
     table = {k: {m: per_metric[m][k][0] for m in PREDICTED_KEYS if k in per_metric[m]} for k in classes}
     corpus = {
@@ -363,23 +370,41 @@ def calibrate(rows: list[dict], seed: int, model_form: str = DEFAULT_FORM) -> Ca
         },
         "records": {k: {m: per_metric[m][k][1] for m in PREDICTED_KEYS if k in per_metric[m]} for k in classes},
     }
-    return Calibration(model_form, VERSION, METHOD, LEVEL, corpus, table, grown)
+    return Calibration(model_form, VERSION, METHOD, LEVEL, corpus, table, grown, floor)
+
+
+def rebound_floor(rows: list[dict]) -> float:
+    """Of REBOUND_FLOORS, the one whose rebound intervals, set on `rows` (power, _table), are the
+    narrowest on them: the median half-width in m/s, every floor's coverage being the conformal one."""
+    return min(REBOUND_FLOORS, key=lambda floor: _rebound_half_width(rows, floor))
+
+
+def _rebound_half_width(rows: list[dict], floor: float) -> float:
+    """The median rebound half-width (m/s) of the records' intervals, the table set on them with `floor`."""
+    metric = "rebound_velocity_mps"
+    grown = power(rows, metric, floor)
+    table = _table(rows, metric, grown, floor)
+    halves = []
+    for row, parts, _ in _scored(rows, metric, grown, floor):
+        low, high = parts.interval(table[klass(row)][0])
+        halves.append((high - low) / 2)
+    return float(np.median(halves)) if halves else math.inf
 
 
 def judged(row: dict, metric: str, calibration: Calibration) -> dict | None:
     """One prediction's metric against the generator: covered, and the half-width and the error
-    relative to the metric's scale (crashnlp.analysis.calibration.scale: the rebound's is the impact
-    speed, so that a rebound of zero has an error too); None where the fit failed or the prediction
-    has no value."""
+    relative to the metric's scale (crashnlp.analysis.calibration.scale: the rebound's is at least a
+    share of the impact speed, so that a rebound of zero has an error too); None where the fit
+    failed or the prediction has no value."""
     if "parts" not in row:
         return None
-    parts = _parts(row, metric, calibration.power[metric])
+    parts = _parts(row, metric, calibration.power[metric], calibration.rebound_floor)
     truth = row["truth"][metric]
     q = calibration.q(klass(row), metric) if row["distance"] > 0 else 0.0
     if parts is None or not np.isfinite(truth) or q is None or not np.isfinite(q):
         return None
     low, high = parts.interval(q)
-    per = scale(metric, parts.value, row["speed_mps"])
+    per = calibration.scale(metric, parts.value, row["speed_mps"])
     return {
         "covered": bool(low <= truth <= high),
         "half_rel": (high - low) / 2 / per if per else float("inf"),
@@ -587,8 +612,8 @@ def markdown(section: dict) -> list[str]:
         f"{hidden} vehicles of a form the corpus does not hold, {', '.join(HIDDEN)} (seed {HIDDEN_SEED}). Per metric: the "
         "share of predictions whose 95 % interval holds the generator's value (a failed fit, or one that gives no "
         "interval, counts as a miss; in brackets the share of those with an interval), the median half-width and the "
-        "median and largest error, relative to the value (the rebound's to the impact speed, the max pitch's to at least "
-        f"{PITCH_FLOOR:g} deg, as the form term's scale is).",
+        "median and largest error, relative to the value (the rebound's to at least its table's floor share of the impact "
+        f"speed, the max pitch's to at least {PITCH_FLOOR:g} deg, as the form term's scale is).",
         "",
     ]
     for s in (section, *section.get("forms", {}).values()):
@@ -622,6 +647,8 @@ def _form_markdown(section: dict) -> list[str]:
             for k, row in cal["table"].items()
         ),
         "| power of the distance | " + " | ".join(f"{cal['power'][m]:g}" for m in PREDICTED_KEYS) + " |",
+        "",
+        f"The rebound's scale: its value, but at least {cal.get('rebound_floor', IMPACT_SPEED):g} of the impact speed.",
         "",
     ]
     for seed in (CHECK_SEED, HIDDEN_SEED, SET_SEED):

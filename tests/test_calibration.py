@@ -108,10 +108,15 @@ def test_the_share_quantile_is_the_smallest_score_the_share_does_not_exceed():
     assert share_quantile(list(np.arange(1.0, 36.0)), 29 / 35) == 29.0
 
 
-def test_the_scales_are_the_value_the_impact_speed_for_the_rebound_and_a_floor_for_the_pitch():
+def test_the_scales_are_the_value_with_a_floor_for_the_rebound_and_the_pitch():
     assert scale("max_displacement_m", 0.6, 15.0) == 0.6
-    assert scale("rebound_velocity_mps", 0.2, 15.0) == 15.0
+    assert scale("rebound_velocity_mps", 0.2, 15.0, 0.05) == pytest.approx(0.75)  # a twentieth of the impact speed
+    assert scale("rebound_velocity_mps", 2.4, 15.0, 0.05) == 2.4
+    assert scale("rebound_velocity_mps", 2.4, 15.0) == 15.0  # a table before version 11's: the impact speed
     assert scale("max_pitch_deg", 0.2, 15.0) == 1.0
+    raw = shipped().to_json()
+    del raw["rebound_floor"]  # a table written before the floor reads with the impact speed
+    assert Calibration.from_json(raw).scale("rebound_velocity_mps", 2.4, 15.0) == 15.0
 
 
 def _synthetic(seed: int, power: float, vehicles: int = 60, form: str = "synthetic", miss: float = 0.04) -> list[dict]:

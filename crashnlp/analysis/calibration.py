@@ -19,7 +19,7 @@ parameters' half-width, the model's miss on the fitted tests, and what q scales:
     q[class][metric] * scale(metric) * distance ** power[metric]    (the out-of-sample form term)
     q[class][metric] * past_the_reach                                (the force past the reach)
 
-scale is the predicted value (the rebound: the impact speed; the max pitch: at least 1 deg);
+scale is the predicted value (the rebound: at least the table's share of the impact speed; the max pitch: at least 1 deg);
 past_the_reach is crashnlp.analysis.prediction's estimate of what the force past the crush the fitted
 tests reached adds, a rule's guess that the calibration scales like the form term. q is the
 split-conformal quantile of the scores of the calibration corpus: the smallest q with which each
@@ -28,8 +28,10 @@ held-out interval, its other parts as they were, would have covered the generato
 class miss alike); and at least the score that 95 % of each generator form's predictions do not
 exceed: a vehicle's form is not known when it is predicted, so the interval must hold for every
 form the corpus has, not only for their mix. The power says how the miss grows with the
-distance, set from the corpus per metric (bench/calibration.py). At a fitted test's own energy the terms are zero, and the
-interval is what the fitted tests say of themselves.
+distance, set from the corpus per metric, and the rebound's floor is the share of the impact
+speed whose table gives the corpus's rebounds the narrowest intervals (bench/calibration.py). At
+a fitted test's own energy the terms are zero, and the interval is what the fitted tests say of
+themselves.
 
 Each model form has its own table, calibrated on that form's fits of the corpus: a form's miss
 is its own. The tables ship as crashnlp/analysis/calibration.json (model form -> table, each with
@@ -53,6 +55,9 @@ from crashnlp.results.identified import IdentifiedRange
 
 FILE = "calibration.json"  # model form -> its table
 PITCH_FLOOR = 1.0  # deg: the max pitch's scale is at least this (a vehicle that barely pitches)
+# the rebound's scale is at least its table's `rebound_floor` share of the impact speed (a front end
+# that gives back little still misses); 1, the impact speed itself, is the rule of the tables before it
+IMPACT_SPEED = 1.0
 SAME_ENERGY = 1e-3  # relative: fitted tests closer than this in energy count as one
 Reach = Literal["down", "between", "up", "mass-down"]  # a prediction's class against the fitted tests (`reach`)
 CLASSES: tuple[Reach, ...] = get_args(Reach)
@@ -91,11 +96,12 @@ def reach(fitted: IdentifiedRange, speed: float, mass: float) -> tuple[Reach, fl
     return "between", distance
 
 
-def scale(metric: str, value: float, speed: float) -> float:
-    """What a metric's form term is relative to: its value, the rebound's impact speed, the max
-    pitch's value but at least PITCH_FLOOR degrees."""
+def scale(metric: str, value: float, speed: float, rebound_floor: float = IMPACT_SPEED) -> float:
+    """What a metric's form term is relative to: its value; the rebound's value but at least
+    `rebound_floor` of the impact speed (its miss grows with the energy the front end gives back,
+    and a rebound near zero still has one); the max pitch's value but at least PITCH_FLOOR degrees."""
     if metric == "rebound_velocity_mps":
-        return speed
+        return max(abs(value), rebound_floor * speed)
     if metric == "max_pitch_deg":
         return max(abs(value), PITCH_FLOOR)
     return abs(value)
@@ -120,7 +126,8 @@ def conformal_quantile(scores: list[float], coverage: float, units: int | None =
 @dataclass(frozen=True)
 class Calibration:
     """The calibrated form term of one model form: q per class and metric, per metric the power of
-    the distance in the form term's unit, and what it was calibrated on."""
+    the distance in the form term's unit, the rebound's floor (`scale`), and what it was
+    calibrated on."""
 
     form: str
     version: int
@@ -129,6 +136,7 @@ class Calibration:
     corpus: dict[str, Any]
     table: dict[str, dict[str, float]]
     power: dict[str, float]
+    rebound_floor: float = IMPACT_SPEED
 
     def q(self, klass: str, metric: str) -> float | None:
         """The class's q for a metric; None where it was not calibrated."""
@@ -136,7 +144,11 @@ class Calibration:
 
     def unit(self, metric: str, value: float, speed: float, distance: float) -> float:
         """The form term per unit of q: the metric's scale times the distance to its power."""
-        return scale(metric, value, speed) * distance ** self.power[metric] if distance > 0 else 0.0
+        return self.scale(metric, value, speed) * distance ** self.power[metric] if distance > 0 else 0.0
+
+    def scale(self, metric: str, value: float, speed: float) -> float:
+        """The metric's scale (`scale`) with this table's rebound floor."""
+        return scale(metric, value, speed, self.rebound_floor)
 
     def named(self) -> dict[str, Any]:
         """What simulation.json says of the calibration its intervals used."""
@@ -157,6 +169,7 @@ class Calibration:
             "corpus": self.corpus,
             "table": self.table,
             "power": self.power,
+            "rebound_floor": self.rebound_floor,
         }
 
     @classmethod
@@ -169,6 +182,7 @@ class Calibration:
             raw["corpus"],
             raw["table"],
             {k: float(v) for k, v in raw["power"].items()},
+            float(raw.get("rebound_floor", IMPACT_SPEED)),  # a table before version 11: the impact speed
         )
 
 
