@@ -504,9 +504,11 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     from crashnlp.report import export
     from crashnlp.report.folders import read_result, read_simulation
 
+    status: str | None
     if kind == "result":
         result = read_result(folder)
-        name, responses, status = result.name, {test: (t.response, t.speed) for test, t in result.tests.items()}, result.status
+        name, status = result.name, result.status
+        responses = {test: (t.response, t.speed) for test, t in result.tests.items()}
     else:
         name, tests = read_simulation(folder)
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
