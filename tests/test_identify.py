@@ -454,8 +454,9 @@ def test_gauss_newton_and_exact_hessian_reach_the_same_optimum(data_file):
 def test_a_record_cut_mid_crash_does_not_determine_the_unloading_line_and_its_predictions_say_so(tmp_path, capsys):
     """The shipped pickup cut at 40 ms, still crushing, with the unloading stiffness estimated:
     nothing in the record unloads, so the fit reports the stiffness not identified (it gave a
-    std of 1e14 N/m, and a 56 km/h prediction intervals of +-3e9 mm), and a prediction, which
-    unloads, gives no intervals and names it."""
+    std of 1e14 N/m, and a 56 km/h prediction intervals of +-3e9 mm); a prediction keeps the
+    intervals of what comes before its stop, and gives none of the rebound and max pitch, which
+    go along the unloading line, naming it."""
     raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
     raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
     raw["tests"][0]["data"]["window"] = ["0 s", "0.04 s"]
@@ -470,4 +471,8 @@ def test_a_record_cut_mid_crash_does_not_determine_the_unloading_line_and_its_pr
     capsys.readouterr()
     assert main(["simulate", str(path), "--params", str(tmp_path / "fit"), "--out", str(tmp_path / "sim"), "--no-figures"]) == 0
     out = capsys.readouterr().out
-    assert "no intervals: the data do not determine model.unloading.stiffness" in out and "95 % intervals" not in out
+    for key in ("rebound_velocity_mps", "max_pitch_deg"):
+        assert f"no interval for {key}: the data do not determine model.unloading.stiffness" in out
+    simulated = json.loads((tmp_path / "sim/simulation.json").read_text())["tests"]["own"]["intervals"]
+    low, high = simulated["max_displacement_m"]
+    assert 0.5 < low < high < 0.7 and simulated["rebound_velocity_mps"] is None  # m: the pickup's 0.59 m

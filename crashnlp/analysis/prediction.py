@@ -69,12 +69,12 @@ from crashnlp.analysis.summary import (
     response_metrics,
 )
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import METRIC, METRICS, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, Z95, named_test
+from crashnlp.base.outputs import METRIC, METRICS, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, UNSETTLED, Z95, named_test
 from crashnlp.base.units import G0
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
-from crashnlp.results.identified import IdentifiedModel, applied, shaping_nothing_short_of, without_entries
+from crashnlp.results.identified import UNLOADING_STIFFNESS, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
 from crashnlp.results.response import Response
 from crashnlp.results.result import Result
 from crashnlp.results.simulation import IntervalParts, PredictedTest
@@ -283,11 +283,15 @@ def _uncertainty(
     """95 % intervals of the metrics and bands of the response columns (module docstring), the
     acceleration read through CFC class `cfc` as the response's is."""
     std, unused = identified.std(), _left_out(case, identified, response)
+    unseen = ", ".join(label for label, s, out in zip(identified.labels, std, unused) if out and not np.isfinite(s))
+    # an unloading line no fitted test went along shapes nothing up to the stop: left out of every
+    # interval, it withholds those of the metrics read after the stop (UNSETTLED)
+    unloading = np.array([label == UNLOADING_STIFFNESS and not np.isfinite(s) for label, s in zip(identified.labels, std)])
+    unused = unused | unloading
     undetermined = [label for label, s, out in zip(identified.labels, std, unused) if not (np.isfinite(s) or out)]
     if undetermined:
         note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
         return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
-    unseen = ", ".join(label for label, s, out in zip(identified.labels, std, unused) if out and not np.isfinite(s))
     notes = [f"{test.name}: {unseen}, which the data do not determine, shape no force it goes through"] if unseen else []
     gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt, cfc, metrics)
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
@@ -299,6 +303,10 @@ def _uncertainty(
         value, (miss, unreached) = metrics.get(key), _fitted_miss(identified, key)
         q = calibration.q(klass, key) if distance > 0 else 0.0
         intervals[key] = None
+        if unloading.any() and key in UNSETTLED:
+            why = f"the data do not determine {UNLOADING_STIFFNESS}, which it goes through"
+            notes.append(f"{test.name}: no interval for {key}: {why}")
+            continue
         if miss is None or value is None or not np.isfinite(value):
             if value is None and key in UNFINISHED and goes_on(metrics):
                 continue  # the simulation's still-moving note says so (_moving)
