@@ -119,7 +119,8 @@ def test_a_plain_speed_that_the_data_contradict_is_refused(tmp_path, capsys):
 def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_after_the_pulse(tmp_path, capsys, kmh, refuses):
     """The 40 km/h pickup's acceleration alone (no velocity to start at the speed, no header): told
     56 km/h, its integral leaves the vehicle moving toward the barrier at 3 m/s once its pulse is
-    over, which a rigid barrier cannot (it fitted and said ok); told 40 km/h it is taken."""
+    over, which a rigid barrier cannot (it fitted and said ok); told 25 km/h, it throws the vehicle
+    back at more than half its speed, which a rigid barrier does not; told 40 km/h it is taken."""
     header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-40kph.csv").read_text().splitlines()
     (tmp_path / "accel.csv").write_text("\n".join(",".join(row.split(",")[:2]) for row in [header, *lines]) + "\n")
     test = pickup()["tests"][0]
@@ -132,6 +133,9 @@ def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_afte
     else:
         (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
         assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+    # told 25 km/h (a slip of mph for km/h), the pulse throws the vehicle back at more than half its speed
+    err = refused(tmp_path, capsys, pickup({"vehicle": {"speed": "25 km/h"}, "tests": [{"name": "a", "data": data}]}), "")
+    assert "vehicle.speed: 6.94444 m/s (25 km/h)" in err and "throws the vehicle back at" in err
     # read with the wrong sign, the pulse speeds the vehicle up: the channel's sign is named, not the speed
     flipped = {**data, "channels": {"accel": {**data["channels"]["accel"], "sign": -data["channels"]["accel"].get("sign", 1)}}}
     err = refused(tmp_path, capsys, pickup({"vehicle": {"speed": "40 km/h"}, "tests": [{"name": "a", "data": flipped}]}), "")

@@ -34,6 +34,10 @@ PULSE_QUIET = 0.1
 # A pulse read with the wrong sign speeds the vehicle up by its velocity change: it leaves it at
 # about twice its speed. Past FLIPPED times the speed the accel channel's sign, not the speed, is at fault.
 FLIPPED = 1.5
+# A rigid barrier gives back a small share of the impact speed (restitution of frontal tests: 0.05 to
+# 0.3). A pulse that, integrated from the test's speed, throws the vehicle back faster than
+# REBOUND_LIMIT of it was recorded at a higher speed (35 for 56 km/h: mph taken for km/h).
+REBOUND_LIMIT = 0.5
 
 
 @dataclass(frozen=True)
@@ -225,6 +229,13 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
             f"({test.data.file.name}); speed and data disagree by {apart}{_velocity_hint(speed, start, test, data)}"
         )
     drift = _drift_after_pulse(speed, test, data)
+    if drift is not None and -drift > REBOUND_LIMIT * speed:
+        file = test.data.file.name if test.data is not None else "the data"
+        return (
+            f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, throws the "
+            f"vehicle back at {-drift:.3g} m/s once its pulse is over, more than {REBOUND_LIMIT * 100:g} % of the speed: "
+            "a rigid barrier gives back far less, so the data were recorded at a higher speed"
+        )
     if drift is not None and drift > DRIFT_LIMIT * speed:
         file = test.data.file.name if test.data is not None else "the data"
         why = (
