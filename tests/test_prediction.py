@@ -98,6 +98,17 @@ def test_a_fit_that_did_not_converge_is_simulated_without_intervals_and_says_so(
     assert "95 % intervals" not in out and f"no intervals: the fit ended {status}" in out
 
 
+def test_a_prediction_further_than_the_calibration_corpus_went_says_its_form_term_is_not_calibrated(fitted):
+    """The corpus predicts one test down as far as 56 -> 40 km/h (|ln| of the energy ratio 0.67)
+    and up as far as 56 -> 64 km/h (0.27): from 48 km/h, 30 km/h (0.94) and 64 km/h (0.58) go past
+    it and say so; 40 km/h (0.36) does not."""
+    folder, _, raw, result, _ = fitted
+    said = "the calibration corpus's predictions of its class"
+    for kmh, far in ((30, True), (64, True), (40, False)):
+        notes = crashnlp.simulate(_new_speed(folder, raw, kmh), params=result)["new"].notes
+        assert any(said in n for n in notes) == far, (kmh, notes)
+
+
 def test_the_interval_quantile_is_the_normal_distributions_two_sided_95_percent():
     assert Z95 == NormalDist().inv_cdf(0.975)
 

@@ -150,6 +150,18 @@ class Calibration:
         """The metric's scale (`scale`) with this table's rebound floor."""
         return scale(metric, value, speed, self.rebound_floor)
 
+    def farthest(self, klass: str) -> float | None:
+        """The largest distance the corpus's predictions of class `klass` went (its scenarios: one
+        vehicle at the fitted speeds, the predicted speed and mass ratio); past it the form term
+        is the power of the distance carried on, not calibrated. None where no scenario is of it."""
+        out: dict[str, float] = {}
+        for scenario in self.corpus.get("scenarios", {}).values():
+            speeds = [kmh / 3.6 for kmh in scenario["fitted_kmh"]]
+            fitted = IdentifiedRange(0.0, (min(speeds), max(speeds)), (1.0, 1.0), 0.0, tuple(0.5 * v**2 for v in speeds))
+            k, distance = reach(fitted, scenario["predicted_kmh"] / 3.6, scenario["mass_ratio"])
+            out[k] = max(out.get(k, 0.0), distance)
+        return out.get(klass)
+
     def named(self) -> dict[str, Any]:
         """What simulation.json says of the calibration its intervals used."""
         return {

@@ -57,7 +57,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.analysis.calibration import Calibration, reach, shipped
+from crashnlp.analysis.calibration import SAME_ENERGY, Calibration, reach, shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import (
@@ -297,6 +297,7 @@ def _uncertainty(
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))
     past = past_the_reach(case, p, response, identified, mass, metrics)
     klass, distance = reach(identified.range, test.speed, mass)
+    notes += _uncalibrated_distance(test.name, klass, distance, calibration)
     intervals: dict[str, tuple[float, float] | None] = {}
     parts, qs = {}, {}
     for i, key in enumerate(PREDICTED_KEYS):
@@ -333,6 +334,19 @@ def _uncertainty(
         notes += cut
     notes += _dominated(test.name, parts, qs)
     return Uncertainty(intervals, parts, qs, _bands(response, test.speed, gy, cov, parts, qs), tuple(notes))
+
+
+def _uncalibrated_distance(name: str, klass: str, distance: float, calibration: Calibration) -> list[str]:
+    """A note where a prediction goes further from the fitted tests than the calibration corpus's
+    predictions of its class went: its intervals' form term is carried on, not calibrated."""
+    farthest = calibration.farthest(klass)
+    if farthest is None or distance <= farthest * (1 + SAME_ENERGY):
+        return []
+    return [
+        f"{name}: it goes {distance:.2f} from the fitted tests (|ln| of the impact energy ratio), past the {farthest:.2f} "
+        f"the calibration corpus's predictions of its class ({klass}) went: its intervals' form term is carried on "
+        "by the power of the distance, not calibrated"
+    ]
 
 
 def _left_out(case: Case, identified: IdentifiedModel, response: Response) -> np.ndarray:
