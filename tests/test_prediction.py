@@ -78,6 +78,8 @@ def test_a_fit_that_did_not_converge_is_simulated_without_intervals_and_says_so(
     assert predicted.metrics == converged.metrics
     assert not any(predicted.intervals.values()) and not predicted.bands and not predicted.parts and not predicted.calibration
     (said,) = [note for note in predicted.notes if status in note and "no intervals" in note]
+    ((_, (_, title, *_)),) = simulation_figure_jobs("p", {"new": predicted}, folder)
+    assert title.endswith(f"(NOT CONVERGED: the fit ended {status})") and "95 % band" not in title
     assert not [note for note in predicted.notes if note != said and "interval" in note]  # nothing of intervals it has not
     failed.save(folder / "failed", figures=False)
     assert (

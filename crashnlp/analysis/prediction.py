@@ -553,7 +553,9 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         r = predicted.response
         model = {k: (r.time, r[k]) for k in PANELS}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
+        status = (predicted.source.get("result") or {}).get("status") or "ok"
         at = f"predicted at {predicted.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg" + (", 95 % band" if bands else "")
+        at += "" if status == "ok" else f" (NOT CONVERGED: the fit ended {status})"
         title = f"{named_test(name, predicted.name)}: {at}"
         jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs

@@ -208,13 +208,18 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
                 "intervals": bool(test.intervals),
                 "extrapolation": _extrapolation(test),
                 "notes": test.notes,
-                "figures": embedded_figures(folder / test.name, ["response.png"], f"test {test.name}, 95 % bands shaded"),
+                "figures": embedded_figures(folder / test.name, ["response.png"], _figure_caption(test)),
             }
         )
     source = source_line(next((test.source for test in tests.values() if test.source), {}))
     return TEMPLATES.get_template("simulation.html.j2").render(
         title=f"{name}: simulation", tests=pages, source=source or "not recorded (written before crashnlp kept it)"
     )
+
+
+def _figure_caption(test: PredictedTest) -> str:
+    """A predicted test's figure caption: its bands where it has them."""
+    return f"test {test.name}, " + ("95 % bands shaded" if test.bands else "no bands")
 
 
 def _extrapolation(test: PredictedTest) -> str:
