@@ -142,6 +142,30 @@ def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_afte
     assert "tests.0.data.channels.accel.sign: 11.1111 m/s (40 km/h)" in err and "reads with the wrong sign" in err
 
 
+@pytest.mark.parametrize(
+    ("maker", "seed", "index", "kmh"),
+    [("tall_vehicle", 3200, 4, 56), ("random_vehicle", 7777, 0, 64)],
+    ids=["drifts-most", "rebounds-most"],
+)
+def test_generator_accelerometers_at_their_own_speed_are_taken(tmp_path, maker, seed, index, kmh):
+    """DRIFT_LIMIT and REBOUND_LIMIT were argued, not fitted; on 271 generator records of seeds 7777
+    and 3200 (every form, 40 to 64 km/h) the recorded acceleration, integrated unfiltered, drifts
+    toward the barrier at 3.7 % of the speed at most and rebounds at 28 % (docs/design-notes.md):
+    the two that come nearest, read alone at their own speed, are taken."""
+    from bench import corpus
+    from bench.cross_speed import at_speed
+
+    v = at_speed(getattr(corpus, maker)(index, seed, speed=56 / 3.6), kmh)
+    recorded = corpus.measured(v, corpus.simulate(v))
+    rows = zip(recorded["time_s"], recorded["accel_x_g"])
+    (tmp_path / "accel.csv").write_text("time_s,accel_x_g\n" + "".join(f"{t:.6f},{a:.6f}\n" for t, a in rows))
+    test = pickup()["tests"][0]
+    data = {**test["data"], "file": str(tmp_path / "accel.csv"), "channels": {"accel": test["data"]["channels"]["accel"]}}
+    raw = pickup({"vehicle": {"speed": f"{kmh} km/h", "mass": f"{v.mass} kg"}, "tests": [{"name": "a", "data": data}]})
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+    assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+
+
 def test_a_velocity_channel_in_the_wrong_unit_is_named_not_the_speed(tmp_path, capsys):
     """The speed has its unit and the velocity column is in m/s, read as km/h: the channel's unit is
     at fault, named as the key (it said `vehicle.speed: ... a plain number is m/s, not km/h`)."""
