@@ -229,26 +229,30 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
             f"({test.data.file.name}); speed and data disagree by {apart}{_velocity_hint(speed, start, test, data)}"
         )
     drift = _drift_after_pulse(speed, test, data)
-    if drift is not None and -drift > REBOUND_LIMIT * speed:
-        file = test.data.file.name if test.data is not None else "the data"
-        return (
-            f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, throws the "
-            f"vehicle back at {-drift:.3g} m/s once its pulse is over, more than {REBOUND_LIMIT * 100:g} % of the speed: "
-            "a rigid barrier gives back far less, so the data were recorded at a higher speed"
-        )
-    if drift is not None and drift > DRIFT_LIMIT * speed:
-        file = test.data.file.name if test.data is not None else "the data"
-        why = (
+    return None if drift is None else _after_pulse(speed, drift, test)
+
+
+def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
+    """Why an acceleration that leaves the vehicle at `drift` (m/s toward the barrier) once its
+    pulse is over contradicts the test `speed`: a rebound past REBOUND_LIMIT of it, a drift past
+    DRIFT_LIMIT (past FLIPPED, a sign read wrong); None where neither."""
+    if -drift > REBOUND_LIMIT * speed:
+        limit, went = REBOUND_LIMIT, f"throws the vehicle back at {-drift:.3g} m/s"
+        why = "a rigid barrier gives back far less, so the data were recorded at a higher speed"
+    elif drift > DRIFT_LIMIT * speed:
+        limit, went = DRIFT_LIMIT, f"leaves the vehicle moving toward the barrier at {drift:.3g} m/s"
+        why = "a rigid barrier stops it, so " + (
             "the accel channel reads with the wrong sign (its pulse speeds the vehicle up)"
             if drift > FLIPPED * speed
             else "the data were recorded at a lower speed, or the accel channel's unit is off"
         )
-        return (
-            f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, leaves the "
-            f"vehicle moving toward the barrier at {drift:.3g} m/s once its pulse is over, more than "
-            f"{DRIFT_LIMIT * 100:g} % of the speed: a rigid barrier stops it, so {why}"
-        )
-    return None
+    else:
+        return None
+    file = test.data.file.name if test.data is not None else "the data"
+    return (
+        f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, {went} once its "
+        f"pulse is over, more than {limit * 100:g} % of the speed: {why}"
+    )
 
 
 def _sign_at_fault(speed: float, test: Test, data: TestData) -> bool:
