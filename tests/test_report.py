@@ -25,6 +25,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
 from crashnlp.report import result_page
+from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.result import LoadingCurve, Result, figure_jobs
@@ -207,7 +208,8 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
 @pytest.mark.integration
 def test_an_export_of_a_fit_that_did_not_converge_says_so_in_every_file_and_on_the_console(fit, tmp_path, capsys):
     """Curves and a pulse handed on from a fit IPOPT stopped carry its status: the first comment
-    of the .k file, of each curve CSV and of the pulse, and a console line; a converged fit's do not."""
+    of the .k file, of each curve CSV, of the pulse and of the force-crush table, and a console
+    line; a converged fit's do not."""
     failed = tmp_path / "failed"
     shutil.copytree(fit, failed)
     raw = json.loads((failed / "result.json").read_text())
@@ -227,6 +229,12 @@ def test_an_export_of_a_fit_that_did_not_converge_says_so_in_every_file_and_on_t
             assert all(said in line for line in firsts) and out.count(said) == 3
         else:
             assert not any("NOT CONVERGED" in line for line in firsts) and "NOT CONVERGED" not in out
+    curve = np.loadtxt(fit / "force_crush.csv", delimiter=",", skiprows=1)
+    loading = LoadingCurve(curve[:, 0], curve[:, 1], curve[:, 0], curve[:, 1])
+    for folder, first in ((fit, "crush_m,spring_force_N"), (failed, f"# {said}")):  # and the force-crush table
+        saved = tmp_path / f"{folder.name}-saved"
+        dataclasses.replace(read_result(folder), force_crush=loading).save(saved, figures=False)
+        assert (saved / "force_crush.csv").read_text().startswith(first)
 
 
 @pytest.mark.integration

@@ -215,9 +215,22 @@ def uncalibrated(name: str, form: str) -> str:
 def ending_notes(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
     """The notes on how a simulated test ends: a drift without contact whose travel at the end is
     its max displacement (`_drift`), or a front end that lets go while the CG moves on (`_let_go`);
-    and where it ends still moving, what its record does not give (`_moving`)."""
+    and where it ends still moving, what its record does not give (`_moving`); a pitch still
+    rising at its end (`_pitch_rising`)."""
     drift = _drift(name, response) if metrics.get("max_displacement_m") is not None else ()
-    return (drift or _let_go(name, response)) + _moving(name, metrics)
+    return (drift or _let_go(name, response)) + _moving(name, metrics) + _pitch_rising(name, response, metrics)
+
+
+def _pitch_rising(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
+    """A note when the pitch is largest at the simulation's last instant: the max pitch it gives
+    is the record's, and the crash's comes later (a body on its suspension pitches for a few
+    hundred ms); a longer duration reaches it."""
+    if metrics.get("max_pitch_deg") is None or int(np.argmax(response["pitch"])) < response.time.size - 1:
+        return ()
+    return (
+        f"{name}: the pitch still rises as the simulation ends at {response.time[-1] * 1e3:.1f} ms: its max pitch is "
+        "the record's, and the crash's comes later (a longer duration reaches it)",
+    )
 
 
 def _moving(name: str, metrics: dict[str, float | None]) -> tuple[str, ...]:

@@ -32,6 +32,7 @@ from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.response import Response
+from crashnlp.results.result import unconverged
 
 EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
@@ -103,14 +104,6 @@ def _evaluated(expr: ca.DM) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- ls-dyna
-def unconverged(status: str | None) -> str | None:
-    """The line an export of a fit that did not converge carries (its IPOPT status), None for
-    one that did or names none."""
-    if status in (None, "ok"):
-        return None
-    return f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model"
-
-
 def keyword_file(name: str, source: Path, curves: Curves, status: str | None = None) -> str:
     """The .k text: *KEYWORD, the comment block (the fit's status first where it did not
     converge), a *DEFINE_CURVE_TITLE per curve, *END."""

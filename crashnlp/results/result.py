@@ -292,6 +292,15 @@ def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
     return ChannelFit(channel, empty, empty, empty, raw["sigma"] / factor, raw["rmse"] / factor, raw["iso18571"])
 
 
+def unconverged(status: str | None) -> str | None:
+    """The line a file of a fit that did not converge carries (its IPOPT status): the force-crush
+    table beside its result.json, and its exports (crashnlp.report.export); None for one that did
+    or names none."""
+    if status in (None, "ok"):
+        return None
+    return f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model"
+
+
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
     """result.json, per-test responses, the force-crush table, and the figures after them, into a
     folder that then holds this result only (crashnlp.results.files.claim: refused where it holds another
@@ -301,7 +310,8 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
             write_response_csv(out / name / "response.csv", t.response)
         fc = result.force_crush
         if fc is not None:
-            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force})
+            said = tuple(line for line in (unconverged(result.status),) if line)
+            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force}, said)
         write_json(out / RESULT_FILE, result.to_json())
         if figures:
             write_figures(result, out)
