@@ -182,7 +182,8 @@ def test_a_problem_naming_only_a_new_speed_predicts_and_says_it_extrapolates(fit
 def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_calibrated_form_term(tmp_path):
     """A record cut at 50 ms, the vehicle still moving: the fit has no miss of its own of the stop,
     the rebound, the max displacement or the peak, yet a prediction at another speed carries their
-    calibrated form term, says where it comes from, and covers the generator's values."""
+    calibrated form term, says where it comes from, and covers the generator's values; at its own
+    speed it has no form term, and says so."""
     v = dataclasses.replace(random_vehicle(3, 2030, speed=56 / 3.6), speed=48 / 3.6)
     write_csv(tmp_path / "t1.csv", measured(v, simulate(v)))
     raw = minimal_problem(v, "t1.csv", SMALL)
@@ -203,6 +204,12 @@ def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_cali
         assert any(n.startswith(f"new: {key}: the fitted tests' records end before it") for n in prediction.notes)
     assert any(  # nor the peak: the deceleration may still grow after 50 ms
         n.startswith("new: peak_decel_g: the fitted tests' records end before it") for n in prediction.notes
+    )
+    own = crashnlp.simulate(_new_speed(tmp_path, raw, 48), params=result)["new"]  # its own speed, past its record
+    assert own.parts["max_displacement_m"].unit == pytest.approx(0.0, abs=1e-12)
+    assert any(
+        n.startswith("new: max_displacement_m: the fitted tests' records end before it") and "no calibrated form term" in n
+        for n in own.notes
     )
 
 

@@ -328,10 +328,7 @@ def _uncertainty(
             notes.append(f"{test.name}: no interval for {key}: {why}")
             continue
         if unreached:
-            notes.append(
-                f"{test.name}: {key}: the fitted tests' records end before it; its interval holds the fitted"
-                " curves' miss and the calibrated form term, not the fit's own miss of it"
-            )
+            notes.append(_unreached(test.name, key, distance))
         parts[key] = IntervalParts(
             value,
             _parameter_half(key, gm[:, i], gy, cov, response),
@@ -347,6 +344,20 @@ def _uncertainty(
         notes += cut
     notes += _dominated(test.name, parts, qs)
     return Uncertainty(intervals, parts, qs, _bands(response, test.speed, gy, cov, parts, qs), tuple(notes))
+
+
+def _unreached(name: str, key: str, distance: float) -> str:
+    """The note of a metric the fitted tests' records end before: its interval holds no miss of
+    the fit's own; away from the fitted tests the calibrated form term stands in, and at their
+    speed and mass (a distance within SAME_ENERGY) nothing does, since the corpus holds no
+    prediction past the end of a fitted record."""
+    ended = f"{name}: {key}: the fitted tests' records end before it; its interval holds the fitted curves' miss"
+    if distance > SAME_ENERGY:
+        return f"{ended} and the calibrated form term, not the fit's own miss of it"
+    return (
+        f"{ended} and the parameters' only: at the fitted speed and mass there is no calibrated form term, and"
+        " nothing measures how far the model misses past the end of a fitted record"
+    )
 
 
 def _uncalibrated_distance(name: str, klass: str, distance: float, calibration: Calibration) -> list[str]:
