@@ -64,8 +64,8 @@ from crashnlp.analysis.calibration import (  # noqa: E402
     PITCH_FLOOR,
     Calibration,
     conformal_quantile,
+    form_unit,
     reach,
-    scale,
     share_quantile,
     shipped,
 )
@@ -268,7 +268,7 @@ def _parts(row: dict, metric: str, power: float = 1.0, floor: float = IMPACT_SPE
     raw = row.get("parts", {}).get(metric)
     if raw is None:
         return None
-    unit = scale(metric, raw["value"], row["speed_mps"], floor) * row["distance"] ** power if row["distance"] > 0 else 0.0
+    unit = form_unit(metric, raw["value"], row["speed_mps"], row["distance"], power, floor)
     return IntervalParts(raw["value"], raw["parameters"], raw["fitted"], raw["past_the_reach"], unit)
 
 

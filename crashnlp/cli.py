@@ -480,22 +480,24 @@ def _export_curves(args, folder: Path) -> int:
     curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
-        _say_unconverged(export.unconverged(result.status))
+        _say_unconverged(result.status)
         with deriving(folder, out):
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves, result.status)))
         return 0
     own = folder / f"{result.name}.k"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
-    _say_unconverged(export.unconverged(result.status))
+    _say_unconverged(result.status)
     with deriving(folder, out):
         export.write_keyword_file(out, result.name, folder, curves, result.status)
     print(f"wrote {out}")
     return 0
 
 
-def _say_unconverged(line: str | None) -> None:
+def _say_unconverged(status: str | None) -> None:
     """An export of a fit that did not converge says so on the console, as its file does."""
-    if line:
+    from crashnlp.results.result import unconverged
+
+    for line in unconverged(status):
         print(f"crashnlp: {line}")
 
 
@@ -517,7 +519,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
-    _say_unconverged(export.unconverged(status))
+    _say_unconverged(status)
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())

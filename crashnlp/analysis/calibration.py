@@ -107,6 +107,12 @@ def scale(metric: str, value: float, speed: float, rebound_floor: float = IMPACT
     return abs(value)
 
 
+def form_unit(metric: str, value: float, speed: float, distance: float, power: float, rebound_floor: float) -> float:
+    """The form term per unit of q: the metric's scale (`scale`) times the distance to `power`;
+    zero at a fitted test's own energy."""
+    return scale(metric, value, speed, rebound_floor) * distance**power if distance > 0 else 0.0
+
+
 def share_quantile(scores: list[float], share: float) -> float:
     """The smallest score that at least `share` of the scores do not exceed: the ceil(n share)-th
     smallest of n, n share rounded to 9 digits first (35 x (29 / 35) is 29.000000000000004 in
@@ -143,8 +149,8 @@ class Calibration:
         return self.table.get(klass, {}).get(metric)
 
     def unit(self, metric: str, value: float, speed: float, distance: float) -> float:
-        """The form term per unit of q: the metric's scale times the distance to its power."""
-        return self.scale(metric, value, speed) * distance ** self.power[metric] if distance > 0 else 0.0
+        """The form term per unit of q with this table's power and rebound floor (`form_unit`)."""
+        return form_unit(metric, value, speed, distance, self.power[metric], self.rebound_floor)
 
     def scale(self, metric: str, value: float, speed: float) -> float:
         """The metric's scale (`scale`) with this table's rebound floor."""

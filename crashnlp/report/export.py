@@ -107,8 +107,7 @@ def _evaluated(expr: ca.DM) -> np.ndarray:
 def keyword_file(name: str, source: Path, curves: Curves, status: str | None = None) -> str:
     """The .k text: *KEYWORD, the comment block (the fit's status first where it did not
     converge), a *DEFINE_CURVE_TITLE per curve, *END."""
-    said = [line for line in (unconverged(status),) if line]
-    lines = ["*KEYWORD", *(f"$ {line}" for line in [*said, *_keyword_comments(name, source, curves)])]
+    lines = ["*KEYWORD", *(f"$ {line}" for line in [*unconverged(status), *_keyword_comments(name, source, curves)])]
     crush, force = curves.loading
     lines += _curve(FIRST_ID, f"{name} loading: force (kN) against crush (mm)", crush * MM, force * KN)
     recovered, back = curves.unloading
@@ -171,9 +170,8 @@ def write_curves_csv(folder: Path, curves: Curves, status: str | None = None) ->
     tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
     if curves.damper is not None:
         tables["damper.csv"] = ("crush_rate_mps", curves.damper)
-    said = tuple(line for line in (unconverged(status),) if line)
     for file, (x_name, (x, y)) in tables.items():
-        write_columns(folder / file, {x_name: x, "force_N": y}, said)
+        write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
     return [folder / f for f in tables]
 
 
@@ -241,7 +239,7 @@ def write_pulse(path: Path, name: str, test: str, p: Pulse, status: str | None =
     """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is (the
     fit's status first where it did not converge)."""
     comments = (
-        *(line for line in (unconverged(status),) if line),
+        *unconverged(status),
         f"crashnlp export of {name}, test {test}: the model's acceleration, sled-test input",
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),

@@ -292,13 +292,13 @@ def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
     return ChannelFit(channel, empty, empty, empty, raw["sigma"] / factor, raw["rmse"] / factor, raw["iso18571"])
 
 
-def unconverged(status: str | None) -> str | None:
-    """The line a file of a fit that did not converge carries (its IPOPT status): the force-crush
-    table beside its result.json, and its exports (crashnlp.report.export); None for one that did
-    or names none."""
+def unconverged(status: str | None) -> tuple[str, ...]:
+    """The line a file of a fit that did not converge carries first (its IPOPT status): the
+    force-crush table beside its result.json, and its exports (crashnlp.report.export); none for
+    one that did or names none."""
     if status in (None, "ok"):
-        return None
-    return f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model"
+        return ()
+    return (f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model",)
 
 
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
@@ -310,8 +310,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
             write_response_csv(out / name / "response.csv", t.response)
         fc = result.force_crush
         if fc is not None:
-            said = tuple(line for line in (unconverged(result.status),) if line)
-            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force}, said)
+            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force}, unconverged(result.status))
         write_json(out / RESULT_FILE, result.to_json())
         if figures:
             write_figures(result, out)
