@@ -1012,6 +1012,35 @@ def truncated_md(r: dict) -> list[str]:
     ]
 
 
+def choice_md(r: dict) -> list[str]:
+    """compare's choice from one test against each form's prediction of the other speeds (bench/choice.py)."""
+    rows = []
+    for pop in r["populations"].values():
+        for kind, s in [*((k, g["summary"]) for k, g in pop["kinds"].items()), ("all", pop["summary"])]:
+            cells = [
+                f"{w['within_tie']}/{w['scored']}, {100 * w['mean_regret']:.1f} % ({100 * w['max_regret']:.0f} %)"
+                if w["scored"]
+                else "none scored"
+                for w in s["ways"].values()
+            ]
+            rows.append([pop["label"], kind, f"{s['chose_other']}/{s['vehicles']}", *cells])
+    ways = list(next(iter(r["populations"].values()))["summary"]["ways"])
+    head = ["population", "generator form", "compare chose another form than the default", *ways]
+    speeds = ", ".join(f"{k:g}" for k in r["predicted_kmh"])
+    return [
+        "## One test: compare's choice against the other speeds",
+        "",
+        f"Each vehicle of the intervals' populations tested at {r['fitted_kmh']:g} km/h; `crashnlp compare` chooses "
+        "between its default forms from that test alone (BIC). Each form's fit of it then predicts the vehicle at "
+        f"{speeds} km/h, scored as compare's held-out score is. Per way of choosing: the vehicles whose chosen "
+        f"form predicts within {100 * r['tie']:.0f} % of the better form's score, of those both forms scored; the mean and "
+        "(in brackets) largest regret, the chosen form's score over the better one's, less one.",
+        "",
+        *_table(head, rows),
+        "",
+    ]
+
+
 SECTIONS = {
     "identification": identification_md,
     "simulation": simulation_md,
@@ -1021,6 +1050,7 @@ SECTIONS = {
     "self_consistency": self_consistency_md,
     "cross_speed": cross_speed_md,
     "forms": forms_md,
+    "choice": choice_md,
     "intervals": calibration.markdown,
     "whole_process": whole_process_md,
     "detectors": detectors_md,

@@ -17,6 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import (  # noqa: E402
     calibration,
+    choice,
     convergence,
     cross_speed,
     detectors,
@@ -43,6 +44,7 @@ SECTIONS = {
     "self_consistency": self_consistency,
     "cross_speed": cross_speed,
     "forms": forms,  # every model form on the tall vehicles: docs/model.md's "Which form when"
+    "choice": choice,  # compare's choice from one test against each form's prediction of the other speeds
     "intervals": calibration,  # the form term's table set on one seed, checked on another; make calibrate ships it
     "whole_process": whole_process,
     "detectors": detectors,  # the watch's rules: set on one corpus seed, checked on another

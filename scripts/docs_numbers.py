@@ -128,7 +128,7 @@ def bench_numbers(bench: dict[str, Any]) -> dict[str, str]:
     pages print it; the sections of make bench one function each."""
     parts = (
         *(_identification, _process, _simulation, _studies, _scale_out, _scaling),
-        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _detectors, _truncated),
+        *(_corpus, _cross_speed, _families, _self_consistency, _intervals, _forms, _choice, _detectors, _truncated),
     )
     return {f"bench.{name}": text for part in parts for name, text in part(bench).items()}
 
@@ -392,6 +392,23 @@ def _forms(bench: dict[str, Any]) -> dict[str, str]:
     out |= _unmatched("forms.hidden.rigid-body.unmatched", rigid.get("unmatched_lift_offs", []))
     floor = (hidden or {}).get("pitch_floor")
     return out | (_pitch_floor(floor["summary"]) if floor else {})
+
+
+def _choice(bench: dict[str, Any]) -> dict[str, str]:
+    """compare's choice from one test (bench/choice.py), per population's seed and way of choosing
+    (choice.<seed>.<way>.<what>, the way's spaces as dashes): the vehicles within the tie of the
+    better form, those scored, the mean and largest regret (%); and the vehicles, and those for
+    which compare chose another form than the default (choice.<seed>.vehicles, .chose_other)."""
+    out = {}
+    for seed, pop in bench.get("choice", {}).get("populations", {}).items():
+        s = pop["summary"]
+        out |= {f"choice.{seed}.vehicles": str(s["vehicles"]), f"choice.{seed}.chose_other": str(s["chose_other"])}
+        for way, w in s["ways"].items():
+            key = f"choice.{seed}.{way.replace(' ', '-')}"
+            out |= {f"{key}.within": str(w["within_tie"]), f"{key}.scored": str(w["scored"])}
+            if w["scored"]:
+                out |= {f"{key}.mean": f"{w['mean_regret'] * 100:.1f}", f"{key}.max": f"{w['max_regret'] * 100:.0f}"}
+    return out
 
 
 def _unmatched(prefix: str, rows: list[dict[str, Any]]) -> dict[str, str]:

@@ -49,7 +49,7 @@ from crashnlp.case.checks import check_keys
 from crashnlp.optimize.pipeline import prepare_case, solve_problem
 from crashnlp.problem import Problem
 from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
-from crashnlp.results.identified import apply
+from crashnlp.results.identified import IdentifiedModel, apply
 from crashnlp.results.response import Response
 from crashnlp.results.result import Result
 
@@ -259,8 +259,14 @@ def _held_out(problem: Problem, name: str, source: str | None, progress: TextIO 
     fit, status = _fit(others, source)
     if fit is None or not fit.ok or fit.identified is None:
         return HeldOut(name, status)
+    return held_out_prediction(problem, name, fit.identified, source)
+
+
+def held_out_prediction(problem: Problem, name: str, identified: IdentifiedModel, source: str | None = None) -> HeldOut:
+    """Test `name` of the problem predicted by a fit's identified model (`identified`, of the
+    problem's form; the trend tail, as any prediction), scored against its data."""
     alone = problem.model_copy(update={"tests": [t for t in problem.tests if t.name == name], "estimate": {}})
-    case = case_of(apply(alone, fit.identified, source or problem.name), source)
+    case = case_of(apply(alone, identified, source or problem.name), source)
     (predicted,) = predict(case).values()
     response, data = predicted.response, predicted.data
     channels = {}

@@ -1,0 +1,101 @@
+"""compare's choice from one test: does the form it chooses predict the vehicle's other speeds best?
+
+With one test, `crashnlp compare` has no test to hold out and chooses by the BIC of each form's
+fit (crashnlp.optimize.comparison). Here each vehicle of the intervals' corpus (bench/calibration.py's
+populations: the set seed, the check seed and the hidden population of a form the corpus does not
+hold) is tested at FITTED_KMH and compared from that test alone, its minimal problem as
+`crashnlp init` writes it; each form's fit of that test then predicts the vehicle at PREDICTED_KMH,
+scored as compare's held-out score is (each measured channel's RMSE over its data's RMS, averaged
+over the channels and the speeds: crashnlp.optimize.comparison.held_out_prediction).
+
+Per population and generator form: how often each way of choosing predicts within compare's TIE of
+the better form, and the mean and largest regret (the chosen form's score over the better form's,
+less one). The ways: compare's choice, always the default form, always the other form. Nothing
+is set on these vehicles: BIC_TIE is Kass and Raftery's, so every population judges the rule.
+"""
+
+from __future__ import annotations
+
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+import crashnlp
+from bench.calibration import HIDDEN_SEED, LABELS, POPULATIONS, vehicles
+from bench.corpus import Vehicle
+from bench.cross_speed import fit_problem
+from crashnlp.optimize.comparison import TIE, held_out_prediction, with_form
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
+
+FITTED_KMH = 56.0
+PREDICTED_KMH = (40.0, 48.0, 64.0)
+QUICK_COUNT = 1  # vehicles of each generator form with --quick
+
+
+def judge(v: Vehicle, folder: Path) -> dict:
+    """One vehicle: compare's choice from its FITTED_KMH test, and each form's held-out score at PREDICTED_KMH."""
+    whole = crashnlp.load(fit_problem(v, (FITTED_KMH, *PREDICTED_KMH), folder))
+    one = whole.model_copy(update={"tests": whole.tests[:1]})
+    comparison = crashnlp.compare(one)
+    row: dict = {"vehicle": v.name, "choice": comparison.choice, "reason": comparison.reason, "forms": {}}
+    for form in COMPARED:
+        fit = crashnlp.identify(with_form(one, form))
+        entry: dict = {"status": fit.status, "bic": next(f.bic for f in comparison.forms if f.form == form)}
+        if fit.ok and fit.identified is not None:
+            held = [held_out_prediction(with_form(whole, form), t.name, fit.identified) for t in whole.tests[1:]]
+            scores = [h.score for h in held]
+            entry["held_out"] = None if None in scores else float(np.mean(scores))  # type: ignore[arg-type]
+        row["forms"][form] = entry
+    return row
+
+
+def regret(row: dict, form: str | None) -> float | None:
+    """The chosen form's held-out score over the better form's, less one; None where a form has no score."""
+    scores = {f: e.get("held_out") for f, e in row["forms"].items()}
+    if form is None or None in scores.values():
+        return None
+    return scores[form] / min(scores.values()) - 1.0  # type: ignore[operator, type-var]
+
+
+def ways(row: dict) -> dict[str, str | None]:
+    """The form each way of choosing takes for `row`."""
+    return {"compare": row["choice"], **{f"always {form}": form for form in COMPARED}}
+
+
+def summary(rows: list[dict]) -> dict:
+    """The vehicles, how many compare gave another form than the default, and per way of choosing:
+    vehicles scored, within TIE of the better form, mean and largest regret."""
+    out: dict = {"vehicles": len(rows), "chose_other": sum(row["choice"] not in (None, DEFAULT_FORM) for row in rows)}
+    out["ways"] = {}
+    for way in ways(rows[0]) if rows else ():
+        values = [r for r in (regret(row, ways(row)[way]) for row in rows) if r is not None]
+        out["ways"][way] = {
+            "scored": len(values),
+            "within_tie": sum(r <= TIE for r in values),
+            "mean_regret": float(np.mean(values)) if values else None,
+            "max_regret": float(np.max(values)) if values else None,
+        }
+    return out
+
+
+def run(quick: bool = False) -> dict:
+    """The bench section: every population's vehicles (QUICK_COUNT of each generator form with --quick)."""
+    out: dict = {"fitted_kmh": FITTED_KMH, "predicted_kmh": PREDICTED_KMH, "tie": TIE, "populations": {}}
+    for seed, (makers, counts) in POPULATIONS.items():
+        if quick:
+            counts = dict.fromkeys(counts, QUICK_COUNT)
+        groups: dict[str, list[dict]] = {}
+        with tempfile.TemporaryDirectory() as tmp:
+            for kind, v in vehicles(seed, counts, makers):
+                folder = Path(tmp) / f"{kind.replace(' ', '-')}-{v.name}"
+                folder.mkdir()
+                groups.setdefault(kind, []).append(judge(v, folder))
+                print(f"  seed {seed} {kind} {v.name}: {groups[kind][-1]['choice']}", flush=True)
+        out["populations"][str(seed)] = {
+            "label": LABELS[seed],
+            "hidden": seed == HIDDEN_SEED,
+            "kinds": {kind: {"rows": rows, "summary": summary(rows)} for kind, rows in groups.items()},
+            "summary": summary([r for rows in groups.values() for r in rows]),
+        }
+    return out

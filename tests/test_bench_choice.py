@@ -1,0 +1,62 @@
+"""bench/choice.py's reading of compare's one-test choice: the regret of a way of choosing, what
+the summary counts within compare's tie, and the report's table of it."""
+
+from __future__ import annotations
+
+import pytest
+
+from bench import report
+from bench.choice import regret, summary
+from crashnlp.optimize.comparison import TIE
+
+
+def _row(choice: str | None, pendulum: float | None, rigid: float | None) -> dict:
+    return {
+        "vehicle": "v00",
+        "choice": choice,
+        "reason": "",
+        "forms": {"pendulum": {"status": "ok", "held_out": pendulum}, "rigid-body": {"status": "ok", "held_out": rigid}},
+    }
+
+
+def test_the_regret_is_the_chosen_forms_score_over_the_better_ones_and_none_without_both():
+    row = _row("rigid-body", 0.10, 0.12)
+    assert regret(row, "pendulum") == 0.0
+    assert regret(row, "rigid-body") == pytest.approx(0.2)
+    assert regret(_row("pendulum", 0.10, None), "pendulum") is None  # a form that failed scores nothing
+    assert regret(row, None) is None  # no form's fit converged: no choice
+
+
+def test_the_summary_counts_choices_within_the_tie_for_every_way_of_choosing():
+    rows = [
+        _row("rigid-body", 0.10, 0.05),  # compare right, the default twice as bad
+        _row("rigid-body", 0.10, 0.10 * (1 + TIE / 2)),  # compare within the tie
+        _row("pendulum", 0.10, 0.08),  # compare 25 % worse
+        _row("pendulum", None, 0.08),  # unscored
+    ]
+    s = summary(rows)
+    assert s["vehicles"] == 4 and s["chose_other"] == 2
+    assert s["ways"]["compare"]["scored"] == 3 and s["ways"]["compare"]["within_tie"] == 2
+    assert s["ways"]["compare"]["max_regret"] == pytest.approx(0.25)
+    assert s["ways"]["always pendulum"]["within_tie"] == 1 and s["ways"]["always pendulum"]["max_regret"] == pytest.approx(1.0)
+    assert s["ways"]["always rigid-body"]["within_tie"] == 3
+
+
+def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
+    rows = [_row("rigid-body", 0.10, 0.05), _row("pendulum", 0.10, 0.08)]
+    section = {
+        "fitted_kmh": 56.0,
+        "predicted_kmh": [40.0, 48.0, 64.0],
+        "tie": TIE,
+        "populations": {
+            "3100": {
+                "label": "set seed",
+                "hidden": False,
+                "kinds": {"rigid body": {"rows": rows, "summary": summary(rows)}},
+                "summary": summary(rows),
+            }
+        },
+    }
+    table = [line for line in report.choice_md(section) if line.startswith("| set seed")]
+    assert [line.split(" | ")[1] for line in table] == ["rigid body", "all"]
+    assert "| 1/2 | 1/2, 12.5 % (25 %) | 0/2, 62.5 % (100 %) | 2/2, 0.0 % (0 %) |" in table[0]
