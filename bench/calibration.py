@@ -43,6 +43,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
+from scipy.stats import beta, binom
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -445,6 +446,53 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     return out
 
 
+def by_chance(evaluation: dict) -> dict:
+    """A population's coverage lines read as counts (`evaluate`'s cells): how many fall below their
+    line, how many an interval that holds LEVEL of the time would leave below theirs by chance (the
+    sum over the cells of the binomial chance of fewer covered than the line needs), and per metric
+    the predictions covered over every scenario, with the Clopper-Pearson 95 % range of the share."""
+    below = expected = 0.0
+    pooled: dict[str, list[int]] = {}
+    for by in evaluation.values():
+        for metric, e in by.items():
+            n = e["n"]
+            if not n:
+                continue
+            covered, need = round(e["coverage"] * n), math.ceil(needed(metric) * n - 1e-9)
+            below += covered < need
+            expected += float(binom.cdf(need - 1, n, LEVEL))
+            counts = pooled.setdefault(metric, [0, 0])
+            counts[0], counts[1] = counts[0] + covered, counts[1] + n
+    return {
+        "lines": sum(e["n"] > 0 for by in evaluation.values() for e in by.values()),
+        "below": int(below),
+        "expected_below": expected,
+        "metrics": {
+            metric: {
+                "covered": k,
+                "n": n,
+                "low": float(beta.ppf(0.025, k, n - k + 1)) if k else 0.0,
+                "high": float(beta.ppf(0.975, k + 1, n - k)) if k < n else 1.0,
+            }
+            for metric, (k, n) in pooled.items()
+        },
+    }
+
+
+def _chance_line(evaluation: dict) -> str:
+    """`by_chance` in a sentence under a population's table."""
+    c = by_chance(evaluation)
+    shares = "; ".join(
+        f"{SHORT[m]} {100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %)"
+        for m, e in c["metrics"].items()
+    )
+    return (
+        f"Cells below their coverage line: {c['below']} of {c['lines']}; an interval that holds {100 * LEVEL:.0f} % of the time "
+        f"leaves {c['expected_below']:.1f} below by chance, on cells of these sizes. Covered over every scenario: {shares} "
+        "(in brackets the share's 95 % range)."
+    )
+
+
 def needed(metric: str) -> float:
     """Issue 38's coverage line of `metric`."""
     return TARGETS["coverage"].get(metric, TARGETS["coverage_other"])
@@ -651,6 +699,7 @@ def _form_markdown(section: dict) -> list[str]:
     for seed in (CHECK_SEED, HIDDEN_SEED, SET_SEED):
         for group, evaluation in section["evaluation"].get(str(seed), {}).items():
             lines += [f"#### {form}: seed {seed}, {LABELS[seed]}: {group}", "", *_evaluation_table(evaluation), ""]
+            lines += [_chance_line(evaluation), ""]
     return lines
 
 

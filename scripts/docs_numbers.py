@@ -543,6 +543,37 @@ def _intervals(bench: dict[str, Any]) -> dict[str, str]:
                 key = f"iv.{label}.{scenario_keys[scenario]}.{metric_keys[metric]}"
                 out[f"{key}.cov"] = f"{e['coverage'] * 100:.0f}"
                 out[f"{key}.hw"] = f"{e['half_width_median'] * 100:.{1 if e['half_width_median'] < 0.1 else 0}f}"
+    return out | _by_chance(intervals, metric_keys)
+
+
+JUDGED = ("max_displacement_m", "time_zero_velocity_s", "peak_decel_g")  # the metrics of issue 38's 90 % line
+
+
+def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[str, str]:
+    """The coverage lines read as counts (bench/calibration.py's by_chance), per model form and
+    population (iv.<form>.<check, hidden>.chance.<below, expected>; the pendulum's without the
+    form): the cells below their line and how many an interval that holds 95 % leaves below by
+    chance; the pendulum's pooled coverage (%), over every scenario, the lowest and highest of the
+    check seed's metrics (iv.check.pooled.<lowest, highest>) and of the hidden population's
+    JUDGED metrics with its 95 % range (iv.hidden.pooled.<metric>.<pct, low, high>)."""
+    from bench.calibration import by_chance
+
+    out = {}
+    for form, section in ((None, intervals), *intervals.get("forms", {}).items()):
+        for label, seed in (("check", section["check_seed"]), ("hidden", section["hidden_seed"])):
+            c = by_chance(section["evaluation"][str(seed)]["all"])
+            key = f"iv.{label}" if form is None else f"iv.{form}.{label}"
+            out |= {f"{key}.chance.below": str(c["below"]), f"{key}.chance.expected": f"{c['expected_below']:.1f}"}
+            if form is not None:
+                continue
+            shares = {m: 100 * e["covered"] / e["n"] for m, e in c["metrics"].items()}
+            if label == "check":
+                out[f"{key}.pooled.lowest"], out[f"{key}.pooled.highest"] = (f"{f(shares.values()):.0f}" for f in (min, max))
+                continue
+            for metric in JUDGED:
+                e, name = c["metrics"][metric], f"{key}.pooled.{metric_keys[metric]}"
+                out |= {f"{name}.pct": f"{shares[metric]:.0f}"}
+                out |= {f"{name}.{end}": f"{100 * e[end]:.0f}" for end in ("low", "high")}
     return out
 
 
