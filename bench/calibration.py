@@ -415,8 +415,8 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     (relative); a failed fit or a prediction without a value or an interval counts as not covered,
     a prediction whose generator's record does not hold the metric (NaN: no stop, or a record that
     ends still moving withholds it, crashnlp.analysis.summary.withheld) not at all.
-    `coverage_given` is the coverage of the predictions that have an interval: the calibration's
-    part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
+    `coverage_given` is the coverage of the `given` predictions that have an interval: the
+    calibration's part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
     for every prediction of the scenario, that would hold the generator's value as often as issue
     38's coverage line asks (`needed`), and `one_width_level` as often as LEVEL (a failed fit, or
     a prediction without a value or an interval, is held by none), for the metrics with a sharpness
@@ -432,6 +432,7 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
             misses = [abs(g["error_rel"]) if g is not None else math.inf for g in got]
             out[scenario][metric] = {
                 "n": len(mine),
+                "given": len(seen),
                 "coverage": sum(g["covered"] for g in seen) / len(mine) if mine else float("nan"),
                 "coverage_given": sum(g["covered"] for g in seen) / len(seen) if seen else float("nan"),
                 "half_width_median": float(np.median([g["half_rel"] for g in seen])) if seen else float("nan"),
@@ -450,7 +451,8 @@ def by_chance(evaluation: dict) -> dict:
     """A population's coverage lines read as counts (`evaluate`'s cells): how many fall below their
     line, how many an interval that holds LEVEL of the time would leave below theirs by chance (the
     sum over the cells of the binomial chance of fewer covered than the line needs), and per metric
-    the predictions covered over every scenario, with the Clopper-Pearson 95 % range of the share."""
+    the predictions covered over every scenario, with the Clopper-Pearson 95 % range of the share,
+    and of them the predictions that have an interval (`given`)."""
     below = expected = 0.0
     pooled: dict[str, list[int]] = {}
     for by in evaluation.values():
@@ -461,8 +463,9 @@ def by_chance(evaluation: dict) -> dict:
             covered, need = round(e["coverage"] * n), math.ceil(needed(metric) * n - 1e-9)
             below += covered < need
             expected += float(binom.cdf(need - 1, n, LEVEL))
-            counts = pooled.setdefault(metric, [0, 0])
-            counts[0], counts[1] = counts[0] + covered, counts[1] + n
+            counts = pooled.setdefault(metric, [0, 0, 0])
+            for i, add in enumerate((covered, n, e["given"])):
+                counts[i] += add
     return {
         "lines": sum(e["n"] > 0 for by in evaluation.values() for e in by.values()),
         "below": int(below),
@@ -471,10 +474,11 @@ def by_chance(evaluation: dict) -> dict:
             metric: {
                 "covered": k,
                 "n": n,
+                "given": given,
                 "low": float(beta.ppf(0.025, k, n - k + 1)) if k else 0.0,
                 "high": float(beta.ppf(0.975, k + 1, n - k)) if k < n else 1.0,
             }
-            for metric, (k, n) in pooled.items()
+            for metric, (k, n, given) in pooled.items()
         },
     }
 
@@ -483,13 +487,16 @@ def _chance_line(evaluation: dict) -> str:
     """`by_chance` in a sentence under a population's table."""
     c = by_chance(evaluation)
     shares = "; ".join(
-        f"{SHORT[m]} {100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %)"
+        f"{SHORT[m]} {100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %"
+        + (f"; {e['covered']} of the {e['given']} with an interval" if e["given"] < e["n"] else "")
+        + ")"
         for m, e in c["metrics"].items()
     )
     return (
         f"Cells below their coverage line: {c['below']} of {c['lines']}; an interval that holds {100 * LEVEL:.0f} % of the time "
         f"leaves {c['expected_below']:.1f} below by chance, on cells of these sizes. Covered over every scenario: {shares} "
-        "(in brackets the share's 95 % range)."
+        "(in brackets the share's 95 % range, and where some predictions have no interval, a failed fit or no value, "
+        "the share of those that have one)."
     )
 
 

@@ -555,7 +555,8 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
     form): the cells below their line and how many an interval that holds 95 % leaves below by
     chance; the pendulum's pooled coverage (%), over every scenario, the lowest and highest of the
     check seed's metrics (iv.check.pooled.<lowest, highest>) and of the hidden population's
-    JUDGED metrics with its 95 % range (iv.hidden.pooled.<metric>.<pct, low, high>)."""
+    JUDGED metrics with its 95 % range (iv.hidden.pooled.<metric>.<pct, low, high>), and the lowest
+    and highest pooled coverage of its predictions that have an interval (iv.hidden.given.<lowest, highest>)."""
     from bench.calibration import by_chance
 
     out = {}
@@ -570,6 +571,8 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
             if label == "check":
                 out[f"{key}.pooled.lowest"], out[f"{key}.pooled.highest"] = (f"{f(shares.values()):.0f}" for f in (min, max))
                 continue
+            given = [100 * e["covered"] / e["given"] for e in c["metrics"].values() if e["given"]]
+            out[f"{key}.given.lowest"], out[f"{key}.given.highest"] = (f"{f(given):.0f}" for f in (min, max))
             for metric in JUDGED:
                 e, name = c["metrics"][metric], f"{key}.pooled.{metric_keys[metric]}"
                 out |= {f"{name}.pct": f"{shares[metric]:.0f}"}

@@ -325,14 +325,17 @@ def test_coverage_read_as_counts_takes_a_cell_of_eight_below_ninety_percent_at_i
     a cell of 8 below that line as often as it misses at least once there, and one of 10 as often
     as it misses twice; the pooled share lies in its 95 % range."""
     evaluation = {
-        "a": {"max_displacement_m": {"n": 8, "coverage": 7 / 8}, "olc_g": {"n": 10, "coverage": 0.9}},
-        "b": {"max_displacement_m": {"n": 10, "coverage": 0.9}, "olc_g": {"n": 0, "coverage": float("nan")}},
+        "a": {"max_displacement_m": {"n": 8, "given": 7, "coverage": 7 / 8}, "olc_g": {"n": 10, "given": 10, "coverage": 0.9}},
+        "b": {
+            "max_displacement_m": {"n": 10, "given": 10, "coverage": 0.9},
+            "olc_g": {"n": 0, "given": 0, "coverage": float("nan")},
+        },
     }
     c = by_chance(evaluation)
     assert (c["lines"], c["below"]) == (3, 1)  # a cell without predictions is no line
     eight, ten = 1 - 0.95**8, 1 - 0.95**10 - 10 * 0.05 * 0.95**9  # 90 % and 85 % of 10 both need 9
     assert c["expected_below"] == pytest.approx(eight + 2 * ten)
     crush = c["metrics"]["max_displacement_m"]
-    assert (crush["covered"], crush["n"]) == (16, 18)
+    assert (crush["covered"], crush["n"], crush["given"]) == (16, 18, 17)
     assert crush["low"] < 16 / 18 < crush["high"] < 1.0
     assert c["metrics"]["olc_g"]["n"] == 10
