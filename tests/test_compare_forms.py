@@ -45,6 +45,13 @@ def test_the_lowest_held_out_score_wins_but_a_tie_keeps_the_default():
     assert choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-100.0 - 3 * BIC_TIE)], "bic")[0] == "rigid-body"
 
 
+def test_a_choice_from_one_test_says_that_nothing_was_held_out():
+    held = "nothing is held out"
+    assert held in choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-120.0)], "bic")[1]
+    assert held in choose([_score("pendulum", bic=-100.0), _score("rigid-body", bic=-101.0)], "bic")[1]  # the default, a tie
+    assert held not in choose([_score("pendulum", held=0.10), _score("rigid-body", held=0.05)], "held-out")[1]
+
+
 def test_a_form_chosen_without_a_measured_pitch_says_so():
     """An accelerometer-only test (no pitch channel: the scores' pitch RMSE is None): a choice
     other than the default says it rests on the other channels alone; with pitch, or for the

@@ -317,6 +317,8 @@ def choose(scores: list[FormScore], criterion: str) -> tuple[str | None, str]:
     lifted = _of(scores, choice).lift_off_s
     if lifted is not None:
         reason += f"; its held-out prediction lets the front end go at {lifted * 1e3:.1f} ms while the data still push"
+    if criterion == "bic":
+        reason += "; with one test nothing is held out: a second test at another speed lets compare choose by held-out prediction"
     if choice != DEFAULT_FORM and all(f.pitch_rmse_rad is None for f in scores if f.ok):
         reason += "; no test measures pitch, where the forms differ most: the choice rests on the other channels alone"
     return choice, reason
