@@ -783,6 +783,24 @@ def test_bands_are_pointwise_95_and_at_a_metric_s_instant_its_interval(engine_fi
 
 
 @pytest.mark.integration
+def test_after_the_stop_the_displacement_band_carries_the_rebounds_miss(engine_fit):
+    """Coming back off the barrier, how far back the vehicle is depends on its rebound: once it
+    has left the barrier it moves back at the rebound velocity, so the displacement band widens
+    at least by the rebound's non-parameter half-width for every second since, and not before
+    the max displacement."""
+    folder, path, result = engine_fit
+    test = crashnlp.simulate(prediction_problem(path, 40.0, folder), params=result)["40kph"]
+    r, (low, high) = test.response, test.bands["displacement"]
+    part, q = test.parts["rebound_velocity_mps"], test.form_q["rebound_velocity_mps"]
+    left = int(np.flatnonzero(r["contact_force"] > 0)[-1]) + 1
+    assert left < r.time.size - 1 and part.value > 0
+    half = (high - low) / 2
+    assert half[-1] >= np.hypot(part.form(q), part.past(q)) * (r.time[-1] - r.time[left]) * (1 - 1e-9)
+    top = int(np.argmax(r["displacement"]))
+    assert half[-1] > 2 * half[top]  # the rebound's miss, not the max displacement's, dominates late
+
+
+@pytest.mark.integration
 def test_an_extrapolated_interval_names_its_parts_and_the_force_past_the_reach_when_it_dominates(engine_fit):
     folder, path, result = engine_fit
     test = crashnlp.simulate(prediction_problem(path, 64.0, folder), params=result)["64kph"]

@@ -434,23 +434,39 @@ def _bands(
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Pointwise 95 % bands: the parameters' half-width of the curve at each instant, and its
     metric's non-parameter half-width in proportion to how far the curve has moved from what
-    the model knows exactly (zero, or for the velocity the impact speed); cut to what is
-    physically certain (crashnlp.analysis.limits: the barrier force only pushes, and at impact,
-    `speed`, nothing has moved yet)."""
-    bands = {}
+    the model knows exactly (zero, or for the velocity the impact speed), the displacement's
+    after its max with the velocity's carried on (`_carried_back`); cut to what is physically
+    certain (crashnlp.analysis.limits: the barrier force only pushes, and at impact, `speed`,
+    nothing has moved yet)."""
     v0 = float(response["velocity"][0])
+    rest = {}
     for name, key in BAND_METRIC.items():
         part = parts.get(key)
         if part is None or key not in qs:
             continue
         y = response[name]
-        g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
         moved = np.abs(v0 - y) if name == "velocity" else np.abs(y)
         reference = v0 + part.value if name == "velocity" else abs(part.value)
-        rest = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference if reference > 0 else 0.0
-        half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + (rest * moved) ** 2)
+        rest[name] = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference * moved if reference > 0 else 0.0 * moved
+    if "displacement" in rest and "velocity" in rest:
+        rest["displacement"] = np.hypot(rest["displacement"], _carried_back(response, rest["velocity"]))
+    bands = {}
+    for name, half_rest in rest.items():
+        y = response[name]
+        g = gy.get(name, np.zeros((cov.shape[0], y.size)))  # values x times
+        half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + half_rest**2)
         bands[name] = limited_band(name, response.time, y, (y - half, y + half), speed)
     return bands
+
+
+def _carried_back(response: Response, velocity_rest: np.ndarray) -> np.ndarray:
+    """The displacement's non-parameter half-width after its max: the velocity band's
+    (`velocity_rest`, the rebound's miss) integrated from the max on, since how fast the vehicle
+    comes back off the barrier decides how far back it is; zero up to the max, where the max
+    displacement's interval holds."""
+    time, top = response.time, int(np.argmax(response["displacement"]))
+    steps = 0.5 * (velocity_rest[top + 1 :] + velocity_rest[top:-1]) * np.diff(time[top:])
+    return np.concatenate([np.zeros(top + 1), np.cumsum(steps)])
 
 
 def _curve_miss(identified: IdentifiedModel, metric: str) -> float:
