@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 import yaml
-from scipy.stats import beta, binom
+from scipy.stats import binom
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -82,6 +82,7 @@ VERSION = 12
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
 # predictions of a class, 56 -> 64 and 40 + 56 -> 64, miss alike): docs/design-notes.md
 LEVEL = 0.95
+BOOTSTRAP = 2000  # whole-vehicle resamples of a pooled coverage's range (`pooled`)
 POWER_STEP, POWER_RANGE = 0.05, (0.25, 1.5)  # the power of the distance in the form term's unit (power)
 # the rebound's floors tried (shares of the impact speed; IMPACT_SPEED: the impact speed itself, the rule before version 11)
 REBOUND_FLOORS = (0.02, 0.05, 0.1, 0.2, IMPACT_SPEED)
@@ -415,8 +416,8 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
     (relative); a failed fit or a prediction without a value or an interval counts as not covered,
     a prediction whose generator's record does not hold the metric (NaN: no stop, or a record that
     ends still moving withholds it, crashnlp.analysis.summary.withheld) not at all.
-    `coverage_given` is the coverage of the `given` predictions that have an interval: the
-    calibration's part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
+    `coverage_given` is the coverage of the predictions that have an interval: the calibration's
+    part, without the fits' failures. `one_width` is the narrowest half-width, one relative width
     for every prediction of the scenario, that would hold the generator's value as often as issue
     38's coverage line asks (`needed`), and `one_width_level` as often as LEVEL (a failed fit, or
     a prediction without a value or an interval, is held by none), for the metrics with a sharpness
@@ -432,7 +433,6 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
             misses = [abs(g["error_rel"]) if g is not None else math.inf for g in got]
             out[scenario][metric] = {
                 "n": len(mine),
-                "given": len(seen),
                 "coverage": sum(g["covered"] for g in seen) / len(mine) if mine else float("nan"),
                 "coverage_given": sum(g["covered"] for g in seen) / len(seen) if seen else float("nan"),
                 "half_width_median": float(np.median([g["half_rel"] for g in seen])) if seen else float("nan"),
@@ -449,54 +449,74 @@ def evaluate(rows: list[dict], calibration: Calibration) -> dict:
 
 def by_chance(evaluation: dict) -> dict:
     """A population's coverage lines read as counts (`evaluate`'s cells): how many fall below their
-    line, how many an interval that holds LEVEL of the time would leave below theirs by chance (the
-    sum over the cells of the binomial chance of fewer covered than the line needs), and per metric
-    the predictions covered over every scenario, with the Clopper-Pearson 95 % range of the share,
-    and of them the predictions that have an interval (`given`)."""
+    line, and how many an interval that holds LEVEL of the time would leave below theirs by chance
+    (the sum over the cells of the binomial chance of fewer covered than the line needs: each
+    vehicle gives a cell one prediction, so a cell's are independent draws)."""
     below = expected = 0.0
-    pooled: dict[str, list[int]] = {}
+    lines = 0
     for by in evaluation.values():
         for metric, e in by.items():
             n = e["n"]
             if not n:
                 continue
-            covered, need = round(e["coverage"] * n), math.ceil(needed(metric) * n - 1e-9)
-            below += covered < need
+            need = math.ceil(needed(metric) * n - 1e-9)
+            lines += 1
+            below += round(e["coverage"] * n) < need
             expected += float(binom.cdf(need - 1, n, LEVEL))
-            counts = pooled.setdefault(metric, [0, 0, 0])
-            for i, add in enumerate((covered, n, e["given"])):
-                counts[i] += add
-    return {
-        "lines": sum(e["n"] > 0 for by in evaluation.values() for e in by.values()),
-        "below": int(below),
-        "expected_below": expected,
-        "metrics": {
-            metric: {
-                "covered": k,
-                "n": n,
-                "given": given,
-                "low": float(beta.ppf(0.025, k, n - k + 1)) if k else 0.0,
-                "high": float(beta.ppf(0.975, k + 1, n - k)) if k < n else 1.0,
-            }
-            for metric, (k, n, given) in pooled.items()
-        },
-    }
+    return {"lines": lines, "below": int(below), "expected_below": expected}
 
 
-def _chance_line(evaluation: dict) -> str:
-    """`by_chance` in a sentence under a population's table."""
+def pooled(rows: list[dict], calibration: Calibration) -> dict:
+    """Per metric, every scenario's predictions together: how many the interval covers, of those
+    the generator's record holds the metric for (n) and of those with an interval (given), and the
+    95 % range of the covered share from resampling whole vehicles (BOOTSTRAP draws, a fixed seed):
+    a vehicle's predictions miss alike, so they are not independent draws."""
+    out = {}
+    for metric in PREDICTED_KEYS:
+        per: dict[tuple[str, str], list[int]] = {}
+        for row in rows:
+            if np.isfinite(row["truth"][metric]):
+                got = judged(row, metric, calibration)
+                counts = per.setdefault((row["form"], row["vehicle"]), [0, 0, 0])
+                counts[0] += bool(got and got["covered"])
+                counts[1] += 1
+                counts[2] += got is not None
+        if not per:
+            continue
+        vehicles = np.array(list(per.values()))  # covered, n, given
+        low, high = vehicle_range(vehicles[:, :2])
+        covered, n, given = (int(x) for x in vehicles.sum(axis=0))
+        out[metric] = {"covered": covered, "n": n, "given": given, "low": low, "high": high}
+    return out
+
+
+def vehicle_range(vehicles: np.ndarray) -> tuple[float, float]:
+    """The 95 % range of the covered share of predictions, each row one vehicle's (covered, n),
+    from BOOTSTRAP resamples of whole vehicles with a fixed seed."""
+    draws = vehicles[np.random.default_rng(0).integers(0, len(vehicles), (BOOTSTRAP, len(vehicles)))].sum(axis=1)
+    low, high = np.quantile(draws[:, 0] / draws[:, 1], [0.025, 0.975])
+    return float(low), float(high)
+
+
+def _chance_line(evaluation: dict, shares: dict | None) -> str:
+    """`by_chance` and `pooled` (`shares`, none in a section made before it) in a sentence under a
+    population's table."""
     c = by_chance(evaluation)
-    shares = "; ".join(
+    line = (
+        f"Cells below their coverage line: {c['below']} of {c['lines']}; an interval that holds {100 * LEVEL:.0f} % of the "
+        f"time leaves {c['expected_below']:.1f} below by chance, on cells of these sizes."
+    )
+    if not shares:
+        return line
+    pooled_shares = "; ".join(
         f"{SHORT[m]} {100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %"
         + (f"; {e['covered']} of the {e['given']} with an interval" if e["given"] < e["n"] else "")
         + ")"
-        for m, e in c["metrics"].items()
+        for m, e in shares.items()
     )
     return (
-        f"Cells below their coverage line: {c['below']} of {c['lines']}; an interval that holds {100 * LEVEL:.0f} % of the time "
-        f"leaves {c['expected_below']:.1f} below by chance, on cells of these sizes. Covered over every scenario: {shares} "
-        "(in brackets the share's 95 % range, and where some predictions have no interval, a failed fit or no value, "
-        "the share of those that have one)."
+        f"{line} Covered over every scenario: {pooled_shares} (in brackets the share's 95 % range, whole vehicles "
+        "resampled, and where some predictions have no interval, a failed fit or no value, the share of those that have one)."
     )
 
 
@@ -579,6 +599,16 @@ def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> d
         "vehicles": {str(seed): len({(r["form"], r["vehicle"]) for r in rows}) for seed, rows in records.items()},
         "targets": TARGETS,
         "evaluation": evaluation,
+        "pooled": {
+            str(seed): {
+                "all": pooled(rows, calibration),
+                **{
+                    form: pooled([r for r in rows if r["form"] == form], calibration)
+                    for form in dict.fromkeys(r["form"] for r in rows)
+                },
+            }
+            for seed, rows in records.items()
+        },
     }
 
 
@@ -706,7 +736,7 @@ def _form_markdown(section: dict) -> list[str]:
     for seed in (CHECK_SEED, HIDDEN_SEED, SET_SEED):
         for group, evaluation in section["evaluation"].get(str(seed), {}).items():
             lines += [f"#### {form}: seed {seed}, {LABELS[seed]}: {group}", "", *_evaluation_table(evaluation), ""]
-            lines += [_chance_line(evaluation), ""]
+            lines += [_chance_line(evaluation, section.get("pooled", {}).get(str(seed), {}).get(group)), ""]
     return lines
 
 

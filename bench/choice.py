@@ -3,15 +3,18 @@
 With one test, `crashnlp compare` has no test to hold out and chooses by the BIC of each form's
 fit (crashnlp.optimize.comparison). Here each vehicle of the intervals' corpus (bench/calibration.py's
 populations: the set seed, the check seed and the hidden population of a form the corpus does not
-hold) is tested at FITTED_KMH and compared from that test alone, its minimal problem as
-`crashnlp init` writes it; each form's fit of that test then predicts the vehicle at PREDICTED_KMH,
-scored as compare's held-out score is (each measured channel's RMSE over its data's RMS, averaged
-over the channels and the speeds: crashnlp.optimize.comparison.held_out_prediction).
+hold) is tested at FITTED_KMH and its forms fitted and scored from that test alone, as compare
+does it (score_form, choose), its minimal problem as `crashnlp init` writes it; each form's fit
+then predicts the vehicle at PREDICTED_KMH, scored as compare's held-out score is (each measured
+channel's RMSE over its data's RMS, averaged over the channels and the speeds:
+crashnlp.optimize.comparison.held_out_prediction).
 
 Per population and generator form: how often each way of choosing predicts within compare's TIE of
 the better form, and the mean and largest regret (the chosen form's score over the better form's,
-less one). The ways: compare's choice, always the default form, always the other form. Nothing
-is set on these vehicles: BIC_TIE is Kass and Raftery's, so every population judges the rule.
+less one). The ways: compare's choice; compare's rule on a BIC whose samples are counted as fewer
+for the residuals' lag-one correlation (the fitted nodes are not independent: a form's miss is
+smooth in time); always the default form; always the other form. Nothing is set on these
+vehicles: BIC_TIE is Kass and Raftery's, so every population judges the rule.
 """
 
 from __future__ import annotations
@@ -25,7 +28,15 @@ import crashnlp
 from bench.calibration import HIDDEN_SEED, LABELS, POPULATIONS, vehicles
 from bench.corpus import Vehicle
 from bench.cross_speed import fit_problem
-from crashnlp.optimize.comparison import TIE, held_out_prediction, with_form
+from crashnlp.optimize.comparison import (
+    TIE,
+    FormScore,
+    choose,
+    held_out_prediction,
+    information_criteria,
+    score_form,
+    with_form,
+)
 from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
 
 FITTED_KMH = 56.0
@@ -34,20 +45,41 @@ QUICK_COUNT = 1  # vehicles of each generator form with --quick
 
 
 def judge(v: Vehicle, folder: Path) -> dict:
-    """One vehicle: compare's choice from its FITTED_KMH test, and each form's held-out score at PREDICTED_KMH."""
+    """One vehicle: compare's choice from its FITTED_KMH test (its fits as compare makes and scores
+    them, crashnlp.optimize.comparison.score_form), the BIC with the samples counted as fewer
+    (`fewer_samples_bic`), and each form's held-out score at PREDICTED_KMH."""
     whole = crashnlp.load(fit_problem(v, (FITTED_KMH, *PREDICTED_KMH), folder))
     one = whole.model_copy(update={"tests": whole.tests[:1]})
-    comparison = crashnlp.compare(one)
-    row: dict = {"vehicle": v.name, "choice": comparison.choice, "reason": comparison.reason, "forms": {}}
-    for form in COMPARED:
-        fit = crashnlp.identify(with_form(one, form))
-        entry: dict = {"status": fit.status, "bic": next(f.bic for f in comparison.forms if f.form == form)}
-        if fit.ok and fit.identified is not None:
+    scored = {form: score_form(one, form, None, "bic") for form in COMPARED}
+    choice, reason = choose([score for score, _ in scored.values()], "bic")
+    row: dict = {"vehicle": v.name, "choice": choice, "reason": reason, "forms": {}}
+    for form, (score, fit) in scored.items():
+        entry: dict = {"status": score.status, "bic": score.bic}
+        if fit is not None and fit.ok and fit.identified is not None:
             held = [held_out_prediction(with_form(whole, form), t.name, fit.identified) for t in whole.tests[1:]]
             scores = [h.score for h in held]
             entry["held_out"] = None if None in scores else float(np.mean(scores))  # type: ignore[arg-type]
+            entry |= fewer_samples_bic(fit, score.parameters)
         row["forms"][form] = entry
     return row
+
+
+def fewer_samples_bic(fit: crashnlp.Result, k: int) -> dict:
+    """The fit's BIC with each channel's n samples counted as n (1 - r) / (1 + r), r the lag-one
+    correlation of its residuals (floored at 0): a smooth miss is fewer independent samples than
+    nodes. Beside it each fitted channel's r ("test/channel")."""
+    fitted = [(f"{name}/{c.channel}", c) for name, t in fit.tests.items() for c in (t.fit or {}).values()]
+    lag = {key: _lag_one(c.model - c.data) for key, c in fitted}
+    counted = {id(c): c.data.size * (1 - lag[key]) / (1 + lag[key]) for key, c in fitted}
+    _, bic = information_criteria([c for _, c in fitted], k, lambda c: counted[id(c)])
+    return {"bic_fewer_samples": bic, "lag_one": lag}
+
+
+def _lag_one(residual: np.ndarray) -> float:
+    """The lag-one correlation of a residual, within [0, 0.999]."""
+    r = residual - residual.mean()
+    denominator = float(r @ r)
+    return min(max(float(r[:-1] @ r[1:]) / denominator if denominator > 0 else 0.0, 0.0), 0.999)
 
 
 def regret(row: dict, form: str | None) -> float | None:
@@ -59,14 +91,25 @@ def regret(row: dict, form: str | None) -> float | None:
 
 
 def ways(row: dict) -> dict[str, str | None]:
-    """The form each way of choosing takes for `row`."""
-    return {"compare": row["choice"], **{f"always {form}": form for form in COMPARED}}
+    """The form each way of choosing takes for `row`: compare's, the BIC with fewer samples (the
+    default form unless another is lower by more than compare's tie), and each form always."""
+    return {"compare": row["choice"], "BIC, fewer samples": _fewer(row), **{f"always {form}": form for form in COMPARED}}
+
+
+def _fewer(row: dict) -> str | None:
+    """The form compare's rule chooses by the BIC with fewer samples."""
+    scores = [FormScore(form, e["status"], bic=e.get("bic_fewer_samples")) for form, e in row["forms"].items()]
+    return choose(scores, "bic")[0]
 
 
 def summary(rows: list[dict]) -> dict:
-    """The vehicles, how many compare gave another form than the default, and per way of choosing:
-    vehicles scored, within TIE of the better form, mean and largest regret."""
+    """The vehicles, how many compare gave another form than the default, the fitted channels'
+    residual lag-one correlations (5th percentile, median, 95th), and per way of choosing: vehicles
+    scored, within TIE of the better form, mean and largest regret."""
     out: dict = {"vehicles": len(rows), "chose_other": sum(row["choice"] not in (None, DEFAULT_FORM) for row in rows)}
+    lags = [r for row in rows for e in row["forms"].values() for r in e.get("lag_one", {}).values()]
+    if lags:  # the fitted channels' residual lag-one correlations, every form's
+        out["lag_one"] = dict(zip(("p05", "median", "p95"), (float(x) for x in np.quantile(lags, [0.05, 0.5, 0.95]))))
     out["ways"] = {}
     for way in ways(rows[0]) if rows else ():
         values = [r for r in (regret(row, ways(row)[way]) for row in rows) if r is not None]

@@ -1032,7 +1032,9 @@ def choice_md(r: dict) -> list[str]:
         "",
         f"Each vehicle of the intervals' populations tested at {r['fitted_kmh']:g} km/h; `crashnlp compare` chooses "
         "between its default forms from that test alone (BIC). Each form's fit of it then predicts the vehicle at "
-        f"{speeds} km/h, scored as compare's held-out score is. Per way of choosing: the vehicles whose chosen "
+        f"{speeds} km/h, scored as compare's held-out score is. The ways of choosing: compare's; compare's rule on a BIC "
+        "whose samples are counted as fewer for the residuals' lag-one correlation, r (n (1 - r) / (1 + r) a channel); "
+        "each form always. Per way: the vehicles whose chosen "
         f"form predicts within {100 * r['tie']:.0f} % of the better form's score, of those both forms scored; the mean and "
         "(in brackets) largest regret, the chosen form's score over the better one's, less one.",
         "",

@@ -7,16 +7,17 @@ import pytest
 
 from bench import report
 from bench.choice import regret, summary
-from crashnlp.optimize.comparison import TIE
+from crashnlp.optimize.comparison import BIC_TIE, TIE
 
 
-def _row(choice: str | None, pendulum: float | None, rigid: float | None) -> dict:
-    return {
-        "vehicle": "v00",
-        "choice": choice,
-        "reason": "",
-        "forms": {"pendulum": {"status": "ok", "held_out": pendulum}, "rigid-body": {"status": "ok", "held_out": rigid}},
-    }
+def _row(choice: str | None, pendulum: float | None, rigid: float | None, fewer: tuple[float, float] | None = None) -> dict:
+    """A vehicle's row: compare's choice, each form's held-out score and, with `fewer`, each form's
+    BIC with fewer samples (pendulum, rigid body)."""
+    forms = {"pendulum": {"status": "ok", "held_out": pendulum}, "rigid-body": {"status": "ok", "held_out": rigid}}
+    if fewer is not None:
+        for entry, bic in zip(forms.values(), fewer):
+            entry["bic_fewer_samples"] = bic
+    return {"vehicle": "v00", "choice": choice, "reason": "", "forms": forms}
 
 
 def test_the_regret_is_the_chosen_forms_score_over_the_better_ones_and_none_without_both():
@@ -40,10 +41,19 @@ def test_the_summary_counts_choices_within_the_tie_for_every_way_of_choosing():
     assert s["ways"]["compare"]["max_regret"] == pytest.approx(0.25)
     assert s["ways"]["always pendulum"]["within_tie"] == 1 and s["ways"]["always pendulum"]["max_regret"] == pytest.approx(1.0)
     assert s["ways"]["always rigid-body"]["within_tie"] == 3
+    assert s["ways"]["BIC, fewer samples"]["scored"] == 0  # no row has it
+
+
+def test_the_bic_with_fewer_samples_chooses_by_compare_s_rule_with_its_tie():
+    lower = _row("rigid-body", 0.10, 0.05, fewer=(-100.0, -100.0 - 3 * BIC_TIE))
+    tied = _row("rigid-body", 0.10, 0.05, fewer=(-100.0, -100.0 - BIC_TIE / 2))
+    s = summary([lower, tied])
+    assert s["ways"]["BIC, fewer samples"]["within_tie"] == 1  # the tie keeps the pendulum, twice as bad
+    assert s["ways"]["BIC, fewer samples"]["max_regret"] == pytest.approx(1.0)
 
 
 def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
-    rows = [_row("rigid-body", 0.10, 0.05), _row("pendulum", 0.10, 0.08)]
+    rows = [_row("rigid-body", 0.10, 0.05, fewer=(-100.0, -200.0)), _row("pendulum", 0.10, 0.08, fewer=(-100.0, -99.0))]
     section = {
         "fitted_kmh": 56.0,
         "predicted_kmh": [40.0, 48.0, 64.0],
@@ -59,4 +69,4 @@ def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
     }
     table = [line for line in report.choice_md(section) if line.startswith("| set seed")]
     assert [line.split(" | ")[1] for line in table] == ["rigid body", "all"]
-    assert "| 1/2 | 1/2, 12.5 % (25 %) | 0/2, 62.5 % (100 %) | 2/2, 0.0 % (0 %) |" in table[0]
+    assert "| 1/2 | 1/2, 12.5 % (25 %) | 1/2, 12.5 % (25 %) | 0/2, 62.5 % (100 %) | 2/2, 0.0 % (0 %) |" in table[0]

@@ -25,6 +25,7 @@ from bench.calibration import (
     held_out_records,
     judged,
     merged,
+    vehicle_range,
     with_form,
 )
 from bench.corpus import random_vehicle
@@ -321,21 +322,23 @@ def test_the_records_of_a_form_without_a_table_carry_the_parts_its_first_table_i
 
 
 def test_coverage_read_as_counts_takes_a_cell_of_eight_below_ninety_percent_at_its_first_miss():
-    """One miss of 8 is below the 90 % line, one of 10 is not; a 95 % interval leaves
-    a cell of 8 below that line as often as it misses at least once there, and one of 10 as often
-    as it misses twice; the pooled share lies in its 95 % range."""
+    """One miss of 8 is below the 90 % line, one of 10 is not; a 95 % interval leaves a cell of 8
+    below that line as often as it misses at least once there, and one of 10 as often as it misses
+    twice; a cell without predictions is no line."""
     evaluation = {
-        "a": {"max_displacement_m": {"n": 8, "given": 7, "coverage": 7 / 8}, "olc_g": {"n": 10, "given": 10, "coverage": 0.9}},
-        "b": {
-            "max_displacement_m": {"n": 10, "given": 10, "coverage": 0.9},
-            "olc_g": {"n": 0, "given": 0, "coverage": float("nan")},
-        },
+        "a": {"max_displacement_m": {"n": 8, "coverage": 7 / 8}, "olc_g": {"n": 10, "coverage": 0.9}},
+        "b": {"max_displacement_m": {"n": 10, "coverage": 0.9}, "olc_g": {"n": 0, "coverage": float("nan")}},
     }
     c = by_chance(evaluation)
-    assert (c["lines"], c["below"]) == (3, 1)  # a cell without predictions is no line
+    assert (c["lines"], c["below"]) == (3, 1)
     eight, ten = 1 - 0.95**8, 1 - 0.95**10 - 10 * 0.05 * 0.95**9  # 90 % and 85 % of 10 both need 9
     assert c["expected_below"] == pytest.approx(eight + 2 * ten)
-    crush = c["metrics"]["max_displacement_m"]
-    assert (crush["covered"], crush["n"], crush["given"]) == (16, 18, 17)
-    assert crush["low"] < 16 / 18 < crush["high"] < 1.0
-    assert c["metrics"]["olc_g"]["n"] == 10
+
+
+def test_a_pooled_share_s_range_resamples_whole_vehicles():
+    """Vehicles that all miss alike leave no doubt about the share; one vehicle that misses all its
+    predictions makes the share as uncertain as the vehicles are few, more than independent
+    predictions would (Clopper-Pearson's range for 72 of 80)."""
+    assert vehicle_range(np.array([[9, 10]] * 10)) == (0.9, 0.9)
+    low, high = vehicle_range(np.array([[0, 8]] + [[8, 8]] * 9))
+    assert low < 0.78 and high == 1.0 and low < 72 / 80 < high

@@ -33,7 +33,7 @@ the rigid body) is left out of that form's fit, so that it counts no parameter i
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import TextIO
 
@@ -51,7 +51,7 @@ from crashnlp.problem import Problem
 from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
 from crashnlp.results.identified import IdentifiedModel, apply
 from crashnlp.results.response import Response
-from crashnlp.results.result import Result
+from crashnlp.results.result import ChannelFit, Result
 
 HELD_OUT_TESTS = 2  # tests from which on a form is scored by leave-one-test-out prediction
 TIE = 0.05  # relative difference of held-out scores within which the default form stays
@@ -139,15 +139,7 @@ def compare(
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     # the profiles the problem asks for are its chosen form's business, not the comparison's
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
-    scores = []
-    for form in dict.fromkeys(forms):
-        _say(progress, f"{problem.name}: fitting {form}")
-        try:
-            formed = with_form(problem, form)
-        except InputError as exc:  # a problem this form cannot model (CrashModel.check)
-            scores.append(FormScore(form, f"refused: {exc}"))
-            continue
-        scores.append(_score(formed, form, source, criterion, progress))
+    scores = [score_form(problem, form, source, criterion, progress)[0] for form in dict.fromkeys(forms)]
     choice, reason = choose(scores, criterion)
     return Comparison(problem.name, criterion, tuple(scores), choice, reason)
 
@@ -170,6 +162,20 @@ def _say(progress: TextIO | None, line: str) -> None:
         print(line, file=progress, flush=True)
 
 
+def score_form(
+    problem: Problem, form: str, source: str | None, criterion: str, progress: TextIO | None = None
+) -> tuple[FormScore, Result | None]:
+    """The problem fitted with `form` and scored by `criterion` ("held-out" or "bic"), and the fit
+    (None where the form refuses the problem or the fit raised: the score's status says which)."""
+    _say(progress, f"{problem.name}: fitting {form}")
+    try:
+        formed = with_form(problem, form)
+    except InputError as exc:  # a problem this form cannot model (CrashModel.check)
+        return FormScore(form, f"refused: {exc}"), None
+    fit, status = _fit(formed, source)
+    return (FormScore(form, status) if fit is None else _score(formed, fit, source, criterion, progress)), fit
+
+
 def _fit(problem: Problem, source: str | None) -> tuple[Result | None, str]:
     """The problem's fit and its status; a fit that raised a run error has its one line as status."""
     try:
@@ -179,19 +185,25 @@ def _fit(problem: Problem, source: str | None) -> tuple[Result | None, str]:
     return result, result.status
 
 
-def _score(problem: Problem, form: str, source: str | None, criterion: str, progress: TextIO | None) -> FormScore:
-    fit, status = _fit(problem, source)
-    if fit is None:
-        return FormScore(form, status)
+def information_criteria(
+    channels: Sequence[ChannelFit], k: int, counted: Callable[[ChannelFit], float] | None = None
+) -> tuple[float | None, float | None]:
+    """AIC and BIC of a fit's Gaussian likelihood, each channel with its own variance, estimated
+    (constants dropped): sum_c n_c ln(RSS_c / n_c) + 2 k, and + k ln(sum_c n_c), `k` the identified
+    parameters; n_c a channel's samples, or as many as `counted` takes them for; None without samples."""
+    n = [c.data.size if counted is None else counted(c) for c in channels]
+    if sum(n) <= 0:
+        return None, None
+    deviance = sum(nc * math.log(max(float(np.mean((c.model - c.data) ** 2)), 1e-300)) for nc, c in zip(n, channels))
+    return deviance + 2 * k, deviance + k * math.log(sum(n))
+
+
+def _score(problem: Problem, fit: Result, source: str | None, criterion: str, progress: TextIO | None) -> FormScore:
+    """`fit`'s score (the problem's form's, as `score_form` gives it)."""
     fitted = [t for t in fit.tests.values() if t.fit]
     channels = [c for t in fitted for c in t.fit.values()]
-    samples = sum(c.data.size for c in channels)
-    k = sum(np.size(v) for v in fit.parameters.values()) - len(fit.not_identified)
-    aic = bic = None
-    if samples > 0:
-        # per channel: n ln(RSS / n); the channels' own variances, estimated (constants dropped)
-        deviance = sum(c.data.size * math.log(max(float(np.mean((c.model - c.data) ** 2)), 1e-300)) for c in channels)
-        aic, bic = deviance + 2 * k, deviance + k * math.log(samples)
+    k = int(sum(np.size(v) for v in fit.parameters.values()) - len(fit.not_identified))  # the identified parameters
+    aic, bic = information_criteria(channels, k)
     held = (
         tuple(_held_out(problem, name, source, progress) for name in (t.name for t in problem.tests))
         if criterion == "held-out"
@@ -199,13 +211,13 @@ def _score(problem: Problem, form: str, source: str | None, criterion: str, prog
     )
     offs = [h.lift_off_s for h in held if h.lift_off_s is not None]
     return FormScore(
-        form,
-        status,
+        problem.model.form,
+        fit.status,
         fit.solver.objective,
         _pitch_rmse(fitted),
         _displacement_error(fit),
-        int(k),
-        int(samples),
+        k,
+        int(sum(c.data.size for c in channels)),
         aic,
         bic,
         held,
