@@ -13,8 +13,9 @@ Per population and generator form: how often each way of choosing predicts withi
 the better form, and the mean and largest regret (the chosen form's score over the better form's,
 less one). The ways: compare's choice; compare's rule on a BIC whose samples are counted as fewer
 for the residuals' lag-one correlation (the fitted nodes are not independent: a form's miss is
-smooth in time); always the default form; always the other form. Nothing is set on these
-vehicles: BIC_TIE is Kass and Raftery's, so every population judges the rule.
+smooth in time); always the default form; always the other form. Beside them compare's rule with
+the larger ties OTHER_TIES. Nothing is set on these vehicles: BIC_TIE is Kass and Raftery's, so
+every population judges the rule.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from bench.calibration import HIDDEN_SEED, LABELS, POPULATIONS, vehicles
 from bench.corpus import Vehicle
 from bench.cross_speed import fit_problem
 from crashnlp.optimize.comparison import (
+    BIC_TIE,
     TIE,
     FormScore,
     choose,
@@ -42,6 +44,7 @@ from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
 FITTED_KMH = 56.0
 PREDICTED_KMH = (40.0, 48.0, 64.0)
 QUICK_COUNT = 1  # vehicles of each generator form with --quick
+OTHER_TIES = (10.0, 50.0, 100.0, 400.0)  # BIC ties tried beside compare's BIC_TIE
 
 
 def judge(v: Vehicle, folder: Path) -> dict:
@@ -91,35 +94,48 @@ def regret(row: dict, form: str | None) -> float | None:
 
 
 def ways(row: dict) -> dict[str, str | None]:
-    """The form each way of choosing takes for `row`: compare's, the BIC with fewer samples (the
-    default form unless another is lower by more than compare's tie), and each form always."""
-    return {"compare": row["choice"], "BIC, fewer samples": _fewer(row), **{f"always {form}": form for form in COMPARED}}
+    """The form each way of choosing takes for `row`: compare's, compare's rule on the BIC with
+    fewer samples, and each form always."""
+    return {
+        "compare": row["choice"],
+        "BIC, fewer samples": _by_bic(row, "bic_fewer_samples"),
+        **{f"always {form}": form for form in COMPARED},
+    }
 
 
-def _fewer(row: dict) -> str | None:
-    """The form compare's rule chooses by the BIC with fewer samples."""
-    scores = [FormScore(form, e["status"], bic=e.get("bic_fewer_samples")) for form, e in row["forms"].items()]
-    return choose(scores, "bic")[0]
+def ties(row: dict) -> dict[str, str | None]:
+    """The form compare's rule takes for `row` with each of OTHER_TIES."""
+    return {f"BIC, tie {tie:g}": _by_bic(row, "bic", tie) for tie in OTHER_TIES}
+
+
+def _by_bic(row: dict, key: str, tie: float = BIC_TIE) -> str | None:
+    """The form compare's rule chooses by each form's `key` (a BIC) with the tie `tie`."""
+    scores = [FormScore(form, e["status"], bic=e.get(key)) for form, e in row["forms"].items()]
+    return choose(scores, "bic", tie)[0]
 
 
 def summary(rows: list[dict]) -> dict:
     """The vehicles, how many compare gave another form than the default, the fitted channels'
-    residual lag-one correlations (5th percentile, median, 95th), and per way of choosing: vehicles
-    scored, within TIE of the better form, mean and largest regret."""
+    residual lag-one correlations (5th percentile, median, 95th), and per way of choosing (`ways`)
+    and per other tie (`ties`): vehicles scored, within TIE of the better form, mean and largest
+    regret."""
     out: dict = {"vehicles": len(rows), "chose_other": sum(row["choice"] not in (None, DEFAULT_FORM) for row in rows)}
     lags = [r for row in rows for e in row["forms"].values() for r in e.get("lag_one", {}).values()]
     if lags:  # the fitted channels' residual lag-one correlations, every form's
         out["lag_one"] = dict(zip(("p05", "median", "p95"), (float(x) for x in np.quantile(lags, [0.05, 0.5, 0.95]))))
-    out["ways"] = {}
-    for way in ways(rows[0]) if rows else ():
-        values = [r for r in (regret(row, ways(row)[way]) for row in rows) if r is not None]
-        out["ways"][way] = {
-            "scored": len(values),
-            "within_tie": sum(r <= TIE for r in values),
-            "mean_regret": float(np.mean(values)) if values else None,
-            "max_regret": float(np.max(values)) if values else None,
-        }
+    for part, pick in (("ways", ways), ("ties", ties)):
+        out[part] = {way: _tally([regret(row, pick(row)[way]) for row in rows]) for way in (pick(rows[0]) if rows else ())}
     return out
+
+
+def _tally(regrets: list[float | None]) -> dict:
+    values = [r for r in regrets if r is not None]
+    return {
+        "scored": len(values),
+        "within_tie": sum(r <= TIE for r in values),
+        "mean_regret": float(np.mean(values)) if values else None,
+        "max_regret": float(np.max(values)) if values else None,
+    }
 
 
 def run(quick: bool = False) -> dict:

@@ -1017,13 +1017,7 @@ def choice_md(r: dict) -> list[str]:
     rows = []
     for pop in r["populations"].values():
         for kind, s in [*((k, g["summary"]) for k, g in pop["kinds"].items()), ("all", pop["summary"])]:
-            cells = [
-                f"{w['within_tie']}/{w['scored']}, {100 * w['mean_regret']:.1f} % ({100 * w['max_regret']:.0f} %)"
-                if w["scored"]
-                else "none scored"
-                for w in s["ways"].values()
-            ]
-            rows.append([pop["label"], kind, f"{s['chose_other']}/{s['vehicles']}", *cells])
+            rows.append([pop["label"], kind, f"{s['chose_other']}/{s['vehicles']}", *map(_choice_cell, s["ways"].values())])
     ways = list(next(iter(r["populations"].values()))["summary"]["ways"])
     head = ["population", "generator form", "compare chose another form than the default", *ways]
     speeds = ", ".join(f"{k:g}" for k in r["predicted_kmh"])
@@ -1040,7 +1034,21 @@ def choice_md(r: dict) -> list[str]:
         "",
         *_table(head, rows),
         "",
+        "compare's rule with larger BIC ties than its 2, on every population's vehicles together (the same counts):",
+        "",
+        *_table(
+            ["population", *next(iter(r["populations"].values()))["summary"]["ties"]],
+            [[pop["label"], *(_choice_cell(w) for w in pop["summary"]["ties"].values())] for pop in r["populations"].values()],
+        ),
+        "",
     ]
+
+
+def _choice_cell(w: dict) -> str:
+    """One way of choosing's tally (bench/choice.py's summary): within the tie of those scored, the mean and largest regret."""
+    if not w["scored"]:
+        return "none scored"
+    return f"{w['within_tie']}/{w['scored']}, {100 * w['mean_regret']:.1f} % ({100 * w['max_regret']:.0f} %)"
 
 
 SECTIONS = {

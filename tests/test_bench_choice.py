@@ -52,6 +52,15 @@ def test_the_bic_with_fewer_samples_chooses_by_compare_s_rule_with_its_tie():
     assert s["ways"]["BIC, fewer samples"]["max_regret"] == pytest.approx(1.0)
 
 
+def test_a_larger_tie_keeps_the_default_where_compare_s_took_the_other_form():
+    row = _row("rigid-body", 0.10, 0.05)
+    for entry, bic in zip(row["forms"].values(), (-100.0, -120.0)):
+        entry["bic"] = bic
+    s = summary([row])
+    assert s["ways"]["compare"]["within_tie"] == 1
+    assert s["ties"]["BIC, tie 10"]["within_tie"] == 1 and s["ties"]["BIC, tie 50"]["within_tie"] == 0
+
+
 def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
     rows = [_row("rigid-body", 0.10, 0.05, fewer=(-100.0, -200.0)), _row("pendulum", 0.10, 0.08, fewer=(-100.0, -99.0))]
     section = {
@@ -68,5 +77,6 @@ def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
         },
     }
     table = [line for line in report.choice_md(section) if line.startswith("| set seed")]
-    assert [line.split(" | ")[1] for line in table] == ["rigid body", "all"]
+    # a row per generator form and the population's, then the population's in the table of ties (no BIC here)
+    assert [line.split(" | ")[1] for line in table] == ["rigid body", "all", "none scored"]
     assert "| 1/2 | 1/2, 12.5 % (25 %) | 1/2, 12.5 % (25 %) | 0/2, 62.5 % (100 %) | 2/2, 0.0 % (0 %) |" in table[0]

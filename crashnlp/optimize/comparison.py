@@ -137,8 +137,6 @@ def compare(
     `source` the file its input errors name, `progress` a stream for a line per fit."""
     check_comparable(problem, source, forms)
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
-    # the profiles the problem asks for are its chosen form's business, not the comparison's
-    problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     scores = [score_form(problem, form, source, criterion, progress)[0] for form in dict.fromkeys(forms)]
     choice, reason = choose(scores, criterion)
     return Comparison(problem.name, criterion, tuple(scores), choice, reason)
@@ -168,6 +166,8 @@ def score_form(
     """The problem fitted with `form` and scored by `criterion` ("held-out" or "bic"), and the fit
     (None where the form refuses the problem or the fit raised: the score's status says which)."""
     _say(progress, f"{problem.name}: fitting {form}")
+    # the profiles the problem asks for are its chosen form's business, not the comparison's
+    problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     try:
         formed = with_form(problem, form)
     except InputError as exc:  # a problem this form cannot model (CrashModel.check)
@@ -310,8 +310,9 @@ def held_out_prediction(problem: Problem, name: str, identified: IdentifiedModel
     )
 
 
-def choose(scores: list[FormScore], criterion: str) -> tuple[str | None, str]:
-    """The chosen form and why (see the module notes)."""
+def choose(scores: list[FormScore], criterion: str, bic_tie: float = BIC_TIE) -> tuple[str | None, str]:
+    """The chosen form and why (see the module notes); `bic_tie` the BIC difference within which
+    the default form stays (BIC_TIE; bench/choice.py tries others)."""
     value: dict[str, float] = {}
     for f in scores:
         v = f.held_out_score if criterion == "held-out" else f.bic
@@ -324,7 +325,7 @@ def choose(scores: list[FormScore], criterion: str) -> tuple[str | None, str]:
     choice, reason = best, f"{best}: the lowest {what}"
     if DEFAULT_FORM in value and best != DEFAULT_FORM:
         margin = value[DEFAULT_FORM] - value[best]
-        if margin <= (TIE * abs(value[best]) if criterion == "held-out" else BIC_TIE):
+        if margin <= (TIE * abs(value[best]) if criterion == "held-out" else bic_tie):
             choice, reason = DEFAULT_FORM, f"{DEFAULT_FORM}: the default, within a tie of {best}'s {what}"
     lifted = _of(scores, choice).lift_off_s
     if lifted is not None:
