@@ -447,7 +447,8 @@ def _bands(
         y = response[name]
         moved = np.abs(v0 - y) if name == "velocity" else np.abs(y)
         reference = v0 + part.value if name == "velocity" else abs(part.value)
-        rest[name] = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference * moved if reference > 0 else 0.0 * moved
+        share = np.hypot(part.form(qs[key]), part.past(qs[key])) / reference if reference > 0 else 0.0
+        rest[name] = share * moved
     if "displacement" in rest and "velocity" in rest:
         rest["displacement"] = np.hypot(rest["displacement"], _carried_back(response, rest["velocity"]))
     bands = {}
