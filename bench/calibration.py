@@ -579,16 +579,6 @@ def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> d
     """`model_form`'s table set on SET_SEED's records (and whether it is the shipped one), evaluated
     on every population's records, over all and per generator form."""
     calibration = calibrate(records[SET_SEED], SET_SEED, model_form)
-    evaluation = {
-        str(seed): {
-            "all": evaluate(rows, calibration),
-            **{
-                form: evaluate([r for r in rows if r["form"] == form], calibration)
-                for form in dict.fromkeys(r["form"] for r in rows)
-            },
-        }
-        for seed, rows in records.items()
-    }
     return {
         "model_form": model_form,
         "calibration": calibration.to_json(),
@@ -598,17 +588,19 @@ def section(records: dict[int, list[dict]], model_form: str = DEFAULT_FORM) -> d
         "hidden_seed": HIDDEN_SEED,
         "vehicles": {str(seed): len({(r["form"], r["vehicle"]) for r in rows}) for seed, rows in records.items()},
         "targets": TARGETS,
-        "evaluation": evaluation,
-        "pooled": {
-            str(seed): {
-                "all": pooled(rows, calibration),
-                **{
-                    form: pooled([r for r in rows if r["form"] == form], calibration)
-                    for form in dict.fromkeys(r["form"] for r in rows)
-                },
-            }
-            for seed, rows in records.items()
-        },
+        "evaluation": _by_group(records, lambda rows: evaluate(rows, calibration)),
+        "pooled": _by_group(records, lambda rows: pooled(rows, calibration)),
+    }
+
+
+def _by_group(records: dict[int, list[dict]], read: Callable[[list[dict]], dict]) -> dict:
+    """`read` of every population's records (seed -> rows), over all and per generator form."""
+    return {
+        str(seed): {
+            "all": read(rows),
+            **{form: read([r for r in rows if r["form"] == form]) for form in dict.fromkeys(r["form"] for r in rows)},
+        }
+        for seed, rows in records.items()
     }
 
 

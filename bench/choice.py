@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 import crashnlp
-from bench.calibration import HIDDEN_SEED, LABELS, POPULATIONS, vehicles
+from bench.calibration import LABELS, POPULATIONS, vehicles
 from bench.corpus import Vehicle
 from bench.cross_speed import fit_problem
 from crashnlp.optimize.comparison import (
@@ -54,8 +54,7 @@ def judge(v: Vehicle, folder: Path) -> dict:
     whole = crashnlp.load(fit_problem(v, (FITTED_KMH, *PREDICTED_KMH), folder))
     one = whole.model_copy(update={"tests": whole.tests[:1]})
     scored = {form: score_form(one, form, None, "bic") for form in COMPARED}
-    choice, reason = choose([score for score, _ in scored.values()], "bic")
-    row: dict = {"vehicle": v.name, "choice": choice, "reason": reason, "forms": {}}
+    row: dict = {"vehicle": v.name, "choice": choose([score for score, _ in scored.values()], "bic")[0], "forms": {}}
     for form, (score, fit) in scored.items():
         entry: dict = {"status": score.status, "bic": score.bic}
         if fit is not None and fit.ok and fit.identified is not None:
@@ -71,10 +70,10 @@ def fewer_samples_bic(fit: crashnlp.Result, k: int) -> dict:
     """The fit's BIC with each channel's n samples counted as n (1 - r) / (1 + r), r the lag-one
     correlation of its residuals (floored at 0): a smooth miss is fewer independent samples than
     nodes. Beside it each fitted channel's r ("test/channel")."""
-    fitted = [(f"{name}/{c.channel}", c) for name, t in fit.tests.items() for c in (t.fit or {}).values()]
-    lag = {key: _lag_one(c.model - c.data) for key, c in fitted}
-    counted = {id(c): c.data.size * (1 - lag[key]) / (1 + lag[key]) for key, c in fitted}
-    _, bic = information_criteria([c for _, c in fitted], k, lambda c: counted[id(c)])
+    fitted = {f"{name}/{c.channel}": c for name, t in fit.tests.items() for c in (t.fit or {}).values()}
+    lag = {key: _lag_one(c.model - c.data) for key, c in fitted.items()}
+    counted = [c.data.size * (1 - lag[key]) / (1 + lag[key]) for key, c in fitted.items()]
+    _, bic = information_criteria(list(fitted.values()), k, counted)
     return {"bic_fewer_samples": bic, "lag_one": lag}
 
 
@@ -153,7 +152,6 @@ def run(quick: bool = False) -> dict:
                 print(f"  seed {seed} {kind} {v.name}: {groups[kind][-1]['choice']}", flush=True)
         out["populations"][str(seed)] = {
             "label": LABELS[seed],
-            "hidden": seed == HIDDEN_SEED,
             "kinds": {kind: {"rows": rows, "summary": summary(rows)} for kind, rows in groups.items()},
             "summary": summary([r for rows in groups.values() for r in rows]),
         }

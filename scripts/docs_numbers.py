@@ -550,9 +550,10 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
     """The coverage lines read as counts (bench/calibration.py's by_chance and pooled), per model
     form and population (iv.<form>.<check, hidden>.chance.<below, expected>; the pendulum's without
     the form): the cells below their line and how many an interval that holds 95 % leaves below by
-    chance. The pendulum's pooled coverage (%) over every scenario: the lowest and highest of the
-    check seed's metrics (iv.check.pooled.<lowest, highest>); the hidden population's, of the
-    metrics of issue 38's 90 % line (bench/calibration.py's TARGETS), with its 95 % range
+    chance. The pendulum's cells' fewest and most predictions (iv.<check, hidden>.cells.<fewest,
+    most>), and its pooled coverage (%) over every scenario: the lowest and highest of the check
+    seed's metrics (iv.check.pooled.<lowest, highest>); the hidden population's, of the metrics of
+    issue 38's 90 % line (bench/calibration.py's TARGETS), with its 95 % range
     (iv.hidden.pooled.<metric>.<pct, low, high>), and the covered share of its predictions that
     have an interval, the max displacement's and the stop's (iv.hidden.given.<metric>)."""
     from bench.calibration import TARGETS, by_chance
@@ -560,11 +561,14 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
     out = {}
     for form, section in ((None, intervals), *intervals.get("forms", {}).items()):
         for label, seed in (("check", section["check_seed"]), ("hidden", section["hidden_seed"])):
-            c = by_chance(section["evaluation"][str(seed)]["all"])
+            cells = section["evaluation"][str(seed)]["all"]
+            c = by_chance(cells)
             key = f"iv.{label}" if form is None else f"iv.{form}.{label}"
             out |= {f"{key}.chance.below": str(c["below"]), f"{key}.chance.expected": f"{c['expected_below']:.1f}"}
             if form is not None:
                 continue
+            sizes = [e["n"] for by in cells.values() for e in by.values() if e["n"]]
+            out[f"{key}.cells.fewest"], out[f"{key}.cells.most"] = str(min(sizes)), str(max(sizes))
             pooled = section["pooled"][str(seed)]["all"]
             shares = {m: 100 * e["covered"] / e["n"] for m, e in pooled.items()}
             if label == "check":
@@ -598,10 +602,12 @@ Quoted = tuple[dict[str, str], dict[str, str]]  # blocks, numbers
 
 
 def code_numbers() -> dict[str, str]:
-    """Numbers the pages quote from the code itself: the normal quantile of a 95 % interval."""
+    """Numbers the pages quote from the code itself: the normal quantile of a 95 % interval, and
+    compare's ties (crashnlp.optimize.comparison: TIE of the held-out score in %, BIC_TIE)."""
     from crashnlp.base.outputs import Z95
+    from crashnlp.optimize.comparison import BIC_TIE, TIE
 
-    return {"z95": f"{Z95:.2f}"}
+    return {"z95": f"{Z95:.2f}", "compare.tie_pct": f"{TIE * 100:g}", "compare.bic_tie": f"{BIC_TIE:g}"}
 
 
 def generate() -> dict[str, dict[str, str]]:

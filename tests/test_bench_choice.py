@@ -17,7 +17,7 @@ def _row(choice: str | None, pendulum: float | None, rigid: float | None, fewer:
     if fewer is not None:
         for entry, bic in zip(forms.values(), fewer):
             entry["bic_fewer_samples"] = bic
-    return {"vehicle": "v00", "choice": choice, "reason": "", "forms": forms}
+    return {"vehicle": "v00", "choice": choice, "forms": forms}
 
 
 def test_the_regret_is_the_chosen_forms_score_over_the_better_ones_and_none_without_both():
@@ -70,7 +70,6 @@ def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
         "populations": {
             "3100": {
                 "label": "set seed",
-                "hidden": False,
                 "kinds": {"rigid body": {"rows": rows, "summary": summary(rows)}},
                 "summary": summary(rows),
             }

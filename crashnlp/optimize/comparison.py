@@ -33,7 +33,7 @@ the rigid body) is left out of that form's fit, so that it counts no parameter i
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from typing import TextIO
 
@@ -186,12 +186,13 @@ def _fit(problem: Problem, source: str | None) -> tuple[Result | None, str]:
 
 
 def information_criteria(
-    channels: Sequence[ChannelFit], k: int, counted: Callable[[ChannelFit], float] | None = None
+    channels: Sequence[ChannelFit], k: int, counted: Sequence[float] | None = None
 ) -> tuple[float | None, float | None]:
     """AIC and BIC of a fit's Gaussian likelihood, each channel with its own variance, estimated
     (constants dropped): sum_c n_c ln(RSS_c / n_c) + 2 k, and + k ln(sum_c n_c), `k` the identified
-    parameters; n_c a channel's samples, or as many as `counted` takes them for; None without samples."""
-    n = [c.data.size if counted is None else counted(c) for c in channels]
+    parameters; n_c a channel's samples, or as many as `counted` takes them for, channel by
+    channel; None without samples."""
+    n = [c.data.size for c in channels] if counted is None else list(counted)
     if sum(n) <= 0:
         return None, None
     deviance = sum(nc * math.log(max(float(np.mean((c.model - c.data) ** 2)), 1e-300)) for nc, c in zip(n, channels))
