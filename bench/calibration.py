@@ -467,27 +467,34 @@ def by_chance(evaluation: dict) -> dict:
 
 
 def pooled(rows: list[dict], calibration: Calibration) -> dict:
-    """Per metric, every scenario's predictions together: how many the interval covers, of those
-    the generator's record holds the metric for (n) and of those with an interval (given), and the
-    95 % range of the covered share from resampling whole vehicles (BOOTSTRAP draws, a fixed seed):
-    a vehicle's predictions miss alike, so they are not independent draws."""
-    out = {}
-    for metric in PREDICTED_KEYS:
-        per: dict[tuple[str, str], list[int]] = {}
-        for row in rows:
-            if np.isfinite(row["truth"][metric]):
-                got = judged(row, metric, calibration)
-                counts = per.setdefault((row["form"], row["vehicle"]), [0, 0, 0])
-                counts[0] += bool(got and got["covered"])
-                counts[1] += 1
-                counts[2] += got is not None
-        if not per:
-            continue
-        vehicles = np.array(list(per.values()))  # covered, n, given
-        low, high = vehicle_range(vehicles[:, :2])
-        covered, n, given = (int(x) for x in vehicles.sum(axis=0))
-        out[metric] = {"covered": covered, "n": n, "given": given, "low": low, "high": high}
-    return out
+    """Per metric, every scenario's predictions together (`shares` of `vehicle_counts`)."""
+    return {metric: shares(per) for metric in PREDICTED_KEYS if (per := vehicle_counts(rows, metric, calibration))}
+
+
+def vehicle_counts(rows: list[dict], metric: str, calibration: Calibration | None) -> dict[tuple[str, str], list[int]]:
+    """Per vehicle (generator form, name), of its predictions whose generator's record holds
+    `metric`: how many the interval covers, how many there are, and how many have an interval
+    (none without a `calibration`: a vehicle no form's fit gave a result for)."""
+    per: dict[tuple[str, str], list[int]] = {}
+    for row in rows:
+        if np.isfinite(row["truth"][metric]):
+            got = judged(row, metric, calibration) if calibration is not None else None
+            counts = per.setdefault((row["form"], row["vehicle"]), [0, 0, 0])
+            counts[0] += bool(got and got["covered"])
+            counts[1] += 1
+            counts[2] += got is not None
+    return per
+
+
+def shares(per: dict[tuple[str, str], list[int]]) -> dict:
+    """How many predictions the intervals cover, of those the generator's record holds the metric
+    for (n) and of those with an interval (given), and the 95 % range of the covered share from
+    resampling whole vehicles (BOOTSTRAP draws, a fixed seed): a vehicle's predictions miss alike,
+    so they are not independent draws."""
+    vehicles = np.array(list(per.values()))  # covered, n, given
+    low, high = vehicle_range(vehicles[:, :2])
+    covered, n, given = (int(x) for x in vehicles.sum(axis=0))
+    return {"covered": covered, "n": n, "given": given, "low": low, "high": high}
 
 
 def vehicle_range(vehicles: np.ndarray) -> tuple[float, float]:
@@ -508,16 +515,18 @@ def _chance_line(evaluation: dict, shares: dict | None) -> str:
     )
     if not shares:
         return line
-    pooled_shares = "; ".join(
-        f"{SHORT[m]} {100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %"
-        + (f"; {e['covered']} of the {e['given']} with an interval" if e["given"] < e["n"] else "")
-        + ")"
-        for m, e in shares.items()
-    )
+    pooled_shares = "; ".join(f"{SHORT[m]} {share_text(e)}" for m, e in shares.items())
     return (
         f"{line} Covered over every scenario: {pooled_shares} (in brackets the share's 95 % range, whole vehicles "
         "resampled, and where some predictions have no interval, a failed fit or no value, the share of those that have one)."
     )
+
+
+def share_text(e: dict) -> str:
+    """A `shares` entry as text: the covered share, and in brackets its range over whole vehicles
+    and, where some predictions have no interval, how many of those with one it covers."""
+    given = f"; {e['covered']} of the {e['given']} with an interval" if e["given"] < e["n"] else ""
+    return f"{100 * e['covered'] / e['n']:.0f} % ({100 * e['low']:.0f} to {100 * e['high']:.0f} %{given})"
 
 
 def needed(metric: str) -> float:

@@ -16,6 +16,12 @@ for the residuals' lag-one correlation (the fitted nodes are not independent: a 
 smooth in time); always the default form; always the other form. Beside them compare's rule with
 the larger ties OTHER_TIES. Nothing is set on these vehicles: BIC_TIE is Kass and Raftery's, so
 every population judges the rule.
+
+What the choice does for the intervals (`covered`): on the populations whose held-out records
+bench/calibration.py keeps (the check seed and the hidden population, CHECK_RECORDS), every
+prediction of each vehicle by the form compare chose from its one test, against the generator's
+value with that form's shipped table, beside each form always (engine-on-mounts too, which compare
+fits when named).
 """
 
 from __future__ import annotations
@@ -26,9 +32,11 @@ from pathlib import Path
 import numpy as np
 
 import crashnlp
-from bench.calibration import LABELS, POPULATIONS, vehicles
+from bench.calibration import CHECK_RECORDS, LABELS, POPULATIONS, held_out_records, shares, vehicle_counts, vehicles
 from bench.corpus import Vehicle
 from bench.cross_speed import fit_problem
+from crashnlp.analysis.calibration import shipped
+from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.optimize.comparison import (
     BIC_TIE,
     TIE,
@@ -137,6 +145,39 @@ def _tally(regrets: list[float | None]) -> dict:
     }
 
 
+def covered(populations: dict) -> dict:
+    """Per population with held-out records (CHECK_RECORDS) and per way of choosing (compare's,
+    each form with records always, engine-on-mounts too, which compare fits when named), per metric: how many of the population's predictions (every scenario of
+    bench/calibration.py, each vehicle's by the way's form, judged with that form's shipped table)
+    cover the generator's value, with the share's range over whole vehicles (bench/calibration.py's
+    `shares`); a vehicle compare chose no form for has no interval."""
+    held = held_out_records() if CHECK_RECORDS.exists() else {}
+    tables = {form: shipped(form) for form in held}
+    out: dict = {}
+    for seed, pop in populations.items():
+        if any(seed not in held.get(form, {}) for form in COMPARED):
+            continue
+        chosen = {(kind, row["vehicle"]): row["choice"] for kind, g in pop["kinds"].items() for row in g["rows"]}
+        picks = {"compare": chosen, **{f"always {form}": dict.fromkeys(chosen, form) for form in held}}
+        records = {form: held[form][seed] for form in held}
+        out[seed] = {way: _covered_by(records, tables, pick) for way, pick in picks.items()}
+    return out
+
+
+def _covered_by(records: dict[str, list[dict]], tables: dict, pick: dict[tuple[str, str], str | None]) -> dict:
+    """`covered` of one population (`records`: form -> its held-out records) and one way (`pick`:
+    (generator form, vehicle) -> the form it takes, None for none)."""
+    out = {}
+    for metric in PREDICTED_KEYS:
+        per: dict[tuple[str, str], list[int]] = {}
+        for vehicle, form in pick.items():
+            rows = [r for r in records[form or DEFAULT_FORM] if (r["form"], r["vehicle"]) == vehicle]
+            per |= vehicle_counts(rows, metric, tables[form] if form else None)
+        if per:
+            out[metric] = shares(per)
+    return out
+
+
 def run(quick: bool = False) -> dict:
     """The bench section: every population's vehicles (QUICK_COUNT of each generator form with --quick)."""
     out: dict = {"fitted_kmh": FITTED_KMH, "predicted_kmh": PREDICTED_KMH, "tie": TIE, "populations": {}}
@@ -155,4 +196,5 @@ def run(quick: bool = False) -> dict:
             "kinds": {kind: {"rows": rows, "summary": summary(rows)} for kind, rows in groups.items()},
             "summary": summary([r for rows in groups.values() for r in rows]),
         }
+    out["covered"] = covered(out["populations"])
     return out

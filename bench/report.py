@@ -1041,6 +1041,31 @@ def choice_md(r: dict) -> list[str]:
             [[pop["label"], *(_choice_cell(w) for w in pop["summary"]["ties"].values())] for pop in r["populations"].values()],
         ),
         "",
+        *_chosen_coverage_md(r),
+    ]
+
+
+def _chosen_coverage_md(r: dict) -> list[str]:
+    """The intervals of the form each way chose (bench/choice.py's `covered`): per population and
+    metric, the share covered over every scenario, with its range over whole vehicles."""
+    covered = r.get("covered")
+    if not covered:
+        return []
+    metrics = list(next(iter(next(iter(covered.values())).values())))
+    rows = [
+        [r["populations"][seed]["label"], way, *(calibration.share_text(by[m]) for m in metrics)]
+        for seed, ways in covered.items()
+        for way, by in ways.items()
+    ]
+    return [
+        "The intervals of the form each way takes, on the populations whose held-out records the intervals' section "
+        "keeps: every scenario's prediction of each vehicle by that form, judged with the form's shipped table; per "
+        "metric the share that holds the generator's value, and in brackets its 95 % range over whole vehicles resampled "
+        "and, where some predictions have no interval (a failed fit, no value, or a vehicle compare chose no form for), "
+        "the share of those that have one:",
+        "",
+        *_table(["population", "way", *(calibration.SHORT[m] for m in metrics)], rows),
+        "",
     ]
 
 

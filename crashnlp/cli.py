@@ -18,7 +18,7 @@ import signal
 import sys
 import threading
 import warnings
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager, nullcontext, redirect_stderr
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -34,6 +34,7 @@ from crashnlp.results.files import check_output, check_writable, check_writable_
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
+    from crashnlp.optimize.comparison import FormScore  # at run time where compare runs
     from crashnlp.results.result import ResultFile  # at run time where a command reads one
 
 RESULTS = Path("results")
@@ -367,6 +368,17 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 )
 
 
+def comparison_table(forms: Sequence[FormScore]) -> list[str]:
+    """The console's table of a comparison: a column per form (its status ok or not, FORM_ROWS), then
+    each form that is not ok with its whole status (IPOPT's, or the check that failed)."""
+    lines = [f"  {'':<24}" + "".join(f"{f.form:>14}" for f in forms)]
+    lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>14}" for f in forms))
+    for label, key, factor, fmt in FORM_ROWS:
+        cells = [getattr(f, key) for f in forms]
+        lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
+    return lines + [f"  {f.form}: {f.status}" for f in forms if not f.ok]
+
+
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
     from crashnlp.optimize.comparison import check_comparable, compare
@@ -386,14 +398,7 @@ def cmd_compare_forms(args) -> int:
         with _computing(args):
             comparison = compare(problem, args.problem, progress=sys.stdout, forms=forms)
         write_json(out / "compare.json", comparison.to_json())
-    print(f"  {'':<24}" + "".join(f"{f.form:>14}" for f in comparison.forms))
-    print(f"  {'status':<24}" + "".join(f"{f.status.split(':')[0][:13]:>14}" for f in comparison.forms))
-    for label, key, factor, fmt in FORM_ROWS:
-        cells = [getattr(f, key) for f in comparison.forms]
-        print(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
-    for f in comparison.forms:
-        if not f.ok:
-            print(f"  {f.form}: {f.status}")
+    print("\n".join(comparison_table(comparison.forms)))
     print(f"choice ({comparison.criterion}): {comparison.reason}")
     print(f"wrote {out}/compare.json")
     if comparison.choice is None:

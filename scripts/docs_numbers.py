@@ -398,8 +398,16 @@ def _choice(bench: dict[str, Any]) -> dict[str, str]:
     """compare's choice from one test (bench/choice.py), per population's seed and way of choosing
     (choice.<seed>.<way>.<what>, the way's spaces as dashes, without commas): the vehicles within the tie of the
     better form, those scored, the mean and largest regret (%); and the vehicles, and those for
-    which compare chose another form than the default (choice.<seed>.vehicles, .chose_other)."""
+    which compare chose another form than the default (choice.<seed>.vehicles, .chose_other); and
+    the share (%) of a population's predictions that the intervals of the form a way takes cover, of
+    the metrics of issue 38's 90 % line (choice.<seed>.covered.<way>.<metric>, bench/choice.py's covered)."""
+    from bench.calibration import SHORT, TARGETS
+
     out = {}
+    for seed, ways in bench.get("choice", {}).get("covered", {}).items():
+        for way, by in ways.items():
+            key = f"choice.{seed}.covered.{way.replace(' ', '-')}"
+            out |= {f"{key}.{SHORT[m]}": f"{100 * by[m]['covered'] / by[m]['n']:.0f}" for m in TARGETS["coverage"]}
     for seed, pop in bench.get("choice", {}).get("populations", {}).items():
         s = pop["summary"]
         out |= {f"choice.{seed}.vehicles": str(s["vehicles"]), f"choice.{seed}.chose_other": str(s["chose_other"])}

@@ -1,12 +1,15 @@
 """bench/choice.py's reading of compare's one-test choice: the regret of a way of choosing, what
-the summary counts within compare's tie, and the report's table of it."""
+the summary counts within compare's tie, the coverage of the chosen form's intervals, and the
+report's table of it."""
 
 from __future__ import annotations
 
 import pytest
 
 from bench import report
-from bench.choice import regret, summary
+from bench.calibration import CHECK_SEED, held_out_records, pooled
+from bench.choice import _covered_by, regret, summary
+from crashnlp.analysis.calibration import shipped
 from crashnlp.optimize.comparison import BIC_TIE, TIE
 
 
@@ -79,3 +82,34 @@ def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
     # a row per generator form and the population's, then the population's in the table of ties (no BIC here)
     assert [line.split(" | ")[1] for line in table] == ["rigid body", "all", "none scored"]
     assert "| 1/2 | 1/2, 12.5 % (25 %) | 1/2, 12.5 % (25 %) | 0/2, 62.5 % (100 %) | 2/2, 0.0 % (0 %) |" in table[0]
+
+
+def test_the_chosen_form_s_coverage_judges_each_vehicle_by_its_form_and_none_without_one():
+    """On the shipped check-seed records: every vehicle by the pendulum is the intervals section's
+    pooled coverage; a vehicle taken by the rigid body counts its rigid-body predictions, where
+    they differ from its pendulum ones; one compare chose no form for counts its predictions as
+    misses without an interval."""
+    records = {form: rows[str(CHECK_SEED)] for form, rows in held_out_records().items()}
+    tables = {form: shipped(form) for form in records}
+    vehicles = list(dict.fromkeys((r["form"], r["vehicle"]) for r in records["pendulum"]))
+    metric = "time_zero_velocity_s"
+
+    def own(vehicle: tuple[str, str], form: str) -> list[int]:
+        e = pooled([r for r in records[form] if (r["form"], r["vehicle"]) == vehicle], tables[form])[metric]
+        return [e["covered"], e["n"], e["given"]]
+
+    def counts(pick: dict) -> list[int]:
+        e = _covered_by(records, tables, pick)[metric]
+        return [e["covered"], e["n"], e["given"]]
+
+    assert _covered_by(records, tables, dict.fromkeys(vehicles, "pendulum")) == pooled(records["pendulum"], tables["pendulum"])
+    first = next(v for v in vehicles if own(v, "rigid-body") != own(v, "pendulum"))
+    rest = [v for v in vehicles if v != first]
+    mixed = counts({first: "rigid-body", **dict.fromkeys(rest, "pendulum")})
+    assert mixed == [a + b for a, b in zip(own(first, "rigid-body"), counts(dict.fromkeys(rest, "pendulum")))]
+    held = next(v for v in rest if own(v, "pendulum")[0] > 0)
+    assert counts({held: None, first: "pendulum"}) == [
+        own(first, "pendulum")[0],
+        own(held, "pendulum")[1] + own(first, "pendulum")[1],
+        own(first, "pendulum")[2],
+    ]

@@ -13,7 +13,7 @@ from builders import BASE, ROOT, merge, write_channels
 import crashnlp
 from crashnlp.base.errors import InputError
 from crashnlp.case.case import Case
-from crashnlp.cli import main
+from crashnlp.cli import comparison_table, main
 from crashnlp.optimize.comparison import (
     BIC_TIE,
     PUSHED,
@@ -70,6 +70,16 @@ def test_a_failed_fit_is_not_chosen_while_another_form_serves():
     failed = _score("rigid-body", held=0.01, status="solver failed: Maximum_Iterations_Exceeded")
     assert choose([_score("pendulum", held=0.10), failed], "held-out")[0] == "pendulum"
     assert choose([_score("pendulum", held=None), _score("rigid-body", held=None)], "held-out")[0] is None
+
+
+def test_the_table_says_whether_each_form_is_ok_and_under_it_why_one_is_not():
+    """A status that is a failed check names a test first: the table's cell says not ok, not the
+    test's name, and the whole status follows under the table."""
+    why = "56kph: the model does not stop within the window (the data stop at 159.2 ms)"
+    lines = comparison_table([_score("pendulum", held=0.10), _score("rigid-body", status=why)])
+    status = next(line for line in lines if line.strip().startswith("status"))
+    assert status.split()[1:] == ["ok", "not", "ok"]
+    assert lines[-1] == f"  rigid-body: {why}" and sum(why in line for line in lines) == 1
 
 
 def test_a_lift_off_is_named_beside_the_choice_but_does_not_pass_over_a_better_score():
