@@ -559,8 +559,10 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
     form and population (iv.<form>.<check, hidden>.chance.<below, expected>; the pendulum's without
     the form): the cells below their line and how many an interval that holds 95 % leaves below by
     chance. The pendulum's cells' fewest and most predictions (iv.<check, hidden>.cells.<fewest,
-    most>), and its pooled coverage (%) over every scenario: the lowest and highest of the check
-    seed's metrics (iv.check.pooled.<lowest, highest>); the hidden population's, of the metrics of
+    most>), how often (%) an interval that holds 95 % leaves a hidden-population cell of the
+    fewest below the max displacement's 90 % line (iv.hidden.cells.fewest_below_pct), and its pooled
+    coverage (%) over every scenario: the lowest and highest of the check seed's metrics
+    (iv.check.pooled.<lowest, highest>); the hidden population's, of the metrics of
     issue 38's 90 % line (bench/calibration.py's TARGETS), with its 95 % range
     (iv.hidden.pooled.<metric>.<pct, low, high>), and the covered share of its predictions that
     have an interval, the max displacement's and the stop's (iv.hidden.given.<metric>)."""
@@ -582,6 +584,8 @@ def _by_chance(intervals: dict[str, Any], metric_keys: dict[str, str]) -> dict[s
             if label == "check":
                 out[f"{key}.pooled.lowest"], out[f"{key}.pooled.highest"] = (f"{f(shares.values()):.0f}" for f in (min, max))
                 continue
+            fewest = {"max_displacement_m": {"n": min(sizes), "coverage": 1.0}}  # a cell of the fewest, 90 % line
+            out[f"{key}.cells.fewest_below_pct"] = f"{100 * by_chance({'s': fewest})['expected_below']:.0f}"
             for metric in ("max_displacement_m", "time_zero_velocity_s"):
                 out[f"{key}.given.{metric_keys[metric]}"] = f"{100 * pooled[metric]['covered'] / pooled[metric]['given']:.0f}"
             for metric in TARGETS["coverage"]:
