@@ -146,11 +146,12 @@ def _tally(regrets: list[float | None]) -> dict:
 
 
 def covered(populations: dict) -> dict:
-    """Per population with held-out records (CHECK_RECORDS) and per way of choosing (compare's,
-    each form with records always, engine-on-mounts too, which compare fits when named), per metric: how many of the population's predictions (every scenario of
-    bench/calibration.py, each vehicle's by the way's form, judged with that form's shipped table)
-    cover the generator's value, with the share's range over whole vehicles (bench/calibration.py's
-    `shares`); a vehicle compare chose no form for has no interval."""
+    """Per population with held-out records (CHECK_RECORDS), per way of choosing (compare's, and
+    each form with records always: engine-on-mounts too, which compare fits when named) and per
+    metric: how many of the population's predictions (every scenario of bench/calibration.py, each
+    vehicle's by the way's form, judged with that form's shipped table) cover the generator's
+    value, with the share's range over whole vehicles (bench/calibration.py's `shares`); a vehicle
+    compare chose no form for has no interval."""
     held = held_out_records() if CHECK_RECORDS.exists() else {}
     tables = {form: shipped(form) for form in held}
     out: dict = {}
