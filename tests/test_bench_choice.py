@@ -85,8 +85,8 @@ def test_the_report_gives_a_row_per_generator_form_and_one_for_the_population():
 
 
 def test_the_chosen_form_s_coverage_judges_each_vehicle_by_its_form_and_none_without_one():
-    """On the shipped check-seed records: every vehicle by the pendulum is the intervals section's
-    pooled coverage; a vehicle taken by the rigid body counts its rigid-body predictions, where
+    """On the shipped check-seed records: every vehicle by one form is the intervals section's
+    pooled coverage of that form; a vehicle taken by the rigid body counts its rigid-body predictions, where
     they differ from its pendulum ones; one compare chose no form for counts its predictions as
     misses without an interval."""
     records = {form: rows[str(CHECK_SEED)] for form, rows in held_out_records().items()}
@@ -102,7 +102,8 @@ def test_the_chosen_form_s_coverage_judges_each_vehicle_by_its_form_and_none_wit
         e = _covered_by(records, tables, pick)[metric]
         return [e["covered"], e["n"], e["given"]]
 
-    assert _covered_by(records, tables, dict.fromkeys(vehicles, "pendulum")) == pooled(records["pendulum"], tables["pendulum"])
+    for form in tables:  # every vehicle by one form: that form's records, judged with its own table
+        assert _covered_by(records, tables, dict.fromkeys(vehicles, form)) == pooled(records[form], tables[form])
     first = next(v for v in vehicles if own(v, "rigid-body") != own(v, "pendulum"))
     rest = [v for v in vehicles if v != first]
     mixed = counts({first: "rigid-body", **dict.fromkeys(rest, "pendulum")})
