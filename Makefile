@@ -47,7 +47,7 @@ docs-numbers: $(STAMP)
 # the intervals' out-of-sample form term: crashnlp/analysis/calibration.json from held-out predictions of a
 # corpus of several generator forms (bench/calibration.py: FORMS), a table per model form, and the intervals section of results/bench.*
 calibrate: $(STAMP)
-	$(BIN)/python bench/calibration.py
+	$(BIN)/python bench/calibrate.py
 
 readme-figures: demo identify study
 	$(BIN)/python scripts/readme_figures.py

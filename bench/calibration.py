@@ -1,7 +1,7 @@
 """Held-out predictions: the calibration of the intervals' form term, and the benchmark of the intervals.
 
-`make calibrate` (`python bench/calibration.py`) writes crashnlp/analysis/calibration.json and the bench
-section `intervals`; `make bench` runs the section too.
+`make calibrate` (bench/calibrate.py) writes crashnlp/analysis/calibration.json and the bench section
+`intervals` from its records; `make bench` runs the section too.
 
 Each vehicle comes from bench/corpus.py in one of five generator forms (FORMS), none of them
 crashnlp's pendulum: a rigid body (random_vehicle), that body with an engine on mounts that meets
@@ -23,17 +23,15 @@ three mechanisms no vehicle of the corpus has together). The tall vans with
 an engine on mounts were that population up to version 9, and helped choose between candidate
 rules for version 8 (docs/design-notes.md); since version 10 they are a form of the corpus. The records hold what a model form's fits and predictions give: each model form
 (MODEL_FORMS) is fitted to the same vehicles and gets its own table, set and checked the same way
-(`make calibrate`). `--forms FORM ...` makes the named forms' tables only: the other forms' tables,
-held-out records and parts of the bench section stay as they were.
+(`make calibrate`, bench/calibrate.py, whose `--forms FORM ...` makes the named forms' tables only:
+the other forms' tables, held-out records and parts of the bench section stay as they were).
 """
 
 from __future__ import annotations
 
-import argparse
 import gzip
 import json
 import math
-import os
 import re
 import sys
 import tempfile
@@ -48,7 +46,7 @@ from scipy.stats import binom
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 import crashnlp  # noqa: E402
-from bench.common import RESULTS, ROOT  # noqa: E402
+from bench.common import ROOT  # noqa: E402
 from bench.corpus import (  # noqa: E402
     Vehicle,
     engine_vehicle,
@@ -60,7 +58,6 @@ from bench.corpus import (  # noqa: E402
 )
 from bench.cross_speed import fit_problem, prediction_problem, truth_metrics  # noqa: E402
 from crashnlp.analysis.calibration import (  # noqa: E402
-    FILE,
     IMPACT_SPEED,
     PITCH_FLOOR,
     Calibration,
@@ -73,7 +70,6 @@ from crashnlp.analysis.calibration import (  # noqa: E402
 from crashnlp.analysis.prediction import predict  # noqa: E402
 from crashnlp.base.outputs import PREDICTED_KEYS  # noqa: E402
 from crashnlp.case.case import case_of  # noqa: E402
-from crashnlp.numerics.compiled import SWITCH_ENV as COMPILE_ENV  # noqa: E402
 from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 from crashnlp.results.simulation import IntervalParts, PredictedTest  # noqa: E402
@@ -741,52 +737,8 @@ def _form_markdown(section: dict) -> list[str]:
     return lines
 
 
-BENCH_JSON, BENCH_MD = RESULTS / "bench.json", RESULTS / "bench.md"
-
-
-def write(by_form: dict[str, dict[int, list[dict]]]) -> None:
-    """The model forms of `by_form`: each one's table into crashnlp/analysis/calibration.json, its
-    check seed's and hidden population's records into CHECK_RECORDS (compact), its part of the
-    section into results/bench.*; every other form's as it was there."""
-    from bench import report
-
-    made = {form: {**section(rows, form), "shipped": True} for form, rows in by_form.items()}
-    path = ROOT / "crashnlp" / "analysis" / FILE
-    tables = json.loads(path.read_text()) if path.exists() else {}
-    path.write_text(json.dumps(tables | {form: s["calibration"] for form, s in made.items()}, indent=1) + "\n")
-    held = held_out_records() if CHECK_RECORDS.exists() else {}
-    held |= {form: {str(seed): compact(rows[seed]) for seed in (CHECK_SEED, HIDDEN_SEED)} for form, rows in by_form.items()}
-    CHECK_RECORDS.write_bytes(gzip.compress(json.dumps(held, separators=(",", ":")).encode(), mtime=0))
-    results = json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}
-    results["intervals"] = merged(results.get("intervals", {}), made)
-    report.write(results, BENCH_JSON, BENCH_MD)
-    print(f"wrote {path}, {CHECK_RECORDS}, {BENCH_JSON} and {BENCH_MD}")
-
-
 def merged(old: dict, made: dict[str, dict]) -> dict:
     """The bench section (sections' layout) with the parts of the model forms in `made` (form ->
     section) in place of `old`'s, every other form's part as `old` has it."""
     main = made.get(DEFAULT_FORM) or {k: v for k, v in old.items() if k != "forms"}
     return {**main, "forms": old.get("forms", {}) | {form: s for form, s in made.items() if form != DEFAULT_FORM}}
-
-
-def main(argv: list[str] | None = None) -> int:
-    """`make calibrate`: every model form's table (or those --forms names) from scratch, or with
-    --cache DIR from the records a former run left there."""
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--cache", type=Path, help="a folder that keeps each vehicle's records between runs")
-    parser.add_argument(
-        "--forms", nargs="+", choices=list(MODEL_FORMS), default=list(MODEL_FORMS), help="the model forms to calibrate"
-    )
-    args = parser.parse_args(argv)
-    if DEFAULT_FORM not in args.forms and "intervals" not in (json.loads(BENCH_JSON.read_text()) if BENCH_JSON.exists() else {}):
-        parser.error(f"{BENCH_JSON}: no key intervals to add the forms to; calibrate {DEFAULT_FORM} too")
-    if args.cache is not None:
-        args.cache.mkdir(parents=True, exist_ok=True)
-    os.environ.setdefault(COMPILE_ENV, "model")  # each corpus fit's NLP has a shape of its own: a compile outlasts it
-    write({form: records(form, cache=args.cache) for form in dict.fromkeys(args.forms)})
-    return 0
-
-
-if __name__ == "__main__":
-    sys.exit(main())

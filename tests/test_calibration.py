@@ -220,7 +220,7 @@ def test_the_table_covers_each_generator_form_not_only_their_mix():
 
 
 def test_calibrating_some_forms_replaces_their_parts_of_the_bench_section_and_keeps_the_others():
-    """`bench/calibration.py --forms`: the named forms' parts of the section in place of the old
+    """`bench/calibrate.py --forms`: the named forms' parts of the section in place of the old
     ones, every other form's (the default's too) as it was; the default's part is the section's top."""
     old = merged({}, {"pendulum": {"model_form": "pendulum", "n": 1}, "rigid-body": {"model_form": "rigid-body", "n": 1}})
     assert old == {"model_form": "pendulum", "n": 1, "forms": {"rigid-body": {"model_form": "rigid-body", "n": 1}}}
