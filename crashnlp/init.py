@@ -710,7 +710,8 @@ def _data_files(paths: list[Path], fmt: str) -> set[Path]:
 
 
 def _check_given(case: Case, options: Options) -> None:
-    """Refuse a --speed or --mass the test's data (as the case read them) contradict, as identify
+    """Refuse a --speed or --mass the test's data (as the case read them) contradict, and data
+    identify would refuse (Case.check_data: a speed, units or signs they contradict), as identify
     would (crashnlp.case.testcase): the file written would not be fitted."""
     from crashnlp.case.testcase import mass_contradicted, speed_contradicted
 
@@ -721,3 +722,7 @@ def _check_given(case: Case, options: Options) -> None:
         why = None if value is None else contradicted(value, test.spec, test.data)
         if why is not None:
             raise InputError(f"{option}: {why}")
+    try:
+        case.check_data()  # what identify refuses in the data (their units, signs, speed), before the file is written
+    except InputError as exc:
+        raise InputError(f"{test.spec.data.file if test.spec.data else case.name}: as read for the problem file, {exc}") from None

@@ -142,6 +142,33 @@ def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_afte
     assert "tests.0.data.channels.accel.sign: 11.1111 m/s (40 km/h)" in err and "reads with the wrong sign" in err
 
 
+def test_an_acceleration_and_a_velocity_read_in_different_units_are_refused(tmp_path, capsys):
+    """The pickup measures both: its acceleration read in m/s^2 changes the velocity 9.81 times
+    less than its velocity channel does (it fitted, said ok, at a sixth of the pulse); its velocity
+    column written in km/h, with the speed the column starts at, 3.6 times more than the
+    acceleration; an acceleration with the wrong sign speeds the vehicle up where the velocity
+    falls. Each names the channel's key; read right, the same data are taken."""
+    test = pickup()["tests"][0]
+    channels = test["data"]["channels"]
+
+    def reading(accel: dict, **data) -> dict:
+        return {**test, "data": {**test["data"], **data, "channels": {**channels, "accel": {**channels["accel"], **accel}}}}
+
+    err = refused(tmp_path, capsys, pickup({"tests": [reading({"unit": "m/s^2"})]}), "tests.0.data.channels.accel.unit: the")
+    ratio = float(re.search(r"m/s, ([\d.]+) times as much", err)[1])
+    assert ratio == pytest.approx(9.81, rel=0.02) and "most likely the accel channel's" in err
+    refused(tmp_path, capsys, pickup({"tests": [reading({"sign": -1})]}), "tests.0.data.channels.accel.sign: the acceleration")
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    rows = [row.split(",") for row in lines]
+    kmh = [",".join([r[0], r[1], f"{float(r[2]) * 3.6:.5f}", *r[3:]]) for r in rows]
+    (tmp_path / "kmh.csv").write_text("\n".join([header, *kmh]) + "\n")
+    raw = pickup({"vehicle": {"speed": f"{float(rows[0][2]) * 3.6} m/s"}, "tests": [reading({}, file=str(tmp_path / "kmh.csv"))]})
+    err = refused(tmp_path, capsys, raw, "tests.0.data.channels.velocity.unit: the acceleration")
+    assert "most likely the velocity channel's" in err
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(pickup()))
+    assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+
+
 @pytest.mark.parametrize(
     ("maker", "seed", "index", "kmh"),
     [("tall_vehicle", 3200, 4, 56), ("random_vehicle", 7777, 0, 64)],

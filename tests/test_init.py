@@ -101,7 +101,7 @@ def test_csv_without_units_asks_for_them(tmp_path, capsys):
 
 
 def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
-    _mme_set(tmp_path / "T001", n=2000)
+    _mme_set(tmp_path / "T001", n=2000, peak_g=55.0)  # a pulse that stops it: init refuses data identify would
     problem, _ = init_problem(tmp_path / "T001", tmp_path / "mme.yaml", Options())
     assert problem.vehicle.mass == 1500 and problem.vehicle.speed == 15.0
     assert problem.tests[0].data.channels["accel"].code == CODE_X
@@ -137,6 +137,21 @@ def _pickup_columns(path, columns: dict) -> None:
     values = {"time_s": t, "Speed_mph": v / 0.44704, "Travel_in": x / 0.0254, "Decel_G": -a, "Belt_N": 0 * t}
     values.update({"Speed_ft/s": v / 0.3048, "Accel_ft/s2": a * 9.80665 / 0.3048, "Travel_mm": x * 1e3})
     write_csv(path, {name: values[name] for name in columns})
+
+
+def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, capsys):
+    """A deceleration in g under a header that says ft/s^2 (the pickup's g column named
+    Accel_ft/s2): its velocity channel falls 30 times more than it does. init says so in one line,
+    naming the data file and the key, as identify would, and writes no problem file."""
+    path = tmp_path / "mixed.csv"
+    _pickup_columns(path, ["time_s", "Speed_ft/s", "Travel_mm"])
+    raw = np.loadtxt(path, delimiter=",", skiprows=1)
+    g = np.loadtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", skiprows=1)[:, 1]
+    write_csv(path, {"time_s": raw[:, 0], "Speed_ft/s": raw[:, 1], "Accel_ft/s2": g, "Travel_mm": raw[:, 2]})
+    assert main(["init", str(path), "--mass", "2550 kg", "--out", str(tmp_path / "p.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {path}: as read for the problem file, tests.0.data.channels.accel.unit: ")
+    assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
 def test_csv_columns_in_mph_inches_and_g_are_read_and_the_rest_named(tmp_path):

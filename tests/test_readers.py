@@ -204,10 +204,12 @@ CODE_X = "10VEHCCG0000ACXA"
 CODE_P = "10VEHCCG0000AVYA"
 
 
-def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600) -> tuple[np.ndarray, np.ndarray]:
-    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g and a pitch rate channel."""
+def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0) -> tuple[np.ndarray, np.ndarray]:
+    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g (a half sine of `peak_g`
+    over 50 ms: 20 g slows it by 6.2 m/s, 55 g stops it and throws it back at 2.2 m/s) and a pitch
+    rate channel."""
     t = t0 + dt * np.arange(n)
-    accel_g = np.where(t > 0, -20 * np.sin(np.pi * np.clip(t, 0, 0.05) / 0.05), 0.0)
+    accel_g = np.where(t > 0, -peak_g * np.sin(np.pi * np.clip(t, 0, 0.05) / 0.05), 0.0)
     (root / "Channel").mkdir(parents=True)
     (root / "T001.mme").write_text(
         "Data format edition number  :1.6\nLaboratory name             :Test lab\n"

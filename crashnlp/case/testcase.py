@@ -38,6 +38,15 @@ FLIPPED = 1.5
 # 0.3). A pulse that, integrated from the test's speed, throws the vehicle back faster than
 # REBOUND_LIMIT of it was recorded at a higher speed (35 for 56 km/h: mph taken for km/h).
 REBOUND_LIMIT = 0.5
+# A measured velocity and an acceleration of the same test change by the same amount over the
+# record. Their changes further apart than a factor of UNIT_FACTOR were read in different units: g
+# against m/s^2 parts them 9.81 times, km/h against m/s 3.6 times, while a filtered accelerometer
+# integrates to within a few percent of the velocity. Below MOVED of the speed the velocity barely
+# changes in the record, and its change tells nothing.
+UNIT_FACTOR = 2.0
+MOVED = 0.2
+# the factors by which a unit read wrong parts the two changes, and the channel whose unit it is
+UNIT_SLIPS = {"accel": 9.80665, "velocity": 3.6}
 
 
 @dataclass(frozen=True)
@@ -159,13 +168,15 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 
 def check_data(tests: list[TestCase], mass: float) -> None:
-    """Refuse test data that contradict the problem's speed (check_speed) or, in their header, its
-    mass (`mass`, the vehicle's, where a test gives none: check_mass), or end before a fit's
+    """Refuse test data that contradict the problem's speed (check_speed), a measured velocity and
+    acceleration that disagree (check_units), a mass in their header (`mass`, the vehicle's,
+    where a test gives none: check_mass), or data that end before a fit's
     duration (check_end; a window is checked as the data load). For fits: a simulation may well
     ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_speed(i, test.speed, test.spec, test.data)
+            check_units(i, test.speed, test.spec, test.data)
             check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
                 check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
@@ -194,6 +205,52 @@ def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
         elif _sign_at_fault(speed, test, data):
             key = f"tests.{i}.data.channels.accel.sign"
         raise InputError(f"{key}: {why}")
+
+
+def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a measured velocity and an acceleration that disagree over the record
+    (`velocity_changes`): an acceleration that speeds the vehicle up where its velocity falls (its
+    sign), or changes that part by more than UNIT_FACTOR, naming the unit of the channel the factor
+    points to (UNIT_SLIPS)."""
+    changes = velocity_changes(speed, test, data)
+    if changes is None:
+        return
+    accel_change, velocity_change = changes
+    factor = velocity_change / accel_change if accel_change > 0 else None
+    if factor is not None and 1 / UNIT_FACTOR <= factor <= UNIT_FACTOR:
+        return
+    file = test.data.file.name if test.data is not None else "the data"
+    said = (
+        f"the acceleration of test {test.name} ({file}) changes the velocity by {accel_change:.3g} m/s over the "
+        f"record, its velocity channel by {velocity_change:.3g} m/s"
+    )
+    if factor is None:
+        raise InputError(f"tests.{i}.data.channels.accel.sign: {said}: the accel channel reads with the wrong sign")
+    channel = min(UNIT_SLIPS, key=lambda c: abs(abs(np.log(factor)) - np.log(UNIT_SLIPS[c])))
+    raise InputError(
+        f"tests.{i}.data.channels.{channel}.unit: {said}, {factor:.3g} times as much: the two channels are read in "
+        f"different units (g and m/s^2 part them 9.81 times, km/h and m/s 3.6 times), most likely the {channel} "
+        "channel's"
+    )
+
+
+def velocity_changes(speed: float, test: Test, data: TestData) -> tuple[float, float] | None:
+    """Where a test measures both its velocity and its acceleration, and the velocity falls by at
+    least MOVED of the `speed` over the time both cover: how much the acceleration, integrated,
+    and the velocity channel each lower the velocity over that time (m/s); None otherwise."""
+    accel, velocity = data.channels.get("accel"), data.channels.get("velocity")
+    if accel is None or velocity is None or _velocity_start(test, data) is None:
+        return None
+    start = max(0.0, float(accel.time[0]), float(velocity.time[0]))
+    end = min(float(accel.time[-1]), float(velocity.time[-1]))
+    if end <= start:
+        return None
+    ends = np.interp([start, end], velocity.time, velocity.values)
+    velocity_change = float(ends[0] - ends[1])
+    if velocity_change < MOVED * abs(speed):
+        return None
+    integrated, _ = integrate(accel.time, accel.values, 0.0, float(accel.time[0]))
+    return float(np.interp(start, accel.time, integrated) - np.interp(end, accel.time, integrated)), velocity_change
 
 
 def check_mass(i: int, mass: float, test: Test, data: TestData) -> None:
