@@ -310,7 +310,8 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
             write_response_csv(out / name / "response.csv", t.response)
         fc = result.force_crush
         if fc is not None:
-            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": fc.force}, unconverged(result.status))
+            force = along_the_tail(fc, identified_tail(result), fc.crush)
+            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": force}, unconverged(result.status))
         write_json(out / RESULT_FILE, result.to_json())
         if figures:
             write_figures(result, out)
@@ -351,18 +352,34 @@ def _fit_notes(t: TestResult) -> dict[str, str]:
     return notes
 
 
+def identified_tail(result: Result) -> dict[str, float] | None:
+    """The identified loading curve's tail (its start, m, and slope, N/m), None without one."""
+    tail = (result.identified.model if result.identified is not None else {}).get("spring", {}).get("tail")
+    return tail if isinstance(tail, dict) else None
+
+
+def along_the_tail(fc: LoadingCurve, tail: dict[str, float] | None, crush: np.ndarray) -> np.ndarray:
+    """The loading curve at `crush` as the predictions and the exports take it: the fitted curve
+    `fc` up to the tail's start, past it the tail's line from the curve's force there (its trend
+    past the crush the fitted tests reached: crashnlp.models.tail)."""
+    force = np.interp(crush, fc.crush, fc.force)
+    if tail is None:
+        return force
+    at_start = float(np.interp(tail["start"], fc.crush, fc.force))
+    return np.where(crush <= tail["start"], force, at_start + tail["slope"] * (crush - tail["start"]))
+
+
 def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
     """The force-crush figure: the identified or designed loading curve (to the tail's start, then the tail
     predictions follow) and its 95 % band, the unloading from each test's largest crush, the
     reference, and behind them each test's measured m |a| while loading."""
     model = result.identified.model if result.identified is not None else {}
-    tail = model.get("spring", {}).get("tail")
-    inside = fc.crush <= tail["start"] if isinstance(tail, dict) else np.ones(fc.crush.size, bool)
+    tail = identified_tail(result)
+    inside = fc.crush <= tail["start"] if tail is not None else np.ones(fc.crush.size, bool)
     curves = {loading_curve_name(result.kind): (fc.crush[inside], fc.force[inside])}
-    if isinstance(tail, dict):
+    if tail is not None:
         x = np.linspace(tail["start"], TAIL_SHOWN * tail["start"], 20)
-        at_start = np.interp(tail["start"], fc.crush, fc.force)
-        curves["past the fitted crush: its trend"] = (x, at_start + tail["slope"] * (x - tail["start"]))
+        curves["past the fitted crush: its trend"] = (x, along_the_tail(fc, tail, x))
     unloading = model.get("unloading", {})
     if unloading.get("law") == "plastic":
         stiffness = float(unloading["stiffness"])
