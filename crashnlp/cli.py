@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
-from crashnlp.base.errors import InputError, Interrupted, RunError
+from crashnlp.base.errors import InputError, Interrupted, RunError, unreadable
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
@@ -57,7 +57,9 @@ def _read_params(path: str) -> ResultFile:
         raise InputError(f"{p}: file not found") from None
     except (IsADirectoryError, PermissionError) as exc:
         raise InputError(f"{p}: cannot read ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError, KeyError, TypeError, IndexError):
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise unreadable(p, exc) from None
+    except (KeyError, TypeError, IndexError):
         raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
     if not isinstance(params, dict):
         raise InputError(f"{p}: 'parameters' is not a mapping")
@@ -477,12 +479,13 @@ def cmd_export(args) -> int:
 def _export_curves(args, folder: Path) -> int:
     """The identified model's curves as LS-DYNA keywords or CSV files."""
     from crashnlp.report import export
-    from crashnlp.report.folders import read_result
+    from crashnlp.report.folders import read_result, reading
 
     result = read_result(folder)
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
-    curves = export.identified_curves(result.identified)
+    with reading(folder / "result.json"):  # an identified model edited, or cut short, is one line
+        curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         _say_unconverged(result.status)

@@ -338,6 +338,7 @@ def test_a_zip_study_has_no_map(tmp_path):
         (["report"], "empty", "holds no result.json, simulation.json or cases/"),
         (["report"], "corrupt", "result.json: does not read as crashnlp writes it"),
         (["export", "--format", "ls-dyna"], "corrupt", "result.json: does not read as crashnlp writes it"),
+        (["simulate"], "corrupt", "result.json: does not read as crashnlp writes it (JSONDecodeError"),
         (["export", "--format", "pulse"], "empty", "holds no result.json"),
         (["export", "--format", "csv"], "study", "a study's folder holds no curves or pulses"),
         (["export", "--format", "csv"], "simulation", "a simulation's folder holds no identified curves"),
@@ -357,6 +358,28 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
     assert main([command[0], str(folder), *command[1:]]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and str(folder) in err and message in err, err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.parametrize(("edit", "why"), [("drop", "KeyError: 'values'"), ("text", "TypeError")])
+def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, capsys, edit, why):
+    """A fit's result.json whose spring values were removed, or one made text: the curves' export
+    names the file and what failed on it, exit 2, and writes nothing."""
+    folder = tmp_path / "edited"
+    shutil.copytree(fit, folder)
+    raw = json.loads((folder / "result.json").read_text())
+    spring = raw["identified_model"]["model"]["spring"]
+    if edit == "drop":
+        del spring["values"]
+    else:
+        spring["values"][3] = "abc"
+    (folder / "result.json").write_text(json.dumps(raw))
+    before = sorted(tmp_path.rglob("*"))
+    for fmt in ("ls-dyna", "csv"):
+        assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
+        err = capsys.readouterr().err
+        assert err == f"crashnlp: error: {folder / 'result.json'}: does not read as crashnlp writes it ({why}" + err.split(why, 1)[1]
+        assert err.count("\n") == 1
     assert sorted(tmp_path.rglob("*")) == before
 
 

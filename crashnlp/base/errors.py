@@ -12,6 +12,13 @@ class InputError(ValueError):
     """Bad input (problem file, data file, study file): one line naming where and what."""
 
 
+def unreadable(path: object, exc: BaseException) -> InputError:
+    """The one line for a file crashnlp wrote that does not read back as it writes it (broken,
+    cut short or edited): the file, and what failed on it."""
+    why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
+    return InputError(f"{path}: does not read as crashnlp writes it ({why})")
+
+
 class RunError(RuntimeError):
     """A failure that is not the input's (cluster unreachable, a worker lost, a disk full): exit 1."""
 

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal
 
-from crashnlp.base.errors import InputError
+from crashnlp.base.errors import InputError, unreadable
 from crashnlp.results import simulation
 from crashnlp.results.result import Result
 from crashnlp.results.simulation import PredictedTest
@@ -35,13 +35,13 @@ def folder_kind(folder: Path) -> Kind:
 
 def read_result(folder: Path) -> Result:
     """The fit or design in `folder`."""
-    with _reading(folder / "result.json"):
+    with reading(folder / "result.json"):
         return Result.load(folder)
 
 
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
     """The name and the predicted tests of the simulation in `folder`."""
-    with _reading(folder / "simulation.json"):
+    with reading(folder / "simulation.json"):
         return simulation.read_simulation(folder)
 
 
@@ -54,10 +54,10 @@ def read_study(folder: Path) -> list[dict]:
 
 
 @contextmanager
-def _reading(path: Path) -> Iterator[None]:
-    """Any failure to read a folder's files becomes one line naming `path`, the file that marks it."""
+def reading(path: Path) -> Iterator[None]:
+    """Any failure to read a folder's files, or what they hold, becomes one line naming `path`,
+    the file that marks it (crashnlp.base.errors.unreadable)."""
     try:
         yield
     except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
-        why = f"{type(exc).__name__}: {exc}" if str(exc) else type(exc).__name__
-        raise InputError(f"{path}: does not read as crashnlp writes it ({why})") from None
+        raise unreadable(path, exc) from None
