@@ -378,7 +378,7 @@ def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, ca
     for fmt in ("ls-dyna", "csv"):
         assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
         err = capsys.readouterr().err
-        assert err == f"crashnlp: error: {folder / 'result.json'}: does not read as crashnlp writes it ({why}" + err.split(why, 1)[1]
+        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: does not read as crashnlp writes it ({why}")
         assert err.count("\n") == 1
     assert sorted(tmp_path.rglob("*")) == before
 
