@@ -343,7 +343,8 @@ def _uncertainty(
         intervals[key], cut = limited_interval(test.name, key, parts[key].interval(q), float(response.time[-1]))
         notes += cut
     notes += _dominated(test.name, parts, qs)
-    return Uncertainty(intervals, parts, qs, _bands(response, test.speed, gy, cov, parts, qs), tuple(notes))
+    bands = _bands(response, test.speed, gy, cov, parts, qs)
+    return Uncertainty(intervals, parts, qs, _rebound_cut(response, bands, intervals), tuple(notes))
 
 
 def _unreached(name: str, key: str, distance: float) -> str:
@@ -458,6 +459,24 @@ def _bands(
         half = np.sqrt(Z95**2 * np.einsum("it,ij,jt->t", g, cov, g) + half_rest**2)
         bands[name] = limited_band(name, response.time, y, (y - half, y + half), speed)
     return bands
+
+
+def _rebound_cut(
+    response: Response, bands: dict[str, tuple[np.ndarray, np.ndarray]], intervals: dict[str, tuple[float, float] | None]
+) -> dict[str, tuple[np.ndarray, np.ndarray]]:
+    """`bands` with the velocity band's top, from the rebound's instant (the velocity's least) on,
+    no higher than minus the rebound interval's low end, nor below the curve: the velocity there is
+    the rebound's, so a rebound interval cut at zero (crashnlp.analysis.limits) cuts the band at
+    zero too, and the band at the rebound's instant is its interval."""
+    rebound = intervals.get("rebound_velocity_mps")
+    if rebound is None or "velocity" not in bands:
+        return bands
+    v = response["velocity"]
+    low, high = bands["velocity"]
+    top = int(np.argmin(v))
+    high = high.copy()
+    high[top:] = np.maximum(v[top:], np.minimum(high[top:], -rebound[0]))
+    return {**bands, "velocity": (low, high)}
 
 
 def _carried_back(response: Response, velocity_rest: np.ndarray) -> np.ndarray:
