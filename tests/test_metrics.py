@@ -191,3 +191,21 @@ def test_a_record_that_ends_while_the_barrier_still_pushes_the_vehicle_back_hold
         )
     whole = data_metrics(_recorded(*pushed(0.15)))
     assert whole["rebound_velocity_mps"] == pytest.approx(4.0, rel=1e-3) and goes_on(whole) is None
+
+
+def test_a_pitch_still_rising_at_the_record_s_end_is_read_through_its_noise():
+    """A pitch that peaks at 171 ms, read to 140 ms with 0.05 deg of noise (the pickup's measured
+    pitch: its largest sample 8 before the end), still rises there; read to 200 ms it peaked
+    within the record; one that peaks at 125 ms and falls, read to 140 ms, does not rise."""
+    from crashnlp.analysis.summary import pitch_rises_at_end
+
+    t = np.arange(0.0, 0.2, 1e-4)
+    noise = np.random.default_rng(0).normal(0.0, np.radians(0.05), t.size)
+    rising = np.radians(9.0) * np.sin(np.pi / 2 * np.minimum(t / 0.171, 2 - t / 0.171)) + noise
+    early = t <= 0.14
+    assert np.argmax(rising[early]) < early.sum() - 1  # the noise hides the rise from the last sample
+    assert pitch_rises_at_end(t[early], rising[early]) == pytest.approx(0.14)
+    assert pitch_rises_at_end(t, rising) is None
+    falling = np.radians(9.0) * np.sin(np.pi / 2 * np.minimum(t / 0.125, 2 - t / 0.125)) + noise
+    assert pitch_rises_at_end(t[early], falling[early]) is None
+    assert pitch_rises_at_end(t[:1], falling[:1]) is None and pitch_rises_at_end(t, None) is None

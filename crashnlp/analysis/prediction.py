@@ -66,6 +66,7 @@ from crashnlp.analysis.summary import (
     as_recorded,
     data_curves,
     goes_on,
+    pitch_rises_at_end,
     response_metrics,
 )
 from crashnlp.base.errors import InputError
@@ -225,10 +226,11 @@ def _pitch_rising(name: str, response: Response, metrics: dict[str, float | None
     """A note when the pitch is largest at the simulation's last instant: the max pitch it gives
     is the record's, and the crash's comes later (a body on its suspension pitches for a few
     hundred ms); a longer duration reaches it."""
-    if metrics.get("max_pitch_deg") is None or int(np.argmax(response["pitch"])) < response.time.size - 1:
+    end = pitch_rises_at_end(response.time, response["pitch"]) if metrics.get("max_pitch_deg") is not None else None
+    if end is None:
         return ()
     return (
-        f"{name}: the pitch still rises as the simulation ends at {response.time[-1] * 1e3:.1f} ms: its max pitch is "
+        f"{name}: the pitch still rises as the simulation ends at {end * 1e3:.1f} ms: its max pitch is "
         "the record's, and the crash's comes later (a longer duration reaches it)",
     )
 

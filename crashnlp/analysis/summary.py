@@ -19,6 +19,7 @@ from crashnlp.results.response import Response
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
 # contact (its pitch lifted the front end off), and the record holds the pulse whole
 MID_CRASH = 0.1
+END_SHARE = 0.05  # the last part of a record in which a pitch still rising at its end is read (pitch_rises_at_end)
 # the metrics still_moving names where a record does not give them: the predicted and the whole
 # crash's ones that the crash's rest would change (the stop is said apart)
 _WITHHELD: tuple[str, ...] = tuple(
@@ -129,6 +130,19 @@ def data_curves(test: TestCase) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     if test.data is None:
         return {}
     return {name: (ch.time, ch.values) for name, ch in test.data.channels.items()}
+
+
+def pitch_rises_at_end(time: np.ndarray, pitch: np.ndarray | None) -> float | None:
+    """The end of a record (s) whose pitch is largest in its last END_SHARE and still rising there
+    (a least-squares line through that part slopes up, so that a measured pitch's noise neither
+    hides nor fakes it): its max pitch is the record's, and the crash's comes later (a body on its
+    suspension pitches for a few hundred ms). None where the pitch peaks before, or there is none."""
+    if pitch is None or pitch.size < 2:
+        return None
+    last = time >= time[-1] - END_SHARE * (time[-1] - time[0])
+    if last.sum() < 2 or int(np.argmax(pitch)) < int(np.flatnonzero(last)[0]):
+        return None
+    return float(time[-1]) if np.polyfit(time[last], pitch[last], 1)[0] > 0 else None
 
 
 def data_metrics(test: TestCase) -> dict | None:

@@ -17,6 +17,7 @@ from crashnlp.analysis.summary import (
     channel_consistency,
     data_metrics,
     goes_on,
+    pitch_rises_at_end,
     response_metrics,
 )
 from crashnlp.base.outputs import PREDICTED_KEYS, Z95
@@ -67,7 +68,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
-        notes=tuple(solution.notes) + _data_notes(case) + _moving_notes(tests) + identified.tail_notes(),
+        notes=tuple(solution.notes) + _data_notes(case) + _moving_notes(tests) + _pitch_notes(tests) + identified.tail_notes(),
         identified=identified,
         regularization=solution.regularization,
         output_bounds={str(name): ends for name, ends in case.problem.constraints.bounds.items()},
@@ -162,6 +163,24 @@ def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
         for who, metrics in (("record", t.data_metrics), ("model", t.metrics)):
             text = goes_on(metrics) if metrics is not None else None
             notes += [f"test {name}: the {who} {text}"] if text else []
+    return tuple(notes)
+
+
+def _pitch_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
+    """A test whose measured pitch, or whose model's, is largest at the window's end while a max
+    pitch is given, said so: that max pitch is the window's (summary.pitch_rises_at_end)."""
+    notes = []
+    for name, t in tests.items():
+        curves = {"model": (t.response.time, t.response["pitch"], t.metrics)}
+        if "pitch" in t.data and t.data_metrics is not None:
+            curves = {"record": (*t.data["pitch"], t.data_metrics), **curves}
+        for who, (time, pitch, metrics) in curves.items():
+            end = pitch_rises_at_end(np.asarray(time), np.asarray(pitch)) if metrics.get("max_pitch_deg") is not None else None
+            if end is not None:
+                notes.append(
+                    f"test {name}: the {who}'s pitch still rises at the window's end, {end * 1e3:.1f} ms: its max pitch is "
+                    "the window's, and the crash's comes later (a longer window reaches it)"
+                )
     return tuple(notes)
 
 
