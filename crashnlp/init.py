@@ -246,6 +246,7 @@ CHANNEL_SIGNS = {
     "accel": "the pulse decelerates",
     "velocity": "the impact speed is positive",
     "displacement": "the travel toward the barrier is positive",
+    "pitch": "the nose-down pitch is positive",
 }
 
 
@@ -325,8 +326,6 @@ def csv_draft(path: Path, columns: dict[str, str]) -> Draft:
     draft.comments = {ch: f"column {name!r} in {unit}" for ch, (name, unit) in found.items()}
     if unread:
         draft.notes.append(f"Columns not read: {', '.join(map(repr, unread))} (--column CHANNEL=NAME:UNIT reads one).")
-    if "pitch" in draft.comments:
-        draft.comments["pitch"] += ", taken as nose-down positive"
     _integrated(draft, "the accel column")
     return draft
 
@@ -389,7 +388,8 @@ def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
 
 
 def _direction(name: str, values: np.ndarray) -> float:
-    """> 0 when a channel reads in the model frame: decelerating, impact speed positive, travel positive."""
+    """> 0 when a channel reads in the model frame: decelerating, impact speed positive, travel
+    positive, the largest pitch swing nose-down (a frontal crash pitches the nose down)."""
     if name == "accel":
         return -float(np.sum(values))
     if name == "velocity":
@@ -405,6 +405,8 @@ def _signs(draft: Draft, path: Path) -> None:
             if _direction(name, ch.values[ch.time >= 0.0]) < 0:
                 draft.data["channels"][name]["sign"] = -1
                 draft.comments[name] += f", sign flipped so that {CHANNEL_SIGNS[name]}"
+            elif name == "pitch":
+                draft.comments[name] += ", taken as nose-down positive (its largest swing is)"
 
 
 # ------------------------------------------------------------------ the rest, common to all formats

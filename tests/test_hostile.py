@@ -165,6 +165,16 @@ def test_an_acceleration_and_a_velocity_read_in_different_units_are_refused(tmp_
     raw = pickup({"vehicle": {"speed": f"{float(rows[0][2]) * 3.6} m/s"}, "tests": [reading({}, file=str(tmp_path / "kmh.csv"))]})
     err = refused(tmp_path, capsys, raw, "tests.0.data.channels.velocity.unit: the acceleration")
     assert "most likely the velocity channel's" in err
+
+
+def test_a_pitch_read_nose_up_is_refused(tmp_path, capsys):
+    """The pickup's pitch read with the other sign swings 8.5 deg nose-up: a frontal crash pitches
+    the nose down, and the fit had said ok with the lever at its bound and no pitch."""
+    test = pickup()["tests"][0]
+    channels = test["data"]["channels"]
+    turned = {**test, "data": {**test["data"], "channels": {**channels, "pitch": {**channels["pitch"], "sign": -1}}}}
+    err = refused(tmp_path, capsys, pickup({"tests": [turned]}), "tests.0.data.channels.pitch.sign: the pitch of test")
+    assert re.search(r"swings to -8\.\d+ deg and no further than 0\.\d+ deg the other way", err)
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(pickup()))
     assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
 

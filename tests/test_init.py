@@ -154,6 +154,18 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+def test_init_turns_a_pitch_read_nose_up(tmp_path):
+    """The pickup's pitch written nose-up positive: init reads it with `sign: -1`, as it turns the
+    other channels into the model frame; as written, nose-down, it keeps its sign."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    turned = [",".join([*row.split(",")[:4], str(-float(row.split(",")[4]))]) for row in lines]
+    for name, rows, sign in (("turned", turned, -1), ("as-is", lines, None)):
+        (tmp_path / f"{name}.csv").write_text("\n".join([header, *rows]) + "\n")
+        draft, _ = draft_for([tmp_path / f"{name}.csv"], Options(mass=2550.0))
+        assert draft.data["channels"]["pitch"].get("sign") == sign
+        assert ("nose-down pitch is positive" if sign else "taken as nose-down positive") in draft.comments["pitch"]
+
+
 def test_csv_columns_in_mph_inches_and_g_are_read_and_the_rest_named(tmp_path):
     path = tmp_path / "us.csv"
     _pickup_columns(path, ["time_s", "Speed_mph", "Travel_in", "Decel_G", "Belt_N", "Accel_ft/s2"])
