@@ -37,6 +37,7 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError
 from crashnlp.base.records import ValidationError
 from crashnlp.base.units import unit_scale
+from crashnlp.data.channels import Channel
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
@@ -63,7 +64,8 @@ CG_SHARE = 0.44  # CG behind the front axle, fraction of the wheelbase
 GYRATION_SHARE = 0.44  # pitch radius of gyration, fraction of the wheelbase
 RIDE_FREQUENCY, DAMPING_RATIO = 1.2, 0.25  # Hz, -
 OVERHANG_SHARE = 0.47  # front overhang, fraction of length minus wheelbase (EV5 gives both)
-WINDOW_FACTOR, WINDOW_MIN = 2.0, 0.1  # fit window: twice the stop time, at least 0.1 s
+WINDOW_FACTOR, WINDOW_MIN = 2.0, 0.1  # fit window: twice the stop time, at least 0.1 s...
+PITCH_MARGIN = 0.01  # s: ...and this past a measured pitch's peak (a body pitches for a few hundred ms)
 BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset
 
 
@@ -418,7 +420,9 @@ def _data_spec(draft: Draft, path: Path) -> DataSpec:
 
 
 def _timing(draft: Draft, path: Path, speed: float) -> None:
-    """Bias window (at least 10 ms of pre-impact record), and a fit window of twice the stop time."""
+    """Bias window (at least 10 ms of pre-impact record), and a fit window of twice the stop time,
+    or to PITCH_MARGIN past a measured pitch's peak where that is later (so the max pitch is the
+    crash's, not the window's), within the record."""
     spec = _data_spec(draft, path)
     data = load_test_data(spec, speed)
     start = max(c.time[0] for c in data.channels.values())
@@ -433,10 +437,24 @@ def _timing(draft: Draft, path: Path, speed: float) -> None:
         draft.data["window"] = [0.0, float(end)]
         draft.notes.append("Fit window: the whole record after impact (the vehicle does not stop in it).")
         return
-    draft.data["window"] = [0.0, round(min(end, max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)), 4)]
+    fit = max(WINDOW_MIN, math.ceil(WINDOW_FACTOR * stop / 0.01) * 0.01)
+    peak, pitch = _pitch_peak(data.channels.get("pitch")), ""
+    if peak is not None and peak + PITCH_MARGIN > fit:
+        fit = math.ceil(round((peak + PITCH_MARGIN) / 0.01, 6)) * 0.01
+        pitch = f", and past the pitch's peak at {peak * 1e3:.0f} ms"
+    draft.data["window"] = [0.0, round(min(end, fit), 4)]
     draft.notes.append(
-        f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, {stop * 1e3:.1f} ms)."
+        f"Fit window: from impact to {draft.data['window'][1] * 1e3:.0f} ms (about twice the stop time, "
+        f"{stop * 1e3:.1f} ms{pitch})."
     )
+
+
+def _pitch_peak(pitch: Channel | None) -> float | None:
+    """When a measured pitch is largest after impact (s); None without one."""
+    if pitch is None:
+        return None
+    after = pitch.time >= 0.0
+    return float(pitch.time[after][np.argmax(pitch.values[after])]) if after.any() else None
 
 
 def vehicle_class(mass: float) -> tuple[float, str, float, float, float]:

@@ -154,6 +154,14 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+def test_init_s_window_reaches_past_a_measured_pitch_s_peak():
+    """The pickup stops at 68 ms and pitches most at 171 ms: twice the stop time (140 ms) would cut
+    the pitch off before its max, so the window runs 10 ms past the peak, and the note says why."""
+    draft, _ = draft_for([ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv"], Options(mass=2550.0))
+    assert 0.18 <= draft.data["window"][1] <= 0.19
+    assert any("past the pitch's peak at 17" in n for n in draft.notes), draft.notes
+
+
 def test_init_turns_a_pitch_read_nose_up(tmp_path):
     """The pickup's pitch written nose-up positive: init reads it with `sign: -1`, as it turns the
     other channels into the model frame; as written, nose-down, it keeps its sign."""
