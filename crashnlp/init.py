@@ -37,6 +37,7 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError
 from crashnlp.base.records import ValidationError
 from crashnlp.base.units import unit_scale
+from crashnlp.case.testcase import PITCH_SWING, nose_up
 from crashnlp.data.channels import Channel
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
@@ -391,11 +392,14 @@ def channel_draft(paths: list[Path], columns: dict[str, str]) -> Draft:
 
 def _direction(name: str, values: np.ndarray) -> float:
     """> 0 when a channel reads in the model frame: decelerating, impact speed positive, travel
-    positive, the largest pitch swing nose-down (a frontal crash pitches the nose down)."""
+    positive, a pitch that does not swing nose-up past its nose-down swing and PITCH_SWING
+    (crashnlp.case.testcase.nose_up: a frontal crash pitches the nose down)."""
     if name == "accel":
         return -float(np.sum(values))
     if name == "velocity":
         return float(values[0])
+    if name == "pitch":
+        return -1.0 if nose_up(values) else 1.0
     return float(values[np.argmax(np.abs(values))])
 
 
@@ -450,11 +454,14 @@ def _timing(draft: Draft, path: Path, speed: float) -> None:
 
 
 def _pitch_peak(pitch: Channel | None) -> float | None:
-    """When a measured pitch is largest after impact (s); None without one."""
+    """When a measured pitch is largest after impact (s); None without one, or where it never
+    swings past PITCH_SWING (a vehicle that barely pitches: noise or drift would set the window)."""
     if pitch is None:
         return None
     after = pitch.time >= 0.0
-    return float(pitch.time[after][np.argmax(pitch.values[after])]) if after.any() else None
+    if not after.any() or np.max(pitch.values[after]) < PITCH_SWING:
+        return None
+    return float(pitch.time[after][np.argmax(pitch.values[after])])
 
 
 def vehicle_class(mass: float) -> tuple[float, str, float, float, float]:

@@ -169,13 +169,22 @@ def test_an_acceleration_and_a_velocity_read_in_different_units_are_refused(tmp_
 
 def test_a_pitch_read_nose_up_is_refused(tmp_path, capsys):
     """The pickup's pitch read with the other sign swings 8.5 deg nose-up: a frontal crash pitches
-    the nose down, and the fit had said ok with the lever at its bound and no pitch."""
+    the nose down, and the fit had said ok with the lever at its bound and no pitch. The message
+    says which way to turn the channel: drop a `sign: -1` that turned it, or give one to a column
+    written nose-up. Where the problem puts the impact point above the CG, nose-up is the crash's."""
     test = pickup()["tests"][0]
     channels = test["data"]["channels"]
     turned = {**test, "data": {**test["data"], "channels": {**channels, "pitch": {**channels["pitch"], "sign": -1}}}}
     err = refused(tmp_path, capsys, pickup({"tests": [turned]}), "tests.0.data.channels.pitch.sign: the pitch of test")
-    assert re.search(r"swings to -8\.\d+ deg and no further than 0\.\d+ deg the other way", err)
-    (tmp_path / "p.yaml").write_text(yaml.safe_dump(pickup()))
+    assert re.search(r"swings to -8\.\d+ deg and no further than 0\.\d+ deg the other way", err) and "(drop its sign: -1)" in err
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    nose_up = [",".join([*row.split(",")[:4], str(-float(row.split(",")[4]))]) for row in lines]
+    (tmp_path / "nose-up.csv").write_text("\n".join([header, *nose_up]) + "\n")
+    written = {**test, "data": {**test["data"], "file": str(tmp_path / "nose-up.csv")}}
+    refused(tmp_path, capsys, pickup({"tests": [written]}), "(sign: -1 turns it)")
+    above = pickup({"vehicle": {"cg_above_impact": "-0.1 m"}, "tests": [written]})
+    above["estimate"]["vehicle.cg_above_impact"] = {"bounds": ["-0.3 m", "0.6 m"]}
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(above))
     assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
 
 

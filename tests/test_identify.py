@@ -288,6 +288,22 @@ def test_the_console_gives_a_value_not_identified_an_infinite_std(data_file, tmp
 
 
 @pytest.mark.integration
+def test_a_pitch_still_rising_at_the_window_s_end_is_said_on_the_console_and_in_the_result(tmp_path, capsys):
+    """The pickup fitted to 100 ms, before its pitch peaks at 171 ms: the record's and the model's
+    max pitch are the window's, and the console and result.json say so for each."""
+    path = small_pickup_problem(tmp_path)
+    raw = yaml.safe_load(path.read_text())
+    raw["tests"][0]["data"]["window"] = ["0 s", "0.1 s"]
+    path.write_text(yaml.safe_dump(raw))
+    assert main(["identify", str(path), "--out", str(tmp_path / "out"), "--no-figures"]) == 0
+    out = capsys.readouterr().out
+    end = "pitch still rises at the window's end, 100.0 ms: its max pitch is the window's"
+    said = [f"the {who}'s {end}" for who in ("record", "model")]
+    assert all(f"    {words}" in out for words in said), out
+    notes = json.loads((tmp_path / "out" / "result.json").read_text())["notes"]
+    assert all(any(words in n for n in notes) for words in said)
+
+
 def test_a_value_at_its_bound_the_data_never_reach_has_no_pull(capsys):
     """pickup-40kph's values at 0.55 and 0.70 m lie past the crush its test reaches: not
     identified, and the one its fit runs to the bound has no pull past it in standard errors (it

@@ -162,6 +162,26 @@ def test_init_s_window_reaches_past_a_measured_pitch_s_peak():
     assert any("past the pitch's peak at 17" in n for n in draft.notes), draft.notes
 
 
+@pytest.mark.parametrize("kind", ["glitch", "drift"])
+def test_init_reads_a_pitch_too_small_to_be_the_crash_s_as_it_is(tmp_path, kind):
+    """A vehicle that barely pitches (0.45 deg) with one -0.6 deg glitch keeps its sign; one that
+    drifts to 0.2 deg by the record's end does not stretch the window to its peak: below 1 deg a
+    pitch is noise or drift, and neither turns a channel nor sets the window."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    rows = [row.split(",") for row in lines]
+    t = np.array([float(r[0]) for r in rows])
+    if kind == "glitch":
+        pitch = np.array([float(r[4]) for r in rows]) * 0.45 / 9.0
+        pitch[np.searchsorted(t, 0.05)] = -0.6
+    else:
+        pitch = 0.2 * t / t[-1]
+    text = [",".join([*r[:4], f"{p:.5f}"]) for r, p in zip(rows, pitch)]
+    (tmp_path / "small.csv").write_text("\n".join([header, *text]) + "\n")
+    draft, _ = draft_for([tmp_path / "small.csv"], Options(mass=2550.0))
+    assert "sign" not in draft.data["channels"]["pitch"]
+    assert draft.data["window"][1] <= 0.15 and not any("pitch's peak" in n for n in draft.notes)
+
+
 def test_init_turns_a_pitch_read_nose_up(tmp_path):
     """The pickup's pitch written nose-up positive: init reads it with `sign: -1`, as it turns the
     other channels into the model frame; as written, nose-down, it keeps its sign."""

@@ -466,16 +466,19 @@ def _bands(
 def _rebound_cut(
     response: Response, bands: dict[str, tuple[np.ndarray, np.ndarray]], intervals: dict[str, tuple[float, float] | None]
 ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
-    """`bands` with the velocity band's top, from the rebound's instant (the velocity's least) on,
-    no higher than minus the rebound interval's low end, nor below the curve: the velocity there is
-    the rebound's, so a rebound interval cut at zero (crashnlp.analysis.limits) cuts the band at
-    zero too, and the band at the rebound's instant is its interval."""
+    """`bands` with the velocity band's top, from where the front end leaves the barrier for good
+    (or the rebound's instant, the velocity's least, where that is earlier) on, no higher than minus
+    the rebound interval's low end, nor below the curve: with no force on it the vehicle moves
+    back at its rebound (the pitch and the suspension change it by mm/s), so a rebound interval
+    cut at zero (crashnlp.analysis.limits) cuts the band at zero too, and the band at the
+    rebound's instant is its interval."""
     rebound = intervals.get("rebound_velocity_mps")
     if rebound is None or "velocity" not in bands:
         return bands
     v = response["velocity"]
     low, high = bands["velocity"]
-    top = int(np.argmin(v))
+    pushed = np.flatnonzero(response["contact_force"] > 0)
+    top = min(int(np.argmin(v)), int(pushed[-1]) + 1 if pushed.size else v.size)
     high = high.copy()
     high[top:] = np.maximum(v[top:], np.minimum(high[top:], -rebound[0]))
     return {**bands, "velocity": (low, high)}

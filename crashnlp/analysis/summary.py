@@ -14,6 +14,7 @@ from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.problem.schema import ChannelSpec
 from crashnlp.results.response import Response
+from crashnlp.results.result import TestResult
 
 # a record that ends still moving toward the barrier ends mid-crash where its deceleration there is
 # at least this share of its peak; below it the pulse is over and the vehicle drifts on without
@@ -143,6 +144,23 @@ def pitch_rises_at_end(time: np.ndarray, pitch: np.ndarray | None) -> float | No
     if last.sum() < 2 or int(np.argmax(pitch)) < int(np.flatnonzero(last)[0]):
         return None
     return float(time[-1]) if np.polyfit(time[last], pitch[last], 1)[0] > 0 else None
+
+
+def pitch_still_rising(t: TestResult) -> list[str]:
+    """What a fitted test says where its measured pitch, or its model's, still rises at the
+    window's end while a max pitch is given (pitch_rises_at_end): that max pitch is the window's."""
+    curves = {"model": (t.response.time, t.response["pitch"], t.metrics)}
+    if "pitch" in t.data and t.data_metrics is not None:
+        curves = {"record": (*t.data["pitch"], t.data_metrics), **curves}
+    words = []
+    for who, (time, pitch, metrics) in curves.items():
+        end = pitch_rises_at_end(np.asarray(time), np.asarray(pitch)) if metrics.get("max_pitch_deg") is not None else None
+        if end is not None:
+            words.append(
+                f"the {who}'s pitch still rises at the window's end, {end * 1e3:.1f} ms: its max pitch is the window's, "
+                "and the crash's comes later (a longer window reaches it)"
+            )
+    return words
 
 
 def data_metrics(test: TestCase) -> dict | None:

@@ -47,10 +47,11 @@ UNIT_FACTOR = 2.0
 MOVED = 0.2
 # the factors by which a unit read wrong parts the two changes, and the channel whose unit it is
 UNIT_SLIPS = {"accel": 9.80665, "velocity": 3.6}
-# A frontal crash pitches the vehicle nose-down (positive): the generator's vehicles of seeds 3100
-# and 3200 (342 records, every form, 40 to 64 km/h) swing nose-up by 5 % of their nose-down
-# swing at most. A pitch whose nose-up swing is the larger, and past NOSE_UP, reads the other way.
-NOSE_UP = np.radians(1.0)
+# A frontal crash pitches a vehicle whose impact point lies below its CG nose-down (positive): the
+# generator's vehicles of seeds 3100 and 3200 (342 records, every form, 40 to 64 km/h) swing nose-up
+# by 5 % of their nose-down swing at most. A pitch whose nose-up swing is the larger, and past
+# PITCH_SWING (below it a pitch is noise or drift, not the crash's), reads the other way.
+PITCH_SWING = np.radians(1.0)
 
 
 @dataclass(frozen=True)
@@ -171,17 +172,18 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
     return Recorded(recorded_speed, (float(weighed), "the data header") if weighed else (mass, "the problem"), end)
 
 
-def check_data(tests: list[TestCase], mass: float) -> None:
+def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
     """Refuse test data that contradict the problem's speed (check_speed), a measured velocity and
-    acceleration that disagree (check_units), a pitch that reads nose-up (check_pitch), a mass in
-    their header (`mass`, the vehicle's, where a test gives none: check_mass), or data that end
-    before a fit's duration (check_end; a window is checked as the data load). For fits: a simulation may well
+    acceleration that disagree (check_units), a pitch that reads nose-up where the problem puts
+    the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
+    (`mass`, the vehicle's, where a test gives none: check_mass), or data that end before a fit's
+    duration (check_end; a window is checked as the data load). For fits: a simulation may well
     ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_speed(i, test.speed, test.spec, test.data)
             check_units(i, test.speed, test.spec, test.data)
-            check_pitch(i, test.spec, test.data)
+            check_pitch(i, test.spec, test.data, impact_above_cg)
             check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
                 check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
@@ -239,21 +241,29 @@ def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
     )
 
 
-def check_pitch(i: int, test: Test, data: TestData) -> None:
-    """Refuse a measured pitch whose nose-up swing after impact is larger than its nose-down one,
-    and past NOSE_UP: a frontal crash pitches the nose down, so the channel reads the other way."""
+def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> None:
+    """Refuse a measured pitch that reads nose-up (`nose_up`) where the problem puts the impact
+    point below the CG (`impact_above_cg` False: its cg_above_impact is not negative), naming the
+    channel's sign and which way to turn it."""
     pitch = data.channels.get("pitch")
-    if pitch is None:
+    if pitch is None or impact_above_cg or not nose_up(pitch.values[pitch.time >= 0.0]):
         return
     after = pitch.values[pitch.time >= 0.0]
-    up, down = -float(np.min(after, initial=0.0)), float(np.max(after, initial=0.0))
-    if up > max(down, NOSE_UP):
-        file = test.data.file.name if test.data is not None else "the data"
-        raise InputError(
-            f"tests.{i}.data.channels.pitch.sign: the pitch of test {test.name} ({file}) swings to {-np.degrees(up):.3g} deg "
-            f"and no further than {np.degrees(down):.3g} deg the other way: a frontal crash pitches the vehicle nose-down, "
-            "positive in the model's frame, so the channel reads nose-up positive (sign: -1 turns it)"
-        )
+    spec = test.data.channels.get("pitch") if test.data is not None else None
+    turn = "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
+    file = test.data.file.name if test.data is not None else "the data"
+    raise InputError(
+        f"tests.{i}.data.channels.pitch.sign: the pitch of test {test.name} ({file}) swings to {np.degrees(after.min()):.3g} "
+        f"deg and no further than {np.degrees(max(after.max(), 0.0)):.3g} deg the other way: a frontal crash pitches a "
+        f"vehicle whose impact point lies below its CG nose-down, positive in the model's frame, so the channel reads "
+        f"nose-up positive ({turn})"
+    )
+
+
+def nose_up(pitch: np.ndarray) -> bool:
+    """Whether a pitch after impact (rad) swings further nose-up than nose-down, and past PITCH_SWING."""
+    up, down = -float(np.min(pitch, initial=0.0)), float(np.max(pitch, initial=0.0))
+    return up > max(down, PITCH_SWING)
 
 
 def velocity_changes(speed: float, test: Test, data: TestData) -> tuple[float, float] | None:

@@ -17,7 +17,7 @@ from crashnlp.analysis.summary import (
     channel_consistency,
     data_metrics,
     goes_on,
-    pitch_rises_at_end,
+    pitch_still_rising,
     response_metrics,
 )
 from crashnlp.base.outputs import PREDICTED_KEYS, Z95
@@ -167,21 +167,9 @@ def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
 
 
 def _pitch_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
-    """A test whose measured pitch, or whose model's, is largest at the window's end while a max
-    pitch is given, said so: that max pitch is the window's (summary.pitch_rises_at_end)."""
-    notes = []
-    for name, t in tests.items():
-        curves = {"model": (t.response.time, t.response["pitch"], t.metrics)}
-        if "pitch" in t.data and t.data_metrics is not None:
-            curves = {"record": (*t.data["pitch"], t.data_metrics), **curves}
-        for who, (time, pitch, metrics) in curves.items():
-            end = pitch_rises_at_end(np.asarray(time), np.asarray(pitch)) if metrics.get("max_pitch_deg") is not None else None
-            if end is not None:
-                notes.append(
-                    f"test {name}: the {who}'s pitch still rises at the window's end, {end * 1e3:.1f} ms: its max pitch is "
-                    "the window's, and the crash's comes later (a longer window reaches it)"
-                )
-    return tuple(notes)
+    """Each test whose measured or fitted pitch still rises at the window's end, said so
+    (summary.pitch_still_rising)."""
+    return tuple(f"test {name}: {words}" for name, t in tests.items() for words in pitch_still_rising(t))
 
 
 def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:
