@@ -246,9 +246,9 @@ def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> No
     point below the CG (`impact_above_cg` False: its cg_above_impact is not negative), naming the
     channel's sign and which way to turn it."""
     pitch = data.channels.get("pitch")
-    if pitch is None or impact_above_cg or not nose_up(pitch.values[pitch.time >= 0.0]):
+    after = pitch.values[pitch.time >= 0.0] if pitch is not None else None
+    if after is None or impact_above_cg or not nose_up(after):
         return
-    after = pitch.values[pitch.time >= 0.0]
     spec = test.data.channels.get("pitch") if test.data is not None else None
     turn = "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
     file = test.data.file.name if test.data is not None else "the data"
