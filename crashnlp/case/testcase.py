@@ -47,10 +47,10 @@ UNIT_FACTOR = 2.0
 MOVED = 0.2
 # the factors by which a unit read wrong parts the two changes, and the channel whose unit it is
 UNIT_SLIPS = {"accel": 9.80665, "velocity": 3.6}
-# A frontal crash pitches a vehicle whose impact point lies below its CG nose-down (positive): the
-# generator's vehicles of seeds 3100 and 3200 (342 records, every form, 40 to 64 km/h) swing nose-up
-# by 5 % of their nose-down swing at most. A pitch whose nose-up swing is the larger, and past
-# PITCH_SWING (below it a pitch is noise or drift, not the crash's), reads the other way.
+# A frontal crash pitches a vehicle whose impact point lies below its CG nose-down (positive); the
+# generator's vehicles swing back nose-up by a small share of that (docs/design-notes.md, "The
+# data's units and pitch sign"). A pitch whose nose-up swing is the larger, and past PITCH_SWING
+# (below it a pitch is noise or drift, not the crash's), reads the other way.
 PITCH_SWING = np.radians(1.0)
 
 
