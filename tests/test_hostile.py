@@ -167,6 +167,28 @@ def test_an_acceleration_and_a_velocity_read_in_different_units_are_refused(tmp_
     assert "most likely the velocity channel's" in err
 
 
+def test_a_displacement_read_in_another_unit_or_sign_is_refused(tmp_path, capsys):
+    """The pickup's displacement written in mm under its m header reads 1000 times what its velocity
+    integrates to (the fit ran into IPOPT's iteration limit without saying why); read with the
+    other sign, it travels away from the barrier. Each names the channel's key; the Camry's
+    displacement, derived from its acceleration, and the pickup's as written are taken."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    column = header.split(",").index("disp_x_m")
+    mm = [",".join(f"{float(v) * 1e3:.6g}" if j == column else v for j, v in enumerate(row.split(","))) for row in lines]
+    (tmp_path / "mm.csv").write_text("\n".join([header, *mm]) + "\n")
+    test = pickup()["tests"][0]
+    written = {**test, "data": {**test["data"], "file": str(tmp_path / "mm.csv")}}
+    err = refused(tmp_path, capsys, pickup({"tests": [written]}), "tests.0.data.channels.displacement.unit: the displacement")
+    ratio = float(re.search(r"travels furthest: ([\d.]+) m, ([\d.e+]+) times as much", err)[2])
+    assert ratio == pytest.approx(1000, rel=0.01)
+    channels = test["data"]["channels"]
+    displacement = {**channels["displacement"], "sign": -1}
+    turned = {**test, "data": {**test["data"], "channels": {**channels, "displacement": displacement}}}
+    refused(tmp_path, capsys, pickup({"tests": [turned]}), "tests.0.data.channels.displacement.sign: the displacement")
+    for name in ("pickup-56kph", "nhtsa-10146"):
+        assert main(["identify", str(ROOT / f"problems/{name}.yaml"), "--check"]) == 0
+
+
 def test_a_pitch_read_nose_up_is_refused(tmp_path, capsys):
     """The pickup's pitch read with the other sign swings 8.5 deg nose-up: a frontal crash pitches
     the nose down, and the fit had said ok with the lever at its bound and no pitch. The message

@@ -15,7 +15,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.units import to_si
 from crashnlp.data import TestData, load_test_data
 from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
-from crashnlp.data.signal import integrate
+from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.problem import Problem, Test
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
@@ -47,6 +47,12 @@ UNIT_FACTOR = 2.0
 MOVED = 0.2
 # the factors by which a unit read wrong parts the two changes, and the channel whose unit it is
 UNIT_SLIPS = {"accel": 9.80665, "velocity": 3.6}
+# A measured displacement travels what the velocity integrates to over the same time (the velocity
+# channel's, else the acceleration's integrated from the speed). Travels further apart than
+# UNIT_FACTOR were read in another unit than they were written in: mm read as m part them 1000
+# times, cm 100, inches 39.4. Below TRAVELLED the record covers too little of the crash (a frontal
+# test crushes tens of cm) for its travel to tell anything.
+TRAVELLED = 0.05  # m
 # A frontal crash pitches a vehicle whose impact point lies below its CG nose-down (positive); the
 # generator's vehicles swing back nose-up by a small share of that (docs/design-notes.md, "The
 # data's units and pitch sign"). A pitch whose nose-up swing is the larger, and past PITCH_SWING
@@ -174,7 +180,8 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
     """Refuse test data that contradict the problem's speed (check_speed), a measured velocity and
-    acceleration that disagree (check_units), a pitch that reads nose-up where the problem puts
+    acceleration that disagree (check_units), a displacement that disagrees with them (check_travel), a
+    pitch that reads nose-up where the problem puts
     the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
     (`mass`, the vehicle's, where a test gives none: check_mass), or data that end before a fit's
     duration (check_end; a window is checked as the data load). For fits: a simulation may well
@@ -183,6 +190,7 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
         if test.data is not None:
             check_speed(i, test.speed, test.spec, test.data)
             check_units(i, test.speed, test.spec, test.data)
+            check_travel(i, test.speed, test.spec, test.data)
             check_pitch(i, test.spec, test.data, impact_above_cg)
             check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
@@ -239,6 +247,56 @@ def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
         f"different units (g and m/s^2 part them 9.81 times, km/h and m/s 3.6 times), most likely the {channel} "
         "channel's"
     )
+
+
+def check_travel(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a measured displacement whose travel parts from the velocity's integral over the same
+    time (`travels`) by more than UNIT_FACTOR, naming the displacement channel's unit, or that
+    travels away from the barrier while the velocity goes toward it, naming its sign."""
+    both = travels(speed, test, data)
+    if both is None:
+        return
+    travel, integrated = both
+    factor = travel / integrated
+    if 1 / UNIT_FACTOR <= factor <= UNIT_FACTOR:
+        return
+    file = test.data.file.name if test.data is not None else "the data"
+    said = (
+        f"the displacement of test {test.name} ({file}) reads {travel:.3g} m where the velocity, integrated, "
+        f"travels furthest: {integrated:.3g} m"
+    )
+    if factor < 0:
+        raise InputError(f"tests.{i}.data.channels.displacement.sign: {said}: the channel reads with the wrong sign")
+    raise InputError(
+        f"tests.{i}.data.channels.displacement.unit: {said}, {factor:.3g} times as much: the channel is read in "
+        "another unit than it was written in (mm read as m part them 1000 times, cm 100, inches 39.4)"
+    )
+
+
+def travels(speed: float, test: Test, data: TestData) -> tuple[float, float] | None:
+    """Where a test measures its displacement and its velocity or acceleration from impact on: how
+    far the displacement channel and the velocity's integral (the velocity channel's, else the
+    acceleration's from `speed`) travel from the start of the time both cover to where the integral
+    lies furthest from it (m); None otherwise, or where that is less than TRAVELLED."""
+    displacement = data.channels.get("displacement")
+    measured = data.channels.get("velocity") if _velocity_start(test, data) is not None else None
+    source = measured if measured is not None else data.channels.get("accel")
+    if displacement is None or source is None or (measured is None and not source.time[0] <= 0.0 < source.time[-1]):
+        return None
+    velocity = measured.values if measured is not None else integrate(source.time, source.values, speed)[0]
+    start = max(0.0, float(displacement.time[0]), float(source.time[0]))
+    end = min(float(displacement.time[-1]), float(source.time[-1]))
+    covered = (source.time >= start) & (source.time <= end)
+    if not covered.any():
+        return None
+    time = source.time[covered]
+    path = cumtrapz(source.time, velocity)[covered]
+    path -= path[0]
+    furthest = int(np.argmax(np.abs(path)))
+    if abs(path[furthest]) < TRAVELLED:
+        return None
+    ends = np.interp([time[0], time[furthest]], displacement.time, displacement.values)
+    return float(ends[1] - ends[0]), float(path[furthest])
 
 
 def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> None:
