@@ -189,6 +189,16 @@ def test_a_displacement_read_in_another_unit_or_sign_is_refused(tmp_path, capsys
         assert main(["identify", str(ROOT / f"problems/{name}.yaml"), "--check"]) == 0
 
 
+def test_a_pitch_in_degrees_read_as_radians_is_refused(tmp_path, capsys):
+    """The pickup's pitch column (9 deg at most) read as radians swings 515 deg: no frontal crash
+    pitches a vehicle past 45 deg, so the channel's unit is named."""
+    test = pickup()["tests"][0]
+    channels = test["data"]["channels"]
+    radians = {**test, "data": {**test["data"], "channels": {**channels, "pitch": {**channels["pitch"], "unit": "rad"}}}}
+    err = refused(tmp_path, capsys, pickup({"tests": [radians]}), "tests.0.data.channels.pitch.unit: the pitch of test")
+    assert 500 < float(re.search(r"reaches ([\d.]+) deg", err)[1]) < 530
+
+
 def test_a_pitch_read_nose_up_is_refused(tmp_path, capsys):
     """The pickup's pitch read with the other sign swings 8.5 deg nose-up: a frontal crash pitches
     the nose down, and the fit had said ok with the lever at its bound and no pitch. The message

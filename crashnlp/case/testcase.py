@@ -58,6 +58,9 @@ TRAVELLED = 0.05  # m
 # data's units and pitch sign"). A pitch whose nose-up swing is the larger, and past PITCH_SWING
 # (below it a pitch is noise or drift, not the crash's), reads the other way.
 PITCH_SWING = np.radians(1.0)
+# A frontal barrier crash pitches a vehicle by tens of degrees at most; a pitch past PITCH_MOST was
+# read in another unit (degrees read as radians swing 57 times as far).
+PITCH_MOST = np.radians(45.0)
 
 
 @dataclass(frozen=True)
@@ -300,16 +303,22 @@ def travels(speed: float, test: Test, data: TestData) -> tuple[float, float] | N
 
 
 def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> None:
-    """Refuse a measured pitch that reads nose-up (`nose_up`) where the problem puts the impact
-    point below the CG (`impact_above_cg` False: its cg_above_impact is not negative), naming the
-    channel's sign and which way to turn it."""
+    """Refuse a measured pitch past PITCH_MOST, naming its unit, and one that reads nose-up
+    (`nose_up`) where the problem puts the impact point below the CG (`impact_above_cg` False: its
+    cg_above_impact is not negative), naming the channel's sign and which way to turn it."""
     pitch = data.channels.get("pitch")
     after = pitch.values[pitch.time >= 0.0] if pitch is not None else None
+    file = test.data.file.name if test.data is not None else "the data"
+    if after is not None and after.size and np.max(np.abs(after)) > PITCH_MOST:
+        raise InputError(
+            f"tests.{i}.data.channels.pitch.unit: the pitch of test {test.name} ({file}) reaches "
+            f"{np.degrees(np.max(np.abs(after))):.4g} deg: a frontal crash pitches a vehicle by tens of degrees at most, so "
+            "the channel is read in another unit than it was written in (degrees read as radians swing 57 times as far)"
+        )
     if after is None or impact_above_cg or not nose_up(after):
         return
     spec = test.data.channels.get("pitch") if test.data is not None else None
     turn = "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
-    file = test.data.file.name if test.data is not None else "the data"
     raise InputError(
         f"tests.{i}.data.channels.pitch.sign: the pitch of test {test.name} ({file}) swings to {np.degrees(after.min()):.3g} "
         f"deg and no further than {np.degrees(max(after.max(), 0.0)):.3g} deg the other way: a frontal crash pitches a "
