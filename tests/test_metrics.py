@@ -9,14 +9,15 @@ from bench import truncated
 from bench.corpus import tall_vehicle
 from bench.cross_speed import truth_metrics
 from bench.truncated import cuts
-from crashnlp.analysis.metrics import crash_metrics, olc
-from crashnlp.analysis.summary import data_metrics, goes_on, metrics, still_moving
+from crashnlp.analysis.metrics import crash_metrics, let_go_end, olc
+from crashnlp.analysis.summary import data_metrics, goes_on, metrics, response_metrics, still_moving
 from crashnlp.base.outputs import UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
 from crashnlp.case import testcase
 from crashnlp.data import Channel, TestData
 from crashnlp.data.signal import integrate
 from crashnlp.problem import schema
+from crashnlp.results.response import Response
 
 
 def half_sine(v0=15.0, T=0.08, rebound_accel=0.0, dt=1e-5, end=0.15):
@@ -148,8 +149,8 @@ def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
     """An 80 ms half-sine pulse that takes 14.5 of 15 m/s, the vehicle then drifting on at 0.5 m/s
     without contact (a pitch that lifted the front end off): the record ends still moving, but not
     mid-crash (MID_CRASH), so its peak and OLC stand; it has no stop, no velocity change, rebound or
-    max pitch (the vehicle meets the barrier again), and the data no max displacement (the model's
-    is its travel at the end, as its note says)."""
+    max pitch (the vehicle meets the barrier again), and the data no max displacement (a model's
+    response, which carries its force on the barrier, ends its crash where it lets go: the next test)."""
     t = np.arange(0.0, 0.15, 1e-4)
     pulse = t < 0.08
     a = np.where(pulse, -14.5 * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
@@ -165,6 +166,32 @@ def test_a_record_that_ends_drifting_after_the_pulse_holds_the_pulse_whole():
     data = data_metrics(_recorded(t, a, v, x))
     assert data["max_displacement_m"] is None and data["peak_decel_g"] == pytest.approx(model["peak_decel_g"])
     assert still_moving(data).endswith("so no max displacement, rebound velocity, delta-V or max pitch in it)")
+
+
+@pytest.mark.parametrize(("drift", "touches_again", "ends"), [(0.5, False, True), (1.0, False, False), (0.5, True, False)])
+def test_a_model_that_lets_go_of_the_barrier_moving_on_slowly_ends_its_crash_there(drift, touches_again, ends):
+    """The half-sine pulse above as a model's response, its force on the barrier gone at 80 ms with
+    the CG still moving on at 0.5 m/s (3 % of 15 m/s, under LET_GO): its loading ends there, its
+    stop and max displacement that instant's; it meets the barrier again after the record, so it
+    gives no velocity change, rebound or max pitch. Moving on at 1 m/s (7 %), or touching the
+    barrier again within the record, it has no stop, as a record that ends still moving has none."""
+    t = np.arange(0.0, 0.15, 1e-4)
+    pulse = t < 0.08
+    a = np.where(pulse, -(15.0 - drift) * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
+    v = np.where(pulse, 15.0 - (15.0 - drift) * (1 - np.cos(np.pi * t / 0.08)) / 2, drift)
+    x = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2 * np.diff(t))])
+    force = np.where(pulse, -2000.0 * a, np.where(touches_again & (t > 0.13), 1000.0, 0.0))
+    pitch = np.radians(4.0) * np.sin(np.pi * t / 0.3)
+    outputs = {"accel": a, "velocity": v, "displacement": x, "pitch": pitch, "barrier_force": force}
+    got = response_metrics(Response(t, outputs, np.zeros((1, t.size))))
+    assert (let_go_end(t, v, force) is not None) == ends
+    if not ends:
+        assert got["time_zero_velocity_s"] is None and got["rebound_velocity_mps"] is None
+        return
+    off = float(t[np.argmax(~pulse)])
+    assert got["time_zero_velocity_s"] == off and got["max_displacement_m"] == pytest.approx(np.interp(off, t, x))
+    assert all(got[k] is None for k in UNSETTLED) and got["time_max_displacement_s"] == off
+    assert got["tesw_g"] == pytest.approx(15.0 / off / G0) and got["olc_g"] is not None and goes_on(got) is None
 
 
 def test_a_record_that_ends_while_the_barrier_still_pushes_the_vehicle_back_holds_no_rebound():

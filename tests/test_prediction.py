@@ -21,7 +21,7 @@ from crashnlp.analysis.calibration import shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
 from crashnlp.analysis.metrics import crash_metrics
 from crashnlp.analysis.prediction import _drift, _let_go, _slope, ending_notes, simulation_figure_jobs
-from crashnlp.analysis.summary import metrics
+from crashnlp.analysis.summary import metrics, response_metrics
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import METRIC, METRIC_RANGE, PREDICTED_KEYS, UNFINISHED, UNSETTLED, Z95
 from crashnlp.base.units import G0
@@ -651,25 +651,37 @@ def test_a_vehicle_that_ends_moving_toward_the_barrier_without_contact_is_said_n
     assert _drift("t1", ending(0.3, 1e5)) == ()  # still crushing at the end of the record
 
 
-def test_a_prediction_that_ends_drifting_says_which_metrics_it_does_not_give():
-    """A half-sine pulse taking 14.5 of 15 m/s, the vehicle then drifting on at 0.5 m/s without
-    contact: the drift's note, and the still-moving note naming the UNSETTLED metrics the record
-    withholds (its intervals are skipped on that note: crashnlp.analysis.prediction._uncertainty)."""
+def _drifting(drift: float) -> tuple[np.ndarray, ...]:
+    """A half-sine pulse that takes 15 m/s down to `drift`, then a drift on at it without contact:
+    time, acceleration, velocity, travel, and the force on the barrier."""
     t = np.arange(0.0, 0.15, 1e-4)
     pulse = t < 0.08
-    a = np.where(pulse, -14.5 * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
-    v = np.where(pulse, 15.0 - 14.5 * (1 - np.cos(np.pi * t / 0.08)) / 2, 0.5)
+    a = np.where(pulse, -(15.0 - drift) * np.pi / 0.16 * np.sin(np.pi * t / 0.08), 0.0)
+    v = np.where(pulse, 15.0 - (15.0 - drift) * (1 - np.cos(np.pi * t / 0.08)) / 2, drift)
     x = np.concatenate([[0.0], np.cumsum((v[1:] + v[:-1]) / 2 * np.diff(t))])
-    contact = np.where(pulse, -a * 1500.0, 0.0)
-    response = Response(t, {"velocity": v, "contact_force": contact}, np.zeros((0, t.size)))
+    return t, a, v, x, np.where(pulse, -a * 1500.0, 0.0)
+
+
+def test_a_prediction_that_ends_drifting_says_which_metrics_it_does_not_give():
+    """The pulse then a drift on at 1 m/s (7 % of the speed, past LET_GO) without contact: the
+    drift's note, and the still-moving note naming the UNSETTLED metrics the record withholds (its
+    intervals are skipped on that note: crashnlp.analysis.prediction._uncertainty). Drifting at
+    0.5 m/s (3 %), its loading ends as it lets go: one note says so, with its stop there."""
+    t, a, v, x, force = _drifting(1.0)
+    response = Response(t, {"velocity": v, "contact_force": force, "barrier_force": force}, np.zeros((0, t.size)))
     given = metrics(t, a, v, x, np.radians(4.0) * np.sin(np.pi * t / 0.3))
     drift, moving = ending_notes("t1", response, given)
-    assert "without contact" in drift and "its max displacement is its travel" in drift and "0.5 m/s" in moving
+    assert "without contact" in drift and "its max displacement is its travel" in drift and "1 m/s" in moving
     assert all(METRIC[k].label in moving for k in UNSETTLED) and all(given[k] is None for k in UNSETTLED)
     assert "max displacement" not in moving and given["max_displacement_m"] is not None  # the two notes agree
-    rebound = np.where(pulse, v, -0.2)  # the same pulse, then moving away: a stop, nothing to say
-    away = Response(t, {"velocity": rebound, "contact_force": contact}, np.zeros((0, t.size)))
+    rebound = np.where(t < 0.08, v, -0.2)  # the same pulse, then moving away: a stop, nothing to say
+    away = Response(t, {"velocity": rebound, "contact_force": force, "barrier_force": force}, np.zeros((0, t.size)))
     assert ending_notes("t1", away, metrics(t, a, rebound, x, None)) == ()
+    t, a, v, x, force = _drifting(0.5)
+    outputs = {"accel": a, "velocity": v, "displacement": x, "pitch": np.zeros(t.size), "barrier_force": force}
+    slow = Response(t, outputs, np.zeros((0, t.size)))
+    (ended,) = ending_notes("t1", slow, response_metrics(slow))
+    assert "lets go of the barrier at 80.0 ms" in ended and "its stop and max displacement are that instant's" in ended
 
 
 def test_a_prediction_whose_pitch_still_rises_at_its_end_says_its_max_pitch_is_the_record_s():
@@ -683,7 +695,9 @@ def test_a_prediction_whose_pitch_still_rises_at_its_end_says_its_max_pitch_is_t
     pitch = np.radians(6.0) * np.sin(np.pi * t / 0.3)
     for end, said in ((0.3, False), (0.12, True)):
         k = t <= end + 1e-9
-        response = Response(t[k], {"velocity": v[k], "contact_force": -1500.0 * a[k], "pitch": pitch[k]}, np.zeros((0, k.sum())))
+        force = -1500.0 * a[k]
+        outputs = {"velocity": v[k], "contact_force": force, "barrier_force": force, "pitch": pitch[k]}
+        response = Response(t[k], outputs, np.zeros((0, k.sum())))
         given = metrics(t[k], a[k], v[k], x[k], pitch[k])
         notes = ending_notes("t1", response, given)
         assert given["max_pitch_deg"] is not None and given["time_zero_velocity_s"] is not None

@@ -29,6 +29,13 @@ OLC_FREE = 0.065  # m, free flight of the virtual occupant
 OLC_RESTRAINED = 0.235  # m, restrained travel until it moves with the vehicle
 STOPPED = 1e-6  # fraction of v0 below which the vehicle counts as stopped
 DRIFT = 0.05  # m/s toward the barrier without contact: still moving, not stopped
+# A model whose front end lets go of the barrier while its CG still moves toward it, slower than
+# LET_GO of the impact speed, and does not touch it again within its record, has ended its loading
+# there: what follows is a drift on the suspension without contact (the pitch lifted the front end
+# off), at a speed within the rebound's own error (the calibration's rebound scale is at least this
+# share of the impact speed). Its stop and largest travel are that instant's (`let_go_end`); set
+# and checked on the corpus (docs/design-notes.md, "A crash that ends as the front end lets go").
+LET_GO = 0.05
 
 
 @dataclass(frozen=True)
@@ -57,6 +64,19 @@ def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray, faster_th
     touched = np.cumsum(contact > 0) > 0
     off = np.flatnonzero(touched & (contact <= 0) & (velocity > faster_than))
     return float(t[off[0]]) if off.size else None
+
+
+def let_go_end(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
+    """The instant a model's crash ends without a stop in its record: where the force on the
+    barrier (`contact`: every contact's, an engine's too) falls to zero (`lift_off`) while the CG
+    moves on toward it slower than LET_GO of the impact speed, and never rises again; None where
+    the velocity reaches zero in the record, or the vehicle never lets go so, or touches again."""
+    if np.isfinite(zero_crossing(t, velocity, STOPPED * abs(float(velocity[0])))):
+        return None
+    off = lift_off(t, velocity, contact, faster_than=0.0)
+    if off is None or np.any(contact[t > off] > 0):
+        return None
+    return off if float(np.interp(off, t, velocity)) <= LET_GO * abs(float(velocity[0])) else None
 
 
 def zero_crossing(t: np.ndarray, v: np.ndarray, level: float = 0.0) -> float:

@@ -7,8 +7,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from crashnlp.analysis.metrics import crash_metrics
+from crashnlp.analysis.metrics import crash_metrics, let_go_end
 from crashnlp.base.outputs import METRIC, METRICS, UNFINISHED, UNSETTLED
+from crashnlp.base.units import G0
 from crashnlp.case.testcase import TestCase
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
@@ -111,9 +112,10 @@ def goes_on(metrics: Mapping[str, float | None]) -> str | None:
 def _ends_pushed(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record that stops but ends still decelerating by MID_CRASH of its peak or
     more, its rebound still gathering speed (`withheld`: a stop, and no rebound), naming what it
-    does not give; None otherwise."""
-    stop, end = metrics.get("time_zero_velocity_s"), metrics.get("record_end_s")
-    if stop is None or end is None or metrics.get("rebound_velocity_mps") is not None:
+    does not give; None otherwise, and for a crash that ended as the vehicle let go of the barrier
+    moving on (it ends moving toward it: crashnlp.analysis.metrics.let_go_end, whose note says so)."""
+    stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
+    if stop is None or end is None or metrics.get("rebound_velocity_mps") is not None or (speed is not None and speed > 0):
         return None
     return (
         f"ends at {end * 1e3:.1f} ms after its stop, still decelerating by a tenth of its peak or more (its rebound "
@@ -182,9 +184,27 @@ def data_metrics(test: TestCase) -> dict | None:
 def response_metrics(r: Response) -> dict:
     """The metrics of a model response, its acceleration as the response carries it: read through
     a test's CFC class where `as_recorded` made it so, so that its peak and pulse compare with the
-    test's filtered ones."""
+    test's filtered ones. A crash that ends as its front end lets go (let_go_end) has its stop and
+    largest travel at that instant (`_ended_at`)."""
     y = r.outputs
+    end = let_go_end(r.time, y["velocity"], y["barrier_force"]) if "barrier_force" in y else None
+    if end is not None:
+        return _ended_at(r, end)
     return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+
+
+def _ended_at(r: Response, end: float) -> dict:
+    """The metrics of a response whose crash ends at `end` without a stop (its front end lets go
+    while the CG moves on slowly): its stop is that instant, and its largest travel the record's up
+    to it; its peak, crush and OLC are the whole record's. Moving on toward the barrier, it meets
+    it again after the record, so it gives no velocity change, rebound or max pitch (UNSETTLED), as
+    a record that ends drifting gives none."""
+    y, upto = r.outputs, r.time <= end
+    whole = values(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
+    crash = values(r.time[upto], *(y[k][upto] for k in ("accel", "velocity", "displacement", "pitch")))
+    travel = {key: crash[key] for key in ("max_displacement_m", "time_max_displacement_s", "esw_g")}
+    stop = {"time_zero_velocity_s": end, "tesw_g": float(y["velocity"][0]) / end / G0}
+    return {**whole, **travel, **stop, **dict.fromkeys(UNSETTLED)}
 
 
 def as_recorded(r: Response, accel_filter: str | None) -> Response:

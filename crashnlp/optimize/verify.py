@@ -5,8 +5,9 @@ integrator simulates the same model at the optimum. Where the two disagree by
 more than a tenth of a channel's fit scale and more than half a percent of the
 channel's largest value somewhere, the NLP's trajectory is not the model's, and
 the solve is not `ok`. Where the data stop (velocity
-crosses zero) but the model does not within the window, the fit misses the
-test's defining event and is not `ok` either.
+crosses zero) but the model neither does within the window nor ends its crash
+by letting go of the barrier while it moves on slowly, the fit misses the test's
+defining event and is not `ok` either.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.analysis.energy import energy_audit
+from crashnlp.analysis.metrics import let_go_end
 from crashnlp.case.case import Case
 from crashnlp.models.simulation import simulate
 from crashnlp.optimize.fit import DEFAULT_SIGMA
@@ -48,12 +50,13 @@ class Verification:
         return any(self.worst(test) > 1 for test in self.mismatch)
 
 
-def _stops(test, outputs: dict[str, np.ndarray]) -> str | None:
-    """Why the model misses the data's stop, if it does."""
+def _stops(test, time: np.ndarray, outputs: dict[str, np.ndarray]) -> str | None:
+    """Why the model misses the data's stop, if it does: its velocity never reaches zero, nor does
+    its crash end as it lets go of the barrier moving on slowly (let_go_end)."""
     velocity = test.data.channels.get("velocity") if test.data is not None else None
     if velocity is None or not np.any(velocity.values <= 0):
         return None
-    if not np.any(outputs["velocity"] <= 0):
+    if not np.any(outputs["velocity"] <= 0) and let_go_end(time, outputs["velocity"], outputs["barrier_force"]) is None:
         t = float(velocity.time[np.argmax(velocity.values <= 0)])
         return f"{test.name}: the model does not stop within the window (the data stop at {t * 1e3:.1f} ms)"
     return None
@@ -82,7 +85,7 @@ def verify(case: Case, p: np.ndarray, tests) -> Verification:
             )
         if abs(energy[test.name]["balance_error_relative"]) > ENERGY_TOLERANCE:
             problems.append(f"{test.name}: the energy balance misses by {energy[test.name]['balance_error_relative']:.2%}")
-        stop = _stops(test, ts.outputs)
+        stop = _stops(test, ts.time, ts.outputs)
         if stop:
             problems.append(stop)
     return Verification(mismatch, allowed, energy, "; ".join(problems) or None)
