@@ -170,6 +170,19 @@ def test_the_ls_dyna_curves_reproduce_the_identified_model_in_stated_units(fit, 
     assert damping[rate > 0.1] / rate[rate > 0.1] == pytest.approx(identified.model["damper"]["values"][0] * 1e-3, rel=1e-3)
 
 
+@pytest.mark.parametrize("name", ["*pickup", "$pickup"])
+def test_a_curve_title_never_reads_as_a_keyword_or_a_comment(name):
+    """A problem named `*pickup` or `$pickup`: each *DEFINE_CURVE_TITLE's title line starts with
+    neither, so that LS-DYNA reads it as the title and the card after it as the curve's."""
+    from crashnlp.report.export import Curves, keyword_file
+
+    line = (np.array([0.0, 0.1]), np.array([0.0, 1e5]))
+    lines = keyword_file(name, Path("fit"), Curves(line, line, line, "plastic", 1e6, None)).splitlines()
+    titles = [lines[i + 1] for i, text in enumerate(lines) if text == "*DEFINE_CURVE_TITLE"]
+    assert len(titles) == 3 and all(t.startswith(f"_{name} ") and len(t) <= 80 for t in titles), titles
+    assert [text for text in lines if text.startswith("*")] == ["*KEYWORD", *["*DEFINE_CURVE_TITLE"] * 3, "*END"]
+
+
 @pytest.mark.integration
 def test_the_csv_export_writes_every_curve_in_si(fit, tmp_path):
     assert main(["export", str(fit), "--format", "csv", "--out", str(tmp_path / "curves")]) == 0

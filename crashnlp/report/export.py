@@ -156,7 +156,13 @@ def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
     head = f"{lcid:>10d}{0:>10d}{1.0:>10.1f}{1.0:>10.1f}{0.0:>10.1f}{0.0:>10.1f}{0:>10d}{0:>10d}"
     points = [f"{a:>20.10g}{o:>20.10g}" for a, o in zip(x, y)]
     names = "$#    lcid      sidr       sfa       sfo      offa      offo    dattyp     lcint"
-    return ["*DEFINE_CURVE_TITLE", title[:80], names, head, "$#                a1                  o1", *points]
+    return ["*DEFINE_CURVE_TITLE", _title(title), names, head, "$#                a1                  o1", *points]
+
+
+def _title(title: str) -> str:
+    """A curve's title line, at most 80 columns. A line that starts with `*` reads as a keyword, one
+    with `$` as a comment (a problem named so starts its titles so): such a title gets a `_` in front."""
+    return (f"_{title}" if title.startswith(("*", "$")) else title)[:80]
 
 
 def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
