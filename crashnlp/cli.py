@@ -486,7 +486,9 @@ def _export_curves(args, folder: Path) -> int:
     result = read_result(folder)
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
-    with reading(folder / "result.json"):  # an identified model edited, or cut short, is one line
+    # an identified model edited out of shape is refused as `simulate` refuses it, naming the entry
+    result.identified.as_problem(result.name, str(folder / "result.json"))
+    with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
         curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
@@ -526,7 +528,8 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         responses = {test: (t.response, t.speed) for test, t in tests.items()}
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
     test = _chosen_test(folder, responses, args.test)
-    pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
+    response, speed = responses[test]
+    pulse = export.pulse(export.finite(folder / test / "response.csv", response), speed, _rate(args.rate), float(args.cfc))
     own = folder / f"{test}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)

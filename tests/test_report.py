@@ -44,6 +44,15 @@ def fit(tmp_path_factory) -> Path:
     return out
 
 
+@pytest.fixture(scope="module")
+def prediction(fit, tmp_path_factory) -> Path:
+    """The shipped 40 km/h problem predicted at 64 km/h from the fit: a simulation's folder."""
+    out = tmp_path_factory.mktemp("prediction") / "sim"
+    problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(fit / "result.json")
+    assert main(["simulate", problem, "--params", params, "--speed", "64 km/h", "--out", str(out), "--no-figures"]) == 0
+    return out
+
+
 def self_contained(page: str) -> list[bytes]:
     """The page's embedded PNGs; fails on any resource it would fetch."""
     assert not EXTERNAL.findall(page), EXTERNAL.findall(page)[:3]
@@ -374,25 +383,64 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
     assert sorted(tmp_path.rglob("*")) == before
 
 
-@pytest.mark.parametrize(("edit", "why"), [("drop", "KeyError: 'values'"), ("text", "TypeError")])
+REMOVED = object()  # an entry taken out of result.json
+EDITS = {  # an identified model edited by hand: (entry, value) -> what the export says after the file's name
+    ("spring", "values", REMOVED): "does not read as crashnlp writes it (KeyError: 'values'",
+    ("spring", "values", 3, "abc"): "model.spring: cannot read 'abc' as a quantity",
+    ("unloading", "stiffness", 0.0): "model.unloading.stiffness: must be positive",
+    ("unloading", "stiffness", -5e6): "model.unloading.stiffness: must be positive",
+    ("unloading", "stiffness", None): "does not read as crashnlp writes it (TypeError",
+    ("spring", "crush_breakpoints", 3, 0.1): "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing",
+    ("smoothing", "crush", -0.01): "model.smoothing.crush: must not be negative",
+    ("spring", "tail", "slope", float("nan")): "model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}",
+}
+
+
+@pytest.mark.parametrize(("edit", "why"), EDITS.items())
 def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, capsys, edit, why):
-    """A fit's result.json whose spring values were removed, or one made text: the curves' export
-    names the file and what failed on it, exit 2, and writes nothing."""
+    """A fit's result.json whose identified model was edited (an entry removed, made text, a
+    stiffness zero, negative or none, breakpoints out of order, a negative smoothing, a tail's
+    slope not a number): the curves' export refuses it as `simulate` does, naming the file and the
+    entry or what failed on it, exit 2, and writes nothing (no ZeroDivisionError, no .k of nan)."""
     folder = tmp_path / "edited"
     shutil.copytree(fit, folder)
     raw = json.loads((folder / "result.json").read_text())
-    spring = raw["identified_model"]["model"]["spring"]
-    if edit == "drop":
-        del spring["values"]
+    *path, key, value = edit
+    entry = raw["identified_model"]["model"]
+    for step in path:
+        entry = entry[step]
+    if value is REMOVED:
+        del entry[key]
     else:
-        spring["values"][3] = "abc"
+        entry[key] = value
     (folder / "result.json").write_text(json.dumps(raw))
     before = sorted(tmp_path.rglob("*"))
     for fmt in ("ls-dyna", "csv"):
         assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: does not read as crashnlp writes it ({why}")
+        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), err
         assert err.count("\n") == 1
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("bad", ["nan", "inf"])
+def test_a_response_with_a_value_that_is_not_a_number_is_refused_by_the_pulse(prediction, tmp_path, capsys, bad):
+    """A simulation's response.csv with nan (or inf) in a row of its acceleration: the pulse
+    export names the file, the column and the row, exit 2, and writes no pulse of nan samples."""
+    folder = tmp_path / "sim"
+    shutil.copytree(prediction, folder)
+    lines = (folder / "40kph/response.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    row = lines[30].split(",")
+    row[head.index("accel_g")] = bad
+    lines[30] = ",".join(row)
+    (folder / "40kph/response.csv").write_text("\n".join(lines) + "\n")
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["export", str(folder), "--format", "pulse"]) == 2
+    err = capsys.readouterr().err
+    said = f"{folder / '40kph/response.csv'}: accel_g is {bad} in data row 30: not a response crashnlp wrote"
+    assert err == f"crashnlp: error: {said}\n"
     assert sorted(tmp_path.rglob("*")) == before
 
 

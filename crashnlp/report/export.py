@@ -31,7 +31,7 @@ from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
-from crashnlp.results.response import Response
+from crashnlp.results.response import OWN_ACCEL, Response
 from crashnlp.results.result import unconverged
 
 EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
@@ -58,7 +58,8 @@ class Curves:
 
 
 def identified_curves(identified: IdentifiedModel) -> Curves:
-    """The curves of an identified model, sampled from its own laws."""
+    """The curves of an identified model, sampled from its own laws. The model is taken as valid:
+    one read from a file a user may have edited goes through IdentifiedModel.as_problem first."""
     model = identified.model
     spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
     bps, values = list(spring["crush_breakpoints"]), list(spring["values"])
@@ -69,13 +70,11 @@ def identified_curves(identified: IdentifiedModel) -> Curves:
         law = with_tail(law, tail["start"], tail["slope"])
     crush = _samples(0.0, EXTENT * max(bends), bends, smoothing["crush"])
     force = _evaluated(law(ca.DM(crush), bps, values, smoothing["crush"])[0])
-    stiffness = float(unloading.get("stiffness") or 0.0)
+    stiffness, unloading_curve = 0.0, (crush, force)  # elastic: unloading retraces loading
     if unloading["law"] == "plastic":
-        top = float(np.max(force))
-        recovered = np.array([0.0, top / stiffness])
+        stiffness = float(unloading["stiffness"])  # a fit writes it: None (edited out) is a TypeError
+        recovered = np.array([0.0, float(np.max(force)) / stiffness])
         unloading_curve = (recovered, stiffness * recovered)
-    else:
-        unloading_curve = (crush, force)
     speed = float(identified.vehicle.get("speed") or 0.0)
     return Curves((crush, force), unloading_curve, _damper(model, speed), unloading["law"], stiffness, tail)
 
@@ -214,6 +213,21 @@ class Pulse:
             f" the model's velocity just after impact is {self.after_impact:.3f} m/s"
             f" (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
         )
+
+
+def finite(file: Path, response: Response) -> Response:
+    """`response` as read back from `file` (a response.csv), refused (InputError naming the file,
+    the column and the row) where a column a pulse reads holds a value that is not a number: a
+    pulse of it would hand on nan samples."""
+    columns = {"time_s": response.time, str(OUTPUT["accel"].column): response["accel"]}
+    if response.own_accel is not None:
+        columns[OWN_ACCEL] = response.own_accel
+    columns[str(OUTPUT["velocity"].column)] = response["velocity"]
+    for column, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: not a response crashnlp wrote")
+    return response
 
 
 def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
