@@ -522,15 +522,13 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     if kind == "result":
         result = read_result(folder)
         name, status = result.name, result.status
-        responses = {test: (t.response, t.speed) for test, t in result.tests.items()}
+        test = export.fitted_test(folder, result, _chosen_test(folder, result.tests, args.test))
     else:
         name, tests = read_simulation(folder)
-        responses = {test: (t.response, t.speed) for test, t in tests.items()}
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
-    test = _chosen_test(folder, responses, args.test)
-    response, speed = responses[test]
-    pulse = export.pulse(export.finite(folder / test / "response.csv", response), speed, _rate(args.rate), float(args.cfc))
-    own = folder / f"{test}-pulse.csv"
+        test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate), float(args.cfc))
+    own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)
     with deriving(folder, out):
@@ -540,13 +538,13 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     return 0
 
 
-def _chosen_test(folder: Path, responses: dict, test: str | None) -> str:
-    """The test named by --test, or the folder's only one."""
-    if test is None and len(responses) == 1:
-        return next(iter(responses))
-    if test is not None and test in responses:
+def _chosen_test(folder: Path, tests: Mapping[str, object], test: str | None) -> str:
+    """The test named by --test, or the folder's only one (`tests`: the folder's, by name)."""
+    if test is None and len(tests) == 1:
+        return next(iter(tests))
+    if test is not None and test in tests:
         return test
-    names = ", ".join(responses)
+    names = ", ".join(tests)
     raise InputError(f"--test {test}: {folder} has tests {names}" if test else f"{folder}: tests {names}: choose one with --test")
 
 

@@ -29,7 +29,8 @@ from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.result import LoadingCurve, Result, figure_jobs
-from crashnlp.results.simulation import read_simulation
+from crashnlp.results.simulation import extrapolation_line, read_simulation
+from crashnlp.results.source import source_line
 from crashnlp.studies.store import CaseStore
 
 EMBEDDED = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
@@ -205,9 +206,9 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     path = tmp_path / "pulse.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "60", "--out", str(path)]) == 0
     check = capsys.readouterr().out.splitlines()[0]
-    header = path.read_text().splitlines()[:4]
-    assert header[2] == f"# {check}" and header[3] == "time_s,accel_g"
-    table = np.loadtxt(path, delimiter=",", skiprows=4)
+    header = path.read_text().splitlines()[:5]
+    assert header[3] == f"# {check}" and header[4] == "time_s,accel_g"
+    table = np.loadtxt(path, delimiter=",", skiprows=5)
     t, accel = table[:, 0], table[:, 1] * G0
     assert np.diff(t) == pytest.approx(5e-5)
     response = Result.load(fit).tests["56kph"].response
@@ -217,7 +218,7 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert numbers[0] == pytest.approx(delta_v, abs=1e-3) and numbers[3] == pytest.approx(numbers[1] + numbers[2], abs=2e-3)
     rough = tmp_path / "cfc1000.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "1000", "--out", str(rough)]) == 0
-    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=4)[:, 1]))) for f in (path, rough)]
+    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=5)[:, 1]))) for f in (path, rough)]
     assert steps[0] < 0.9 * steps[1]  # CFC 60 smooths the pulse more than CFC 1000
     # the fit's response is read through CFC 60 already, as its test's accelerometers: the CFC 60
     # pulse is that curve resampled, not filtered twice; CFC 1000 filters the model's own
@@ -225,6 +226,28 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     resampled = np.interp(t, response.time, response["accel"])
     assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
     assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
+
+
+@pytest.mark.integration
+def test_a_pulse_says_whose_it_is_the_impact_it_is_of_and_the_tests_notes(fit, prediction, tmp_path):
+    """A fit's pulse says it is the fitted model's, at its test's speed (km/h and m/s) and mass; a
+    prediction's says it is a prediction's, at the speed and mass it was simulated at, where it
+    came from (simulation.json's source, as `crashnlp simulate` printed it) and what the
+    prediction noted: its extrapolation and its notes, a comment line each."""
+    assert main(["export", str(fit), "--format", "pulse", "--out", str(tmp_path / "fit.csv")]) == 0
+    header = (tmp_path / "fit.csv").read_text().split("time_s,accel_g")[0]
+    assert "# crashnlp export of pickup-56kph: the fitted model's acceleration in test 56kph" in header
+    assert "# impact at 56.0 km/h (15.556 m/s), mass 2550 kg\n" in header and "source:" not in header
+    assert main(["export", str(prediction), "--format", "pulse", "--out", str(tmp_path / "predicted.csv")]) == 0
+    header = (tmp_path / "predicted.csv").read_text().split("time_s,accel_g")[0]
+    name, tests = read_simulation(prediction)
+    test = tests["40kph"]
+    assert f"# crashnlp export of {name}: a prediction's acceleration (crashnlp simulate) of test 40kph" in header
+    assert f"# impact at 64.0 km/h (17.778 m/s), mass {test.mass:.0f} kg\n" in header
+    assert f"# source: {source_line(test.source)}\n" in header and str(fit / "result.json") in header
+    assert test.extrapolation and test.notes  # 64 km/h lies past the fitted 56 km/h
+    notes = [f"40kph: {extrapolation_line(test.extrapolation)}", *test.notes]
+    assert [line for line in header.splitlines() if line.startswith("# note: ")] == [f"# note: {note}" for note in notes]
 
 
 @pytest.mark.integration

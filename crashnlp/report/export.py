@@ -8,7 +8,8 @@
 - `csv`: the same curves in SI, one file each.
 - `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
   as a test's accelerometer records it (SAE J211 from rest before impact, crashnlp.data.instrument, as
-  a fit compares the model), as a sled-test input, with a check of its velocity change.
+  a fit compares the model), as a sled-test input, with a check of its velocity change, under a
+  header saying whose it is and of which impact (speed, mass, a prediction's source, the test's notes).
 
 The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
 smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
@@ -32,7 +33,9 @@ from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.response import OWN_ACCEL, Response
-from crashnlp.results.result import unconverged
+from crashnlp.results.result import Result, unconverged
+from crashnlp.results.simulation import PredictedTest, extrapolation_line
+from crashnlp.results.source import UNRECORDED, source_line
 
 EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
@@ -182,6 +185,50 @@ def write_curves_csv(folder: Path, curves: Curves, status: str | None = None) ->
 
 # --------------------------------------------------------------------------- pulse
 @dataclass(frozen=True)
+class PulseTest:
+    """The test a pulse is exported from, as its header names it: its response (read back from its
+    response.csv), impact speed (m/s) and mass (kg; None where its folder does not record it), and
+    its notes (what its fit or its prediction said of it); `source`: a prediction's, in one line
+    (crashnlp.results.source.source_line), or None for a fit's own test."""
+
+    name: str
+    response: Response
+    speed: float
+    mass: float | None
+    source: str | None
+    notes: tuple[str, ...]
+
+    def header(self, name: str) -> tuple[str, ...]:
+        """Whose acceleration the pulse is (of the fit or the simulation `name`), the impact it is of
+        and, for a prediction, where it came from."""
+        fitted = self.source is None
+        whose = "the fitted model's acceleration in" if fitted else "a prediction's acceleration (crashnlp simulate) of"
+        mass = "mass not recorded (result.json keeps no energy audit of it)" if self.mass is None else f"mass {self.mass:.0f} kg"
+        lines = (
+            f"crashnlp export of {name}: {whose} test {self.name}, as a sled-test input",
+            f"impact at {self.speed * 3.6:.1f} km/h ({self.speed:.3f} m/s), {mass}",
+        )
+        return lines if fitted else (*lines, f"source: {self.source}")
+
+
+def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
+    """Test `name` of the fit in `folder`: its mass from the fit's energy audit of it (the impact
+    energy, m v^2 / 2: result.json keeps no other), its notes those of the fit that name it."""
+    t = result.tests[name]
+    mass = 2.0 * t.energy["impact_kinetic"] / t.speed**2 if t.energy else None
+    notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
+    return PulseTest(name, finite(folder / name / "response.csv", t.response), t.speed, mass, None, notes)
+
+
+def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
+    """A test of the simulation in `folder`, with its source, how far it lies past the identified
+    range and its notes, as `crashnlp simulate` printed them."""
+    beyond = (f"{test.name}: {extrapolation_line(test.extrapolation)}",) if test.extrapolation else ()
+    response = finite(folder / test.name / "response.csv", test.response)
+    return PulseTest(test.name, response, test.speed, test.mass, source_line(test.source) or UNRECORDED, beyond + test.notes)
+
+
+@dataclass(frozen=True)
 class Pulse:
     """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc`, and what its velocity
     change is checked against (m/s): the impact speed, the model's velocity just after impact
@@ -255,14 +302,16 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(-velocity[-1]))
 
 
-def write_pulse(path: Path, name: str, test: str, p: Pulse, status: str | None = None) -> None:
+def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | None = None) -> None:
     """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is (the
-    fit's status first where it did not converge)."""
+    fit's status first where it did not converge): whose pulse of which impact (PulseTest.header),
+    how it is sampled, its velocity-change check, and the test's notes."""
     comments = (
         *unconverged(status),
-        f"crashnlp export of {name}, test {test}: the model's acceleration, sled-test input",
+        *test.header(name),
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),
+        *(f"note: {note}" for note in test.notes),
     )
     accel = OUTPUT["accel"]
     write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments)
