@@ -531,6 +531,8 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)
+    if test.warning:
+        print(f"crashnlp: {test.warning}")
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())

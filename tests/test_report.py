@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from builders import ROOT
 
+from crashnlp.analysis.summary import goes_on
 from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import _print_solution, main
@@ -248,6 +249,35 @@ def test_a_pulse_says_whose_it_is_the_impact_it_is_of_and_the_tests_notes(fit, p
     assert test.extrapolation and test.notes  # 64 km/h lies past the fitted 56 km/h
     notes = [f"40kph: {extrapolation_line(test.extrapolation)}", *test.notes]
     assert [line for line in header.splitlines() if line.startswith("# note: ")] == [f"# note: {note}" for note in notes]
+
+
+@pytest.mark.integration
+def test_a_pulse_whose_crash_goes_on_past_its_end_says_so_and_gives_no_negative_rebound(tmp_path, capsys):
+    """The pickup fitted over its first 60 ms, which end mid-crash: its pulse is written (exit 0)
+    under a warning, first in the header and on the console, in the words the fit's console
+    uses (summary.goes_on), said once; its velocity-change check takes off the speed the vehicle
+    still has toward the barrier and says the record holds no rebound, never a negative one."""
+    given = (ROOT / "problems/pickup-56kph.yaml").read_text()
+    short = given.replace("window: [0 s, 0.2 s]", "window: [0 s, 0.06 s]").replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem, fit = tmp_path / "short.yaml", tmp_path / "fit"
+    problem.write_text(short)
+    assert main(["identify", str(problem), "--out", str(fit), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(fit), "--format", "pulse"]) == 0
+    out = capsys.readouterr().out
+    result = read_result(fit)
+    words = goes_on(result.tests["56kph"].metrics)
+    assert words is not None and "still moving toward the barrier" in words
+    warning = f"WARNING: the crash goes on past the end of this pulse: the model {words}"
+    text = (fit / "56kph-pulse.csv").read_text()
+    assert text.startswith(f"# {warning}\n") and text.count(words) == 1 and out.startswith(f"crashnlp: {warning}\n")
+    check = next(line for line in text.splitlines() if line.startswith("# delta-v:"))
+    assert check == f"# {out.splitlines()[1]}" and "rebound -" not in check and "(no rebound in it)" in check
+    speed, still, total = (
+        float(x) for x in re.findall(r"impact speed (\d+\.\d+) m/s - (\d+\.\d+) m/s.* = (\d+\.\d+) m/s", check)[0]
+    )
+    end = result.tests["56kph"].response["velocity"][-1]
+    assert still == pytest.approx(end, abs=1e-3) and total == pytest.approx(speed - still, abs=2e-3)
 
 
 @pytest.mark.integration

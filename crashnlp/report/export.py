@@ -24,6 +24,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from crashnlp.analysis.summary import goes_on
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT
 from crashnlp.data.channels import SAMPLE_INTERVALS
@@ -189,7 +190,9 @@ class PulseTest:
     """The test a pulse is exported from, as its header names it: its response (read back from its
     response.csv), impact speed (m/s) and mass (kg; None where its folder does not record it), and
     its notes (what its fit or its prediction said of it); `source`: a prediction's, in one line
-    (crashnlp.results.source.source_line), or None for a fit's own test."""
+    (crashnlp.results.source.source_line), or None for a fit's own test; `goes_on`: the words for a
+    response whose crash goes on past its end (crashnlp.analysis.summary.goes_on, as the console
+    says them), None where it holds the crash whole."""
 
     name: str
     response: Response
@@ -197,6 +200,19 @@ class PulseTest:
     mass: float | None
     source: str | None
     notes: tuple[str, ...]
+    goes_on: str | None
+
+    @property
+    def warning(self) -> str | None:
+        """The warning a pulse that ends before its crash does carries, first in its header and
+        on the console: a sled run on it does not run the whole crash."""
+        if self.goes_on is None:
+            return None
+        return f"WARNING: the crash goes on past the end of this pulse: the model {self.goes_on}"
+
+    def said(self) -> tuple[str, ...]:
+        """The test's notes but those the warning says already."""
+        return tuple(note for note in self.notes if self.goes_on is None or self.goes_on not in note)
 
     def header(self, name: str) -> tuple[str, ...]:
         """Whose acceleration the pulse is (of the fit or the simulation `name`), the impact it is of
@@ -217,7 +233,7 @@ def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
     t = result.tests[name]
     mass = 2.0 * t.energy["impact_kinetic"] / t.speed**2 if t.energy else None
     notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
-    return PulseTest(name, finite(folder / name / "response.csv", t.response), t.speed, mass, None, notes)
+    return PulseTest(name, finite(folder / name / "response.csv", t.response), t.speed, mass, None, notes, goes_on(t.metrics))
 
 
 def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
@@ -225,7 +241,8 @@ def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
     range and its notes, as `crashnlp simulate` printed them."""
     beyond = (f"{test.name}: {extrapolation_line(test.extrapolation)}",) if test.extrapolation else ()
     response = finite(folder / test.name / "response.csv", test.response)
-    return PulseTest(test.name, response, test.speed, test.mass, source_line(test.source) or UNRECORDED, beyond + test.notes)
+    source = source_line(test.source) or UNRECORDED
+    return PulseTest(test.name, response, test.speed, test.mass, source, beyond + test.notes, goes_on(test.metrics))
 
 
 @dataclass(frozen=True)
@@ -233,7 +250,8 @@ class Pulse:
     """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc`, and what its velocity
     change is checked against (m/s): the impact speed, the model's velocity just after impact
     (the pivot's impulse at impact takes the difference, which no acceleration sample holds)
-    and the rebound at the record's end."""
+    and its velocity at the record's end, toward the barrier: negative where it rebounds,
+    positive where the crash goes on past the record."""
 
     time: np.ndarray
     accel: np.ndarray
@@ -241,7 +259,7 @@ class Pulse:
     cfc: float
     speed: float
     after_impact: float
-    rebound: float
+    end_velocity: float
 
     @property
     def delta_v(self) -> float:
@@ -250,15 +268,22 @@ class Pulse:
 
     @property
     def miss(self) -> float:
-        """The pulse's velocity change against the impact speed plus the rebound, relative."""
-        return -self.delta_v / (self.speed + self.rebound) - 1.0
+        """The pulse's velocity change against the impact speed less the velocity at the record's end, relative."""
+        return -self.delta_v / (self.speed - self.end_velocity) - 1.0
 
     def check_line(self) -> str:
+        """The velocity-change check in words: against the impact speed plus the rebound at the
+        record's end, or, where the vehicle still moves toward the barrier there, less that speed
+        (no rebound in the record)."""
+        end = self.end_velocity
+        if end > 0:
+            at_end = f"- {end:.3f} m/s still moving toward the barrier at the end of the record (no rebound in it)"
+        else:
+            at_end = f"+ rebound {-end + 0.0:.3f} m/s at the end of the record"  # + 0.0: no -0.000
         return (
-            f"delta-v: the pulse integrates to {-self.delta_v:.3f} m/s; impact speed {self.speed:.3f} m/s + rebound"
-            f" {self.rebound:.3f} m/s at the end of the record = {self.speed + self.rebound:.3f} m/s ({100 * self.miss:+.2f} %);"
-            f" the model's velocity just after impact is {self.after_impact:.3f} m/s"
-            f" (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
+            f"delta-v: the pulse integrates to {-self.delta_v:.3f} m/s; impact speed {self.speed:.3f} m/s {at_end}"
+            f" = {self.speed - end:.3f} m/s ({100 * self.miss:+.2f} %); the model's velocity just after impact is"
+            f" {self.after_impact:.3f} m/s (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
         )
 
 
@@ -299,19 +324,21 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     except ValueError as exc:
         raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]
-    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(-velocity[-1]))
+    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(velocity[-1]))
 
 
 def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | None = None) -> None:
     """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is (the
-    fit's status first where it did not converge): whose pulse of which impact (PulseTest.header),
-    how it is sampled, its velocity-change check, and the test's notes."""
+    fit's status first where it did not converge, then its warning where the crash goes on past
+    it): whose pulse of which impact (PulseTest.header), how it is sampled, its velocity-change
+    check, and the test's notes."""
     comments = (
         *unconverged(status),
+        *([test.warning] if test.warning else []),
         *test.header(name),
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),
-        *(f"note: {note}" for note in test.notes),
+        *(f"note: {note}" for note in test.said()),
     )
     accel = OUTPUT["accel"]
     write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments)
