@@ -486,7 +486,9 @@ def _export_curves(args, folder: Path) -> int:
     result = read_result(folder)
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
-    with reading(folder / "result.json"):  # an identified model edited, or cut short, is one line
+    # an identified model edited out of shape is refused as `simulate` refuses it, naming the entry
+    result.identified.as_problem(result.name, str(folder / "result.json"))
+    with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
         curves = export.identified_curves(result.identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
@@ -520,16 +522,17 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     if kind == "result":
         result = read_result(folder)
         name, status = result.name, result.status
-        responses = {test: (t.response, t.speed) for test, t in result.tests.items()}
+        test = export.fitted_test(folder, result, _chosen_test(folder, result.tests, args.test))
     else:
         name, tests = read_simulation(folder)
-        responses = {test: (t.response, t.speed) for test, t in tests.items()}
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
-    test = _chosen_test(folder, responses, args.test)
-    pulse = export.pulse(*responses[test], _rate(args.rate), float(args.cfc))
-    own = folder / f"{test}-pulse.csv"
+        test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate), float(args.cfc))
+    own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)
+    if test.warning:
+        print(f"crashnlp: {test.warning}")
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())
@@ -537,13 +540,13 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     return 0
 
 
-def _chosen_test(folder: Path, responses: dict, test: str | None) -> str:
-    """The test named by --test, or the folder's only one."""
-    if test is None and len(responses) == 1:
-        return next(iter(responses))
-    if test is not None and test in responses:
+def _chosen_test(folder: Path, tests: Mapping[str, object], test: str | None) -> str:
+    """The test named by --test, or the folder's only one (`tests`: the folder's, by name)."""
+    if test is None and len(tests) == 1:
+        return next(iter(tests))
+    if test is not None and test in tests:
         return test
-    names = ", ".join(responses)
+    names = ", ".join(tests)
     raise InputError(f"--test {test}: {folder} has tests {names}" if test else f"{folder}: tests {names}: choose one with --test")
 
 

@@ -18,6 +18,7 @@ import numpy as np
 import pytest
 from builders import ROOT
 
+from crashnlp.analysis.summary import goes_on
 from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import _print_solution, main
@@ -29,7 +30,8 @@ from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
 from crashnlp.results.result import LoadingCurve, Result, figure_jobs
-from crashnlp.results.simulation import read_simulation
+from crashnlp.results.simulation import extrapolation_line, read_simulation
+from crashnlp.results.source import source_line
 from crashnlp.studies.store import CaseStore
 
 EMBEDDED = re.compile(r'<img src="data:image/png;base64,([A-Za-z0-9+/=]+)"')
@@ -41,6 +43,15 @@ def fit(tmp_path_factory) -> Path:
     """The shipped pickup fitted by the command line with --report (a few seconds)."""
     out = tmp_path_factory.mktemp("fit") / "pickup"
     assert main(["identify", str(ROOT / "problems/pickup-56kph.yaml"), "--out", str(out), "--report"]) == 0
+    return out
+
+
+@pytest.fixture(scope="module")
+def prediction(fit, tmp_path_factory) -> Path:
+    """The shipped 40 km/h problem predicted at 64 km/h from the fit: a simulation's folder."""
+    out = tmp_path_factory.mktemp("prediction") / "sim"
+    problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(fit / "result.json")
+    assert main(["simulate", problem, "--params", params, "--speed", "64 km/h", "--out", str(out), "--no-figures"]) == 0
     return out
 
 
@@ -170,6 +181,19 @@ def test_the_ls_dyna_curves_reproduce_the_identified_model_in_stated_units(fit, 
     assert damping[rate > 0.1] / rate[rate > 0.1] == pytest.approx(identified.model["damper"]["values"][0] * 1e-3, rel=1e-3)
 
 
+@pytest.mark.parametrize("name", ["*pickup", "$pickup"])
+def test_a_curve_title_never_reads_as_a_keyword_or_a_comment(name):
+    """A problem named `*pickup` or `$pickup`: each *DEFINE_CURVE_TITLE's title line starts with
+    neither, so that LS-DYNA reads it as the title and the card after it as the curve's."""
+    from crashnlp.report.export import Curves, keyword_file
+
+    line = (np.array([0.0, 0.1]), np.array([0.0, 1e5]))
+    lines = keyword_file(name, Path("fit"), Curves(line, line, line, "plastic", 1e6, None)).splitlines()
+    titles = [lines[i + 1] for i, text in enumerate(lines) if text == "*DEFINE_CURVE_TITLE"]
+    assert len(titles) == 3 and all(t.startswith(f"_{name} ") and len(t) <= 80 for t in titles), titles
+    assert [text for text in lines if text.startswith("*")] == ["*KEYWORD", *["*DEFINE_CURVE_TITLE"] * 3, "*END"]
+
+
 @pytest.mark.integration
 def test_the_csv_export_writes_every_curve_in_si(fit, tmp_path):
     assert main(["export", str(fit), "--format", "csv", "--out", str(tmp_path / "curves")]) == 0
@@ -183,9 +207,9 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     path = tmp_path / "pulse.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "60", "--out", str(path)]) == 0
     check = capsys.readouterr().out.splitlines()[0]
-    header = path.read_text().splitlines()[:4]
-    assert header[2] == f"# {check}" and header[3] == "time_s,accel_g"
-    table = np.loadtxt(path, delimiter=",", skiprows=4)
+    header = path.read_text().splitlines()[:5]
+    assert header[3] == f"# {check}" and header[4] == "time_s,accel_g"
+    table = np.loadtxt(path, delimiter=",", skiprows=5)
     t, accel = table[:, 0], table[:, 1] * G0
     assert np.diff(t) == pytest.approx(5e-5)
     response = Result.load(fit).tests["56kph"].response
@@ -195,7 +219,7 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert numbers[0] == pytest.approx(delta_v, abs=1e-3) and numbers[3] == pytest.approx(numbers[1] + numbers[2], abs=2e-3)
     rough = tmp_path / "cfc1000.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "1000", "--out", str(rough)]) == 0
-    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=4)[:, 1]))) for f in (path, rough)]
+    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=5)[:, 1]))) for f in (path, rough)]
     assert steps[0] < 0.9 * steps[1]  # CFC 60 smooths the pulse more than CFC 1000
     # the fit's response is read through CFC 60 already, as its test's accelerometers: the CFC 60
     # pulse is that curve resampled, not filtered twice; CFC 1000 filters the model's own
@@ -203,6 +227,57 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     resampled = np.interp(t, response.time, response["accel"])
     assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
     assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
+
+
+@pytest.mark.integration
+def test_a_pulse_says_whose_it_is_the_impact_it_is_of_and_the_tests_notes(fit, prediction, tmp_path):
+    """A fit's pulse says it is the fitted model's, at its test's speed (km/h and m/s) and mass; a
+    prediction's says it is a prediction's, at the speed and mass it was simulated at, where it
+    came from (simulation.json's source, as `crashnlp simulate` printed it) and what the
+    prediction noted: its extrapolation and its notes, a comment line each."""
+    assert main(["export", str(fit), "--format", "pulse", "--out", str(tmp_path / "fit.csv")]) == 0
+    header = (tmp_path / "fit.csv").read_text().split("time_s,accel_g")[0]
+    assert "# crashnlp export of pickup-56kph: the fitted model's acceleration in test 56kph" in header
+    assert "# impact at 56.0 km/h (15.556 m/s), mass 2550 kg\n" in header and "source:" not in header
+    assert main(["export", str(prediction), "--format", "pulse", "--out", str(tmp_path / "predicted.csv")]) == 0
+    header = (tmp_path / "predicted.csv").read_text().split("time_s,accel_g")[0]
+    name, tests = read_simulation(prediction)
+    test = tests["40kph"]
+    assert f"# crashnlp export of {name}: a prediction's acceleration (crashnlp simulate) of test 40kph" in header
+    assert f"# impact at 64.0 km/h (17.778 m/s), mass {test.mass:.0f} kg\n" in header
+    assert f"# source: {source_line(test.source)}\n" in header and str(fit / "result.json") in header
+    assert test.extrapolation and test.notes  # 64 km/h lies past the fitted 56 km/h
+    notes = [f"40kph: {extrapolation_line(test.extrapolation)}", *test.notes]
+    assert [line for line in header.splitlines() if line.startswith("# note: ")] == [f"# note: {note}" for note in notes]
+
+
+@pytest.mark.integration
+def test_a_pulse_whose_crash_goes_on_past_its_end_says_so_and_gives_no_negative_rebound(tmp_path, capsys):
+    """The pickup fitted over its first 60 ms, which end mid-crash: its pulse is written (exit 0)
+    under a warning, first in the header and on the console, in the words the fit's console
+    uses (summary.goes_on), said once; its velocity-change check takes off the speed the vehicle
+    still has toward the barrier and says the record holds no rebound, never a negative one."""
+    given = (ROOT / "problems/pickup-56kph.yaml").read_text()
+    short = given.replace("window: [0 s, 0.2 s]", "window: [0 s, 0.06 s]").replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem, fit = tmp_path / "short.yaml", tmp_path / "fit"
+    problem.write_text(short)
+    assert main(["identify", str(problem), "--out", str(fit), "--no-figures"]) == 0
+    capsys.readouterr()
+    assert main(["export", str(fit), "--format", "pulse"]) == 0
+    out = capsys.readouterr().out
+    result = read_result(fit)
+    words = goes_on(result.tests["56kph"].metrics)
+    assert words is not None and "still moving toward the barrier" in words
+    warning = f"WARNING: the crash goes on past the end of this pulse: the model {words}"
+    text = (fit / "56kph-pulse.csv").read_text()
+    assert text.startswith(f"# {warning}\n") and text.count(words) == 1 and out.startswith(f"crashnlp: {warning}\n")
+    check = next(line for line in text.splitlines() if line.startswith("# delta-v:"))
+    assert check == f"# {out.splitlines()[1]}" and "rebound -" not in check and "(no rebound in it)" in check
+    speed, still, total = (
+        float(x) for x in re.findall(r"impact speed (\d+\.\d+) m/s - (\d+\.\d+) m/s.* = (\d+\.\d+) m/s", check)[0]
+    )
+    end = result.tests["56kph"].response["velocity"][-1]
+    assert still == pytest.approx(end, abs=1e-3) and total == pytest.approx(speed - still, abs=2e-3)
 
 
 @pytest.mark.integration
@@ -361,25 +436,64 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
     assert sorted(tmp_path.rglob("*")) == before
 
 
-@pytest.mark.parametrize(("edit", "why"), [("drop", "KeyError: 'values'"), ("text", "TypeError")])
+REMOVED = object()  # an entry taken out of result.json
+EDITS = {  # an identified model edited by hand: (entry, value) -> what the export says after the file's name
+    ("spring", "values", REMOVED): "does not read as crashnlp writes it (KeyError: 'values'",
+    ("spring", "values", 3, "abc"): "model.spring: cannot read 'abc' as a quantity",
+    ("unloading", "stiffness", 0.0): "model.unloading.stiffness: must be positive",
+    ("unloading", "stiffness", -5e6): "model.unloading.stiffness: must be positive",
+    ("unloading", "stiffness", None): "does not read as crashnlp writes it (TypeError",
+    ("spring", "crush_breakpoints", 3, 0.1): "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing",
+    ("smoothing", "crush", -0.01): "model.smoothing.crush: must not be negative",
+    ("spring", "tail", "slope", float("nan")): "model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}",
+}
+
+
+@pytest.mark.parametrize(("edit", "why"), EDITS.items())
 def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, capsys, edit, why):
-    """A fit's result.json whose spring values were removed, or one made text: the curves' export
-    names the file and what failed on it, exit 2, and writes nothing."""
+    """A fit's result.json whose identified model was edited (an entry removed, made text, a
+    stiffness zero, negative or none, breakpoints out of order, a negative smoothing, a tail's
+    slope not a number): the curves' export refuses it as `simulate` does, naming the file and the
+    entry or what failed on it, exit 2, and writes nothing (no ZeroDivisionError, no .k of nan)."""
     folder = tmp_path / "edited"
     shutil.copytree(fit, folder)
     raw = json.loads((folder / "result.json").read_text())
-    spring = raw["identified_model"]["model"]["spring"]
-    if edit == "drop":
-        del spring["values"]
+    *path, key, value = edit
+    entry = raw["identified_model"]["model"]
+    for step in path:
+        entry = entry[step]
+    if value is REMOVED:
+        del entry[key]
     else:
-        spring["values"][3] = "abc"
+        entry[key] = value
     (folder / "result.json").write_text(json.dumps(raw))
     before = sorted(tmp_path.rglob("*"))
     for fmt in ("ls-dyna", "csv"):
         assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: does not read as crashnlp writes it ({why}")
+        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), err
         assert err.count("\n") == 1
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+@pytest.mark.integration
+@pytest.mark.parametrize("bad", ["nan", "inf"])
+def test_a_response_with_a_value_that_is_not_a_number_is_refused_by_the_pulse(prediction, tmp_path, capsys, bad):
+    """A simulation's response.csv with nan (or inf) in a row of its acceleration: the pulse
+    export names the file, the column and the row, exit 2, and writes no pulse of nan samples."""
+    folder = tmp_path / "sim"
+    shutil.copytree(prediction, folder)
+    lines = (folder / "40kph/response.csv").read_text().splitlines()
+    head = lines[0].split(",")
+    row = lines[30].split(",")
+    row[head.index("accel_g")] = bad
+    lines[30] = ",".join(row)
+    (folder / "40kph/response.csv").write_text("\n".join(lines) + "\n")
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["export", str(folder), "--format", "pulse"]) == 2
+    err = capsys.readouterr().err
+    said = f"{folder / '40kph/response.csv'}: accel_g is {bad} in data row 30: not a response crashnlp wrote"
+    assert err == f"crashnlp: error: {said}\n"
     assert sorted(tmp_path.rglob("*")) == before
 
 

@@ -24,7 +24,7 @@ from crashnlp.report.folders import folder_kind, read_result, read_simulation, r
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
 from crashnlp.results.result import Result, loading_curve_name, pull_texts
 from crashnlp.results.simulation import extrapolation_line
-from crashnlp.results.source import source_line
+from crashnlp.results.source import UNRECORDED, source_line
 from crashnlp.studies.table import number, shown_column
 
 if TYPE_CHECKING:
@@ -213,7 +213,7 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
         )
     source = source_line(next((test.source for test in tests.values() if test.source), {}))
     return TEMPLATES.get_template("simulation.html.j2").render(
-        title=f"{name}: simulation", tests=pages, source=source or "not recorded (written before crashnlp kept it)"
+        title=f"{name}: simulation", tests=pages, source=source or UNRECORDED
     )
 
 

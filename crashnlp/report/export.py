@@ -8,7 +8,8 @@
 - `csv`: the same curves in SI, one file each.
 - `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
   as a test's accelerometer records it (SAE J211 from rest before impact, crashnlp.data.instrument, as
-  a fit compares the model), as a sled-test input, with a check of its velocity change.
+  a fit compares the model), as a sled-test input, with a check of its velocity change, under a
+  header saying whose it is and of which impact (speed, mass, a prediction's source, the test's notes).
 
 The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
 smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
@@ -23,6 +24,7 @@ from pathlib import Path
 import casadi as ca
 import numpy as np
 
+from crashnlp.analysis.summary import goes_on
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT
 from crashnlp.data.channels import SAMPLE_INTERVALS
@@ -31,8 +33,10 @@ from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
 from crashnlp.results.identified import IdentifiedModel
-from crashnlp.results.response import Response
-from crashnlp.results.result import unconverged
+from crashnlp.results.response import OWN_ACCEL, Response
+from crashnlp.results.result import Result, unconverged
+from crashnlp.results.simulation import PredictedTest, extrapolation_line
+from crashnlp.results.source import UNRECORDED, source_line
 
 EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's start); a keyword reader extends the last segment
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
@@ -58,7 +62,8 @@ class Curves:
 
 
 def identified_curves(identified: IdentifiedModel) -> Curves:
-    """The curves of an identified model, sampled from its own laws."""
+    """The curves of an identified model, sampled from its own laws. The model is taken as valid:
+    one read from a file a user may have edited goes through IdentifiedModel.as_problem first."""
     model = identified.model
     spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
     bps, values = list(spring["crush_breakpoints"]), list(spring["values"])
@@ -69,13 +74,11 @@ def identified_curves(identified: IdentifiedModel) -> Curves:
         law = with_tail(law, tail["start"], tail["slope"])
     crush = _samples(0.0, EXTENT * max(bends), bends, smoothing["crush"])
     force = _evaluated(law(ca.DM(crush), bps, values, smoothing["crush"])[0])
-    stiffness = float(unloading.get("stiffness") or 0.0)
+    stiffness, unloading_curve = 0.0, (crush, force)  # elastic: unloading retraces loading
     if unloading["law"] == "plastic":
-        top = float(np.max(force))
-        recovered = np.array([0.0, top / stiffness])
+        stiffness = float(unloading["stiffness"])  # a fit writes it: None (edited out) is a TypeError
+        recovered = np.array([0.0, float(np.max(force)) / stiffness])
         unloading_curve = (recovered, stiffness * recovered)
-    else:
-        unloading_curve = (crush, force)
     speed = float(identified.vehicle.get("speed") or 0.0)
     return Curves((crush, force), unloading_curve, _damper(model, speed), unloading["law"], stiffness, tail)
 
@@ -156,7 +159,13 @@ def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
     head = f"{lcid:>10d}{0:>10d}{1.0:>10.1f}{1.0:>10.1f}{0.0:>10.1f}{0.0:>10.1f}{0:>10d}{0:>10d}"
     points = [f"{a:>20.10g}{o:>20.10g}" for a, o in zip(x, y)]
     names = "$#    lcid      sidr       sfa       sfo      offa      offo    dattyp     lcint"
-    return ["*DEFINE_CURVE_TITLE", title[:80], names, head, "$#                a1                  o1", *points]
+    return ["*DEFINE_CURVE_TITLE", _title(title), names, head, "$#                a1                  o1", *points]
+
+
+def _title(title: str) -> str:
+    """A curve's title line, at most 80 columns. A line that starts with `*` reads as a keyword, one
+    with `$` as a comment (a problem named so starts its titles so): such a title gets a `_` in front."""
+    return (f"_{title}" if title.startswith(("*", "$")) else title)[:80]
 
 
 def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
@@ -177,11 +186,72 @@ def write_curves_csv(folder: Path, curves: Curves, status: str | None = None) ->
 
 # --------------------------------------------------------------------------- pulse
 @dataclass(frozen=True)
+class PulseTest:
+    """The test a pulse is exported from, as its header names it: its response (read back from its
+    response.csv), impact speed (m/s) and mass (kg; None where its folder does not record it), and
+    its notes (what its fit or its prediction said of it); `source`: a prediction's, in one line
+    (crashnlp.results.source.source_line), or None for a fit's own test; `goes_on`: the words for a
+    response whose crash goes on past its end (crashnlp.analysis.summary.goes_on, as the console
+    says them), None where it holds the crash whole."""
+
+    name: str
+    response: Response
+    speed: float
+    mass: float | None
+    source: str | None
+    notes: tuple[str, ...]
+    goes_on: str | None
+
+    @property
+    def warning(self) -> str | None:
+        """The warning a pulse that ends before its crash does carries, first in its header and
+        on the console: a sled run on it does not run the whole crash."""
+        if self.goes_on is None:
+            return None
+        return f"WARNING: the crash goes on past the end of this pulse: the model {self.goes_on}"
+
+    def said(self) -> tuple[str, ...]:
+        """The test's notes but those the warning says already."""
+        return tuple(note for note in self.notes if self.goes_on is None or self.goes_on not in note)
+
+    def header(self, name: str) -> tuple[str, ...]:
+        """Whose acceleration the pulse is (of the fit or the simulation `name`), the impact it is of
+        and, for a prediction, where it came from."""
+        fitted = self.source is None
+        whose = "the fitted model's acceleration in" if fitted else "a prediction's acceleration (crashnlp simulate) of"
+        mass = "mass not recorded (result.json keeps no energy audit of it)" if self.mass is None else f"mass {self.mass:.0f} kg"
+        lines = (
+            f"crashnlp export of {name}: {whose} test {self.name}, as a sled-test input",
+            f"impact at {self.speed * 3.6:.1f} km/h ({self.speed:.3f} m/s), {mass}",
+        )
+        return lines if fitted else (*lines, f"source: {self.source}")
+
+
+def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
+    """Test `name` of the fit in `folder`: its mass from the fit's energy audit of it (the impact
+    energy, m v^2 / 2: result.json keeps no other), its notes those of the fit that name it."""
+    t = result.tests[name]
+    mass = 2.0 * t.energy["impact_kinetic"] / t.speed**2 if t.energy else None
+    notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
+    return PulseTest(name, finite(folder / name / "response.csv", t.response), t.speed, mass, None, notes, goes_on(t.metrics))
+
+
+def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
+    """A test of the simulation in `folder`, with its source, how far it lies past the identified
+    range and its notes, as `crashnlp simulate` printed them."""
+    beyond = (f"{test.name}: {extrapolation_line(test.extrapolation)}",) if test.extrapolation else ()
+    response = finite(folder / test.name / "response.csv", test.response)
+    source = source_line(test.source) or UNRECORDED
+    return PulseTest(test.name, response, test.speed, test.mass, source, beyond + test.notes, goes_on(test.metrics))
+
+
+@dataclass(frozen=True)
 class Pulse:
     """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc`, and what its velocity
     change is checked against (m/s): the impact speed, the model's velocity just after impact
     (the pivot's impulse at impact takes the difference, which no acceleration sample holds)
-    and the rebound at the record's end."""
+    and its velocity at the record's end, toward the barrier: negative where it rebounds,
+    positive where the crash goes on past the record."""
 
     time: np.ndarray
     accel: np.ndarray
@@ -189,7 +259,7 @@ class Pulse:
     cfc: float
     speed: float
     after_impact: float
-    rebound: float
+    end_velocity: float
 
     @property
     def delta_v(self) -> float:
@@ -198,16 +268,38 @@ class Pulse:
 
     @property
     def miss(self) -> float:
-        """The pulse's velocity change against the impact speed plus the rebound, relative."""
-        return -self.delta_v / (self.speed + self.rebound) - 1.0
+        """The pulse's velocity change against the impact speed less the velocity at the record's end, relative."""
+        return -self.delta_v / (self.speed - self.end_velocity) - 1.0
 
     def check_line(self) -> str:
+        """The velocity-change check in words: against the impact speed plus the rebound at the
+        record's end, or, where the vehicle still moves toward the barrier there, less that speed
+        (no rebound in the record)."""
+        end = self.end_velocity
+        if end > 0:
+            at_end = f"- {end:.3f} m/s still moving toward the barrier at the end of the record (no rebound in it)"
+        else:
+            at_end = f"+ rebound {-end + 0.0:.3f} m/s at the end of the record"  # + 0.0: no -0.000
         return (
-            f"delta-v: the pulse integrates to {-self.delta_v:.3f} m/s; impact speed {self.speed:.3f} m/s + rebound"
-            f" {self.rebound:.3f} m/s at the end of the record = {self.speed + self.rebound:.3f} m/s ({100 * self.miss:+.2f} %);"
-            f" the model's velocity just after impact is {self.after_impact:.3f} m/s"
-            f" (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
+            f"delta-v: the pulse integrates to {-self.delta_v:.3f} m/s; impact speed {self.speed:.3f} m/s {at_end}"
+            f" = {self.speed - end:.3f} m/s ({100 * self.miss:+.2f} %); the model's velocity just after impact is"
+            f" {self.after_impact:.3f} m/s (its impulse at impact takes {self.speed - self.after_impact:.3f} m/s)"
         )
+
+
+def finite(file: Path, response: Response) -> Response:
+    """`response` as read back from `file` (a response.csv), refused (InputError naming the file,
+    the column and the row) where a column a pulse reads holds a value that is not a number: a
+    pulse of it would hand on nan samples."""
+    columns = {"time_s": response.time, str(OUTPUT["accel"].column): response["accel"]}
+    if response.own_accel is not None:
+        columns[OWN_ACCEL] = response.own_accel
+    columns[str(OUTPUT["velocity"].column)] = response["velocity"]
+    for column, values in columns.items():
+        bad = np.flatnonzero(~np.isfinite(values))
+        if bad.size:
+            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: not a response crashnlp wrote")
+    return response
 
 
 def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
@@ -232,17 +324,21 @@ def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
     except ValueError as exc:
         raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]
-    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(-velocity[-1]))
+    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(velocity[-1]))
 
 
-def write_pulse(path: Path, name: str, test: str, p: Pulse, status: str | None = None) -> None:
+def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | None = None) -> None:
     """The pulse as a sled-test input CSV: time_s, accel_g, under a header saying what it is (the
-    fit's status first where it did not converge)."""
+    fit's status first where it did not converge, then its warning where the crash goes on past
+    it): whose pulse of which impact (PulseTest.header), how it is sampled, its velocity-change
+    check, and the test's notes."""
     comments = (
         *unconverged(status),
-        f"crashnlp export of {name}, test {test}: the model's acceleration, sled-test input",
+        *([test.warning] if test.warning else []),
+        *test.header(name),
         f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
         p.check_line(),
+        *(f"note: {note}" for note in test.said()),
     )
     accel = OUTPUT["accel"]
     write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments)

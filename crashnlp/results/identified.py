@@ -159,13 +159,15 @@ class IdentifiedModel:
             note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"
         return (note,)
 
-    def as_problem(self, name: str) -> Problem:
+    def as_problem(self, name: str, source: str | None = None) -> Problem:
         """The identified vehicle as a problem of one data-free test at its speed: what reads the
-        model without its data (the units of its entries, its model's functions) takes this."""
+        model without its data (the units of its entries, its model's functions) takes this. It is
+        validated as a problem file is: an entry out of shape (a result.json edited by hand) is a
+        ProblemError naming `source` (the file it came from; `name` without one) and the entry."""
         from crashnlp.problem.schema import problem_from_dict  # the schema: not for a result read back
 
         raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
-        return problem_from_dict(raw, Path("."), name)
+        return problem_from_dict(raw, Path("."), source or name)
 
     def std(self) -> np.ndarray:
         """Standard error of each labelled value; inf where the data do not determine it."""

@@ -17,6 +17,7 @@ from crashnlp.results.jsonfile import json_text
 from crashnlp.results.result import Result, ResultFile, result_file
 
 IN_MEMORY = "a Result in memory, no file: sha256 of its JSON form"
+UNRECORDED = "not recorded (written before crashnlp kept it)"  # what is said in place of `source_line` where it is ''
 
 
 def simulation_source(
