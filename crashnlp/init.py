@@ -122,18 +122,20 @@ def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
 
 def _ev5_barrier(path: Path, curves: dict, draft: Draft) -> None:
     """The wall force of a load-cell barrier, offered commented out: a one-mass model does not
-    meet it and the accelerometers at once unless the user weighs them (docs/barrier.md)."""
+    meet it and the accelerometers at once unless the user weighs them (docs/barrier.md). The
+    cells are read, as the fit would read them, to count the dead ones the header does not mark."""
     from crashnlp.data.channels import DataError
-    from crashnlp.data.nhtsa_ev5 import barrier_cells
+    from crashnlp.data.nhtsa_ev5 import live_barrier_cells
 
     try:
-        kept, dropped = barrier_cells(path, curves)
+        live, marked, flat = live_barrier_cells(path, curves, "barrier_force")
     except DataError:
         return
     draft.optional["barrier_force"] = {"curves": "all-valid-barrier-fx", "sign": -1}
-    left_out = f", {len(dropped)} marked not valid left out" if dropped else ""
+    dead = [f"{n} {why}" for n, why in ((len(marked), "marked not valid"), (len(flat), "flat after impact")) if n]
+    left_out = f", {' and '.join(dead)} left out" if dead else ""
     draft.comments["barrier_force"] = (
-        f"wall force: sum of the {len(kept)} valid load cells{left_out}, CFC 60; to fit it too, see docs/barrier.md"
+        f"wall force: sum of the {len(live)} valid load cells{left_out}, CFC 60; to fit it too, see docs/barrier.md"
     )
 
 
