@@ -45,7 +45,7 @@ from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
-from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
+from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of, located
 from crashnlp.results.files import atomic_open, check_writable_file
 
 if TYPE_CHECKING:
@@ -590,7 +590,7 @@ def problem_dict(draft: Draft, suspension: dict, path: Path) -> dict:
         "name": draft.name,
         "vehicle": {**{k: v for k, (v, _) in draft.vehicle.items()}, "suspension": {k: v for k, (v, _) in suspension.items()}},
         "model": {"spring": {"law": "force"}, "unloading": {"law": "plastic"}},
-        "tests": [{"name": draft.name, "data": {"file": str(path.resolve()), **draft.data}}],
+        "tests": [{"name": draft.name, "data": {"file": str(located(path)), **draft.data}}],
         "constraints": {"monotone_crush": True},
         "transcription": {"method": "multiple-shooting", "intervals": max(50, round(window / STEP)), "substeps": 1},
     }
@@ -698,7 +698,7 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     problem = case.problem
     if case.resolution is not None:
         draft.notes.append(f"Spring: {case.resolution.note}.")
-    text = render(draft, problem, os.path.relpath(paths[0].resolve(), out_dir))
+    text = render(draft, problem, os.path.relpath(located(paths[0]), out_dir))
     out_dir.mkdir(parents=True, exist_ok=True)  # the data file is named from here
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
     with atomic_open(Path(out)) as fh:

@@ -44,6 +44,16 @@ def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     assert abs(model["time_zero_velocity_s"] * 1e3 - CAMRY_DATA["stop_ms"]) <= 2.0
 
 
+def test_init_names_a_symlinked_data_file_where_the_user_put_it(tmp_path):
+    folder = tmp_path / "ev5"
+    folder.mkdir()
+    for file in EV5.parent.iterdir():
+        (folder / file.name).symlink_to(file)
+    problem, _ = init_problem(folder / EV5.name, tmp_path / "camry.yaml", Options())
+    assert "      file: ev5/v10146.EV5\n" in (tmp_path / "camry.yaml").read_text()
+    assert problem.tests[0].data is not None and problem.tests[0].data.file == folder.resolve() / EV5.name
+
+
 @pytest.fixture(scope="module")
 def compact_csv(tmp_path_factory):
     """A corpus vehicle recorded with x pointing away from the wall (every sign flipped), time in ms, speed in km/h."""

@@ -12,7 +12,7 @@ from crashnlp.analysis.summary import metrics
 from crashnlp.base.units import G0
 from crashnlp.data import DataError, csv_reader, load_test_data
 from crashnlp.data.csv_reader import Table
-from crashnlp.problem.schema import DataSpec
+from crashnlp.problem.schema import DataSpec, located
 
 ROOT = Path(__file__).resolve().parents[1] / "problems" / "data"
 EV5 = ROOT / "nhtsa-10146" / "v10146.EV5"
@@ -96,6 +96,31 @@ def _copy_ev5(tmp_path, curves=(93, 94)) -> Path:
         shutil.copy(EV5.with_suffix(f".{n:03d}"), tmp_path)
     shutil.copy(EV5, tmp_path)
     return tmp_path / EV5.name
+
+
+def test_a_symlinked_header_reads_the_curves_beside_the_link(tmp_path):
+    """The audit's set: an EV5 header linked into a folder of edited curves; the target's folder
+    was read (the edits ignored) where the user's is the link's."""
+    (tmp_path / EV5.name).symlink_to(EV5)
+    for n in (93, 94):
+        curve = np.loadtxt(EV5.with_suffix(f".{n:03d}"))
+        np.savetxt(tmp_path / f"v10146.{n:03d}", curve * [1.0, 0.5], fmt="%.6f", delimiter="\t")
+    raw = {"accel": {"curves": [93, 94], "filter": None}}
+    edited = load_test_data(camry(file=tmp_path / EV5.name, channels=raw)).channels["accel"]
+    shipped = load_test_data(camry(channels=raw)).channels["accel"]
+    assert edited.values == pytest.approx(0.5 * shipped.values, abs=1e-4)
+
+
+def test_a_data_path_keeps_its_last_link_and_goes_through_dots_as_the_system_does(tmp_path):
+    real = tmp_path / "a" / "b"
+    real.mkdir(parents=True)
+    (real / "x.csv").write_text("t,a\n")
+    (tmp_path / "link.csv").symlink_to(real / "x.csv")
+    (tmp_path / "dir").symlink_to(real, target_is_directory=True)
+    link = tmp_path.resolve() / "link.csv"
+    assert located(tmp_path / "link.csv") == link
+    assert located(tmp_path / "dir" / ".." / "b" / "x.csv") == real.resolve() / "x.csv"  # dir/.. is a, not tmp_path
+    assert spec(file=tmp_path / "link.csv", format="csv", channels={"accel": {"column": "a"}}).file == link
 
 
 def test_nhtsa_missing_curve_file(tmp_path):
