@@ -179,8 +179,30 @@ def ev5_draft(path: Path) -> Draft:
 
 
 # ------------------------------------------------------------------ ISO-MME
+def _least_filtered(codes: list[str]) -> str:
+    """Of several codes of the accelerometer to read, the unfiltered one (filter class 0), which the
+    draft filters at ACCEL_FILTER; else one the lab filtered at ACCEL_FILTER already, which the
+    reader does not filter again; else the first listed."""
+    from crashnlp.data.iso_mme import LAB_FILTERS, UNFILTERED, filter_class
+
+    def rank(code: str) -> int:
+        letter = filter_class(code)
+        return 0 if letter == UNFILTERED else 1 if LAB_FILTERS.get(letter) == ACCEL_FILTER else 2
+
+    return min(codes, key=rank)
+
+
+def _mme_accel_why(code: str, at_cg: bool) -> str:
+    """The comment of the accelerometer read: where it is, and what the lab's filter left to do."""
+    from crashnlp.data.iso_mme import filter_said
+
+    said = filter_said(code, ACCEL_FILTER) or "unfiltered (ISO filter class 0)"
+    return f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}, {said}"
+
+
 def mme_draft(path: Path) -> Draft:
-    """Mass and speed of test object 1; its vehicle X accelerometers, at the CG if there are any."""
+    """Mass and speed of test object 1; its vehicle X accelerometer, at the CG if there is one, the
+    unfiltered code where the test holds it and a filtered one (`_least_filtered`)."""
     from crashnlp.base.units import to_si
     from crashnlp.data.iso_mme import read_header
 
@@ -189,8 +211,8 @@ def mme_draft(path: Path) -> Draft:
     if not accels:
         raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
     at_cg = [c for c in accels if "CG" in c[6:12]]
-    code = (at_cg or accels)[0]
-    draft = _accel_draft(path.stem, {"code": code}, f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}")
+    code = _least_filtered(at_cg or accels)
+    draft = _accel_draft(path.stem, {"code": code}, _mme_accel_why(code, bool(at_cg)))
     for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
         text = header.get(key, "")
         try:

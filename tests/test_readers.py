@@ -229,10 +229,10 @@ CODE_X = "10VEHCCG0000ACXA"
 CODE_P = "10VEHCCG0000AVYA"
 
 
-def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0) -> tuple[np.ndarray, np.ndarray]:
-    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g (a half sine of `peak_g`
-    over 50 ms: 20 g slows it by 6.2 m/s, 55 g stops it and throws it back at 2.2 m/s) and a pitch
-    rate channel."""
+def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0, accels=(CODE_X,)) -> tuple[np.ndarray, np.ndarray]:
+    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g under each code of `accels`
+    (a half sine of `peak_g` over 50 ms: 20 g slows it by 6.2 m/s, 55 g stops it and throws it back
+    at 2.2 m/s) and a pitch rate channel, listed in that order."""
     t = t0 + dt * np.arange(n)
     accel_g = np.where(t > 0, -peak_g * np.sin(np.pi * np.clip(t, 0, 0.05) / 0.05), 0.0)
     (root / "Channel").mkdir(parents=True)
@@ -241,18 +241,19 @@ def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0) -> tuple[np.ndar
         "Number of test objects      :1\nName of test object 1       :Sedan\n"
         "Velocity test object 1      :15.0\nMass test object 1          :1500\n"
     )
+    channels = [(code, "g", accel_g, "Vehicle CG acceleration X") for code in accels]
+    channels.append((CODE_P, "deg/s", 0 * t, "Vehicle angular velocity Y"))
     (root / "Channel" / "T001.chn").write_text(
-        "Instrumentation standard    :ISO 6487\nNumber of channels          :2\n"
-        f"Name of channel 001         :{CODE_X} / Vehicle CG acceleration X\n"
-        f"Name of channel 002         :{CODE_P} / Vehicle angular velocity Y\n"
+        f"Instrumentation standard    :ISO 6487\nNumber of channels          :{len(channels)}\n"
+        + "".join(f"Name of channel {k:03d}         :{code} / {text}\n" for k, (code, _, _, text) in enumerate(channels, 1))
     )
-    for number, code, unit, values in (("001", CODE_X, "g", accel_g), ("002", CODE_P, "deg/s", 0 * t)):
+    for k, (code, unit, values, _) in enumerate(channels, 1):
         header = (
             f"Name of the channel         :{code}\nChannel code                :{code}\n"
             f"Unit                        :{unit}\nTime of first sample        :{t0}\n"
             f"Sampling interval           :{dt}\nNumber of samples           :{n}\n"
         )
-        (root / "Channel" / f"T001.{number}").write_text(header + "\n".join(f"{v:.8e}" for v in values) + "\n")
+        (root / "Channel" / f"T001.{k:03d}").write_text(header + "\n".join(f"{v:.8e}" for v in values) + "\n")
     return t, accel_g
 
 
@@ -278,6 +279,23 @@ def test_mme_round_trip(tmp_path, as_zip):
     # half-sine of 20 g over 50 ms removes 2 A T / pi
     v_end = 15.0 - 2 * 20 * G0 * 0.05 / np.pi
     assert data.channels["velocity"].values[-1] == pytest.approx(v_end, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("code", "cfc", "filtered", "note"),
+    [
+        ("10VEHCCG0000ACXD", "CFC60", False, "filtered by the lab, ISO filter class D (CFC60): not filtered at CFC60 again"),
+        ("10VEHCCG0000ACXA", "CFC60", True, "filtered by the lab, ISO filter class A (CFC1000); filtered at CFC60 over it"),
+        ("10VEHCCG0000ACXD", None, False, "filtered by the lab, ISO filter class D (CFC60)"),
+        ("10VEHCCG0000ACX0", "CFC60", True, None),
+    ],
+)
+def test_mme_a_channel_the_lab_filtered_is_not_filtered_again_at_its_class(tmp_path, code, cfc, filtered, note):
+    t, accel_g = _mme_set(tmp_path / "T001", accels=(code,))
+    data = load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": code, "filter": cfc}}))
+    unchanged = np.allclose(data.channels["accel"].values, accel_g * G0, rtol=1e-7)
+    assert unchanged != filtered
+    assert [n for n in data.notes if "ISO filter class" in n] == ([f"accel: code {code}: {note}"] if note else [])
 
 
 def test_mme_missing_code_and_missing_channel_file(tmp_path):
