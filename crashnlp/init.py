@@ -45,7 +45,7 @@ from crashnlp.data.nhtsa_channel import channel_files
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
-from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of
+from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of, located
 from crashnlp.results.files import atomic_open, check_writable_file
 
 if TYPE_CHECKING:
@@ -122,18 +122,20 @@ def _ev5_accelerometers(curves: dict) -> tuple[list[int], str]:
 
 def _ev5_barrier(path: Path, curves: dict, draft: Draft) -> None:
     """The wall force of a load-cell barrier, offered commented out: a one-mass model does not
-    meet it and the accelerometers at once unless the user weighs them (docs/barrier.md)."""
+    meet it and the accelerometers at once unless the user weighs them (docs/barrier.md). The
+    cells are read, as the fit would read them, to count the dead ones the header does not mark."""
     from crashnlp.data.channels import DataError
-    from crashnlp.data.nhtsa_ev5 import barrier_cells
+    from crashnlp.data.nhtsa_ev5 import live_barrier_cells
 
     try:
-        kept, dropped = barrier_cells(path, curves)
+        live, marked, flat = live_barrier_cells(path, curves, "barrier_force")
     except DataError:
         return
     draft.optional["barrier_force"] = {"curves": "all-valid-barrier-fx", "sign": -1}
-    left_out = f", {len(dropped)} marked not valid left out" if dropped else ""
+    dead = [f"{n} {why}" for n, why in ((len(marked), "marked not valid"), (len(flat), "flat after impact")) if n]
+    left_out = f", {' and '.join(dead)} left out" if dead else ""
     draft.comments["barrier_force"] = (
-        f"wall force: sum of the {len(kept)} valid load cells{left_out}, CFC 60; to fit it too, see docs/barrier.md"
+        f"wall force: sum of the {len(live)} valid load cells{left_out}, CFC 60; to fit it too, see docs/barrier.md"
     )
 
 
@@ -177,8 +179,30 @@ def ev5_draft(path: Path) -> Draft:
 
 
 # ------------------------------------------------------------------ ISO-MME
+def _least_filtered(codes: list[str]) -> str:
+    """Of several codes of the accelerometer to read, the unfiltered one (filter class 0), which the
+    draft filters at ACCEL_FILTER; else one the lab filtered at ACCEL_FILTER already, which the
+    reader does not filter again; else the first listed."""
+    from crashnlp.data.iso_mme import LAB_FILTERS, UNFILTERED, filter_class
+
+    def rank(code: str) -> int:
+        letter = filter_class(code)
+        return 0 if letter == UNFILTERED else 1 if LAB_FILTERS.get(letter) == ACCEL_FILTER else 2
+
+    return min(codes, key=rank)
+
+
+def _mme_accel_why(code: str, at_cg: bool) -> str:
+    """The comment of the accelerometer read: where it is, and what the lab's filter left to do."""
+    from crashnlp.data.iso_mme import filter_said
+
+    said = filter_said(code, ACCEL_FILTER) or "unfiltered (ISO filter class 0)"
+    return f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}, {said}"
+
+
 def mme_draft(path: Path) -> Draft:
-    """Mass and speed of test object 1; its vehicle X accelerometers, at the CG if there are any."""
+    """Mass and speed of test object 1; its vehicle X accelerometer, at the CG if there is one, the
+    unfiltered code where the test holds it and a filtered one (`_least_filtered`)."""
     from crashnlp.base.units import to_si
     from crashnlp.data.iso_mme import read_header
 
@@ -187,8 +211,8 @@ def mme_draft(path: Path) -> Draft:
     if not accels:
         raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
     at_cg = [c for c in accels if "CG" in c[6:12]]
-    code = (at_cg or accels)[0]
-    draft = _accel_draft(path.stem, {"code": code}, f"vehicle X accelerometer {'at the CG' if at_cg else 'of test object 1'}")
+    code = _least_filtered(at_cg or accels)
+    draft = _accel_draft(path.stem, {"code": code}, _mme_accel_why(code, bool(at_cg)))
     for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
         text = header.get(key, "")
         try:
@@ -588,7 +612,7 @@ def problem_dict(draft: Draft, suspension: dict, path: Path) -> dict:
         "name": draft.name,
         "vehicle": {**{k: v for k, (v, _) in draft.vehicle.items()}, "suspension": {k: v for k, (v, _) in suspension.items()}},
         "model": {"spring": {"law": "force"}, "unloading": {"law": "plastic"}},
-        "tests": [{"name": draft.name, "data": {"file": str(path.resolve()), **draft.data}}],
+        "tests": [{"name": draft.name, "data": {"file": str(located(path)), **draft.data}}],
         "constraints": {"monotone_crush": True},
         "transcription": {"method": "multiple-shooting", "intervals": max(50, round(window / STEP)), "substeps": 1},
     }
@@ -696,7 +720,7 @@ def init_problem(data: Path | list[Path], out: Path, options: Options) -> tuple[
     problem = case.problem
     if case.resolution is not None:
         draft.notes.append(f"Spring: {case.resolution.note}.")
-    text = render(draft, problem, os.path.relpath(paths[0].resolve(), out_dir))
+    text = render(draft, problem, os.path.relpath(located(paths[0]), out_dir))
     out_dir.mkdir(parents=True, exist_ok=True)  # the data file is named from here
     written = problem_from_dict(yaml.safe_load(text), out_dir, source=f"{out} (as written)")
     with atomic_open(Path(out)) as fh:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import shutil
+
 import numpy as np
 import pytest
 import yaml
@@ -10,12 +12,15 @@ from builders import ROOT
 from bench.common import PROBLEMS, fine_outputs, fit_targets, judge_fit, load_case
 from crashnlp.cli import main
 from crashnlp.data.load import load_test_data
-from crashnlp.data.nhtsa_ev5 import Curve, valid_until
+from crashnlp.data.nhtsa_ev5 import Curve, flat_after_impact, read_header, valid_until
+from crashnlp.init import ev5_draft
 from crashnlp.problem.schema import DataSpec
 
 EV5 = ROOT / "problems" / "data" / "nhtsa-10146" / "v10146.EV5"
 CELLS = [n for n in range(107, 633, 3)]
 DEAD = (347, 500)
+FLAT = (260, 287)  # loaded cells (H-04, H-13) made dead in `flat_copy`, the header left as it is
+HELD = -2.250860  # N: the value cell 347's dead converter holds most of the time
 
 
 def _load(channels: dict, **data) -> object:
@@ -36,6 +41,60 @@ def test_every_valid_cell_is_the_sum_of_the_174_files_read_one_by_one():
     (note,) = [n for n in data.notes if "summed" in n]
     assert "174 barrier Fx load cells summed" in note and "347" in note and "500" in note
     assert any("SAE J211" in n and "no CFC" in n for n in data.notes)  # filter: null, said beside J211's CFC 60
+
+
+@pytest.fixture
+def flat_copy(tmp_path):
+    """The Camry's EV5 in a folder of its own, cells FLAT holding HELD throughout (the other curves linked)."""
+    folder = tmp_path / "ev5"
+    folder.mkdir()
+    for file in EV5.parent.iterdir():
+        (folder / file.name).symlink_to(file)
+    (folder / EV5.name).unlink()
+    shutil.copy(EV5, folder / EV5.name)
+    for number in FLAT:
+        cell = folder / f"v10146.{number:03d}"
+        time = _file(number)[:, 0]
+        cell.unlink()
+        cell.write_text("".join(f"{t:.6f}\t{HELD:.6f}\n" for t in time))
+    return folder / EV5.name
+
+
+def test_cells_flat_after_impact_are_left_out_and_named_though_the_header_marks_them_valid(flat_copy):
+    data = _load({"barrier_force": {"curves": "all-valid-barrier-fx", "sign": -1, "filter": None}}, file=flat_copy)
+    live = [n for n in CELLS if n not in DEAD + FLAT]
+    np.testing.assert_allclose(data.channels["barrier_force"].values, -sum(_file(n)[:, 1] for n in live), rtol=1e-12, atol=1e-6)
+    (note,) = [n for n in data.notes if "summed" in n]
+    assert "172 barrier Fx load cells summed" in note and "347 (CF:" in note and "500 (CF:" in note
+    assert "260 (flat after impact, 1 distinct value: BARRIER H-04 Fx)" in note and "287 (flat after impact" in note
+
+
+def test_a_flat_cell_named_explicitly_exits_2_naming_file_and_curve(flat_copy, tmp_path, capsys):
+    problem = yaml.safe_load((ROOT / "problems" / "nhtsa-10146-barrier.yaml").read_text())
+    problem["tests"][0]["data"]["file"] = str(flat_copy)
+    problem["tests"][0]["data"]["channels"]["barrier_force"] = {"curves": [257, 260], "sign": -1}
+    path = tmp_path / "flat.yaml"
+    path.write_text(yaml.safe_dump(problem))
+    out = tmp_path / "out"
+    assert main(["identify", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "Traceback" not in err
+    assert "v10146.260" in err and "curve 260" in err and "dead (flat after impact" in err
+    assert not out.exists()
+
+
+def test_init_counts_the_flat_cells_with_the_marked_ones(flat_copy):
+    comment = ev5_draft(flat_copy).comments["barrier_force"]
+    assert "sum of the 172 valid load cells, 2 marked not valid and 2 flat after impact left out" in comment
+    assert "sum of the 174 valid load cells, 2 marked not valid left out," in ev5_draft(EV5).comments["barrier_force"]
+
+
+def test_the_shipped_dead_cells_are_flat_and_every_other_cell_is_not():
+    """The criterion on the Camry's files: its two dead cells' converters flicker between a few
+    counts (their files are never read for a fit: the header marks them), every other cell moves."""
+    _, curves = read_header(EV5)
+    flat = [n for n in CELLS if flat_after_impact(curves[n], *_file(n).T)]
+    assert flat == list(DEAD)
 
 
 def test_the_wall_force_is_filtered_at_cfc60_and_its_offset_removed_by_default():

@@ -17,7 +17,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.cli import _print_solution, main
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import load_test_data
-from crashnlp.init import Options, _csv_columns, _data_spec, csv_draft, draft_for, init_problem, unit_in_name
+from crashnlp.init import Options, _csv_columns, _data_spec, csv_draft, draft_for, init_problem, mme_draft, unit_in_name
 from crashnlp.problem import load_problem
 
 EV5 = ROOT / "problems" / "data" / "nhtsa-10146" / "v10146.EV5"
@@ -42,6 +42,16 @@ def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     model = test["metrics"]["model"]
     assert model["max_displacement_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
     assert abs(model["time_zero_velocity_s"] * 1e3 - CAMRY_DATA["stop_ms"]) <= 2.0
+
+
+def test_init_names_a_symlinked_data_file_where_the_user_put_it(tmp_path):
+    folder = tmp_path / "ev5"
+    folder.mkdir()
+    for file in EV5.parent.iterdir():
+        (folder / file.name).symlink_to(file)
+    problem, _ = init_problem(folder / EV5.name, tmp_path / "camry.yaml", Options())
+    assert "      file: ev5/v10146.EV5\n" in (tmp_path / "camry.yaml").read_text()
+    assert problem.tests[0].data is not None and problem.tests[0].data.file == folder.resolve() / EV5.name
 
 
 @pytest.fixture(scope="module")
@@ -106,6 +116,25 @@ def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
     assert problem.vehicle.mass == 1500 and problem.vehicle.speed == 15.0
     assert problem.tests[0].data.channels["accel"].code == CODE_X
     assert problem.vehicle.cg_to_front_axle == pytest.approx(0.44 * 2.65)  # a 1500 kg compact's typical geometry
+
+
+RAW, CFC60_LAB, CFC1000_LAB = "10VEHCCG0000ACX0", "10VEHCCG0000ACXD", "10VEHCCG0000ACXA"  # ISO filter classes 0, D, A
+
+
+@pytest.mark.parametrize(
+    ("accels", "chosen", "said"),
+    [
+        ((CFC60_LAB, RAW), RAW, "unfiltered (ISO filter class 0)"),
+        ((CFC1000_LAB, CFC60_LAB), CFC60_LAB, "filtered by the lab, ISO filter class D (CFC60): not filtered at CFC60 again"),
+        ((CFC1000_LAB,), CFC1000_LAB, "filtered by the lab, ISO filter class A (CFC1000); filtered at CFC60 over it"),
+    ],
+)
+def test_init_reads_the_unfiltered_accelerometer_else_one_the_lab_filtered_at_cfc60(tmp_path, accels, chosen, said):
+    """The audit's test listed the CFC 60 code first and init filtered it at CFC 60 a second time."""
+    _mme_set(tmp_path / "T001", accels=accels)
+    draft = mme_draft(tmp_path / "T001")
+    assert draft.data["channels"]["accel"] == {"code": chosen, "filter": "CFC60"}
+    assert draft.comments["accel"] == f"vehicle X accelerometer at the CG, {said}"
 
 
 def test_print_solution_shows_a_solve_that_never_ran(capsys):

@@ -12,7 +12,7 @@ from crashnlp.analysis.summary import metrics
 from crashnlp.base.units import G0
 from crashnlp.data import DataError, csv_reader, load_test_data
 from crashnlp.data.csv_reader import Table
-from crashnlp.problem.schema import DataSpec
+from crashnlp.problem.schema import DataSpec, located
 
 ROOT = Path(__file__).resolve().parents[1] / "problems" / "data"
 EV5 = ROOT / "nhtsa-10146" / "v10146.EV5"
@@ -96,6 +96,31 @@ def _copy_ev5(tmp_path, curves=(93, 94)) -> Path:
         shutil.copy(EV5.with_suffix(f".{n:03d}"), tmp_path)
     shutil.copy(EV5, tmp_path)
     return tmp_path / EV5.name
+
+
+def test_a_symlinked_header_reads_the_curves_beside_the_link(tmp_path):
+    """The audit's set: an EV5 header linked into a folder of edited curves; the target's folder
+    was read (the edits ignored) where the user's is the link's."""
+    (tmp_path / EV5.name).symlink_to(EV5)
+    for n in (93, 94):
+        curve = np.loadtxt(EV5.with_suffix(f".{n:03d}"))
+        np.savetxt(tmp_path / f"v10146.{n:03d}", curve * [1.0, 0.5], fmt="%.6f", delimiter="\t")
+    raw = {"accel": {"curves": [93, 94], "filter": None}}
+    edited = load_test_data(camry(file=tmp_path / EV5.name, channels=raw)).channels["accel"]
+    shipped = load_test_data(camry(channels=raw)).channels["accel"]
+    assert edited.values == pytest.approx(0.5 * shipped.values, abs=1e-4)
+
+
+def test_a_data_path_keeps_its_last_link_and_goes_through_dots_as_the_system_does(tmp_path):
+    real = tmp_path / "a" / "b"
+    real.mkdir(parents=True)
+    (real / "x.csv").write_text("t,a\n")
+    (tmp_path / "link.csv").symlink_to(real / "x.csv")
+    (tmp_path / "dir").symlink_to(real, target_is_directory=True)
+    link = tmp_path.resolve() / "link.csv"
+    assert located(tmp_path / "link.csv") == link
+    assert located(tmp_path / "dir" / ".." / "b" / "x.csv") == real.resolve() / "x.csv"  # dir/.. is a, not tmp_path
+    assert spec(file=tmp_path / "link.csv", format="csv", channels={"accel": {"column": "a"}}).file == link
 
 
 def test_nhtsa_missing_curve_file(tmp_path):
@@ -204,10 +229,10 @@ CODE_X = "10VEHCCG0000ACXA"
 CODE_P = "10VEHCCG0000AVYA"
 
 
-def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0) -> tuple[np.ndarray, np.ndarray]:
-    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g (a half sine of `peak_g`
-    over 50 ms: 20 g slows it by 6.2 m/s, 55 g stops it and throws it back at 2.2 m/s) and a pitch
-    rate channel."""
+def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0, accels=(CODE_X,)) -> tuple[np.ndarray, np.ndarray]:
+    """A small ISO-MME test: object 1 at 15 m/s, 1500 kg, accel X in g under each code of `accels`
+    (a half sine of `peak_g` over 50 ms: 20 g slows it by 6.2 m/s, 55 g stops it and throws it back
+    at 2.2 m/s) and a pitch rate channel, listed in that order."""
     t = t0 + dt * np.arange(n)
     accel_g = np.where(t > 0, -peak_g * np.sin(np.pi * np.clip(t, 0, 0.05) / 0.05), 0.0)
     (root / "Channel").mkdir(parents=True)
@@ -216,18 +241,19 @@ def _mme_set(root: Path, t0=-0.01, dt=1e-4, n=600, peak_g=20.0) -> tuple[np.ndar
         "Number of test objects      :1\nName of test object 1       :Sedan\n"
         "Velocity test object 1      :15.0\nMass test object 1          :1500\n"
     )
+    channels = [(code, "g", accel_g, "Vehicle CG acceleration X") for code in accels]
+    channels.append((CODE_P, "deg/s", 0 * t, "Vehicle angular velocity Y"))
     (root / "Channel" / "T001.chn").write_text(
-        "Instrumentation standard    :ISO 6487\nNumber of channels          :2\n"
-        f"Name of channel 001         :{CODE_X} / Vehicle CG acceleration X\n"
-        f"Name of channel 002         :{CODE_P} / Vehicle angular velocity Y\n"
+        f"Instrumentation standard    :ISO 6487\nNumber of channels          :{len(channels)}\n"
+        + "".join(f"Name of channel {k:03d}         :{code} / {text}\n" for k, (code, _, _, text) in enumerate(channels, 1))
     )
-    for number, code, unit, values in (("001", CODE_X, "g", accel_g), ("002", CODE_P, "deg/s", 0 * t)):
+    for k, (code, unit, values, _) in enumerate(channels, 1):
         header = (
             f"Name of the channel         :{code}\nChannel code                :{code}\n"
             f"Unit                        :{unit}\nTime of first sample        :{t0}\n"
             f"Sampling interval           :{dt}\nNumber of samples           :{n}\n"
         )
-        (root / "Channel" / f"T001.{number}").write_text(header + "\n".join(f"{v:.8e}" for v in values) + "\n")
+        (root / "Channel" / f"T001.{k:03d}").write_text(header + "\n".join(f"{v:.8e}" for v in values) + "\n")
     return t, accel_g
 
 
@@ -253,6 +279,23 @@ def test_mme_round_trip(tmp_path, as_zip):
     # half-sine of 20 g over 50 ms removes 2 A T / pi
     v_end = 15.0 - 2 * 20 * G0 * 0.05 / np.pi
     assert data.channels["velocity"].values[-1] == pytest.approx(v_end, rel=1e-3)
+
+
+@pytest.mark.parametrize(
+    ("code", "cfc", "filtered", "note"),
+    [
+        ("10VEHCCG0000ACXD", "CFC60", False, "filtered by the lab, ISO filter class D (CFC60): not filtered at CFC60 again"),
+        ("10VEHCCG0000ACXA", "CFC60", True, "filtered by the lab, ISO filter class A (CFC1000); filtered at CFC60 over it"),
+        ("10VEHCCG0000ACXD", None, False, "filtered by the lab, ISO filter class D (CFC60)"),
+        ("10VEHCCG0000ACX0", "CFC60", True, None),
+    ],
+)
+def test_mme_a_channel_the_lab_filtered_is_not_filtered_again_at_its_class(tmp_path, code, cfc, filtered, note):
+    t, accel_g = _mme_set(tmp_path / "T001", accels=(code,))
+    data = load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": code, "filter": cfc}}))
+    unchanged = np.allclose(data.channels["accel"].values, accel_g * G0, rtol=1e-7)
+    assert unchanged != filtered
+    assert [n for n in data.notes if "ISO filter class" in n] == ([f"accel: code {code}: {note}"] if note else [])
 
 
 def test_mme_missing_code_and_missing_channel_file(tmp_path):

@@ -34,12 +34,16 @@ def of_key(key: str) -> Iterator[None]:
 
 @dataclass
 class Channel:
-    """One signal: time [s], values in SI `unit`, and where it came from (files, curves, codes)."""
+    """One signal: time [s], values in SI `unit`, and where it came from (files, curves, codes).
+    `filtered`: the CFC class the file's values were filtered at before they were read (an ISO-MME
+    code's filter class), which a problem's filter of that class is not applied again over; None
+    where the file says none."""
 
     time: np.ndarray
     values: np.ndarray
     unit: str
     source: str
+    filtered: str | None = None
 
 
 @dataclass

@@ -4,7 +4,8 @@ channel files Channel/<test>.001, .002, ...
 All three are text files of "Name  :value" lines. The .mme file gives test-object data
 ("Velocity test object 1", "Mass test object 1"); the .chn file lists "Name of channel 001 :CODE / text";
 a channel file gives "Unit", "Time of first sample", "Sampling interval", "Number of samples"
-and then the samples, one per line.
+and then the samples, one per line. A code's 16th character is its filter class: 0 unfiltered,
+A to D filtered by the lab at CFC 1000, 600, 180 and 60 (`LAB_FILTERS`), others another filter.
 """
 
 from __future__ import annotations
@@ -19,6 +20,26 @@ from crashnlp.data.channels import Channel, DataError, TestData, check_samples, 
 from crashnlp.problem.schema import CHANNEL_UNITS, DataSpec
 
 _CHANNEL_LINE = re.compile(r"name of channel\s+(\d+)", re.IGNORECASE)
+UNFILTERED = "0"  # the filter class (a code's 16th character) of data no filter has touched
+LAB_FILTERS = {"A": "CFC1000", "B": "CFC600", "C": "CFC180", "D": "CFC60"}  # filter classes that are SAE J211 CFC classes
+
+
+def filter_class(code: str) -> str:
+    """An ISO channel code's filter class, its 16th character ('' for a shorter code)."""
+    return code[15:16]
+
+
+def filter_said(code: str, cfc: str | None) -> str | None:
+    """What a channel code's filter class says of its data, and what a problem's filter `cfc` does
+    over it, for a note or a comment; None where the code says unfiltered (class 0) or nothing."""
+    letter = filter_class(code)
+    if letter in ("", UNFILTERED):
+        return None
+    lab = LAB_FILTERS.get(letter)
+    said = f"filtered by the lab, ISO filter class {letter} ({lab})" if lab else f"ISO filter class {letter}, not a CFC class"
+    if cfc is None:
+        return said
+    return f"{said}: not filtered at {cfc} again" if cfc == lab else f"{said}; filtered at {cfc} over it"
 
 
 class _Store:
@@ -115,12 +136,15 @@ def read_header(path: Path) -> tuple[dict[str, str], list[str]]:
 def read_mme(spec: DataSpec) -> TestData:
     """Channels chosen by `ChannelSpec.code` (16-character ISO code), values in SI.
 
-    The unit is the channel file's "Unit" unless `ChannelSpec.unit` overrides. Meta: 'speed'
-    and 'mass' of the test object numbered by the first character of the first code (default 1).
+    The unit is the channel file's "Unit" unless `ChannelSpec.unit` overrides. A code's filter
+    class A to D is the channel's `filtered` (a filter of that class is not applied again), and a
+    note says what any class but 0 is. Meta: 'speed' and 'mass' of the test object numbered by the
+    first character of the first code (default 1).
     """
     path = spec.file
     store, mme_name, chn_name, codes = _open(path)
     channels: dict[str, Channel] = {}
+    notes: list[str] = []
     obj = None
     for name, ch in spec.channels.items():
         if ch.derive is not None:
@@ -137,7 +161,10 @@ def read_mme(spec: DataSpec) -> TestData:
             at = where(store.label(file or wanted), name, f"code {code}")
             if file is None:
                 raise DataError(f"{at}: channel file missing")
-            channels[name] = _channel(store.text(file), ch.unit, name, at, f"{PurePosixPath(file).name}:{code}")
+            source = f"{PurePosixPath(file).name}:{code}"
+            channels[name] = _channel(store.text(file), ch.unit, name, at, source, LAB_FILTERS.get(filter_class(code)))
+            if said := filter_said(code, ch.filter):
+                notes.append(f"{name}: code {code}: {said}")
 
     header, _ = _pairs(store.text(mme_name))
     meta: dict[str, float] = {}
@@ -147,10 +174,11 @@ def read_mme(spec: DataSpec) -> TestData:
         meta["speed"] = speed
     if mass:
         meta["mass"] = mass
-    return TestData(channels, meta)
+    return TestData(channels, meta, notes)
 
 
-def _channel(text: str, unit: str | None, name: str, at: str, source: str) -> Channel:
+def _channel(text: str, unit: str | None, name: str, at: str, source: str, filtered: str | None) -> Channel:
+    """One channel file's samples in SI; `filtered`: the CFC class its code says the lab filtered it at."""
     header, rows = _pairs(text)
     try:
         t0 = float(header["time of first sample"])
@@ -173,4 +201,4 @@ def _channel(text: str, unit: str | None, name: str, at: str, source: str) -> Ch
     values = values * si_factor(unit.replace("**", "^"), name, at)
     time = t0 + dt * np.arange(count)
     check_samples(time, values, at)
-    return Channel(time, values, CHANNEL_UNITS[name], source)
+    return Channel(time, values, CHANNEL_UNITS[name], source, filtered)

@@ -8,6 +8,7 @@ returns the non-derived channels in SI (file sign, unfiltered) and the header me
 from __future__ import annotations
 
 from collections.abc import Callable
+from dataclasses import replace
 
 import numpy as np
 
@@ -30,7 +31,9 @@ BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an o
 
 
 def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
-    if cfc is None:
+    """A channel's values filtered at CFC class `cfc`: as they are where it is None, or where the
+    file's values were filtered at that class before (`Channel.filtered`): not twice."""
+    if cfc is None or cfc == channel.filtered:
         return channel.values
     dt = sample_interval(channel.time, at)
     try:
@@ -52,7 +55,8 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
 
     Order: read; multiply by `sign`; remove the mean over `bias_window` from accel and
     barrier_force; filter each read channel at its CFC (barrier_force at CFC 60 unless the
-    problem says otherwise, and the notes say so); derive channels with `derive: integrate` from the bias-removed
+    problem says otherwise, and the notes say so), but not again at the class the file's values were
+    filtered at already (`Channel.filtered`); derive channels with `derive: integrate` from the bias-removed
     accel, filtered at the derived channel's own CFC or else accel's, with v(0) = speed (the
     header's speed when `speed` is None) and x(0) = 0; cut every channel to `window` last.
     """
@@ -78,7 +82,7 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
                     values = remove_bias(c.time, values, spec.bias_window)
                 except ValueError as exc:
                     raise DataError(f"{where(path, name)}: {exc}", "bias_window") from None
-            c = Channel(c.time, values, c.unit, c.source)
+            c = replace(c, values=values)
             if name == "accel":
                 accel_unfiltered = c
             out[name] = Channel(c.time, _filtered(c, ch.filter, where(path, name)), c.unit, c.source)

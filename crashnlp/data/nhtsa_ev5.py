@@ -11,7 +11,9 @@ Curve NNN lives next to the header as <stem>.NNN (time [s] TAB value).
 
 A curve is read only as far as the header says its data are valid (`valid_until`): status NO
 (not installed) or CF ("No valid data") never, "No valid data after 67ms" up to 67 ms. A curve
-file that ends before that (by more than END_TOLERANCE samples) is cut short, and refused.
+file that ends before that (by more than END_TOLERANCE samples) is cut short, and refused. A
+barrier load cell whose curve is flat after impact (`flat_after_impact`) is dead whatever the
+header says: left out of `all-valid-barrier-fx`, refused where a problem names it.
 """
 
 from __future__ import annotations
@@ -61,6 +63,9 @@ NO_DATA = {"NO"}  # data status meaning the channel holds no data (e.g. sensor n
 FAILED = {"CF"}  # data status of a failed channel: valid only as far as its comment says
 NEVER_VALID = ("NO VALID DATA", "NOT INSTALLED")  # comments, upper case, of a curve holding no data
 VALID_UNTIL = re.compile(r"NO VALID DATA AFTER\s*([0-9.]+)\s*MS")  # a comment giving the end of the valid data
+# at most this many distinct values after impact: a load cell's converter flickering between a few
+# counts, or one value held, not a cell the impact loaded (design-notes.md, "Dead load cells")
+FLAT_LEVELS = 8
 
 
 @dataclass
@@ -185,10 +190,15 @@ def _read_curve(path: Path, header: Path, curve: Curve, channel: str) -> tuple[n
     return time, values
 
 
+def is_barrier_cell(curve: Curve) -> bool:
+    """Whether a curve is one of the barrier's Fx load cells (sensor LC, axis XG, a force unit)."""
+    return curve.sensor == "LC" and curve.axis == "XG" and UNITS.get(curve.unit.upper()) == "N"
+
+
 def barrier_cells(header: Path, curves: dict[int, Curve]) -> tuple[list[int], list[Curve]]:
-    """The barrier's Fx load cells (sensor LC, axis XG, a force): the numbers of those valid
-    throughout, and the curves of those the header marks invalid for some or all of the test."""
-    cells = [c for c in curves.values() if c.sensor == "LC" and c.axis == "XG" and UNITS.get(c.unit.upper()) == "N"]
+    """The barrier's Fx load cells: the numbers of those the header marks valid throughout, and
+    the curves of those it marks invalid for some or all of the test."""
+    cells = [c for c in curves.values() if is_barrier_cell(c)]
     if not cells:
         raise DataError(f"{header}: no barrier Fx load cell (sensor LC, axis XG, unit NWT) in the INSTRUMENTATION card")
     kept = [c.number for c in cells if valid_until(c) == math.inf]
@@ -197,15 +207,71 @@ def barrier_cells(header: Path, curves: dict[int, Curve]) -> tuple[list[int], li
     return kept, [c for c in cells if valid_until(c) != math.inf]
 
 
-def _curve_numbers(header: Path, curves: dict[int, Curve], name: str, ch: ChannelSpec) -> tuple[list[int], str | None]:
+def flat_after_impact(curve: Curve, time: np.ndarray, values: np.ndarray) -> str | None:
+    """Why a barrier load cell is dead though its header may not say so: after impact (t = 0) its
+    curve takes no more than FLAT_LEVELS distinct values. None for a live cell and for any other
+    curve (a coarse pitch or a quiet sensor elsewhere may hold few values and still be measured)."""
+    levels = np.unique(values[time >= 0]).size
+    if not is_barrier_cell(curve) or levels > FLAT_LEVELS:
+        return None
+    return f"flat after impact, {levels} distinct value{'' if levels == 1 else 's'}"
+
+
+Read = tuple[Curve, Path, np.ndarray, np.ndarray]  # a curve, its file, its time and raw values
+
+
+def _read_numbered(header: Path, curves: dict[int, Curve], number: int, name: str) -> Read:
+    """Curve `number` of the header, read as far as it is valid (`_read_curve`)."""
+    if number not in curves:
+        raise DataError(f"{where(header, name, f'curve {number}')}: curve not in the INSTRUMENTATION card")
+    curve = curves[number]
+    file = header.with_suffix(f".{number:03d}")
+    return (curve, file, *_read_curve(file, header, curve, name))
+
+
+def _read_named(header: Path, curves: dict[int, Curve], numbers: list[int], name: str) -> list[Read]:
+    """The curves a problem names, each read; a barrier load cell flat after impact is refused
+    as one the header marks not valid is."""
+    read = [_read_numbered(header, curves, number, name) for number in numbers]
+    for curve, file, time, values in read:
+        if why := flat_after_impact(curve, time, values):
+            raise DataError(
+                f"{where(file, name, f'curve {curve.number}')}: the load cell is dead ({why}), though the header"
+                f" marks it valid ({curve.status}: {curve.comment})"
+            )
+    return read
+
+
+def live_barrier_cells(
+    header: Path, curves: dict[int, Curve], name: str
+) -> tuple[list[Read], list[Curve], list[tuple[Curve, str]]]:
+    """Every barrier Fx load cell the header marks valid and whose curve is not flat after impact,
+    read; the cells the header marks not valid; and the flat ones, each with why."""
+    kept, marked = barrier_cells(header, curves)
+    live, flat = [], []
+    for number in kept:
+        curve, file, time, values = _read_numbered(header, curves, number, name)
+        why = flat_after_impact(curve, time, values)
+        if why:
+            flat.append((curve, why))
+        else:
+            live.append((curve, file, time, values))
+    if not live:
+        raise DataError(f"{header}: every barrier Fx load cell is marked not valid or flat after impact")
+    return live, marked, flat
+
+
+def _read_curves(header: Path, curves: dict[int, Curve], name: str, ch: ChannelSpec) -> tuple[list[Read], str | None]:
     """The curves a channel reads, and a note of what `all-valid-barrier-fx` summed and left out."""
     if ch.curves == ALL_BARRIER_FX:
-        kept, dropped = barrier_cells(header, curves)
-        left_out = "; ".join(f"{c.number:03d} ({c.status}: {c.comment})" for c in dropped) or "none"
-        return kept, f"{name}: {len(kept)} barrier Fx load cells summed; dropped as not valid: {left_out}"
+        live, marked, flat = live_barrier_cells(header, curves, name)
+        left_out = [f"{c.number:03d} ({c.status}: {c.comment})" for c in marked]
+        left_out += [f"{c.number:03d} ({why}: {c.comment})" for c, why in flat]
+        dropped = "; ".join(left_out) or "none"
+        return live, f"{name}: {len(live)} barrier Fx load cells summed; dropped as not valid: {dropped}"
     if not isinstance(ch.curves, list) or not ch.curves:
         raise DataError(f"{where(header, name)}: no curves given (an EV5 channel needs `curves`)")
-    return list(ch.curves), None
+    return _read_named(header, curves, list(ch.curves), name), None
 
 
 def read_ev5(spec: DataSpec) -> TestData:
@@ -214,9 +280,10 @@ def read_ev5(spec: DataSpec) -> TestData:
 
     Units come from the header (G'S is g) unless `ChannelSpec.unit` overrides. A curve whose
     header marks a shorter valid range (NLP, or a comment "No valid data after ...") is cut to
-    it, and one it marks not valid is refused; combined curves must share sample interval and
-    time range. Meta: 'speed' [m/s] from the TEST card, 'mass' [kg] from the VEHICLE card of the
-    vehicle carrying the curves (the barrier's are vehicle 0).
+    it, and one it marks not valid is refused, as is a barrier load cell flat after impact;
+    combined curves must share sample interval and time range. Meta: 'speed' [m/s] from the TEST
+    card, 'mass' [kg] from the VEHICLE card of the vehicle carrying the curves (the barrier's are
+    vehicle 0).
     """
     header = spec.file
     cards, curves = read_header(header)
@@ -231,20 +298,14 @@ def read_ev5(spec: DataSpec) -> TestData:
         if ch.derive is not None:
             continue
         with of_key(f"channels.{name}"):
-            numbers, note = _curve_numbers(header, curves, name, ch)
+            read, note = _read_curves(header, curves, name, ch)
             notes += [note] if note else []
-            read = []
-            for number in numbers:
-                if number not in curves:
-                    raise DataError(f"{where(header, name, f'curve {number}')}: curve not in the INSTRUMENTATION card")
-                curve = curves[number]
+            in_si = []
+            for curve, file, time, values in read:
                 vehicle = curve.vehicle or vehicle
-                file = header.with_suffix(f".{number:03d}")
-                time, values = _read_curve(file, header, curve, name)
                 unit = ch.unit or UNITS.get(curve.unit.upper(), curve.unit)
-                values = values * si_factor(unit, name, where(file, name, f"curve {number}"))
-                read.append((file, time, values))
-            channels[name] = combine(read, name)
+                in_si.append((file, time, values * si_factor(unit, name, where(file, name, f"curve {curve.number}"))))
+            channels[name] = combine(in_si, name)
     for row in cards.get("VEHICLE", []):
         if row and row[0] == str(vehicle) and (mass := card_number(row, 11)) and mass > 0:
             meta["mass"] = mass

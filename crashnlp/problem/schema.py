@@ -509,6 +509,15 @@ def format_of(path: Path) -> str:
     return "csv"
 
 
+def located(path: Path) -> Path:
+    """A data file's absolute path as the user put it: its folder resolved (symlinks and `..` as the
+    system follows them), its own name kept where it is a symlink. A reader looks beside the file
+    (an EV5's curves, an ISO-MME test's Channel folder, an NHTSA test's other channels): beside the
+    link, where the user put it, not beside its target."""
+    path = path.absolute()
+    return path.parent.resolve() / path.name if path.is_symlink() else path.resolve()
+
+
 class DataSpec(Strict):
     file: Path
     format: DataFormat = Field(
@@ -548,7 +557,7 @@ class DataSpec(Strict):
         path = v if v.is_absolute() else base / v
         if not path.exists():
             raise ValueError(f"file not found: {path}")
-        return path.resolve()
+        return located(path)
 
     @field_validator("window", "bias_window")
     @classmethod
