@@ -33,8 +33,8 @@ DRIFT = 0.05  # m/s toward the barrier without contact: still moving, not stoppe
 # LET_GO of the impact speed, and does not touch it again within its record, has ended its loading
 # there: what follows is a drift on the suspension without contact (the pitch lifted the front end
 # off), at a speed within the rebound's own error (the calibration's rebound scale is at least this
-# share of the impact speed). Its stop and largest travel are that instant's (`let_go_end`); set
-# and checked on the corpus (docs/design-notes.md, "A crash that ends as the front end lets go").
+# share of the impact speed). Its stop is that instant (`let_go_end`); set and checked on the
+# corpus (docs/design-notes.md, "A crash that ends as the front end lets go").
 LET_GO = 0.05
 
 

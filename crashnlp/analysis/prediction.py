@@ -228,14 +228,15 @@ def ending_notes(name: str, response: Response, metrics: dict[str, float | None]
 
 
 def _ended(name: str, response: Response, end: float) -> tuple[str, ...]:
-    """The note of a crash that ends as the vehicle lets go of the barrier while it still moves on
-    slowly (crashnlp.analysis.metrics.let_go_end): its stop and max displacement are that instant's."""
+    """The note of a crash whose loading ends as the vehicle lets go of the barrier while it still
+    moves on slowly (crashnlp.analysis.metrics.let_go_end): its stop is that instant."""
     v = float(np.interp(end, response.time, response["velocity"]))
     return (
         f"{name}: the vehicle lets go of the barrier at {end * 1e3:.1f} ms while its CG still moves toward it at "
         f"{v:.3f} m/s, under {LET_GO * 100:g} % of the impact speed, and does not touch it again (its pitch lifted the "
-        "front end off): its loading ends there, and its stop and max displacement are that instant's; it drifts on "
-        "and meets the barrier again after the record, so it gives no velocity change, rebound or max pitch",
+        "front end off): its loading ends there, and its stop is that instant; its max displacement is its travel at "
+        "the record's end, and as it drifts on and meets the barrier again after the record, it gives no velocity "
+        "change, rebound or max pitch",
     )
 
 

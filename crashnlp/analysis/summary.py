@@ -36,12 +36,15 @@ def metrics(
     displacement: np.ndarray,
     pitch: np.ndarray | None,
     crush: np.ndarray | None = None,
+    barrier: np.ndarray | None = None,
 ) -> dict:
     """The crash metrics result.json reports, in the units their names say; None for a metric the
     record does not hold: one it does not reach (an OLC whose occupant does not travel 300 mm), the
     UNFINISHED ones of a record that ends mid-crash (MID_CRASH), and the UNSETTLED ones of a record
     that ends still moving toward the barrier after the pulse (`still_moving` says where either
-    ends). The one rule for test data, fitted models and predictions alike.
+    ends). The one rule for test data, fitted models and predictions alike. With the force on the
+    barrier (`barrier`: a model's), a record whose loading ends as the vehicle lets go of the barrier
+    moving on slowly (let_go_end) has its stop at that instant (`_ended_at`).
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
     travel, for data and model alike, so the two compare. A model also reports its largest front-end crush
@@ -49,7 +52,17 @@ def metrics(
     crush bound limits); the two differ by the pitch and the geometry. `record_end_s` and
     `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
     """
-    return withheld(values(t, accel, velocity, displacement, pitch, crush), accel)
+    record = withheld(values(t, accel, velocity, displacement, pitch, crush), accel)
+    end = let_go_end(t, velocity, barrier) if barrier is not None else None
+    return record if end is None else record | _ended_at(end, float(velocity[0]))
+
+
+def _ended_at(end: float, v0: float) -> dict:
+    """The stop of a record whose loading ends at `end` without one (the vehicle lets go of the
+    barrier while the CG moves on slowly), and the TESW it gives. The rest is the record's as it
+    ends drifting: its max displacement its travel at the end, and no velocity change, rebound or
+    max pitch (`withheld`): it meets the barrier again after the record."""
+    return {"time_zero_velocity_s": end, "tesw_g": v0 / end / G0}
 
 
 def values(
@@ -184,27 +197,9 @@ def data_metrics(test: TestCase) -> dict | None:
 def response_metrics(r: Response) -> dict:
     """The metrics of a model response, its acceleration as the response carries it: read through
     a test's CFC class where `as_recorded` made it so, so that its peak and pulse compare with the
-    test's filtered ones. A crash that ends as its front end lets go (let_go_end) has its stop and
-    largest travel at that instant (`_ended_at`)."""
+    test's filtered ones; its force on the barrier tells where a crash ends as it lets go (`metrics`)."""
     y = r.outputs
-    end = let_go_end(r.time, y["velocity"], y["barrier_force"]) if "barrier_force" in y else None
-    if end is not None:
-        return _ended_at(r, end)
-    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
-
-
-def _ended_at(r: Response, end: float) -> dict:
-    """The metrics of a response whose crash ends at `end` without a stop (its front end lets go
-    while the CG moves on slowly): its stop is that instant, and its largest travel the record's up
-    to it; its peak, crush and OLC are the whole record's. Moving on toward the barrier, it meets
-    it again after the record, so it gives no velocity change, rebound or max pitch (UNSETTLED), as
-    a record that ends drifting gives none."""
-    y, upto = r.outputs, r.time <= end
-    whole = values(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"))
-    crash = values(r.time[upto], *(y[k][upto] for k in ("accel", "velocity", "displacement", "pitch")))
-    travel = {key: crash[key] for key in ("max_displacement_m", "time_max_displacement_s", "esw_g")}
-    stop = {"time_zero_velocity_s": end, "tesw_g": float(y["velocity"][0]) / end / G0}
-    return {**whole, **travel, **stop, **dict.fromkeys(UNSETTLED)}
+    return metrics(r.time, y["accel"], y["velocity"], y["displacement"], y["pitch"], y.get("crush"), y.get("barrier_force"))
 
 
 def as_recorded(r: Response, accel_filter: str | None) -> Response:
