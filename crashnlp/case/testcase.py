@@ -14,7 +14,7 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.base.units import to_si
 from crashnlp.data import TestData, load_test_data
-from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
+from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, median_interval
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.problem import Problem, Test
 
@@ -61,6 +61,19 @@ PITCH_SWING = np.radians(1.0)
 # A frontal barrier crash pitches a vehicle by tens of degrees at most; a pitch past PITCH_MOST was
 # read in another unit (degrees read as radians swing 57 times as far).
 PITCH_MOST = np.radians(45.0)
+# A channel read from the file that changes after impact by no more than FLAT of the most it reads
+# there is flat: a dead sensor, or a column of one value (all zeros, a constant offset). Fitted, it
+# pins the model to a constant and the fit says ok. A crash moves every channel it measures by about
+# as much as that channel reads at its largest (docs/design-notes.md, "The data's units and pitch
+# sign"); a velocity record cut 10 ms into the crash still changes by a few percent of the speed.
+FLAT = 0.01
+# A crash's pulse changes the velocity by far more than SLOWED of the speed within PULSE_SPAN, its
+# first tens of ms (the design notes give the least the generator's records do). An acceleration
+# that changes it by less in every PULSE_SPAN of its record reads noise or an offset only. SLOWED
+# lies below a tenth of that least, so that g read as m/s^2 (9.81 times too little) is left to the
+# unit checks, which name the unit.
+PULSE_SPAN = 0.02  # s
+SLOWED = 0.01
 
 
 @dataclass(frozen=True)
@@ -182,7 +195,8 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 
 def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
-    """Refuse test data that contradict the problem's speed (check_speed), a measured velocity and
+    """Refuse test data with a dead channel (check_dead), data that contradict the problem's speed
+    (check_speed), a measured velocity and
     acceleration that disagree (check_units), a displacement that disagrees with them (check_travel), a
     pitch that reads nose-up where the problem puts
     the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
@@ -191,6 +205,7 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
     ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
+            check_dead(i, test.speed, test.spec, test.data)
             check_speed(i, test.speed, test.spec, test.data)
             check_units(i, test.speed, test.spec, test.data)
             check_travel(i, test.speed, test.spec, test.data)
@@ -211,6 +226,52 @@ def check_end(key: str, end: float, test: Test, data: TestData) -> None:
             f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "
             f"({file}, channel {name}); shorten it to the data, or give the whole record"
         )
+
+
+def check_dead(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a channel read from the file that does not change after impact (`flat`), and an
+    acceleration that changes the velocity by less than SLOWED of the `speed` in every PULSE_SPAN
+    (`steepest_change`): dead sensors, or the wrong column, which a fit would take for the crash.
+    Each names the channel's key and where it was read from (file and column)."""
+    for name, channel in data.channels.items():
+        spec = test.data.channels.get(name) if test.data is not None else None
+        if spec is not None and spec.derive is None and flat(channel):
+            after = channel.values[channel.time >= 0.0]
+            raise InputError(
+                f"tests.{i}.data.channels.{name}: the {name} of test {test.name} ({channel.source}) stays at "
+                f"{np.median(after):.4g} {channel.unit} after impact, changing by {np.ptp(after):.3g} {channel.unit}: the "
+                "channel is flat (a dead sensor, or a column of one value), and a fit would take it for the crash; "
+                "name the column that holds it, or leave the channel out"
+            )
+    accel = data.channels.get("accel")  # never derived
+    change = steepest_change(accel) if accel is not None else None
+    if accel is not None and change is not None and change < SLOWED * abs(speed):
+        raise InputError(
+            f"tests.{i}.data.channels.accel: the acceleration of test {test.name} ({accel.source}) changes the velocity "
+            f"by at most {change:.3g} m/s in any {PULSE_SPAN * 1e3:g} ms after impact, less than {SLOWED * 100:g} % of the "
+            f"speed ({_speed(speed)}): a crash's pulse changes it by far more, so the channel reads noise or an offset "
+            "only (a dead sensor, or the wrong column)"
+        )
+
+
+def flat(channel: Channel) -> bool:
+    """Whether a channel changes after impact by no more than FLAT of the most it reads there (an
+    all-zero one too); False where fewer than two samples lie after impact."""
+    after = channel.values[channel.time >= 0.0]
+    return after.size > 1 and bool(np.ptp(after) <= FLAT * np.max(np.abs(after)))
+
+
+def steepest_change(accel: Channel) -> float | None:
+    """The most an acceleration changes the velocity by over any PULSE_SPAN of its record from impact
+    on, either way (m/s); None where that record is shorter than PULSE_SPAN."""
+    after = accel.time >= 0.0
+    time, values = accel.time[after], accel.values[after]
+    if time.size < 2 or time[-1] - time[0] < PULSE_SPAN:
+        return None
+    velocity = cumtrapz(time, values)
+    starts = time <= time[-1] - PULSE_SPAN
+    later = np.interp(time[starts] + PULSE_SPAN, time, velocity)
+    return float(np.max(np.abs(later - velocity[starts])))
 
 
 def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
