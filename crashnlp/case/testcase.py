@@ -239,7 +239,7 @@ def check_dead(i: int, speed: float, test: Test, data: TestData) -> None:
             after = channel.values[channel.time >= 0.0]
             raise InputError(
                 f"tests.{i}.data.channels.{name}: the {name} of test {test.name} ({channel.source}) stays at "
-                f"{np.median(after):.4g} {channel.unit} after impact, changing by {np.ptp(after):.3g} {channel.unit}: the "
+                f"{after[0]:.4g} {channel.unit} after impact, changing by {np.ptp(after):.3g} {channel.unit}: the "
                 "channel is flat (a dead sensor, or a column of one value), and a fit would take it for the crash; "
                 "name the column that holds it, or leave the channel out"
             )
