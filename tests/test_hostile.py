@@ -19,6 +19,7 @@ from builders import BASE, ROOT, command, descendants, merge
 
 import crashnlp
 from crashnlp.base.errors import InputError
+from crashnlp.case.testcase import impulses, load_tests
 from crashnlp.cli import main
 from crashnlp.problem import problem_from_dict
 from crashnlp.results.jsonfile import write_json
@@ -281,6 +282,29 @@ def test_an_acceleration_of_noise_or_an_offset_alone_is_refused(tmp_path, capsys
     said = "reads noise or an offset only" if kind == "noise" else "the channel is flat (a dead sensor"
     assert "tests.0.data.channels.accel: the acc" in err and "(a.csv:accel_x_g)" in err and said in err
     assert checked(tmp_path, capsys, pickup_record(tmp_path / "a.csv", {}, only))[0] == 0
+
+
+def test_a_barrier_force_read_with_the_wrong_sign_or_unit_is_refused(tmp_path, capsys):
+    """The Camry's wall force without the `sign: -1` its load cells need pushes the vehicle into the
+    barrier: the fit ran to IPOPT's iteration limit (1596 iterations, 323 s). Its curves in N read
+    as kN give 1000 times the impulse its accelerometers take (a wall force in kN read as N had
+    fitted and said ok at a ratio of 0.001). Each is refused before the fit, naming the channel's
+    sign or unit; the shipped problem is taken, its ratio the one its fit reports."""
+    raw = yaml.safe_load((ROOT / "problems/nhtsa-10146-barrier.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    wall = raw["tests"][0]["data"]["channels"]["barrier_force"]
+    problem, tests = load_tests(problem_from_dict(raw, ROOT / "problems"))
+    wall_impulse, taken = impulses(tests[0].data, problem.vehicle.known_mass)
+    assert wall_impulse / taken == pytest.approx(1.056, abs=0.005)
+    assert checked(tmp_path, capsys, raw)[0] == 0
+    for changed, key, said in [
+        ({k: v for k, v in wall.items() if k != "sign"}, "sign", "-1.06 times the one its accelerometers take"),
+        ({**wall, "unit": "kN"}, "unit", "1.06e+03 times the one its accelerometers take"),
+    ]:
+        raw["tests"][0]["data"]["channels"]["barrier_force"] = changed
+        code, err = checked(tmp_path, capsys, raw)
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"tests.0.data.channels.barrier_force.{key}: the barrier force of test 10146 (v10146.EV5)" in err and said in err
 
 
 @pytest.mark.parametrize(

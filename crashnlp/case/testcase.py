@@ -17,6 +17,7 @@ from crashnlp.data import TestData, load_test_data
 from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, median_interval
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.problem import Problem, Test
+from crashnlp.problem.schema import ChannelSpec
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
 # relative: a test mass further from its data header's contradicts it. Headers give the test weight
@@ -200,7 +201,8 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
     acceleration that disagree (check_units), a displacement that disagrees with them (check_travel), a
     pitch that reads nose-up where the problem puts
     the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
-    (`mass`, the vehicle's, where a test gives none: check_mass), or data that end before a fit's
+    (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose impulse
+    disagrees with the accelerometers' at that mass (check_barrier), or data that end before a fit's
     duration (check_end; a window is checked as the data load). For fits: a simulation may well
     ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
@@ -210,7 +212,9 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
             check_units(i, test.speed, test.spec, test.data)
             check_travel(i, test.speed, test.spec, test.data)
             check_pitch(i, test.spec, test.data, impact_above_cg)
-            check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
+            tested = test.overrides.get("vehicle.mass", mass)
+            check_mass(i, tested, test.spec, test.data)
+            check_barrier(i, tested, test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
                 check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
 
@@ -378,14 +382,64 @@ def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> No
         )
     if after is None or impact_above_cg or not nose_up(after):
         return
-    spec = test.data.channels.get("pitch") if test.data is not None else None
-    turn = "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
+    turn = _turn(test.data.channels.get("pitch") if test.data is not None else None)
     raise InputError(
         f"tests.{i}.data.channels.pitch.sign: the pitch of test {test.name} ({file}) swings to {np.degrees(after.min()):.3g} "
         f"deg and no further than {np.degrees(max(after.max(), 0.0)):.3g} deg the other way: a frontal crash pitches a "
         f"vehicle whose impact point lies below its CG nose-down, positive in the model's frame, so the channel reads "
         f"nose-up positive ({turn})"
     )
+
+
+def _turn(spec: ChannelSpec | None) -> str:
+    """How to turn a channel that reads with the wrong sign: drop the `sign: -1` it has, or give it one."""
+    return "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
+
+
+def check_barrier(i: int, mass: float, test: Test, data: TestData) -> None:
+    """Refuse a barrier force whose impulse (`impulses`) pushes the vehicle toward the barrier,
+    naming its sign and which way to turn it, or lies more than UNIT_FACTOR from the impulse the
+    accelerometers take at `mass`, naming its unit: the wall and the vehicle take one impulse, and
+    kN read as N part them 1000 times. Where the accelerometers take none, their own checks speak."""
+    both = impulses(data, mass)
+    if both is None or both[1] <= 0.0:
+        return
+    wall, taken = both
+    ratio = wall / taken
+    if 1 / UNIT_FACTOR <= ratio <= UNIT_FACTOR:
+        return
+    file = test.data.file.name if test.data is not None else "the data"
+    said = (
+        f"the barrier force of test {test.name} ({file}) gives the vehicle an impulse of {wall / 1e3:.3g} kN s, "
+        f"{ratio:.3g} times the one its accelerometers take at {mass:.0f} kg ({taken / 1e3:.3g} kN s)"
+    )
+    if ratio < 0:
+        turn = _turn(test.data.channels.get("barrier_force") if test.data is not None else None)
+        raise InputError(
+            f"tests.{i}.data.channels.barrier_force.sign: {said}: it pushes the vehicle into the barrier, so the "
+            f"channel reads compression negative, as NHTSA load cells store it ({turn})"
+        )
+    raise InputError(
+        f"tests.{i}.data.channels.barrier_force.unit: {said}: the wall and the vehicle take one impulse, so the "
+        "channel is read in another unit than it was written in (kN read as N part them 1000 times), or the mass is off"
+    )
+
+
+def impulses(data: TestData, mass: float) -> tuple[float, float] | None:
+    """Where a test measures the barrier force and the acceleration: the impulse the wall gives the
+    vehicle and the one its accelerometers say it takes (`mass` times the velocity they take off),
+    each over its record from impact on (N s); None otherwise. Read right, the two agree
+    (check_barrier refuses them apart; crashnlp.analysis.summary.channel_consistency reports them)."""
+    wall, accel = data.channels.get("barrier_force"), data.channels.get("accel")
+    if wall is None or accel is None:
+        return None
+    return _from_impact(wall.time, wall.values), -mass * _from_impact(accel.time, accel.values)
+
+
+def _from_impact(time: np.ndarray, values: np.ndarray) -> float:
+    """The integral of `values` over `time` from impact (the record's start, if later) to its end."""
+    integral = cumtrapz(time, values)
+    return float(integral[-1] - np.interp(max(0.0, float(time[0])), time, integral))
 
 
 def nose_up(pitch: np.ndarray) -> bool:
