@@ -761,19 +761,22 @@ def _data_files(paths: list[Path], fmt: str) -> set[Path]:
 
 
 def _check_given(case: Case, options: Options) -> None:
-    """Refuse a --speed or --mass the test's data (as the case read them) contradict, and data
-    identify would refuse (Case.check_data: a speed, units or signs they contradict), as identify
-    would (crashnlp.case.testcase): the file written would not be fitted."""
-    from crashnlp.case.testcase import mass_contradicted, speed_contradicted
+    """Refuse data identify would refuse (Case.check_data: a dead channel, a speed, units or signs
+    they contradict), as identify would (crashnlp.case.testcase), and a --speed or --mass the test's
+    data (as the case read them) contradict: the file written would not be fitted. A dead channel
+    comes first: a velocity column of zeros is no speed to set --speed against."""
+    from crashnlp.case.checks import named
+    from crashnlp.case.testcase import check_dead, mass_contradicted, speed_contradicted
 
     test = case.tests[0]
     assert test.data is not None  # init writes the test with its data
+    as_read = f"{test.spec.data.file if test.spec.data else case.name}: as read for the problem file"
+    with named(as_read):
+        check_dead(0, test.speed, test.spec, test.data)
     given = (("--speed", options.speed, speed_contradicted), ("--mass", options.mass, mass_contradicted))
     for option, value, contradicted in given:
         why = None if value is None else contradicted(value, test.spec, test.data)
         if why is not None:
             raise InputError(f"{option}: {why}")
-    try:
+    with named(as_read):
         case.check_data()  # what identify refuses in the data (their units, signs, speed), before the file is written
-    except InputError as exc:
-        raise InputError(f"{test.spec.data.file if test.spec.data else case.name}: as read for the problem file, {exc}") from None

@@ -19,6 +19,7 @@ from builders import BASE, ROOT, command, descendants, merge
 
 import crashnlp
 from crashnlp.base.errors import InputError
+from crashnlp.case.testcase import impulses, load_tests
 from crashnlp.cli import main
 from crashnlp.problem import problem_from_dict
 from crashnlp.results.jsonfile import write_json
@@ -218,6 +219,92 @@ def test_a_pitch_read_nose_up_is_refused(tmp_path, capsys):
     above["estimate"]["vehicle.cg_above_impact"] = {"bounds": ["-0.3 m", "0.6 m"]}
     (tmp_path / "p.yaml").write_text(yaml.safe_dump(above))
     assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
+
+
+def pickup_record(path: Path, changes: dict, channels: dict | None = None) -> dict:
+    """The shipped pickup problem reading its record written to `path` with each column of `changes`
+    made a function of its values (a new column of the time), and with `channels` (None: drop one)."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    names = header.split(",")
+    columns = dict(zip(names, np.loadtxt(lines, delimiter=",", ndmin=2).T))
+    columns.update({name: change(columns.get(name, columns["time_s"])) for name, change in changes.items()})
+    (path.parent / path.name).write_text(
+        "\n".join([",".join(columns), *(",".join(f"{v:.9g}" for v in row) for row in zip(*columns.values()))]) + "\n"
+    )
+    test = pickup()["tests"][0]
+    merged = {**test["data"]["channels"], **(channels or {})}
+    kept = {name: channel for name, channel in merged.items() if channel is not None}
+    return pickup({"tests": [{**test, "data": {**test["data"], "file": str(path), "channels": kept}}]})
+
+
+def checked(tmp_path: Path, capsys, raw: dict) -> tuple[int, str]:
+    """`identify --check` of a problem: its exit status and what it wrote to stderr."""
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+    code = main(["identify", str(tmp_path / "p.yaml"), "--check"])
+    return code, capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("column", "change", "channel"),
+    [
+        ("vel_x_mps", lambda v: 0 * v + 56 / 3.6, "velocity"),  # stuck at the speed: fitted, said ok
+        ("disp_x_m", lambda x: 0 * x, "displacement"),  # named as the channel's unit
+        ("disp_x_m", lambda x: 0 * x + 0.25, "displacement"),
+        ("pitch_deg", lambda p: 0 * p, "pitch"),  # fitted, said ok
+        ("accel_x_g", lambda a: 0 * a, "accel"),  # named as the accel channel's sign
+        ("wall_N", lambda t: 0 * t, "barrier_force"),
+    ],
+    ids=["velocity-at-speed", "displacement-zero", "displacement-constant", "pitch-zero", "accel-zero", "wall-zero"],
+)
+def test_a_flat_channel_is_refused_as_a_dead_sensor(tmp_path, capsys, column, change, channel):
+    """A channel that does not change after impact (a dead sensor, a column of zeros or of one value)
+    is refused before the fit, naming its key, the file and column it was read from, and that it is
+    flat: the fit would take it for the crash (the velocity at the speed and the zero pitch fitted
+    and said ok), and the checks after this one would blame another key."""
+    extra = {"barrier_force": {"column": "wall_N", "unit": "N"}} if channel == "barrier_force" else None
+    code, err = checked(tmp_path, capsys, pickup_record(tmp_path / "dead.csv", {column: change}, extra))
+    assert code == 2 and err.count("\n") == 1, err
+    assert f"tests.0.data.channels.{channel}: the {channel} of test 56kph (dead.csv:{column}) stays at " in err
+    assert "the channel is flat (a dead sensor" in err
+
+
+@pytest.mark.parametrize("kind", ["noise", "offset"])
+def test_an_acceleration_of_noise_or_an_offset_alone_is_refused(tmp_path, capsys, kind):
+    """An accelerometer that reads only noise (0.5 g) or a constant offset (0.27 g), with no
+    velocity channel, changes the velocity by almost nothing: it had fitted and said ok (its
+    drift check stands down on a record whose end is as loud as its peak). It is refused naming
+    the accel channel; the pickup's acceleration alone is taken."""
+    only = {"velocity": None, "displacement": None, "pitch": None}
+    noise = np.random.default_rng(5).normal(0.0, 0.5, 2501)
+    dead = (lambda a: noise[: a.size]) if kind == "noise" else (lambda a: 0 * a + 0.27)
+    code, err = checked(tmp_path, capsys, pickup_record(tmp_path / "a.csv", {"accel_x_g": dead}, only))
+    assert code == 2 and err.count("\n") == 1, err
+    said = "reads noise or an offset only" if kind == "noise" else "the channel is flat (a dead sensor"
+    assert "tests.0.data.channels.accel: the acc" in err and "(a.csv:accel_x_g)" in err and said in err
+    assert checked(tmp_path, capsys, pickup_record(tmp_path / "a.csv", {}, only))[0] == 0
+
+
+def test_a_barrier_force_read_with_the_wrong_sign_or_unit_is_refused(tmp_path, capsys):
+    """The Camry's wall force without the `sign: -1` its load cells need pushes the vehicle into the
+    barrier: the fit ran to IPOPT's iteration limit (1596 iterations, 323 s). Its curves in N read
+    as kN give 1000 times the impulse its accelerometers take (a wall force in kN read as N had
+    fitted and said ok at a ratio of 0.001). Each is refused before the fit, naming the channel's
+    sign or unit; the shipped problem is taken, its ratio the one its fit reports."""
+    raw = yaml.safe_load((ROOT / "problems/nhtsa-10146-barrier.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    wall = raw["tests"][0]["data"]["channels"]["barrier_force"]
+    problem, tests = load_tests(problem_from_dict(raw, ROOT / "problems"))
+    wall_impulse, taken = impulses(tests[0].data, problem.vehicle.known_mass)
+    assert wall_impulse / taken == pytest.approx(1.056, abs=0.005)
+    assert checked(tmp_path, capsys, raw)[0] == 0
+    for changed, key, said in [
+        ({k: v for k, v in wall.items() if k != "sign"}, "sign", "-1.06 times the one its accelerometers take"),
+        ({**wall, "unit": "kN"}, "unit", "1.06e+03 times the one its accelerometers take"),
+    ]:
+        raw["tests"][0]["data"]["channels"]["barrier_force"] = changed
+        code, err = checked(tmp_path, capsys, raw)
+        assert code == 2 and err.count("\n") == 1, err
+        assert f"tests.0.data.channels.barrier_force.{key}: the barrier force of test 10146 (v10146.EV5)" in err and said in err
 
 
 @pytest.mark.parametrize(

@@ -179,7 +179,29 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     write_csv(path, {"time_s": raw[:, 0], "Speed_ft/s": raw[:, 1], "Accel_ft/s2": g, "Travel_mm": raw[:, 2]})
     assert main(["init", str(path), "--mass", "2550 kg", "--out", str(tmp_path / "p.yaml")]) == 2
     err = capsys.readouterr().err
-    assert err.startswith(f"crashnlp: error: {path}: as read for the problem file, tests.0.data.channels.accel.unit: ")
+    assert err.startswith(f"crashnlp: error: {path}: as read for the problem file: tests.0.data.channels.accel.unit: ")
+    assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
+@pytest.mark.parametrize(
+    ("column", "value", "said"),
+    [("Travel_mm", 250.0, "stays at 0.25 m"), ("Speed_ft/s", 0.0, "stays at 0 m/s")],
+    ids=["displacement-constant", "velocity-zero"],
+)
+def test_init_refuses_a_flat_column_naming_the_file_and_column(tmp_path, capsys, column, value, said):
+    """A displacement column of one value had init fail on the crush breakpoints of the problem file
+    it had not written yet; a velocity column of zeros was set against --speed. Each is refused in
+    one line naming the data file, the channel's key and the column, as flat; nothing is written."""
+    path = tmp_path / "flat.csv"
+    _pickup_columns(path, ["time_s", "Speed_ft/s", "Decel_G", "Travel_mm"])
+    raw = np.loadtxt(path, delimiter=",", skiprows=1)
+    names = ["time_s", "Speed_ft/s", "Decel_G", "Travel_mm"]
+    write_csv(path, {name: 0 * raw[:, k] + value if name == column else raw[:, k] for k, name in enumerate(names)})
+    args = ["init", str(path), "--mass", "2550 kg", "--speed", "56 km/h", "--out", str(tmp_path / "p.yaml")]
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {path}: as read for the problem file: tests.0.data.channels.")
+    assert f"(flat.csv:{column}) {said}" in err and "the channel is flat (a dead sensor" in err
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 

@@ -10,7 +10,7 @@ import numpy as np
 from crashnlp.analysis.metrics import crash_metrics, let_go_end
 from crashnlp.base.outputs import METRIC, METRICS, UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
-from crashnlp.case.testcase import TestCase
+from crashnlp.case.testcase import TestCase, impulses
 from crashnlp.data.instrument import recorded
 from crashnlp.data.signal import CFC_CLASSES, integrate, resample
 from crashnlp.problem.schema import ChannelSpec
@@ -229,25 +229,26 @@ def channel_consistency(test: TestCase, mass: float) -> dict | None:
     """What the wall force and the accelerometers each say of the crash, when a test has both.
 
     Each is integrated as one mass from the impact speed (the wall force as -F / m): its impulse
-    m (v0 - v_end) over the data [N s], time of zero velocity [s], largest travel [m] and rebound
-    [m/s]. A one-mass model meets both only as far as these agree (docs/barrier.md)."""
-    ch = test.data.channels if test.data is not None else {}
-    if not {"accel", "barrier_force"} <= set(ch):
+    m (v0 - v_end) over the data [N s] (crashnlp.case.testcase.impulses, whose ratio check_barrier
+    holds within a factor of 2 before the fit), time of zero velocity [s], largest travel [m] and
+    rebound [m/s]. A one-mass model meets both only as far as these agree (docs/barrier.md)."""
+    data = test.data
+    both = impulses(data, mass) if data is not None else None
+    if data is None or both is None:
         return None
-    wall = ch["barrier_force"]
+    wall, accel = data.channels["barrier_force"], data.channels["accel"]
     sets = {
-        "wall": _one_mass(wall.time, -wall.values / mass, test.speed, mass),
-        "accelerometers": _one_mass(ch["accel"].time, ch["accel"].values, test.speed, mass),
+        "wall": {"impulse_Ns": both[0], **_one_mass(wall.time, -wall.values / mass, test.speed)},
+        "accelerometers": {"impulse_Ns": both[1], **_one_mass(accel.time, accel.values, test.speed)},
     }
-    return {**sets, "impulse_ratio": sets["wall"]["impulse_Ns"] / sets["accelerometers"]["impulse_Ns"]}
+    return {**sets, "impulse_ratio": both[0] / both[1]}
 
 
-def _one_mass(t: np.ndarray, accel: np.ndarray, v0: float, mass: float) -> dict[str, float]:
-    """Impulse, stop time, travel and rebound of one mass decelerated by `accel` from v0."""
+def _one_mass(t: np.ndarray, accel: np.ndarray, v0: float) -> dict[str, float]:
+    """Stop time, travel and rebound of one mass decelerated by `accel` from v0."""
     velocity, displacement = integrate(t, accel, v0, max(0.0, float(t[0])))
     m = crash_metrics(t, accel, velocity, displacement)
     return {
-        "impulse_Ns": mass * (m.v0 - m.end_velocity),
         "time_zero_velocity_s": m.t_zero_velocity,
         "max_displacement_m": m.max_displacement,
         "rebound_velocity_mps": m.rebound_velocity,

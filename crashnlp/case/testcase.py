@@ -14,9 +14,10 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.base.units import to_si
 from crashnlp.data import TestData, load_test_data
-from crashnlp.data.channels import END_TOLERANCE, DataError, median_interval
+from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, median_interval
 from crashnlp.data.signal import cumtrapz, integrate
 from crashnlp.problem import Problem, Test
+from crashnlp.problem.schema import ChannelSpec
 
 SPEED_TOLERANCE = 0.05  # relative: data that start further from the test's speed contradict it
 # relative: a test mass further from its data header's contradicts it. Headers give the test weight
@@ -61,6 +62,19 @@ PITCH_SWING = np.radians(1.0)
 # A frontal barrier crash pitches a vehicle by tens of degrees at most; a pitch past PITCH_MOST was
 # read in another unit (degrees read as radians swing 57 times as far).
 PITCH_MOST = np.radians(45.0)
+# A channel read from the file that changes after impact by no more than FLAT of the most it reads
+# there is flat: a dead sensor, or a column of one value (all zeros, a constant offset). Fitted, it
+# pins the model to a constant and the fit says ok. A crash moves every channel it measures by about
+# as much as that channel reads at its largest (docs/design-notes.md, "The data's units and pitch
+# sign"); a velocity record cut 10 ms into the crash still changes by a few percent of the speed.
+FLAT = 0.01
+# A crash's pulse changes the velocity by far more than SLOWED of the speed within PULSE_SPAN, its
+# first tens of ms (the design notes give the least the generator's records do). An acceleration
+# that changes it by less in every PULSE_SPAN of its record reads noise or an offset only. SLOWED
+# lies below a tenth of that least, so that g read as m/s^2 (9.81 times too little) is left to the
+# unit checks, which name the unit.
+PULSE_SPAN = 0.02  # s
+SLOWED = 0.01
 
 
 @dataclass(frozen=True)
@@ -182,20 +196,25 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 
 def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
-    """Refuse test data that contradict the problem's speed (check_speed), a measured velocity and
+    """Refuse test data with a dead channel (check_dead), data that contradict the problem's speed
+    (check_speed), a measured velocity and
     acceleration that disagree (check_units), a displacement that disagrees with them (check_travel), a
     pitch that reads nose-up where the problem puts
     the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
-    (`mass`, the vehicle's, where a test gives none: check_mass), or data that end before a fit's
+    (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose impulse
+    disagrees with the accelerometers' at that mass (check_barrier), or data that end before a fit's
     duration (check_end; a window is checked as the data load). For fits: a simulation may well
     ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
+            check_dead(i, test.speed, test.spec, test.data)
             check_speed(i, test.speed, test.spec, test.data)
             check_units(i, test.speed, test.spec, test.data)
             check_travel(i, test.speed, test.spec, test.data)
             check_pitch(i, test.spec, test.data, impact_above_cg)
-            check_mass(i, test.overrides.get("vehicle.mass", mass), test.spec, test.data)
+            tested = test.overrides.get("vehicle.mass", mass)
+            check_mass(i, tested, test.spec, test.data)
+            check_barrier(i, tested, test.spec, test.data)
             if test.spec.duration is not None and test.spec.data is not None and test.spec.data.window is None:
                 check_end(f"tests.{i}.duration", test.duration, test.spec, test.data)
 
@@ -211,6 +230,52 @@ def check_end(key: str, end: float, test: Test, data: TestData) -> None:
             f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "
             f"({file}, channel {name}); shorten it to the data, or give the whole record"
         )
+
+
+def check_dead(i: int, speed: float, test: Test, data: TestData) -> None:
+    """Refuse a channel read from the file that does not change after impact (`flat`), and an
+    acceleration that changes the velocity by less than SLOWED of the `speed` in every PULSE_SPAN
+    (`steepest_change`): dead sensors, or the wrong column, which a fit would take for the crash.
+    Each names the channel's key and where it was read from (file and column)."""
+    for name, channel in data.channels.items():
+        spec = test.data.channels.get(name) if test.data is not None else None
+        if spec is not None and spec.derive is None and flat(channel):
+            after = channel.values[channel.time >= 0.0]
+            raise InputError(
+                f"tests.{i}.data.channels.{name}: the {name} of test {test.name} ({channel.source}) stays at "
+                f"{after[0]:.4g} {channel.unit} after impact, changing by {np.ptp(after):.3g} {channel.unit}: the "
+                "channel is flat (a dead sensor, or a column of one value), and a fit would take it for the crash; "
+                "name the column that holds it, or leave the channel out"
+            )
+    accel = data.channels.get("accel")  # never derived
+    change = steepest_change(accel) if accel is not None else None
+    if accel is not None and change is not None and change < SLOWED * abs(speed):
+        raise InputError(
+            f"tests.{i}.data.channels.accel: the acceleration of test {test.name} ({accel.source}) changes the velocity "
+            f"by at most {change:.3g} m/s in any {PULSE_SPAN * 1e3:g} ms after impact, less than {SLOWED * 100:g} % of the "
+            f"speed ({_speed(speed)}): a crash's pulse changes it by far more, so the channel reads noise or an offset "
+            "only (a dead sensor, or the wrong column)"
+        )
+
+
+def flat(channel: Channel) -> bool:
+    """Whether a channel changes after impact by no more than FLAT of the most it reads there (an
+    all-zero one too); False where fewer than two samples lie after impact."""
+    after = channel.values[channel.time >= 0.0]
+    return after.size > 1 and bool(np.ptp(after) <= FLAT * np.max(np.abs(after)))
+
+
+def steepest_change(accel: Channel) -> float | None:
+    """The most an acceleration changes the velocity by over any PULSE_SPAN of its record from impact
+    on, either way (m/s); None where that record is shorter than PULSE_SPAN."""
+    after = accel.time >= 0.0
+    time, values = accel.time[after], accel.values[after]
+    if time.size < 2 or time[-1] - time[0] < PULSE_SPAN:
+        return None
+    velocity = cumtrapz(time, values)
+    starts = time <= time[-1] - PULSE_SPAN
+    later = np.interp(time[starts] + PULSE_SPAN, time, velocity)
+    return float(np.max(np.abs(later - velocity[starts])))
 
 
 def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
@@ -317,14 +382,64 @@ def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> No
         )
     if after is None or impact_above_cg or not nose_up(after):
         return
-    spec = test.data.channels.get("pitch") if test.data is not None else None
-    turn = "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
+    turn = _turn(test.data.channels.get("pitch") if test.data is not None else None)
     raise InputError(
         f"tests.{i}.data.channels.pitch.sign: the pitch of test {test.name} ({file}) swings to {np.degrees(after.min()):.3g} "
         f"deg and no further than {np.degrees(max(after.max(), 0.0)):.3g} deg the other way: a frontal crash pitches a "
         f"vehicle whose impact point lies below its CG nose-down, positive in the model's frame, so the channel reads "
         f"nose-up positive ({turn})"
     )
+
+
+def _turn(spec: ChannelSpec | None) -> str:
+    """How to turn a channel that reads with the wrong sign: drop the `sign: -1` it has, or give it one."""
+    return "drop its sign: -1" if spec is not None and spec.sign == -1 else "sign: -1 turns it"
+
+
+def check_barrier(i: int, mass: float, test: Test, data: TestData) -> None:
+    """Refuse a barrier force whose impulse (`impulses`) pushes the vehicle toward the barrier,
+    naming its sign and which way to turn it, or lies more than UNIT_FACTOR from the impulse the
+    accelerometers take at `mass`, naming its unit: the wall and the vehicle take one impulse, and
+    kN read as N part them 1000 times. Where the accelerometers take none, their own checks speak."""
+    both = impulses(data, mass)
+    if both is None or both[1] <= 0.0:
+        return
+    wall, taken = both
+    ratio = wall / taken
+    if 1 / UNIT_FACTOR <= ratio <= UNIT_FACTOR:
+        return
+    file = test.data.file.name if test.data is not None else "the data"
+    said = (
+        f"the barrier force of test {test.name} ({file}) gives the vehicle an impulse of {wall / 1e3:.3g} kN s, "
+        f"{ratio:.3g} times the one its accelerometers take at {mass:.0f} kg ({taken / 1e3:.3g} kN s)"
+    )
+    if ratio < 0:
+        turn = _turn(test.data.channels.get("barrier_force") if test.data is not None else None)
+        raise InputError(
+            f"tests.{i}.data.channels.barrier_force.sign: {said}: it pushes the vehicle into the barrier, so the "
+            f"channel reads compression negative, as NHTSA load cells store it ({turn})"
+        )
+    raise InputError(
+        f"tests.{i}.data.channels.barrier_force.unit: {said}: the wall and the vehicle take one impulse, so the "
+        "channel is read in another unit than it was written in (kN read as N part them 1000 times), or the mass is off"
+    )
+
+
+def impulses(data: TestData, mass: float) -> tuple[float, float] | None:
+    """Where a test measures the barrier force and the acceleration: the impulse the wall gives the
+    vehicle and the one its accelerometers say it takes (`mass` times the velocity they take off),
+    each over its record from impact on (N s); None otherwise. Read right, the two agree
+    (check_barrier refuses them apart; crashnlp.analysis.summary.channel_consistency reports them)."""
+    wall, accel = data.channels.get("barrier_force"), data.channels.get("accel")
+    if wall is None or accel is None:
+        return None
+    return _from_impact(wall.time, wall.values), -mass * _from_impact(accel.time, accel.values)
+
+
+def _from_impact(time: np.ndarray, values: np.ndarray) -> float:
+    """The integral of `values` over `time` from impact (the record's start, if later) to its end."""
+    integral = cumtrapz(time, values)
+    return float(integral[-1] - np.interp(max(0.0, float(time[0])), time, integral))
 
 
 def nose_up(pitch: np.ndarray) -> bool:
