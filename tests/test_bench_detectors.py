@@ -94,6 +94,9 @@ def test_a_hidden_vehicle_meets_every_target_or_none():
     neither = {**never, "stop_true_s": math.nan, "lift_off_s": 0.0717, "truth_prediction_lift_off_s": 0.0721}
     assert forms.within_hidden(hidden_row(**neither))  # it lets go and drifts on as the generator does
     assert not forms.within_hidden(hidden_row(stop_true_s=math.nan, stop_err_s=math.nan))  # it stops, the generator not
+    ended = {**neither, "stop_s": 0.0717}  # its loading ends as it lets go (let_go_end), as the generator's does
+    assert forms.within_hidden(hidden_row(**ended))
+    assert not forms.within_hidden(hidden_row(**{**ended, "stop_s": 0.0760}))  # 3.9 ms after the generator lets go
     assert not forms.within_hidden(hidden_row(status="solver failed", pitch_rmse_deg=None))
 
 

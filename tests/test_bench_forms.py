@@ -4,6 +4,8 @@ when a front end lets go (release)."""
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from bench import report
@@ -45,6 +47,14 @@ def test_the_report_says_how_fast_a_prediction_and_its_generator_let_go():
     assert report._lift_off_cell(f) == "98.4 at +0.086 m/s (generator lets go at 97.8 at -0.074 m/s)"
     assert report._lift_off_cell({**f, "truth_prediction_lift_off_s": 0.0721}) == "98.4 at +0.086 m/s (generator 72.1)"
     assert report._lift_off_cell({**f, "lift_off_s": None}) == ""
+
+
+def test_the_report_gives_a_stop_where_only_the_prediction_has_one():
+    """A prediction whose loading ends as it lets go has a stop where its drifting generator has
+    none: the cell gives the prediction's, not "no stop"."""
+    assert report._stop_cell({"stop_err_s": 0.00425, "stop_s": 0.0984}) == "+4.25"
+    assert report._stop_cell({"stop_err_s": math.nan, "stop_s": 0.0715}) == "at 71.5, the generator none"
+    assert report._stop_cell({"stop_err_s": math.nan, "stop_s": math.nan}) == "no stop"
 
 
 def test_the_report_tables_each_engine_vans_pitch_fits():

@@ -197,14 +197,13 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
     """Refuse test data with a dead channel (check_dead), data that contradict the problem's speed
-    (check_speed), a measured velocity and
-    acceleration that disagree (check_units), a displacement that disagrees with them (check_travel), a
-    pitch that reads nose-up where the problem puts
-    the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in their header
-    (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose impulse
-    disagrees with the accelerometers' at that mass (check_barrier), or data that end before a fit's
-    duration (check_end; a window is checked as the data load). For fits: a simulation may well
-    ask what a test would do at another speed or mass, or for longer."""
+    (check_speed), a measured velocity and acceleration that disagree (check_units), a displacement
+    that disagrees with them (check_travel), a pitch past any crash's or that reads nose-up where the
+    problem puts the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in
+    their header (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose
+    impulse disagrees with the accelerometers' at that mass (check_barrier), or data that end before
+    a fit's duration (check_end; a window is checked as the data load). For fits: a simulation may
+    well ask what a test would do at another speed or mass, or for longer."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_dead(i, test.speed, test.spec, test.data)
@@ -225,7 +224,7 @@ def check_end(key: str, end: float, test: Test, data: TestData) -> None:
     name, channel = min(data.channels.items(), key=lambda item: float(item[1].time[-1]))
     last = float(channel.time[-1])
     if end - last > END_TOLERANCE * median_interval(channel.time):
-        file = test.data.file.name if test.data is not None else "the data"
+        file = _file(test)
         raise InputError(
             f"{key}: runs to {end * 1e3:g} ms, but the data of test {test.name} end at {last * 1e3:g} ms "
             f"({file}, channel {name}); shorten it to the data, or give the whole record"
@@ -300,9 +299,9 @@ def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
         return
     accel_change, velocity_change = changes
     factor = velocity_change / accel_change if accel_change > 0 else None
-    if factor is not None and 1 / UNIT_FACTOR <= factor <= UNIT_FACTOR:
+    if factor is not None and _agree(factor):
         return
-    file = test.data.file.name if test.data is not None else "the data"
+    file = _file(test)
     said = (
         f"the acceleration of test {test.name} ({file}) changes the velocity by {accel_change:.3g} m/s over the "
         f"record, its velocity channel by {velocity_change:.3g} m/s"
@@ -317,6 +316,16 @@ def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
     )
 
 
+def _file(test: Test) -> str:
+    """The name of a test's data file, as a refusal names it."""
+    return test.data.file.name if test.data is not None else "the data"
+
+
+def _agree(ratio: float) -> bool:
+    """Whether two channels' measures of one quantity (their ratio) agree within UNIT_FACTOR."""
+    return 1 / UNIT_FACTOR <= ratio <= UNIT_FACTOR
+
+
 def check_travel(i: int, speed: float, test: Test, data: TestData) -> None:
     """Refuse a measured displacement whose travel parts from the velocity's integral over the same
     time (`travels`) by more than UNIT_FACTOR, naming the displacement channel's unit, or that
@@ -326,9 +335,9 @@ def check_travel(i: int, speed: float, test: Test, data: TestData) -> None:
         return
     travel, integrated = both
     factor = travel / integrated
-    if 1 / UNIT_FACTOR <= factor <= UNIT_FACTOR:
+    if _agree(factor):
         return
-    file = test.data.file.name if test.data is not None else "the data"
+    file = _file(test)
     said = (
         f"the displacement of test {test.name} ({file}) reads {travel:.3g} m where the velocity, integrated, "
         f"travels furthest: {integrated:.3g} m"
@@ -373,7 +382,7 @@ def check_pitch(i: int, test: Test, data: TestData, impact_above_cg: bool) -> No
     cg_above_impact is not negative), naming the channel's sign and which way to turn it."""
     pitch = data.channels.get("pitch")
     after = pitch.values[pitch.time >= 0.0] if pitch is not None else None
-    file = test.data.file.name if test.data is not None else "the data"
+    file = _file(test)
     if after is not None and after.size and np.max(np.abs(after)) > PITCH_MOST:
         raise InputError(
             f"tests.{i}.data.channels.pitch.unit: the pitch of test {test.name} ({file}) reaches "
@@ -406,9 +415,9 @@ def check_barrier(i: int, mass: float, test: Test, data: TestData) -> None:
         return
     wall, taken = both
     ratio = wall / taken
-    if 1 / UNIT_FACTOR <= ratio <= UNIT_FACTOR:
+    if _agree(ratio):
         return
-    file = test.data.file.name if test.data is not None else "the data"
+    file = _file(test)
     said = (
         f"the barrier force of test {test.name} ({file}) gives the vehicle an impulse of {wall / 1e3:.3g} kN s, "
         f"{ratio:.3g} times the one its accelerometers take at {mass:.0f} kg ({taken / 1e3:.3g} kN s)"
@@ -519,7 +528,7 @@ def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
         )
     else:
         return None
-    file = test.data.file.name if test.data is not None else "the data"
+    file = _file(test)
     return (
         f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, {went} once its "
         f"pulse is over, more than {limit * 100:g} % of the speed: {why}"
