@@ -221,8 +221,9 @@ def within_hidden(r: dict) -> bool:
 
 def _stop_met(r: dict, limit: float) -> bool:
     """The predicted stop within `limit` of the generator's; where the generator never comes to
-    rest (its front end let go while it moved on), the prediction must not either, or its loading
-    must end as it lets go (crashnlp.analysis.metrics.let_go_end) within `limit` of the generator's."""
+    rest (its front end let go while it moved on), the prediction must not either, or its stop (a
+    loading that ends as it lets go: crashnlp.analysis.metrics.let_go_end) must lie within `limit`
+    of where the generator lets go."""
     if np.isnan(r["stop_true_s"]):
         released = r["truth_prediction_lift_off_s"]
         return bool(np.isnan(r["stop_s"])) or (released is not None and abs(r["stop_s"] - released) <= limit)

@@ -253,7 +253,7 @@ def _metric_text(metrics: Mapping[str, float], key: str, digits: int) -> str:
 def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
-    from crashnlp.analysis.summary import goes_on, pitch_still_rising
+    from crashnlp.analysis.summary import goes_on, let_go_words, pitch_still_rising
     from crashnlp.results.result import pull_texts
 
     s = result.solver
@@ -289,6 +289,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := goes_on(m)):
                 print(f"    {who} {words}")
+        if words := let_go_words(t.response):
+            print(f"    the model {words}")
         for words in pitch_still_rising(t):
             print(f"    {words}")
         if t.fit:

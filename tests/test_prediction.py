@@ -668,14 +668,15 @@ def test_a_prediction_that_ends_drifting_says_which_metrics_it_does_not_give():
     intervals are skipped on that note: crashnlp.analysis.prediction._uncertainty). Drifting at
     0.5 m/s (3 %), its loading ends as it lets go: one note says so, with its stop there."""
     t, a, v, x, force = _drifting(1.0)
-    response = Response(t, {"velocity": v, "contact_force": force, "barrier_force": force}, np.zeros((0, t.size)))
+    curves = {"accel": a, "velocity": v, "contact_force": force, "barrier_force": force}
+    response = Response(t, curves, np.zeros((0, t.size)))
     given = metrics(t, a, v, x, np.radians(4.0) * np.sin(np.pi * t / 0.3))
     drift, moving = ending_notes("t1", response, given)
     assert "without contact" in drift and "its max displacement is its travel" in drift and "1 m/s" in moving
     assert all(METRIC[k].label in moving for k in UNSETTLED) and all(given[k] is None for k in UNSETTLED)
     assert "max displacement" not in moving and given["max_displacement_m"] is not None  # the two notes agree
     rebound = np.where(t < 0.08, v, -0.2)  # the same pulse, then moving away: a stop, nothing to say
-    away = Response(t, {"velocity": rebound, "contact_force": force, "barrier_force": force}, np.zeros((0, t.size)))
+    away = Response(t, {**curves, "velocity": rebound}, np.zeros((0, t.size)))
     assert ending_notes("t1", away, metrics(t, a, rebound, x, None)) == ()
     t, a, v, x, force = _drifting(0.5)
     outputs = {"accel": a, "velocity": v, "displacement": x, "pitch": np.zeros(t.size), "barrier_force": force}
@@ -697,7 +698,7 @@ def test_a_prediction_whose_pitch_still_rises_at_its_end_says_its_max_pitch_is_t
     for end, said in ((0.3, False), (0.12, True)):
         k = t <= end + 1e-9
         force = -1500.0 * a[k]
-        outputs = {"velocity": v[k], "contact_force": force, "barrier_force": force, "pitch": pitch[k]}
+        outputs = {"accel": a[k], "velocity": v[k], "contact_force": force, "barrier_force": force, "pitch": pitch[k]}
         response = Response(t[k], outputs, np.zeros((0, k.sum())))
         given = metrics(t[k], a[k], v[k], x[k], pitch[k])
         notes = ending_notes("t1", response, given)

@@ -68,9 +68,10 @@ def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray, faster_th
 
 def let_go_end(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
     """The instant a model's crash ends without a stop in its record: where the force on the
-    barrier (`contact`: every contact's, an engine's too) falls to zero (`lift_off`) while the CG
-    moves on toward it slower than LET_GO of the impact speed, and never rises again; None where
-    the velocity reaches zero in the record, or the vehicle never lets go so, or touches again."""
+    barrier (`contact`: every contact's, an engine's too) first falls to zero (`lift_off`), the CG
+    moving on toward it slower than LET_GO of the impact speed, and never rises again within the
+    record; None where the velocity reaches zero in the record, or the vehicle first lets go
+    faster, or touches again (a longer record that reaches a second contact gives no let-go stop)."""
     if np.isfinite(zero_crossing(t, velocity, STOPPED * abs(float(velocity[0])))):
         return None
     off = lift_off(t, velocity, contact, faster_than=0.0)

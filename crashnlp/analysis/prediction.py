@@ -59,13 +59,14 @@ import numpy as np
 
 from crashnlp.analysis.calibration import SAME_ENERGY, Calibration, reach, shipped
 from crashnlp.analysis.limits import limited_band, limited_interval
-from crashnlp.analysis.metrics import DRIFT, LET_GO, let_go_end, lift_off, zero_crossing
+from crashnlp.analysis.metrics import DRIFT, lift_off, zero_crossing
 from crashnlp.analysis.summary import (
     accel_filter,
     accel_spec,
     as_recorded,
     data_curves,
     goes_on,
+    let_go_words,
     pitch_rises_at_end,
     response_metrics,
 )
@@ -214,30 +215,18 @@ def uncalibrated(name: str, form: str) -> str:
 
 
 def ending_notes(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
-    """The notes on how a simulated test ends: a crash that ends as the vehicle lets go of the
-    barrier while it moves on slowly (`_ended`), else a drift without contact whose travel at the
+    """The notes on how a simulated test ends: a crash whose loading ends as the vehicle lets go of
+    the barrier while it moves on slowly (crashnlp.analysis.summary.let_go_words), else a drift
+    without contact whose travel at the
     end is its max displacement (`_drift`), or a front end that lets go while the CG moves on
     (`_let_go`); and where it ends still moving, what its record does not give (`_moving`); a
     pitch still rising at its end (`_pitch_rising`)."""
-    end = let_go_end(response.time, response["velocity"], response["barrier_force"])
-    if end is not None:
-        first = _ended(name, response, end)
+    words = let_go_words(response)
+    if words is not None:
+        first: tuple[str, ...] = (f"{name}: the vehicle {words}",)
     else:
         first = (_drift(name, response) if metrics.get("max_displacement_m") is not None else ()) or _let_go(name, response)
     return first + _moving(name, metrics) + _pitch_rising(name, response, metrics)
-
-
-def _ended(name: str, response: Response, end: float) -> tuple[str, ...]:
-    """The note of a crash whose loading ends as the vehicle lets go of the barrier while it still
-    moves on slowly (crashnlp.analysis.metrics.let_go_end): its stop is that instant."""
-    v = float(np.interp(end, response.time, response["velocity"]))
-    return (
-        f"{name}: the vehicle lets go of the barrier at {end * 1e3:.1f} ms while its CG still moves toward it at "
-        f"{v:.3f} m/s, under {LET_GO * 100:g} % of the impact speed, and does not touch it again (its pitch lifted the "
-        "front end off): its loading ends there, and its stop is that instant; its max displacement is its travel at "
-        "the record's end, and as it drifts on and meets the barrier again after the record, it gives no velocity "
-        "change, rebound or max pitch",
-    )
 
 
 def _pitch_rising(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:

@@ -7,7 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 
-from crashnlp.analysis.metrics import crash_metrics, let_go_end
+from crashnlp.analysis.metrics import LET_GO, crash_metrics, let_go_end
 from crashnlp.base.outputs import METRIC, METRICS, UNFINISHED, UNSETTLED
 from crashnlp.base.units import G0
 from crashnlp.case.testcase import TestCase, impulses
@@ -44,7 +44,7 @@ def metrics(
     that ends still moving toward the barrier after the pulse (`still_moving` says where either
     ends). The one rule for test data, fitted models and predictions alike. With the force on the
     barrier (`barrier`: a model's), a record whose loading ends as the vehicle lets go of the barrier
-    moving on slowly (let_go_end) has its stop at that instant (`_ended_at`).
+    moving on slowly (`loading_end`) has its stop at that instant (`_ended_at`).
 
     Max displacement is the crash-test quantity (NHTSA's maximum dynamic crush), the CG's largest
     travel, for data and model alike, so the two compare. A model also reports its largest front-end crush
@@ -53,8 +53,32 @@ def metrics(
     `end_velocity_mps` say where the record ends and how fast the vehicle still moves there.
     """
     record = withheld(values(t, accel, velocity, displacement, pitch, crush), accel)
-    end = let_go_end(t, velocity, barrier) if barrier is not None else None
+    end = loading_end(t, accel, velocity, barrier)
     return record if end is None else record | _ended_at(end, float(velocity[0]))
+
+
+def loading_end(t: np.ndarray, accel: np.ndarray, velocity: np.ndarray, barrier: np.ndarray | None) -> float | None:
+    """Where a record's loading ends without a stop, as the vehicle lets go of the barrier moving on
+    slowly (crashnlp.analysis.metrics.let_go_end); None without the force on the barrier, or where
+    the record ends mid-crash (MID_CRASH: it decelerates still, and gives no stop)."""
+    return None if barrier is None or _mid_crash(accel) else let_go_end(t, velocity, barrier)
+
+
+def let_go_words(r: Response) -> str | None:
+    """The words for a model response whose loading ends as it lets go of the barrier moving on
+    slowly (`loading_end`), as the notes of fits and predictions say them; None for any other."""
+    y = r.outputs
+    end = loading_end(r.time, y["accel"], y["velocity"], y.get("barrier_force"))
+    if end is None:
+        return None
+    moving = float(np.interp(end, r.time, y["velocity"]))
+    return (
+        f"lets go of the barrier at {end * 1e3:.1f} ms while its CG still moves toward it at {moving:.3f} m/s, under "
+        f"{LET_GO * 100:g} % of the impact speed, and does not touch it again within the record (its pitch lifted the "
+        "front end off): its loading ends there, and its stop is that instant; its max displacement is its travel at "
+        "the record's end, and as it drifts on and meets the barrier again after the record, it gives no velocity "
+        "change, rebound or max pitch"
+    )
 
 
 def _ended_at(end: float, v0: float) -> dict:

@@ -17,6 +17,7 @@ from crashnlp.analysis.summary import (
     channel_consistency,
     data_metrics,
     goes_on,
+    let_go_words,
     pitch_still_rising,
     response_metrics,
 )
@@ -157,12 +158,15 @@ def _data_notes(case: Case) -> tuple[str, ...]:
 
 
 def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
-    """A test whose record (or whose model over it) ends before the vehicle stops, said so."""
+    """A test whose record (or whose model over it) ends before the vehicle stops, or whose model's
+    loading ends as it lets go of the barrier moving on (let_go_words), said so."""
     notes = []
     for name, t in tests.items():
         for who, metrics in (("record", t.data_metrics), ("model", t.metrics)):
             text = goes_on(metrics) if metrics is not None else None
             notes += [f"test {name}: the {who} {text}"] if text else []
+        words = let_go_words(t.response)
+        notes += [f"test {name}: the model {words}"] if words else []
     return tuple(notes)
 
 

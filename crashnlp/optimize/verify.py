@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.analysis.energy import energy_audit
-from crashnlp.analysis.metrics import let_go_end
+from crashnlp.analysis.summary import loading_end
 from crashnlp.case.case import Case
 from crashnlp.models.simulation import simulate
 from crashnlp.optimize.fit import DEFAULT_SIGMA
@@ -52,11 +52,12 @@ class Verification:
 
 def _stops(test, time: np.ndarray, outputs: dict[str, np.ndarray]) -> str | None:
     """Why the model misses the data's stop, if it does: its velocity never reaches zero, nor does
-    its crash end as it lets go of the barrier moving on slowly (let_go_end)."""
+    its loading end as it lets go of the barrier moving on slowly (loading_end)."""
     velocity = test.data.channels.get("velocity") if test.data is not None else None
     if velocity is None or not np.any(velocity.values <= 0):
         return None
-    if not np.any(outputs["velocity"] <= 0) and let_go_end(time, outputs["velocity"], outputs["barrier_force"]) is None:
+    ended = loading_end(time, outputs["accel"], outputs["velocity"], outputs.get("barrier_force"))
+    if not np.any(outputs["velocity"] <= 0) and ended is None:
         t = float(velocity.time[np.argmax(velocity.values <= 0)])
         return f"{test.name}: the model does not stop within the window (the data stop at {t * 1e3:.1f} ms)"
     return None
