@@ -217,10 +217,9 @@ def uncalibrated(name: str, form: str) -> str:
 def ending_notes(name: str, response: Response, metrics: dict[str, float | None]) -> tuple[str, ...]:
     """The notes on how a simulated test ends: a crash whose loading ends as the vehicle lets go of
     the barrier while it moves on slowly (crashnlp.analysis.summary.let_go_words), else a drift
-    without contact whose travel at the
-    end is its max displacement (`_drift`), or a front end that lets go while the CG moves on
-    (`_let_go`); and where it ends still moving, what its record does not give (`_moving`); a
-    pitch still rising at its end (`_pitch_rising`)."""
+    without contact whose travel at the end is its max displacement (`_drift`), or a front end
+    that lets go while the CG moves on (`_let_go`); and where it ends still moving, what its record
+    does not give (`_moving`); a pitch still rising at its end (`_pitch_rising`)."""
     words = let_go_words(response)
     if words is not None:
         first: tuple[str, ...] = (f"{name}: the vehicle {words}",)

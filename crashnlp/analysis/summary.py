@@ -150,7 +150,7 @@ def _ends_pushed(metrics: Mapping[str, float | None]) -> str | None:
     """The words for a record that stops but ends still decelerating by MID_CRASH of its peak or
     more, its rebound still gathering speed (`withheld`: a stop, and no rebound), naming what it
     does not give; None otherwise, and for a crash that ended as the vehicle let go of the barrier
-    moving on (it ends moving toward it: crashnlp.analysis.metrics.let_go_end, whose note says so)."""
+    moving on (it ends moving toward it: `loading_end`, whose words are `let_go_words`)."""
     stop, end, speed = (metrics.get(k) for k in ("time_zero_velocity_s", "record_end_s", "end_velocity_mps"))
     if stop is None or end is None or metrics.get("rebound_velocity_mps") is not None or (speed is not None and speed > 0):
         return None
