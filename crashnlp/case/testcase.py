@@ -326,6 +326,15 @@ def _agree(ratio: float) -> bool:
     return 1 / UNIT_FACTOR <= ratio <= UNIT_FACTOR
 
 
+def _refuse_apart(key: str, ratio: float, said: str, wrong_sign: str, other_unit: str) -> None:
+    """Refuse two channels' measures of one quantity that do not agree (`_agree`, their `ratio`),
+    `said` in words: of opposite signs naming the sign of channel `key` (`wrong_sign` says why), else
+    its unit (`other_unit` goes on from `said`)."""
+    if _agree(ratio):
+        return
+    raise InputError(f"{key}.sign: {said}: {wrong_sign}" if ratio < 0 else f"{key}.unit: {said}{other_unit}")
+
+
 def check_travel(i: int, speed: float, test: Test, data: TestData) -> None:
     """Refuse a measured displacement whose travel parts from the velocity's integral over the same
     time (`travels`) by more than UNIT_FACTOR, naming the displacement channel's unit, or that
@@ -335,18 +344,17 @@ def check_travel(i: int, speed: float, test: Test, data: TestData) -> None:
         return
     travel, integrated = both
     factor = travel / integrated
-    if _agree(factor):
-        return
-    file = _file(test)
     said = (
-        f"the displacement of test {test.name} ({file}) reads {travel:.3g} m where the velocity, integrated, "
+        f"the displacement of test {test.name} ({_file(test)}) reads {travel:.3g} m where the velocity, integrated, "
         f"travels furthest: {integrated:.3g} m"
     )
-    if factor < 0:
-        raise InputError(f"tests.{i}.data.channels.displacement.sign: {said}: the channel reads with the wrong sign")
-    raise InputError(
-        f"tests.{i}.data.channels.displacement.unit: {said}, {factor:.3g} times as much: the channel is read in "
-        "another unit than it was written in (mm read as m part them 1000 times, cm 100, inches 39.4)"
+    _refuse_apart(
+        f"tests.{i}.data.channels.displacement",
+        factor,
+        said,
+        "the channel reads with the wrong sign",
+        f", {factor:.3g} times as much: the channel is read in another unit than it was written in (mm read as m part "
+        "them 1000 times, cm 100, inches 39.4)",
     )
 
 
@@ -415,22 +423,19 @@ def check_barrier(i: int, mass: float, test: Test, data: TestData) -> None:
         return
     wall, taken = both
     ratio = wall / taken
-    if _agree(ratio):
-        return
-    file = _file(test)
     said = (
-        f"the barrier force of test {test.name} ({file}) gives the vehicle an impulse of {wall / 1e3:.3g} kN s, "
+        f"the barrier force of test {test.name} ({_file(test)}) gives the vehicle an impulse of {wall / 1e3:.3g} kN s, "
         f"{ratio:.3g} times the one its accelerometers take at {mass:.0f} kg ({taken / 1e3:.3g} kN s)"
     )
-    if ratio < 0:
-        turn = _turn(test.data.channels.get("barrier_force") if test.data is not None else None)
-        raise InputError(
-            f"tests.{i}.data.channels.barrier_force.sign: {said}: it pushes the vehicle into the barrier, so the "
-            f"channel reads compression negative, as NHTSA load cells store it ({turn})"
-        )
-    raise InputError(
-        f"tests.{i}.data.channels.barrier_force.unit: {said}: the wall and the vehicle take one impulse, so the "
-        "channel is read in another unit than it was written in (kN read as N part them 1000 times), or the mass is off"
+    turn = _turn(test.data.channels.get("barrier_force") if test.data is not None else None)
+    _refuse_apart(
+        f"tests.{i}.data.channels.barrier_force",
+        ratio,
+        said,
+        f"it pushes the vehicle into the barrier, so the channel reads compression negative, as NHTSA load cells store "
+        f"it ({turn})",
+        ": the wall and the vehicle take one impulse, so the channel is read in another unit than it was written in "
+        "(kN read as N part them 1000 times), or the mass is off",
     )
 
 
