@@ -437,12 +437,14 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
 
 
 REMOVED = object()  # an entry taken out of result.json
+UNFILLED = "is missing or null: a fit writes the value it used"
 EDITS = {  # an identified model edited by hand: (entry, value) -> what the export says after the file's name
-    ("spring", "values", REMOVED): "does not read as crashnlp writes it (KeyError: 'values'",
+    ("spring", "values", REMOVED): f"identified_model.model.spring.values {UNFILLED}",
     ("spring", "values", 3, "abc"): "model.spring: cannot read 'abc' as a quantity",
     ("unloading", "stiffness", 0.0): "model.unloading.stiffness: must be positive",
     ("unloading", "stiffness", -5e6): "model.unloading.stiffness: must be positive",
-    ("unloading", "stiffness", None): "does not read as crashnlp writes it (TypeError",
+    ("unloading", "stiffness", None): f"identified_model.model.unloading.stiffness {UNFILLED}",
+    ("spring", "values", None): f"identified_model.model.spring.values {UNFILLED}",
     ("spring", "crush_breakpoints", 3, 0.1): "model.spring.crush_breakpoints: crush_breakpoints must be strictly increasing",
     ("smoothing", "crush", -0.01): "model.smoothing.crush: must not be negative",
     ("spring", "tail", "slope", float("nan")): "model.spring.tail: trend, segment, or {start: a crush, slope: a stiffness}",
@@ -450,11 +452,13 @@ EDITS = {  # an identified model edited by hand: (entry, value) -> what the expo
 
 
 @pytest.mark.parametrize(("edit", "why"), EDITS.items())
-def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, capsys, edit, why):
+def test_an_identified_model_edited_is_one_line_to_the_exports_and_predictions(fit, tmp_path, capsys, edit, why):
     """A fit's result.json whose identified model was edited (an entry removed, made text, a
     stiffness zero, negative or none, breakpoints out of order, a negative smoothing, a tail's
-    slope not a number): the curves' export refuses it as `simulate` does, naming the file and the
-    entry or what failed on it, exit 2, and writes nothing (no ZeroDivisionError, no .k of nan)."""
+    slope not a number): the curves' export and a prediction from it refuse it alike, naming the
+    result.json (not the problem file the prediction reads) and the entry or what failed on it,
+    exit 2, and write nothing (no ZeroDivisionError, no .k of nan, no unloading stiffness read
+    from the predicted test's own data in place of a null)."""
     folder = tmp_path / "edited"
     shutil.copytree(fit, folder)
     raw = json.loads((folder / "result.json").read_text())
@@ -468,11 +472,16 @@ def test_an_identified_model_edited_is_one_line_to_the_exports(fit, tmp_path, ca
         entry[key] = value
     (folder / "result.json").write_text(json.dumps(raw))
     before = sorted(tmp_path.rglob("*"))
+    problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(folder / "result.json")
+    prediction = ["simulate", problem, "--params", params, "--out", str(tmp_path / "out-sim"), "--no-figures"]
     for fmt in ("ls-dyna", "csv"):
         assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
         err = capsys.readouterr().err
         assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), err
         assert err.count("\n") == 1
+    assert main(prediction) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why.split(' (')[0]}"), err
     assert sorted(tmp_path.rglob("*")) == before
 
 

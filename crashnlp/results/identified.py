@@ -37,6 +37,10 @@ STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rat
 SAME = 1e-9  # relative: values closer than this are the same
 SPRING_VALUES = "model.spring.values"
 UNLOADING_STIFFNESS = "model.unloading.stiffness"
+# what a Case fills in from its own data when a problem leaves it out (crashnlp.case.completion): a
+# fit writes the value it used, so a null here is an edited file, and a prediction would read it from
+# the predicted test's data
+FROM_DATA = ("vehicle.mass", SPRING_VALUES, UNLOADING_STIFFNESS)
 
 
 @dataclass(frozen=True)
@@ -166,8 +170,22 @@ class IdentifiedModel:
         ProblemError naming `source` (the file it came from; `name` without one) and the entry."""
         from crashnlp.problem.schema import problem_from_dict  # the schema: not for a result read back
 
+        self.refuse_unfilled(source or name)
         raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
         return problem_from_dict(raw, Path("."), source or name)
+
+    def refuse_unfilled(self, source: str) -> None:
+        """An InputError naming `source` and the entry where an entry of FROM_DATA is missing or null."""
+        for path in FROM_DATA:
+            section, *keys = path.split(".")
+            node: Any = {"vehicle": self.vehicle, "model": self.model}[section]
+            for key in keys:
+                node = node.get(key) if isinstance(node, dict) else None
+            if node is None:
+                raise InputError(
+                    f"{source}: identified_model.{path} is missing or null: a fit writes the value it used, and a prediction "
+                    "would take it from its own test's data instead (a result.json edited by hand?)"
+                )
 
     def std(self) -> np.ndarray:
         """Standard error of each labelled value; inf where the data do not determine it."""
@@ -223,10 +241,11 @@ def applied(raw: Any, base_dir: Path, identified: IdentifiedModel, source: str, 
     it gives is its own, whole), so that a prediction of only `name` and `tests` is a problem."""
     from crashnlp.problem.schema import problem_from_dict
 
+    identified.as_problem("identified", source)  # an entry it brings out of shape names `source`, not the file
     if isinstance(raw, dict):
         vehicle, model = ({} if raw.get(key) is None else raw[key] for key in ("vehicle", "model"))
         raw = {**raw, "vehicle": _filled(vehicle, identified.vehicle), "model": _filled(model, identified.model, deep=False)}
-    return apply(problem_from_dict(raw, base_dir, source=name), identified, source)
+    return _put_in(problem_from_dict(raw, base_dir, source=name), identified, source)
 
 
 def _filled(given: Any, theirs: dict[str, Any], deep: bool = True) -> Any:
@@ -243,8 +262,15 @@ def apply(problem: Problem, identified: IdentifiedModel, source: str) -> Problem
     """`problem` with the identified vehicle in it: the whole model section (but a tail the
     problem gives), the estimated vehicle entries, and every vehicle entry the problem leaves out.
     The problem's own speeds, masses, durations and tests stay; a problem whose geometry or model
-    structure differs from the identified vehicle's is refused (InputError naming `source` and
-    the entry)."""
+    structure differs from the identified vehicle's, or an identified model out of shape (a
+    result.json edited by hand: `IdentifiedModel.as_problem`), is refused (InputError naming
+    `source` and the entry)."""
+    identified.as_problem(problem.name, source)
+    return _put_in(problem, identified, source)
+
+
+def _put_in(problem: Problem, identified: IdentifiedModel, source: str) -> Problem:
+    """`apply` of an identified model already validated."""
     from crashnlp.problem.schema import problem_from_dict
 
     _refuse_another_vehicle(problem, identified, source)
