@@ -36,6 +36,9 @@ DRIFT = 0.05  # m/s toward the barrier without contact: still moving, not stoppe
 # share of the impact speed). Its stop is that instant (`let_go_end`); set and checked on the
 # corpus (docs/design-notes.md, "A crash that ends as the front end lets go").
 LET_GO = 0.05
+# a force on the barrier below this share of its largest is none: a model's smoothed switches leave
+# a residue where a contact has opened (an engine's contact, 1e-6 N after a 500 kN crash)
+NO_FORCE = 1e-9
 
 
 @dataclass(frozen=True)
@@ -57,13 +60,20 @@ class CrashMetrics:
 
 
 def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray, faster_than: float = DRIFT) -> float | None:
-    """The first time the front end lets go of the barrier (contact force back to zero after it
-    was positive) while the CG still moves toward it faster than `faster_than` (m/s); None when it
+    """The first time the front end lets go of the barrier (contact force back to zero, `touching`,
+    after it was positive) while the CG still moves toward it faster than `faster_than` (m/s); None when it
     never does. A model whose pitch lifts the front end off stops late or not at all: its crush and
     stop are then the pitch's, not the structure's."""
-    touched = np.cumsum(contact > 0) > 0
-    off = np.flatnonzero(touched & (contact <= 0) & (velocity > faster_than))
+    pushing = touching(contact)
+    touched = np.cumsum(pushing) > 0
+    off = np.flatnonzero(touched & ~pushing & (velocity > faster_than))
     return float(t[off[0]]) if off.size else None
+
+
+def touching(contact: np.ndarray) -> np.ndarray:
+    """Where a contact force pushes: above NO_FORCE of its largest."""
+    contact = np.asarray(contact, float)
+    return contact > NO_FORCE * max(float(np.max(contact, initial=0.0)), 0.0)
 
 
 def let_go_end(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
@@ -75,7 +85,7 @@ def let_go_end(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> floa
     if np.isfinite(zero_crossing(t, velocity, STOPPED * abs(float(velocity[0])))):
         return None
     off = lift_off(t, velocity, contact, faster_than=0.0)
-    if off is None or np.any(contact[t > off] > 0):
+    if off is None or np.any(touching(contact)[t > off]):
         return None
     return off if float(np.interp(off, t, velocity)) <= LET_GO * abs(float(velocity[0])) else None
 
