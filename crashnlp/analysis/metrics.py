@@ -29,8 +29,8 @@ OLC_FREE = 0.065  # m, free flight of the virtual occupant
 OLC_RESTRAINED = 0.235  # m, restrained travel until it moves with the vehicle
 STOPPED = 1e-6  # fraction of v0 below which the vehicle counts as stopped
 DRIFT = 0.05  # m/s toward the barrier without contact: still moving, not stopped
-# A model whose front end lets go of the barrier while its CG still moves toward it, slower than
-# LET_GO of the impact speed, and does not touch it again within its record, has ended its loading
+# A model whose front end lets go of the barrier for the last time within its record while its CG
+# still moves toward it, slower than LET_GO of the impact speed, has ended its loading
 # there: what follows is a drift on the suspension without contact (the pitch lifted the front end
 # off), at a speed within the rebound's own error (the calibration's rebound scale is at least this
 # share of the impact speed). Its stop is that instant (`let_go_end`); set and checked on the
@@ -73,21 +73,23 @@ def lift_off(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray, faster_th
 def touching(contact: np.ndarray) -> np.ndarray:
     """Where a contact force pushes: above NO_FORCE of its largest."""
     contact = np.asarray(contact, float)
-    return contact > NO_FORCE * max(float(np.max(contact, initial=0.0)), 0.0)
+    return contact > NO_FORCE * float(np.max(contact, initial=0.0))
 
 
 def let_go_end(t: np.ndarray, velocity: np.ndarray, contact: np.ndarray) -> float | None:
     """The instant a model's crash ends without a stop in its record: where the force on the
-    barrier (`contact`: every contact's, an engine's too) first falls to zero (`lift_off`), the CG
-    moving on toward it slower than LET_GO of the impact speed, and never rises again within the
-    record; None where the velocity reaches zero in the record, or the vehicle first lets go
-    faster, or touches again (a longer record that reaches a second contact gives no let-go stop)."""
+    barrier (`contact`: every contact's, an engine's too) falls to zero for the last time
+    (`touching`), the CG moving on toward it slower than LET_GO of the impact speed; None where the
+    velocity reaches zero in the record, the barrier still pushes at its end, or the CG moves on
+    faster as it lets go. A vehicle that lets go, touches the barrier again and lets go once more
+    ends its loading at the last let-go."""
     if np.isfinite(zero_crossing(t, velocity, STOPPED * abs(float(velocity[0])))):
         return None
-    off = lift_off(t, velocity, contact, faster_than=0.0)
-    if off is None or np.any(touching(contact)[t > off]):
+    pushing = touching(contact)
+    if not pushing.any() or pushing[-1]:
         return None
-    return off if float(np.interp(off, t, velocity)) <= LET_GO * abs(float(velocity[0])) else None
+    off = int(np.flatnonzero(pushing)[-1]) + 1
+    return float(t[off]) if float(velocity[off]) <= LET_GO * abs(float(velocity[0])) else None
 
 
 def zero_crossing(t: np.ndarray, v: np.ndarray, level: float = 0.0) -> float:
