@@ -42,6 +42,7 @@ EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's 
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
 BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
+TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
 # LS-DYNA's consistent units mm, ms, kg, kN: factors from SI
 MM, KN, MM_PER_MS, KN_PER_MM = 1e3, 1e-3, 1.0, 1e-6
 
@@ -112,12 +113,15 @@ def keyword_file(name: str, source: Path, curves: Curves, status: str | None = N
     converge), a *DEFINE_CURVE_TITLE per curve, *END."""
     lines = ["*KEYWORD", *(f"$ {line}" for line in [*unconverged(status), *_keyword_comments(name, source, curves)])]
     crush, force = curves.loading
-    lines += _curve(FIRST_ID, f"{name} loading: force (kN) against crush (mm)", crush * MM, force * KN)
+    lines += _curve(FIRST_ID, _title("loading: force (kN) against crush (mm)", name), crush * MM, force * KN)
     recovered, back = curves.unloading
-    lines += _curve(FIRST_ID + 1, f"{name} unloading: force (kN) against crush (mm) from the set", recovered * MM, back * KN)
+    unloading = _title("unloading: force (kN) against crush (mm) from the set", name)
+    lines += _curve(FIRST_ID + 1, unloading, recovered * MM, back * KN)
     if curves.damper is not None:
         rate, damping = curves.damper
-        lines += _curve(FIRST_ID + 2, f"{name} damper: force (kN) against crush rate (mm/ms)", rate * MM_PER_MS, damping * KN)
+        lines += _curve(
+            FIRST_ID + 2, _title("damper: force (kN) against crush rate (mm/ms)", name), rate * MM_PER_MS, damping * KN
+        )
     return "\n".join([*lines, "*END", ""])
 
 
@@ -159,13 +163,14 @@ def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
     head = f"{lcid:>10d}{0:>10d}{1.0:>10.1f}{1.0:>10.1f}{0.0:>10.1f}{0.0:>10.1f}{0:>10d}{0:>10d}"
     points = [f"{a:>20.10g}{o:>20.10g}" for a, o in zip(x, y)]
     names = "$#    lcid      sidr       sfa       sfo      offa      offo    dattyp     lcint"
-    return ["*DEFINE_CURVE_TITLE", _title(title), names, head, "$#                a1                  o1", *points]
+    return ["*DEFINE_CURVE_TITLE", title, names, head, "$#                a1                  o1", *points]
 
 
-def _title(title: str) -> str:
-    """A curve's title line, at most 80 columns. A line that starts with `*` reads as a keyword, one
-    with `$` as a comment (a problem named so starts its titles so): such a title gets a `_` in front."""
-    return (f"_{title}" if title.startswith(("*", "$")) else title)[:80]
+def _title(what: str, name: str) -> str:
+    """A curve's title line, at most 80 columns: what the curve is first, then the problem's
+    `name`, cut to what is left, so that a long name never cuts off which curve it is. Starting
+    with the curve's role, it never starts with `*` (a keyword) or `$` (a comment), whatever the name."""
+    return f"{what}, {name}"[:TITLE_COLUMNS]
 
 
 def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
