@@ -477,7 +477,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         name, tests = read_simulation(folder)
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
-    pulse = export.pulse(test.response, test.speed, _rate(args.rate), float(args.cfc))
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)
@@ -486,6 +486,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())
+    print(pulse.filter_line())
     print(f"wrote {out}")
     return 0
 
@@ -611,7 +612,13 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", help="file to write (csv: a folder; default in FOLDER: NAME.k, curves/, TEST-pulse.csv)")
     p.add_argument("--rate", default="10 kHz", help="pulse: sample rate, e.g. '10 kHz' (default) or 20000 (Hz)")
-    p.add_argument("--cfc", type=int, default=60, choices=(60, 180, 600, 1000), help="pulse: SAE J211 filter class (default 60)")
+    p.add_argument(
+        "--cfc",
+        type=int,
+        choices=(60, 180, 600, 1000),
+        help="pulse: SAE J211 filter class (default: the class the model's acceleration is read through, as its tests'"
+        " accelerometers recorded it; none for a design's)",
+    )
     p.add_argument("--test", help="pulse: the test (default the folder's only one)")
     p.set_defaults(func=cmd_export)
 

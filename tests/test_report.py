@@ -232,6 +232,30 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
 
 
+def test_a_designs_pulse_is_its_own_acceleration_and_a_filter_that_moves_its_peak_says_so(tmp_path):
+    """A model's acceleration no accelerometer reads (a design's: Response.accel_filter None) is
+    handed on unfiltered by default, its peak the one the design optimised; a CFC 60 filter on its
+    step onset overshoots, and the header then gives the model's own peak and the pulse's. A fit's,
+    read through its tests' class, is that curve by default, as before."""
+    from crashnlp.report.export import PulseTest, pulse, write_pulse
+    from crashnlp.results.response import Response
+
+    time = np.arange(0.0, 0.12, 1e-4)
+    accel = np.where(time < 0.08, -200.0, 0.0)  # a step onset at impact, as a design's model meets the barrier
+    velocity = 16.0 + np.concatenate([[0.0], np.cumsum(accel[1:] * 1e-4)])
+    design = Response(time, {"accel": accel, "velocity": velocity}, np.zeros((0, time.size)))
+    own = pulse(design, 16.0, 1e4)
+    assert own.cfc is None and np.max(-own.accel) == pytest.approx(200.0)
+    filtered = pulse(design, 16.0, 1e4, 60)
+    peak = np.max(-filtered.accel)
+    assert peak > 1.01 * 200.0  # CFC 60 overshoots the step: a sled run to it runs harder than the design
+    write_pulse(tmp_path / "p.csv", "d", PulseTest("t", design, 16.0, 1500.0, None, (), None), filtered)
+    header = [line for line in (tmp_path / "p.csv").read_text().splitlines() if line.startswith("# sampled")]
+    assert f"{200.0 / G0:.2f} g" in header[0] and f"{peak / G0:.2f} g" in header[0]
+    fit = Response(time, {"accel": filtered.accel, "velocity": velocity}, np.zeros((0, time.size)), "CFC60", accel)
+    assert pulse(fit, 16.0, 1e4).cfc == 60.0 and np.array_equal(pulse(fit, 16.0, 1e4).accel, filtered.accel)
+
+
 @pytest.mark.integration
 def test_a_pulse_says_whose_it_is_the_impact_it_is_of_and_the_tests_notes(fit, prediction, tmp_path):
     """A fit's pulse says it is the fitted model's, at its test's speed (km/h and m/s) and mass; a
