@@ -617,7 +617,7 @@ def parser() -> argparse.ArgumentParser:
         type=int,
         choices=(60, 180, 600, 1000),
         help="pulse: SAE J211 filter class (default: the class the model's acceleration is read through, as its tests'"
-        " accelerometers recorded it; none for a design's)",
+        " accelerometers recorded it; none where no class reads it, as a design's)",
     )
     p.add_argument("--test", help="pulse: the test (default the folder's only one)")
     p.set_defaults(func=cmd_export)

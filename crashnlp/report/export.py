@@ -279,7 +279,7 @@ class Pulse:
         if self.cfc is None:
             return (
                 f"sampled at {self.rate:g} Hz, not filtered: the model's own acceleration, which no accelerometer's"
-                " class reads (a design's); --cfc filters it as SAE J211 filters a measured channel"
+                " class reads (a design's), its peak the result's; --cfc filters it as SAE J211 filters a measured channel"
             )
         line = f"sampled at {self.rate:g} Hz, filtered to CFC {self.cfc:g} (SAE J211)"
         peak = float(np.max(-self.accel))
