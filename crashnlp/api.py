@@ -25,6 +25,7 @@ from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
     from crashnlp.optimize.comparison import Comparison
+    from crashnlp.results.identified import IdentifiedModel
     from crashnlp.results.simulation import PredictedTest
 
 
@@ -67,7 +68,7 @@ def design(problem: Problem | str | Path, verbose: bool = False, progress: TextI
 def simulate(
     problem: Problem | str | Path | Result,
     params: Result | str | Path | dict[str, Any] | None = None,
-    dt: float | None = None,
+    dt: float | str | None = None,
     speed: float | str | None = None,
     mass: float | str | None = None,
 ) -> dict[str, PredictedTest]:
@@ -75,7 +76,8 @@ def simulate(
     array in SI with the unit in the key ("time_s", "crush_m", "accel_mps2"; crashnlp.base.outputs
     lists them), with the test's crash metrics.
 
-    `params` a Result, or a result.json or its folder: the identified vehicle it carries is put
+    `params` a Result, or a result.json (of any name) or its folder, read as `crashnlp simulate
+    --params` reads it (crashnlp.results.params): the identified vehicle it carries is put
     into the problem first (crashnlp.results.identified.apply: the problem may be the minimal one
     it was fitted from, or name only a new speed, mass or duration; a problem file may leave out
     its vehicle and model, which then come from the result), and each test also gets 95 %
@@ -85,47 +87,52 @@ def simulate(
     `params` a dict of dotted paths: those values replace the problem's, refused where the command
     line refuses a result.json's (crashnlp.problem.parameters: an InputError naming the key).
     `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
+    `dt` ("0.1 ms"; a number is s): the output step, read and refused as `--dt` is
+    (crashnlp.analysis.prediction.output_step).
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
     and mass. A test that then runs at other conditions than its data were recorded at gets no
     data (PredictedTest.data) and a note saying why.
     Each test's `source` records the problem file and the fit (crashnlp.results.source: a file's
     path, name, sha256, status and form; a Result in memory, the sha256 of its JSON form)."""
-    from crashnlp.analysis.prediction import own_tests, traced
+    from crashnlp.analysis.prediction import output_step, own_tests, traced
     from crashnlp.case.case import case_of
-    from crashnlp.problem.parameters import with_parameters
     from crashnlp.problem.schema import what_if
-    from crashnlp.results.identified import apply, load_applied
+    from crashnlp.results.params import with_params
     from crashnlp.results.source import simulation_source
 
+    step = output_step(dt)
     new_speed, new_mass = what_if(speed, mass)
     if isinstance(problem, Result):
         if params is not None:
             raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
         case = case_of(own_tests(problem, problem.name)).at(new_speed, new_mass)
-        return traced(case, problem.identified, dt, simulation_source(None, problem))
+        return traced(case, problem.identified, step, simulation_source(None, problem))
     source = _source(problem)
-    fit = _result(params) if isinstance(params, (str, Path)) else params
-    identified = fit.identified if isinstance(fit, Result) else None
-    if identified is not None:
-        problem = (
-            apply(problem, identified, problem.name)
-            if isinstance(problem, Problem)
-            else load_applied(problem, identified, str(problem))
-        )
+    if isinstance(params, (str, Path)):
+        problem, identified, read = with_params(problem, params)
+        source_record = simulation_source(source, params, file=read)
     else:
-        values = fit.parameters if isinstance(fit, Result) else fit
-        named = str(params) if isinstance(params, (str, Path)) else "crashnlp.simulate"
-        problem = with_parameters(_problem(problem), values, named) if values else _problem(problem)
-    given = params if isinstance(params, (Result, str, Path)) else None
-    source_record = simulation_source(source, given, params if isinstance(params, dict) else None)
-    return traced(case_of(problem, source).at(new_speed, new_mass), identified, dt, source_record)
+        problem, identified = _with_given(problem, params)
+        source_record = simulation_source(
+            source, params if isinstance(params, Result) else None, params if isinstance(params, dict) else None
+        )
+    return traced(case_of(problem, source).at(new_speed, new_mass), identified, step, source_record)
 
 
-def _result(path: str | Path) -> Result:
-    """The fit of a result.json, or of its folder (crashnlp.results.result.fit_folder)."""
-    from crashnlp.results.result import fit_folder
+def _with_given(problem: Problem | str | Path, params: Result | dict[str, Any] | None) -> tuple[Problem, IdentifiedModel | None]:
+    """(problem, identified model) of a problem and a Result in memory or a dict of values: the
+    Result's identified vehicle put into the problem, or its values (the dict's) entry by entry
+    (crashnlp.problem.parameters, naming crashnlp.simulate); the identified model is None then."""
+    from crashnlp.problem.parameters import with_parameters
+    from crashnlp.results.identified import apply, load_applied
 
-    return Result.load(fit_folder(path))
+    identified = params.identified if isinstance(params, Result) else None
+    if identified is not None:
+        if isinstance(problem, Problem):
+            return apply(problem, identified, problem.name), identified
+        return load_applied(problem, identified, str(problem)), identified
+    values = params.parameters if isinstance(params, Result) else params
+    return (with_parameters(_problem(problem), values, "crashnlp.simulate") if values else _problem(problem)), None
 
 
 def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] = COMPARED) -> Comparison:

@@ -27,7 +27,7 @@ import numpy as np
 
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
-from crashnlp.base.errors import InputError, Interrupted, RunError, unreadable
+from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
@@ -35,65 +35,12 @@ from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
     from crashnlp.optimize.comparison import FormScore  # at run time where compare runs
-    from crashnlp.results.result import ResultFile  # at run time where a command reads one
 
 RESULTS = Path("results")
 
 
 def _out(args, name: str) -> Path:
     return Path(args.out) if args.out else RESULTS / name
-
-
-def _read_params(path: str) -> ResultFile:
-    """A result.json (or a fit's folder's) read once, its content (a result written before a rename
-    too: ResultFile.current) a mapping with a 'parameters' mapping."""
-    from crashnlp.results.result import ResultFile, result_file
-
-    p = result_file(path)
-    try:
-        file = ResultFile.read(p)
-        params = file.current["parameters"]
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except (IsADirectoryError, PermissionError) as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise unreadable(p, exc) from None
-    except (KeyError, TypeError, IndexError):
-        raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
-    if not isinstance(params, dict):
-        raise InputError(f"{p}: 'parameters' is not a mapping")
-    return file
-
-
-def _identified(source: str, raw: dict):
-    """The identified vehicle of a result.json, or None for one that carries only parameters."""
-    from crashnlp.results.identified import IdentifiedModel
-
-    entry = raw.get("identified_model")
-    if entry is None:
-        return None
-    try:
-        return IdentifiedModel.from_json(entry)
-    except (KeyError, TypeError, ValueError, AttributeError):
-        raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
-
-
-def _with_params(file: str, source: str):
-    """(problem, identified model, the result.json read) of a problem file and a result.json: its
-    identified vehicle put into the problem (what the file leaves out of vehicle and model comes
-    from it), or for a result that carries only parameters, its values entry by entry, refusing
-    what does not fit (crashnlp.problem.parameters, as crashnlp.simulate; the identified model is then None)."""
-    from crashnlp.problem import load_problem
-    from crashnlp.problem.parameters import with_parameters
-    from crashnlp.results.identified import load_applied
-
-    read = _read_params(source)
-    raw = read.current
-    identified = _identified(source, raw)
-    if identified is not None:
-        return load_applied(file, identified, source), identified, read
-    return with_parameters(load_problem(file), raw["parameters"], source), None, read
 
 
 def cmd_simulate(args) -> int:
@@ -158,11 +105,12 @@ def _result_alone(path: str, params: str | None):
     """(problem, identified model, the result.json read) of a result.json given in place of a
     problem: its own tests with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
     from crashnlp.analysis.prediction import own_tests
+    from crashnlp.results.params import read_params
     from crashnlp.results.result import Result, fit_folder
 
     if params is not None:
         raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
-    read = _read_params(path)  # one line for a file that is not a result.json
+    read = read_params(path)  # one line for a file that is not a result.json
     folder = fit_folder(path)
     try:
         result = Result.load(folder, read)
@@ -175,15 +123,15 @@ def _simulation(args):
     """(case, identified model or None, output folder, --dt in s or None, source:
     crashnlp.results.source) of the problem file, every check made and the folder checked
     (crashnlp.results.files.check_output), or None after `--check`."""
-    from crashnlp.analysis.prediction import check_steps
+    from crashnlp.analysis.prediction import check_steps, output_step
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
+    from crashnlp.results.params import with_params
     from crashnlp.results.result import RESULT_FILE
     from crashnlp.results.source import simulation_source
 
-    dt = None if args.dt is None else _quantity_option("--dt", args.dt, "s")
-    check_steps(None, dt, "--dt")
+    dt = output_step(args.dt, "--dt")
     speed, mass = what_if(args.speed, args.mass, prefix="--")
     folder = Path(args.problem) / RESULT_FILE
     if Path(args.problem).is_dir() and not folder.is_file():
@@ -193,7 +141,7 @@ def _simulation(args):
         problem, identified, read = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
         fit = args.problem
     elif args.params:
-        problem, identified, read = _with_params(args.problem, args.params)
+        problem, identified, read = with_params(args.problem, args.params)
     else:
         problem, identified, read = load_problem(args.problem), None, None
     case = case_of(problem, args.problem).at(speed, mass)
@@ -529,7 +477,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         name, tests = read_simulation(folder)
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
-    pulse = export.pulse(test.response, test.speed, _rate(args.rate), float(args.cfc))
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)
     _say_unconverged(status)
@@ -538,6 +486,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
     with deriving(folder, out):
         export.write_pulse(out, name, test, pulse, status)
     print(pulse.check_line())
+    print(pulse.filter_line())
     print(f"wrote {out}")
     return 0
 
@@ -663,7 +612,13 @@ def parser() -> argparse.ArgumentParser:
     )
     p.add_argument("--out", help="file to write (csv: a folder; default in FOLDER: NAME.k, curves/, TEST-pulse.csv)")
     p.add_argument("--rate", default="10 kHz", help="pulse: sample rate, e.g. '10 kHz' (default) or 20000 (Hz)")
-    p.add_argument("--cfc", type=int, default=60, choices=(60, 180, 600, 1000), help="pulse: SAE J211 filter class (default 60)")
+    p.add_argument(
+        "--cfc",
+        type=int,
+        choices=(60, 180, 600, 1000),
+        help="pulse: SAE J211 filter class (default: the class the model's acceleration is read through, as its tests'"
+        " accelerometers recorded it; none where no class reads it, as a design's)",
+    )
     p.add_argument("--test", help="pulse: the test (default the folder's only one)")
     p.set_defaults(func=cmd_export)
 

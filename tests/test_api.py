@@ -141,6 +141,20 @@ def test_simulate_refuses_the_steps_the_command_refuses(small_problem, dt, messa
         crashnlp.simulate(small_problem, dt=dt)
 
 
+def test_simulate_reads_dt_with_its_unit_and_refuses_it_as_the_command_does(small_problem, tmp_path, capsys):
+    """`dt="1 ms"` (and "1e-3", text as YAML or a shell gives it) is the step 1e-3 is, as `--dt "1 ms"`
+    is: one reading (crashnlp.analysis.prediction.output_step) for both, and one line for a step
+    that is no time, the same but for the option's name."""
+    times = [crashnlp.simulate(small_problem, dt=dt)["56kph"]["time_s"] for dt in (1e-3, "1 ms", "1e-3")]
+    assert all(np.array_equal(times[0], t) for t in times[1:])
+    with pytest.raises(InputError) as api:
+        crashnlp.simulate(small_problem, dt="1 km")
+    assert str(api.value) == "dt 1 km: '1 km' does not convert to s"
+    out = tmp_path / "o"
+    assert main(["simulate", str(small_problem), "--dt", "1 km", "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: --{api.value}\n" and not out.exists()
+
+
 @pytest.mark.integration
 @pytest.mark.slow
 def test_the_example_runs_as_written(tmp_path):

@@ -160,19 +160,26 @@ def test_bad_folders_are_one_line_exit_2_and_nothing_written(folders, tmp_path, 
     assert sorted(tmp_path.rglob("*")) == before
 
 
-def test_the_api_takes_a_fit_from_its_result_json_and_refuses_a_file_it_would_not_read(folders, tmp_path):
-    """`crashnlp.simulate(params=...)`: a fit's result.json or its folder, and its source's sha256 is
-    that file's; a file of another name is refused, as the command refuses it, where the API read
-    the folder's result.json while its source named and hashed the other file."""
+def test_the_api_takes_the_params_files_the_command_takes_and_refuses_the_same(folders, tmp_path, capsys):
+    """`crashnlp.simulate(params=...)` reads a result.json as `crashnlp simulate --params` does
+    (crashnlp.results.params): the file of any name or its folder, its source the sha256 of that
+    file; a folder without result.json is the same one line (InputError) in both."""
     import crashnlp
     from crashnlp.base.errors import InputError
     from crashnlp.results.files import file_sha256
 
     fit = shutil.copytree(folders["fit"], tmp_path / "fit")
+    shutil.copy(fit / "result.json", tmp_path / "myfit.json")
     problem = ROOT / "problems/pickup-40kph.yaml"
-    for given in (fit, fit / "result.json"):
+    for given in (fit, fit / "result.json", tmp_path / "myfit.json"):
         test = next(iter(crashnlp.simulate(problem, params=given).values()))
         assert test.source["result"]["sha256"] == file_sha256(fit / "result.json")
-    shutil.copy(fit / "result.json", fit / "other.json")
-    with pytest.raises(InputError, match="RESULT_DIR/result.json"):
-        crashnlp.simulate(problem, params=fit / "other.json")
+        assert test.source["result"]["path"] == str(given)
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    with pytest.raises(InputError) as api:
+        crashnlp.simulate(problem, params=empty)
+    out = tmp_path / "o"
+    assert main(["simulate", str(problem), "--params", str(empty), "--out", str(out)]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {api.value}\n" and str(empty) in str(api.value)
+    assert not out.exists()

@@ -143,7 +143,7 @@ def test_the_identified_channel_rmse_says_its_si_unit_and_an_older_file_reads_th
 
 
 def read_curves(path: Path) -> dict[str, np.ndarray]:
-    """The *DEFINE_CURVE_TITLE cards of a keyword file by their titles' first word after the name:
+    """The *DEFINE_CURVE_TITLE cards of a keyword file by their titles' first word (what the curve is):
     points (n x 2) from the fixed 20-column fields, after the 80-column curve card."""
     lines = path.read_text().splitlines()
     assert lines[0] == "*KEYWORD" and lines[-1] == "*END"
@@ -152,7 +152,7 @@ def read_curves(path: Path) -> dict[str, np.ndarray]:
         end = next(i for i in range(start + 1, len(lines)) if lines[i].startswith("*"))
         card, *points = [line for line in lines[start + 2 : end] if not line.startswith("$")]
         assert len(card) == 80 and card[20:40].split() == ["1.0", "1.0"]  # sfa, sfo
-        name = lines[start + 1].split(":")[0].split()[-1]
+        name = lines[start + 1].split(":")[0]
         curves[name] = np.array([(float(line[:20]), float(line[20:40])) for line in points])
     return curves
 
@@ -181,16 +181,19 @@ def test_the_ls_dyna_curves_reproduce_the_identified_model_in_stated_units(fit, 
     assert damping[rate > 0.1] / rate[rate > 0.1] == pytest.approx(identified.model["damper"]["values"][0] * 1e-3, rel=1e-3)
 
 
-@pytest.mark.parametrize("name", ["*pickup", "$pickup"])
-def test_a_curve_title_never_reads_as_a_keyword_or_a_comment(name):
-    """A problem named `*pickup` or `$pickup`: each *DEFINE_CURVE_TITLE's title line starts with
-    neither, so that LS-DYNA reads it as the title and the card after it as the curve's."""
+@pytest.mark.parametrize("name", ["*pickup", "$pickup", "pickup-" + "x" * 89])
+def test_a_curve_title_says_which_curve_it_is_and_never_reads_as_a_keyword_or_a_comment(name):
+    """A problem named `*pickup` or `$pickup`, or 96 characters long: each *DEFINE_CURVE_TITLE's
+    title line starts with what the curve is (loading, unloading, damper), so that LS-DYNA reads it
+    as the title and the card after it as the curve's, and three curves never share a title; the
+    name follows, cut to the 80 columns."""
     from crashnlp.report.export import Curves, keyword_file
 
     line = (np.array([0.0, 0.1]), np.array([0.0, 1e5]))
     lines = keyword_file(name, Path("fit"), Curves(line, line, line, "plastic", 1e6, None)).splitlines()
     titles = [lines[i + 1] for i, text in enumerate(lines) if text == "*DEFINE_CURVE_TITLE"]
-    assert len(titles) == 3 and all(t.startswith(f"_{name} ") and len(t) <= 80 for t in titles), titles
+    assert [t.split(":")[0] for t in titles] == ["loading", "unloading", "damper"], titles
+    assert all(len(t) <= 80 and name[:10] in t for t in titles), titles
     assert [text for text in lines if text.startswith("*")] == ["*KEYWORD", *["*DEFINE_CURVE_TITLE"] * 3, "*END"]
 
 
@@ -227,6 +230,30 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     resampled = np.interp(t, response.time, response["accel"])
     assert accel == pytest.approx(resampled, rel=1e-5, abs=1e-3)
     assert np.max(np.abs(cfc_recorded(t, resampled, 60.0) - resampled)) > 0.5  # m/s^2: what a second pass would change
+
+
+def test_a_designs_pulse_is_its_own_acceleration_and_a_filter_that_moves_its_peak_says_so(tmp_path):
+    """A model's acceleration no accelerometer reads (a design's: Response.accel_filter None) is
+    handed on unfiltered by default, its peak the one the design optimised; a CFC 60 filter on its
+    step onset overshoots, and the header then gives the model's own peak and the pulse's. A fit's,
+    read through its tests' class, is that curve by default, as before."""
+    from crashnlp.report.export import PulseTest, pulse, write_pulse
+    from crashnlp.results.response import Response
+
+    time = np.arange(0.0, 0.12, 1e-4)
+    accel = np.where(time < 0.08, -200.0, 0.0)  # a step onset at impact, as a design's model meets the barrier
+    velocity = 16.0 + np.concatenate([[0.0], np.cumsum(accel[1:] * 1e-4)])
+    design = Response(time, {"accel": accel, "velocity": velocity}, np.zeros((0, time.size)))
+    own = pulse(design, 16.0, 1e4)
+    assert own.cfc is None and np.max(-own.accel) == pytest.approx(200.0)
+    filtered = pulse(design, 16.0, 1e4, 60)
+    peak = np.max(-filtered.accel)
+    assert peak > 1.01 * 200.0  # CFC 60 overshoots the step: a sled run to it runs harder than the design
+    write_pulse(tmp_path / "p.csv", "d", PulseTest("t", design, 16.0, 1500.0, None, (), None), filtered)
+    header = [line for line in (tmp_path / "p.csv").read_text().splitlines() if line.startswith("# sampled")]
+    assert f"{200.0 / G0:.2f} g" in header[0] and f"{peak / G0:.2f} g" in header[0]
+    fit = Response(time, {"accel": filtered.accel, "velocity": velocity}, np.zeros((0, time.size)), "CFC60", accel)
+    assert pulse(fit, 16.0, 1e4).cfc == 60.0 and np.array_equal(pulse(fit, 16.0, 1e4).accel, filtered.accel)
 
 
 @pytest.mark.integration

@@ -548,6 +548,29 @@ def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
     assert len(table) == 4 and table[2]["status"].startswith("solver failed")
 
 
+def test_a_failed_case_is_marked_on_the_sweep_figure_at_its_swept_value(small, monkeypatch):
+    """A one-entry sweep's figure marks a failed case at its swept value, as a grid's map marks its
+    cell: the failed values go with the job (on the solved cases' scale), and the drawn figure's
+    x axis reaches them, with a legend counting them."""
+    from crashnlp.results import plots
+    from crashnlp.studies.table import draw_figure
+
+    study = load_study(write_study(small, sweep={"solver.ipopt.max_iter": [3, 250, 500]}))
+    rows = [
+        {"status": "solver failed: Maximum_Iterations_Exceeded"},
+        {"status": "ok", "objective": 1.1},
+        {"status": "ok", "objective": 1.0},
+    ]
+    (job,) = figure_jobs(study, plan_cases(study), rows)
+    assert job["x"] == pytest.approx([250, 500]) and job["failed"] == pytest.approx([3])
+    assert job["series"]["objective"] == pytest.approx([1.1, 1.0])
+    drawn = {}
+    monkeypatch.setattr(plots, "_png", lambda fig: drawn.setdefault("axes", fig.axes))
+    draw_figure(job)
+    (ax,) = drawn["axes"]
+    assert ax.get_xlim()[0] < 3 and [t.get_text() for t in ax.get_legend().get_texts()] == ["failed: 1"]
+
+
 def test_a_bad_swept_value_is_refused_before_any_solve(small, tmp_path):
     sweep = {PITCH: [BOUNDS[0], [None, "2 kg"], BOUNDS[2], BOUNDS[3]]}
     with pytest.raises(InputError, match=r"small-study.yaml: sweep: case-001 \(constraints.bounds.pitch = \[null, 2 kg\]\)"):

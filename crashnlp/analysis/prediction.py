@@ -72,7 +72,7 @@ from crashnlp.analysis.summary import (
 )
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import METRIC, METRICS, OUTPUT, PANELS, PREDICTED_KEYS, UNFINISHED, UNSETTLED, Z95, named_test
-from crashnlp.base.units import G0
+from crashnlp.base.units import G0, UnitError, to_si
 from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
@@ -112,6 +112,20 @@ MAX_STEPS = 1_000_000  # output steps a simulation may ask for
 # OLC's instants between two); two fits' predictions at 50 steps are within 4.2 % of those at 5000,
 # at 20 the peak deceleration is 5 % off, at 5 several metrics 3 to 23 % (docs/design-notes.md)
 MIN_STEPS = 50
+
+
+def output_step(dt: float | str | None, name: str = "dt") -> float | None:
+    """An output step given outside a problem file (`crashnlp.simulate(dt=...)`, `--dt`; called
+    `name` in its errors): "0.1 ms", or a number, or a number written as text, in s; in SI and
+    refused where it is not a positive number of seconds (check_steps), one line naming `name`."""
+    if dt is None:
+        return None
+    try:
+        step = to_si(dt, "s")
+    except UnitError as exc:
+        raise InputError(f"{name} {dt}: {exc}") from None
+    check_steps(None, step, name)
+    return step
 
 
 def check_steps(case: Case | None, dt: float | None, name: str = "dt", source: str = "simulate") -> None:

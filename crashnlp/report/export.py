@@ -6,10 +6,12 @@
   (docs/handing-on.md: a discrete spring, *MAT_SPRING_GENERAL_NONLINEAR for loading and unloading,
   *MAT_DAMPER_NONLINEAR_VISCOUS for the damper).
 - `csv`: the same curves in SI, one file each.
-- `pulse`: a test's fitted or predicted acceleration at a chosen rate, filtered to a CFC class
-  as a test's accelerometer records it (SAE J211 from rest before impact, crashnlp.data.instrument, as
-  a fit compares the model), as a sled-test input, with a check of its velocity change, under a
-  header saying whose it is and of which impact (speed, mass, a prediction's source, the test's notes).
+- `pulse`: a test's fitted or predicted acceleration at a chosen rate, as a sled-test input: by
+  default the acceleration the model's metrics are read from, through the CFC class its tests'
+  accelerometers recorded (SAE J211 from rest before impact, crashnlp.data.instrument, as a fit
+  compares the model), or a design's own, which no accelerometer reads; at a chosen class
+  filtered so. With a check of its velocity change, under a header saying whose it is and of
+  which impact (speed, mass, a prediction's source, the test's notes) and what the filter did to its peak.
 
 The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
 smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
@@ -27,6 +29,7 @@ import numpy as np
 from crashnlp.analysis.summary import goes_on
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT
+from crashnlp.base.units import G0
 from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
@@ -42,6 +45,8 @@ EXTENT = 1.5  # the curves run to this times the last breakpoint (or the tail's 
 SPACING = 100  # points at a fixed spacing over a curve, beside those at its bends
 BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
+PEAK_MOVED = 0.01  # relative: a filter that moves a pulse's peak deceleration more than this is said to
+TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
 # LS-DYNA's consistent units mm, ms, kg, kN: factors from SI
 MM, KN, MM_PER_MS, KN_PER_MM = 1e3, 1e-3, 1.0, 1e-6
 
@@ -112,12 +117,15 @@ def keyword_file(name: str, source: Path, curves: Curves, status: str | None = N
     converge), a *DEFINE_CURVE_TITLE per curve, *END."""
     lines = ["*KEYWORD", *(f"$ {line}" for line in [*unconverged(status), *_keyword_comments(name, source, curves)])]
     crush, force = curves.loading
-    lines += _curve(FIRST_ID, f"{name} loading: force (kN) against crush (mm)", crush * MM, force * KN)
+    lines += _curve(FIRST_ID, _title("loading: force (kN) against crush (mm)", name), crush * MM, force * KN)
     recovered, back = curves.unloading
-    lines += _curve(FIRST_ID + 1, f"{name} unloading: force (kN) against crush (mm) from the set", recovered * MM, back * KN)
+    unloading = _title("unloading: force (kN) against crush (mm) from the set", name)
+    lines += _curve(FIRST_ID + 1, unloading, recovered * MM, back * KN)
     if curves.damper is not None:
         rate, damping = curves.damper
-        lines += _curve(FIRST_ID + 2, f"{name} damper: force (kN) against crush rate (mm/ms)", rate * MM_PER_MS, damping * KN)
+        lines += _curve(
+            FIRST_ID + 2, _title("damper: force (kN) against crush rate (mm/ms)", name), rate * MM_PER_MS, damping * KN
+        )
     return "\n".join([*lines, "*END", ""])
 
 
@@ -159,13 +167,14 @@ def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
     head = f"{lcid:>10d}{0:>10d}{1.0:>10.1f}{1.0:>10.1f}{0.0:>10.1f}{0.0:>10.1f}{0:>10d}{0:>10d}"
     points = [f"{a:>20.10g}{o:>20.10g}" for a, o in zip(x, y)]
     names = "$#    lcid      sidr       sfa       sfo      offa      offo    dattyp     lcint"
-    return ["*DEFINE_CURVE_TITLE", _title(title), names, head, "$#                a1                  o1", *points]
+    return ["*DEFINE_CURVE_TITLE", title, names, head, "$#                a1                  o1", *points]
 
 
-def _title(title: str) -> str:
-    """A curve's title line, at most 80 columns. A line that starts with `*` reads as a keyword, one
-    with `$` as a comment (a problem named so starts its titles so): such a title gets a `_` in front."""
-    return (f"_{title}" if title.startswith(("*", "$")) else title)[:80]
+def _title(what: str, name: str) -> str:
+    """A curve's title line, at most 80 columns: what the curve is first, then the problem's
+    `name`, cut to what is left, so that a long name never cuts off which curve it is. Starting
+    with the curve's role, it never starts with `*` (a keyword) or `$` (a comment), whatever the name."""
+    return f"{what}, {name}"[:TITLE_COLUMNS]
 
 
 def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
@@ -247,19 +256,39 @@ def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
 
 @dataclass(frozen=True)
 class Pulse:
-    """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc`, and what its velocity
-    change is checked against (m/s): the impact speed, the model's velocity just after impact
-    (the pivot's impulse at impact takes the difference, which no acceleration sample holds)
-    and its velocity at the record's end, toward the barrier: negative where it rebounds,
-    positive where the crash goes on past the record."""
+    """A test's acceleration (m/s^2) at `rate` Hz filtered to CFC `cfc` (None: not filtered),
+    the peak deceleration of the model's own acceleration at that rate (m/s^2, what the filter
+    moves), and what its velocity change is checked against (m/s): the impact speed, the model's
+    velocity just after impact (the pivot's impulse at impact takes the difference, which no
+    acceleration sample holds) and its velocity at the record's end, toward the barrier: negative
+    where it rebounds, positive where the crash goes on past the record."""
 
     time: np.ndarray
     accel: np.ndarray
     rate: float
-    cfc: float
+    cfc: float | None
+    own_peak: float
     speed: float
     after_impact: float
     end_velocity: float
+
+    def filter_line(self) -> str:
+        """How the pulse is sampled and filtered, and, where the filter moves the peak deceleration
+        more than PEAK_MOVED, the model's own peak and the pulse's: a sled run to a filtered
+        step onset runs a higher peak than the model's."""
+        if self.cfc is None:
+            return (
+                f"sampled at {self.rate:g} Hz, not filtered: the model's own acceleration, which no accelerometer's"
+                " class reads (a design's), its peak the result's; --cfc filters it as SAE J211 filters a measured channel"
+            )
+        line = f"sampled at {self.rate:g} Hz, filtered to CFC {self.cfc:g} (SAE J211)"
+        peak = float(np.max(-self.accel))
+        if abs(peak - self.own_peak) <= PEAK_MOVED * abs(self.own_peak):
+            return line
+        return (
+            f"{line}; the filter moves the peak deceleration from {self.own_peak / G0:.2f} g (the model's own)"
+            f" to {peak / G0:.2f} g ({100 * (peak / self.own_peak - 1):+.1f} %)"
+        )
 
     @property
     def delta_v(self) -> float:
@@ -302,29 +331,36 @@ def finite(file: Path, response: Response) -> Response:
     return response
 
 
-def pulse(response: Response, speed: float, rate: float, cfc: float) -> Pulse:
+def pulse(response: Response, speed: float, rate: float, cfc: float | None = None) -> Pulse:
     """The acceleration of a response to an impact at `speed`, resampled at `rate` Hz over its
-    record and CFC-filtered (J211) as a test's accelerometer records it, at rest before impact
-    (crashnlp.data.instrument.cfc_recorded: the filter a fit compares the model through, and the one
-    its reported peak and ratings are read through). A response read through that class already
-    (Response.accel_filter: a fit's or a prediction's, as the fitted tests' accelerometers record
-    it) is only resampled; at another class the model's own acceleration is filtered: never twice."""
+    record and CFC-filtered (J211) at class `cfc` as a test's accelerometer records it, at rest
+    before impact (crashnlp.data.instrument.cfc_recorded: the filter a fit compares the model
+    through, and the one its reported peak and ratings are read through). A response read through
+    that class already (Response.accel_filter: a fit's or a prediction's, as the fitted tests'
+    accelerometers record it) is only resampled; at another class the model's own acceleration is
+    filtered: never twice. No `cfc`: the class the response is read through, and none for one no
+    accelerometer reads (a design's: its peak is the model's own, which filtering a step onset
+    would raise)."""
+    if cfc is None and response.accel_filter is not None:
+        cfc = CFC_CLASSES[response.accel_filter]
     read = response.accel_filter is not None and CFC_CLASSES[response.accel_filter] == cfc
     own = response["accel"] if response.own_accel is None else response.own_accel
     if not (np.isfinite(rate) and rate > 0):
         raise InputError(f"--rate {rate:g}: must be a positive number of Hz")
     if rate * SAMPLE_INTERVALS[0] > 1:
         raise InputError(f"--rate {rate:g}: faster than any crash record is sampled (at most {1 / SAMPLE_INTERVALS[0]:g} Hz)")
-    try:
-        time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
-        time = time[time <= response.time[-1] + 1e-12]
-        cfc_coefficients(cfc, 1.0 / rate)  # a rate the class cannot be sampled at is refused
-        accel = np.interp(time, response.time, response["accel"] if read else own)
-        accel = accel if read else cfc_recorded(time - time[0], accel, cfc)
-    except ValueError as exc:
-        raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
+    time = np.arange(response.time[0], response.time[-1] + 0.5 / rate, 1.0 / rate)
+    time = time[time <= response.time[-1] + 1e-12]
+    resampled = np.interp(time, response.time, own)
+    accel = resampled
+    if cfc is not None:
+        try:
+            cfc_coefficients(cfc, 1.0 / rate)  # a rate the class cannot be sampled at is refused
+            accel = np.interp(time, response.time, response["accel"]) if read else cfc_recorded(time - time[0], accel, cfc)
+        except ValueError as exc:
+            raise InputError(f"--rate {rate:g} Hz, --cfc {cfc:g}: {exc}") from None
     velocity = response["velocity"]
-    return Pulse(time, accel, rate, cfc, speed, float(velocity[0]), float(velocity[-1]))
+    return Pulse(time, accel, rate, cfc, float(np.max(-resampled)), speed, float(velocity[0]), float(velocity[-1]))
 
 
 def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | None = None) -> None:
@@ -336,7 +372,7 @@ def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | 
         *unconverged(status),
         *([test.warning] if test.warning else []),
         *test.header(name),
-        f"sampled at {p.rate:g} Hz, filtered to CFC {p.cfc:g} (SAE J211); x toward the barrier: the crash pulse is negative",
+        f"{p.filter_line()}; x toward the barrier: the crash pulse is negative",
         p.check_line(),
         *(f"note: {note}" for note in test.said()),
     )

@@ -142,19 +142,42 @@ def overlay_figure(path: Path, title: str, xlabel: str, ylabel: str, series: lis
 FIGURES = {f.__name__: f for f in (response_figure, force_crush_figure, residual_figure)}
 
 
-def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "") -> bytes:
+def xy_png(x: np.ndarray, series: dict[str, np.ndarray], xlabel: str, title: str = "", failed: np.ndarray | None = None) -> bytes:
     """One panel per series against a swept value, as PNG bytes: a study draws its figures in its
-    workers, which may be on other machines, and writes them where its table is."""
+    workers, which may be on other machines, and writes them where its table is. `failed`: the
+    swept values of the cases that failed, each a red x on every panel's x axis (the axis reaches
+    them), counted in a legend on the first."""
     fig, axes = plt.subplots(len(series), 1, figsize=(6.5, 2.2 * len(series) + 0.5), sharex=True, squeeze=False)
     for ax, (label, y) in zip(axes[:, 0], series.items()):
         ax.plot(x, y, "o-", color="C0")
+        if failed is not None and failed.size:
+            _mark_failed(ax, failed)
         ax.set_ylabel(label, fontsize=8)
         ax.ticklabel_format(useOffset=False)  # no "1e-5+5.908e-1": the values as they are
         ax.grid(alpha=0.3)
+    if failed is not None and failed.size:
+        axes[0, 0].legend(loc="best", fontsize=8)
     axes[-1, 0].set_xlabel(xlabel)
     fig.suptitle(title)
     _layout(fig)
     return _png(fig)
+
+
+def _mark_failed(ax, failed: np.ndarray) -> None:
+    """A red x at each failed case's swept value, on the panel's x axis line (x in data, y in the
+    axes' fraction: the x limits take it in, the y limits stay the solved cases', and it reads as
+    no value)."""
+    ax.plot(
+        failed,
+        np.zeros(failed.size),
+        "x",
+        color="red",
+        markersize=10,
+        markeredgewidth=2,
+        transform=ax.get_xaxis_transform(),
+        clip_on=False,
+        label=f"failed: {failed.size}",
+    )
 
 
 def correlation_png(labels: list[str], matrix: np.ndarray, title: str) -> bytes:

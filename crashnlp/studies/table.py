@@ -60,7 +60,8 @@ def write_figures(
 
 def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> list[dict[str, Any]]:
     """Objective, metrics and swept multipliers of the solved cases against each swept entry, as plain
-    data for `draw_figure`. With several varied entries in a grid, one figure per combination of the others.
+    data for `draw_figure`, each failed case marked at its swept value (as a grid's map marks its
+    cell). With several varied entries in a grid, one figure per combination of the others.
     """
     solved = [(c, r) for c, r in zip(cases, rows) if r["status"] == "ok"]
     if not solved:
@@ -73,7 +74,7 @@ def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> lis
         if len(entry.values) < 2:
             continue
         groups: dict[tuple, list] = {}
-        for c, r in solved:
+        for c, r in zip(cases, rows):
             others = tuple(show(v) for j, v in enumerate(c.values) if j != i)
             groups.setdefault(others, []).append((c, r))
         for k, (others, members) in enumerate(groups.items()):
@@ -101,27 +102,29 @@ def shown_column(name: str) -> tuple[str, float] | None:
 
 
 def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[str, Any]:
-    """x (in the unit a person reads the entry in, else the value number), the series sorted along
-    it (metrics in the console's units, under its labels), and the x label."""
+    """x (in the unit a person reads the entry in, else the value number) of the solved members,
+    the series sorted along it (metrics in the console's units, under its labels), the x label,
+    and the x of the failed members (`failed`, on the same scale)."""
     unit, factor = shown_unit(entry.unit) if entry.unit else ("", 1.0)
     x = np.array([entry.si(c.values[i]) for c, _ in members]) * factor
     xlabel = f"{entry.path} ({unit})" if unit else entry.path
     if np.all(np.isnan(x)):
         x = np.array([float(c.index[0] if len(c.index) == 1 else c.index[i]) for c, _ in members])
         xlabel = f"{entry.path} (value number)"
-    order = np.argsort(x, kind="stable")
+    ok = np.array([r["status"] == "ok" for _, r in members])
+    order = np.argsort(x[ok], kind="stable")
     series = {}
     for n in names:
         label, scale = shown_column(n) or (n, 1.0)
-        series[label] = np.array([number(r.get(n)) * scale for _, r in members])[order]
-    return {"x": x[order], "series": series, "xlabel": xlabel}
+        series[label] = np.array([number(r.get(n)) * scale for _, r in members if r["status"] == "ok"])[order]
+    return {"x": x[ok][order], "series": series, "xlabel": xlabel, "failed": np.sort(x[~ok])}
 
 
 def draw_figure(job: dict[str, Any]) -> bytes:
     """A figure job as PNG bytes (in a worker, where matplotlib is imported on first use)."""
     from crashnlp.results import plots
 
-    return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"])
+    return plots.xy_png(job["x"], job["series"], job["xlabel"], job["title"], job["failed"])
 
 
 def number(value: Any) -> float:

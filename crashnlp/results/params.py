@@ -1,0 +1,68 @@
+"""A fit's result.json given to a simulation: `crashnlp simulate PROBLEM --params FILE` and
+`crashnlp.simulate(problem, params=FILE)` read it here, so that both take the same files (a
+result.json, another name for one, or a fit's folder) and refuse the same, in the same one line.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from crashnlp.base.errors import InputError, unreadable
+from crashnlp.results.identified import IdentifiedModel, apply, load_applied
+from crashnlp.results.result import ResultFile, result_file
+
+if TYPE_CHECKING:
+    from crashnlp.problem import Problem
+
+
+def read_params(path: str | Path) -> ResultFile:
+    """A result.json (or a fit's folder's) read once, its content (a result written before a rename
+    too: ResultFile.current) a mapping with a 'parameters' mapping; InputError naming the file
+    for one that cannot be read or is not such a mapping."""
+    p = result_file(path)
+    try:
+        file = ResultFile.read(p)
+        params = file.current["parameters"]
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except (IsADirectoryError, PermissionError) as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise unreadable(p, exc) from None
+    except (KeyError, TypeError, IndexError):
+        raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
+    if not isinstance(params, dict):
+        raise InputError(f"{p}: 'parameters' is not a mapping")
+    return file
+
+
+def identified_of(source: str, raw: dict[str, Any]) -> IdentifiedModel | None:
+    """The identified vehicle of a result.json's content, or None for one that carries only parameters."""
+    entry = raw.get("identified_model")
+    if entry is None:
+        return None
+    try:
+        return IdentifiedModel.from_json(entry)
+    except (KeyError, TypeError, ValueError, AttributeError):
+        raise InputError(f"{source}: identified_model: not the identified model a fit writes") from None
+
+
+def with_params(problem: Problem | str | Path, path: str | Path) -> tuple[Problem, IdentifiedModel | None, ResultFile]:
+    """(problem, identified model, the result.json read) of a problem (a Problem, or its file) and
+    the result.json `path` names: its identified vehicle put into the problem (what a problem file
+    leaves out of vehicle and model comes from it), or for a result that carries only parameters,
+    its values entry by entry, refusing what does not fit (crashnlp.problem.parameters; the
+    identified model is then None). Errors name `path`."""
+    from crashnlp.problem import Problem, load_problem
+    from crashnlp.problem.parameters import with_parameters
+
+    source = str(path)
+    read = read_params(path)
+    identified = identified_of(source, read.current)
+    if identified is not None:
+        put_in = apply(problem, identified, source) if isinstance(problem, Problem) else load_applied(problem, identified, source)
+        return put_in, identified, read
+    loaded = problem if isinstance(problem, Problem) else load_problem(problem)
+    return with_parameters(loaded, read.current["parameters"], source), None, read
