@@ -42,7 +42,7 @@ UNLOADING_STIFFNESS = "model.unloading.stiffness"
 # fit writes the value it used, so a null here is an edited file, and a prediction would read it from
 # the predicted test's data
 FROM_DATA = ("vehicle.mass", SPRING_VALUES, UNLOADING_STIFFNESS)
-EDITED = "(a result.json edited by hand?)"  # what an identified model crashnlp would not write most likely is
+EDITED = "(a result.json edited by hand?)"  # the likeliest cause of a result.json crashnlp would not have written
 
 
 @dataclass(frozen=True)
@@ -212,7 +212,7 @@ class IdentifiedModel:
         for entry, value in self._not_negative():
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
                 raise InputError(f"{source}: identified_model.{entry} is {value}: must be a number, not negative {EDITED}")
-        if self.accel_filter is not None and self.accel_filter not in CFC_CLASSES:
+        if self.accel_filter is not None and (not isinstance(self.accel_filter, str) or self.accel_filter not in CFC_CLASSES):
             classes = ", ".join(CFC_CLASSES)
             raise InputError(
                 f"{source}: identified_model.accel_filter is {self.accel_filter!r}: one of {classes}, or null {EDITED}"
