@@ -105,17 +105,14 @@ def _result_alone(path: str, params: str | None):
     """(problem, identified model, the result.json read) of a result.json given in place of a
     problem: its own tests with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
     from crashnlp.analysis.prediction import own_tests
+    from crashnlp.report.folders import read_result
     from crashnlp.results.params import read_params
-    from crashnlp.results.result import Result, fit_folder
+    from crashnlp.results.result import fit_folder
 
     if params is not None:
         raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
     read = read_params(path)  # one line for a file that is not a result.json
-    folder = fit_folder(path)
-    try:
-        result = Result.load(folder, read)
-    except (OSError, KeyError, TypeError, ValueError) as exc:
-        raise InputError(f"{path}: not a result folder crashnlp wrote ({exc})") from None
+    result = read_result(fit_folder(path), read)
     return own_tests(result, path), result.identified, read
 
 
@@ -436,8 +433,6 @@ def _export_curves(args, folder: Path) -> int:
     result = read_result(folder)
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
-    # an identified model edited out of shape is refused as `simulate` refuses it, naming the entry
-    result.identified.as_problem(result.name, str(folder / "result.json"))
     with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
         curves = export.identified_curves(result.identified)
     if args.format == "csv":

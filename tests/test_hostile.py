@@ -81,6 +81,8 @@ def refused(tmp_path: Path, capsys, raw_or_text, expected: str, command: str = "
         ({"simulation": {"dt": 0}}, "simulation.dt: must be positive"),
         ({"simulation": {"dt": "10 ms"}}, "p.yaml: simulation.dt 0.01 s: 20 output steps over 0.2 s"),
         ({"model": {"spring": {"values": ["nan kN"] * 8}}}, "model.spring: "),
+        ({"model": {"spring": {"values": ["0 kN", "-300 kN", *["450 kN"] * 6]}}}, "model.spring.values.1: must not be negative"),
+        ({"model": {"damper": {"values": ["-5 kN*s/m", "5 kN*s/m"]}}}, "model.damper.values.0: must not be negative"),
         ({"estimate": {"vehicle.cg_above_impact": {"bounds": [0, "inf m"]}}}, "estimate.vehicle.cg_above_impact: "),
     ],
 )

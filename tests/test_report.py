@@ -501,14 +501,74 @@ def test_an_identified_model_edited_is_one_line_to_the_exports_and_predictions(f
     before = sorted(tmp_path.rglob("*"))
     problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(folder / "result.json")
     prediction = ["simulate", problem, "--params", params, "--out", str(tmp_path / "out-sim"), "--no-figures"]
-    for fmt in ("ls-dyna", "csv"):
-        assert main(["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")]) == 2
+    for command in _reading_the_folder(folder, tmp_path):
+        assert main(command) == 2
         err = capsys.readouterr().err
-        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), err
+        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), (command, err)
         assert err.count("\n") == 1
     assert main(prediction) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why.split(' (')[0]}"), err
+    assert sorted(tmp_path.rglob("*")) == before
+
+
+def _reading_the_folder(folder: Path, tmp_path: Path) -> list[list[str]]:
+    """Every command that reads a fit's folder back: its exports (curves and pulse), its report
+    and its own tests' prediction, each writing outside the folder."""
+    exports = [["export", str(folder), "--format", fmt, "--out", str(tmp_path / f"out-{fmt}")] for fmt in FORMATS]
+    report = ["report", str(folder), "--out", str(tmp_path / "report.html")]
+    return [*exports, report, ["simulate", str(folder), "--out", str(tmp_path / "out-own"), "--no-figures"]]
+
+
+FORMATS = ("ls-dyna", "csv", "pulse")
+IDENTIFIED = "identified_model"
+EDITED_ELSEWHERE = {  # result.json edited past the vehicle and the model: (keys from the top, value) -> the entry named
+    ((IDENTIFIED, "discrepancy", "max_displacement_m"), -0.5): "identified_model.discrepancy.max_displacement_m is -0.5",
+    ((IDENTIFIED, "covariance", 8, 8), -1e6): "identified_model.covariance row 8 (vehicle.pitch_inertia) has the variance",
+    ((IDENTIFIED, "covariance", 0, 3), float("nan")): "identified_model.covariance row 0 (model.spring.values[0]) holds",
+    ((IDENTIFIED, "range", "max_displacement_m"), -0.59): "identified_model.range.max_displacement_m is -0.59",
+    ((IDENTIFIED, "channel_rmse", "accel_mps2"), -7.8): "identified_model.channel_rmse.accel_mps2 is -7.8",
+    ((IDENTIFIED, "labels", -1), REMOVED): "identified_model.bounds has 10 entries for 9 labels",
+    ((IDENTIFIED, "accel_filter"), "CFC61"): "identified_model.accel_filter is 'CFC61'",
+    ((IDENTIFIED, "model", "damper", "values", 0), -5000.0): "model.damper.values.0: must not be negative",
+    (("status",), None): "status is null",
+    (("tests", "56kph", "speed_mps"), -15.5): "tests.56kph.speed_mps is -15.5",
+    (("tests", "56kph", "energy", "impact_kinetic"), None): "tests.56kph.energy.impact_kinetic is None",
+    (("std_errors", "vehicle.crush_offset"), -0.09): "std_errors.vehicle.crush_offset is -0.09",
+}
+
+
+@pytest.mark.parametrize(("edit", "why"), EDITED_ELSEWHERE.items())
+def test_a_result_edited_past_its_model_is_one_line_to_every_command_that_reads_it(fit, tmp_path, capsys, edit, why):
+    """A fit's result.json edited by hand where a prediction's intervals, notes or impact, an
+    export's pulse or a report's table read it (the identified model's covariance, range,
+    discrepancy, RMSE, labels, filter or damper; the status; a test's speed or impact energy; a
+    standard error): every command that reads the folder refuses it alike, naming the result.json
+    and the entry, exit 2, and writes nothing (no pulse at a negative speed, no interval shifted by
+    a negative variance, no null status read as converged); a prediction of another problem from
+    it (--params) too, where it reads the entry."""
+    folder = tmp_path / "edited"
+    shutil.copytree(fit, folder)
+    raw = json.loads((folder / "result.json").read_text())
+    (*path, key), value = edit
+    entry = raw
+    for step in path:
+        entry = entry[step]
+    if value is REMOVED:
+        del entry[key]
+    else:
+        entry[key] = value
+    (folder / "result.json").write_text(json.dumps(raw))
+    before = sorted(tmp_path.rglob("*"))
+    commands = _reading_the_folder(folder, tmp_path)
+    if edit[0][0] in (IDENTIFIED, "status"):
+        problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(folder / "result.json")
+        commands.append(["simulate", problem, "--params", params, "--out", str(tmp_path / "sim"), "--no-figures"])
+    for command in commands:
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why}"), (command, err)
+        assert err.count("\n") == 1
     assert sorted(tmp_path.rglob("*")) == before
 
 

@@ -324,7 +324,7 @@ class Spring(Strict):
     crush_breakpoints: list[Length] | BreakpointCount | None = Field(
         None, description="crush at the breakpoints; omitted or {count: N}: placed over the data's crush range"
     )
-    values: list[SIValue] | None = Field(
+    values: list[Annotated[SIValue, AfterValidator(_not_negative)]] | None = Field(
         None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
     )
     tail: Annotated[
@@ -384,7 +384,7 @@ class Spring(Strict):
 
 class Damper(Strict):
     rate_breakpoints: list[Speed]
-    values: list[Damping]
+    values: list[Annotated[Damping, AfterValidator(_not_negative)]]
 
     @field_validator("rate_breakpoints")
     @classmethod

@@ -77,7 +77,7 @@ def result_page(result: Result, folder: Path) -> str:
         brief=_brief(result),
         tests=[_test(result, name, folder) for name in result.tests],
         figures=figures,
-        parameters=_parameters(result),
+        parameters=_parameters(result, folder / "result.json"),
         not_identified=result.not_identified,
         at_bound=pull_texts(result),
         active=result.active_constraints,
@@ -135,11 +135,11 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     }
 
 
-def _parameters(result: Result) -> list[dict[str, str]]:
+def _parameters(result: Result, source: Path) -> list[dict[str, str]]:
     """Every estimated value, one number each: value, standard error and 95 % interval (the
     profile's where the fit profiled it, else value ± Z95 standard errors, cut at its bounds),
-    its bounds, in the unit it reads in."""
-    problem = result.identified.as_problem(result.name) if result.identified is not None else None
+    its bounds, in the unit it reads in (`source`: the result.json, which a refusal names)."""
+    problem = result.identified.as_problem(result.name, str(source)) if result.identified is not None else None
     bounds = dict(zip(result.identified.labels, result.identified.bounds)) if result.identified is not None else {}
     rows = []
     for path, value in result.parameters.items():

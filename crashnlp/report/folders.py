@@ -15,7 +15,7 @@ from typing import Literal
 
 from crashnlp.base.errors import InputError, unreadable
 from crashnlp.results import simulation
-from crashnlp.results.result import Result
+from crashnlp.results.result import RESULT_FILE, Result, ResultFile, refuse_edited
 from crashnlp.results.simulation import PredictedTest
 from crashnlp.studies.store import CaseStore
 
@@ -33,10 +33,13 @@ def folder_kind(folder: Path) -> Kind:
     raise InputError(f"{folder}: holds no result.json, simulation.json or cases/: not a folder crashnlp wrote")
 
 
-def read_result(folder: Path) -> Result:
-    """The fit or design in `folder`."""
-    with reading(folder / "result.json"):
-        return Result.load(folder)
+def read_result(folder: Path, file: ResultFile | None = None) -> Result:
+    """The fit or design in `folder` (`file`: its result.json where the caller has read it
+    already), refused where it was edited out of what crashnlp writes (refuse_edited): what a
+    prediction, an export or a report of it reads is checked here, once."""
+    path = folder / RESULT_FILE
+    with reading(path):
+        return refuse_edited(Result.load(folder, file), str(path))
 
 
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
@@ -56,8 +59,10 @@ def read_study(folder: Path) -> list[dict]:
 @contextmanager
 def reading(path: Path) -> Iterator[None]:
     """Any failure to read a folder's files, or what they hold, becomes one line naming `path`,
-    the file that marks it (crashnlp.base.errors.unreadable)."""
+    the file that marks it (crashnlp.base.errors.unreadable); an InputError is that line already."""
     try:
         yield
+    except InputError:
+        raise  # one line already, naming the file and the entry
     except (OSError, ValueError, KeyError, TypeError, IndexError, AttributeError) as exc:
         raise unreadable(path, exc) from None

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from crashnlp.base.choices import CFC_CLASSES
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT, OUTPUTS
 
@@ -41,6 +42,7 @@ UNLOADING_STIFFNESS = "model.unloading.stiffness"
 # fit writes the value it used, so a null here is an edited file, and a prediction would read it from
 # the predicted test's data
 FROM_DATA = ("vehicle.mass", SPRING_VALUES, UNLOADING_STIFFNESS)
+EDITED = "(a result.json edited by hand?)"  # the likeliest cause of a result.json crashnlp would not have written
 
 
 @dataclass(frozen=True)
@@ -166,11 +168,13 @@ class IdentifiedModel:
     def as_problem(self, name: str, source: str | None = None) -> Problem:
         """The identified vehicle as a problem of one data-free test at its speed: what reads the
         model without its data (the units of its entries, its model's functions) takes this. It is
-        validated as a problem file is: an entry out of shape (a result.json edited by hand) is a
-        ProblemError naming `source` (the file it came from; `name` without one) and the entry."""
+        validated as a problem file is, and what a prediction reads beside it as a fit writes it
+        (`refuse_out_of_shape`): an entry out of shape (a result.json edited by hand) is an
+        InputError naming `source` (the file it came from; `name` without one) and the entry."""
         from crashnlp.problem.schema import problem_from_dict  # the schema: not for a result read back
 
         self.refuse_unfilled(source or name)
+        self.refuse_out_of_shape(source or name)
         raw = {"name": name, "vehicle": self.vehicle, "model": self.model, "tests": [{"name": "identified"}]}
         return problem_from_dict(raw, Path("."), source or name)
 
@@ -184,8 +188,47 @@ class IdentifiedModel:
             if node is None:
                 raise InputError(
                     f"{source}: identified_model.{path} is missing or null: a fit writes the value it used, and a prediction "
-                    "would take it from its own test's data instead (a result.json edited by hand?)"
+                    f"would take it from its own test's data instead {EDITED}"
                 )
+
+    def refuse_out_of_shape(self, source: str) -> None:
+        """An InputError naming `source` and the entry where what a prediction reads beside the
+        vehicle and the model is not as a fit writes it: bounds or a covariance that are not one
+        entry, or one row and column, per label; a covariance holding nan (a fit writes null, read as
+        infinite, where the data do not determine a value) or a variance below zero; a range,
+        discrepancy or channel RMSE below zero or not a number; an accelerometer filter that is no
+        CFC class. Each would shift or break a prediction's intervals and notes without a word."""
+        n = len(self.labels)
+        if len(self.bounds) != n:
+            raise InputError(f"{source}: identified_model.bounds has {len(self.bounds)} entries for {n} labels {EDITED}")
+        if self.covariance is not None:
+            if self.covariance.shape != (n, n):
+                rows = "x".join(map(str, self.covariance.shape))
+                raise InputError(f"{source}: identified_model.covariance is {rows} for {n} labels {EDITED}")
+            for i, row in enumerate(self.covariance):
+                if np.isnan(row).any() or row[i] < 0:
+                    what = "holds a value that is not a number" if np.isnan(row).any() else f"has the variance {row[i]:g}"
+                    raise InputError(f"{source}: identified_model.covariance row {i} ({self.labels[i]}) {what} {EDITED}")
+        for entry, value in self._not_negative():
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 <= value < math.inf:
+                raise InputError(f"{source}: identified_model.{entry} is {value}: must be a number, not negative {EDITED}")
+        if self.accel_filter is not None and (not isinstance(self.accel_filter, str) or self.accel_filter not in CFC_CLASSES):
+            classes = ", ".join(CFC_CLASSES)
+            raise InputError(
+                f"{source}: identified_model.accel_filter is {self.accel_filter!r}: one of {classes}, or null {EDITED}"
+            )
+
+    def _not_negative(self) -> list[tuple[str, Any]]:
+        """(entry, value) of each number result.json keeps beside the model that is zero or above."""
+        r = self.range
+        spans = [("range.speeds_mps", r.speeds), ("range.masses_kg", r.masses), ("range.energies_j", r.energies)]
+        return [
+            ("range.max_displacement_m", r.max_displacement),
+            ("range.model_crush_m", r.model_crush),
+            *((f"{entry}[{i}]", v) for entry, values in spans for i, v in enumerate(values)),
+            *((f"discrepancy.{key}", v) for key, v in self.discrepancy.items()),
+            *((f"channel_rmse.{OUTPUT[c].key if c in OUTPUT else c}", v) for c, v in self.channel_rmse.items()),
+        ]
 
     def std(self) -> np.ndarray:
         """Standard error of each labelled value; inf where the data do not determine it."""

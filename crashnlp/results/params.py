@@ -39,10 +39,15 @@ def read_params(path: str | Path) -> ResultFile:
 
 
 def identified_of(source: str, raw: dict[str, Any]) -> IdentifiedModel | None:
-    """The identified vehicle of a result.json's content, or None for one that carries only parameters."""
+    """The identified vehicle of a result.json's content, or None for one that carries only
+    parameters; a fit's result.json (one with an identified vehicle) whose status is not as a fit
+    writes it is refused."""
+    from crashnlp.results.result import refuse_status
+
     entry = raw.get("identified_model")
     if entry is None:
         return None
+    refuse_status(raw.get("status"), source)
     try:
         return IdentifiedModel.from_json(entry)
     except (KeyError, TypeError, ValueError, AttributeError):

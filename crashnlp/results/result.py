@@ -11,6 +11,7 @@ converted to report units (g, deg, ms) only as it is written.
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -20,7 +21,7 @@ import numpy as np
 from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
-from crashnlp.results.identified import IdentifiedModel
+from crashnlp.results.identified import EDITED, IdentifiedModel
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_response, write_response_csv
 
@@ -250,6 +251,42 @@ class Result:
         )
 
 
+def refuse_edited(result: Result, source: str) -> Result:
+    """`result` as read back from `source` (its result.json), refused (InputError naming the file
+    and the entry, "a result.json edited by hand?") where it is not as crashnlp writes it: a status
+    that is not text (a null would read as converged), a test's impact speed or impact energy that
+    is not a number above zero, a standard error below zero or not a number, and an identified
+    model a prediction could not take (IdentifiedModel.as_problem, which loads the problem schema:
+    `Result.load` itself reads with numpy alone). What reads a fit's folder back for a prediction,
+    an export or a report goes through this (crashnlp.report.folders.read_result)."""
+    refuse_status(result.status, source)
+    for name, t in result.tests.items():
+        energy = [] if t.energy is None else [(f"tests.{name}.energy.impact_kinetic", t.energy.get("impact_kinetic"))]
+        for entry, value in [(f"tests.{name}.speed_mps", t.speed), *energy]:
+            if not _positive(value):
+                raise InputError(f"{source}: {entry} is {value}: must be a number above zero {EDITED}")
+    for path, errors in result.std_errors.items():
+        for i, std in enumerate(errors if isinstance(errors, list) else [errors]):
+            if std is not None and not (_positive(std) or std == 0):
+                where = f"{path}[{i}]" if isinstance(errors, list) else path
+                raise InputError(f"{source}: std_errors.{where} is {std}: must be a number, not negative, or null {EDITED}")
+    if result.identified is not None:
+        result.identified.as_problem(result.name, source)
+    return result
+
+
+def refuse_status(status: Any, source: str) -> None:
+    """An InputError naming `source` where a result's status is not text, as a fit or a design
+    writes it ("ok", or why not): a null would read as converged (`unconverged`)."""
+    if not isinstance(status, str):
+        raise InputError(f"{source}: status is {json.dumps(status)}: a fit or a design writes its status as text {EDITED}")
+
+
+def _positive(value: Any) -> bool:
+    """Whether `value` is a number above zero, finite (a bool is no number here)."""
+    return isinstance(value, (int, float)) and not isinstance(value, bool) and 0.0 < value < math.inf
+
+
 def pull_texts(result: Result) -> dict[str, str]:
     """Each value at a bound, and how far past it the data pull as the console and the report give
     it: in standard errors, or that the data do not determine the value (`Result.at_bound`'s None);
@@ -295,7 +332,8 @@ def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
 def unconverged(status: str | None) -> tuple[str, ...]:
     """The line a file of a fit that did not converge carries first (its IPOPT status): the
     force-crush table beside its result.json, and its exports (crashnlp.report.export); none for
-    one that did or names none."""
+    one that did, nor for None, the status of a simulation of a problem alone, which names no
+    fit (a result.json's own status is text: `refuse_status`)."""
     if status in (None, "ok"):
         return ()
     return (f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model",)
