@@ -235,8 +235,9 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
 def test_a_designs_pulse_is_its_own_acceleration_and_a_filter_that_moves_its_peak_says_so(tmp_path):
     """A model's acceleration no accelerometer reads (a design's: Response.accel_filter None) is
     handed on unfiltered by default, its peak the one the design optimised; a CFC 60 filter on its
-    step onset overshoots, and the header then gives the model's own peak and the pulse's. A fit's,
-    read through its tests' class, is that curve by default, as before."""
+    step onset overshoots, and the header then gives the model's own peak and the pulse's; it says
+    the pulse is a designed model's. A fit's, read through its tests' class, is that curve by
+    default, as before."""
     from crashnlp.report.export import PulseTest, pulse, write_pulse
     from crashnlp.results.response import Response
 
@@ -249,8 +250,11 @@ def test_a_designs_pulse_is_its_own_acceleration_and_a_filter_that_moves_its_pea
     filtered = pulse(design, 16.0, 1e4, 60)
     peak = np.max(-filtered.accel)
     assert peak > 1.01 * 200.0  # CFC 60 overshoots the step: a sled run to it runs harder than the design
-    write_pulse(tmp_path / "p.csv", "d", PulseTest("t", design, 16.0, 1500.0, None, (), None), filtered)
-    header = [line for line in (tmp_path / "p.csv").read_text().splitlines() if line.startswith("# sampled")]
+    write_pulse(tmp_path / "p.csv", "d", PulseTest("t", design, 16.0, 1500.0, None, (), None, designed=True), filtered)
+    lines = (tmp_path / "p.csv").read_text().splitlines()
+    whose = "the designed model's acceleration (crashnlp design) in test t"
+    assert lines[0] == f"# crashnlp export of d: {whose}, as a sled-test input"
+    header = [line for line in lines if line.startswith("# sampled")]
     assert f"{200.0 / G0:.2f} g" in header[0] and f"{peak / G0:.2f} g" in header[0]
     fit = Response(time, {"accel": filtered.accel, "velocity": velocity}, np.zeros((0, time.size)), "CFC60", accel)
     assert pulse(fit, 16.0, 1e4).cfc == 60.0 and np.array_equal(pulse(fit, 16.0, 1e4).accel, filtered.accel)

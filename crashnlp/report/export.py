@@ -199,7 +199,8 @@ class PulseTest:
     """The test a pulse is exported from, as its header names it: its response (read back from its
     response.csv), impact speed (m/s) and mass (kg; None where its folder does not record it), and
     its notes (what its fit or its prediction said of it); `source`: a prediction's, in one line
-    (crashnlp.results.source.source_line), or None for a fit's own test; `goes_on`: the words for a
+    (crashnlp.results.source.source_line), or None for a fit's or a design's own test; `designed`:
+    a design's test (its model's values chosen for a goal, fitted to no data); `goes_on`: the words for a
     response whose crash goes on past its end (crashnlp.analysis.summary.goes_on, as the console
     says them), None where it holds the crash whole."""
 
@@ -210,6 +211,7 @@ class PulseTest:
     source: str | None
     notes: tuple[str, ...]
     goes_on: str | None
+    designed: bool = False
 
     @property
     def warning(self) -> str | None:
@@ -227,7 +229,11 @@ class PulseTest:
         """Whose acceleration the pulse is (of the fit or the simulation `name`), the impact it is of
         and, for a prediction, where it came from."""
         fitted = self.source is None
-        whose = "the fitted model's acceleration in" if fitted else "a prediction's acceleration (crashnlp simulate) of"
+        whose = "the fitted model's acceleration in"
+        if not fitted:
+            whose = "a prediction's acceleration (crashnlp simulate) of"
+        elif self.designed:
+            whose = "the designed model's acceleration (crashnlp design) in"
         mass = "mass not recorded (result.json keeps no energy audit of it)" if self.mass is None else f"mass {self.mass:.0f} kg"
         lines = (
             f"crashnlp export of {name}: {whose} test {self.name}, as a sled-test input",
@@ -237,12 +243,13 @@ class PulseTest:
 
 
 def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
-    """Test `name` of the fit in `folder`: its mass from the fit's energy audit of it (the impact
-    energy, m v^2 / 2: result.json keeps no other), its notes those of the fit that name it."""
+    """Test `name` of the fit (or the design) in `folder`: its mass from the energy audit of it (the
+    impact energy, m v^2 / 2: result.json keeps no other), its notes those of the result that name it."""
     t = result.tests[name]
     mass = 2.0 * t.energy["impact_kinetic"] / t.speed**2 if t.energy else None
     notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
-    return PulseTest(name, finite(folder / name / "response.csv", t.response), t.speed, mass, None, notes, goes_on(t.metrics))
+    response = finite(folder / name / "response.csv", t.response)
+    return PulseTest(name, response, t.speed, mass, None, notes, goes_on(t.metrics), designed=result.kind == "design")
 
 
 def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
