@@ -183,6 +183,18 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+def test_init_refuses_a_record_on_a_shifted_clock_and_writes_nothing(tmp_path, capsys):
+    """The pickup with its time starting at 1 s (a data system's clock): init wrote a window
+    [0 s, 1.25 s] the fit never finished on. Refused in one line naming the time column."""
+    path = tmp_path / "shifted.csv"
+    header, *rows = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    path.write_text("\n".join([header] + [f"{float(r.split(',')[0]) + 1.0:.6f},{r.split(',', 1)[1]}" for r in rows]))
+    assert main(["init", str(path), "--mass", "2550 kg", "--out", str(tmp_path / "p.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: time column time_s: the record begins 1000 ms after impact" in err
+    assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
 @pytest.mark.parametrize(
     ("column", "value", "said"),
     [("Travel_mm", 250.0, "stays at 0.25 m"), ("Speed_ft/s", 0.0, "stays at 0 m/s")],

@@ -224,6 +224,71 @@ def test_csv_bad_data_gives_one_line_naming_file_and_channel(tmp_path, rows, cha
     assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
 
 
+def _pickup_rows(tmp_path, edit) -> Path:
+    """The shipped pickup CSV with its rows (time first) changed by `edit`, written beside the test."""
+    rows = np.loadtxt(PICKUP, delimiter=",", skiprows=1)
+    path = tmp_path / "edited.csv"
+    path.write_text(PICKUP.read_text().splitlines()[0] + "\n" + "\n".join(",".join(f"{x:.7f}" for x in r) for r in edit(rows)))
+    return path
+
+
+def _jittered(rows: np.ndarray) -> np.ndarray:
+    rows = rows.copy()
+    rows[:, 0] += 30e-6 * np.random.default_rng(1).choice([-1.0, 1.0], rows.shape[0])
+    return rows
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [lambda rows: np.delete(rows, np.s_[300:400], axis=0), _jittered],
+    ids=["rows 30-40 ms missing", "30 us jitter"],
+)
+@pytest.mark.parametrize("channel", ["accel", "velocity", "displacement", "pitch"])
+def test_csv_refuses_uneven_sampling_of_a_channel_left_unfiltered(tmp_path, edit, channel):
+    """A gap or a jittered clock is refused on every channel read, filtered or not (unfiltered,
+    it once passed: only a filter asked for uniform steps)."""
+    channels = {
+        "accel": {"column": "accel_x_g", "unit": "g", "filter": None},
+        "velocity": {"column": "vel_x_mps", "unit": "m/s"},
+        "displacement": {"column": "disp_x_m"},
+        "pitch": {"column": "pitch_deg", "unit": "deg"},
+    }
+    path = _pickup_rows(tmp_path, edit)
+    with pytest.raises(DataError, match=rf"edited\.csv: channel {channel}.*sampling is not uniform") as err:
+        load_test_data(pickup(file=path, channels={channel: channels[channel]}))
+    assert err.value.key == f"channels.{channel}"
+
+
+def test_csv_refuses_a_bias_window_the_record_does_not_cover(tmp_path):
+    """A record from t = 0 holds one sample of a window [-0.05 s, 0 s]: a spike there would shift
+    the whole acceleration by its size. Refused, naming bias_window, as is a window of 2 ms."""
+
+    def spiked(rows: np.ndarray) -> np.ndarray:
+        rows = rows.copy()
+        rows[0, 1] = -4.0
+        return rows
+
+    path = _pickup_rows(tmp_path, spiked)
+    with pytest.raises(DataError, match=r"edited\.csv: channel accel: bias window .* 1 sample") as err:
+        load_test_data(pickup(file=path, bias_window=(-0.05, 0.0)))
+    assert err.value.key == "bias_window"
+    early = _pickup_rows(tmp_path, lambda rows: rows - [0.002, 0, 0, 0, 0])  # 2 ms of record before impact
+    with pytest.raises(DataError, match=r"bias window .* 2 ms of a record"):
+        load_test_data(pickup(file=early, bias_window=(-0.002, 0.0)))
+
+
+def test_csv_refuses_a_record_that_begins_well_after_impact(tmp_path):
+    """A time column on a data system's clock (the pickup from t = 1 s) had the fit run for ever
+    on a record it never reached: refused naming the time column and its key; a record that
+    begins 5 ms after impact loads."""
+    shifted = _pickup_rows(tmp_path, lambda rows: rows + [1.0, 0, 0, 0, 0])
+    with pytest.raises(DataError, match=r"edited\.csv: time column time_s: the record begins 1000 ms after impact") as err:
+        load_test_data(pickup(file=shifted))
+    assert err.value.key == "time"
+    late = _pickup_rows(tmp_path, lambda rows: rows[50:])
+    assert load_test_data(pickup(file=late)).channels["accel"].time[0] == pytest.approx(0.005)
+
+
 # ---------------------------------------------------------------- ISO-MME
 CODE_X = "10VEHCCG0000ACXA"
 CODE_P = "10VEHCCG0000AVYA"
