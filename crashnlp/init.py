@@ -42,6 +42,7 @@ from crashnlp.data.channels import Channel
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import READERS, load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
+from crashnlp.data.signal import BIAS_SPAN
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
@@ -67,7 +68,6 @@ RIDE_FREQUENCY, DAMPING_RATIO = 1.2, 0.25  # Hz, -
 OVERHANG_SHARE = 0.47  # front overhang, fraction of length minus wheelbase (EV5 gives both)
 WINDOW_FACTOR, WINDOW_MIN = 2.0, 0.1  # fit window: twice the stop time, at least 0.1 s...
 PITCH_MARGIN = 0.01  # s: ...and this past a measured pitch's peak (a body pitches for a few hundred ms)
-BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset
 
 
 @dataclass

@@ -18,7 +18,7 @@ from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_channel import read_channel_files
 from crashnlp.data.nhtsa_ev5 import read_ev5
-from crashnlp.data.signal import BIAS_LEAST, CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
+from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN, CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
 from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
 
 Reader = Callable[[DataSpec], TestData]
@@ -90,7 +90,7 @@ def _check_offset(at: str, time: np.ndarray, accel: np.ndarray) -> None:
         raise DataError(
             f"{at}: reads {offset / G0:.3g} g on average over the {span * 1e3:g} ms before impact, where the vehicle "
             f"rolls at a steady speed: an offset of the accelerometer, which integrates to a drift (no bias_window "
-            f"removes it; bias_window: [{max(-span, -0.05):g} s, 0 s] does), or a pulse that begins before t = 0 "
+            f"removes it; bias_window: [{max(-span, -BIAS_SPAN):g} s, 0 s] does), or a pulse that begins before t = 0 "
             "(the record's time origin is off)",
             "bias_window",
         )
