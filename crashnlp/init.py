@@ -40,8 +40,9 @@ from crashnlp.base.units import unit_scale
 from crashnlp.case.testcase import PITCH_SWING, nose_up
 from crashnlp.data.channels import Channel
 from crashnlp.data.csv_reader import Table
-from crashnlp.data.load import load_test_data
+from crashnlp.data.load import READERS, load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
+from crashnlp.data.signal import BIAS_SPAN
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
@@ -67,7 +68,6 @@ RIDE_FREQUENCY, DAMPING_RATIO = 1.2, 0.25  # Hz, -
 OVERHANG_SHARE = 0.47  # front overhang, fraction of length minus wheelbase (EV5 gives both)
 WINDOW_FACTOR, WINDOW_MIN = 2.0, 0.1  # fit window: twice the stop time, at least 0.1 s...
 PITCH_MARGIN = 0.01  # s: ...and this past a measured pitch's peak (a body pitches for a few hundred ms)
-BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset
 
 
 @dataclass
@@ -447,17 +447,23 @@ def _data_spec(draft: Draft, path: Path) -> DataSpec:
         raise InputError(f"{path}: {all_errors(exc)}") from None
 
 
-def _timing(draft: Draft, path: Path, speed: float) -> None:
-    """Bias window (at least 10 ms of pre-impact record), and a fit window of twice the stop time,
-    or to PITCH_MARGIN past a measured pitch's peak where that is later (so the max pitch is the
-    crash's, not the window's), within the record."""
+def _bias_window(draft: Draft, path: Path) -> None:
+    """A bias window over the last BIAS_SPAN before impact where every channel read holds at least
+    10 ms of pre-impact record and an accel channel is read: set before the data are loaded, which
+    refuses an accelerometer's offset that no window removes."""
     spec = _data_spec(draft, path)
-    data = load_test_data(spec, speed)
-    start = max(c.time[0] for c in data.channels.values())
+    raw = READERS[spec.format](spec).channels
+    read = [raw[name] for name, ch in spec.channels.items() if ch.derive is None]
+    start = max(c.time[0] for c in read)
+    if start <= -0.01 and "accel" in raw:
+        draft.data["bias_window"] = [max(float(start), -BIAS_SPAN), 0.0]
+
+
+def _timing(draft: Draft, path: Path, speed: float) -> None:
+    """A fit window of twice the stop time, or to PITCH_MARGIN past a measured pitch's peak where
+    that is later (so the max pitch is the crash's, not the window's), within the record."""
+    data = load_test_data(_data_spec(draft, path), speed)
     end = min(c.time[-1] for c in data.channels.values())
-    if start <= -0.01 and "accel" in data.channels:
-        draft.data["bias_window"] = [max(start, -BIAS_SPAN), 0.0]
-        data = load_test_data(_data_spec(draft, path), speed)
     v = data.channels["velocity"]
     after = v.time >= 0.0
     stop = zero_crossing(v.time[after], v.values[after], STOPPED * speed)
@@ -563,6 +569,7 @@ def draft_for(paths: list[Path], options: Options) -> tuple[Draft, dict]:
     draft.data = {"format": fmt, **draft.data}
     if options.name:
         draft.name = options.name
+    _bias_window(draft, path)
     if fmt in UNFRAMED:
         _signs(draft, path)
     _resolve(draft, options, path)

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 import yaml
 from builders import ROOT
-from test_readers import CODE_X, _mme_set, channel_export
+from test_readers import CODE_X, _mme_set, channel_export, offset_ev5
 
 from bench.corpus import random_vehicle, simulate, write_csv
 from crashnlp.base.errors import InputError
@@ -42,6 +42,14 @@ def test_init_on_the_ev5_reproduces_the_camry_fit(tmp_path):
     model = test["metrics"]["model"]
     assert model["max_displacement_m"] * 1e3 == pytest.approx(CAMRY_DATA["crush_mm"], rel=0.02)
     assert abs(model["time_zero_velocity_s"] * 1e3 - CAMRY_DATA["stop_ms"]) <= 2.0
+
+
+def test_init_removes_an_accelerometer_offset_before_impact(tmp_path):
+    """init sets the bias window before it reads the data, which refuse an offset no window
+    removes: test 10146 plus 3 g gets its window, and its crush as the shipped test's."""
+    out = tmp_path / "camry.yaml"
+    assert main(["init", str(offset_ev5(tmp_path / "off")), "--out", str(out)]) == 0
+    assert "bias_window: [-0.05 s, 0 s]" in out.read_text() and "to 746 mm" in out.read_text()
 
 
 def test_init_names_a_symlinked_data_file_where_the_user_put_it(tmp_path):
@@ -180,6 +188,18 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert main(["init", str(path), "--mass", "2550 kg", "--out", str(tmp_path / "p.yaml")]) == 2
     err = capsys.readouterr().err
     assert err.startswith(f"crashnlp: error: {path}: as read for the problem file: tests.0.data.channels.accel.unit: ")
+    assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
+
+
+def test_init_refuses_a_record_on_a_shifted_clock_and_writes_nothing(tmp_path, capsys):
+    """The pickup with its time starting at 1 s (a data system's clock): init wrote a window
+    [0 s, 1.25 s] the fit never finished on. Refused in one line naming the time column."""
+    path = tmp_path / "shifted.csv"
+    header, *rows = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    path.write_text("\n".join([header] + [f"{float(r.split(',')[0]) + 1.0:.6f},{r.split(',', 1)[1]}" for r in rows]))
+    assert main(["init", str(path), "--mass", "2550 kg", "--out", str(tmp_path / "p.yaml")]) == 2
+    err = capsys.readouterr().err
+    assert f"{path}: time column time_s: the record begins 1000 ms after impact" in err
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 

@@ -32,7 +32,7 @@ def camry(cfc="CFC60", **kw) -> DataSpec:
     return spec(
         file=kw.pop("file", EV5),
         format="nhtsa-ev5",
-        bias_window=(-0.05, 0.0),
+        bias_window=kw.pop("bias_window", (-0.05, 0.0)),
         window=(0.0, 0.2),
         channels=kw.pop("channels", channels),
         **kw,
@@ -154,6 +154,31 @@ def test_nhtsa_nan_sample(tmp_path):
         load_test_data(camry(file=header))
 
 
+def offset_ev5(folder: Path, g: float = 3.0) -> Path:
+    """Test 10146 in `folder` (its files linked) with `g` added to the X accelerometers 93 and 94."""
+    folder.mkdir(exist_ok=True)
+    for path in EV5.parent.iterdir():
+        (folder / path.name).symlink_to(path)
+    for n in (93, 94):
+        curve = folder / f"v10146.{n:03d}"
+        t, a = np.loadtxt(curve).T
+        curve.unlink()
+        np.savetxt(curve, np.column_stack([t, a + g]), delimiter="\t", fmt="%.6f")
+    return folder / EV5.name
+
+
+def test_an_accelerometer_offset_before_impact_needs_a_bias_window(tmp_path):
+    """Test 10146's accelerometers plus 3 g, no bias_window: 50 ms before impact read the offset,
+    which integrated gave 145 mm more crush and an ok. Refused naming bias_window; with the window,
+    or without the offset (0.024 g at most), it loads."""
+    header = offset_ev5(tmp_path / "off")
+    with pytest.raises(DataError, match=r"channel accel: reads 2.99 g on average over the 50 ms before impact") as err:
+        load_test_data(camry(file=header, bias_window=None))
+    assert err.value.key == "bias_window" and "bias_window: [-0.05 s, 0 s]" in str(err.value)
+    assert load_test_data(camry(file=header)).channels["accel"].values[0] == pytest.approx(0.0, abs=5.0)
+    assert load_test_data(camry(bias_window=None)).channels["accel"].time[0] == 0.0
+
+
 # ---------------------------------------------------------------- CSV
 def pickup(**kw) -> DataSpec:
     channels = kw.pop(
@@ -222,6 +247,71 @@ def test_csv_bad_data_gives_one_line_naming_file_and_channel(tmp_path, rows, cha
     with pytest.raises(DataError, match=message) as err:
         load_test_data(pickup(file=path, channels=channels, **kw))
     assert str(err.value).startswith(str(path)) and "\n" not in str(err.value)
+
+
+def _pickup_rows(tmp_path, edit) -> Path:
+    """The shipped pickup CSV with its rows (time first) changed by `edit`, written beside the test."""
+    rows = np.loadtxt(PICKUP, delimiter=",", skiprows=1)
+    path = tmp_path / "edited.csv"
+    path.write_text(PICKUP.read_text().splitlines()[0] + "\n" + "\n".join(",".join(f"{x:.7f}" for x in r) for r in edit(rows)))
+    return path
+
+
+def _jittered(rows: np.ndarray) -> np.ndarray:
+    rows = rows.copy()
+    rows[:, 0] += 30e-6 * np.random.default_rng(1).choice([-1.0, 1.0], rows.shape[0])
+    return rows
+
+
+@pytest.mark.parametrize(
+    "edit",
+    [lambda rows: np.delete(rows, np.s_[300:400], axis=0), _jittered],
+    ids=["rows 30-40 ms missing", "30 us jitter"],
+)
+@pytest.mark.parametrize("channel", ["accel", "velocity", "displacement", "pitch"])
+def test_csv_refuses_uneven_sampling_of_a_channel_left_unfiltered(tmp_path, edit, channel):
+    """A gap or a jittered clock is refused on every channel read, filtered or not (unfiltered,
+    it once passed: only a filter asked for uniform steps)."""
+    channels = {
+        "accel": {"column": "accel_x_g", "unit": "g", "filter": None},
+        "velocity": {"column": "vel_x_mps", "unit": "m/s"},
+        "displacement": {"column": "disp_x_m"},
+        "pitch": {"column": "pitch_deg", "unit": "deg"},
+    }
+    path = _pickup_rows(tmp_path, edit)
+    with pytest.raises(DataError, match=rf"edited\.csv: channel {channel}.*sampling is not uniform") as err:
+        load_test_data(pickup(file=path, channels={channel: channels[channel]}))
+    assert err.value.key == f"channels.{channel}"
+
+
+def test_csv_refuses_a_bias_window_the_record_does_not_cover(tmp_path):
+    """A record from t = 0 holds one sample of a window [-0.05 s, 0 s]: a spike there would shift
+    the whole acceleration by its size. Refused, naming bias_window, as is a window of 2 ms."""
+
+    def spiked(rows: np.ndarray) -> np.ndarray:
+        rows = rows.copy()
+        rows[0, 1] = -4.0
+        return rows
+
+    path = _pickup_rows(tmp_path, spiked)
+    with pytest.raises(DataError, match=r"edited\.csv: channel accel: bias window .* 1 sample") as err:
+        load_test_data(pickup(file=path, bias_window=(-0.05, 0.0)))
+    assert err.value.key == "bias_window"
+    early = _pickup_rows(tmp_path, lambda rows: rows - [0.002, 0, 0, 0, 0])  # 2 ms of record before impact
+    with pytest.raises(DataError, match=r"bias window .* 2 ms of a record"):
+        load_test_data(pickup(file=early, bias_window=(-0.002, 0.0)))
+
+
+def test_csv_refuses_a_record_that_begins_well_after_impact(tmp_path):
+    """A time column on a data system's clock (the pickup from t = 1 s) had the fit run for ever
+    on a record it never reached: refused naming the time column and its key; a record that
+    begins 5 ms after impact loads."""
+    shifted = _pickup_rows(tmp_path, lambda rows: rows + [1.0, 0, 0, 0, 0])
+    with pytest.raises(DataError, match=r"edited\.csv: time column time_s: the record begins 1000 ms after impact") as err:
+        load_test_data(pickup(file=shifted))
+    assert err.value.key == "time"
+    late = _pickup_rows(tmp_path, lambda rows: rows[50:])
+    assert load_test_data(pickup(file=late)).channels["accel"].time[0] == pytest.approx(0.005)
 
 
 # ---------------------------------------------------------------- ISO-MME

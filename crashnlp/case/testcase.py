@@ -32,6 +32,12 @@ SAME_CONDITIONS = 0.01  # relative: a simulated test this close to its data's sp
 DRIFT_LIMIT = 0.1
 PULSE_OVER = 0.01  # s
 PULSE_QUIET = 0.1
+# A rigid barrier only pushes the vehicle away from it. An acceleration that over the record's last
+# PULSE_OVER pushes it toward the barrier, steadily (within PULSE_QUIET of the peak about its mean),
+# is an offset on a pulse that is over (3 g on the pickup reads 10 % of its peak, so it passed as
+# a pulse going on), and its drift is judged too. Records cut short mid-crash push it that way only
+# unsteadily (an engine on its mounts pulls the body back, up to 6 % of the peak on average):
+# docs/design-notes.md, "An accelerometer's offset".
 # A pulse read with the wrong sign speeds the vehicle up by its velocity change: it leaves it at
 # about twice its speed. Past FLIPPED times the speed the accel channel's sign, not the speed, is at fault.
 FLIPPED = 1.5
@@ -548,17 +554,26 @@ def _sign_at_fault(speed: float, test: Test, data: TestData) -> bool:
 
 def _drift_after_pulse(speed: float, test: Test, data: TestData) -> float | None:
     """Where no velocity is measured, the velocity the accel channel integrated from `speed` (m/s)
-    leaves over the record's last PULSE_OVER, where its pulse is over (below PULSE_QUIET of its
-    peak); None with a measured velocity, without an accel channel from impact on, or where the
-    pulse goes on to the record's end (a record that ends early)."""
+    leaves over the record's last PULSE_OVER where its pulse is over there (`pulse_over`), or
+    where it throws the vehicle back past REBOUND_LIMIT (no record cut short mid-crash does); None
+    with a measured velocity, without an accel channel from impact on, or where the pulse goes on
+    to the record's end (a record that ends early)."""
     accel = data.channels.get("accel")
     if _velocity_start(test, data) is not None or accel is None or not accel.time[0] <= 0.0 < accel.time[-1] - PULSE_OVER:
         return None
-    quiet = accel.time >= accel.time[-1] - PULSE_OVER
-    if np.max(np.abs(accel.values[quiet])) > PULSE_QUIET * np.max(np.abs(accel.values)):
-        return None
+    last = accel.time >= accel.time[-1] - PULSE_OVER
     velocity, _ = integrate(accel.time, accel.values, speed)
-    return float(np.mean(velocity[quiet]))
+    drift = float(np.mean(velocity[last]))
+    return drift if pulse_over(accel.values[last], accel.values) or drift < -REBOUND_LIMIT * speed else None
+
+
+def pulse_over(end: np.ndarray, accel: np.ndarray) -> bool:
+    """Whether an acceleration's pulse is over by the `end` of its record (its last PULSE_OVER):
+    there it stays within PULSE_QUIET of its peak, or it pushes the vehicle toward the barrier
+    steadily, as a sensor's offset does and no barrier can."""
+    quiet = PULSE_QUIET * np.max(np.abs(accel))
+    mean = float(np.mean(end))
+    return bool(np.max(np.abs(end)) <= quiet or (mean > 0.0 and np.max(np.abs(end - mean)) <= quiet))
 
 
 def _velocity_hint(speed: float, start: float, test: Test, data: TestData) -> str:

@@ -90,11 +90,23 @@ def check_samples(time: np.ndarray, values: np.ndarray, at: str) -> None:
         raise DataError(f"{at}: time not increasing at t = {time[i + 1]:g} s")
 
 
-def sample_interval(time: np.ndarray, at: str, rtol: float = 0.01) -> float:
-    """Mean sample interval of a uniformly sampled record; refuse non-uniform sampling."""
+# A record's sample intervals may part from their mean by UNIFORM of it: times written to 1 us with a
+# 100 us interval round each by up to 1 %. A gap of missing rows or a jittered clock parts them by far
+# more; filters and the fit's resampling both take the record for one of even steps.
+UNIFORM = 0.01
+
+
+def sample_interval(time: np.ndarray, at: str) -> float:
+    """Mean sample interval of a uniformly sampled record; refuse a record whose intervals part from
+    it by more than UNIFORM of it (a gap, a jittered clock), naming where."""
     dt = (time[-1] - time[0]) / (time.size - 1)
-    if np.max(np.abs(np.diff(time) - dt)) > rtol * dt:
-        raise DataError(f"{at}: sampling is not uniform (needed to filter)")
+    off = np.abs(np.diff(time) - dt)
+    worst = int(np.argmax(off))
+    if off[worst] > UNIFORM * dt:
+        raise DataError(
+            f"{at}: sampling is not uniform: the interval after t = {time[worst]:.6g} s is "
+            f"{time[worst + 1] - time[worst]:.3g} s, the record's mean {dt:.3g} s (a gap, or a jittered clock)"
+        )
     return float(dt)
 
 
@@ -116,7 +128,8 @@ def median_interval(time: np.ndarray) -> float:
 
 
 def check_sampling(time: np.ndarray, at: str) -> None:
-    """Refuse a time base no crash record has: usually a wrong time unit (ms read as s, or s as ms)."""
+    """Refuse a time base no crash record has: usually a wrong time unit (ms read as s, or s as ms);
+    then one whose sampling is not uniform (`sample_interval`), filtered or not."""
     dt = median_interval(time)
     span = float(time[-1] - time[0])
     lo, hi = SAMPLE_INTERVALS
@@ -127,3 +140,4 @@ def check_sampling(time: np.ndarray, at: str) -> None:
         )
     if not RECORD_SPANS[0] <= span <= RECORD_SPANS[1]:
         raise DataError(f"{at}: the record lasts {span:g} s, not a crash record's: is the time unit right?")
+    sample_interval(time, at)

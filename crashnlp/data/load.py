@@ -12,12 +12,13 @@ from dataclasses import replace
 
 import numpy as np
 
+from crashnlp.base.units import G0
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_channel import read_channel_files
 from crashnlp.data.nhtsa_ev5 import read_ev5
-from crashnlp.data.signal import CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
+from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN, CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
 from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
 
 Reader = Callable[[DataSpec], TestData]
@@ -28,6 +29,18 @@ READERS: dict[str, Reader] = {
     "iso-mme": read_mme,
 }
 BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an offset, removed over `bias_window`
+# t = 0 is the first contact. By LATE_START after it every generated record has lost more than the
+# 5 % of its speed that a measured velocity may part from the test's (docs/design-notes.md, "A record
+# that begins after impact"): a record that begins later has lost the pulse's start, which the fit
+# needs, and one that begins there at the impact speed runs on another clock (a data system's).
+LATE_START = 0.01  # s
+# Before impact a vehicle rolls at a steady speed: its accelerometers read their zero offset. NHTSA
+# test 10146's eight vehicle accelerometers read at most 0.024 g on average over their 50 ms before
+# impact (their noise 0.11 to 0.49 g), a mean the noise moves by under 0.05 g over 5 ms (BIAS_LEAST).
+# Past OFFSET_LIMIT, where no bias_window removes it, the offset integrates to a drift (3 g over a
+# 0.2 s record: 5.9 m/s, and 145 mm more crush on test 10146): docs/design-notes.md, "An
+# accelerometer's offset".
+OFFSET_LIMIT = 0.2 * G0  # m/s^2
 
 
 def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
@@ -48,6 +61,39 @@ def _filter_note(name: str, cfc: str | None) -> str:
     if cfc == j211:
         return f"filtered at {cfc}, the SAE J211 class for {name} and the default"
     return f"filtered at {cfc or 'no CFC'}, where SAE J211 names {j211} for {name}"
+
+
+def _check_start(spec: DataSpec, name: str, channel: Channel) -> None:
+    """Refuse a channel whose record begins more than LATE_START after impact, naming the time
+    column (a CSV's, key `time`) or else the channel."""
+    begins = float(channel.time[0])
+    if begins <= LATE_START:
+        return
+    at, key = (f"{spec.file}: time column {spec.time.column}", "time") if spec.format == "csv" else (where(spec.file, name), None)
+    raise DataError(
+        f"{at}: the record begins {begins * 1e3:g} ms after impact (t = 0 is the first contact), past the "
+        f"{LATE_START * 1e3:g} ms by which a crash's pulse has taken off more than 5 % of the speed: give the time "
+        "from impact on (a data system's clock shifted by its trigger time), or the whole record",
+        key,
+    )
+
+
+def _check_offset(at: str, time: np.ndarray, accel: np.ndarray) -> None:
+    """Refuse an acceleration whose samples before impact, BIAS_LEAST of them or more, read a mean
+    further than OFFSET_LIMIT from zero, naming bias_window and the window that removes it."""
+    before = time < 0.0
+    span = float(-time[0]) if before.any() else 0.0
+    if span < BIAS_LEAST:
+        return
+    offset = float(np.mean(accel[before]))
+    if abs(offset) > OFFSET_LIMIT:
+        raise DataError(
+            f"{at}: reads {offset / G0:.3g} g on average over the {span * 1e3:g} ms before impact, where the vehicle "
+            f"rolls at a steady speed: an offset of the accelerometer, which integrates to a drift (no bias_window "
+            f"removes it; bias_window: [{max(-span, -BIAS_SPAN):g} s, 0 s] does), or a pulse that begins before t = 0 "
+            "(the record's time origin is off)",
+            "bias_window",
+        )
 
 
 def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
@@ -74,7 +120,10 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         with of_key(f"channels.{name}"):
             c = raw.channels[name]
             check_sampling(c.time, where(path, name))
+            _check_start(spec, name, c)
             values = c.values * ch.sign
+            if name == "accel" and spec.bias_window is None:
+                _check_offset(where(path, name), c.time, values)
             if name in DEFAULT_FILTER:
                 notes.append(f"{name}: {_filter_note(name, ch.filter)}")
             if name in BIASED and spec.bias_window is not None:

@@ -123,11 +123,29 @@ def cfc_filter(values: np.ndarray, dt: float, cfc: float | str, pad: float = 0.0
     return both[padlen : padlen + x.size]
 
 
+# A bias window's mean is the sensor's zero offset only where the record covers the window (it begins
+# no later than a sample after the window does) and the window holds BIAS_LEAST of record: the mean
+# of 50 samples at 10 kHz has a seventh of the noise of one (the generator's 0.8 g white noise: 0.11 g),
+# while a single sample at impact may read a spike of g's and shift the whole record by it.
+BIAS_LEAST = 0.005  # s; `crashnlp init` writes a window only where 10 ms of pre-impact record exist
+BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset: the window init writes
+
+
 def remove_bias(time: np.ndarray, values: np.ndarray, window: tuple[float, float]) -> np.ndarray:
-    """Subtract the mean of the samples in `window` (pre-impact: the sensor's zero offset)."""
+    """Subtract the mean of the samples in `window` (pre-impact: the sensor's zero offset); refuse a
+    window the record does not cover, or that holds less than BIAS_LEAST of it."""
     inside = (time >= window[0]) & (time <= window[1])
-    if not np.any(inside):
-        raise ValueError(f"bias window {window[0]:g} s to {window[1]:g} s holds no samples")
+    held = time[inside]
+    said = f"bias window {window[0]:g} s to {window[1]:g} s"
+    if held.size == 0:
+        raise ValueError(f"{said} holds no samples")
+    span = float(held[-1] - held[0])
+    if window[0] < time[0] - (time[1] - time[0]) or span < BIAS_LEAST - 1e-9:
+        raise ValueError(
+            f"{said} holds {held.size} sample(s), {span * 1e3:g} ms of a record that begins at {time[0]:g} s: "
+            f"the mean of a window the record does not cover, or of less than {BIAS_LEAST * 1e3:g} ms, is no "
+            "offset (leave bias_window out where the record has no pre-impact samples)"
+        )
     return values - values[inside].mean()
 
 
