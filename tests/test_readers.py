@@ -307,6 +307,27 @@ def test_mme_missing_code_and_missing_channel_file(tmp_path):
         load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"pitch": {"code": CODE_P}}))
 
 
+@pytest.mark.parametrize(
+    ("velocity", "mass", "meta", "refused"),
+    [
+        ("15,0", "1500,0", {"speed": 15.0, "mass": 1500.0}, None),
+        ("54 km/h", "1500,5 kg", {"speed": 15.0, "mass": 1500.5}, None),
+        ("15.0", "1,500", None, "mass test object 1 :1,500"),
+        ("fifteen", "1500", None, "velocity test object 1 :fifteen"),
+    ],
+)
+def test_mme_header_with_a_decimal_comma_is_read_and_one_unreadable_is_refused(tmp_path, velocity, mass, meta, refused):
+    _mme_set(tmp_path / "T001")
+    f = tmp_path / "T001" / "T001.mme"
+    f.write_text(f.read_text().replace(":15.0\n", f":{velocity}\n").replace(":1500\n", f":{mass}\n"))
+    read = spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": CODE_X}})
+    if refused is None:
+        assert load_test_data(read).meta == pytest.approx(meta)
+    else:
+        with pytest.raises(DataError, match=rf"T001\.mme: header line '{refused}' is not a quantity"):
+            load_test_data(read)
+
+
 def test_mme_sample_count_mismatch(tmp_path):
     _mme_set(tmp_path / "T001")
     f = tmp_path / "T001" / "Channel" / "T001.001"
