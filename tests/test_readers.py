@@ -472,6 +472,8 @@ def _dialect(sep: str = ",", comma: bool = False, end: str = "\n", header: str =
         pytest.param(_dialect(";", comma=True), id="semicolons-decimal-commas"),
         pytest.param(_dialect("\t", comma=True), id="tabs-decimal-commas"),
         pytest.param(_dialect("   "), id="runs-of-spaces"),
+        pytest.param("sep=;\n" + _dialect(";", comma=True), id="excel-separator-line"),
+        pytest.param("\ufeffsep=,\n" + _dialect(), id="excel-separator-line-after-a-byte-order-mark"),
         pytest.param(_dialect(header="time_s{s}accel_x_g{s}note").replace("\n", ",ok\n").replace("note,ok", "note"), id="text"),
     ],
 )
@@ -481,6 +483,13 @@ def test_csv_dialects_read_as_the_plain_file(tmp_path, text):
     accel = load_test_data(pickup(file=path, channels=ACCEL)).channels["accel"]
     np.testing.assert_allclose(accel.time, DIALECT_TIME, atol=1e-12)
     np.testing.assert_allclose(accel.values, DIALECT_ACCEL * G0)
+
+
+def test_csv_an_excel_separator_line_naming_no_delimiter_is_one_line_naming_it(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("sep=ab\n" + _dialect())
+    with pytest.raises(DataError, match=r"bad\.csv: line 1 'sep=ab' names no delimiter"):
+        load_test_data(pickup(file=path, channels=ACCEL))
 
 
 def test_csv_a_header_naming_a_column_twice_asks_for_its_number(tmp_path):
