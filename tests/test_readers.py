@@ -145,6 +145,34 @@ def test_nhtsa_different_sample_intervals(tmp_path):
         load_test_data(camry(file=header))
 
 
+@pytest.mark.parametrize(("factor", "apart"), [(9.80665, r"0\.1\d* times as much"), (-1.0, "the other way")])
+def test_nhtsa_accelerometers_averaged_read_in_different_units_or_signs_are_refused(tmp_path, factor, apart):
+    """Curve 93 in m/s^2 under its G'S header, averaged with 94 in g, fitted as a vehicle stopped 5.4
+    times over and was refused as the speed's fault; read the other way, the mean is no pulse."""
+    header = _copy_ev5(tmp_path)
+    curve = np.loadtxt(tmp_path / "v10146.093")
+    np.savetxt(tmp_path / "v10146.093", curve * [1.0, factor], delimiter="\t", fmt="%.6f")
+    with pytest.raises(DataError, match=rf"v10146\.094: channel accel: the curve changes .* v10146\.093 by .* \({apart}\)"):
+        load_test_data(camry(file=header))
+
+
+def test_a_clipped_accelerometer_is_refused_naming_its_column_or_curve_and_level(tmp_path):
+    """The pickup's 30 g pulse cut at -20 g (the fit said ok at a 20 g peak) and the Camry's curve
+    93 cut at -25 g, averaged with 94 (their flat tops do not line up in the mean); the same
+    records as measured are read (the other tests)."""
+    header, *lines = PICKUP.read_text().splitlines()
+    rows = [line.split(",") for line in lines]
+    cut = [",".join([r[0], f"{max(float(r[1]), -20.0):.6f}", *r[2:]]) for r in rows]
+    (tmp_path / "clipped.csv").write_text("\n".join([header, *cut]) + "\n")
+    with pytest.raises(DataError, match=r"clipped\.csv: channel accel \(clipped\.csv:accel_x_g\): \d+ samples in a row .* -20 g"):
+        load_test_data(pickup(file=tmp_path / "clipped.csv"))
+    ev5 = _copy_ev5(tmp_path)
+    curve = np.loadtxt(tmp_path / "v10146.093")
+    np.savetxt(tmp_path / "v10146.093", np.column_stack([curve[:, 0], np.maximum(curve[:, 1], -25.0)]), delimiter="\t")
+    with pytest.raises(DataError, match=r"v10146\.093: channel accel: \d+ samples in a row .* at exactly -25 g"):
+        load_test_data(camry(file=ev5))
+
+
 def test_nhtsa_nan_sample(tmp_path):
     header = _copy_ev5(tmp_path)
     lines = (tmp_path / "v10146.093").read_text().splitlines()

@@ -13,6 +13,7 @@ from dataclasses import replace
 import numpy as np
 
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
+from crashnlp.data.clipping import check_clipped
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_channel import read_channel_files
@@ -74,6 +75,8 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         with of_key(f"channels.{name}"):
             c = raw.channels[name]
             check_sampling(c.time, where(path, name))
+            if name == "accel":
+                check_clipped(c.time, c.values, f"{where(path, name)} ({c.source})")
             values = c.values * ch.sign
             if name in DEFAULT_FILTER:
                 notes.append(f"{name}: {_filter_note(name, ch.filter)}")
