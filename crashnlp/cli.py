@@ -198,7 +198,7 @@ def _metric_text(metrics: Mapping[str, float], key: str, digits: int) -> str:
 def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
-    from crashnlp.analysis.summary import goes_on, let_go_words, pitch_still_rising
+    from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
     from crashnlp.results.result import pull_texts
 
     s = result.solver
@@ -236,7 +236,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
                 print(f"    {who} {words}")
         if words := let_go_words(t.response):
             print(f"    the model {words}")
-        for words in pitch_still_rising(t):
+        for words in pitch_words(t):
             print(f"    {words}")
         if t.fit:
             print("    rmse      " + ", ".join(f"{c} {OUTPUT[c].shown(f.rmse)}" for c, f in t.fit.items()))

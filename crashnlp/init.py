@@ -203,23 +203,18 @@ def _mme_accel_why(code: str, at_cg: bool) -> str:
 def mme_draft(path: Path) -> Draft:
     """Mass and speed of test object 1; its vehicle X accelerometer, at the CG if there is one, the
     unfiltered code where the test holds it and a filtered one (`_least_filtered`)."""
-    from crashnlp.base.units import to_si
-    from crashnlp.data.iso_mme import read_header
+    from crashnlp.data.iso_mme import META_KEYS, read_header
 
-    header, codes = read_header(path)
+    meta, codes = read_header(path)
     accels = [c for c in codes if len(c) == 16 and c[0] == "1" and c[2:6] == "VEHC" and c[12:15] == "ACX"]
     if not accels:
         raise InputError(f"{path}: no vehicle X accelerometer of test object 1 (code 1?VEHC??????ACX?)")
     at_cg = [c for c in accels if "CG" in c[6:12]]
     code = _least_filtered(at_cg or accels)
     draft = _accel_draft(path.stem, {"code": code}, _mme_accel_why(code, bool(at_cg)))
-    for key, unit, entry in (("mass test object 1", "kg", "mass"), ("velocity test object 1", "m/s", "speed")):
-        text = header.get(key, "")
-        try:
-            value = to_si(text if re.search(r"[A-Za-z]", text) else float(text), unit)
-        except ValueError:
-            continue
-        draft.vehicle[entry] = (value, f".mme header '{key}'")
+    for entry in ("mass", "speed"):
+        if entry in meta:
+            draft.vehicle[entry] = (meta[entry], f".mme header '{META_KEYS[entry][0].format(1)}'")
     return draft
 
 

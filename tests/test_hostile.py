@@ -367,12 +367,52 @@ def test_generator_accelerometers_at_their_own_speed_are_taken(tmp_path, maker, 
 
 def test_a_velocity_channel_in_the_wrong_unit_is_named_not_the_speed(tmp_path, capsys):
     """The speed has its unit and the velocity column is in m/s, read as km/h: the channel's unit is
-    at fault, named as the key (it said `vehicle.speed: ... a plain number is m/s, not km/h`)."""
+    at fault, named as the key (it said `vehicle.speed: ... a plain number is m/s, not km/h`), by
+    the acceleration beside it, or without one by the speed its numbers are."""
     test = pickup()["tests"][0]
     channels = {**test["data"]["channels"], "velocity": {"column": "vel_x_mps", "unit": "km/h"}}
     raw = pickup({"tests": [{**test, "data": {**test["data"], "channels": channels}}]})
+    err = refused(tmp_path, capsys, raw, "tests.0.data.channels.velocity.unit: the acceleration of test 56kph")
+    assert err.endswith("most likely the velocity channel's\n")
+    raw = pickup({"tests": [{**test, "data": {**test["data"], "channels": {"velocity": channels["velocity"]}}}]})
     err = refused(tmp_path, capsys, raw, "tests.0.data.channels.velocity.unit: 15.5556 m/s (56 km/h), but the velocity data")
     assert err.endswith("the column's numbers are the speed in m/s: the velocity channel's unit is not km/h\n")
+
+
+def _scaled_pickup(tmp_path: Path, column: str, factor: float) -> str:
+    """The shipped pickup's CSV with one column times `factor` (written in another unit), its path."""
+    header, *lines = (ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv").read_text().splitlines()
+    k = header.split(",").index(column)
+    rows = [[f"{float(c) * factor:.6g}" if j == k else c for j, c in enumerate(line.split(","))] for line in lines]
+    (tmp_path / "scaled.csv").write_text("\n".join([header, *(",".join(r) for r in rows)]) + "\n")
+    return str(tmp_path / "scaled.csv")
+
+
+@pytest.mark.parametrize(
+    ("column", "factor", "channels", "window", "expected"),
+    [
+        ("vel_x_mps", 3.6, ("velocity",), None, "tests.0.data.channels.velocity.unit: 15.5556 m/s"),
+        ("vel_x_mps", 3.6, ("accel", "velocity"), None, "tests.0.data.channels.velocity.unit: the acceleration"),
+        ("vel_x_mps", -1.0, ("velocity",), None, "tests.0.data.channels.velocity.sign: 15.5556 m/s"),
+        ("vel_x_mps", 1.0, ("accel", "velocity"), ["0.01 s", "0.2 s"], "tests.0.data.window: 15.5556 m/s"),
+        ("accel_x_g", 9.80665, ("accel",), None, "tests.0.data.channels.accel.unit: 15.5556 m/s"),
+    ],
+)
+def test_data_that_part_from_the_speed_by_a_unit_sign_or_window_name_that_not_the_speed(
+    tmp_path, capsys, column, factor, channels, window, expected
+):
+    """A velocity column written in km/h and read as m/s (alone, or beside an acceleration that
+    changes the velocity 3.6 times less), one read with the wrong sign, a window that starts after
+    impact, and an acceleration written in m/s^2 read as g (it throws the vehicle back at 10 times
+    the speed): each was refused as `vehicle.speed`, and names the channel's unit or sign, or the
+    window."""
+    test = pickup()["tests"][0]
+    data = {**test["data"], "file": _scaled_pickup(tmp_path, column, factor)}
+    data["channels"] = {name: data["channels"][name] for name in channels}
+    data["channels"].setdefault("velocity", {"derive": "integrate"})
+    if window is not None:
+        data["window"] = window
+    refused(tmp_path, capsys, pickup({"tests": [{**test, "data": data}]}), expected)
 
 
 @pytest.mark.parametrize(

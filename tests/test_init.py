@@ -126,6 +126,17 @@ def test_init_on_iso_mme_reads_mass_speed_and_the_cg_accelerometer(tmp_path):
     assert problem.vehicle.cg_to_front_axle == pytest.approx(0.44 * 2.65)  # a 1500 kg compact's typical geometry
 
 
+def test_init_on_iso_mme_reads_a_decimal_comma_and_refuses_a_header_value_it_cannot_read(tmp_path):
+    _mme_set(tmp_path / "T001")
+    f = tmp_path / "T001" / "T001.mme"
+    f.write_text(f.read_text().replace(":1500\n", ":1500,0\n").replace(":15.0\n", ":15,5\n"))
+    draft = mme_draft(tmp_path / "T001")
+    assert draft.vehicle["mass"][0] == 1500.0 and draft.vehicle["speed"][0] == 15.5
+    f.write_text(f.read_text().replace(":1500,0\n", ":1500 kgs\n"))
+    with pytest.raises(InputError, match=r"T001\.mme: header line 'mass test object 1 :1500 kgs'"):
+        mme_draft(tmp_path / "T001")
+
+
 RAW, CFC60_LAB, CFC1000_LAB = "10VEHCCG0000ACX0", "10VEHCCG0000ACXD", "10VEHCCG0000ACXA"  # ISO filter classes 0, D, A
 
 

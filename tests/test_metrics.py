@@ -247,6 +247,22 @@ def test_a_record_that_ends_while_the_barrier_still_pushes_the_vehicle_back_hold
     assert whole["rebound_velocity_mps"] == pytest.approx(4.0, rel=1e-3) and goes_on(whole) is None
 
 
+def test_a_measured_pitch_too_small_for_a_crash_is_said_to_be_maybe_in_radians():
+    """The pickup's pitch written in rad under a deg header peaks at 0.16 deg: the fit said ok with
+    cg_above_impact and pitch_inertia at their bounds and nothing else. A crash's 3 deg is not said,
+    nor a test without a pitch."""
+    from types import SimpleNamespace
+
+    from crashnlp.analysis.summary import pitch_too_small
+
+    t = np.linspace(-0.01, 0.2, 211)
+    swing = np.where(t > 0, np.sin(np.pi * np.clip(t, 0, 0.2) / 0.2), 0.0)
+    said = pitch_too_small(SimpleNamespace(data={"pitch": (t, np.radians(9.0) * swing / 57.3)}))
+    assert len(said) == 1 and "max pitch is 0.16 deg (channel pitch)" in said[0] and "give unit: rad" in said[0]
+    assert pitch_too_small(SimpleNamespace(data={"pitch": (t, np.radians(3.0) * swing)})) == []
+    assert pitch_too_small(SimpleNamespace(data={})) == []
+
+
 def test_a_pitch_still_rising_at_the_record_s_end_is_read_through_its_noise():
     """A pitch that peaks at 171 ms, read to 140 ms with 0.05 deg of noise (the pickup's measured
     pitch: its largest sample 8 before the end), still rises there; read to 200 ms it peaked

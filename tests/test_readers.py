@@ -145,6 +145,34 @@ def test_nhtsa_different_sample_intervals(tmp_path):
         load_test_data(camry(file=header))
 
 
+@pytest.mark.parametrize(("factor", "apart"), [(9.80665, r"0\.1\d* times as much"), (-1.0, "the other way")])
+def test_nhtsa_accelerometers_averaged_read_in_different_units_or_signs_are_refused(tmp_path, factor, apart):
+    """Curve 93 in m/s^2 under its G'S header, averaged with 94 in g, fitted as a vehicle stopped 5.4
+    times over and was refused as the speed's fault; read the other way, the mean is no pulse."""
+    header = _copy_ev5(tmp_path)
+    curve = np.loadtxt(tmp_path / "v10146.093")
+    np.savetxt(tmp_path / "v10146.093", curve * [1.0, factor], delimiter="\t", fmt="%.6f")
+    with pytest.raises(DataError, match=rf"v10146\.094: channel accel: the curve changes .* v10146\.093 by .* \({apart}\)"):
+        load_test_data(camry(file=header))
+
+
+def test_a_clipped_accelerometer_is_refused_naming_its_column_or_curve_and_level(tmp_path):
+    """The pickup's 30 g pulse cut at -20 g (the fit said ok at a 20 g peak) and the Camry's curve
+    93 cut at -25 g, averaged with 94 (their flat tops do not line up in the mean); the same
+    records as measured are read (the other tests)."""
+    header, *lines = PICKUP.read_text().splitlines()
+    rows = [line.split(",") for line in lines]
+    cut = [",".join([r[0], f"{max(float(r[1]), -20.0):.6f}", *r[2:]]) for r in rows]
+    (tmp_path / "clipped.csv").write_text("\n".join([header, *cut]) + "\n")
+    with pytest.raises(DataError, match=r"clipped\.csv: channel accel \(clipped\.csv:accel_x_g\): \d+ samples in a row .* -20 g"):
+        load_test_data(pickup(file=tmp_path / "clipped.csv"))
+    ev5 = _copy_ev5(tmp_path)
+    curve = np.loadtxt(tmp_path / "v10146.093")
+    np.savetxt(tmp_path / "v10146.093", np.column_stack([curve[:, 0], np.maximum(curve[:, 1], -25.0)]), delimiter="\t")
+    with pytest.raises(DataError, match=r"v10146\.093: channel accel: \d+ samples in a row .* at exactly -25 g"):
+        load_test_data(camry(file=ev5))
+
+
 def test_nhtsa_nan_sample(tmp_path):
     header = _copy_ev5(tmp_path)
     lines = (tmp_path / "v10146.093").read_text().splitlines()
@@ -397,6 +425,27 @@ def test_mme_missing_code_and_missing_channel_file(tmp_path):
         load_test_data(spec(file=tmp_path / "T001", format="iso-mme", channels={"pitch": {"code": CODE_P}}))
 
 
+@pytest.mark.parametrize(
+    ("velocity", "mass", "meta", "refused"),
+    [
+        ("15,0", "1500,0", {"speed": 15.0, "mass": 1500.0}, None),
+        ("54 km/h", "1500,5 kg", {"speed": 15.0, "mass": 1500.5}, None),
+        ("15.0", "1,500", None, "mass test object 1 :1,500"),
+        ("fifteen", "1500", None, "velocity test object 1 :fifteen"),
+    ],
+)
+def test_mme_header_with_a_decimal_comma_is_read_and_one_unreadable_is_refused(tmp_path, velocity, mass, meta, refused):
+    _mme_set(tmp_path / "T001")
+    f = tmp_path / "T001" / "T001.mme"
+    f.write_text(f.read_text().replace(":15.0\n", f":{velocity}\n").replace(":1500\n", f":{mass}\n"))
+    read = spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": CODE_X}})
+    if refused is None:
+        assert load_test_data(read).meta == pytest.approx(meta)
+    else:
+        with pytest.raises(DataError, match=rf"T001\.mme: header line '{refused}' is not a quantity"):
+            load_test_data(read)
+
+
 def test_mme_sample_count_mismatch(tmp_path):
     _mme_set(tmp_path / "T001")
     f = tmp_path / "T001" / "Channel" / "T001.001"
@@ -541,6 +590,8 @@ def _dialect(sep: str = ",", comma: bool = False, end: str = "\n", header: str =
         pytest.param(_dialect(";", comma=True), id="semicolons-decimal-commas"),
         pytest.param(_dialect("\t", comma=True), id="tabs-decimal-commas"),
         pytest.param(_dialect("   "), id="runs-of-spaces"),
+        pytest.param("sep=;\n" + _dialect(";", comma=True), id="excel-separator-line"),
+        pytest.param("\ufeffsep=,\n" + _dialect(), id="excel-separator-line-after-a-byte-order-mark"),
         pytest.param(_dialect(header="time_s{s}accel_x_g{s}note").replace("\n", ",ok\n").replace("note,ok", "note"), id="text"),
     ],
 )
@@ -550,6 +601,13 @@ def test_csv_dialects_read_as_the_plain_file(tmp_path, text):
     accel = load_test_data(pickup(file=path, channels=ACCEL)).channels["accel"]
     np.testing.assert_allclose(accel.time, DIALECT_TIME, atol=1e-12)
     np.testing.assert_allclose(accel.values, DIALECT_ACCEL * G0)
+
+
+def test_csv_an_excel_separator_line_naming_no_delimiter_is_one_line_naming_it(tmp_path):
+    path = tmp_path / "bad.csv"
+    path.write_text("sep=ab\n" + _dialect())
+    with pytest.raises(DataError, match=r"bad\.csv: line 1 'sep=ab' names no delimiter"):
+        load_test_data(pickup(file=path, channels=ACCEL))
 
 
 def test_csv_a_header_naming_a_column_twice_asks_for_its_number(tmp_path):

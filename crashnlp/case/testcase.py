@@ -45,6 +45,12 @@ FLIPPED = 1.5
 # 0.3). A pulse that, integrated from the test's speed, throws the vehicle back faster than
 # REBOUND_LIMIT of it was recorded at a higher speed (35 for 56 km/h: mph taken for km/h).
 REBOUND_LIMIT = 0.5
+# A speed read in another unit moves the recorded speed by 1.61 (mph, km/h) to 3.6 (km/h, m/s) times,
+# and a rebound from it, at restitution up to 0.3, to at most 3.6 * 1.3 - 1 = 3.7 times the speed. An
+# acceleration written in m/s^2 and read as g takes 9.81 times the velocity change, and throws the
+# vehicle back at 8.8 times the speed or more. A rebound past UNIT_REBOUND times the speed, between
+# the two, is the accel channel's unit, not the speed (an NHTSA curve in m/s^2 under a G'S header).
+UNIT_REBOUND = 5.0
 # A measured velocity and an acceleration of the same test change by the same amount over the
 # record. Their changes further apart than a factor of UNIT_FACTOR were read in different units: g
 # against m/s^2 parts them 9.81 times, km/h against m/s 3.6 times, while a filtered accelerometer
@@ -54,6 +60,9 @@ UNIT_FACTOR = 2.0
 MOVED = 0.2
 # the factors by which a unit read wrong parts the two changes, and the channel whose unit it is
 UNIT_SLIPS = {"accel": 9.80665, "velocity": 3.6}
+# the units a velocity column is written in: a column whose numbers, read in another of them, are
+# the test's speed is read in the wrong unit (km/h read as m/s starts at 3.6 times the speed)
+VELOCITY_UNITS = ("m/s", "km/h", "mph")
 # A measured displacement travels what the velocity integrates to over the same time (the velocity
 # channel's, else the acceleration's integrated from the speed). Travels further apart than
 # UNIT_FACTOR were read in another unit than they were written in: mm read as m part them 1000
@@ -202,8 +211,8 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
 
 
 def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
-    """Refuse test data with a dead channel (check_dead), data that contradict the problem's speed
-    (check_speed), a measured velocity and acceleration that disagree (check_units), a displacement
+    """Refuse test data with a dead channel (check_dead), a measured velocity and acceleration that
+    disagree (check_units), data that contradict the problem's speed (check_speed), a displacement
     that disagrees with them (check_travel), a pitch past any crash's or that reads nose-up where the
     problem puts the impact point below the CG (check_pitch: `impact_above_cg` False), a mass in
     their header (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose
@@ -213,8 +222,8 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
     for i, test in enumerate(tests):
         if test.data is not None:
             check_dead(i, test.speed, test.spec, test.data)
+            check_units(i, test.speed, test.spec, test.data)  # channels apart name a channel, before the speed is
             check_speed(i, test.speed, test.spec, test.data)
-            check_units(i, test.speed, test.spec, test.data)
             check_travel(i, test.speed, test.spec, test.data)
             check_pitch(i, test.spec, test.data, impact_above_cg)
             tested = test.overrides.get("vehicle.mass", mass)
@@ -285,14 +294,11 @@ def steepest_change(accel: Channel) -> float | None:
 
 def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
     """Refuse a test speed the data contradict (speed_contradicted), naming its key."""
-    why = speed_contradicted(speed, test, data)
-    if why is not None:
+    contradiction = _contradiction(speed, test, data)
+    if contradiction is not None:
+        at_fault, why = contradiction
         key = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
-        if _unit_at_fault(speed, test, data):
-            key = f"tests.{i}.data.channels.velocity.unit"
-        elif _sign_at_fault(speed, test, data):
-            key = f"tests.{i}.data.channels.accel.sign"
-        raise InputError(f"{key}: {why}")
+        raise InputError(f"{f'tests.{i}.data.{at_fault}' if at_fault else key}: {why}")
 
 
 def check_units(i: int, speed: float, test: Test, data: TestData) -> None:
@@ -501,13 +507,20 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
     Speeds are said in m/s and km/h, since a problem may give either. A plain number is m/s, so
     `speed: 56` meant as km/h is 3.6 times the data's: fitting that runs into the iteration limit
     without ever saying why, and the message says so where the speed is that. Where instead the
-    velocity column's numbers read as m/s are the speed, the channel's unit is at fault
-    (`unit: km/h` for a column in m/s), and the message says that.
+    data show what is at fault (`_velocity_at_fault`: the window, the velocity channel's unit or
+    sign; `_after_pulse`: the accel channel's sign or unit), the message says that.
     """
+    contradiction = _contradiction(speed, test, data)
+    return None if contradiction is None else contradiction[1]
+
+
+def _contradiction(speed: float, test: Test, data: TestData) -> tuple[str | None, str] | None:
+    """speed_contradicted's why, with the key under the test's `data` that the data say is at fault
+    rather than the speed (`_velocity_at_fault`, `_accel_at_fault`; None: the speed)."""
     apart = f"more than {SPEED_TOLERANCE * 100:g} %"
     header = data.meta.get("speed")
     if header and abs(speed - header) > SPEED_TOLERANCE * header:
-        return (
+        return None, (
             f"{_speed(speed)}, but the data header of test {test.name} says {_speed(header)} "
             f"({apart} apart{_plain_number(speed, header)})"
         )
@@ -515,21 +528,39 @@ def speed_contradicted(speed: float, test: Test, data: TestData) -> str | None:
     if start is not None and test.data is not None and abs(start - speed) > SPEED_TOLERANCE * abs(speed):
         begins = float(data.channels["velocity"].time[0])
         late = f" at {begins * 1e3:g} ms, where the record begins after impact" if begins > 0 else ""
-        return (
+        at_fault = _velocity_at_fault(speed, start, test)
+        hint = f"; {at_fault[1]}" if at_fault is not None else _plain_number(speed, start)
+        return at_fault[0] if at_fault is not None else None, (
             f"{_speed(speed)}, but the velocity data of test {test.name} start at {_speed(start)}{late} "
-            f"({test.data.file.name}); speed and data disagree by {apart}{_velocity_hint(speed, start, test, data)}"
+            f"({test.data.file.name}); speed and data disagree by {apart}{hint}"
         )
     drift = _drift_after_pulse(speed, test, data)
-    return None if drift is None else _after_pulse(speed, drift, test)
+    why = None if drift is None else _after_pulse(speed, drift, test)
+    return None if drift is None or why is None else (_accel_at_fault(speed, drift), why)
+
+
+def _accel_at_fault(speed: float, drift: float) -> str | None:
+    """The key of the accel channel (under a test's data) that an acceleration leaving the vehicle
+    at `drift` once its pulse is over puts at fault rather than the `speed`: its sign past FLIPPED
+    times the speed toward the barrier, its unit past UNIT_REBOUND times it back; None otherwise."""
+    if drift > FLIPPED * speed:
+        return "channels.accel.sign"
+    return "channels.accel.unit" if -drift > UNIT_REBOUND * speed else None
 
 
 def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
     """Why an acceleration that leaves the vehicle at `drift` (m/s toward the barrier) once its
-    pulse is over contradicts the test `speed`: a rebound past REBOUND_LIMIT of it, a drift past
-    DRIFT_LIMIT (past FLIPPED, a sign read wrong); None where neither."""
+    pulse is over contradicts the test `speed`: a rebound past REBOUND_LIMIT of it (past
+    UNIT_REBOUND, a unit read wrong), a drift past DRIFT_LIMIT (past FLIPPED, a sign read wrong);
+    None where neither."""
     if -drift > REBOUND_LIMIT * speed:
         limit, went = REBOUND_LIMIT, f"throws the vehicle back at {-drift:.3g} m/s"
-        why = "a rigid barrier gives back far less, so the data were recorded at a higher speed"
+        why = "a rigid barrier gives back far less, so " + (
+            "the accel channel is read in another unit than it was written in (m/s^2 read as g throws it back at "
+            "several times the speed)"
+            if -drift > UNIT_REBOUND * speed
+            else "the data were recorded at a higher speed"
+        )
     elif drift > DRIFT_LIMIT * speed:
         limit, went = DRIFT_LIMIT, f"leaves the vehicle moving toward the barrier at {drift:.3g} m/s"
         why = "a rigid barrier stops it, so " + (
@@ -544,12 +575,6 @@ def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
         f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, {went} once its "
         f"pulse is over, more than {limit * 100:g} % of the speed: {why}"
     )
-
-
-def _sign_at_fault(speed: float, test: Test, data: TestData) -> bool:
-    """Whether the acceleration alone contradicts the speed by a pulse read with the wrong sign."""
-    drift = _drift_after_pulse(speed, test, data)
-    return drift is not None and drift > FLIPPED * speed
 
 
 def _drift_after_pulse(speed: float, test: Test, data: TestData) -> float | None:
@@ -576,23 +601,36 @@ def pulse_over(end: np.ndarray, accel: np.ndarray) -> bool:
     return bool(np.max(np.abs(end)) <= quiet or (mean > 0.0 and np.max(np.abs(end - mean)) <= quiet))
 
 
-def _velocity_hint(speed: float, start: float, test: Test, data: TestData) -> str:
-    """Why the speed and the velocity data part: the channel's unit, or km/h as a plain number."""
-    unit = _unit_at_fault(speed, test, data)
-    if unit is None:
-        return _plain_number(speed, start)
-    return f"; the column's numbers are the speed in m/s: the velocity channel's unit is not {unit}"
+def _velocity_at_fault(speed: float, start: float, test: Test) -> tuple[str, str] | None:
+    """Where a measured velocity starting at `start` parts from the `speed` for a reason the data
+    tell, the key under the test's data at fault and why in words: a window that starts after
+    impact (the data there have slowed), a column whose numbers are the speed in another unit
+    (`_unit_at_fault`), or one that starts at minus the speed (its sign); None otherwise."""
+    spec = test.data.channels.get("velocity") if test.data is not None else None
+    window = test.data.window if test.data is not None else None
+    if window is not None and window[0] > 0:
+        return "window", f"the window starts at {window[0] * 1e3:g} ms, after impact: start it at 0 s or before"
+    if (slip := _unit_at_fault(speed, start, spec)) is not None:
+        given, written = slip
+        why = f"the column's numbers are the speed in {written}: the velocity channel's unit is not {given}"
+        return "channels.velocity.unit", why
+    if abs(start + speed) <= SPEED_TOLERANCE * abs(speed):
+        why = f"the data start at minus the speed: the velocity channel reads with the wrong sign ({_turn(spec)})"
+        return "channels.velocity.sign", why
+    return None
 
 
-def _unit_at_fault(speed: float, test: Test, data: TestData) -> str | None:
-    """The unit the problem gives a measured velocity channel where, read as m/s instead, the
-    column starts at the test's speed; None otherwise."""
-    start = _velocity_start(test, data)
-    unit = test.data.channels["velocity"].unit if start is not None and test.data is not None else None
-    if unit is None or start is None:
+def _unit_at_fault(speed: float, start: float, spec: ChannelSpec | None) -> tuple[str, str] | None:
+    """The unit the problem gives a measured velocity channel (`spec`) starting at `start`, and
+    the one of VELOCITY_UNITS in which the column's numbers are the test's speed; None otherwise."""
+    if spec is None or spec.unit is None:
         return None
-    column = start / to_si(f"1 {unit}", "m/s")
-    return unit if column != start and abs(column - speed) <= SPEED_TOLERANCE * abs(speed) else None
+    given = to_si(f"1 {spec.unit}", "m/s")
+    for unit in VELOCITY_UNITS:
+        factor = to_si(f"1 {unit}", "m/s")
+        if abs(factor - given) > 1e-9 * given and abs(start / given * factor - speed) <= SPEED_TOLERANCE * abs(speed):
+            return spec.unit, unit
+    return None
 
 
 def _speed(v: float) -> str:

@@ -1,8 +1,8 @@
 """CSV reader: one time column and one column per channel, named in the problem file or counted from 1.
 
-`Table` reads any delimited text file of numbers (comma, semicolon, tab or runs of spaces; a
-header line or none; "#" comment lines and a UTF-8 byte order mark skipped; decimal commas where
-the cells are not comma-separated), for this reader, NHTSA channel files
+`Table` reads any delimited text file of numbers (comma, semicolon, tab or runs of spaces, or the
+one Excel's first line "sep=;" names; a header line or none; "#" comment lines and a UTF-8 byte
+order mark skipped; decimal commas where the cells are not comma-separated), for this reader, NHTSA channel files
 (crashnlp.data.nhtsa_channel) and EV5 curve files (crashnlp.data.nhtsa_ev5) alike.
 """
 
@@ -34,6 +34,18 @@ def _delimiter(first: str) -> str:
     """The delimiter the first line has most of, else " " (runs of spaces)."""
     delimiter = max(DELIMITERS, key=first.count)
     return delimiter if delimiter in first else " "
+
+
+def _separator_line(path: Path, numbered: list[tuple[int, str]]) -> str | None:
+    """The delimiter Excel's first line "sep=;" names (a file Excel saved for another locale), or
+    None without that line; one naming no single character is refused, naming the line."""
+    number, first = numbered[0]
+    if not first.lower().startswith("sep="):
+        return None
+    named = first[4:]
+    if len(named) != 1 or named.isalnum() or named in "\"'.":
+        raise DataError(f"{path}: line {number} {first!r} names no delimiter (Excel's sep= line names one character)")
+    return named
 
 
 def _header(first: list[str], decimal_comma: bool) -> list[str] | None:
@@ -85,6 +97,7 @@ class Table:
     header: list[str] | None
     lines: list[tuple[int, str]]  # the file's lines, numbered, blank and comment lines left out
     decimal_comma: bool = False  # cells not split on commas, so 0,5 is a half
+    delimiter: str = ","  # what splits the cells (" ": runs of spaces)
     numbers: np.ndarray | None = field(default=None, compare=False)  # the rows as numbers, a plain file's
 
     @classmethod
@@ -97,17 +110,21 @@ class Table:
         numbered = [(n, line) for n, line in enumerate(lines, 1) if (text := line.lstrip()) and text[0] != "#"]
         if not numbered:
             raise DataError(f"{path}: empty file")
+        named = _separator_line(path, numbered)
+        numbered = numbered[1:] if named is not None else numbered
+        if not numbered:
+            raise DataError(f"{path}: empty file")
         texts = [line for _, line in numbered]
-        delimiter = _delimiter(texts[0])
+        delimiter = named or _delimiter(texts[0])
         decimal_comma = delimiter != ","
         plain = _plain(texts, delimiter)
         if plain is not None:
-            return cls(Path(path), plain[0], numbered, decimal_comma, plain[1])
+            return cls(Path(path), plain[0], numbered, decimal_comma, delimiter, plain[1])
         cells = _split(texts, delimiter, path)
         header = _header(cells[0], decimal_comma)
         if header is not None and len(cells) == 1:
             raise DataError(f"{path}: no rows of data below the header")
-        table = cls(Path(path), header, numbered, decimal_comma)
+        table = cls(Path(path), header, numbered, decimal_comma, delimiter)
         rows = list(zip((n for n, _ in numbered), cells))
         object.__setattr__(table, "rows", rows[1:] if header is not None else rows)  # the cells split above, not again
         return table
@@ -116,7 +133,7 @@ class Table:
     def rows(self) -> list[tuple[int, list[str]]]:
         """The rows below the header: each line's number and its cells."""
         texts = [line for _, line in self.lines]
-        rows = list(zip((n for n, _ in self.lines), _split(texts, _delimiter(texts[0]), self.path)))
+        rows = list(zip((n for n, _ in self.lines), _split(texts, self.delimiter, self.path)))
         return rows[1:] if self.header is not None else rows
 
     @property

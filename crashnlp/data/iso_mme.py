@@ -92,14 +92,33 @@ def _pairs(text: str) -> tuple[dict[str, str], list[str]]:
     return pairs, []
 
 
-def _quantity(text: str | None, unit: str) -> float | None:
-    """A header value in SI (plain numbers are SI, as ISO-MME stores them); None for NOVALUE."""
-    if not text or text.upper() == "NOVALUE":
-        return None
-    try:
-        return to_si(text if re.search(r"[A-Za-z]", text) else float(text), unit)
-    except ValueError:
-        return None
+META_KEYS = {"speed": ("velocity test object {}", "m/s"), "mass": ("mass test object {}", "kg")}  # .mme entries by meta key
+_DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(\s*\D.*)?")  # a number with a decimal comma, as European labs write 2550,0
+_THOUSANDS = re.compile(r",\d{3}(?!\d)")  # a comma that may separate thousands: 2,550 is 2550 or 2.55
+
+
+def header_meta(header: dict[str, str], obj: str, label: str) -> dict[str, float]:
+    """'speed' and 'mass' of test object `obj` in SI from the .mme entries (plain numbers are SI, as
+    ISO-MME stores them); an entry absent or NOVALUE is left out. A decimal comma reads as a point,
+    but not one before exactly three digits (2,550 may be a thousands separator). An entry present
+    but unreadable is refused naming the file `label` and the line: left out, it would silently drop
+    the problem's mass and speed checks or leave them to a misleading "no header gives it"."""
+    meta: dict[str, float] = {}
+    for meta_key, (pattern, unit) in META_KEYS.items():
+        key = pattern.format(obj)
+        text = header.get(key, "")
+        if not text or text.upper() == "NOVALUE":
+            continue
+        decimal = _DECIMAL_COMMA.fullmatch(text) and not _THOUSANDS.search(text)
+        number = text.replace(",", ".") if decimal else text
+        try:
+            value = to_si(number if re.search(r"[A-Za-z]", number) else float(number), unit)
+        except ValueError:
+            line = f"'{key} :{text}'"
+            raise DataError(f"{label}: header line {line} is not a quantity in {unit} (write it with a decimal point)") from None
+        if value:
+            meta[meta_key] = value
+    return meta
 
 
 def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
@@ -127,10 +146,10 @@ def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
     return store, mme_name, chn_name, codes
 
 
-def read_header(path: Path) -> tuple[dict[str, str], list[str]]:
-    """The .mme file's entries (keys lower-cased) and the channel codes of the test."""
+def read_header(path: Path) -> tuple[dict[str, float], list[str]]:
+    """Speed and mass of test object 1 (`header_meta`) and the channel codes of the test."""
     store, mme_name, _, codes = _open(path)
-    return _pairs(store.text(mme_name))[0], list(codes)
+    return header_meta(_pairs(store.text(mme_name))[0], "1", store.label(mme_name)), list(codes)
 
 
 def read_mme(spec: DataSpec) -> TestData:
@@ -167,14 +186,7 @@ def read_mme(spec: DataSpec) -> TestData:
                 notes.append(f"{name}: code {code}: {said}")
 
     header, _ = _pairs(store.text(mme_name))
-    meta: dict[str, float] = {}
-    speed = _quantity(header.get(f"velocity test object {obj or '1'}"), "m/s")
-    mass = _quantity(header.get(f"mass test object {obj or '1'}"), "kg")
-    if speed:
-        meta["speed"] = speed
-    if mass:
-        meta["mass"] = mass
-    return TestData(channels, meta, notes)
+    return TestData(channels, header_meta(header, obj or "1", store.label(mme_name)), notes)
 
 
 def _channel(text: str, unit: str | None, name: str, at: str, source: str, filtered: str | None) -> Channel:

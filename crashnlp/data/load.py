@@ -14,6 +14,7 @@ import numpy as np
 
 from crashnlp.base.units import G0
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
+from crashnlp.data.clipping import check_clipped
 from crashnlp.data.csv_reader import read_csv
 from crashnlp.data.iso_mme import read_mme
 from crashnlp.data.nhtsa_channel import read_channel_files
@@ -121,6 +122,8 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
             c = raw.channels[name]
             check_sampling(c.time, where(path, name))
             _check_start(spec, name, c)
+            if name == "accel":
+                check_clipped(c.time, c.values, f"{where(path, name)} ({c.source})")
             values = c.values * ch.sign
             if name == "accel" and spec.bias_window is None:
                 _check_offset(where(path, name), c.time, values)

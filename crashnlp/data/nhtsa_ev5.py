@@ -36,6 +36,7 @@ from crashnlp.data.channels import (
     si_factor,
     where,
 )
+from crashnlp.data.clipping import check_clipped
 from crashnlp.data.csv_reader import Table
 from crashnlp.problem.schema import ALL_BARRIER_FX, CHANNEL_UNITS, SUMMED, ChannelSpec, DataSpec
 
@@ -66,6 +67,11 @@ VALID_UNTIL = re.compile(r"NO VALID DATA AFTER\s*([0-9.]+)\s*MS")  # a comment g
 # at most this many distinct values after impact: a load cell's converter flickering between a few
 # counts, or one value held, not a cell the impact loaded (design-notes.md, "Dead load cells")
 FLAT_LEVELS = 8
+# Accelerometers averaged into one channel take one velocity change: the Camry's (test 10146) six
+# vehicle X accelerometers change it from impact on within 10 % of each other. Curves further apart
+# than CURVES_APART times were read in different units: a curve in m/s^2 under a G'S header takes
+# 9.81 times the change, and its mean with a curve in g stops the vehicle 5.4 times over.
+CURVES_APART = 2.0
 
 
 @dataclass
@@ -327,5 +333,28 @@ def combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Chann
                 f"{file0.name}'s {time[0]:g} s to {time[-1]:g} s"
             )
         total = total + v
+    if name == "accel":
+        for file, t, v in read:
+            check_clipped(t, v, where(file, name))
+        _check_apart(read)
     source = "+".join(f.name for f, _, _ in read)
     return Channel(time, total if name in SUMMED else total / len(read), CHANNEL_UNITS[name], source)
+
+
+def _check_apart(read: list[tuple[Path, np.ndarray, np.ndarray]]) -> None:
+    """Refuse accelerometer curves to be averaged whose velocity changes from impact on (t >= 0)
+    part by more than CURVES_APART times, or go opposite ways: read in different units or signs,
+    their mean is neither's. Names the curve furthest from the first one."""
+    changes = [float(np.trapezoid(v[t >= 0], t[t >= 0])) for _, t, v in read]
+    if changes[0] == 0.0:
+        return
+    ratios = [change / changes[0] for change in changes]
+    k = max(range(len(ratios)), key=lambda j: abs(np.log(abs(ratios[j]))) if ratios[j] else np.inf)
+    if 1 / CURVES_APART <= ratios[k] <= CURVES_APART:
+        return
+    apart = f"{ratios[k]:.3g} times as much" if ratios[k] > 0 else "the other way"
+    raise DataError(
+        f"{where(read[k][0], 'accel')}: the curve changes the velocity by {changes[k]:.3g} m/s from impact on, "
+        f"{read[0][0].name} by {changes[0]:.3g} m/s ({apart}): the curves are read in different units or signs (one "
+        "in m/s^2 under a G'S header takes 9.81 times the change) and their mean is neither's; average curves read alike"
+    )

@@ -18,7 +18,7 @@ from crashnlp.analysis.summary import (
     data_metrics,
     goes_on,
     let_go_words,
-    pitch_still_rising,
+    pitch_words,
     response_metrics,
 )
 from crashnlp.base.outputs import PREDICTED_KEYS, Z95
@@ -171,9 +171,9 @@ def _moving_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
 
 
 def _pitch_notes(tests: dict[str, TestResult]) -> tuple[str, ...]:
-    """Each test whose measured or fitted pitch still rises at the window's end, said so
-    (summary.pitch_still_rising)."""
-    return tuple(f"test {name}: {words}" for name, t in tests.items() for words in pitch_still_rising(t))
+    """Each test whose measured or fitted pitch still rises at the window's end, or whose measured
+    pitch is too small for a crash, said so (summary.pitch_words)."""
+    return tuple(f"test {name}: {words}" for name, t in tests.items() for words in pitch_words(t))
 
 
 def _test(solution: Solution, ts: Response, test: TestCase, ratings: bool) -> TestResult:
