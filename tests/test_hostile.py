@@ -133,6 +133,7 @@ def test_an_accelerometer_recorded_at_another_speed_is_refused_by_its_drift_afte
         err = refused(tmp_path, capsys, raw, "vehicle.speed: 15.5556 m/s (56 km/h), but the acceleration of test a (accel.csv)")
         drift = float(re.search(r"toward the barrier at ([\d.]+) m/s once its pulse is over", err)[1])
         assert 2.0 < drift < 4.0  # 56 - 40 km/h less the rebound
+        assert "offset" not in err  # its acceleration after the pulse is noise about zero, no level
     else:
         (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
         assert main(["identify", str(tmp_path / "p.yaml"), "--check"]) == 0
@@ -318,14 +319,22 @@ def _accel_only(tmp_path: Path, time: np.ndarray, g: np.ndarray, kmh: float, mas
     return pickup({"vehicle": {"speed": f"{kmh} km/h", "mass": f"{mass} kg"}, "tests": [{"name": "a", "data": data}]})
 
 
-def test_an_accelerometer_offset_that_outlasts_the_pulse_is_refused_by_its_drift(tmp_path, capsys):
+@pytest.mark.parametrize("offset", [3.0, -3.0])
+def test_an_accelerometer_offset_that_outlasts_the_pulse_is_refused_by_its_drift(tmp_path, capsys, offset):
     """The pickup's acceleration alone plus 3 g (no pre-impact samples to read the offset from): its
     last 10 ms read 10 % of its peak, so the drift check took the pulse for one going on and the fit
-    said ok with 190 mm too much crush. A steady push toward the barrier is no barrier's: refused."""
+    said ok with 190 mm too much crush. A steady push toward the barrier is no barrier's: refused.
+    Less 3 g, it throws the vehicle back past half its speed. Either refusal says that the
+    accelerometer may read an offset, and what it holds."""
     raw = np.loadtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", skiprows=1)
-    err = refused(tmp_path, capsys, _accel_only(tmp_path, raw[:, 0], raw[:, 1] + 3.0, 56), "vehicle.speed: ")
-    drift = float(re.search(r"toward the barrier at ([\d.]+) m/s once its pulse is over", err)[1])
-    assert drift > 0.1 * 56 / 3.6
+    err = refused(tmp_path, capsys, _accel_only(tmp_path, raw[:, 0], raw[:, 1] + offset, 56), "vehicle.speed: ")
+    if offset > 0:
+        drift = float(re.search(r"toward the barrier at ([\d.]+) m/s once its pulse is over", err)[1])
+        assert drift > 0.1 * 56 / 3.6
+    else:
+        assert float(re.search(r"throws the vehicle back at ([\d.]+) m/s", err)[1]) > 0.5 * 56 / 3.6
+    held = float(re.search(r"the accelerometer reads an offset: it holds ([-\d.]+) g steadily", err)[1])
+    assert held == pytest.approx(offset, abs=0.2)
 
 
 def test_a_record_cut_while_an_engine_pulls_the_body_back_is_taken(tmp_path):

@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.base.units import to_si
+from crashnlp.base.units import G0, to_si
 from crashnlp.data import TestData, load_test_data
 from crashnlp.data.channels import END_TOLERANCE, Channel, DataError, median_interval
 from crashnlp.data.signal import cumtrapz, integrate
@@ -534,9 +534,9 @@ def _contradiction(speed: float, test: Test, data: TestData) -> tuple[str | None
             f"{_speed(speed)}, but the velocity data of test {test.name} start at {_speed(start)}{late} "
             f"({test.data.file.name}); speed and data disagree by {apart}{hint}"
         )
-    drift = _drift_after_pulse(speed, test, data)
-    why = None if drift is None else _after_pulse(speed, drift, test)
-    return None if drift is None or why is None else (_accel_at_fault(speed, drift), why)
+    after = _drift_after_pulse(speed, test, data)
+    why = None if after is None else _after_pulse(speed, *after, test)
+    return None if after is None or why is None else (_accel_at_fault(speed, after[0]), why)
 
 
 def _accel_at_fault(speed: float, drift: float) -> str | None:
@@ -548,11 +548,11 @@ def _accel_at_fault(speed: float, drift: float) -> str | None:
     return "channels.accel.unit" if -drift > UNIT_REBOUND * speed else None
 
 
-def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
+def _after_pulse(speed: float, drift: float, offset: float | None, test: Test) -> str | None:
     """Why an acceleration that leaves the vehicle at `drift` (m/s toward the barrier) once its
     pulse is over contradicts the test `speed`: a rebound past REBOUND_LIMIT of it (past
     UNIT_REBOUND, a unit read wrong), a drift past DRIFT_LIMIT (past FLIPPED, a sign read wrong);
-    None where neither."""
+    with an `offset` (m/s^2, `steady_offset`), that is said too; None where neither."""
     if -drift > REBOUND_LIMIT * speed:
         limit, went = REBOUND_LIMIT, f"throws the vehicle back at {-drift:.3g} m/s"
         why = "a rigid barrier gives back far less, so " + (
@@ -570,6 +570,11 @@ def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
         )
     else:
         return None
+    if offset is not None:
+        why += (
+            f"; or the accelerometer reads an offset: it holds {offset / G0:.3g} g steadily once its pulse is over, where "
+            "a vehicle off the barrier reads none (a bias_window over samples before impact removes it)"
+        )
     file = _file(test)
     return (
         f"{_speed(speed)}, but the acceleration of test {test.name} ({file}), integrated from it, {went} once its "
@@ -577,28 +582,45 @@ def _after_pulse(speed: float, drift: float, test: Test) -> str | None:
     )
 
 
-def _drift_after_pulse(speed: float, test: Test, data: TestData) -> float | None:
+def _drift_after_pulse(speed: float, test: Test, data: TestData) -> tuple[float, float | None] | None:
     """Where no velocity is measured, the velocity the accel channel integrated from `speed` (m/s)
     leaves over the record's last PULSE_OVER where its pulse is over there (`pulse_over`), or
-    where it throws the vehicle back past REBOUND_LIMIT (no record cut short mid-crash does); None
-    with a measured velocity, without an accel channel from impact on, or where the pulse goes on
-    to the record's end (a record that ends early)."""
+    where it throws the vehicle back past REBOUND_LIMIT (no record cut short mid-crash does), and
+    the offset the channel reads there (`steady_offset`, None without one); None with a measured
+    velocity, without an accel channel from impact on, or where the pulse goes on to the record's
+    end (a record that ends early)."""
     accel = data.channels.get("accel")
     if _velocity_start(test, data) is not None or accel is None or not accel.time[0] <= 0.0 < accel.time[-1] - PULSE_OVER:
         return None
     last = accel.time >= accel.time[-1] - PULSE_OVER
     velocity, _ = integrate(accel.time, accel.values, speed)
     drift = float(np.mean(velocity[last]))
-    return drift if pulse_over(accel.values[last], accel.values) or drift < -REBOUND_LIMIT * speed else None
+    if pulse_over(accel.values[last], accel.values) or drift < -REBOUND_LIMIT * speed:
+        return drift, steady_offset(accel.values[last], accel.values)
+    return None
 
 
 def pulse_over(end: np.ndarray, accel: np.ndarray) -> bool:
     """Whether an acceleration's pulse is over by the `end` of its record (its last PULSE_OVER):
     there it stays within PULSE_QUIET of its peak, or it pushes the vehicle toward the barrier
-    steadily, as a sensor's offset does and no barrier can."""
-    quiet = PULSE_QUIET * np.max(np.abs(accel))
+    steadily (`steady_mean`), as a sensor's offset does and no barrier can."""
+    steady = steady_mean(end, accel)
+    return bool(np.max(np.abs(end)) <= PULSE_QUIET * np.max(np.abs(accel)) or (steady is not None and steady > 0.0))
+
+
+def steady_offset(end: np.ndarray, accel: np.ndarray) -> float | None:
+    """What a sensor's offset reads over the `end` of an acceleration's record: its mean where it
+    holds steady there (`steady_mean`), further from zero than the samples stray from it (a level,
+    not noise about zero); None otherwise."""
+    steady = steady_mean(end, accel)
+    return steady if steady is not None and abs(steady) > float(np.max(np.abs(end - steady))) else None
+
+
+def steady_mean(end: np.ndarray, accel: np.ndarray) -> float | None:
+    """The mean of an acceleration over the `end` of its record where it stays within PULSE_QUIET of
+    its peak about that mean; None where it varies more."""
     mean = float(np.mean(end))
-    return bool(np.max(np.abs(end)) <= quiet or (mean > 0.0 and np.max(np.abs(end - mean)) <= quiet))
+    return mean if float(np.max(np.abs(end - mean))) <= PULSE_QUIET * float(np.max(np.abs(accel))) else None
 
 
 def _velocity_at_fault(speed: float, start: float, test: Test) -> tuple[str, str] | None:
