@@ -12,6 +12,7 @@ from crashnlp.analysis.summary import metrics
 from crashnlp.base.units import G0
 from crashnlp.data import DataError, csv_reader, load_test_data
 from crashnlp.data.csv_reader import Table
+from crashnlp.data.signal import cfc_filter
 from crashnlp.problem.schema import DataSpec, located
 
 ROOT = Path(__file__).resolve().parents[1] / "problems" / "data"
@@ -171,6 +172,20 @@ def test_a_clipped_accelerometer_is_refused_naming_its_column_or_curve_and_level
     np.savetxt(tmp_path / "v10146.093", np.column_stack([curve[:, 0], np.maximum(curve[:, 1], -25.0)]), delimiter="\t")
     with pytest.raises(DataError, match=r"v10146\.093: channel accel: \d+ samples in a row .* at exactly -25 g"):
         load_test_data(camry(file=ev5))
+
+
+@pytest.mark.parametrize("kmh", [40, 56])
+def test_a_filtered_pulse_written_rounded_holds_its_peak_and_is_not_clipped(tmp_path, kmh):
+    """The pickup's acceleration filtered at CFC 60 and written to 0.1 g holds its peak for 18 to 21
+    samples (about 2 ms), as clipping does, but lingers near it, as a smooth peak does: it is read."""
+    data = np.genfromtxt(PICKUP.parent / f"pickup-{kmh}kph.csv", delimiter=",", names=True)
+    rounded = np.round(cfc_filter(data["accel_x_g"], 1e-4, 60), 1)
+    written = np.column_stack([data["time_s"], rounded, data["vel_x_mps"], data["disp_x_m"], data["pitch_deg"]])
+    header = "time_s,accel_x_g,vel_x_mps,disp_x_m,pitch_deg"
+    np.savetxt(tmp_path / "rounded.csv", written, delimiter=",", header=header, comments="", fmt="%.6g")
+    run = max(len(r) for r in np.split(rounded, np.flatnonzero(np.diff(rounded)) + 1) if r[0] == rounded.min())
+    assert run >= 10  # as long a run at its extreme as a clipped record's
+    assert load_test_data(pickup(file=tmp_path / "rounded.csv")).channels["accel"].values.min() < -15 * G0
 
 
 def test_nhtsa_nan_sample(tmp_path):
