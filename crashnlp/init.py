@@ -42,7 +42,7 @@ from crashnlp.data.channels import Channel
 from crashnlp.data.csv_reader import Table
 from crashnlp.data.load import READERS, load_test_data
 from crashnlp.data.nhtsa_channel import channel_files
-from crashnlp.data.signal import BIAS_SPAN
+from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
@@ -444,13 +444,14 @@ def _data_spec(draft: Draft, path: Path) -> DataSpec:
 
 def _bias_window(draft: Draft, path: Path) -> None:
     """A bias window over the last BIAS_SPAN before impact where every channel read holds at least
-    10 ms of pre-impact record and an accel channel is read: set before the data are loaded, which
-    refuses an accelerometer's offset that no window removes."""
+    BIAS_LEAST of pre-impact record (the least a window may hold, and the least over which the
+    data refuse an offset no window removes) and an accel channel is read: set before the data are
+    loaded, which refuse such an offset."""
     spec = _data_spec(draft, path)
     raw = READERS[spec.format](spec).channels
     read = [raw[name] for name, ch in spec.channels.items() if ch.derive is None]
     start = max(c.time[0] for c in read)
-    if start <= -0.01 and "accel" in raw:
+    if start <= -BIAS_LEAST and "accel" in raw:
         draft.data["bias_window"] = [max(float(start), -BIAS_SPAN), 0.0]
 
 

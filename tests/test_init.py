@@ -52,6 +52,23 @@ def test_init_removes_an_accelerometer_offset_before_impact(tmp_path):
     assert "bias_window: [-0.05 s, 0 s]" in out.read_text() and "to 746 mm" in out.read_text()
 
 
+def test_init_writes_a_bias_window_over_as_little_record_before_impact_as_an_offset_is_refused_on(tmp_path):
+    """The pickup's 56 km/h record with 7 ms at its speed put before impact and 0.5 g on its
+    accelerometer: the data refuse an offset over 5 ms or more of such record that no window
+    removes, so init writes the window over those 7 ms (it wrote none under 10 ms, and could
+    write no problem)."""
+    data = np.genfromtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", names=True)
+    before = np.arange(-70, 0) * 1e-4
+    rows = [(t, 0.0, data["vel_x_mps"][0], 0.0, 0.0) for t in before] + [tuple(r) for r in data]
+    table = np.array([list(r) for r in rows])
+    table[:, 1] += 0.5
+    header = ",".join(data.dtype.names)
+    np.savetxt(tmp_path / "pre7.csv", table, delimiter=",", header=header, comments="", fmt="%.7g")
+    out = tmp_path / "pre7.yaml"
+    assert main(["init", str(tmp_path / "pre7.csv"), "--mass", "2550 kg", "--out", str(out)]) == 0
+    assert "bias_window: [-0.007 s, 0 s]" in out.read_text()
+
+
 def test_init_names_a_symlinked_data_file_where_the_user_put_it(tmp_path):
     folder = tmp_path / "ev5"
     folder.mkdir()

@@ -127,7 +127,7 @@ def cfc_filter(values: np.ndarray, dt: float, cfc: float | str, pad: float = 0.0
 # no later than a sample after the window does) and the window holds BIAS_LEAST of record: the mean
 # of 50 samples at 10 kHz has a seventh of the noise of one (the generator's 0.8 g white noise: 0.11 g),
 # while a single sample at impact may read a spike of g's and shift the whole record by it.
-BIAS_LEAST = 0.005  # s; `crashnlp init` writes a window only where 10 ms of pre-impact record exist
+BIAS_LEAST = 0.005  # s; `crashnlp init` writes a window wherever this much pre-impact record exists
 BIAS_SPAN = 0.05  # s of pre-impact record whose mean is the accelerometer's offset: the window init writes
 
 
