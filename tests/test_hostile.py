@@ -337,6 +337,17 @@ def test_an_accelerometer_offset_that_outlasts_the_pulse_is_refused_by_its_drift
     assert held == pytest.approx(offset, abs=0.2)
 
 
+def test_a_clean_accelerometer_told_another_speed_names_no_offset(tmp_path, capsys):
+    """The pickup's 56 km/h acceleration alone, as recorded, told 80 km/h: refused for its drift,
+    and its end's steady 0.09 g, which held over the record adds a twentieth of that drift, is not
+    named as an offset that might explain it (OFFSET_SHARE)."""
+    raw = np.loadtxt(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", delimiter=",", skiprows=1)
+    problem = _accel_only(tmp_path, raw[:, 0], raw[:, 1], 80)
+    problem["tests"][0]["data"]["window"] = ["0 s", "0.2 s"]
+    err = refused(tmp_path, capsys, problem, "vehicle.speed: ")
+    assert "toward the barrier at" in err and "offset" not in err
+
+
 def test_a_record_cut_while_an_engine_pulls_the_body_back_is_taken(tmp_path):
     """Of the corpus's records cut short (seeds 3100 and 3200, every 2 ms), the one whose end pushes
     the body toward the barrier most (6 % of its peak on average: its engine on its mounts pulls it

@@ -38,6 +38,10 @@ PULSE_QUIET = 0.1
 # a pulse going on), and its drift is judged too. Records cut short mid-crash push it that way only
 # unsteadily (an engine on its mounts pulls the body back, up to 6 % of the peak on average):
 # docs/design-notes.md, "An accelerometer's offset".
+# An acceleration's steady level after its pulse is named as an offset where, held over the record,
+# it adds at least this share of the drift it is refused for (a clean record's end reads a level too
+# small to explain a wrong speed's drift: 0.09 g over 200 ms against 4.6 m/s)
+OFFSET_SHARE = 0.5
 # A pulse read with the wrong sign speeds the vehicle up by its velocity change: it leaves it at
 # about twice its speed. Past FLIPPED times the speed the accel channel's sign, not the speed, is at fault.
 FLIPPED = 1.5
@@ -586,7 +590,8 @@ def _drift_after_pulse(speed: float, test: Test, data: TestData) -> tuple[float,
     """Where no velocity is measured, the velocity the accel channel integrated from `speed` (m/s)
     leaves over the record's last PULSE_OVER where its pulse is over there (`pulse_over`), or
     where it throws the vehicle back past REBOUND_LIMIT (no record cut short mid-crash does), and
-    the offset the channel reads there (`steady_offset`, None without one); None with a measured
+    the offset the channel reads there (`steady_offset`) where held over the record it adds
+    OFFSET_SHARE of that velocity or more (None otherwise); None with a measured
     velocity, without an accel channel from impact on, or where the pulse goes on to the record's
     end (a record that ends early)."""
     accel = data.channels.get("accel")
@@ -596,7 +601,9 @@ def _drift_after_pulse(speed: float, test: Test, data: TestData) -> tuple[float,
     velocity, _ = integrate(accel.time, accel.values, speed)
     drift = float(np.mean(velocity[last]))
     if pulse_over(accel.values[last], accel.values) or drift < -REBOUND_LIMIT * speed:
-        return drift, steady_offset(accel.values[last], accel.values)
+        offset = steady_offset(accel.values[last], accel.values)
+        added = offset * float(accel.time[-1]) if offset is not None else 0.0  # to the velocity, over the record
+        return drift, offset if drift and added / drift >= OFFSET_SHARE else None
     return None
 
 
