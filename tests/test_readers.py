@@ -149,11 +149,24 @@ def test_nhtsa_different_sample_intervals(tmp_path):
 @pytest.mark.parametrize(("factor", "apart"), [(9.80665, r"0\.1\d* times as much"), (-1.0, "the other way")])
 def test_nhtsa_accelerometers_averaged_read_in_different_units_or_signs_are_refused(tmp_path, factor, apart):
     """Curve 93 in m/s^2 under its G'S header, averaged with 94 in g, fitted as a vehicle stopped 5.4
-    times over and was refused as the speed's fault; read the other way, the mean is no pulse."""
+    times over and was refused as the speed's fault; read the other way, the mean is no pulse. Two
+    curves cannot tell which is at fault: the message names both."""
     header = _copy_ev5(tmp_path)
     curve = np.loadtxt(tmp_path / "v10146.093")
     np.savetxt(tmp_path / "v10146.093", curve * [1.0, factor], delimiter="\t", fmt="%.6f")
-    with pytest.raises(DataError, match=rf"v10146\.094: channel accel: the curve changes .* v10146\.093 by .* \({apart}\)"):
+    with pytest.raises(DataError, match=rf"v10146\.09[34]: channel accel: the curve changes .* v10146\.09[34] by .* \({apart}\)"):
+        load_test_data(camry(file=header))
+
+
+@pytest.mark.parametrize("noise", [0.0, 0.05])
+def test_a_dead_accelerometer_curve_averaged_with_a_live_one_is_named_dead(tmp_path, noise):
+    """Curve 93 of zeros, or of 0.05 g noise, averaged with 94: the mean is half a pulse, and the
+    dead curve is named as dead, not as read in another unit or sign."""
+    header = _copy_ev5(tmp_path)
+    curve = np.loadtxt(tmp_path / "v10146.093")
+    dead = noise * np.random.default_rng(0).standard_normal(len(curve))
+    np.savetxt(tmp_path / "v10146.093", np.column_stack([curve[:, 0], dead]), delimiter="\t", fmt="%.6f")
+    with pytest.raises(DataError, match=r"v10146\.093: channel accel: .* \(next to nothing\): the curve is dead"):
         load_test_data(camry(file=header))
 
 

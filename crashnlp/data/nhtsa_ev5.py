@@ -72,6 +72,10 @@ FLAT_LEVELS = 8
 # than CURVES_APART times were read in different units: a curve in m/s^2 under a G'S header takes
 # 9.81 times the change, and its mean with a curve in g stops the vehicle 5.4 times over.
 CURVES_APART = 2.0
+# a curve that changes the velocity by less than this share of the curve that changes it most reads
+# no pulse: dead (a unit slip takes a ninth, m/s^2 read as g, or a thousandth and more of mm/s^2;
+# a dead sensor's noise integrates to a hundredth of the change or less)
+DEAD_SHARE = 0.05
 
 
 @dataclass
@@ -344,17 +348,24 @@ def combine(read: list[tuple[Path, np.ndarray, np.ndarray]], name: str) -> Chann
 def _check_apart(read: list[tuple[Path, np.ndarray, np.ndarray]]) -> None:
     """Refuse accelerometer curves to be averaged whose velocity changes from impact on (t >= 0)
     part by more than CURVES_APART times, or go opposite ways: read in different units or signs,
-    their mean is neither's. Names the curve furthest from the first one."""
+    or one of them dead, their mean is neither's. Names the curve furthest from the one that
+    changes the velocity most."""
     changes = [float(np.trapezoid(v[t >= 0], t[t >= 0])) for _, t, v in read]
-    if changes[0] == 0.0:
-        return
-    ratios = [change / changes[0] for change in changes]
+    ref = max(range(len(changes)), key=lambda j: abs(changes[j]))
+    if changes[ref] == 0.0:
+        return  # every curve flat: the channel is dead, which the fit's checks say
+    ratios = [change / changes[ref] for change in changes]
     k = max(range(len(ratios)), key=lambda j: abs(np.log(abs(ratios[j]))) if ratios[j] else np.inf)
     if 1 / CURVES_APART <= ratios[k] <= CURVES_APART:
         return
-    apart = f"{ratios[k]:.3g} times as much" if ratios[k] > 0 else "the other way"
+    if abs(ratios[k]) < DEAD_SHARE:
+        apart, why = "next to nothing", "the curve is dead (it reads no pulse); leave it out of the curves"
+    elif ratios[k] < 0.0:
+        apart, why = "the other way", "the curves are read with different signs"
+    else:
+        apart = f"{ratios[k]:.3g} times as much"
+        why = "the curves are read in different units (one in m/s^2 under a G'S header takes a ninth of the change)"
     raise DataError(
         f"{where(read[k][0], 'accel')}: the curve changes the velocity by {changes[k]:.3g} m/s from impact on, "
-        f"{read[0][0].name} by {changes[0]:.3g} m/s ({apart}): the curves are read in different units or signs (one "
-        "in m/s^2 under a G'S header takes 9.81 times the change) and their mean is neither's; average curves read alike"
+        f"{read[ref][0].name} by {changes[ref]:.3g} m/s ({apart}): {why}, and their mean is neither's"
     )
