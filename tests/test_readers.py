@@ -458,11 +458,15 @@ def test_mme_missing_code_and_missing_channel_file(tmp_path):
     [
         ("15,0", "1500,0", {"speed": 15.0, "mass": 1500.0}, None),
         ("54 km/h", "1500,5 kg", {"speed": 15.0, "mass": 1500.5}, None),
-        ("15.0", "1,500", None, "mass test object 1 :1,500"),
+        ("15,556", "1,500", {"speed": 15.556, "mass": 1500.0}, None),  # each one way a vehicle's: 15556 m/s, 1.5 kg are not
+        ("0,500", "1500", None, "velocity test object 1 :0,500"),  # 0.5 m/s and 500 m/s: neither a crash test's
         ("fifteen", "1500", None, "velocity test object 1 :fifteen"),
     ],
 )
 def test_mme_header_with_a_decimal_comma_is_read_and_one_unreadable_is_refused(tmp_path, velocity, mass, meta, refused):
+    """An .mme header's speed and mass with a decimal comma are read; a comma before three digits
+    (a decimal comma, or a thousands separator) is read the one way that is a vehicle's, and
+    refused where neither is, as is an entry that is no number."""
     _mme_set(tmp_path / "T001")
     f = tmp_path / "T001" / "T001.mme"
     f.write_text(f.read_text().replace(":15.0\n", f":{velocity}\n").replace(":1500\n", f":{mass}\n"))

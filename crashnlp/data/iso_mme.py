@@ -95,30 +95,53 @@ def _pairs(text: str) -> tuple[dict[str, str], list[str]]:
 META_KEYS = {"speed": ("velocity test object {}", "m/s"), "mass": ("mass test object {}", "kg")}  # .mme entries by meta key
 _DECIMAL_COMMA = re.compile(r"[+-]?\d+,\d+(\s*\D.*)?")  # a number with a decimal comma, as European labs write 2550,0
 _THOUSANDS = re.compile(r",\d{3}(?!\d)")  # a comma that may separate thousands: 2,550 is 2550 or 2.55
+# what a vehicle's crash test can hold, in SI: of a number that reads two ways (2,550), the one
+# reading that falls here is the header's (the two readings are a factor 1000 apart, wider than
+# either range, so at most one does)
+VEHICLE_RANGE = {"speed": (1.0, 50.0), "mass": (100.0, 100_000.0)}
 
 
 def header_meta(header: dict[str, str], obj: str, label: str) -> dict[str, float]:
     """'speed' and 'mass' of test object `obj` in SI from the .mme entries (plain numbers are SI, as
-    ISO-MME stores them); an entry absent or NOVALUE is left out. A decimal comma reads as a point,
-    but not one before exactly three digits (2,550 may be a thousands separator). An entry present
-    but unreadable is refused naming the file `label` and the line: left out, it would silently drop
-    the problem's mass and speed checks or leave them to a misleading "no header gives it"."""
+    ISO-MME stores them); an entry absent or NOVALUE is left out. A decimal comma reads as a point;
+    one before exactly three digits (2,550: 2550 or 2.55) reads the way that is a vehicle's
+    (VEHICLE_RANGE). An entry present but unreadable, or a vehicle's neither way, is refused
+    naming the file `label` and the line: left out, it would silently drop the problem's mass and
+    speed checks or leave them to a misleading "no header gives it"."""
     meta: dict[str, float] = {}
     for meta_key, (pattern, unit) in META_KEYS.items():
         key = pattern.format(obj)
         text = header.get(key, "")
         if not text or text.upper() == "NOVALUE":
             continue
-        decimal = _DECIMAL_COMMA.fullmatch(text) and not _THOUSANDS.search(text)
-        number = text.replace(",", ".") if decimal else text
-        try:
-            value = to_si(number if re.search(r"[A-Za-z]", number) else float(number), unit)
-        except ValueError:
+        readings = _readings(text, unit)
+        low, high = VEHICLE_RANGE[meta_key]
+        plausible = [value for value in readings if low <= value <= high] if len(readings) > 1 else readings
+        if len(plausible) != 1:
             line = f"'{key} :{text}'"
-            raise DataError(f"{label}: header line {line} is not a quantity in {unit} (write it with a decimal point)") from None
-        if value:
-            meta[meta_key] = value
+            raise DataError(f"{label}: header line {line} is not a quantity in {unit} (write it with a decimal point)")
+        if plausible[0]:
+            meta[meta_key] = plausible[0]
     return meta
+
+
+def _readings(text: str, unit: str) -> list[float]:
+    """The values in `unit` (SI) an .mme entry reads as: a number with a decimal point, a quantity
+    with its unit, or a decimal comma; one with a comma before exactly three digits both ways (a
+    decimal comma, a thousands separator); none where it is no number."""
+    if not _DECIMAL_COMMA.fullmatch(text):
+        candidates = [text]
+    elif _THOUSANDS.search(text):
+        candidates = [text.replace(",", "."), text.replace(",", "")]
+    else:
+        candidates = [text.replace(",", ".")]
+    out = []
+    for number in candidates:
+        try:
+            out.append(float(to_si(number if re.search(r"[A-Za-z]", number) else float(number), unit)))
+        except ValueError:
+            continue
+    return out
 
 
 def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
