@@ -285,8 +285,9 @@ class Pulse:
         step onset runs a higher peak than the model's."""
         if self.cfc is None:
             return (
-                f"sampled at {self.rate:g} Hz, not filtered: the model's own acceleration, which no accelerometer's"
-                " class reads (a design's), its peak the result's; --cfc filters it as SAE J211 filters a measured channel"
+                f"sampled at {self.rate:g} Hz, not filtered: the model's own acceleration, as its result reads it (a"
+                " design's, or a fit's to unfiltered data), its peak the result's; --cfc filters it as SAE J211 filters a"
+                " measured channel"
             )
         line = f"sampled at {self.rate:g} Hz, filtered to CFC {self.cfc:g} (SAE J211)"
         peak = float(np.max(-self.accel))
