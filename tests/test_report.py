@@ -490,18 +490,8 @@ def test_an_identified_model_edited_is_one_line_to_the_exports_and_predictions(f
     result.json (not the problem file the prediction reads) and the entry or what failed on it,
     exit 2, and write nothing (no ZeroDivisionError, no .k of nan, no unloading stiffness read
     from the predicted test's own data in place of a null)."""
-    folder = tmp_path / "edited"
-    shutil.copytree(fit, folder)
-    raw = json.loads((folder / "result.json").read_text())
     *path, key, value = edit
-    entry = raw["identified_model"]["model"]
-    for step in path:
-        entry = entry[step]
-    if value is REMOVED:
-        del entry[key]
-    else:
-        entry[key] = value
-    (folder / "result.json").write_text(json.dumps(raw))
+    folder = _edited(fit, tmp_path, ("identified_model", "model", *path, key), value)
     before = sorted(tmp_path.rglob("*"))
     problem, params = str(ROOT / "problems/pickup-40kph.yaml"), str(folder / "result.json")
     prediction = ["simulate", problem, "--params", params, "--out", str(tmp_path / "out-sim"), "--no-figures"]
@@ -514,6 +504,24 @@ def test_an_identified_model_edited_is_one_line_to_the_exports_and_predictions(f
     err = capsys.readouterr().err
     assert err.startswith(f"crashnlp: error: {folder / 'result.json'}: {why.split(' (')[0]}"), err
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def _edited(fit: Path, tmp_path: Path, keys: tuple, value: object) -> Path:
+    """A copy of the fit's folder whose result.json holds `value` at the entry `keys` lead to from
+    its top, or has that entry taken out (REMOVED)."""
+    folder = tmp_path / "edited"
+    shutil.copytree(fit, folder)
+    raw = json.loads((folder / "result.json").read_text())
+    *path, key = keys
+    entry = raw
+    for step in path:
+        entry = entry[step]
+    if value is REMOVED:
+        del entry[key]
+    else:
+        entry[key] = value
+    (folder / "result.json").write_text(json.dumps(raw))
+    return folder
 
 
 def _reading_the_folder(folder: Path, tmp_path: Path) -> list[list[str]]:
@@ -551,18 +559,7 @@ def test_a_result_edited_past_its_model_is_one_line_to_every_command_that_reads_
     and the entry, exit 2, and writes nothing (no pulse at a negative speed, no interval shifted by
     a negative variance, no null status read as converged); a prediction of another problem from
     it (--params) too, where it reads the entry."""
-    folder = tmp_path / "edited"
-    shutil.copytree(fit, folder)
-    raw = json.loads((folder / "result.json").read_text())
-    (*path, key), value = edit
-    entry = raw
-    for step in path:
-        entry = entry[step]
-    if value is REMOVED:
-        del entry[key]
-    else:
-        entry[key] = value
-    (folder / "result.json").write_text(json.dumps(raw))
+    folder = _edited(fit, tmp_path, *edit)
     before = sorted(tmp_path.rglob("*"))
     commands = _reading_the_folder(folder, tmp_path)
     if edit[0][0] in (IDENTIFIED, "status"):
