@@ -86,7 +86,9 @@ def simulate(
     a note says so.
     `params` a dict of dotted paths: those values replace the problem's, refused where the command
     line refuses a result.json's (crashnlp.problem.parameters: an InputError naming the key).
-    `problem` a Result (no `params`): its own tests with its identified vehicle, as `params`.
+    `problem` a Result, or a fit's result.json or its folder (no `params`): its own tests with its
+    identified vehicle, as `params`, as `crashnlp simulate FOLDER` reads it
+    (crashnlp.report.folders.result_alone).
     `dt` ("0.1 ms"; a number is s): the output step, read and refused as `--dt` is
     (crashnlp.analysis.prediction.output_step).
     `speed`, `mass` ("64 km/h", "1650 kg"; a number is SI): a what-if, every test at that speed
@@ -97,6 +99,7 @@ def simulate(
     from crashnlp.analysis.prediction import output_step, own_tests, traced
     from crashnlp.case.case import case_of
     from crashnlp.problem.schema import what_if
+    from crashnlp.report.folders import given_result, result_alone
     from crashnlp.results.params import with_params
     from crashnlp.results.source import simulation_source
 
@@ -107,6 +110,11 @@ def simulate(
             raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
         case = case_of(own_tests(problem, problem.name)).at(new_speed, new_mass)
         return traced(case, problem.identified, step, simulation_source(None, problem))
+    if not isinstance(problem, Problem) and (given := given_result(problem)) is not None:
+        named = params if params is None or isinstance(params, (str, Path)) else f"({type(params).__name__})"
+        alone, identified, read = result_alone(given, named, "params=")
+        case = case_of(alone, str(problem)).at(new_speed, new_mass)
+        return traced(case, identified, step, simulation_source(str(problem), str(problem), file=read))
     source = _source(problem)
     if isinstance(params, (str, Path)):
         problem, identified, read = with_params(problem, params)

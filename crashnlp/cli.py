@@ -101,21 +101,6 @@ def _print_prediction(test) -> None:
         print(note)
 
 
-def _result_alone(path: str, params: str | None):
-    """(problem, identified model, the result.json read) of a result.json given in place of a
-    problem: its own tests with its identified vehicle (crashnlp.analysis.prediction.own_tests)."""
-    from crashnlp.analysis.prediction import own_tests
-    from crashnlp.report.folders import read_result
-    from crashnlp.results.params import read_params
-    from crashnlp.results.result import fit_folder
-
-    if params is not None:
-        raise InputError(f"--params {params}: {path} is a result already; give a problem file with --params, or the result alone")
-    read = read_params(path)  # one line for a file that is not a result.json
-    result = read_result(fit_folder(path), read)
-    return own_tests(result, path), result.identified, read
-
-
 def _simulation(args):
     """(case, identified model or None, output folder, --dt in s or None, source:
     crashnlp.results.source) of the problem file, every check made and the folder checked
@@ -124,18 +109,15 @@ def _simulation(args):
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
+    from crashnlp.report.folders import given_result, result_alone
     from crashnlp.results.params import with_params
-    from crashnlp.results.result import RESULT_FILE
     from crashnlp.results.source import simulation_source
 
     dt = output_step(args.dt, "--dt")
     speed, mass = what_if(args.speed, args.mass, prefix="--")
-    folder = Path(args.problem) / RESULT_FILE
-    if Path(args.problem).is_dir() and not folder.is_file():
-        raise InputError(f"{args.problem}: a folder without result.json; simulate a problem file, or a fit's folder")
     fit = args.params
-    if args.problem.endswith(".json") or folder.is_file():
-        problem, identified, read = _result_alone(str(folder) if folder.is_file() else args.problem, args.params)
+    if (given := given_result(args.problem)) is not None:
+        problem, identified, read = result_alone(given, args.params, "--params")
         fit = args.problem
     elif args.params:
         problem, identified, read = with_params(args.problem, args.params)

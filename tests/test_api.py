@@ -59,6 +59,28 @@ def test_api_result_equals_the_command_line(small_problem, tmp_path, compiled_nl
 
 
 @pytest.mark.integration
+def test_simulate_takes_a_fits_folder_as_the_command_does(small_problem, tmp_path, capsys):
+    """A fit's folder (or its result.json) given as the problem: its own tests with its identified
+    vehicle, as `crashnlp simulate FOLDER` and a Result in memory give them; with params too, or
+    a folder without result.json, the command's refusals (InputError)."""
+    result = crashnlp.identify(crashnlp.load(small_problem))
+    result.save(tmp_path / "fit", figures=False)
+    folder = tmp_path / "fit"
+    for given in (folder, str(folder / "result.json")):
+        (test,) = crashnlp.simulate(given, speed="50 km/h").values()
+        (alone,) = crashnlp.simulate(crashnlp.Result.load(folder), speed="50 km/h").values()
+        assert test.metrics == alone.metrics and test.intervals == alone.intervals
+        assert test.source["result"]["path"] == str(given)
+    with pytest.raises(InputError, match="is a result already; give a problem file with params="):
+        crashnlp.simulate(folder, params=folder)
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(InputError, match="a folder without result.json"):
+        crashnlp.simulate(tmp_path / "empty")
+    assert main(["simulate", str(folder), "--params", str(folder), "--out", str(tmp_path / "o")]) == 2
+    assert "is a result already; give a problem file with --params" in capsys.readouterr().err
+
+
+@pytest.mark.integration
 def test_result_loads_back_what_it_saved(small_problem, tmp_path):
     result = crashnlp.identify(small_problem)
     result.save(tmp_path, figures=False)

@@ -80,6 +80,26 @@ def test_a_designs_figure_is_its_response_with_its_crush_space(fine, tmp_path):
 
 @pytest.mark.integration
 @pytest.mark.slow
+def test_a_prediction_from_a_design_says_why_it_has_no_intervals(fine, tmp_path):
+    """A design's values are chosen, fitted to no data: its result says it is a design's vehicle,
+    read back too, and its prediction at another speed says that nothing measures their
+    uncertainty, not that the data do not determine them."""
+    import crashnlp
+
+    _, sol = fine
+    result = result_of(sol)
+    assert result.identified is not None and result.identified.designed
+    result.save(tmp_path, figures=False)
+    read = Result.load(tmp_path)
+    assert read.identified is not None and read.identified.designed
+    (test,) = crashnlp.simulate(read, speed="12 m/s").values()
+    assert all(v is None for v in test.intervals.values())
+    assert any("no intervals: a design's values are chosen for its goal, fitted to no data" in n for n in test.notes)
+    assert not any("the data do not determine" in n for n in test.notes)
+
+
+@pytest.mark.integration
+@pytest.mark.slow
 def test_peak_deceleration_against_the_square_wave_bound(fine):
     case, sol = fine
     square_wave = V0**2 / (2 * CRUSH_SPACE)

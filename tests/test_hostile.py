@@ -337,6 +337,21 @@ def test_an_accelerometer_offset_that_outlasts_the_pulse_is_refused_by_its_drift
     assert held == pytest.approx(offset, abs=0.2)
 
 
+def test_a_speed_only_a_data_header_gives_is_named_there_when_the_data_contradict_it(tmp_path, capsys):
+    """Test 10146's EV5 header with its closing speed made 40 km/h, and a problem that gives no
+    speed: the accelerometers throw the vehicle back past half that speed, and the refusal names
+    the data file whose header gave the speed, not vehicle.speed, which the problem does not give."""
+    source = ROOT / "problems/data/nhtsa-10146"
+    for curve in ("v10146.093", "v10146.094"):
+        shutil.copy(source / curve, tmp_path)
+    header = (source / "v10146.EV5").read_text().replace("|OTH|OTH|57.09|", "|OTH|OTH|40.00|")
+    (tmp_path / "v10146.EV5").write_text(header)
+    raw = yaml.safe_load((ROOT / "problems/nhtsa-10146.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(tmp_path / "v10146.EV5")
+    err = refused(tmp_path, capsys, raw, "tests.0.data.file (the speed its header gives): 11.1111 m/s (40 km/h), but")
+    assert "vehicle.speed" not in err
+
+
 def test_a_clean_accelerometer_told_another_speed_names_no_offset(tmp_path, capsys):
     """The pickup's 56 km/h acceleration alone, as recorded, told 80 km/h: refused for its drift,
     and its end's steady 0.09 g, which held over the record adds a twentieth of that drift, is not

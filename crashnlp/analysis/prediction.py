@@ -325,8 +325,12 @@ def _uncertainty(
     unused = unused | unloading
     undetermined = [label for label, s, out in zip(identified.labels, std, unused) if not (np.isfinite(s) or out)]
     if undetermined:
-        note = f"{test.name}: no intervals: the data do not determine {', '.join(undetermined)}"
-        return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(note,))
+        why = (
+            "a design's values are chosen for its goal, fitted to no data, so nothing measures how uncertain they are"
+            if identified.designed
+            else f"the data do not determine {', '.join(undetermined)}"
+        )
+        return Uncertainty({k: None for k in PREDICTED_KEYS}, notes=(f"{test.name}: no intervals: {why}",))
     notes = [f"{test.name}: {unseen}, which the data do not determine, shape no force it goes through"] if unseen else []
     gm, gy = _sensitivities(case, test, p, identified, np.where(unused, 0.0, std), dt, cfc, metrics)
     cov = without_entries(identified.covariance, unused) if identified.covariance is not None else np.zeros((len(std), len(std)))

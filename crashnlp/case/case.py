@@ -86,7 +86,8 @@ class Case:
     def check_data(self) -> None:
         """Refuse test data that contradict the problem's speed or mass, or end before a fit's duration
         (crashnlp.case.testcase.check_data)."""
-        check_data(self.tests, self.problem.vehicle.known_mass, self.problem.vehicle.cg_above_impact < 0)
+        vehicle = self.problem.vehicle
+        check_data(self.tests, vehicle.known_mass, vehicle.cg_above_impact < 0, vehicle.speed is not None)
 
     def test_parameters(self, test: TestCase, p: np.ndarray | None = None) -> np.ndarray:
         """Full parameter vector of one test: shared values with the test's own overrides."""

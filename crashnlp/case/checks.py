@@ -41,4 +41,5 @@ def check_tests(problem: Problem, source: str | None = None) -> None:
     a fit's duration, without building the model (a study checks every case so before it solves any)."""
     with named(source or problem.name):
         loaded, tests = load_tests(problem)
-        check_data(tests, loaded.vehicle.known_mass, loaded.vehicle.cg_above_impact < 0)
+        vehicle = loaded.vehicle
+        check_data(tests, vehicle.known_mass, vehicle.cg_above_impact < 0, vehicle.speed is not None)

@@ -214,7 +214,7 @@ def _recorded(test: Test, data: TestData, speed: float, mass: float, end: float)
     return Recorded(recorded_speed, (float(weighed), "the data header") if weighed else (mass, "the problem"), end)
 
 
-def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> None:
+def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool, vehicle_speed: bool) -> None:
     """Refuse test data with a dead channel (check_dead), a measured velocity and acceleration that
     disagree (check_units), data that contradict the problem's speed (check_speed), a displacement
     that disagrees with them (check_travel), a pitch past any crash's or that reads nose-up where the
@@ -222,12 +222,14 @@ def check_data(tests: list[TestCase], mass: float, impact_above_cg: bool) -> Non
     their header (`mass`, the vehicle's, where a test gives none: check_mass), a barrier force whose
     impulse disagrees with the accelerometers' at that mass (check_barrier), or data that end before
     a fit's duration (check_end; a window is checked as the data load). For fits: a simulation may
-    well ask what a test would do at another speed or mass, or for longer."""
+    well ask what a test would do at another speed or mass, or for longer. `vehicle_speed`: whether
+    the problem gives vehicle.speed (without it, and without a test's own, the speed is the data
+    header's, and the speed's refusals name the data file)."""
     for i, test in enumerate(tests):
         if test.data is not None:
             check_dead(i, test.speed, test.spec, test.data)
             check_units(i, test.speed, test.spec, test.data)  # channels apart name a channel, before the speed is
-            check_speed(i, test.speed, test.spec, test.data)
+            check_speed(i, test.speed, test.spec, test.data, vehicle_speed)
             check_travel(i, test.speed, test.spec, test.data)
             check_pitch(i, test.spec, test.data, impact_above_cg)
             tested = test.overrides.get("vehicle.mass", mass)
@@ -296,12 +298,16 @@ def steepest_change(accel: Channel) -> float | None:
     return float(np.max(np.abs(later - velocity[starts])))
 
 
-def check_speed(i: int, speed: float, test: Test, data: TestData) -> None:
-    """Refuse a test speed the data contradict (speed_contradicted), naming its key."""
+def check_speed(i: int, speed: float, test: Test, data: TestData, vehicle_speed: bool) -> None:
+    """Refuse a test speed the data contradict (speed_contradicted), naming its key: the test's
+    speed, vehicle.speed (`vehicle_speed`: the problem gives it), or else the data file whose
+    header gave it."""
     contradiction = _contradiction(speed, test, data)
     if contradiction is not None:
         at_fault, why = contradiction
         key = f"tests.{i}.speed" if test.speed is not None else "vehicle.speed"
+        if test.speed is None and not vehicle_speed:
+            key = f"tests.{i}.data.file (the speed its header gives)"
         raise InputError(f"{f'tests.{i}.data.{at_fault}' if at_fault else key}: {why}")
 
 

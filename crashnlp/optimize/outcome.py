@@ -115,6 +115,7 @@ def identified_model(solution: Solution, tests: dict[str, TestResult]) -> Identi
         discrepancy=_discrepancy(tests),
         channel_rmse=_channel_rmse(tests),
         accel_filter=_accel_filter(case),
+        designed=case.problem.kind == "design",
     )
 
 

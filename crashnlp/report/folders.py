@@ -11,12 +11,16 @@ from __future__ import annotations
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Literal
+from typing import TYPE_CHECKING, Literal
 
 from crashnlp.base.errors import InputError, unreadable
 from crashnlp.results import simulation
 from crashnlp.results.result import RESULT_FILE, Result, ResultFile, refuse_edited
 from crashnlp.results.simulation import PredictedTest
+
+if TYPE_CHECKING:
+    from crashnlp.problem.schema import Problem
+    from crashnlp.results.identified import IdentifiedModel
 from crashnlp.studies.store import CaseStore
 
 Kind = Literal["result", "simulation", "study"]
@@ -40,6 +44,34 @@ def read_result(folder: Path, file: ResultFile | None = None) -> Result:
     path = folder / RESULT_FILE
     with reading(path):
         return refuse_edited(Result.load(folder, file), str(path))
+
+
+def given_result(path: str | Path) -> str | None:
+    """The result.json a simulation's problem names where it is a fit's (or a design's) result
+    itself, its folder or the file (a .json of any name); None for a problem file. A folder
+    without result.json is an InputError."""
+    folder = Path(path) / RESULT_FILE
+    if Path(path).is_dir() and not folder.is_file():
+        raise InputError(f"{path}: a folder without result.json; simulate a problem file, or a fit's folder")
+    return str(folder) if folder.is_file() else str(path) if str(path).endswith(".json") else None
+
+
+def result_alone(path: str, params: object | None, given_as: str) -> tuple[Problem, IdentifiedModel | None, ResultFile]:
+    """(problem, identified model, the result.json read) of a result.json given in place of a
+    problem (`given_result`): its own tests with its identified vehicle
+    (crashnlp.analysis.prediction.own_tests); an InputError where `params` (named `given_as`) is
+    given too."""
+    from crashnlp.analysis.prediction import own_tests
+    from crashnlp.results.params import read_params
+    from crashnlp.results.result import fit_folder
+
+    if params is not None:
+        raise InputError(
+            f"{given_as} {params}: {path} is a result already; give a problem file with {given_as}, or the result alone"
+        )
+    read = read_params(path)  # one line for a file that is not a result.json
+    result = read_result(fit_folder(path), read)
+    return own_tests(result, path), result.identified, read
 
 
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:

@@ -102,7 +102,8 @@ class IdentifiedModel:
     relative miss of the data's value; a metric no fitted test measured is absent.
     `accel_filter`: the CFC class the fitted tests' accelerometers were read through, where they
     name one and agree (None: unfiltered); a prediction reads its acceleration through it, so
-    that its peak is the fitted tests' kind of peak (crashnlp.analysis.prediction)."""
+    that its peak is the fitted tests' kind of peak (crashnlp.analysis.prediction). `designed`: a
+    design's vehicle (crashnlp design), its values chosen for a goal, fitted to no data."""
 
     vehicle: dict[str, Any]
     model: dict[str, Any]
@@ -114,6 +115,7 @@ class IdentifiedModel:
     discrepancy: dict[str, float] = field(default_factory=dict)
     channel_rmse: dict[str, float] = field(default_factory=dict)
     accel_filter: str | None = None
+    designed: bool = False
 
     def to_json(self) -> dict[str, Any]:
         cov = None if self.covariance is None else [[_finite(x) for x in row] for row in self.covariance]
@@ -128,7 +130,7 @@ class IdentifiedModel:
             "discrepancy": self.discrepancy,
             "channel_rmse": {OUTPUT[c].key: v for c, v in self.channel_rmse.items()},  # the SI unit in the key
             "accel_filter": self.accel_filter,
-        }
+        } | ({"designed": True} if self.designed else {})
 
     @classmethod
     def from_json(cls, raw: dict[str, Any]) -> IdentifiedModel:
@@ -146,6 +148,7 @@ class IdentifiedModel:
             dict(raw.get("discrepancy", {})),
             _by_channel(raw.get("channel_rmse", {})),
             raw.get("accel_filter"),
+            raw.get("designed") is True,
         )
 
     def tail_notes(self) -> tuple[str, ...]:
