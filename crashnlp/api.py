@@ -99,8 +99,7 @@ def simulate(
     from crashnlp.analysis.prediction import output_step, own_tests, traced
     from crashnlp.case.case import case_of
     from crashnlp.problem.schema import what_if
-    from crashnlp.report.folders import given_result, result_alone
-    from crashnlp.results.params import with_params
+    from crashnlp.results.params import given_result, with_params
     from crashnlp.results.source import simulation_source
 
     step = output_step(dt)
@@ -111,6 +110,8 @@ def simulate(
         case = case_of(own_tests(problem, problem.name)).at(new_speed, new_mass)
         return traced(case, problem.identified, step, simulation_source(None, problem))
     if not isinstance(problem, Problem) and (given := given_result(problem)) is not None:
+        from crashnlp.report.folders import result_alone  # the report's package: not for a problem file's run
+
         named = params if params is None or isinstance(params, (str, Path)) else f"({type(params).__name__})"
         alone, identified, read = result_alone(given, named, "params=")
         case = case_of(alone, str(problem)).at(new_speed, new_mass)

@@ -109,14 +109,15 @@ def _simulation(args):
     from crashnlp.case.case import case_of
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
-    from crashnlp.report.folders import given_result, result_alone
-    from crashnlp.results.params import with_params
+    from crashnlp.results.params import given_result, with_params
     from crashnlp.results.source import simulation_source
 
     dt = output_step(args.dt, "--dt")
     speed, mass = what_if(args.speed, args.mass, prefix="--")
     fit = args.params
     if (given := given_result(args.problem)) is not None:
+        from crashnlp.report.folders import result_alone  # the report's package: not for a problem file's run
+
         problem, identified, read = result_alone(given, args.params, "--params")
         fit = args.problem
     elif args.params:

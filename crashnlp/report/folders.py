@@ -46,19 +46,9 @@ def read_result(folder: Path, file: ResultFile | None = None) -> Result:
         return refuse_edited(Result.load(folder, file), str(path))
 
 
-def given_result(path: str | Path) -> str | None:
-    """The result.json a simulation's problem names where it is a fit's (or a design's) result
-    itself, its folder or the file (a .json of any name); None for a problem file. A folder
-    without result.json is an InputError."""
-    folder = Path(path) / RESULT_FILE
-    if Path(path).is_dir() and not folder.is_file():
-        raise InputError(f"{path}: a folder without result.json; simulate a problem file, or a fit's folder")
-    return str(folder) if folder.is_file() else str(path) if str(path).endswith(".json") else None
-
-
 def result_alone(path: str, params: object | None, given_as: str) -> tuple[Problem, IdentifiedModel | None, ResultFile]:
     """(problem, identified model, the result.json read) of a result.json given in place of a
-    problem (`given_result`): its own tests with its identified vehicle
+    problem (crashnlp.results.params.given_result): its own tests with its identified vehicle
     (crashnlp.analysis.prediction.own_tests); an InputError where `params` (named `given_as`) is
     given too."""
     from crashnlp.analysis.prediction import own_tests

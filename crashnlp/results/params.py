@@ -11,7 +11,7 @@ from typing import TYPE_CHECKING, Any
 
 from crashnlp.base.errors import InputError, unreadable
 from crashnlp.results.identified import IdentifiedModel, apply, load_applied
-from crashnlp.results.result import ResultFile, result_file
+from crashnlp.results.result import RESULT_FILE, ResultFile, result_file
 
 if TYPE_CHECKING:
     from crashnlp.problem import Problem
@@ -71,3 +71,13 @@ def with_params(problem: Problem | str | Path, path: str | Path) -> tuple[Proble
         return put_in, identified, read
     loaded = problem if isinstance(problem, Problem) else load_problem(problem)
     return with_parameters(loaded, read.current["parameters"], source), None, read
+
+
+def given_result(path: str | Path) -> str | None:
+    """The result.json a simulation's problem names where it is a fit's (or a design's) result
+    itself, its folder or the file (a .json of any name); None for a problem file. A folder
+    without result.json is an InputError."""
+    folder = Path(path) / RESULT_FILE
+    if Path(path).is_dir() and not folder.is_file():
+        raise InputError(f"{path}: a folder without result.json; simulate a problem file, or a fit's folder")
+    return str(folder) if folder.is_file() else str(path) if str(path).endswith(".json") else None
