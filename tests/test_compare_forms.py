@@ -119,6 +119,24 @@ def test_a_form_fits_only_the_estimate_entries_its_equations_read():
     check_comparable(as_rigid, None, COMPARED)
 
 
+def test_an_engine_the_form_does_not_read_is_refused_and_compare_leaves_it_to_the_engine_form(tmp_path, capsys):
+    """An engine (`vehicle.engine`) under the pendulum or the rigid body: identify and simulate
+    refuse it, naming the file and the key (both had run without it, saying nothing); compare's
+    problem of each form leaves it to the form that reads it."""
+    raw = merge(BASE, {"vehicle": {"engine": {"mass": "400 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}}})
+    for form in ("pendulum", "rigid-body"):
+        path = tmp_path / f"{form}.yaml"
+        path.write_text(yaml.safe_dump(merge(raw, {"model": {"form": form}})))
+        for command in ("identify", "simulate"):
+            assert main([command, str(path), "--out", str(tmp_path / "out"), "--check"]) == 2
+            err = capsys.readouterr().err
+            said = f"{path}: vehicle.engine: model.form {form} does not read it (model.form: engine-on-mounts does)"
+            assert err.startswith(f"crashnlp: error: {said}") and err.count("\n") == 1, err
+    engine = problem_from_dict(merge(raw, {"model": {"form": "engine-on-mounts"}}), BASE_DIR)
+    assert with_form(engine, "pendulum").vehicle.engine is None
+    assert with_form(engine, "engine-on-mounts").vehicle.engine == engine.vehicle.engine
+
+
 WINDOW = 0.09
 TRUTH = {"cg_above_impact": 0.3, "pitch_inertia": 4000.0}
 

@@ -4,13 +4,16 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import yaml
 from builders import (
+    ROOT,
     assert_contact_force_is_the_front_ends,
     assert_exact_hessian_is_casadis,
     assert_monotone_crush,
     make_case,
 )
 
+from crashnlp.cli import main
 from crashnlp.optimize.design import design
 from crashnlp.optimize.outcome import result_of
 from crashnlp.results.result import Result, figure_jobs
@@ -96,6 +99,18 @@ def test_a_prediction_from_a_design_says_why_it_has_no_intervals(fine, tmp_path)
     assert all(v is None for v in test.intervals.values())
     assert any("no intervals: a design's values are chosen for its goal, fitted to no data" in n for n in test.notes)
     assert not any("the data do not determine" in n for n in test.notes)
+
+
+@pytest.mark.integration
+def test_a_design_whose_vehicle_does_not_stop_is_not_ok(tmp_path, capsys):
+    """The shipped design with a crush space of 600 m (600 mm meant): its least peak lets the
+    vehicle through the barrier at 12.8 m/s, which the solve had called ok (exit 0); the design is
+    not ok now, and says that its vehicle does not stop."""
+    raw = yaml.safe_load((ROOT / "problems/design-crush-space.yaml").read_text())
+    raw["constraints"]["bounds"]["crush"] = [None, 600]
+    (tmp_path / "d.yaml").write_text(yaml.safe_dump(raw))
+    assert main(["design", str(tmp_path / "d.yaml"), "--out", str(tmp_path / "out"), "--no-figures"]) == 1
+    assert "56kph: the designed vehicle does not stop within the window" in capsys.readouterr().err
 
 
 @pytest.mark.integration

@@ -198,6 +198,24 @@ def test_a_minimal_problem_fills_the_engine_in_from_its_data_and_estimates_the_g
     assert {"model.spring.values", "vehicle.cg_above_impact", "vehicle.pitch_inertia"} <= set(case.problem.estimate)
 
 
+@pytest.mark.parametrize("gap", [None, "0.4 m"])
+def test_an_estimate_that_does_not_name_the_gap_estimates_it_where_the_data_chose_it(tmp_path, gap):
+    """The same problem with an estimate of its own (as `crashnlp init` writes and the shipped
+    problems give) that names no engine entry: the gap the data chose is estimated too, within
+    GAP_BOUNDS of it (held, the pickup's fit had ended at 300 times the objective, silently); a gap the problem
+    gives stays as given."""
+    v = engine_vehicle(1, 3200, speed=56 / 3.6)
+    path = with_form(fit_problem(v, (40.0, 64.0), tmp_path), "engine-on-mounts")
+    raw = yaml.safe_load(path.read_text())
+    raw["estimate"] = {"model.spring.values": {"bounds": ["0 N", "3 MN"]}}
+    if gap is not None:
+        raw["vehicle"]["engine"] = {"gap": gap}
+    path.write_text(yaml.safe_dump(raw))
+    estimate = Case(load_problem(path)).problem.estimate
+    assert "model.spring.values" in estimate
+    assert ("vehicle.engine.gap" in estimate) == (gap is None)
+
+
 def test_an_engine_heavier_than_the_vehicle_is_refused_in_one_line():
     with pytest.raises(InputError, match=r"^vehicle.engine.mass: 3000 kg is not less than vehicle.mass") as err:
         engine_case({"vehicle": {"engine": {"mass": "3000 kg"}}})

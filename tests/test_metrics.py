@@ -207,7 +207,7 @@ def test_a_model_that_lets_go_of_the_barrier_moving_on_slowly_ends_its_crash_the
     stopped_data = SimpleNamespace(
         name="t1", data=SimpleNamespace(channels={"velocity": Channel(t, v - 1.0, "m/s", "t1.csv:velocity")})
     )
-    missed = verify._stops(stopped_data, t, outputs)
+    missed = verify._stops(stopped_data, t, outputs, designed=False)
     note = outcome._moving_notes({"t1": SimpleNamespace(response=response, metrics=got, data_metrics=None)})
     if not ends:
         assert got["time_zero_velocity_s"] is None and got["rebound_velocity_mps"] is None

@@ -589,6 +589,22 @@ def test_a_swept_mass_the_data_header_contradicts_is_refused_before_any_solve(tm
     assert not (tmp_path / "out").exists()
 
 
+def test_a_swept_entry_the_form_does_not_read_is_refused_before_any_solve(tmp_path):
+    """The pickup as a rigid body (its crush offset left out of its estimate) sweeping the crush
+    offset, which a rigid body does not read: every case would give the same row, plotted as if the
+    entry did nothing (it ran, 2 of 2 ok)."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["model"]["form"] = "rigid-body"
+    raw["estimate"].pop("vehicle.crush_offset")
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    (tmp_path / "rigid.yaml").write_text(yaml.safe_dump(raw))
+    study = write_study(tmp_path, problem=str(tmp_path / "rigid.yaml"), sweep={"vehicle.crush_offset": ["0.1 m", "0.3 m"]})
+    expected = r"sweep: case-000 \(vehicle.crush_offset = 0.1 m\): vehicle.crush_offset: model.form rigid-body does not read it"
+    with pytest.raises(InputError, match=expected):
+        run_study(study, tmp_path / "out", workers=1, progress=False)
+    assert not (tmp_path / "out").exists()
+
+
 def test_a_swept_form_that_does_not_read_an_estimated_entry_is_refused_before_any_solve(tmp_path):
     """The shipped pickup estimates the pendulum's crush offset, which a rigid body does not read:
     its solve refuses that case, so the study's check does too (it said ok, then failed the case)."""

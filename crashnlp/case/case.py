@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from crashnlp.base.errors import InputError
 from crashnlp.case.checks import named
 from crashnlp.case.completion import complete, measured_pulses
 from crashnlp.case.testcase import TestCase, check_data, check_speed, load_tests
@@ -82,6 +83,22 @@ class Case:
     @property
     def name(self) -> str:
         return self.problem.name
+
+    def engine_unread(self) -> bool:
+        """Whether the problem gives an engine (`vehicle.engine`) of which its model form reads nothing."""
+        engine = self.problem.vehicle.engine
+        given = [f"vehicle.engine.{key}" for key in engine.model_fields_set] if engine is not None else []
+        return bool(given) and len(self.model.unread(given)) == len(given)
+
+    def refuse_unread_engine(self, source: str | None = None) -> None:
+        """Refuse an engine given to a form that reads none of it (`engine_unread`), naming `source`
+        where given: a user who meant the engine form and left out `model.form` would get a fit or a
+        simulation without one, and no word of it."""
+        if self.engine_unread():
+            raise InputError(
+                f"{f'{source}: ' if source else ''}vehicle.engine: model.form {self.problem.model.form} does not read it "
+                "(model.form: engine-on-mounts does); leave it out, or give that form"
+            )
 
     def check_data(self) -> None:
         """Refuse test data that contradict the problem's speed or mass, or end before a fit's duration

@@ -32,7 +32,11 @@ The given problem is never changed. What is filled, and how:
   `pitch_estimate`: the CG height above the impact point and the pitch inertia within physical
   bounds, and the pendulum's pitch lever); with tests at
   speeds more than SPEED_SPREAD apart also the damper, within [0, DAMPER_BOUND_FACTOR times
-  the nominal one], since two speeds separate it from the spring.
+  the nominal one], since two speeds separate it from the spring; and what the form estimates
+  of its own entries (`own_estimate`: the engine's gap).
+- `estimate` given (identification): as given, and a form's own entry the problem leaves out,
+  which the data then chose, estimated too (`own_estimate`: the engine's gap read off the pulse
+  is its least exact value, and held it misfits).
 """
 
 from __future__ import annotations
@@ -282,10 +286,25 @@ def complete(problem: Problem, pulses: list[Pulse]) -> tuple[Problem, Resolution
     if unloading.stiffness is None:
         unloading = unloading.model_copy(update={"stiffness": unloading_stiffness(pulses)})
     out = with_fields(problem, model=with_fields(model, spring=spring, unloading=unloading).model_copy(update=set_in_model))
-    out = form_class(out.model.form).complete(out, pulses)
-    if not out.estimate and out.kind == "identify" and pulses:
-        out = out.model_copy(update={"estimate": default_estimate(out, pulses)})
+    form = form_class(out.model.form)
+    out = form.complete(out, pulses)
+    if out.kind == "identify" and pulses:
+        chosen = {path: spec for path, spec in form.own_estimate(out).items() if _left_out(problem, path)}
+        estimate = {**chosen, **out.estimate} if out.estimate else default_estimate(out, pulses)
+        out = out.model_copy(update={"estimate": estimate})
     return out, placed
+
+
+def _left_out(problem: Problem, path: str) -> bool:
+    """Whether `problem` leaves the entry at the dotted `path` out (it, or a section holding it, is
+    None): a form's own entry the data then chose, which a fit estimates even where the problem's
+    estimate does not name it (an engine's gap read off the pulse, held, misfits by a fifth)."""
+    node: Any = problem
+    for key in path.split("."):
+        node = getattr(node, key, None)
+        if node is None:
+            return True
+    return False
 
 
 def repaired_start(problem: Problem, tests: Sequence[TestCase]) -> dict[str, Any]:

@@ -189,7 +189,7 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
 
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
     """Refuse a case whose problem is not valid, whose data contradict it (crashnlp.case.checks),
-    or whose estimate names an entry its model form does not read (`_check_read`): those of a
+    or whose estimate or sweep names an entry its model form does not read (`_check_read`): those of a
     solve, naming the study file, the case and its values. Data are read once per distinct set of
     tests, speed and mass, the model built once per form and estimate (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
@@ -201,22 +201,32 @@ def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> 
         if tests not in checked:
             check_tests(problem, "problem")
             checked.add(tests)
-        _check_read(problem, checked)
+        _check_read(problem, [e.path for e in study.entries], checked)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
 
 
-def _check_read(problem: Problem, checked: set[str]) -> None:
-    """Refuse an estimate entry the case's model form does not read (crashnlp.optimize.pipeline.check_read),
-    as its solve would; the model is built once per form and estimate (`checked`)."""
-    key = json.dumps(["reads", problem.model.form, sorted(problem.estimate)])
+def _check_read(problem: Problem, swept: list[str], checked: set[str]) -> None:
+    """Refuse an estimate entry or a given engine the case's model form does not read
+    (crashnlp.optimize.pipeline.check_read), as its solve would, and a swept entry it does not read:
+    every case of the sweep would be the same, plotted as if the entry did nothing. The model is
+    built once per form, estimate and sweep (`checked`)."""
+    key = json.dumps(["reads", problem.model.form, sorted(problem.estimate), swept])
     if key in checked:
         return
     from crashnlp.case.case import case_of  # the model: once per form and estimate, not per case
     from crashnlp.optimize.pipeline import check_read
 
-    check_read(case_of(problem, "problem"))
+    case = case_of(problem, "problem")
+    check_read(case)
+    slices = case.layout.slices()
+    unread = case.model.unread([path for path in swept if path in slices])
+    if unread:
+        raise InputError(
+            f"{unread[0]}: model.form {problem.model.form} does not read it (no equation of the form depends on it): "
+            "every case would be the same; leave it out of the sweep"
+        )
     checked.add(key)
 
 
