@@ -589,6 +589,21 @@ def test_a_swept_mass_the_data_header_contradicts_is_refused_before_any_solve(tm
     assert not (tmp_path / "out").exists()
 
 
+def test_a_swept_entry_of_a_section_the_problem_leaves_out_keeps_its_unit(tmp_path):
+    """The pickup as the engine form, its engine left to the data: a sweep of the engine's gap in
+    mm and m reads its unit from the engine section's declared type (it had none, the values'
+    column was empty and the figure's axis counted the values)."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["model"]["form"] = "engine-on-mounts"
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
+    study = load_study(
+        write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"vehicle.engine.gap": ["450 mm", "0.55 m"]})
+    )
+    (entry,) = study.entries
+    assert entry.unit == "m" and [entry.si(v) for v in entry.values] == pytest.approx([0.45, 0.55])
+
+
 def test_a_swept_entry_the_form_does_not_read_is_refused_before_any_solve(tmp_path):
     """The pickup as a rigid body (its crush offset left out of its estimate) sweeping the crush
     offset, which a rigid body does not read: every case would give the same row, plotted as if the

@@ -184,12 +184,15 @@ class Strict(Record):
 
     def unit_of(self, field: str) -> str | None:
         """SI unit of a field, or None for a field that is not a quantity."""
-        info = type(self).model_fields.get(field)
-        if info is None:
-            return None
-        if any(isinstance(m, Structural) for m in info.metadata):
-            return None
-        return _find_unit([info.annotation, *info.metadata])
+        return _field_unit(type(self), field)
+
+
+def _field_unit(section: type[Record], field: str) -> str | None:
+    """SI unit of a field the type `section` declares, or None for one that is not a quantity."""
+    info = section.model_fields.get(field)
+    if info is None or any(isinstance(m, Structural) for m in info.metadata):
+        return None
+    return _find_unit([info.annotation, *info.metadata])
 
 
 _S = TypeVar("_S", bound=Strict)
@@ -855,13 +858,29 @@ class Problem(Strict):
 
 
 def _unit_at(sections: Mapping[str, Any], path: str) -> str | None:
-    """SI unit of the numeric entry at a dotted path into a problem's validated sections, or None."""
+    """SI unit of the numeric entry at a dotted path into a problem's validated sections, or None;
+    through a section the problem leaves out (an engine the pendulum's file does not give) by the
+    section's declared type, so that a study may sweep an entry of it with its unit."""
     first, _, rest = path.partition(".")
     *parents, leaf = rest.split(".")
     node: Any = sections.get(first)
     for key in parents:
-        node = getattr(node, key, None) if isinstance(node, Record) else None
+        if isinstance(node, type):
+            node = _declared(node, key)
+            continue
+        child = getattr(node, key, None) if isinstance(node, Record) else None
+        node = child if child is not None or not isinstance(node, Record) else _declared(type(node), key)
+    if isinstance(node, type):
+        return _field_unit(node, leaf)
     return node.unit_of(leaf) if isinstance(node, Strict) else None
+
+
+def _declared(section: type[Record], key: str) -> type[Strict] | None:
+    """The section type that the type `section` declares its field `key` to hold (None where it
+    declares no section there)."""
+    info = section.model_fields.get(key)
+    kinds = (get_args(info.annotation) or (info.annotation,)) if info is not None else ()
+    return next((kind for kind in kinds if isinstance(kind, type) and issubclass(kind, Strict)), None)
 
 
 def _estimate_in_si(spec: Any, unit: str | None) -> Any:
