@@ -21,7 +21,7 @@ import warnings
 from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager, nullcontext, redirect_stderr
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -215,6 +215,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         for row in TABLED:
             cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
             print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
+        if words := _departs(t.forward_check):
+            print(f"    {words}")
         for who, m in (("the model", model), ("the test record", data)):
             if m and (words := goes_on(m)):
                 print(f"    {who} {words}")
@@ -234,6 +236,21 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
             )
     for c in result.active_constraints:
         print(f"  active: {c.name} at {c.points} points, multiplier {c.multiplier:.4g}")
+
+
+def _departs(check: Mapping[str, Any] | None) -> str | None:
+    """The words for a solution whose forward simulation departs from it past its tolerance (the
+    forward check result.json keeps: an iterate IPOPT stopped at, infeasible, is no motion of the
+    model); None where it keeps to it or was not checked."""
+    if not check or check.get("worst_relative", 0.0) <= 1.0:
+        return None
+    errors, allowed = check["max_abs_error"], check["allowed"]
+    key = max(errors, key=lambda k: errors[k] / allowed[k])
+    return (
+        f"the forward simulation departs from this solution ({key} by {OUTPUT[key].shown(errors[key])}, "
+        f"{errors[key] / allowed[key]:.3g} times its tolerance): its metrics above are of the solver's last iterate, "
+        "not of the model's motion"
+    )
 
 
 def _solve(args, kind: str) -> int:

@@ -467,6 +467,28 @@ def test_a_bad_folder_is_one_line_exit_2_and_nothing_written(tmp_path, capsys, c
     assert sorted(tmp_path.rglob("*")) == before
 
 
+def test_a_solution_its_forward_simulation_departs_from_says_its_metrics_are_no_motion(fit, capsys):
+    """A fit's test whose forward check departs past its tolerance (as an infeasible design's last
+    iterate does, 114 mm of displacement at 33 times its tolerance): the console says, under its
+    metrics, that they are of the solver's last iterate, not of the model's motion; within its
+    tolerance it says nothing."""
+    from crashnlp.cli import _print_solution
+
+    result = Result.load(fit)
+    (name, test), *_ = result.tests.items()
+    departing = {
+        "max_abs_error": {"displacement": 0.1138, "velocity": 1.313, "pitch": 0.002, "crush": 0.1137},
+        "allowed": {"displacement": 0.00346, "velocity": 0.0777, "pitch": 0.00175, "crush": 0.00349},
+        "worst_relative": 32.9,
+    }
+    for check, says in ((departing, True), ({**departing, "worst_relative": 0.4}, False)):
+        tests = {**result.tests, name: dataclasses.replace(test, forward_check=check)}
+        _print_solution(dataclasses.replace(result, tests=tests))
+        out = capsys.readouterr().out
+        line = "the forward simulation departs from this solution (displacement by 114 mm, 32.9 times its tolerance)"
+        assert (line in out and "not of the model's motion" in out) == says, out
+
+
 REMOVED = object()  # an entry taken out of result.json
 UNFILLED = "is missing or null: a fit writes the value it used"
 EDITS = {  # an identified model edited by hand: (entry, value) -> what the export says after the file's name
