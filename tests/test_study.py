@@ -604,6 +604,23 @@ def test_a_swept_entry_of_a_section_the_problem_leaves_out_keeps_its_unit(tmp_pa
     assert entry.unit == "m" and [entry.si(v) for v in entry.values] == pytest.approx([0.45, 0.55])
 
 
+def test_a_sweep_of_forms_gives_the_base_problems_engine_to_the_form_that_reads_it(tmp_path):
+    """The pickup with an engine of its own, swept over the rigid body and the engine form: each
+    case is valid (the rigid body's case had been refused for the engine it does not read), the
+    rigid body's without the engine, the engine form's with it, as compare's problems are."""
+    from crashnlp.studies.run import _checked_cases
+
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["vehicle"]["engine"] = {"mass": "380 kg"}
+    raw["estimate"].pop("vehicle.crush_offset")
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
+    forms = ["rigid-body", "engine-on-mounts"]
+    _, cases, raws = _checked_cases(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"model.form": forms}))
+    engines = {raws[c.number]["model"]["form"]: raws[c.number]["vehicle"].get("engine") for c in cases}
+    assert engines == {"rigid-body": None, "engine-on-mounts": {"mass": "380 kg"}}
+
+
 def test_a_swept_entry_the_form_does_not_read_is_refused_before_any_solve(tmp_path):
     """The pickup as a rigid body (its crush offset left out of its estimate) sweeping the crush
     offset, which a rigid body does not read: every case would give the same row, plotted as if the
