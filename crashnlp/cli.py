@@ -126,7 +126,8 @@ def _simulation(args):
         problem, identified, read = load_problem(args.problem), None, None
     case = case_of(problem, args.problem).at(speed, mass)
     check_steps(case, dt, "--dt", args.problem)
-    case.refuse_unread_engine(args.problem)
+    if identified is None:  # a fit's vehicle is simulated as it was fitted
+        case.refuse_unread_engine(args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):

@@ -120,10 +120,11 @@ def test_a_form_fits_only_the_estimate_entries_its_equations_read():
 
 
 def test_an_engine_the_form_does_not_read_is_refused_and_compare_leaves_it_to_the_engine_form(tmp_path, capsys):
-    """An engine (`vehicle.engine`) under the pendulum or the rigid body: identify and simulate
-    refuse it, naming the file and the key (both had run without it, saying nothing); compare's
-    problem of each form leaves it to the form that reads it."""
-    raw = merge(BASE, {"vehicle": {"engine": {"mass": "400 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}}})
+    """An engine (`vehicle.engine`) under the pendulum or the rigid body, one of its entries null:
+    identify and simulate refuse it, naming the file and the key (both had run without it, saying
+    nothing); compare's problem of each form leaves it to the form that reads it."""
+    engine = {"mass": "400 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m", "mount_damping": None}  # one null too
+    raw = merge(BASE, {"vehicle": {"engine": engine}})
     for form in ("pendulum", "rigid-body"):
         path = tmp_path / f"{form}.yaml"
         path.write_text(yaml.safe_dump(merge(raw, {"model": {"form": form}})))

@@ -489,6 +489,22 @@ def test_a_solution_its_forward_simulation_departs_from_says_its_metrics_are_no_
         assert (line in out and "not of the model's motion" in out) == says, out
 
 
+def test_a_fit_whose_vehicle_carries_an_engine_its_form_did_not_read_is_still_predicted(fit):
+    """A pendulum fit written before an engine its form does not read was refused keeps it in its
+    identified vehicle (nulls and all): its predictions simulate the vehicle as it was fitted,
+    without the engine, and are not refused for it (its result.json cannot be edited to leave it
+    out)."""
+    import crashnlp
+
+    result = Result.load(fit)
+    engine = {"mass": 400.0, "gap": 0.45, "mount_stiffness": None, "mount_damping": None, "contact_damping": None}
+    vehicle = {**result.identified.vehicle, "engine": engine}
+    old = dataclasses.replace(result, identified=dataclasses.replace(result.identified, vehicle=vehicle))
+    (test,) = crashnlp.simulate(old, speed="48 km/h").values()
+    (plain,) = crashnlp.simulate(result, speed="48 km/h").values()
+    assert test.metrics == plain.metrics
+
+
 REMOVED = object()  # an entry taken out of result.json
 UNFILLED = "is missing or null: a fit writes the value it used"
 EDITS = {  # an identified model edited by hand: (entry, value) -> what the export says after the file's name

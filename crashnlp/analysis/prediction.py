@@ -162,10 +162,12 @@ def predict(
     are, without intervals or bands: its covariance and its misses are not a converged fit's; a
     note says so. A test's data come with it only where it runs at the speed, mass and duration they
     were recorded at (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
-    positive step, or too many steps, is refused (check_steps), as is an engine the model form does
-    not read (Case.refuse_unread_engine)."""
+    positive step, or too many steps, is refused (check_steps), as is, in a problem simulated with
+    its own values (no `identified`), an engine the model form does not read
+    (Case.refuse_unread_engine; a fit's vehicle is simulated as it was fitted)."""
     check_steps(case, dt)
-    case.refuse_unread_engine()
+    if identified is None:
+        case.refuse_unread_engine()
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)

@@ -87,7 +87,9 @@ class Case:
     def engine_unread(self) -> bool:
         """Whether the problem gives an engine (`vehicle.engine`) of which its model form reads nothing."""
         engine = self.problem.vehicle.engine
-        given = [f"vehicle.engine.{key}" for key in engine.model_fields_set] if engine is not None else []
+        fields = [key for key in engine.model_fields_set if getattr(engine, key) is not None] if engine is not None else []
+        slices = self.layout.slices()
+        given = [path for key in fields if (path := f"vehicle.engine.{key}") in slices]
         return bool(given) and len(self.model.unread(given)) == len(given)
 
     def refuse_unread_engine(self, source: str | None = None) -> None:
