@@ -104,28 +104,28 @@ def simulate(
 
     step = output_step(dt)
     new_speed, new_mass = what_if(speed, mass)
+    source = None if isinstance(problem, Result) else _source(problem)
+    given = given_result(source) if source is not None else None
     if isinstance(problem, Result):
         if params is not None:
             raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
-        case = case_of(own_tests(problem, problem.name)).at(new_speed, new_mass)
-        return traced(case, problem.identified, step, simulation_source(None, problem))
-    if not isinstance(problem, Problem) and (given := given_result(problem)) is not None:
+        simulated, identified = own_tests(problem, problem.name), problem.identified
+        record = simulation_source(None, problem)
+    elif given is not None:
         from crashnlp.report.folders import result_alone  # the report's package: not for a problem file's run
 
         named = params if params is None or isinstance(params, (str, Path)) else f"({type(params).__name__})"
-        alone, identified, read = result_alone(given, named, "params=")
-        case = case_of(alone, str(problem)).at(new_speed, new_mass)
-        return traced(case, identified, step, simulation_source(str(problem), str(problem), file=read))
-    source = _source(problem)
-    if isinstance(params, (str, Path)):
-        problem, identified, read = with_params(problem, params)
-        source_record = simulation_source(source, params, file=read)
+        simulated, identified, read = result_alone(given, named, "params=")
+        record = simulation_source(source, source, file=read)
+    elif isinstance(params, (str, Path)):
+        simulated, identified, read = with_params(problem, params)
+        record = simulation_source(source, params, file=read)
     else:
-        problem, identified = _with_given(problem, params)
-        source_record = simulation_source(
+        simulated, identified = _with_given(problem, params)
+        record = simulation_source(
             source, params if isinstance(params, Result) else None, params if isinstance(params, dict) else None
         )
-    return traced(case_of(problem, source).at(new_speed, new_mass), identified, step, source_record)
+    return traced(case_of(simulated, source).at(new_speed, new_mass), identified, step, record)
 
 
 def _with_given(problem: Problem | str | Path, params: Result | dict[str, Any] | None) -> tuple[Problem, IdentifiedModel | None]:

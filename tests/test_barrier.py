@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import shutil
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -69,18 +70,25 @@ def test_cells_flat_after_impact_are_left_out_and_named_though_the_header_marks_
     assert "260 (flat after impact, 1 distinct value: BARRIER H-04 Fx)" in note and "287 (flat after impact" in note
 
 
-def test_a_flat_cell_named_explicitly_exits_2_naming_file_and_curve(flat_copy, tmp_path, capsys):
+def _refused_cells(header: Path, curves: list[int], tmp_path: Path, capsys) -> str:
+    """The shipped barrier problem reading `curves` of the EV5 test at `header`: identify exits 2
+    with one line and no traceback, writes nothing, and that line is returned."""
     problem = yaml.safe_load((ROOT / "problems" / "nhtsa-10146-barrier.yaml").read_text())
-    problem["tests"][0]["data"]["file"] = str(flat_copy)
-    problem["tests"][0]["data"]["channels"]["barrier_force"] = {"curves": [257, 260], "sign": -1}
-    path = tmp_path / "flat.yaml"
+    problem["tests"][0]["data"]["file"] = str(header)
+    problem["tests"][0]["data"]["channels"]["barrier_force"] = {"curves": curves, "sign": -1}
+    path = tmp_path / "cells.yaml"
     path.write_text(yaml.safe_dump(problem))
     out = tmp_path / "out"
     assert main(["identify", str(path), "--out", str(out)]) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "Traceback" not in err
-    assert "v10146.260" in err and "curve 260" in err and "dead (flat after impact" in err
     assert not out.exists()
+    return err
+
+
+def test_a_flat_cell_named_explicitly_exits_2_naming_file_and_curve(flat_copy, tmp_path, capsys):
+    err = _refused_cells(flat_copy, [257, 260], tmp_path, capsys)
+    assert "v10146.260" in err and "curve 260" in err and "dead (flat after impact" in err
 
 
 def test_init_counts_the_flat_cells_with_the_marked_ones(flat_copy):
@@ -107,17 +115,8 @@ def test_the_wall_force_is_filtered_at_cfc60_and_its_offset_removed_by_default()
 
 
 def test_a_dead_cell_named_explicitly_exits_2_naming_file_and_curve(tmp_path, capsys):
-    problem = yaml.safe_load((ROOT / "problems" / "nhtsa-10146-barrier.yaml").read_text())
-    problem["tests"][0]["data"]["file"] = str(EV5)
-    problem["tests"][0]["data"]["channels"]["barrier_force"] = {"curves": [347], "sign": -1}
-    path = tmp_path / "dead.yaml"
-    path.write_text(yaml.safe_dump(problem))
-    out = tmp_path / "out"
-    assert main(["identify", str(path), "--out", str(out)]) == 2
-    err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "Traceback" not in err
+    err = _refused_cells(EV5, [347], tmp_path, capsys)
     assert "v10146.347" in err and "curve 347" in err and "not valid" in err
-    assert not out.exists()
 
 
 def test_a_curve_valid_to_67_ms_is_never_read_past_it():
