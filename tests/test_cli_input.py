@@ -299,6 +299,22 @@ def test_dt_takes_a_unit_as_speed_and_mass_do(tmp_path, dt):
     assert np.diff(time) == pytest.approx(5e-4, rel=1e-9) and time[-1] == pytest.approx(0.05)
 
 
+def test_a_problem_file_written_in_json_is_simulated_as_its_yaml_twin(tmp_path):
+    """JSON is YAML, and identify reads a problem written in it: simulate of that .json file (CLI
+    and API) is a simulation of the problem, not a result.json with no parameters."""
+    import crashnlp
+
+    problem = merge(BASE, {"tests": [{"name": "t", "duration": "0.15 s"}]})
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(problem))
+    (tmp_path / "p.json").write_text(json.dumps(problem))
+    for name in ("p.yaml", "p.json"):
+        assert main(["simulate", str(tmp_path / name), "--out", str(tmp_path / f"out-{name}"), "--no-figures"]) == 0
+    written = [json.loads((tmp_path / f"out-{name}" / "simulation.json").read_text()) for name in ("p.yaml", "p.json")]
+    assert "max_displacement_m" in written[1]["tests"]["t"]["metrics"]
+    assert written[0]["tests"]["t"]["metrics"] == written[1]["tests"]["t"]["metrics"]
+    assert crashnlp.simulate(tmp_path / "p.json")["t"].metrics == pytest.approx(written[1]["tests"]["t"]["metrics"])
+
+
 def _simulated(tmp_path, name: str, tests: list[str], out) -> int:
     """`crashnlp simulate` of BASE named `name` with tests of 50 ms named `tests`, into `out`."""
     path = tmp_path / f"{name}.yaml"

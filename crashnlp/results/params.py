@@ -75,9 +75,22 @@ def with_params(problem: Problem | str | Path, path: str | Path) -> tuple[Proble
 
 def given_result(path: str | Path) -> str | None:
     """The result.json a simulation's problem names where it is a fit's (or a design's) result
-    itself, its folder or the file (a .json of any name); None for a problem file. A folder
-    without result.json is an InputError."""
+    itself, its folder or the file (a .json of any name but a problem file written in JSON:
+    _problem_in_json); None for a problem file. A folder without result.json is an InputError."""
     folder = Path(path) / RESULT_FILE
     if Path(path).is_dir() and not folder.is_file():
         raise InputError(f"{path}: a folder without result.json; simulate a problem file, or a fit's folder")
-    return str(folder) if folder.is_file() else str(path) if str(path).endswith(".json") else None
+    if folder.is_file():
+        return str(folder)
+    return str(path) if str(path).endswith(".json") and not _problem_in_json(Path(path)) else None
+
+
+def _problem_in_json(file: Path) -> bool:
+    """Whether a .json file is a problem file (JSON is YAML, and identify reads it as one): a
+    mapping with the problem's `vehicle` and no result's `parameters`. A file that cannot be read
+    or parsed is not: read as a result, it is refused naming the file (read_params)."""
+    try:
+        document = json.loads(file.read_bytes().decode("utf-8"))
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError):
+        return False
+    return isinstance(document, dict) and "vehicle" in document and "parameters" not in document
