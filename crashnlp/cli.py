@@ -92,7 +92,8 @@ def _print_prediction(test) -> None:
         value = test.metrics.get(m.key)
         if value is None:
             continue
-        parts.append(f"{m.short} {m.cell(value, test.intervals.get(m.key))} {m.unit}")
+        through = f" ({cfc})" if (cfc := m.read_through(test.response.accel_filter)) else ""
+        parts.append(f"{m.short} {m.cell(value, test.intervals.get(m.key))} {m.unit}{through}")
     if parts:
         print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
     if test.extrapolation:
@@ -154,7 +155,7 @@ def _numbers(value, digits: int, missing: float = np.nan) -> str:
     return text if not isinstance(value, list) else f"[{text}]"
 
 
-HEADINGS = max(len(m.heading) for m in TABLED)  # the width of the metric table's first column
+HEADINGS = max(len(m.heading_through("CFC1000")) for m in TABLED)  # the width of the metric table's first column
 
 
 def _unit_suffix(unit: str) -> str:
@@ -215,7 +216,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  test {name:<{HEADINGS - 2}}{'model':>10}{'test' if data else '':>10}")
         for row in TABLED:
             cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
-            print(f"    {row.heading:<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
+            print(f"    {row.heading_through(t.response.accel_filter):<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
         if words := _departs(t.forward_check):
             print(f"    {words}")
         for who, m in (("the model", model), ("the test record", data)):

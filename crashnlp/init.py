@@ -46,13 +46,13 @@ from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN
 from crashnlp.models.pendulum import PITCH_LEVER
 from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.errors import all_errors
-from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DataSpec, format_of, located
+from crashnlp.problem.schema import CHANNEL_FILE, CHANNEL_UNITS, DEFAULT_FILTER, DataSpec, format_of, located
 from crashnlp.results.files import atomic_open, check_writable_file
 
 if TYPE_CHECKING:
     from crashnlp.case.case import Case
 
-ACCEL_FILTER = "CFC60"  # a drafted accelerometer's filter: SAE J211's class for a vehicle's structural accelerations
+ACCEL_FILTER = DEFAULT_FILTER["accel"]  # a drafted accelerometer's filter, written out: the default, SAE J211's class
 UNFRAMED = ("csv", "nhtsa-channel")  # formats whose files say nothing of their sign convention: read from the data
 # upper test mass (kg), class, wheelbase (m), front overhang (m), CG above the impact point (m)
 VEHICLE_CLASSES = (

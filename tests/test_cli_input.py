@@ -480,7 +480,7 @@ def test_a_fit_of_a_record_that_ends_moving_says_so(tmp_path, capsys):
     path.write_text(yaml.safe_dump(merge(fit, {"transcription": {"method": "multiple-shooting", "intervals": 45}})))
     assert main(["identify", str(path), "--out", str(out), "--no-figures"]) == 0
     printed = capsys.readouterr().out
-    for row in ("max displacement (mm)", "time of zero velocity (ms)", "peak deceleration (g)", "rebound velocity (m/s)"):
+    for row in ("max displacement (mm)", "time of zero velocity (ms)", "peak deceleration (g, CFC60)", "rebound velocity (m/s)"):
         assert re.search(rf"{re.escape(row)} +- +-\n", printed)  # neither the model nor the data has it, one sign for both
     assert "nan" not in printed
     assert "the test record ends at 45.0 ms still moving toward the barrier at 6.5" in printed

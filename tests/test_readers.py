@@ -66,6 +66,19 @@ def test_nhtsa_10146_cfc180_peak_and_explicit_speed():
     assert v.values[0] == pytest.approx(50 / 3.6)
 
 
+def test_an_accelerometer_that_names_no_filter_is_read_at_cfc60_and_says_so():
+    """SAE J211's class for a vehicle's structural accelerations is the default, as the barrier's
+    is: the Camry's peak is 40.9 g through it and 99 g raw, and a note says which was read."""
+    channels = {"velocity": {"derive": "integrate"}, "displacement": {"derive": "integrate"}}
+    read = ({"accel": {"curves": [93, 94], **given}, **channels} for given in ({}, {"filter": None}))
+    default, raw = (load_test_data(camry(channels=c)) for c in read)
+    np.testing.assert_array_equal(default.channels["accel"].values, load_test_data(camry()).channels["accel"].values)
+    assert -default.channels["accel"].values.min() / G0 == pytest.approx(40.9, rel=0.02)
+    assert -raw.channels["accel"].values.min() / G0 > 90
+    assert "accel: filtered at CFC60, the SAE J211 class for accel and the default" in default.notes
+    assert "accel: filtered at no CFC, where SAE J211 names CFC60 for accel" in raw.notes
+
+
 def test_nhtsa_integration_uses_its_own_filter():
     channels = {"accel": {"curves": [93, 94], "filter": "CFC60"}, "velocity": {"derive": "integrate", "filter": "CFC180"}}
     d60 = load_test_data(camry())
@@ -282,7 +295,7 @@ def _csv(tmp_path, rows: str) -> Path:
     return path
 
 
-ACCEL = {"accel": {"column": "accel_x_g", "unit": "g"}}
+ACCEL = {"accel": {"column": "accel_x_g", "unit": "g", "filter": None}}  # read as written: the readers' tests
 
 
 @pytest.mark.parametrize(
@@ -415,7 +428,9 @@ def test_mme_round_trip(tmp_path, as_zip):
     t, accel_g = _mme_set(tmp_path / "T001")
     path = _zip(tmp_path / "T001", tmp_path / "T001.zip") if as_zip else tmp_path / "T001"
     data = load_test_data(
-        spec(file=path, format="iso-mme", channels={"accel": {"code": CODE_X}, "velocity": {"derive": "integrate"}})
+        spec(
+            file=path, format="iso-mme", channels={"accel": {"code": CODE_X, "filter": None}, "velocity": {"derive": "integrate"}}
+        )
     )
     assert data.meta == {"speed": 15.0, "mass": 1500.0}
     a = data.channels["accel"]
@@ -504,7 +519,7 @@ def test_csv_without_a_header_reads_columns_by_number(tmp_path):
     raw = np.loadtxt(PICKUP, delimiter=",", skiprows=1)
     path = tmp_path / "plain.tsv"
     path.write_bytes(b"".join(b"%.4f\t%.6f\t%.6f\r\n" % (t * 1e3, a, v) for t, a, v in raw[:, :3]))  # ms, g, m/s
-    channels = {"accel": {"column": 2, "unit": "g"}, "velocity": {"column": "3"}}
+    channels = {"accel": {"column": 2, "unit": "g", "filter": None}, "velocity": {"column": "3"}}
     data = load_test_data(spec(file=path, time={"column": 1, "unit": "ms"}, channels=channels))
     np.testing.assert_allclose(data.channels["accel"].values, raw[:, 1] * G0)
     np.testing.assert_allclose(data.channels["velocity"].time, raw[:, 0], atol=1e-7)

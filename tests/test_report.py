@@ -69,7 +69,7 @@ def test_identify_report_is_one_page_with_the_figures_metrics_ratings_and_every_
     assert len(self_contained(page)) >= 3  # the fit, its residuals, the loading curve, the correlations
     raw = json.loads((fit / "result.json").read_text())
     test = raw["tests"]["56kph"]
-    assert "peak deceleration (g)" in page
+    assert "peak deceleration (g, CFC60)" in page  # the class the peak was read through
     assert f"<td>{test['metrics']['model']['peak_decel_g']:.4g}</td>" in page
     for channel, f in test["fit"].items():
         assert re.search(rf"<td class=\"l\">{channel}</td>.*<td>{f['iso18571']['overall']:.3g}</td></tr>", page), channel
@@ -210,9 +210,10 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     path = tmp_path / "pulse.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "60", "--out", str(path)]) == 0
     check = capsys.readouterr().out.splitlines()[0]
-    header = path.read_text().splitlines()[:5]
-    assert header[3] == f"# {check}" and header[4] == "time_s,accel_g"
-    table = np.loadtxt(path, delimiter=",", skiprows=5)
+    lines = path.read_text().splitlines()
+    columns = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    assert lines[3] == f"# {check}" and lines[columns] == "time_s,accel_g"
+    table = np.loadtxt(path, delimiter=",", skiprows=columns + 1)
     t, accel = table[:, 0], table[:, 1] * G0
     assert np.diff(t) == pytest.approx(5e-5)
     response = Result.load(fit).tests["56kph"].response
@@ -222,7 +223,7 @@ def test_the_pulse_is_sampled_filtered_and_keeps_the_velocity_change(fit, tmp_pa
     assert numbers[0] == pytest.approx(delta_v, abs=1e-3) and numbers[3] == pytest.approx(numbers[1] + numbers[2], abs=2e-3)
     rough = tmp_path / "cfc1000.csv"
     assert main(["export", str(fit), "--format", "pulse", "--rate", "20 kHz", "--cfc", "1000", "--out", str(rough)]) == 0
-    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=5)[:, 1]))) for f in (path, rough)]
+    steps = [np.max(np.abs(np.diff(np.loadtxt(f, delimiter=",", skiprows=columns + 1)[:, 1]))) for f in (path, rough)]
     assert steps[0] < 0.9 * steps[1]  # CFC 60 smooths the pulse more than CFC 1000
     # the fit's response is read through CFC 60 already, as its test's accelerometers: the CFC 60
     # pulse is that curve resampled, not filtered twice; CFC 1000 filters the model's own

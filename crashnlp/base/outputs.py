@@ -105,6 +105,18 @@ class Metric:
         """Label with its unit, as a table's row or column names it: "max displacement (mm)"."""
         return f"{self.label} ({self.unit})"
 
+    def read_through(self, accel_filter: str | None) -> str | None:
+        """The CFC class it was read through, for an acceleration's extreme read through one: the
+        class moves the peak most (one Camry test's accelerometers peak at 41 g through CFC60, 47 g
+        through CFC180 and 99 g unfiltered), so tables name it."""
+        return accel_filter if self.channel == "accel" and self.extreme else None
+
+    def heading_through(self, accel_filter: str | None, short: bool = False) -> str:
+        """The heading (its short label with `short`), with the CFC class it was read through
+        (read_through) after the unit: "peak deceleration (g, CFC60)"."""
+        through = f", {cfc}" if (cfc := self.read_through(accel_filter)) else ""
+        return f"{self.short if short else self.label} ({self.unit}{through})"
+
     @property
     def column(self) -> str:
         """Its column in a CSV of shown values: the key with the shown unit, "max_displacement_mm"."""

@@ -447,7 +447,8 @@ ChannelName = Literal[MEASURABLE]  # type: ignore[valid-type]  # the channels a 
 DataFormat = Literal[DATA_FORMATS]  # type: ignore[valid-type]  # crashnlp.base.choices
 FILTER_CLASSES = tuple(CFC_CLASSES)  # their names, a filter a channel may give
 CFC = Literal[FILTER_CLASSES]  # type: ignore[valid-type]  # crashnlp.base.choices
-DEFAULT_FILTER: dict[str, CFC] = {"barrier_force": "CFC60"}  # SAE J211 for barrier load cells; `filter: null`: raw
+# SAE J211's classes for vehicle structure (total vehicle comparison) and barrier load cells; `filter: null`: raw
+DEFAULT_FILTER: dict[str, CFC] = {"accel": "CFC60", "barrier_force": "CFC60"}
 SUMMED = ("barrier_force",)  # the curves of a force are cells of one wall, summed; other channels' are averaged
 
 

@@ -114,7 +114,8 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     """One test: its figures, its metrics (model against test), RMSE and ISO 18571 ratings."""
     t = result.tests[name]
     data = t.data_metrics or {}
-    metrics = [(m.heading, m.tabled(t.metrics.get(m.key)), m.tabled(data.get(m.key))) for m in TABLED]
+    read = t.response.accel_filter
+    metrics = [(m.heading_through(read), m.tabled(t.metrics.get(m.key)), m.tabled(data.get(m.key))) for m in TABLED]
     fits = [
         {
             "channel": c,
@@ -198,7 +199,8 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
             value, band = test.metrics.get(m.key), test.intervals.get(m.key)
             if value is None:
                 continue
-            rows.append((f"{m.short} ({m.unit})", m.shown(value), "-" if band is None else m.band(band)))
+            heading = m.heading_through(test.response.accel_filter, short=True)
+            rows.append((heading, m.shown(value), "-" if band is None else m.band(band)))
         pages.append(
             {
                 "name": test.name,
