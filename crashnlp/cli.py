@@ -437,12 +437,12 @@ def _export_curves(args, folder: Path) -> int:
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
     with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
-        curves = export.identified_curves(result.identified)
+        curves = export.identified_curves(result.identified, result.not_identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         _say_unconverged(result.status)
         with deriving(folder, out):
-            print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, curves, result.status)))
+            print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, result.name, folder, curves, result.status)))
         return 0
     own = folder / f"{result.name}.k"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own)

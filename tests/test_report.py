@@ -190,7 +190,7 @@ def test_a_curve_title_says_which_curve_it_is_and_never_reads_as_a_keyword_or_a_
     from crashnlp.report.export import Curves, keyword_file
 
     line = (np.array([0.0, 0.1]), np.array([0.0, 1e5]))
-    lines = keyword_file(name, Path("fit"), Curves(line, line, line, "plastic", 1e6, None)).splitlines()
+    lines = keyword_file(name, Path("fit"), Curves(line, line, line, "plastic", 1e6)).splitlines()
     titles = [lines[i + 1] for i, text in enumerate(lines) if text == "*DEFINE_CURVE_TITLE"]
     assert [t.split(":")[0] for t in titles] == ["loading", "unloading", "damper"], titles
     assert all(len(t) <= 80 and name[:10] in t for t in titles), titles
@@ -200,9 +200,98 @@ def test_a_curve_title_says_which_curve_it_is_and_never_reads_as_a_keyword_or_a_
 @pytest.mark.integration
 def test_the_csv_export_writes_every_curve_in_si(fit, tmp_path):
     assert main(["export", str(fit), "--format", "csv", "--out", str(tmp_path / "curves")]) == 0
-    loading = np.genfromtxt(tmp_path / "curves/loading.csv", delimiter=",", names=True)
+    loading = csv_table(tmp_path / "curves/loading.csv")
     assert loading.dtype.names == ("crush_m", "force_N") and loading["crush_m"][-1] > 0.8
     assert {p.name for p in (tmp_path / "curves").iterdir()} == {"loading.csv", "unloading.csv", "damper.csv"}
+
+
+def csv_table(path: Path) -> np.ndarray:
+    """A CSV crashnlp wrote, by its columns' names, under its comment lines."""
+    comments = next(i for i, line in enumerate(path.read_text().splitlines()) if not line.startswith("# "))
+    return np.genfromtxt(path, delimiter=",", names=True, skip_header=comments)
+
+
+def exported_curves(folder: Path, tmp_path: Path) -> tuple[Path, Path]:
+    """`folder`'s curves exported by the command line: its .k file and its CSV folder, in `tmp_path`."""
+    k, csv = tmp_path / f"{folder.name}.k", tmp_path / f"{folder.name}-curves"
+    assert main(["export", str(folder), "--format", "ls-dyna", "--out", str(k)]) == 0
+    assert main(["export", str(folder), "--format", "csv", "--out", str(csv)]) == 0
+    return k, csv
+
+
+def loading_comments(k: Path, csv: Path) -> tuple[list[str], list[str]]:
+    """What the .k file says under its loading curve's line (up to how a reader extends it), and
+    the comments of loading.csv after its first (which says whose curve it is)."""
+    comments = [line[2:] for line in k.read_text().splitlines() if line.startswith("$ ")]
+    first = next(i for i, line in enumerate(comments) if line.startswith("curve 1001:")) + 1
+    last = next(i for i, line in enumerate(comments) if "past the last point" in line)
+    said_csv = [line[2:] for line in (csv / "loading.csv").read_text().splitlines() if line.startswith("# ")]
+    return [line.strip() for line in comments[first:last]], said_csv[1:]
+
+
+@pytest.mark.integration
+def test_every_curve_export_says_where_the_data_end_and_what_no_test_determines(fit, tmp_path):
+    """The 40 km/h pickup fitted with `tail: segment` takes its model to 353 mm of crush; its values
+    at 550 and 700 mm are not identified, at their 3 MN bound, and its loading curve hands them on.
+    Its .k file had not said where the data end (only a tail's line did), its loading.csv nothing:
+    both now say, in the same words, the crush the fitted tests reached, the breakpoints past it
+    and each value not identified at its breakpoint; the fit with a trend tail says its reach too."""
+    given = (ROOT / "problems/pickup-40kph.yaml").read_text().replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem, segment = tmp_path / "segment.yaml", tmp_path / "segment"
+    problem.write_text(given.replace("    law: force\n", "    law: force\n    tail: segment\n"))
+    assert main(["identify", str(problem), "--out", str(segment), "--no-figures"]) == 0
+    for folder in (segment, fit):
+        said_k, said_csv = loading_comments(*exported_curves(folder, tmp_path))
+        assert said_k == said_csv and said_k, folder
+        result = read_result(folder)
+        identified = result.identified
+        reach, bps = identified.range.model_crush, np.array(identified.model["spring"]["crush_breakpoints"])
+        assert f"{reach * 1e3:.1f} mm" in said_k[0]
+        (past,) = [line for line in said_k if line.startswith("breakpoints past it")]
+        assert [float(x) for x in re.findall(r"\d+(?:\.\d+)?", past)] == pytest.approx(1e3 * bps[bps > reach])
+        for label in result.not_identified:
+            i = int(label.split("[")[1].rstrip("]"))
+            assert re.search(rf"{re.escape(label)} = \d+ kN at {bps[i] * 1e3:.4g} mm", " ".join(said_k)), label
+    assert read_result(segment).not_identified  # the values past the reach: the case this is about
+
+
+@pytest.mark.integration
+def test_a_designs_curves_call_it_the_designed_front_end(tmp_path):
+    """A design's .k file called its curves the identified front end's (its pulse says it is the
+    designed model's): the .k file and each CSV now name the designed front end, and none an
+    identified one."""
+    design = tmp_path / "design"
+    assert main(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(design), "--no-figures"]) == 0
+    k, csv = exported_curves(design, tmp_path)
+    firsts = [k.read_text().splitlines()[1]] + [f.read_text().splitlines()[0] for f in sorted(csv.iterdir())]
+    assert len(firsts) == 4 and all("the designed front end" in line for line in firsts), firsts
+    assert not any("identified" in f.read_text() for f in [k, *csv.iterdir()])
+
+
+@pytest.mark.integration
+def test_an_exported_loading_curve_never_pulls_and_says_where_it_is_clipped(fit, tmp_path):
+    """The pickup's smoothed law gives -1.9 N at zero crush (its tail's hinge reaches back there),
+    which the .k and CSV loading curves handed on as the force at zero crush: they start at zero
+    now and hold no force below it. A tail from zero crush takes the law to -2.4 kN there: the
+    curve is the law clipped at zero, as the model's contact force is, and its files say so."""
+    from crashnlp.report.export import identified_curves, keyword_file
+
+    k, csv = exported_curves(fit, tmp_path)
+    points = read_curves(k)["loading"]
+    table = csv_table(csv / "loading.csv")
+    for crush, force in (points.T, (table["crush_m"], table["force_N"])):
+        assert crush[0] == 0.0 and force[0] == 0.0 and np.min(force) >= 0.0
+    identified = read_result(fit).identified
+    spring = {**identified.model["spring"], "tail": {"start": 0.0, "slope": 1e6}}
+    from_zero = dataclasses.replace(identified, model={**identified.model, "spring": spring})
+    curves = identified_curves(from_zero)
+    problem = from_zero.as_problem("from-zero")
+    layout = ParameterLayout.of(problem)
+    crush, force = curves.loading
+    own = np.asarray(build_model(problem.model, layout).loading_curve(crush[None, :], layout.values(problem))).ravel()
+    assert np.min(own) < -1e3 and force == pytest.approx(np.maximum(own, 0.0), abs=1e-6)
+    (said,) = [line for line in keyword_file("from-zero", Path("fit"), curves).splitlines() if "clipped" in line]
+    assert f"{np.min(own) * 1e-3:.4g} kN" in said and said.removeprefix("$   ") in curves.loading_notes
 
 
 @pytest.mark.integration

@@ -15,11 +15,16 @@
 
 The curves are the identified model's own laws (crashnlp.models.laws) evaluated at its values,
 smoothing and tail: sampled densely where a hinge bends (a breakpoint, the tail's start) and
-at a fixed spacing elsewhere, so that straight lines between the points follow the law.
+at a fixed spacing elsewhere, so that straight lines between the points follow the law. The
+loading force is clipped at zero, as the model's contact never pulls; both formats say where the
+fitted tests' data end on the loading curve (`reach_lines`), which breakpoints lie past there and
+which values no test determines, whatever the tail: an FE model driven past that crush runs on
+force the data never saw.
 """
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -35,7 +40,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
-from crashnlp.results.identified import IdentifiedModel
+from crashnlp.results.identified import SPRING_VALUES, IdentifiedModel
 from crashnlp.results.response import OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
@@ -47,6 +52,9 @@ BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
 PEAK_MOVED = 0.01  # relative: a filter that moves a pulse's peak deceleration more than this is said to
 TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
+# relative to the loading curve's largest force: a clip at zero up to this is the smoothing's
+# rounding (the shipped pickup's law gives -2 N at zero crush, where its tail's hinge reaches back), not said
+NEGLIGIBLE = 1e-4
 # LS-DYNA's consistent units mm, ms, kg, kN: factors from SI
 MM, KN, MM_PER_MS, KN_PER_MM = 1e3, 1e-3, 1.0, 1e-6
 
@@ -56,36 +64,111 @@ class Curves:
     """The identified front end's curves, SI. `loading`: force against crush, with the tail;
     `unloading`: force against the crush recovered from the permanent set (a straight line at
     the unloading stiffness; the loading curve for an elastic front end); `damper`: force
-    against crush rate (None without a damper)."""
+    against crush rate (None without a damper). `loading_notes`: what both formats say of the
+    loading curve (where the data end on it, `reach_lines`, and a clip at zero, `_not_pulling`);
+    `designed`: a design's front end (crashnlp design), its values chosen for a goal, fitted to no data."""
 
     loading: tuple[np.ndarray, np.ndarray]
     unloading: tuple[np.ndarray, np.ndarray]
     damper: tuple[np.ndarray, np.ndarray] | None
     unloading_law: str
     unloading_stiffness: float
-    tail: dict[str, float] | None
+    loading_notes: tuple[str, ...] = ()
+    designed: bool = False
+
+    @property
+    def whose(self) -> str:
+        """The model the curves are of, as their files name it."""
+        return _whose(self.designed)
 
 
-def identified_curves(identified: IdentifiedModel) -> Curves:
-    """The curves of an identified model, sampled from its own laws. The model is taken as valid:
+def _whose(designed: bool) -> str:
+    """A model as the exports name it: "designed" for a design's, "identified" for a fit's."""
+    return "designed" if designed else "identified"
+
+
+def identified_curves(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> Curves:
+    """The curves of an identified model, sampled from its own laws; `not_identified`: the labels
+    of its estimates the data do not determine (Result.not_identified). The model is taken as valid:
     one read from a file a user may have edited goes through IdentifiedModel.as_problem first."""
     model = identified.model
     spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
     bps, values = list(spring["crush_breakpoints"]), list(spring["values"])
     law = SPRING_LAWS[spring["law"]]
-    tail = spring.get("tail") if isinstance(spring.get("tail"), dict) else None
+    tail = _tail(identified)
     bends = bps + ([tail["start"]] if tail else [])
     if tail:
         law = with_tail(law, tail["start"], tail["slope"])
     crush = _samples(0.0, EXTENT * max(bends), bends, smoothing["crush"])
-    force = _evaluated(law(ca.DM(crush), bps, values, smoothing["crush"])[0])
+    force, clipped = _not_pulling(crush, _evaluated(law(ca.DM(crush), bps, values, smoothing["crush"])[0]))
     stiffness, unloading_curve = 0.0, (crush, force)  # elastic: unloading retraces loading
     if unloading["law"] == "plastic":
         stiffness = float(unloading["stiffness"])  # a fit writes it: None (edited out) is a TypeError
         recovered = np.array([0.0, float(np.max(force)) / stiffness])
         unloading_curve = (recovered, stiffness * recovered)
     speed = float(identified.vehicle.get("speed") or 0.0)
-    return Curves((crush, force), unloading_curve, _damper(model, speed), unloading["law"], stiffness, tail)
+    notes = (*reach_lines(identified, not_identified), *clipped)
+    damper = _damper(model, speed)
+    return Curves((crush, force), unloading_curve, damper, unloading["law"], stiffness, notes, identified.designed)
+
+
+def _tail(identified: IdentifiedModel) -> dict[str, float] | None:
+    """The model's tail where it bends its loading curve into a line (`start`, `slope`); None where
+    the law continues its segments (`segment`, or a design's `trend`, which no fit has put in place)."""
+    tail = identified.model["spring"].get("tail")
+    return tail if isinstance(tail, dict) else None
+
+
+def _not_pulling(crush: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
+    """The loading force clipped at zero, as the model's contact force is (it never pulls:
+    crashnlp.models.laws.never_pulling), and a line saying where and by how much where the clip
+    is more than the smoothing's rounding (NEGLIGIBLE): a smoothed hinge reaches back past its
+    breakpoint, and a tail's can take the force below zero at zero crush. A negative force in a
+    discrete spring's curve would pull the barrier."""
+    clipped = np.maximum(force, 0.0)
+    depth = -float(np.min(force, initial=0.0))
+    if depth <= NEGLIGIBLE * float(np.max(clipped, initial=0.0)):
+        return clipped, ()
+    below = crush[force < 0] * MM
+    where = f"at {below[0]:.1f} mm" if below.size == 1 else f"from {below[0]:.1f} to {below[-1]:.1f} mm"
+    return clipped, (
+        f"clipped at zero force {where}, where the smoothed law falls to {-depth * KN:.4g} kN: the model's contact never pulls",
+    )
+
+
+def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> tuple[str, ...]:
+    """Where the data end on the loading curve, in the words every format gives: the largest crush
+    the model went through in the fitted tests (a design's: in its own, which no data determine),
+    the breakpoints past it, the spring values the data do not determine (`not_identified`), each
+    at its breakpoint, and the tail, where the model bends its curve into one. Past that crush a
+    curve's force is the law's extension, or the solver's leftover at a bound, not a measurement."""
+    spring = identified.model["spring"]
+    bps, values = spring["crush_breakpoints"], spring["values"]
+    reach = identified.range.model_crush
+    if identified.designed:
+        lines = [f"the design's tests took the model to {reach * MM:.1f} mm of crush: the force past there met none of its goals"]
+    else:
+        lines = [
+            f"the fitted tests took the model to {reach * MM:.1f} mm of crush: the data determine the force up to there,"
+            " not past it"
+        ]
+    past = [f"{b * MM:.4g}" for b in bps if b > reach]
+    if past:
+        lines.append(f"breakpoints past it: {', '.join(past)} mm")
+    undetermined = [
+        f"{label} = {values[i] * KN:.4g} kN at {bps[i] * MM:.4g} mm"
+        for i, label in enumerate(f"{SPRING_VALUES}[{i}]" for i in range(len(values)))
+        if label in not_identified
+    ]
+    if undetermined:
+        lines.append(f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}")
+    tail = _tail(identified)
+    if tail:
+        lines.append(
+            f"past {tail['start'] * MM:.1f} mm: the {_whose(identified.designed)} model's tail, a straight line at"
+            f" {tail['slope'] * KN_PER_MM:.4g} kN/mm, in place of the law"
+        )
+    return tuple(lines)
 
 
 def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -131,20 +214,15 @@ def keyword_file(name: str, source: Path, curves: Curves, status: str | None = N
 
 def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
     """What each curve is, in which units, and which material field takes it."""
-    tail = curves.tail
     lines = [
-        f"crashnlp export of {name} ({source}): the identified front end as curves",
+        f"{_whose_curves(name, source, curves)} as curves",
         "units: mm, ms, kg, kN (consistent: 1 kN = 1 kg mm/ms^2); crush in mm, crush rate in mm/ms (= m/s), force in kN",
         "signs: crush and crush rate positive in compression, force positive resisting it; for a discrete",
         "  element whose compression is a negative displacement, set SFA = SFO = -1.0 on each curve",
         f"curve {FIRST_ID}: loading, force against crush (LCDL of *MAT_SPRING_GENERAL_NONLINEAR, MAT_S06)",
+        *(f"  {note}" for note in curves.loading_notes),
+        f"  past the last point, continue the last segment (as the {curves.whose} model does)",
     ]
-    if tail:
-        lines.append(
-            f"  past {tail['start'] * MM:.1f} mm the fitted tests did not reach: the identified model's tail,"
-            f" a straight line at {tail['slope'] * KN_PER_MM:.4g} kN/mm"
-        )
-    lines.append("  past the last point, continue the last segment (as the identified model does)")
     if curves.unloading_law == "plastic":
         lines.append(
             f"curve {FIRST_ID + 1}: unloading, a line at the unloading stiffness {curves.unloading_stiffness * KN_PER_MM:.4g}"
@@ -155,11 +233,16 @@ def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
     if curves.damper is not None:
         lines += [
             f"curve {FIRST_ID + 2}: damper, force against crush rate (LCDR of *MAT_DAMPER_NONLINEAR_VISCOUS, MAT_S05),",
-            "  on a discrete damper beside the spring; the identified model engages it over its first millimetre of crush",
+            f"  on a discrete damper beside the spring; the {curves.whose} model engages it over its first millimetre of crush",
         ]
     else:
-        lines.append("no damper: the identified model has none")
+        lines.append(f"no damper: the {curves.whose} model has none")
     return lines
+
+
+def _whose_curves(name: str, source: Path, curves: Curves) -> str:
+    """The first words of every curve file: the export of which problem, from which folder, of whose front end."""
+    return f"crashnlp export of {name} ({source}): the {curves.whose} front end"
 
 
 def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
@@ -182,14 +265,19 @@ def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, stat
         fh.write(keyword_file(name, source, curves, status))
 
 
-def write_curves_csv(folder: Path, curves: Curves, status: str | None = None) -> list[Path]:
+def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> list[Path]:
     """loading.csv, unloading.csv and (with a damper) damper.csv in `folder`, SI, each under the
-    fit's status where it did not converge; the paths written."""
-    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
+    fit's status where it did not converge and a line saying whose curve it is; the loading
+    curve's under what the .k file says of it too (`Curves.loading_notes`). The paths written."""
+    tables = {
+        "loading.csv": ("loading", "crush_m", curves.loading, curves.loading_notes),
+        "unloading.csv": ("unloading", "crush_m", curves.unloading, ()),
+    }
     if curves.damper is not None:
-        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
-    for file, (x_name, (x, y)) in tables.items():
-        write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
+        tables["damper.csv"] = ("damper", "crush_rate_mps", curves.damper, ())
+    for file, (what, x_name, (x, y), notes) in tables.items():
+        header = f"{_whose_curves(name, source, curves)}'s {what} curve"
+        write_columns(folder / file, {x_name: x, "force_N": y}, (*unconverged(status), header, *notes))
     return [folder / f for f in tables]
 
 
