@@ -172,6 +172,20 @@ def test_a_fit_that_did_not_converge_leads_its_report_with_it_and_gives_no_error
 
 
 @pytest.mark.integration
+def test_a_fit_ipopt_stopped_draws_no_band_about_its_loading_curve(tmp_path):
+    """The loading curve's figure, which the report embeds, of a fit stopped after 3 iterations
+    has no 95 % band: its covariance is a last iterate's (it drew one)."""
+    import crashnlp
+
+    given = (ROOT / "problems/pickup-56kph.yaml").read_text().replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem = tmp_path / "stopped.yaml"
+    problem.write_text(given + "solver: {ipopt: {max_iter: 3}}\n")
+    result = crashnlp.identify(problem)
+    assert result.status == "solver failed: Maximum_Iterations_Exceeded" and result.std_errors
+    assert result.force_crush is not None and result.force_crush.band is None
+
+
+@pytest.mark.integration
 def test_a_response_read_back_is_a_mapping_of_its_named_arrays(fit):
     """A fitted response iterates and converts like a dict: time, then every output, one length
     (it raised KeyError: 0, having only __getitem__)."""
