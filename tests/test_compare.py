@@ -87,6 +87,54 @@ def test_two_fits_of_one_vehicle_are_told_apart_by_their_folders(folders, tmp_pa
     assert labels == [f"pickup-56kph, fit at 56.0 km/h ({folders['fit']})"] * 2
 
 
+def curve_labels(folders: list[Path], out: Path) -> list[str]:
+    """compare-results of `folders` into `out`: the labels of its curves in metrics.csv, checked to be
+    those of its page."""
+    assert main(["compare-results", *map(str, folders), "--out", str(out)]) == 0
+    with (out / METRICS).open() as fh:
+        labels = [r["curve"] for r in csv.DictReader(fh)]
+    page = html.unescape((out / PAGE).read_text(encoding="utf-8"))
+    assert all(label in page for label in labels)
+    return labels
+
+
+def test_a_what_if_of_the_mass_names_its_mass(folders, tmp_path):
+    """A prediction at another mass than the fitted one says its mass, beside the fit (whose mass
+    it then says too) and beside another prediction at that mass; it was labelled as if it ran
+    at the fitted conditions. Curves at the fitted mass say none (the speeds above)."""
+    light, light48 = tmp_path / "light", tmp_path / "light48"
+    assert main(["simulate", str(folders["fit"]), "--mass", "1500 kg", "--out", str(light), "--no-figures"]) == 0
+    what_if = ["--mass", "1500 kg", "--speed", "48 km/h"]
+    assert main(["simulate", str(folders["fit"]), *what_if, "--out", str(light48), "--no-figures"]) == 0
+    mass = 2.0 * json.loads((folders["fit"] / "result.json").read_text())["tests"]["56kph"]["energy"]["impact_kinetic"]
+    mass /= (56 / 3.6) ** 2
+    assert curve_labels([folders["fit"], light], tmp_path / "a") == [
+        f"pickup-56kph, fit at 56.0 km/h, {mass:.0f} kg",
+        "pickup-56kph, predicted at 56.0 km/h, 1500 kg",
+    ]
+    assert curve_labels([light, light48], tmp_path / "b") == [
+        "pickup-56kph, predicted at 56.0 km/h, 1500 kg",
+        "pickup-56kph, predicted at 48.0 km/h, 1500 kg",
+    ]
+
+
+def test_a_fit_that_did_not_converge_and_a_prediction_from_it_say_so(folders, tmp_path):
+    """A fit IPOPT stopped, and a prediction from its values, are labelled with its status (in the
+    words of its report and exports) on the page, the legend and metrics.csv; a converged fit is not."""
+    failed, predicted = tmp_path / "failed", tmp_path / "predicted"
+    shutil.copytree(folders["fit"], failed)
+    raw = json.loads((failed / "result.json").read_text())
+    status = "solver failed: Maximum_Iterations_Exceeded"
+    (failed / "result.json").write_text(json.dumps({**raw, "status": status}))
+    assert main(["simulate", str(failed), "--speed", "48 km/h", "--out", str(predicted), "--no-figures"]) == 0
+    said = f" (NOT CONVERGED: the fit ended {status})"
+    assert curve_labels([folders["fit"], failed, predicted], tmp_path / "cmp") == [
+        "pickup-56kph, fit at 56.0 km/h",
+        f"pickup-56kph, fit at 56.0 km/h{said}",
+        f"pickup-56kph, predicted at 48.0 km/h{said}",
+    ]
+
+
 # the keys of the CG's travel as crashnlp wrote them before issue 40 named it displacement
 OLD_METRICS = {"max_displacement_m": "max_crush_m", "time_max_displacement_s": "time_max_crush_s"}
 OLD_EXTRAPOLATION = {"displacement_m": "crush_m", "displacement_rel": "crush_rel"}

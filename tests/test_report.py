@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from builders import ROOT
+import yaml
+from builders import BASE, ROOT, merge
 
 from crashnlp.analysis.summary import goes_on
-from crashnlp.base.outputs import OUTPUT, named_test, shown_unit
+from crashnlp.base.outputs import OUTPUT, PREDICTED, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
@@ -29,7 +30,7 @@ from crashnlp.report import result_page
 from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
-from crashnlp.results.result import LoadingCurve, Result, figure_jobs
+from crashnlp.results.result import LoadingCurve, Result, figure_jobs, unconverged
 from crashnlp.results.simulation import extrapolation_line, read_simulation
 from crashnlp.results.source import source_line
 from crashnlp.studies.store import CaseStore
@@ -110,6 +111,78 @@ def test_a_design_speaks_of_its_design_not_of_data_pulling_or_standard_errors(fi
     assert "designed loading curve" in page and "identified loading curve" not in page
     assert "Not identified" not in page and "data pull" not in page and " std)" not in page
     assert job[3] == f"{result.name}: designed loading curve" and "designed loading curve" in job[1]
+
+
+def parameter_rows(page: str) -> dict[str, tuple[str, str, str]]:
+    """The estimated values' rows of a report: label -> (standard error, 95 % interval, where it comes from)."""
+    row = re.compile(r'<tr><td class="l">([^<]+)</td><td>[^<]*</td><td>([^<]*)</td><td>([^<]*)</td><td class="l">([^<]*)</td>')
+    return {label: (std, interval, how) for label, std, interval, how in row.findall(html.unescape(page))}
+
+
+def interval_ends(cell: str) -> list[float]:
+    return [float(end.strip("<> ")) for end in cell.strip("[]").split(", ")]
+
+
+@pytest.mark.integration
+def test_a_profile_open_at_a_bound_runs_to_it_and_one_open_short_of_it_says_so(fit):
+    """A profile writes null for an end where the objective never rose to its threshold
+    (crashnlp.optimize.profile): the report gives the bound where the profile ran to it (the
+    pickup's last spring value sits at its 3 MN bound, the data bound it only below) and the
+    furthest value profiled, open, where the profile stopped short of the bound; it gave value
+    ± 1.96 std cut at the bounds instead, [0, 3000] kN, losing the profile's lower end."""
+    result = read_result(fit)
+    labels, bounds = result.identified.labels, result.identified.bounds
+    values, stds = result.parameters["model.spring.values"], result.std_errors["model.spring.values"]
+    top, (_, bound) = values[6], bounds[labels.index("model.spring.values[6]")]
+    assert top == pytest.approx(bound)  # the shipped fit's last spring value is at its bound
+    steps = 0.75 * stds[2] * np.arange(1, 5)
+    profiles = {
+        "model.spring.values[6]": {"estimate": top, "lower": 0.7 * top, "upper": None, "points": [[top - 0.2 * top, 1.0]]},
+        "model.spring.values[2]": {
+            "estimate": values[2],
+            "lower": values[2] - 2 * stds[2],
+            "upper": None,
+            "points": [[float(v), 1.0] for v in values[2] + steps],
+        },
+    }
+    rows = parameter_rows(result_page(dataclasses.replace(result, profiles=profiles), fit))
+    _, at_bound, how = rows["model.spring.values[6]"]
+    assert interval_ends(at_bound) == pytest.approx([0.7 * top / 1e3, bound / 1e3], rel=1e-3) and how.startswith("profile")
+    _, open_, how = rows["model.spring.values[2]"]
+    assert interval_ends(open_) == pytest.approx([(values[2] - 2 * stds[2]) / 1e3, (values[2] + steps[-1]) / 1e3], rel=1e-3)
+    assert "> " in open_ and "open" in how
+
+
+@pytest.mark.integration
+def test_a_fit_that_did_not_converge_leads_its_report_with_it_and_gives_no_errors_or_intervals(fit):
+    """The report of a fit IPOPT stopped says so first, in the words its exports use, and gives
+    its values without standard errors, intervals or correlations (a last iterate's, which
+    `crashnlp simulate` does not take either); a converged fit's gives them, and no such line."""
+    result = read_result(fit)
+    status = "solver failed: Maximum_Iterations_Exceeded"
+    for shown, converged in ((result, True), (dataclasses.replace(result, status=status), False)):
+        page = result_page(shown, fit)
+        rows = parameter_rows(page).values()
+        assert rows and ("NOT CONVERGED" not in page) == converged
+        assert all(std != "-" and interval != "-" for std, interval, _ in rows) == converged
+        assert any(std != "-" or interval != "-" for std, interval, _ in rows) == converged
+        assert ("correlation of the estimates" in page) == converged
+    first = re.search(r"<p[^>]*>([^<]*)</p>", page.split("<body", 1)[1]).group(1)
+    assert html.unescape(first) == unconverged(status)[0]
+
+
+@pytest.mark.integration
+def test_a_fit_ipopt_stopped_draws_no_band_about_its_loading_curve(tmp_path):
+    """The loading curve's figure, which the report embeds, of a fit stopped after 3 iterations
+    has no 95 % band: its covariance is a last iterate's (it drew one)."""
+    import crashnlp
+
+    given = (ROOT / "problems/pickup-56kph.yaml").read_text().replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem = tmp_path / "stopped.yaml"
+    problem.write_text(given + "solver: {ipopt: {max_iter: 3}}\n")
+    result = crashnlp.identify(problem)
+    assert result.status == "solver failed: Maximum_Iterations_Exceeded" and result.std_errors
+    assert result.force_crush is not None and result.force_crush.band is None
 
 
 @pytest.mark.integration
@@ -466,6 +539,21 @@ def test_a_simulation_report_gives_the_intervals_and_the_extrapolation(fit, tmp_
     digest = hashlib.sha256((fit / "result.json").read_bytes()).hexdigest()
     assert f"source: from {problem}, with the parameters of {fit / 'result.json'}: pickup-56kph, status ok" in page
     assert f"sha256 {digest}" in page
+
+
+@pytest.mark.integration
+def test_a_prediction_that_ends_mid_crash_gives_the_note_why_it_has_no_metrics_not_an_empty_table(tmp_path):
+    """A test simulated for 50 ms ends mid-crash, with none of the metrics a prediction gives: its
+    page has no metrics table (it had one of a header row alone), and the note saying why."""
+    problem, sim = tmp_path / "short.yaml", tmp_path / "sim"
+    problem.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "t56", "duration": "0.05 s"}]})))
+    assert main(["simulate", str(problem), "--out", str(sim), "--no-figures"]) == 0
+    _, tests = read_simulation(sim)
+    assert not any(tests["t56"].metrics.get(m.key) is not None for m in PREDICTED)
+    assert main(["report", str(sim)]) == 0
+    page = html.unescape((sim / "report.html").read_text(encoding="utf-8"))
+    assert "<table" not in page
+    assert any("mid-crash" in note and f"<li>{note}</li>" in page for note in tests["t56"].notes)
 
 
 @pytest.mark.integration

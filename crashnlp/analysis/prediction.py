@@ -78,7 +78,7 @@ from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.identified import UNLOADING_STIFFNESS, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
 from crashnlp.results.response import Response
-from crashnlp.results.result import Result
+from crashnlp.results.result import Result, unconverged_mark
 from crashnlp.results.simulation import IntervalParts, PredictedTest
 
 if TYPE_CHECKING:
@@ -648,7 +648,7 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
         status = (predicted.source.get("result") or {}).get("status") or "ok"
         at = f"predicted at {predicted.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg" + (", 95 % band" if bands else "")
-        at += "" if status == "ok" else f" (NOT CONVERGED: the fit ended {status})"
+        at += unconverged_mark(status)
         title = f"{named_test(name, predicted.name)}: {at}"
         jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
     return jobs

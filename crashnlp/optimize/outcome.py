@@ -294,9 +294,11 @@ def _curve_band(
     """The loading curve's 95 % band at the crushes `x` (N): the estimates' covariance pushed
     through the curve's sensitivities, central differences over one standard error each way;
     None without a covariance or where the data do not determine an estimate that shapes the
-    curve over `x`. Cut at zero force: a front end only pushes (crashnlp.analysis.limits)."""
+    curve over `x`, and for a fit that did not converge (a last iterate's covariance, which its
+    report and its predictions do not take either). Cut at zero force: a front end only pushes
+    (crashnlp.analysis.limits)."""
     cov = solution.covariance
-    if cov is None:
+    if cov is None or not solution.ok:
         return None
     free, theta = solution.ocp.free, solution.theta
     outside = shaping_nothing_short_of(free.labels(), breakpoints, float(x[-1]))

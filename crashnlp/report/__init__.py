@@ -22,7 +22,7 @@ import numpy as np
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.result import Result, loading_curve_name, pull_texts
+from crashnlp.results.result import Result, loading_curve_name, pull_texts, unconverged
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
 from crashnlp.studies.table import number, shown_column
@@ -62,10 +62,11 @@ def write_report(folder: Path, out: Path | None = None) -> Path:
 def result_page(result: Result, folder: Path) -> str:
     """The page of a fit or design: the problem in brief, per test its figures, metrics and
     ratings, the estimates with their errors and intervals, their correlations, what sits at a
-    bound or is not identified, and the notes."""
+    bound or is not identified, and the notes; one that did not converge leads with the line its
+    exports carry first (`unconverged`) and has no errors, intervals or correlations."""
     figures = embedded_figures(folder, ["force_crush.png"], f"the {loading_curve_name(result.kind)}")
     correlation = result.correlation
-    if correlation.get("labels"):
+    if correlation.get("labels") and result.ok:
         from crashnlp.results import plots  # matplotlib: only when a page draws
 
         matrix = np.array([[np.nan if v is None else v for v in row] for row in correlation["matrix"]], dtype=float)
@@ -74,6 +75,7 @@ def result_page(result: Result, folder: Path) -> str:
     return TEMPLATES.get_template("result.html.j2").render(
         title=f"{result.name}: {'fit' if result.kind == 'identify' else result.kind}",
         result=result,
+        unconverged=unconverged(result.status),
         brief=_brief(result),
         tests=[_test(result, name, folder) for name in result.tests],
         figures=figures,
@@ -105,7 +107,7 @@ def _brief(result: Result) -> list[tuple[str, str]]:
         )
         front += ", a damper" if damper else ", no damper"
         lines.insert(3, ("front end", front))
-    if result.covariance.get("method"):
+    if result.covariance.get("method") and result.ok:
         lines.append(("standard errors", str(result.covariance["method"])))
     return lines
 
@@ -139,16 +141,19 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
 def _parameters(result: Result, source: Path) -> list[dict[str, str]]:
     """Every estimated value, one number each: value, standard error and 95 % interval (the
     profile's where the fit profiled it, else value ± Z95 standard errors, cut at its bounds),
-    its bounds, in the unit it reads in (`source`: the result.json, which a refusal names)."""
+    its bounds, in the unit it reads in (`source`: the result.json, which a refusal names). A fit
+    that did not converge has neither errors nor intervals: its values are a last iterate, whose
+    covariance `crashnlp simulate` does not take either."""
     problem = result.identified.as_problem(result.name, str(source)) if result.identified is not None else None
     bounds = dict(zip(result.identified.labels, result.identified.bounds)) if result.identified is not None else {}
     rows = []
     for path, value in result.parameters.items():
         unit, factor = shown_unit(problem.unit_at(path)) if problem is not None else ("", 1.0)
-        stds = result.std_errors.get(path)
+        stds = result.std_errors.get(path) if result.ok else None
         values = value if isinstance(value, list) else [value]
         std_list = stds if isinstance(stds, list) else [stds] * len(values)
         without = "not identified" if path in result.std_errors else "no standard errors"  # a design has none
+        without = without if result.ok else "none: not converged, a last iterate"
         for i, (v, s) in enumerate(zip(values, std_list)):
             label = f"{path}[{i}]" if isinstance(value, list) else path
             rows.append(_parameter(result, label, v, (s, without), bounds.get(label), (unit, factor)))
@@ -165,21 +170,12 @@ def _parameter(
 ) -> dict[str, str]:
     """One estimated value's row; `error`: its standard error (None: none) and why there is none."""
     (std, without), (name, factor) = error, unit
-    profile = result.profiles.get(label, {})
-    if profile.get("lower") is not None and profile.get("upper") is not None:
-        interval, how = (profile["lower"], profile["upper"]), "profile"
-    elif std is not None and math.isfinite(std):
-        lo, hi = bounds or (-math.inf, math.inf)
-        interval = (max(value - Z95 * std, lo), min(value + Z95 * std, hi))
-        cut = interval != (value - Z95 * std, value + Z95 * std)
-        how = f"± {Z95:.2f} std" + (", cut at a bound" if cut else "")
-    else:
-        interval, how = None, without
+    ends, how = _interval(result.profiles.get(label, {}) if result.ok else {}, value, std, bounds) or (None, without)
     return {
         "label": label,
         "value": significant(value, factor, 5),
         "std": significant(std, factor, 2),
-        "interval": "-" if interval is None else f"[{significant(interval[0], factor)}, {significant(interval[1], factor)}]",
+        "interval": "-" if ends is None else "[" + ", ".join(_end(k, end, factor) for k, end in zip(ENDS, ends)) + "]",
         "how": how,
         "bounds": "-" if bounds is None else f"[{significant(bounds[0], factor)}, {significant(bounds[1], factor)}]",
         "unit": name,
@@ -187,11 +183,54 @@ def _parameter(
     }
 
 
+End = tuple[float, str]  # an interval's end, and what it is where the profile did not close there ("" where it did)
+ENDS = ("lower", "upper")
+OPEN = "open past the furthest value profiled"
+
+
+def _interval(
+    profile: dict[str, Any], value: float, std: float | None, bounds: tuple[float, float] | None
+) -> tuple[tuple[End, End], str] | None:
+    """A value's 95 % interval and where it comes from: its profile where it has one, else value
+    ± Z95 standard errors cut at its bounds; None without either."""
+    lo, hi = bounds or (-math.inf, math.inf)
+    if profile.get("points"):
+        ends = _profile_end(profile, "lower", lo), _profile_end(profile, "upper", hi)
+        return ends, "profile" + "".join(f", {key} end {what}" for key, (_, what) in zip(ENDS, ends) if what)
+    if std is None or not math.isfinite(std):
+        return None
+    low, high = max(value - Z95 * std, lo), min(value + Z95 * std, hi)
+    cut = (low, high) != (value - Z95 * std, value + Z95 * std)
+    return ((low, ""), (high, "")), f"± {Z95:.2f} std" + (", cut at a bound" if cut else "")
+
+
+def _profile_end(profile: dict[str, Any], key: str, bound: float) -> End:
+    """The `key` ("lower", "upper") end of a profile's interval, and what it is where the profile
+    did not close there (crashnlp.optimize.profile writes null where the objective's rise never
+    reached the threshold within the values profiled): the bound where the profile ran to it
+    (its next step would have passed it, or it had no room for one: the estimate at the bound),
+    else the furthest value profiled, past which the interval runs on (OPEN)."""
+    if profile.get(key) is not None:
+        return profile[key], ""
+    side, estimate = (-1.0 if key == "lower" else 1.0), profile["estimate"]
+    walked = sorted((side * (v - estimate) for v, _ in profile["points"] if side * (v - estimate) > 0))
+    if not walked or walked[-1] + walked[0] > side * (bound - estimate):  # steps are equal: the first is one
+        return bound, "at the bound"
+    return estimate + side * walked[-1], OPEN
+
+
+def _end(key: str, end: End, factor: float) -> str:
+    """An interval's `key` end as shown; one the profile left open says which way it runs on ("< 2.1", "> 3.4")."""
+    value, what = end
+    return ("" if what != OPEN else "< " if key == "lower" else "> ") + significant(value, factor)
+
+
 # --------------------------------------------------------------------------- a simulation
 def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) -> str:
     """The page of a simulation: where it came from (the problem, the fit whose parameters it
-    took: crashnlp.results.source), per predicted test its metrics with their 95 % intervals, how
-    far it lies past the identified range, its notes and its figure with the bands."""
+    took: crashnlp.results.source), per predicted test its metrics with their 95 % intervals (no
+    table where it has none: its notes say why), how far it lies past the identified range, its
+    notes and its figure with the bands."""
     pages = []
     for test in tests.values():
         rows = []

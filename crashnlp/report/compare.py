@@ -3,7 +3,8 @@
 Two or more folders crashnlp wrote, fits (result.json) or simulations (simulation.json) in any
 mix, read through their loaders (crashnlp.report.folders): each test of each folder is one curve in its
 own colour, named by its problem, its test and its speed (a pickup predicted at 48, 56 and
-64 km/h; fit A against fit B of the same vehicle). A simulation's 95 % bands are shaded; a fit's
+64 km/h; fit A against fit B of the same vehicle), its mass where that is not the fitted one, and
+the status of a fit that did not converge (`labelled`). A simulation's 95 % bands are shaded; a fit's
 folder holds none (its curve is the fit; `crashnlp simulate RESULT_DIR` gives its own tests'
 bands). Written into the output folder: a figure per quantity (QUANTITIES, and the barrier force
 against the crush), the crash metrics side by side (metrics.csv, with the intervals), and the
@@ -25,6 +26,7 @@ from crashnlp.report import TEMPLATES, embedded_figures
 from crashnlp.report.folders import folder_kind, read_result, read_simulation
 from crashnlp.results.files import atomic_open, check_writable
 from crashnlp.results.response import Response
+from crashnlp.results.result import unconverged_mark
 
 PAGE = "compare.html"
 METRICS = "metrics.csv"
@@ -43,6 +45,9 @@ class Curve:
     bands: dict[str, tuple[np.ndarray, np.ndarray]]
     metrics: dict[str, float | None]
     intervals: dict[str, tuple[float, float] | None]
+    mass: float | None = None  # kg; None where the folder keeps none (a fit's without its energy audit)
+    past_its_fit: bool = False  # a prediction at a mass past the masses its fit was fitted at
+    status: str | None = None  # of the fit (a simulation's: of the fit it took its parameters from); None: of none
 
 
 def compare_results(folders: list[Path], out: Path) -> list[Curve]:
@@ -51,7 +56,7 @@ def compare_results(folders: list[Path], out: Path) -> list[Curve]:
     if len(folders) < 2:
         raise InputError(f"compare-results: {len(folders)} folder given: give two or more (fits or simulations)")
     out = check_writable(out)
-    curves = distinct([curve for folder in folders for curve in read_curves(folder)])
+    curves = distinct(labelled([curve for folder in folders for curve in read_curves(folder)]))
     from crashnlp.results import plots  # matplotlib: only once every folder has read
 
     for name in QUANTITIES:
@@ -64,7 +69,8 @@ def compare_results(folders: list[Path], out: Path) -> list[Curve]:
 
 
 def read_curves(folder: Path) -> list[Curve]:
-    """The curves of a fit's or a simulation's folder, one per test."""
+    """The curves of a fit's or a simulation's folder, one per test, each named by its problem, its
+    test and its speed (`labelled` adds the rest)."""
     kind = folder_kind(folder)
     if kind == "study":
         raise InputError(f"{folder}: a study's folder: compare fits or simulations (a study's report maps its cases)")
@@ -72,18 +78,40 @@ def read_curves(folder: Path) -> list[Curve]:
         result = read_result(folder)
         what = "fit" if result.kind == "identify" else result.kind
         return [
-            Curve(_label(result.name, name, what, t.speed), folder, t.response, {}, t.metrics, {})
+            Curve(_label(result.name, name, what, t.speed), folder, t.response, {}, t.metrics, {}, t.mass, status=result.status)
             for name, t in result.tests.items()
         ]
     name, tests = read_simulation(folder)
     return [
-        Curve(_label(name, t.name, "predicted", t.speed), folder, t.response, t.bands, t.metrics, t.intervals)
+        Curve(
+            _label(name, t.name, "predicted", t.speed),
+            folder,
+            t.response,
+            t.bands,
+            t.metrics,
+            t.intervals,
+            t.mass,
+            "mass_kg" in t.extrapolation,
+            (t.source.get("result") or {}).get("status"),
+        )
         for t in tests.values()
     ]
 
 
 def _label(name: str, test: str, what: str, speed: float) -> str:
     return f"{named_test(name, test)}, {what} at {speed * 3.6:.1f} km/h"
+
+
+def labelled(curves: list[Curve]) -> list[Curve]:
+    """The curves, each label naming its mass where that is not the fitted one (every curve's where
+    the curves compared do not share one mass; a prediction's past its fit's masses, a what-if of
+    the mass alone), and where its fit did not converge, its status."""
+    masses = {round(c.mass) for c in curves if c.mass is not None}
+    out = []
+    for c in curves:
+        mass = f", {c.mass:.0f} kg" if c.mass is not None and (len(masses) > 1 or c.past_its_fit) else ""
+        out.append(replace(c, label=f"{c.label}{mass}{unconverged_mark(c.status)}"))
+    return out
 
 
 def distinct(curves: list[Curve]) -> list[Curve]:

@@ -331,13 +331,12 @@ class PulseTest:
 
 
 def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
-    """Test `name` of the fit (or the design) in `folder`: its mass from the energy audit of it (the
-    impact energy, m v^2 / 2: result.json keeps no other), its notes those of the result that name it."""
+    """Test `name` of the fit (or the design) in `folder`: its mass from the energy audit of it
+    (TestResult.mass), its notes those of the result that name it."""
     t = result.tests[name]
-    mass = 2.0 * t.energy["impact_kinetic"] / t.speed**2 if t.energy else None
     notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
     response = finite(folder / name / "response.csv", t.response)
-    return PulseTest(name, response, t.speed, mass, None, notes, goes_on(t.metrics), designed=result.kind == "design")
+    return PulseTest(name, response, t.speed, t.mass, None, notes, goes_on(t.metrics), designed=result.kind == "design")
 
 
 def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:

@@ -88,6 +88,12 @@ class TestResult:
     forward_check: dict[str, Any] | None = None
     consistency: dict[str, Any] | None = None  # wall force against accelerometers (summary.channel_consistency)
 
+    @property
+    def mass(self) -> float | None:
+        """The test's mass, from its energy audit (the impact energy, m v^2 / 2: result.json keeps
+        no other); None without one."""
+        return 2.0 * self.energy["impact_kinetic"] / self.speed**2 if self.energy else None
+
 
 @dataclass(frozen=True)
 class LoadingCurve:
@@ -331,12 +337,22 @@ def _fit_from_json(channel: str, raw: dict[str, Any]) -> ChannelFit:
 
 def unconverged(status: str | None) -> tuple[str, ...]:
     """The line a file of a fit that did not converge carries first (its IPOPT status): the
-    force-crush table beside its result.json, and its exports (crashnlp.report.export); none for
+    force-crush table beside its result.json, its exports (crashnlp.report.export) and its report; none for
     one that did, nor for None, the status of a simulation of a problem alone, which names no
     fit (a result.json's own status is text: `refuse_status`)."""
     if status in (None, "ok"):
         return ()
-    return (f"NOT CONVERGED: the fit ended {status}; these values are its last iterate, not an identified model",)
+    return (f"{_ended(status)}; these values are its last iterate, not an identified model",)
+
+
+def unconverged_mark(status: str | None) -> str:
+    """What a figure's title or a curve's label adds for a fit that did not converge, or for a
+    prediction from one, in the words of `unconverged`: '' for one that did, or for None."""
+    return "" if status in (None, "ok") else f" ({_ended(status)})"
+
+
+def _ended(status: str | None) -> str:
+    return f"NOT CONVERGED: the fit ended {status}"
 
 
 def write_result(result: Result, out: Path, figures: bool = True) -> None:
