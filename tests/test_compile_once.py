@@ -115,7 +115,8 @@ def test_a_background_compile_runs_once_and_one_killed_holds_no_lock_nor_files(t
 
 def test_a_compile_removes_what_killed_compiles_left_and_not_a_running_compiles_files(tmp_path, monkeypatch):
     """The files of a compile killed by SIGKILL (a library not compiled again) are removed by the
-    next compile of another library; those of a compile still running are not."""
+    next compile of another library, its partial record too (killed while it wrote it); those of a
+    compile still running are not."""
     fake_compiler(tmp_path, monkeypatch, pause=30)
     monkeypatch.setattr(compile_job, "_compiles", [])
     cc, killed, running = os.environ["CC"], cache_dir() / "nlp-killed.so", cache_dir() / "nlp-running.so"
@@ -124,7 +125,9 @@ def test_a_compile_removes_what_killed_compiles_left_and_not_a_running_compiles_
     (job,) = compile_job._compiles
     os.killpg(job.pid, signal.SIGKILL)
     compile_job.stop_compiles([job])
-    assert leftovers() == sorted([killed.with_suffix(".c").name, f".{killed.name}.{job.pid}.tmp"])
+    record = compile_job.partial(compile_job.record_of(killed), job.pid)
+    record.write_text("")
+    assert leftovers() == sorted([killed.with_suffix(".c").name, f".{killed.name}.{job.pid}.tmp", record.name])
     oracle._compile_behind(cc, {"twice": twice()}, running)
     wait_for_partials(1)
     (behind,) = compile_job._compiles

@@ -29,8 +29,8 @@ Whether a library is being compiled is seen by taking its lock shared for an ins
 (`compiling`): lookers never see each other, and a compile that tries the lock meanwhile
 (`try_lock`) waits the look out instead of giving up; it gives up at once only on a compile.
 
-A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial library stay in
-the cache. The next compile of any library (`start`) removes them: its own library's, under the
+A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial library (or
+record) stay in the cache. The next compile of any library (`start`) removes them: its own library's, under the
 lock it holds, and every other library's whose lock no compile holds, taken shared meanwhile so that
 none starts. A running compile's files are never removed.
 
@@ -335,13 +335,13 @@ def _remove_leftovers(own: Path) -> None:
 
 
 def _leftovers(own: Path) -> dict[Path, list[Path]]:
-    """The compiles' sources (LIBRARY.c) and partial libraries (crashnlp.numerics.compile_job.partial)
-    in `own`'s folder, by library."""
+    """The compiles' sources (LIBRARY.c), partial libraries and partial records
+    (crashnlp.numerics.compile_job.partial) in `own`'s folder, by library."""
     found: dict[Path, list[Path]] = {}
     for path in own.parent.iterdir():
-        library = path.with_suffix(own.suffix) if path.suffix == ".c" else compile_job.partial_of(path)
-        if library is not None and library.suffix == own.suffix:
-            found.setdefault(library, []).append(path)
+        written = path if path.suffix == ".c" else compile_job.partial_of(path)
+        if written is not None and written.suffix in (".c", compile_job.RECORD, own.suffix):
+            found.setdefault(written.with_suffix(own.suffix), []).append(path)
     return found
 
 
