@@ -115,7 +115,8 @@ def test_a_background_compile_runs_once_and_one_killed_holds_no_lock_nor_files(t
 
 def test_a_compile_removes_what_killed_compiles_left_and_not_a_running_compiles_files(tmp_path, monkeypatch):
     """The files of a compile killed by SIGKILL (a library not compiled again) are removed by the
-    next compile of another library; those of a compile still running are not."""
+    next compile of another library, its partial record too (killed while it wrote it); those of a
+    compile still running are not."""
     fake_compiler(tmp_path, monkeypatch, pause=30)
     monkeypatch.setattr(compile_job, "_compiles", [])
     cc, killed, running = os.environ["CC"], cache_dir() / "nlp-killed.so", cache_dir() / "nlp-running.so"
@@ -124,7 +125,9 @@ def test_a_compile_removes_what_killed_compiles_left_and_not_a_running_compiles_
     (job,) = compile_job._compiles
     os.killpg(job.pid, signal.SIGKILL)
     compile_job.stop_compiles([job])
-    assert leftovers() == sorted([killed.with_suffix(".c").name, f".{killed.name}.{job.pid}.tmp"])
+    record = compile_job.partial(compile_job.record_of(killed), job.pid)
+    record.write_text("")
+    assert leftovers() == sorted([killed.with_suffix(".c").name, f".{killed.name}.{job.pid}.tmp", record.name])
     oracle._compile_behind(cc, {"twice": twice()}, running)
     wait_for_partials(1)
     (behind,) = compile_job._compiles
@@ -163,3 +166,53 @@ def test_a_look_at_the_lock_does_not_stop_a_compile_that_tries_it(tmp_path, monk
     assert job.wait(timeout=60) == 0
     compile_job.stop_compiles([job])
     assert library.exists()
+
+
+def damage(path: Path, how: str) -> None:
+    """Cut `path` to a third (a copy or a disk that stopped short) or overwrite its middle third
+    with random bytes."""
+    data = path.read_bytes()
+    third = len(data) // 3
+    if how == "truncated":
+        path.write_bytes(data[:third])
+    else:
+        path.write_bytes(data[:third] + os.urandom(third) + data[2 * third :])
+
+
+@pytest.mark.parametrize("how", ["truncated", "garbled", "unrecorded"])
+def test_a_damaged_model_library_is_compiled_again_and_loaded(tmp_path, monkeypatch, how):
+    """A model function's library damaged in the cache, or without the record its compile writes
+    (a cache from before records), is not loaded: the next process that needs it compiles it again
+    and loads that."""
+    log = fake_compiler(tmp_path, monkeypatch, pause=0)
+    compiled.compiled(twice())
+    (library,) = cache_dir().glob("twice-*.so")
+    compiled._loaded.clear()  # the next process: this one's copy unloaded (it is mapped from the file)
+    if how == "unrecorded":
+        compile_job.record_of(library).unlink()
+    else:
+        damage(library, how)
+    again = compiled.compiled(twice())
+    assert again.class_name() == "External" and float(again(3.0)) == 6.0
+    assert starts(log) == 2 and compiled.intact(library)
+
+
+@pytest.mark.parametrize(("how", "suffix"), [("truncated", ".so"), ("garbled", ".so"), ("truncated", ".names")])
+def test_a_damaged_nlp_library_is_removed_and_compiled_again_behind(tmp_path, monkeypatch, how, suffix):
+    """An NLP's library, or the names of its Functions beside it, damaged in the cache is not
+    loaded but removed with its companions, so that the next compile behind a solve writes it again."""
+    fake_compiler(tmp_path, monkeypatch, pause=0)
+    monkeypatch.setattr(compile_job, "_compiles", [])
+    monkeypatch.setattr(oracle, "_loaded", {})
+    cc, library = os.environ["CC"], cache_dir() / "nlp-test-gauss-newton.so"
+    x = ca.SX.sym("x")
+    functions = {"twice": twice(), "half": ca.Function("half", [x], [x / 2])}
+    oracle._compile_behind(cc, functions, library)
+    assert compile_job._compiles.pop().wait(timeout=60) == 0
+    damage(library.with_suffix(suffix), how)
+    assert oracle._load(library) is None
+    assert sorted(p.name for p in cache_dir().glob("nlp-test-*")) == [library.with_suffix(".lock").name]
+    oracle._compile_behind(cc, functions, library)
+    assert compile_job._compiles.pop().wait(timeout=60) == 0
+    loaded = oracle._load(library)
+    assert loaded is not None and [float(loaded[name](3.0)) for name in ("twice", "half")] == [6.0, 1.5]

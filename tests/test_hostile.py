@@ -935,8 +935,8 @@ def test_a_compile_no_run_waits_for_gives_way_from_its_start_and_is_named(tmp_pa
 
 @pytest.mark.integration
 def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_path, capsys, monkeypatch):
-    """Released, a compile outlives its starter's letting go and leaves the library (its source
-    removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
+    """Released, a compile outlives its starter's letting go and leaves the library and its record
+    (its source removed); with CRASHNLP_KEEP_COMPILING=0 the end of a command stops it, silently."""
     from crashnlp.numerics import compile_job
 
     if shutil.which("cc") is None:
@@ -947,7 +947,7 @@ def test_a_released_compile_finishes_its_library_and_the_switch_stops_it(tmp_pat
     job = compile_job.start("cc", source, tmp_path / "small.so", ("-O1", "-fPIC", "-shared"), cleanup=(source,))
     compile_job.release_compiles()
     assert job.wait(timeout=60) == 0
-    assert [p.name for p in tmp_path.iterdir()] == ["small.so"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["small.sha256", "small.so"]
     monkeypatch.setenv(compile_job.KEEP_ENV, "0")
     capsys.readouterr()
     source = _big_source(tmp_path / "big.c")

@@ -6,6 +6,8 @@ shipped pickup problem cut to 30 intervals: one library, compiled behind a first
 
 from __future__ import annotations
 
+import os
+import shutil
 import time
 
 import numpy as np
@@ -13,6 +15,7 @@ import pytest
 from builders import ROOT
 
 from crashnlp.case.case import Case
+from crashnlp.numerics import compile_job, compiled
 from crashnlp.numerics.compiled import compiler
 from crashnlp.optimize.identify import identify
 from crashnlp.problem import load_problem
@@ -112,3 +115,22 @@ def test_a_cache_that_cannot_be_written_leaves_the_virtual_machine(tmp_path, mon
     solved = identify(pickup("auto"), progress=None)
     assert solved.result.converged and not solved.result.compiled
     assert blocker.read_text() == "not a folder"
+
+
+def test_a_truncated_library_is_solved_around_and_removed(shared, tmp_path, monkeypatch):
+    """The library of the shape cut short in the cache (once the dynamic loader's SIGBUS): the run
+    solves in the virtual machine, to the bits of the compiled solve, and removes it, so that its
+    compile behind the run writes it again."""
+    folder = tmp_path / "cache"
+    shutil.copytree(shared[0], folder)
+    (name,) = libraries(folder)
+    os.truncate(folder / name, 10000)
+    switched_on(monkeypatch, folder)
+    monkeypatch.setattr(compile_job, "_compiles", [])  # this test's compile only
+    solved = identify(pickup("auto"), progress=None)
+    started = len(compile_job._compiles)
+    compile_job.stop_compiles()
+    assert solved.result.converged and not solved.result.compiled
+    assert np.array_equal(solved.result.z, shared[3].result.z)
+    assert started == 1
+    assert not (folder / name).exists() or compiled.intact(folder / name)

@@ -30,8 +30,8 @@ _LONGS = np.ctypeslib.ndpointer(dtype=np.int64, flags="C_CONTIGUOUS")
 
 
 def kernel() -> ctypes.CDLL | None:
-    """The compiled warping, loaded; None while it is not in the cache (its compile started then,
-    unless one runs), without a compiler or with compiles switched off."""
+    """The compiled warping, loaded; None while the cache holds none that is whole (its compile started
+    then, unless one runs), without a compiler or with compiles switched off."""
     if _loaded:
         return _loaded[0]
     cc = compiled.compiler(nlp=True)
@@ -40,11 +40,10 @@ def kernel() -> ctypes.CDLL | None:
     source = SOURCE.read_text()
     library = _library(cc, source)
     try:
-        if not library.exists():
+        lib = compiled.load_cached(library, lambda: ctypes.CDLL(str(library)))
+        if lib is None:
             compiled.start_behind(cc, library, FLAGS, lambda: source, what=WHAT, nice=compile_job.BACKGROUND_NICE)
             return None
-        lib = ctypes.CDLL(str(library))
-        compiled.used(library)
     except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable cache or compiler: numpy
         return None
     lib.warping_path.restype = ctypes.c_long

@@ -1,7 +1,7 @@
-"""The crashnlp cache folder: compiled functions (with a lock file each: crashnlp.numerics.compiled),
-derived models (crashnlp.models.stored), remembered unit conversions (crashnlp.base.units), the
-installed IPOPT's options (crashnlp.problem.ipopt) and the values of the YAML files (problems,
-studies) read before (crashnlp.problem.load).
+"""The crashnlp cache folder: compiled functions (with a lock file and a sha256 record each:
+crashnlp.numerics.compiled), derived models (crashnlp.models.stored), remembered unit conversions
+(crashnlp.base.units), the installed IPOPT's options (crashnlp.problem.ipopt) and the values of the
+YAML files (problems, studies) read before (crashnlp.problem.load).
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
 time: it is rebuilt on demand, and results never depend on it. A compile keeps it within

@@ -9,8 +9,11 @@ notebook that used crashnlp as a library (crashnlp.api) gets the same at its int
 
 A compile is `python -I .../compile_job.py NICE LIBRARY SOURCE [CLEANUP...] -- CC FLAGS...`: at
 niceness NICE (0, or BACKGROUND_NICE for one that no process waits for: it gives way to the
-command from its start), it compiles SOURCE into a temporary file beside LIBRARY and renames that in place when the compiler
-succeeds, so that no reader sees half a library. It reads its standard input until end of file,
+command from its start), it compiles SOURCE into a temporary file beside LIBRARY and renames that
+in place when the compiler succeeds, so that no reader sees half a library. The library's record
+(`record_of`: the sha256 of it and of its COMPANIONS) is put in place before it, so that a reader
+that finds the library finds the record that vouches for it (crashnlp.numerics.compiled.load_cached).
+It reads its standard input until end of file,
 which comes when its starter closes the pipe or dies, however it dies; the whole group (compiler
 driver, cc1, as) is then stopped, unless the starter wrote RELEASE first: then the group goes on
 at nice 19, so that it takes only cores nothing else wants. Any compile ends itself after
@@ -27,6 +30,7 @@ compiler does not inherit it.
 from __future__ import annotations
 
 import atexit
+import hashlib
 import os
 import re
 import signal
@@ -43,6 +47,8 @@ TIME_LIMIT_S = 900.0  # a compile still running after this ends itself
 STOP_WAIT_S = 10.0  # how long a stopped compile may take to remove its files before its group is killed
 # this file, run isolated (-I: no current folder or PYTHON* variables on its path; it needs only the
 # standard library): `-m crashnlp.numerics.compile_job` ran the crashnlp of the folder a command was started in
+COMPANIONS = (".names",)  # files a starter writes beside a library before its compile (crashnlp.optimize.oracle)
+RECORD = ".sha256"  # a library's record, beside it: what its compile wrote (`record`)
 NLP = "this problem's NLP"  # what a compile is, unless its starter says (`start`)
 JOB = (sys.executable, "-I", str(Path(__file__).resolve()))
 _compiles: list[subprocess.Popen] = []  # the compiles this process started and has not stopped
@@ -144,6 +150,41 @@ def partial_of(path: Path) -> Path | None:
     return path.with_name(match[1]) if match else None
 
 
+def record_of(library: Path) -> Path:
+    """Where the record of `library` is kept (`record`)."""
+    return library.with_suffix(RECORD)
+
+
+def companions(library: Path) -> list[Path]:
+    """The files a starter may write beside `library` (COMPANIONS), there or not."""
+    return [library.with_suffix(suffix) for suffix in COMPANIONS]
+
+
+def record(library: Path, built: Path) -> str:
+    """The record of `library`, whose content is the file `built`: the sha256 of it and of each of its
+    companions there now, a line each in sha256sum's format (`sha256sum -c LIBRARY.sha256` in the
+    cache folder checks them)."""
+    files = [(library.name, built), *((path.name, path) for path in companions(library) if path.exists())]
+    return "".join(f"{_sha256(path)}  {name}\n" for name, path in files)
+
+
+def _sha256(path: Path) -> str:
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
+def _put_in_place(built: Path, library: Path) -> None:
+    """Rename the whole library `built` to `library`, its record (`record`) written first through a
+    temporary file (`partial`) renamed in place: whoever sees the library sees its record."""
+    written = partial(record_of(library), os.getpid())
+    try:
+        written.write_text(record(library, built))
+        os.replace(written, record_of(library))
+    finally:
+        written.unlink(missing_ok=True)
+    os.replace(built, library)
+
+
 def _watch_starter() -> None:
     """Stop the group at the end of input, unless the starter released it first: then lower the
     group's priority (the compiler's processes, and those the driver starts later) and go on."""
@@ -186,7 +227,7 @@ def main(argv: list[str]) -> int:
             _stop_group(signal.SIGTERM, None)
             code = compiler.wait()
         if code == 0:
-            os.replace(temporary, library)
+            _put_in_place(temporary, library)
         return 0 if code == 0 else 1
     finally:
         for path in (temporary, *cleanup):

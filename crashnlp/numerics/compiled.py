@@ -12,6 +12,11 @@ A compile runs in a process group of its own (crashnlp.numerics.compile_job), wa
 and ends with the process that started it, on exit as on a signal, leaving no
 half-written library (it is renamed into place once whole).
 
+A library is loaded only once it is found whole (`load_cached`, every loader's way in): its compile
+writes the sha256 of it and of its companions (the list of its Functions' names) beside it
+(crashnlp.numerics.compile_job.record_of), and a library that does not match them, has no record or
+fails to load is removed with them, and compiled again as a missing one is.
+
 Once per machine, not once per process: each library has a lock file beside it (LIBRARY.lock;
 `locked`, `try_lock`: flock), held exclusively by its compile from before its source is written
 until the library is renamed into place, so that the workers of a study that all need the same
@@ -24,8 +29,8 @@ Whether a library is being compiled is seen by taking its lock shared for an ins
 (`compiling`): lookers never see each other, and a compile that tries the lock meanwhile
 (`try_lock`) waits the look out instead of giving up; it gives up at once only on a compile.
 
-A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial library stay in
-the cache. The next compile of any library (`start`) removes them: its own library's, under the
+A compile killed by SIGKILL removes nothing: its source (LIBRARY.c) and partial library (or
+record) stay in the cache. The next compile of any library (`start`) removes them: its own library's, under the
 lock it holds, and every other library's whose lock no compile holds, taken shared meanwhile so that
 none starts. A running compile's files are never removed.
 
@@ -47,8 +52,9 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager, nullcontext, suppress
-from functools import cache
+from functools import cache, partial
 from pathlib import Path
+from typing import TypeVar
 
 import casadi as ca
 import numpy as np
@@ -67,6 +73,8 @@ __all__ = [
     "compiled",
     "compiler",
     "compiling",
+    "intact",
+    "load_cached",
     "locked",
     "refused",
     "start",
@@ -85,6 +93,7 @@ DEFAULT_LIMIT_MB = 2048.0
 # C, 150 and more for 47 MB (docs/design-notes.md, "What a compile takes"); the model's functions,
 # compiled at -O2, are kilobytes
 MEMORY_PER_SOURCE_BYTE = 160
+T = TypeVar("T")
 _loaded: dict[str, ca.Function] = {}
 _too_large: set[Path] = set()  # the libraries this process did not compile for want of memory (`start`)
 
@@ -121,15 +130,62 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
     if key not in _loaded:
         library = cache_dir() / f"{fn.name()}-{key}.so"
         try:
-            if not library.exists():
+            load = partial(ca.external, fn.name(), str(library))
+            external = load_cached(library, load)
+            if external is None:
                 with locked(library) as lock:  # another process compiling it: its library, once written
                     if not library.exists():
                         build(cc, _source(fn, jacobian), library, lock)
-            _loaded[key] = ca.external(fn.name(), str(library))
-            used(library)
+                external = load_cached(library, load)
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
+        if external is None:
+            return fn
+        _loaded[key] = external
     return _loaded[key]
+
+
+def load_cached(library: Path, load: Callable[[], T]) -> T | None:
+    """What `load` makes of the cached `library` (ca.external, ctypes.CDLL), the library marked `used`;
+    None where the cache holds none. A library that is not `intact` (truncated, garbled, without its
+    record: a truncated library is mapped whole by the dynamic loader, which dies of SIGBUS where it
+    reads past the end) or that `load` fails on is removed with its companions (`_discard`), so that it
+    is compiled again as a missing one is, and None is returned: the caller stays in the VM meanwhile."""
+    if not library.exists():
+        return None
+    if intact(library):
+        try:
+            loaded = load()
+        except (OSError, RuntimeError):
+            pass
+        else:
+            used(library)
+            return loaded
+    _discard(library)
+    return None
+
+
+def intact(library: Path) -> bool:
+    """Whether `library` and its companions (a library's Functions' names) are what its compile wrote:
+    the record beside them (crashnlp.numerics.compile_job.record_of) gives their sha256 now. Hashing
+    the largest library (some MB) costs milliseconds, once a process."""
+    try:
+        return compile_job.record_of(library).read_text() == compile_job.record(library, library)
+    except (OSError, ValueError):  # no record, or one that is not text
+        return False
+
+
+def _discard(library: Path) -> None:
+    """Remove `library`, its companions and its record (`_files`), unless a compile holds its lock
+    (looked at meanwhile, `_looked_at`: that compile writes them afresh)."""
+    with _looked_at(library) as free:
+        if free:
+            _remove(_files(library))
+
+
+def _files(library: Path) -> list[Path]:
+    """`library` and the files kept beside it that go with it: its companions and its record."""
+    return [library, *compile_job.companions(library), compile_job.record_of(library)]
 
 
 def _source(fn: ca.Function, jacobian: bool) -> str:
@@ -279,13 +335,13 @@ def _remove_leftovers(own: Path) -> None:
 
 
 def _leftovers(own: Path) -> dict[Path, list[Path]]:
-    """The compiles' sources (LIBRARY.c) and partial libraries (crashnlp.numerics.compile_job.partial)
-    in `own`'s folder, by library."""
+    """The compiles' sources (LIBRARY.c), partial libraries and partial records
+    (crashnlp.numerics.compile_job.partial) in `own`'s folder, by library."""
     found: dict[Path, list[Path]] = {}
     for path in own.parent.iterdir():
-        library = path.with_suffix(own.suffix) if path.suffix == ".c" else compile_job.partial_of(path)
-        if library is not None and library.suffix == own.suffix:
-            found.setdefault(library, []).append(path)
+        written = path if path.suffix == ".c" else compile_job.partial_of(path)
+        if written is not None and written.suffix in (".c", compile_job.RECORD, own.suffix):
+            found.setdefault(written.with_suffix(own.suffix), []).append(path)
     return found
 
 
@@ -307,9 +363,9 @@ def cache_limit() -> float:
 
 
 def _make_room(adding: Path) -> None:
-    """Remove the least recently used (`used`) libraries of `adding`'s folder, each with its list of
-    names, and kept files (KEPT: the values of YAML files, stored models, the units table, IPOPT's
-    options), until the folder's files take at most `cache_limit()`: not `adding`, nor a library
+    """Remove the least recently used (`used`) libraries of `adding`'s folder, each with its
+    companions and record (`_files`), and kept files (KEPT: the values of YAML files, stored models,
+    the units table, IPOPT's options), until the folder's files take at most `cache_limit()`: not `adding`, nor a library
     whose lock a compile holds (looked at meanwhile, `_looked_at`, so that none starts). A process
     that has a removed library loaded keeps it; the next that needs it compiles it again, as the
     next that needs a removed kept file makes it again."""
@@ -322,7 +378,7 @@ def _make_room(adding: Path) -> None:
         kept = _kept(path)
         with nullcontext(True) if kept else _looked_at(path) as free:
             if free:
-                gone = [path] if kept else [path, path.with_suffix(".names")]
+                gone = [path] if kept else _files(path)
                 total -= sum(files[p].st_size for p in gone if p in files)
                 _remove(gone)
 

@@ -99,19 +99,21 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
     cc = compiled.compiler(nlp=True) if mode != "never" else None
     library = _library(nlp, "-".join([hessian, *sorted(nlp.extras)]), cc) if cc else None
     with suppress(*COMPILE_ERRORS):
-        if library and (library in _loaded or library.exists()):
-            return _load(library), True
+        if library and (loaded := _load(library)) is not None:
+            return loaded, True
     functions = {**_functions(nlp, hessian), **{name: make() for name, make in nlp.extras.items()}}
     if not (cc and library) or compiled.refused(library):
         return functions, False
     with suppress(*COMPILE_ERRORS):
-        if mode == "now":
-            with compiled.locked(library) as lock:
-                if not library.exists():
-                    _write_names(functions, library)
-                    compiled.build(cc, _source(functions), library, lock, NLP_FLAGS)
-            return _load(library), True
-        _compile_behind(cc, functions, library)
+        if mode != "now":
+            _compile_behind(cc, functions, library)
+            return functions, False
+        with compiled.locked(library) as lock:
+            if not library.exists():
+                _write_names(functions, library)
+                compiled.build(cc, _source(functions), library, lock, NLP_FLAGS)
+        if (loaded := _load(library)) is not None:
+            return loaded, True
     return functions, False
 
 
@@ -169,13 +171,21 @@ def _source(functions: dict[str, ca.Function]) -> str:
     return gen.dump()
 
 
-def _load(library: Path) -> dict[str, ca.Function]:
-    """Every Function of a library (once per process)."""
+def _load(library: Path) -> dict[str, ca.Function] | None:
+    """Every Function of a library (once per process), or None where the cache holds no library
+    that is whole and loads (crashnlp.numerics.compiled.load_cached: one that is not is removed)."""
     if library not in _loaded:
-        names = library.with_suffix(".names").read_text().split()
-        _loaded[library] = {name: ca.external(name, str(library)) for name in names}
-        compiled.used(library)
+        functions = compiled.load_cached(library, lambda: _externals(library))
+        if functions is None:
+            return None
+        _loaded[library] = functions
     return dict(_loaded[library])
+
+
+def _externals(library: Path) -> dict[str, ca.Function]:
+    """The Functions of `library`, by the names beside it (`_write_names`)."""
+    names = library.with_suffix(".names").read_text().split()
+    return {name: ca.external(name, str(library)) for name in names}
 
 
 def compiles_running(cache: Path) -> list[Path]:
