@@ -536,6 +536,58 @@ def test_a_changed_case_is_solved_again(small, tmp_path):
     assert rows[1][PITCH] == "[null, 3 deg]"
 
 
+@pytest.mark.integration
+def test_a_case_whose_data_or_code_changed_is_solved_again_and_the_console_says_what_it_reused(
+    small, tmp_path, capsys, monkeypatch
+):
+    """A run into a study's folder reuses a case only while its problem, its data files' contents
+    and crashnlp are the same (it had reused the cases of the data before an edit, silently)."""
+    from crashnlp.cli import main
+    from crashnlp.studies import run
+
+    folder, out = tmp_path / "study", tmp_path / "out"
+    shutil.copytree(small, folder)  # data of its own to edit
+    args = ["study", str(write_study(folder, sweep={PITCH: BOUNDS[:2]})), "--out", str(out), "--workers", "1", "--no-progress"]
+
+    def again() -> tuple[str, list[str]]:
+        assert main(args) == 0
+        return capsys.readouterr().out, [r["objective"] for r in read_table(out / "table.csv")]
+
+    said, first = again()
+    assert "reused" not in said
+    assert again() == (
+        f"2 of 2 cases reused from {out / 'cases'}/: their problem, data and crashnlp unchanged\n"
+        f"2 of 2 cases ok; wrote {out}/table.csv and {out}/figures/\n",
+        first,
+    )
+    table = read_table(folder / "data.csv")
+    for row in table:
+        row["accel_g"] = str(1.2 * float(row["accel_g"]))
+    with (folder / "data.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, list(table[0]))
+        writer.writeheader()
+        writer.writerows(table)
+    said, edited = again()
+    assert said.startswith("0 of 2 cases reused") and all(a != b for a, b in zip(edited, first))
+    monkeypatch.setattr(run, "code_identity", lambda: "crashnlp edited")
+    said, _ = again()
+    assert said.startswith("0 of 2 cases reused")
+
+
+def test_the_code_a_case_is_keyed_by_changes_with_any_file_of_the_package(tmp_path):
+    """crashnlp's version stays the same while its code changes: the package's files key it too."""
+    from crashnlp.studies.plan import package_digest
+
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "form.py").write_text("a = 1\n")
+    (tmp_path / "__pycache__").mkdir()
+    before = package_digest(tmp_path)
+    (tmp_path / "__pycache__" / "form.cpython-311.pyc").write_bytes(b"compiled")
+    assert package_digest(tmp_path) == before
+    (tmp_path / "models" / "form.py").write_text("a = 2\n")
+    assert package_digest(tmp_path) != before
+
+
 # --------------------------------------------------------------------------- (4) failures
 @pytest.mark.integration
 def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
@@ -616,7 +668,7 @@ def test_a_sweep_of_forms_gives_the_base_problems_engine_to_the_form_that_reads_
     raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
     (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
     forms = ["rigid-body", "engine-on-mounts"]
-    _, cases, raws = _checked_cases(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"model.form": forms}))
+    _, cases, raws, _ = _checked_cases(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"model.form": forms}))
     engines = {raws[c.number]["model"]["form"]: raws[c.number]["vehicle"].get("engine") for c in cases}
     assert engines == {"rigid-body": None, "engine-on-mounts": {"mass": "380 kg"}}
 

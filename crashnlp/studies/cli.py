@@ -31,7 +31,8 @@ Writes OUT/table.csv (one row per case: swept values as written and in SI,
 status, objective, iterations, solve time, metrics, estimated parameters,
 multipliers of the swept constraints = d objective / d bound), OUT/figures/, and
 OUT/cases/ (each case as it finishes). Running again into the same OUT resumes:
-finished cases (also failed ones) are not solved again.
+a finished case (also a failed one) is not solved again while its problem, the
+contents of its data files and crashnlp are unchanged; the run says how many it reused.
 
 Exit status: 0 all cases ok, 1 some case failed, 2 bad input.
 """
@@ -79,6 +80,7 @@ def cmd_study(args) -> int:
         start_early()
     from crashnlp.studies.run import RESULTS, run_study
     from crashnlp.studies.spec import load_study
+    from crashnlp.studies.store import CaseStore
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers: must be at least 1")
@@ -98,12 +100,12 @@ def cmd_study(args) -> int:
             progress=not args.no_progress,
             timeout=args.timeout,
             check=check,
+            tell=print,
         )
     except Interrupted as exc:
-        cases = out / "cases"
-        finished = cases.is_dir() and any(cases.glob("*.json"))
-        kept = f"; finished cases are kept in {cases}/: run the study again to resume"
-        exc.detail = kept if finished else "; no case had finished"
+        cases = CaseStore(out / "cases")
+        kept = f"; finished cases are kept in {cases.folder}/: run the study again to resume"
+        exc.detail = kept if cases.holds_any() else "; no case had finished"
         raise
     if check:
         if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
