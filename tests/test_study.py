@@ -656,6 +656,17 @@ def test_a_swept_entry_of_a_section_the_problem_leaves_out_keeps_its_unit(tmp_pa
     assert entry.unit == "m" and [entry.si(v) for v in entry.values] == pytest.approx([0.45, 0.55])
 
 
+@pytest.mark.parametrize("path", ["vehicle.speed", "tests.0.speed"])
+def test_a_swept_speed_has_its_si_column_and_its_figure_axis(small, path):
+    """vehicle.speed shapes the model (no estimate names it) and a test's speed sits in the list of
+    tests: a sweep of either read no unit, its SI column was empty and its figure counted the values."""
+    study = load_study(write_study(small, sweep={path: ["55 km/h", "57 km/h"]}))
+    (entry,) = study.entries
+    assert [entry.si(v) for v in entry.values] == pytest.approx([55 / 3.6, 57 / 3.6])
+    (job,) = figure_jobs(study, plan_cases(study), [{"status": "ok", "objective": 1.0}] * 2)
+    assert job["x"] == pytest.approx([55 / 3.6, 57 / 3.6]) and job["xlabel"] == f"{path} (m/s)"
+
+
 def test_a_sweep_of_forms_gives_the_base_problems_engine_to_the_form_that_reads_it(tmp_path):
     """The pickup with an engine of its own, swept over the rigid body and the engine form: each
     case is valid (the rigid body's case had been refused for the engine it does not read), the
