@@ -700,6 +700,38 @@ def test_a_swept_entry_the_form_does_not_read_is_refused_before_any_solve(tmp_pa
     assert not (tmp_path / "out").exists()
 
 
+def test_a_swept_speed_every_test_sets_for_itself_is_refused_in_one_line_with_exit_2(tmp_path, capsys):
+    """The shipped design's test sets its own speed: a sweep of vehicle.speed ran N identical cases,
+    each ok (exit 0)."""
+    from crashnlp.cli import main
+
+    study = write_study(
+        tmp_path, problem=str(ROOT / "problems/design-crush-space.yaml"), sweep={"vehicle.speed": ["40 km/h", "56 km/h"]}
+    )
+    assert main(["study", str(study), "--out", str(tmp_path / "out"), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(study) in err
+    assert "vehicle.speed: every test sets its own speed (tests.0.speed)" in err and "leave it out of the sweep" in err
+
+
+def test_a_swept_mass_every_test_sets_for_itself_is_refused_unless_more_of_the_case_reads_it(tmp_path):
+    """The pickup whose test sets its own mass: vehicle.mass reaches nothing else of the pendulum's
+    case, and its sweep is refused; the engine form takes its engine's mass as a share of
+    vehicle.mass, so there the sweep changes the case and stays."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["mass"] = "2700 kg"
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    (tmp_path / "pendulum.yaml").write_text(yaml.safe_dump(raw))
+    raw["model"]["form"] = "engine-on-mounts"
+    raw["estimate"].pop("vehicle.crush_offset")
+    (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
+    sweep = {"vehicle.mass": ["2600 kg", "2700 kg"]}
+    expected = r"sweep: case-000 \(vehicle.mass = 2600 kg\): vehicle.mass: every test sets its own mass \(tests.0.mass\)"
+    with pytest.raises(InputError, match=expected):
+        run_study(write_study(tmp_path, problem=str(tmp_path / "pendulum.yaml"), sweep=sweep), check=True)
+    assert run_study(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep=sweep), check=True) == []
+
+
 def test_a_swept_form_that_does_not_read_an_estimated_entry_is_refused_before_any_solve(tmp_path):
     """The shipped pickup estimates the pendulum's crush offset, which a rigid body does not read:
     its solve refuses that case, so the study's check does too (it said ok, then failed the case)."""

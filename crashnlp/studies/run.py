@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
 RESULTS = Path("results")
+OWN = {"vehicle.speed": "speed", "vehicle.mass": "mass"}  # a vehicle's entries a test may set for itself
 T = TypeVar("T")
 
 
@@ -262,6 +263,7 @@ def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> 
             check_tests(problem, "problem")
             checked.add(tests)
         _check_read(problem, [e.path for e in study.entries], checked)
+        _check_own(problem, [e.path for e in study.entries], checked)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
@@ -289,6 +291,38 @@ def _check_read(problem: Problem, swept: list[str], checked: set[str]) -> None:
             "every case would be the same; leave it out of the sweep"
         )
     checked.add(key)
+
+
+def _check_own(problem: Problem, swept: list[str], checked: set[str]) -> None:
+    """Refuse a swept vehicle.speed or vehicle.mass that every test of the case sets for itself
+    (`OWN`) where nothing else reads it: the case built at another value completes to the same
+    problem, so every case would be the same. Mass may reach more than the tests (an engine's
+    share of it, a nominal damper, default estimate bounds): such a sweep stays. The cases are
+    built once per problem apart from the entry (`checked`)."""
+    from crashnlp.case.case import case_of  # the model: once per problem apart from the entry, not per case
+
+    for path in swept:
+        field = OWN.get(path)
+        if field is None or not all(getattr(test, field) is not None for test in problem.tests):
+            continue
+        key = json.dumps(["own", path, _less(problem, field)], sort_keys=True)
+        if key in checked:
+            continue
+        other = problem.with_values({path: 1.25 * getattr(problem.vehicle, field)})
+        if _less(case_of(problem, "problem").problem, field) == _less(case_of(other, "problem").problem, field):
+            tests = ", ".join(f"tests.{i}.{field}" for i in range(len(problem.tests)))
+            raise InputError(
+                f"{path}: every test sets its own {field} ({tests}) and nothing else reads it: "
+                "every case would be the same; leave it out of the sweep"
+            )
+        checked.add(key)
+
+
+def _less(problem: Problem, field: str) -> dict[str, Any]:
+    """The problem as plain data, less vehicle.`field`."""
+    dumped = problem.model_dump(mode="json")
+    dumped["vehicle"].pop(field)
+    return dumped
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:
