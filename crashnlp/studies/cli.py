@@ -28,7 +28,7 @@ soon as that neighbour is solved. The plan depends only on the case list, so
 every executor and worker count gives the same table.
 
 Writes OUT/table.csv (one row per case: swept values as written and in SI,
-status, objective, iterations, solve time, metrics, estimated parameters,
+status, IPOPT's return status, objective, iterations, solve time, metrics, estimated parameters,
 multipliers of the swept constraints = d objective / d bound), OUT/figures/, and
 OUT/cases/ (each case as it finishes). Running again into the same OUT resumes:
 a finished case (also a failed one) is not solved again while its problem, the
@@ -117,5 +117,6 @@ def cmd_study(args) -> int:
     failed = [r for r in rows if r["status"] != "ok"]
     print(f"{len(rows) - len(failed)} of {len(rows)} cases ok; wrote {out}/table.csv and {out}/figures/")
     for r in failed:
-        print(f"  {r['case']}: {r['status']}")
+        solver = f" (IPOPT {r['return_status']})" if r.get("return_status") else ""
+        print(f"  {r['case']}: {r['status']}{solver}")
     return 1 if failed else 0
