@@ -144,7 +144,7 @@ def _readings(text: str, unit: str) -> list[float]:
     return out
 
 
-def test_files(path: Path) -> list[Path]:
+def mme_files(path: Path) -> list[Path]:
     """The files of the test `path` names: a zip itself, else every file of its folder (`_Store`)."""
     store = _Store(path)
     return [path] if store.zipped else [store.base / name for name in sorted(store.names.values())]

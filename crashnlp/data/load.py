@@ -15,12 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.base.units import G0
-from crashnlp.data import iso_mme, nhtsa_channel
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
 from crashnlp.data.clipping import check_clipped
 from crashnlp.data.csv_reader import read_csv
-from crashnlp.data.iso_mme import read_mme
-from crashnlp.data.nhtsa_channel import read_channel_files
+from crashnlp.data.iso_mme import mme_files, read_mme
+from crashnlp.data.nhtsa_channel import read_channel_files, test_channel_files
 from crashnlp.data.nhtsa_ev5 import curve_files, read_ev5
 from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN, CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
 from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
@@ -35,8 +34,8 @@ READERS: dict[str, Reader] = {
 SOURCES: dict[str, Callable[[Path], list[Path]]] = {  # the files a reader may read for a DataSpec's `file`
     "csv": lambda path: [path],
     "nhtsa-ev5": curve_files,
-    "nhtsa-channel": nhtsa_channel.test_files,
-    "iso-mme": iso_mme.test_files,
+    "nhtsa-channel": test_channel_files,
+    "iso-mme": mme_files,
 }
 BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an offset, removed over `bias_window`
 # t = 0 is the first contact. By LATE_START after it every generated record has lost more than the

@@ -34,7 +34,7 @@ def channel_files(path: Path) -> tuple[str, dict[int, Path]]:
     return test, {number: p for t, number, p in found if t == test}
 
 
-def test_files(path: Path) -> list[Path]:
+def test_channel_files(path: Path) -> list[Path]:
     """Every channel file of the test `path` names (`channel_files`): those its channels may read."""
     return sorted(channel_files(path)[1].values())
 

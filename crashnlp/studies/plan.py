@@ -37,6 +37,7 @@ from typing import Any
 import numpy as np
 
 from crashnlp.base import VERSION
+from crashnlp.base.cache import installed_version
 from crashnlp.base.errors import InputError
 from crashnlp.studies.spec import Study, set_path
 
@@ -202,8 +203,6 @@ def code_identity() -> str:
     """What identifies the code that solves a case: crashnlp's version, the sha256 of its package's
     files (`package_digest`; the version stays the same while the code changes between releases)
     and CasADi's version (IPOPT comes with it). Once per process: about 20 ms."""
-    from crashnlp.base.cache import installed_version
-
     root = Path(__file__).parents[1]
     return f"crashnlp {VERSION} {package_digest(root)}, casadi {installed_version('casadi', 'casadi')}"
 
