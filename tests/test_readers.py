@@ -12,6 +12,7 @@ from crashnlp.analysis.summary import metrics
 from crashnlp.base.units import G0
 from crashnlp.data import DataError, csv_reader, load_test_data
 from crashnlp.data.csv_reader import Table
+from crashnlp.data.load import files_read
 from crashnlp.data.signal import cfc_filter
 from crashnlp.problem.schema import DataSpec, located
 
@@ -767,3 +768,27 @@ def test_plain_reading_gives_what_the_cell_by_cell_reading_gives(tmp_path, monke
     path.write_text(text, encoding="utf-8")
     plain, careful = _read_both(path, monkeypatch)
     assert plain == careful
+
+
+# ---------------------------------------------------------------- the files a reader reads
+def test_every_file_a_reader_reads_is_one_files_read_lists(tmp_path, monkeypatch):
+    """A study keys each case by the contents of the files its data come from (files_read): a
+    file a reader reads that the list left out would let a case be reused after it changed."""
+    _mme_set(tmp_path / "T001")
+    first, _ = channel_export(tmp_path / "export")
+    mme_accel = {"accel": {"code": CODE_X}}
+    specs = [
+        spec(file=PICKUP, channels={"accel": {"column": "accel_x_g", "unit": "g"}}),
+        camry(),
+        spec(file=first, format="nhtsa-channel", channels={"accel": {"curves": [93, 94], "unit": "g"}}),
+        spec(file=tmp_path / "T001", format="iso-mme", channels=mme_accel),
+        spec(file=tmp_path / "T001" / "T001.mme", format="iso-mme", channels=mme_accel),
+    ]
+    read: list[Path] = []
+    read_text = Path.read_text
+    monkeypatch.setattr(Path, "read_text", lambda self, *a, **kw: read.append(self) or read_text(self, *a, **kw))
+    for s in specs:
+        read.clear()
+        load_test_data(s, 15.0)
+        listed = {located(p) for p in files_read(s)}
+        assert read and {located(p) for p in read} <= listed

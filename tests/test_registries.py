@@ -29,7 +29,7 @@ from crashnlp.base.outputs import (
     TABLED,
     current_names,
 )
-from crashnlp.data.load import READERS
+from crashnlp.data.load import READERS, SOURCES
 from crashnlp.data.signal import CFC_CLASSES
 from crashnlp.engine.executors import LocalExecutor, make_executor
 from crashnlp.models.laws import SPRING_LAWS, UNLOADING_LAWS
@@ -41,7 +41,7 @@ from crashnlp.transcription import TRANSCRIPTIONS
 def test_laws_and_formats_hold_the_schemas_names():
     assert tuple(SPRING_LAWS) == tuple(choices.SPRING_LAWS) == get_args(schema.Spring.model_fields["law"].annotation)
     assert tuple(UNLOADING_LAWS) == choices.UNLOADING_LAWS == get_args(schema.Unloading.model_fields["law"].annotation)
-    assert tuple(READERS) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
+    assert tuple(READERS) == tuple(SOURCES) == choices.DATA_FORMATS == get_args(schema.DataSpec.model_fields["format"].annotation)
 
 
 def test_filters_executors_and_design_objectives_hold_the_schemas_names():

@@ -536,6 +536,58 @@ def test_a_changed_case_is_solved_again(small, tmp_path):
     assert rows[1][PITCH] == "[null, 3 deg]"
 
 
+@pytest.mark.integration
+def test_a_case_whose_data_or_code_changed_is_solved_again_and_the_console_says_what_it_reused(
+    small, tmp_path, capsys, monkeypatch
+):
+    """A run into a study's folder reuses a case only while its problem, its data files' contents
+    and crashnlp are the same (it had reused the cases of the data before an edit, silently)."""
+    from crashnlp.cli import main
+    from crashnlp.studies import run
+
+    folder, out = tmp_path / "study", tmp_path / "out"
+    shutil.copytree(small, folder)  # data of its own to edit
+    args = ["study", str(write_study(folder, sweep={PITCH: BOUNDS[:2]})), "--out", str(out), "--workers", "1", "--no-progress"]
+
+    def again() -> tuple[str, list[str]]:
+        assert main(args) == 0
+        return capsys.readouterr().out, [r["objective"] for r in read_table(out / "table.csv")]
+
+    said, first = again()
+    assert "reused" not in said
+    assert again() == (
+        f"2 of 2 cases reused from {out / 'cases'}/: their problem, data and crashnlp unchanged\n"
+        f"2 of 2 cases ok; wrote {out}/table.csv and {out}/figures/\n",
+        first,
+    )
+    table = read_table(folder / "data.csv")
+    for row in table:
+        row["accel_g"] = str(1.2 * float(row["accel_g"]))
+    with (folder / "data.csv").open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, list(table[0]))
+        writer.writeheader()
+        writer.writerows(table)
+    said, edited = again()
+    assert said.startswith("0 of 2 cases reused") and all(a != b for a, b in zip(edited, first))
+    monkeypatch.setattr(run, "code_identity", lambda: "crashnlp edited")
+    said, _ = again()
+    assert said.startswith("0 of 2 cases reused")
+
+
+def test_the_code_a_case_is_keyed_by_changes_with_any_file_of_the_package(tmp_path):
+    """crashnlp's version stays the same while its code changes: the package's files key it too."""
+    from crashnlp.studies.plan import package_digest
+
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "form.py").write_text("a = 1\n")
+    (tmp_path / "__pycache__").mkdir()
+    before = package_digest(tmp_path)
+    (tmp_path / "__pycache__" / "form.cpython-311.pyc").write_bytes(b"compiled")
+    assert package_digest(tmp_path) == before
+    (tmp_path / "models" / "form.py").write_text("a = 2\n")
+    assert package_digest(tmp_path) != before
+
+
 # --------------------------------------------------------------------------- (4) failures
 @pytest.mark.integration
 def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
@@ -546,6 +598,19 @@ def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
     assert status[2].startswith("solver failed")
     table = read_table(tmp_path / "out/table.csv")
     assert len(table) == 4 and table[2]["status"].startswith("solver failed")
+
+
+@pytest.mark.integration
+def test_a_case_ipopt_solved_that_fails_its_check_keeps_ipopts_status_in_the_table_and_the_console(tmp_path, capsys):
+    """The shipped design on 20 intervals: IPOPT solves it, its forward simulation departs from the
+    NLP, and the case fails on that; the table had lost IPOPT's return status."""
+    from crashnlp.cli import main
+
+    study = write_study(tmp_path, problem=str(ROOT / "problems/design-crush-space.yaml"), sweep={"transcription.intervals": [20]})
+    assert main(["study", str(study), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"]) == 1
+    (row,) = read_table(tmp_path / "out/table.csv")
+    assert "the forward simulation departs from the NLP" in row["status"] and row["return_status"] == "Solve_Succeeded"
+    assert f"case-000: {row['status']} (IPOPT Solve_Succeeded)" in capsys.readouterr().out
 
 
 def test_a_failed_case_is_marked_on_the_sweep_figure_at_its_swept_value(small, monkeypatch):
@@ -604,6 +669,17 @@ def test_a_swept_entry_of_a_section_the_problem_leaves_out_keeps_its_unit(tmp_pa
     assert entry.unit == "m" and [entry.si(v) for v in entry.values] == pytest.approx([0.45, 0.55])
 
 
+@pytest.mark.parametrize("path", ["vehicle.speed", "tests.0.speed"])
+def test_a_swept_speed_has_its_si_column_and_its_figure_axis(small, path):
+    """vehicle.speed shapes the model (no estimate names it) and a test's speed sits in the list of
+    tests: a sweep of either read no unit, its SI column was empty and its figure counted the values."""
+    study = load_study(write_study(small, sweep={path: ["55 km/h", "57 km/h"]}))
+    (entry,) = study.entries
+    assert [entry.si(v) for v in entry.values] == pytest.approx([55 / 3.6, 57 / 3.6])
+    (job,) = figure_jobs(study, plan_cases(study), [{"status": "ok", "objective": 1.0}] * 2)
+    assert job["x"] == pytest.approx([55 / 3.6, 57 / 3.6]) and job["xlabel"] == f"{path} (m/s)"
+
+
 def test_a_sweep_of_forms_gives_the_base_problems_engine_to_the_form_that_reads_it(tmp_path):
     """The pickup with an engine of its own, swept over the rigid body and the engine form: each
     case is valid (the rigid body's case had been refused for the engine it does not read), the
@@ -616,7 +692,7 @@ def test_a_sweep_of_forms_gives_the_base_problems_engine_to_the_form_that_reads_
     raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
     (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
     forms = ["rigid-body", "engine-on-mounts"]
-    _, cases, raws = _checked_cases(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"model.form": forms}))
+    _, cases, raws, _ = _checked_cases(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep={"model.form": forms}))
     engines = {raws[c.number]["model"]["form"]: raws[c.number]["vehicle"].get("engine") for c in cases}
     assert engines == {"rigid-body": None, "engine-on-mounts": {"mass": "380 kg"}}
 
@@ -635,6 +711,38 @@ def test_a_swept_entry_the_form_does_not_read_is_refused_before_any_solve(tmp_pa
     with pytest.raises(InputError, match=expected):
         run_study(study, tmp_path / "out", workers=1, progress=False)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_swept_speed_every_test_sets_for_itself_is_refused_in_one_line_with_exit_2(tmp_path, capsys):
+    """The shipped design's test sets its own speed: a sweep of vehicle.speed ran N identical cases,
+    each ok (exit 0)."""
+    from crashnlp.cli import main
+
+    study = write_study(
+        tmp_path, problem=str(ROOT / "problems/design-crush-space.yaml"), sweep={"vehicle.speed": ["40 km/h", "56 km/h"]}
+    )
+    assert main(["study", str(study), "--out", str(tmp_path / "out"), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and str(study) in err
+    assert "vehicle.speed: every test sets its own speed (tests.0.speed)" in err and "leave it out of the sweep" in err
+
+
+def test_a_swept_mass_every_test_sets_for_itself_is_refused_unless_more_of_the_case_reads_it(tmp_path):
+    """The pickup whose test sets its own mass: vehicle.mass reaches nothing else of the pendulum's
+    case, and its sweep is refused; the engine form takes its engine's mass as a share of
+    vehicle.mass, so there the sweep changes the case and stays."""
+    raw = yaml.safe_load((ROOT / "problems/pickup-56kph.yaml").read_text())
+    raw["tests"][0]["mass"] = "2700 kg"
+    raw["tests"][0]["data"]["file"] = str(ROOT / "problems" / raw["tests"][0]["data"]["file"])
+    (tmp_path / "pendulum.yaml").write_text(yaml.safe_dump(raw))
+    raw["model"]["form"] = "engine-on-mounts"
+    raw["estimate"].pop("vehicle.crush_offset")
+    (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
+    sweep = {"vehicle.mass": ["2600 kg", "2700 kg"]}
+    expected = r"sweep: case-000 \(vehicle.mass = 2600 kg\): vehicle.mass: every test sets its own mass \(tests.0.mass\)"
+    with pytest.raises(InputError, match=expected):
+        run_study(write_study(tmp_path, problem=str(tmp_path / "pendulum.yaml"), sweep=sweep), check=True)
+    assert run_study(write_study(tmp_path, problem=str(tmp_path / "engine.yaml"), sweep=sweep), check=True) == []
 
 
 def test_a_swept_form_that_does_not_read_an_estimated_entry_is_refused_before_any_solve(tmp_path):

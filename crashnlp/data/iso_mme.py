@@ -144,6 +144,12 @@ def _readings(text: str, unit: str) -> list[float]:
     return out
 
 
+def mme_files(path: Path) -> list[Path]:
+    """The files of the test `path` names: a zip itself, else every file of its folder (`_Store`)."""
+    store = _Store(path)
+    return [path] if store.zipped else [store.base / name for name in sorted(store.names.values())]
+
+
 def _open(path: Path) -> tuple[_Store, str, str, dict[str, str]]:
     """The test's files, its .mme and .chn names, and its channel numbers by code."""
     store = _Store(path)

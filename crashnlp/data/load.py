@@ -1,14 +1,16 @@
 """Load a test's data as the problem file describes it: read, sign, bias, filter, integrate, window.
 
-A new format is one reader module plus one line in READERS and its name in
+A new format is one reader module plus one line in READERS, one in SOURCES and its name in
 crashnlp.base.choices.DATA_FORMATS (the schema's choices): a reader takes the DataSpec and
-returns the non-derived channels in SI (file sign, unfiltered) and the header meta.
+returns the non-derived channels in SI (file sign, unfiltered) and the header meta; its SOURCES
+entry lists the files it may read for a DataSpec's `file` (`files_read`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -16,9 +18,9 @@ from crashnlp.base.units import G0
 from crashnlp.data.channels import Channel, DataError, TestData, check_sampling, of_key, sample_interval, where
 from crashnlp.data.clipping import check_clipped
 from crashnlp.data.csv_reader import read_csv
-from crashnlp.data.iso_mme import read_mme
-from crashnlp.data.nhtsa_channel import read_channel_files
-from crashnlp.data.nhtsa_ev5 import read_ev5
+from crashnlp.data.iso_mme import mme_files, read_mme
+from crashnlp.data.nhtsa_channel import read_channel_files, test_channel_files
+from crashnlp.data.nhtsa_ev5 import curve_files, read_ev5
 from crashnlp.data.signal import BIAS_LEAST, BIAS_SPAN, CFC_CLASSES, cfc_filter, cut, integrate, remove_bias
 from crashnlp.problem.schema import CHANNEL_UNITS, DEFAULT_FILTER, DataSpec
 
@@ -28,6 +30,12 @@ READERS: dict[str, Reader] = {
     "nhtsa-ev5": read_ev5,
     "nhtsa-channel": read_channel_files,
     "iso-mme": read_mme,
+}
+SOURCES: dict[str, Callable[[Path], list[Path]]] = {  # the files a reader may read for a DataSpec's `file`
+    "csv": lambda path: [path],
+    "nhtsa-ev5": curve_files,
+    "nhtsa-channel": test_channel_files,
+    "iso-mme": mme_files,
 }
 BIASED = ("accel", "barrier_force")  # transducers whose pre-impact mean is an offset, removed over `bias_window`
 # t = 0 is the first contact. By LATE_START after it every generated record has lost more than the
@@ -95,6 +103,12 @@ def _check_offset(at: str, time: np.ndarray, accel: np.ndarray) -> None:
             "(the record's time origin is off)",
             "bias_window",
         )
+
+
+def files_read(spec: DataSpec) -> list[Path]:
+    """Every file the reader of `spec`'s format may read for it (SOURCES): what the test's data
+    come from, so that a study reuses a case only while their contents stay the same."""
+    return SOURCES[spec.format](spec.file)
 
 
 def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:

@@ -34,6 +34,11 @@ def channel_files(path: Path) -> tuple[str, dict[int, Path]]:
     return test, {number: p for t, number, p in found if t == test}
 
 
+def test_channel_files(path: Path) -> list[Path]:
+    """Every channel file of the test `path` names (`channel_files`): those its channels may read."""
+    return sorted(channel_files(path)[1].values())
+
+
 def _numbers(path: Path, name: str, ch: ChannelSpec) -> list[int]:
     """The curve numbers a channel reads: its `curves`, else the number of `file`."""
     if isinstance(ch.curves, list) and ch.curves:

@@ -18,6 +18,7 @@ header says: left out of `all-valid-barrier-fx`, refused where a problem names i
 
 from __future__ import annotations
 
+import glob
 import math
 import re
 from dataclasses import dataclass
@@ -94,6 +95,11 @@ class Curve:
     comment: str
     sensor: str = ""  # field 3, e.g. AC (accelerometer)
     primary: bool = True  # field 19: P primary, R redundant
+
+
+def curve_files(header: Path) -> list[Path]:
+    """The files a test's curves may be read from: the header and every <stem>.NNN beside it."""
+    return [header, *sorted(header.parent.glob(f"{glob.escape(header.stem)}.[0-9][0-9][0-9]"))]
 
 
 def _cards(path: Path) -> dict[str, list[list[str]]]:

@@ -187,12 +187,13 @@ class Strict(Record):
         return _field_unit(type(self), field)
 
 
-def _field_unit(section: type[Record], field: str) -> str | None:
-    """SI unit of a field the type `section` declares, or None for one that is not a quantity."""
+def _field_unit(section: type[Record], field: str, structural: bool = False) -> str | None:
+    """SI unit of a field the type `section` declares, or None for one that is not a quantity; a
+    quantity that shapes the model (`Structural`: vehicle.speed) counts only where `structural`."""
     info = section.model_fields.get(field)
-    if info is None or any(isinstance(m, Structural) for m in info.metadata):
+    if info is None or (not structural and any(isinstance(m, Structural) for m in info.metadata)):
         return None
-    return _find_unit([info.annotation, *info.metadata])
+    return _find_unit([info.annotation, *info.metadata], structural)
 
 
 _S = TypeVar("_S", bound=Strict)
@@ -212,16 +213,17 @@ def with_fields(section: _S, **values: Any) -> _S:
     return section.replaced(values, section.model_fields_set)
 
 
-def _find_unit(items: list[Any]) -> str | None:
-    """Unit marker in a field's annotation, looking through Optional and Annotated."""
+def _find_unit(items: list[Any], structural: bool = False) -> str | None:
+    """Unit marker in a field's annotation, looking through Optional and Annotated; None under a
+    `Structural` marker unless `structural`."""
     for item in items:
-        if isinstance(item, Structural):
+        if isinstance(item, Structural) and not structural:
             return None
         if isinstance(item, Unit):
             return item.si
         args = get_args(item)
         if args:
-            found = _find_unit(list(args) + list(getattr(item, "__metadata__", ())))
+            found = _find_unit(list(args) + list(getattr(item, "__metadata__", ())), structural)
             if found is not None:
                 return found
     return None
@@ -857,11 +859,19 @@ class Problem(Strict):
             raise ValueError(f"estimate.{path}: not a numeric entry of the problem")
         return unit
 
+    def quantity_unit(self, path: str) -> str | None:
+        """SI unit of any quantity the problem file may give at a dotted path, or None for an entry
+        that is no quantity: a parameter's (`unit_at`), and also one that shapes the model
+        (vehicle.speed) or a test's (tests.0.speed), which no estimate names. A study's swept
+        entry is plotted in it."""
+        return _unit_at(dict(self), path, quantity=True)
 
-def _unit_at(sections: Mapping[str, Any], path: str) -> str | None:
+
+def _unit_at(sections: Mapping[str, Any], path: str, quantity: bool = False) -> str | None:
     """SI unit of the numeric entry at a dotted path into a problem's validated sections, or None;
     through a section the problem leaves out (an engine the pendulum's file does not give) by the
-    section's declared type, so that a study may sweep an entry of it with its unit."""
+    section's declared type, so that a study may sweep an entry of it with its unit. `quantity`:
+    any quantity (`Problem.quantity_unit`), through the problem's lists of tests too; else a parameter's."""
     first, _, rest = path.partition(".")
     *parents, leaf = rest.split(".")
     node: Any = sections.get(first)
@@ -869,11 +879,17 @@ def _unit_at(sections: Mapping[str, Any], path: str) -> str | None:
         if isinstance(node, type):
             node = _declared(node, key)
             continue
+        if quantity and isinstance(node, list):
+            node = node[int(key)] if key.isdigit() and int(key) < len(node) else None
+            continue
         child = getattr(node, key, None) if isinstance(node, Record) else None
         node = child if child is not None or not isinstance(node, Record) else _declared(type(node), key)
     if isinstance(node, type):
-        return _field_unit(node, leaf)
-    return node.unit_of(leaf) if isinstance(node, Strict) else None
+        return _field_unit(node, leaf, quantity)
+    if not isinstance(node, Strict):
+        return None
+    unit = node.unit_of(leaf)
+    return unit if unit is not None or not quantity else _field_unit(type(node), leaf, structural=True)
 
 
 def _declared(section: type[Record], key: str) -> type[Strict] | None:

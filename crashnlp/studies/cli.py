@@ -28,10 +28,11 @@ soon as that neighbour is solved. The plan depends only on the case list, so
 every executor and worker count gives the same table.
 
 Writes OUT/table.csv (one row per case: swept values as written and in SI,
-status, objective, iterations, solve time, metrics, estimated parameters,
+status, IPOPT's return status, objective, iterations, solve time, metrics, estimated parameters,
 multipliers of the swept constraints = d objective / d bound), OUT/figures/, and
 OUT/cases/ (each case as it finishes). Running again into the same OUT resumes:
-finished cases (also failed ones) are not solved again.
+a finished case (also a failed one) is not solved again while its problem, the
+contents of its data files and crashnlp are unchanged; the run says how many it reused.
 
 Exit status: 0 all cases ok, 1 some case failed, 2 bad input.
 """
@@ -79,6 +80,7 @@ def cmd_study(args) -> int:
         start_early()
     from crashnlp.studies.run import RESULTS, run_study
     from crashnlp.studies.spec import load_study
+    from crashnlp.studies.store import CaseStore
 
     if args.workers is not None and args.workers < 1:
         raise InputError("--workers: must be at least 1")
@@ -98,12 +100,12 @@ def cmd_study(args) -> int:
             progress=not args.no_progress,
             timeout=args.timeout,
             check=check,
+            tell=print,
         )
     except Interrupted as exc:
-        cases = out / "cases"
-        finished = cases.is_dir() and any(cases.glob("*.json"))
-        kept = f"; finished cases are kept in {cases}/: run the study again to resume"
-        exc.detail = kept if finished else "; no case had finished"
+        cases = CaseStore(out / "cases")
+        kept = f"; finished cases are kept in {cases.folder}/: run the study again to resume"
+        exc.detail = kept if cases.holds_any() else "; no case had finished"
         raise
     if check:
         if args.executor == "dask" and args.address is not None:  # reachable within --timeout?
@@ -115,5 +117,6 @@ def cmd_study(args) -> int:
     failed = [r for r in rows if r["status"] != "ok"]
     print(f"{len(rows) - len(failed)} of {len(rows)} cases ok; wrote {out}/table.csv and {out}/figures/")
     for r in failed:
-        print(f"  {r['case']}: {r['status']}")
+        solver = f" (IPOPT {r['return_status']})" if r.get("return_status") else ""
+        print(f"  {r['case']}: {r['status']}{solver}")
     return 1 if failed else 0

@@ -28,12 +28,16 @@ import hashlib
 import itertools
 import json
 import math
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass
+from functools import cache
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from crashnlp.base import VERSION
+from crashnlp.base.cache import installed_version
 from crashnlp.base.errors import InputError
 from crashnlp.studies.spec import Study, set_path
 
@@ -177,7 +181,35 @@ def case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
     return raw
 
 
-def case_key(raw: dict[str, Any], parent: int | None) -> str:
-    """Fingerprint of what a case computes: a stored case is reused only if it matches."""
-    text = json.dumps({"problem": raw, "parent": parent}, sort_keys=True, default=str)
+def case_key(raw: dict[str, Any], parent: int | None, data: list[tuple[str, str]], code: str) -> str:
+    """Fingerprint of what a case computes: its problem, its parent, every data file it reads (`data`:
+    name and sha256) and the code that solves it (`code_identity`). A stored case
+    is reused only if it matches: a case of edited data or of other code is solved again."""
+    text = json.dumps({"problem": raw, "parent": parent, "data": data, "code": code}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def file_digests(paths: Iterable[Path]) -> dict[Path, str]:
+    """The sha256 of each distinct file's contents, each read once."""
+    digests = {}
+    for path in dict.fromkeys(paths):
+        with path.open("rb") as fh:
+            digests[path] = hashlib.file_digest(fh, "sha256").hexdigest()
+    return digests
+
+
+@cache
+def code_identity() -> str:
+    """What identifies the code that solves a case: crashnlp's version, the sha256 of its package's
+    files (`package_digest`; the version stays the same while the code changes between releases)
+    and CasADi's version (IPOPT comes with it). Once per process: about 20 ms."""
+    root = Path(__file__).parents[1]
+    return f"crashnlp {VERSION} {package_digest(root)}, casadi {installed_version('casadi', 'casadi')}"
+
+
+def package_digest(root: Path) -> str:
+    """The sha256 of every file under `root` (its path and its contents), compiled bytecode left out."""
+    digest = hashlib.sha256()
+    for path in sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts):
+        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()

@@ -5,8 +5,9 @@ Layout of the output folder:
   cases/<id>.npy    its solution vector (warm start for the cases planned after it)
   table.csv         one row per case
   figures/*.png     objective and metrics against each swept entry
-A case whose json exists with a matching fingerprint is never solved again, so
-running a study again into the same folder resumes it.
+A case whose json exists with a matching fingerprint (its problem, its parent, the contents of
+its data files and the code: crashnlp.studies.plan.case_key) is never solved again, so running a
+study again into the same folder resumes it, and solves again what changed.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from tqdm import tqdm
 
 from crashnlp.base.errors import InputError
 from crashnlp.case.checks import check_keys, check_tests
+from crashnlp.data.load import files_read
 from crashnlp.engine import CONNECT_TIMEOUT
 from crashnlp.engine.executors import default_workers, discard_started_clusters, make_executor, start_cluster, start_early
 from crashnlp.engine.schedule import run_tree
@@ -32,7 +34,7 @@ from crashnlp.problem import Problem, problem_from_dict
 from crashnlp.problem.forms import DEFAULT_FORM
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.jsonfile import clean
-from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, plan_cases
+from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, code_identity, file_digests, plan_cases
 from crashnlp.studies.spec import Study, load_study
 from crashnlp.studies.store import CaseStore
 from crashnlp.studies.table import show, write_figures, write_table
@@ -42,6 +44,7 @@ if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
 RESULTS = Path("results")
+OWN = {"vehicle.speed": "speed", "vehicle.mass": "mass"}  # a vehicle's entries a test may set for itself
 T = TypeVar("T")
 
 
@@ -65,12 +68,14 @@ def run_study(
     progress: bool = True,
     timeout: float = CONNECT_TIMEOUT,
     check: bool = False,
+    tell: Callable[[str], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Solve every case not yet finished in `out`, then write table.csv and figures; return the rows.
 
     Every case's problem is validated first, so a bad swept value is an InputError before any
     solve. `check`: stop there (return no rows). A signal stops the workers at once; the cases
-    finished so far stay in `out`/cases, and running again resumes.
+    finished so far stay in `out`/cases, and running again resumes. `tell` (the command: the
+    console) is told how many stored cases a run into a folder holding some reuses.
     """
     if executor == "local" and not check:
         start_early()  # the workers' fork server preloads crashnlp while the cases are checked
@@ -78,28 +83,41 @@ def run_study(
         if executor == "dask" and address is None and not check:
             checking = _in_thread(_checked_cases, path)  # while the LocalCluster starts (it must in the main thread)
             start_cluster(workers or default_workers())
-            study, cases, raws = checking.result()
+            study, cases, raws, files = checking.result()
         else:
-            study, cases, raws = _checked_cases(path)
+            study, cases, raws, files = _checked_cases(path)
         if check:
             return []
         out = Path(out) if out is not None else RESULTS / study.name
         with claim(out, run_name("study", study.name), option=None):
-            return _run(study, cases, raws, out, executor, workers, address, progress, timeout)
+            return _run(study, _Cases(cases, raws, files), out, executor, workers, address, progress, timeout, tell)
     finally:
         discard_started_clusters()  # one not taken: the study was refused, or had fewer cases left than workers
 
 
-def _checked_cases(path: str | Path) -> tuple[Study, list[PlannedCase], dict[int, dict]]:
-    """The study, its cases and their raw problems, every one validated."""
+def _checked_cases(path: str | Path) -> tuple[Study, list[PlannedCase], dict[int, dict], dict[int, tuple[Path, ...]]]:
+    """The study, its cases, their raw problems, every one validated, and the data files each reads."""
     study = load_study(path)
     cases = plan_cases(study)
     reads: dict[str, bool] = {}
     raws = {c.number: _engine_for_its_form(study, _case_problem(study, c), reads) for c in cases}
     checked: set[str] = set()
-    for c in cases:
-        _validate(study, c, raws[c.number], checked)
-    return study, cases, raws
+    listed: dict[tuple[Path, str], list[Path]] = {}
+    files = {c.number: _data_files(_validate(study, c, raws[c.number], checked), listed) for c in cases}
+    return study, cases, raws, files
+
+
+def _data_files(problem: Problem, listed: dict[tuple[Path, str], list[Path]]) -> tuple[Path, ...]:
+    """The files the problem's tests read their data from (crashnlp.data.load.files_read), each
+    test's data file listed once per study (`listed`)."""
+    files: list[Path] = []
+    for test in problem.tests:
+        if test.data is not None:
+            where = (test.data.file, test.data.format)
+            if where not in listed:
+                listed[where] = files_read(test.data)
+            files += listed[where]
+    return tuple(files)
 
 
 def _in_thread(fn: Callable[..., T], *args: Any) -> Future[T]:
@@ -116,21 +134,42 @@ def _in_thread(fn: Callable[..., T], *args: Any) -> Future[T]:
     return future
 
 
+@dataclass(frozen=True)
+class _Cases:
+    """A study's checked cases: their raw problems and the data files each reads, by case number."""
+
+    planned: list[PlannedCase]
+    raws: dict[int, dict]
+    files: dict[int, tuple[Path, ...]]
+
+    def keys(self) -> dict[int, str]:
+        """Every case's fingerprint (crashnlp.studies.plan.case_key), each data file hashed once. A
+        file counts by its name and contents, not its folder: a study moved with its data resumes."""
+        digests = file_digests(f for c in self.planned for f in self.files[c.number])
+        code = code_identity()
+        return {
+            c.number: case_key(self.raws[c.number], c.parent, [(f.name, digests[f]) for f in self.files[c.number]], code)
+            for c in self.planned
+        }
+
+
 def _run(
     study: Study,
-    cases: list[PlannedCase],
-    raws: dict[int, dict],
+    checked: _Cases,
     out: Path,
     executor: str,
     workers: int | None,
     address: str | None,
     progress: bool,
     timeout: float,
+    tell: Callable[[str], None] | None,
 ) -> list[dict[str, Any]]:
     """Solve the cases not yet stored in `out`/cases, then write the table and the figures."""
-    keys = {c.number: case_key(raws[c.number], c.parent) for c in cases}
+    cases, raws, keys = checked.planned, checked.raws, checked.keys()
     store = CaseStore(out / "cases")
     rows = {c.number: row for c in cases if (row := store.row(c.id, keys[c.number])) is not None}
+    if tell is not None and store.holds_any():
+        tell(f"{len(rows)} of {len(cases)} cases reused from {store.folder}/: their problem, data and crashnlp unchanged")
     todo = {c.number: c.parent for c in cases if c.number not in rows}
     pool = make_executor(executor, min(workers or default_workers(), len(todo)), address, timeout) if todo else None
     bar = tqdm(total=len(cases), initial=len(rows), desc=study.name, unit="case", file=sys.stderr, disable=not progress)
@@ -209,11 +248,11 @@ def _engine_for_its_form(study: Study, raw: dict, reads: dict[str, bool]) -> dic
     return raw if reads[form] else {**raw, "vehicle": {k: v for k, v in vehicle.items() if k != "engine"}}
 
 
-def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> None:
-    """Refuse a case whose problem is not valid, whose data contradict it (crashnlp.case.checks),
-    or whose estimate or sweep names an entry its model form does not read (`_check_read`): those of a
-    solve, naming the study file, the case and its values. Data are read once per distinct set of
-    tests, speed and mass, the model built once per form and estimate (`checked`)."""
+def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> Problem:
+    """The case's problem, validated: refuse one that is not valid, whose data contradict it
+    (crashnlp.case.checks), or whose estimate or sweep names an entry its model form does not read
+    (`_check_read`): those of a solve, naming the study file, the case and its values. Data are read
+    once per distinct set of tests, speed and mass, the model built once per form and estimate (`checked`)."""
     values = ", ".join(f"{e.path} = {show(v)}" for e, v in zip(study.entries, case.values))
     try:
         problem = problem_from_dict(raw, study.base_dir, source="problem")
@@ -224,9 +263,11 @@ def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> 
             check_tests(problem, "problem")
             checked.add(tests)
         _check_read(problem, [e.path for e in study.entries], checked)
+        _check_own(problem, [e.path for e in study.entries], checked)
     except InputError as exc:
         detail = str(exc).removeprefix("problem: ")
         raise InputError(f"{study.source}: sweep: {case.id} ({values}): {detail}") from None
+    return problem
 
 
 def _check_read(problem: Problem, swept: list[str], checked: set[str]) -> None:
@@ -250,6 +291,38 @@ def _check_read(problem: Problem, swept: list[str], checked: set[str]) -> None:
             "every case would be the same; leave it out of the sweep"
         )
     checked.add(key)
+
+
+def _check_own(problem: Problem, swept: list[str], checked: set[str]) -> None:
+    """Refuse a swept vehicle.speed or vehicle.mass that every test of the case sets for itself
+    (`OWN`) where nothing else reads it: the case built at another value completes to the same
+    problem, so every case would be the same. Mass may reach more than the tests (an engine's
+    share of it, a nominal damper, default estimate bounds): such a sweep stays. The cases are
+    built once per problem apart from the entry (`checked`)."""
+    from crashnlp.case.case import case_of  # the model: once per problem apart from the entry, not per case
+
+    for path in swept:
+        field = OWN.get(path)
+        if field is None or not all(getattr(test, field) is not None for test in problem.tests):
+            continue
+        key = json.dumps(["own", path, _less(problem, field)], sort_keys=True)
+        if key in checked:
+            continue
+        other = problem.with_values({path: 1.25 * getattr(problem.vehicle, field)})
+        if _less(case_of(problem, "problem").problem, field) == _less(case_of(other, "problem").problem, field):
+            tests = ", ".join(f"tests.{i}.{field}" for i in range(len(problem.tests)))
+            raise InputError(
+                f"{path}: every test sets its own {field} ({tests}) and nothing else reads it: "
+                "every case would be the same; leave it out of the sweep"
+            )
+        checked.add(key)
+
+
+def _less(problem: Problem, field: str) -> dict[str, Any]:
+    """The problem as plain data, less vehicle.`field`."""
+    dumped = problem.model_dump(mode="json")
+    dumped["vehicle"].pop(field)
+    return dumped
 
 
 def _job(study: Study, case: PlannedCase, raw: dict, store: CaseStore, threads: int | None) -> dict[str, Any]:

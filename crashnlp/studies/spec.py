@@ -130,10 +130,7 @@ def _entry(source: Path, path: str, values: list[Any], base: dict, problem: Prob
 def _unit(keys: tuple[Key, ...], problem: Problem) -> str | None:
     if len(keys) == 3 and keys[:2] == ("constraints", "bounds"):
         return OUTPUT_UNITS[str(keys[2])]
-    try:
-        return problem.unit_at(".".join(map(str, keys)))
-    except ValueError:
-        return None
+    return problem.quantity_unit(".".join(map(str, keys)))
 
 
 def resolve_path(path: str, raw: dict) -> tuple[Key, ...] | None:

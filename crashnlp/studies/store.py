@@ -46,6 +46,10 @@ class CaseStore:
             return z is not None or not (self.folder / f"{case}.npy").exists()
         return z is not None and z.size == size
 
+    def holds_any(self) -> bool:
+        """Whether the folder holds a case's json (a run into it reuses or solves again its cases)."""
+        return any(self.folder.glob("*.json"))
+
     def rows(self) -> list[dict]:
         """The row of every case stored whole, in case order, whatever inputs it was computed
         from: what the study's folder shows (its report)."""

@@ -46,9 +46,10 @@ def one_line(exc: BaseException) -> str:
 
 
 def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
-    """Status, solver figures, metrics, parameters and the multipliers of the swept constraints."""
+    """Status, IPOPT's return status and figures, metrics, parameters and the multipliers of the swept constraints."""
     record: dict[str, Any] = {
         "status": result.status,
+        "return_status": result.solver.return_status,  # IPOPT's: a case it solved may still fail a check
         "objective": result.solver.objective,
         "iterations": result.solver.iterations,
         "wall_s": result.solver.wall_s,
