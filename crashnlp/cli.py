@@ -185,7 +185,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
-    from crashnlp.results.result import pull_texts
+    from crashnlp.results.result import pull_texts, unconverged
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -195,14 +195,16 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         f"{result.name}: {result.status} (IPOPT {s.return_status or '-'}, {s.iterations} iterations, "
         f"objective {objective}, {timing})"
     )
+    for line in unconverged(result.status):  # a last iterate: no standard errors, as its report and simulate give none
+        print(f"  {line}")
     for path, value in result.parameters.items():
         text = _numbers(value, 5) + _unit_suffix((units or {}).get(path, ""))
-        if path in result.std_errors:
+        if path in result.std_errors and result.ok:
             text += f"  (std {_numbers(result.std_errors[path], 2, np.inf)})"
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
-    if result.at_bound and result.kind == "identify":
+    if result.at_bound and result.kind == "identify" and result.ok:
         pulls = ", ".join(f"{label} ({pull})" for label, pull in pull_texts(result).items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
     elif result.at_bound:

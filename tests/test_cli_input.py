@@ -315,6 +315,21 @@ def test_a_problem_file_written_in_json_is_simulated_as_its_yaml_twin(tmp_path):
     assert crashnlp.simulate(tmp_path / "p.json")["t"].metrics == pytest.approx(written[1]["tests"]["t"]["metrics"])
 
 
+@pytest.mark.integration
+def test_a_fit_that_did_not_converge_prints_it_first_and_no_standard_errors(tmp_path, capsys):
+    """Its values are a last iterate: the console says so before them and gives them no standard
+    errors or pulls past a bound in them, as its report and `simulate` give none."""
+    given = (ROOT / "problems/pickup-56kph.yaml").read_text().replace("file: data/", f"file: {ROOT}/problems/data/")
+    problem = tmp_path / "stopped.yaml"
+    problem.write_text(given + "solver: {ipopt: {max_iter: 3}}\n")
+    assert main(["identify", str(problem), "--out", str(tmp_path / "out"), "--no-figures"]) == 1
+    printed = capsys.readouterr().out.splitlines()
+    at = next(i for i, line in enumerate(printed) if line.startswith("pickup-56kph: solver failed"))
+    assert printed[at + 1].startswith("  NOT CONVERGED: the fit ended solver failed: Maximum_Iterations_Exceeded")
+    assert printed[at + 2].startswith("  model.spring.values = [")
+    assert not any("(std " in line or "how far past it the data pull" in line for line in printed)
+
+
 def _simulated(tmp_path, name: str, tests: list[str], out) -> int:
     """`crashnlp simulate` of BASE named `name` with tests of 50 ms named `tests`, into `out`."""
     path = tmp_path / f"{name}.yaml"
