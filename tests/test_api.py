@@ -4,6 +4,7 @@ and fast unit tests of the NLP builder and the transcriptions (no IPOPT)."""
 from __future__ import annotations
 
 import json
+import pydoc
 import subprocess
 import sys
 
@@ -92,6 +93,16 @@ def test_result_loads_back_what_it_saved(small_problem, tmp_path):
     np.testing.assert_allclose(t.response["crush"], u.response["crush"], rtol=1e-8, atol=1e-12)
     assert t.energy == pytest.approx(u.energy)
     assert [c.name for c in back.active_constraints] == [c.name for c in result.active_constraints]
+
+
+def test_dir_and_help_list_the_api_the_package_imports_on_first_use():
+    """Tab completion (dir) offers the API and not the package's own imports; help() documents
+    each function and the Result."""
+    names = dir(crashnlp)
+    assert set(crashnlp.__all__) <= set(names) and not {"Any", "TYPE_CHECKING", "annotations"} & set(names)
+    text = pydoc.render_doc(crashnlp, renderer=pydoc.plaintext)
+    for name in crashnlp.__all__:
+        assert f"{name}(" in text, name
 
 
 def test_with_values_returns_a_new_problem_and_leaves_the_old_one(small_problem):
