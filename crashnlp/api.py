@@ -144,10 +144,11 @@ def _with_given(problem: Problem | str | Path, params: Result | dict[str, Any] |
     return (with_parameters(_problem(problem), values, "crashnlp.simulate") if values else _problem(problem)), None
 
 
-def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: Sequence[str] = COMPARED) -> Comparison:
-    """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED) to the problem's tests
-    and choose one by what the fits did not see: leave-one-test-out prediction with two or more
-    tests, BIC with one (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
+def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: str | Sequence[str] = COMPARED) -> Comparison:
+    """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED; a name alone is one
+    form, as `--forms` takes it, and none is refused) to the problem's tests and choose one by
+    what the fits did not see: leave-one-test-out prediction with two or more tests, BIC with one
+    (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
     from crashnlp.optimize.comparison import compare as compare_forms
 
     return compare_forms(_problem(problem), _source(problem), progress, forms)

@@ -251,3 +251,19 @@ def test_compare_refuses_a_form_it_does_not_have_in_one_line(tmp_path, capsys):
 def test_the_api_names_its_own_argument_for_a_form_it_does_not_have():
     with pytest.raises(InputError, match=r"^forms: 'wheel' is none of "):
         crashnlp.compare(BASE_DIR / "pickup-joint.yaml", forms=["rigid-body", "wheel"])
+
+
+def test_the_api_takes_forms_as_the_command_takes_them(monkeypatch):
+    """A name alone is one form, as `--forms pendulum` is (it had been read letter by letter: "'p'
+    is none of ..."), and no form at all is refused in one line naming forms (it had returned an
+    empty comparison with no choice), as the command refuses `--forms` with none."""
+    from crashnlp.optimize import comparison
+
+    problem = BASE_DIR / "pickup-joint.yaml"
+    with pytest.raises(InputError, match=r"^forms: names no model form; give one or more of pendulum, "):
+        crashnlp.compare(problem, forms=[])
+    with pytest.raises(InputError, match=r"^forms: 'wheel' is none of "):
+        crashnlp.compare(problem, forms="wheel")
+    fitted = []
+    monkeypatch.setattr(comparison, "score_form", lambda p, form, *rest: (fitted.append(form) or _score(form, held=1.0), None))
+    assert crashnlp.compare(problem, forms="rigid-body").choice == "rigid-body" and fitted == ["rigid-body"]

@@ -111,6 +111,16 @@ def test_a_prediction_further_than_the_calibration_corpus_went_says_its_form_ter
         assert any(said in n for n in notes) == far, (kmh, notes)
 
 
+def test_a_prediction_past_the_reach_gives_its_interval_parts_as_python_floats(fitted):
+    """Each part of every interval, the force past the reach's too (here it counts: 64 km/h crushes
+    past what the 48 km/h fit reached), is a float as its annotation says, not a numpy scalar."""
+    folder, _, raw, result, _ = fitted
+    test = crashnlp.simulate(_new_speed(folder, raw, 64), params=result)["new"]
+    assert test.parts["peak_decel_g"].past_the_reach > 0
+    for key, shares in test.shares().items():
+        assert all(type(v) is float for part, v in shares.items() if part != "dominant"), (key, shares)
+
+
 def test_the_interval_quantile_is_the_normal_distributions_two_sided_95_percent():
     assert Z95 == NormalDist().inv_cdf(0.975)
 

@@ -518,7 +518,8 @@ def test_the_fit_s_force_crush_table_is_the_loading_curve_the_exports_hand_on(fi
     past = table[:, 0] > tail["start"] + 0.005  # clear of the hinge's smoothing
     assert past.sum() >= 5
     exported = np.interp(table[:, 0], *identified_curves(identified).loading)
-    assert np.max(np.abs(table[:, 1] - exported)) < 0.005 * np.max(exported)
+    clear = np.abs(table[:, 0] - tail["start"]) > 0.005  # the table's row at the start is the hinge's corner, unsmoothed
+    assert np.max(np.abs(table[clear, 1] - exported[clear])) < 0.005 * np.max(exported)
     assert np.diff(table[past, 1]) / np.diff(table[past, 0]) == pytest.approx(tail["slope"], rel=1e-6)  # the tail's line
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import itertools
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -523,6 +524,24 @@ def test_a_swept_entry_that_values_share_is_changed_at_its_place_alone():
     set_path(raw, ("tests", 0, "data", "channels", "accel", "filter"), "CFC180")
     assert [t["data"]["channels"]["accel"]["filter"] for t in raw["tests"]] == ["CFC180", "CFC60"]
     assert channels == {"accel": {"filter": "CFC60"}}
+
+
+@pytest.mark.parametrize("workers", [0, -3, 2.5, "2", True])
+def test_a_number_of_workers_below_one_or_not_whole_is_refused_by_the_api_as_by_the_command(workers, tmp_path, capsys):
+    """crashnlp.study(workers=0) had run on the cores available, -3 failed in min() and 2.5 or "2"
+    deep in the executor: each is now the command's one line, naming workers, before any work."""
+    import crashnlp
+    from crashnlp.cli import main
+
+    study, out = ROOT / "problems/studies/pitch-bound.yaml", tmp_path / "out"
+    with pytest.raises(InputError, match=rf"^workers {re.escape(repr(workers))}: must be a whole number, at least 1$"):
+        crashnlp.study(study, workers=workers, out=out)
+    assert not out.exists()
+    if isinstance(workers, int) and not isinstance(workers, bool):  # what --workers (an int) can be given
+        assert main(["study", str(study), "--out", str(out), "--workers", str(workers), "--no-progress"]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and err.endswith(f" --workers {workers}: must be a whole number, at least 1\n")
+        assert not out.exists()
 
 
 @pytest.mark.integration

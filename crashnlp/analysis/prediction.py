@@ -562,7 +562,7 @@ def past_the_reach(
         half["time_zero_velocity_s"] = stop * half["max_displacement_m"] / travel
     peak = int(np.argmax(-response["accel"]))
     if crush[peak] > reach_m:
-        half["peak_decel_g"] = rate * (crush[peak] - reach_m) / mass / G0
+        half["peak_decel_g"] = rate * (float(crush[peak]) - reach_m) / mass / G0
     return half
 
 

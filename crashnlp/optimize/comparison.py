@@ -135,10 +135,12 @@ def with_form(problem: Problem, form: str, source: str | None = None) -> Problem
 
 
 def compare(
-    problem: Problem, source: str | None = None, progress: TextIO | None = None, forms: Sequence[str] = COMPARED
+    problem: Problem, source: str | None = None, progress: TextIO | None = None, forms: str | Sequence[str] = COMPARED
 ) -> Comparison:
-    """Every one of `forms` fitted to the problem's tests and scored (see the module notes);
-    `source` the file its input errors name, `progress` a stream for a line per fit."""
+    """Every one of `forms` (a name alone is one form, as `--forms pendulum` gives it) fitted to
+    the problem's tests and scored (see the module notes); `source` the file its input errors
+    name, `progress` a stream for a line per fit."""
+    forms = (forms,) if isinstance(forms, str) else tuple(forms)
     check_comparable(problem, source, forms)
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     scores = [score_form(problem, form, source, criterion, progress)[0] for form in dict.fromkeys(forms)]
@@ -148,10 +150,12 @@ def compare(
 
 def check_comparable(problem: Problem, source: str | None, forms: Sequence[str], where: str = "forms") -> None:
     """What `compare` refuses before it fits anything, as an InputError: a problem that is not an
-    identify problem, the first of `forms` (given as `where`) that is no model form, and the
-    problem's own errors (`source` the file they name), before any form's."""
+    identify problem, `forms` (given as `where`) naming none, the first of them that is no model
+    form, and the problem's own errors (`source` the file they name), before any form's."""
     if problem.kind != "identify":
         raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
+    if not forms:
+        raise InputError(f"{where}: names no model form; give one or more of {', '.join(FORMS)}")
     unknown = [form for form in forms if form not in FORMS]
     if unknown:
         raise InputError(f"{where}: {unknown[0]!r} is none of {', '.join(FORMS)}")

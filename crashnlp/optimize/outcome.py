@@ -64,7 +64,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         at_bound={label: _finite_rounded(pull[i]) for i, label in enumerate(labels) if at_bound[i]},
         active_constraints=tuple(active_constraints(solution)) + tuple(_parameter_bounds(solution)),
         tests=tests,
-        force_crush=_force_crush(solution),
+        force_crush=_force_crush(solution, identified),
         profiles=solution.profiles,
         covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
@@ -272,11 +272,18 @@ def _parameter_bounds(solution: Solution) -> list[ActiveConstraint]:
     ]
 
 
-def _force_crush(solution: Solution) -> LoadingCurve:
+def _force_crush(solution: Solution, identified: IdentifiedModel) -> LoadingCurve:
     """The loading curve from zero to just past the largest crush reached, its breakpoints and 95 %
-    band, and each test's measured m |a| against CG travel while loading."""
+    band, and each test's measured m |a| against CG travel while loading. A tail starting short
+    of the curve's end (`identified`'s) gets a crush of its own at its start, where the table
+    force_crush.csv takes the tail's line from (crashnlp.results.result.along_the_tail): the
+    table read back gives the same line."""
     case, p = solution.case, solution.full_parameters()
-    x = np.linspace(0.0, max(solution.reach * 1.05, 1e-3), 201)
+    end = max(solution.reach * 1.05, 1e-3)
+    x = np.linspace(0.0, end, 201)
+    tail = identified.model["spring"].get("tail")
+    if isinstance(tail, dict) and tail["start"] < end:
+        x = np.insert(x, np.searchsorted(x, tail["start"]), tail["start"])  # not union1d: it imports numpy.ma
     curve = case.loading_curve(p)
     bps = solution.breakpoints
     inside = bps[bps <= x[-1]]

@@ -66,8 +66,11 @@ def write_response_csv(path: Path, response: Response, extra: dict[str, np.ndarr
 
 
 def read_columns(path: Path) -> dict[str, np.ndarray]:
-    """The columns of a CSV `write_columns` wrote, by name (a response.csv with any extra columns)."""
-    table = np.genfromtxt(path, delimiter=",", names=True, ndmin=1)
+    """The columns of a CSV `write_columns` wrote, by name (a response.csv with any extra columns),
+    its comment lines skipped (a header line would be read from the first of them)."""
+    with path.open(encoding="utf-8") as fh:
+        lines = [line for line in fh if not line.startswith("#")]
+    table = np.genfromtxt(lines, delimiter=",", names=True, ndmin=1)
     return {name: np.asarray(table[name], dtype=float) for name in table.dtype.names or ()}
 
 

@@ -23,7 +23,7 @@ from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
 from crashnlp.results.identified import EDITED, IdentifiedModel
 from crashnlp.results.jsonfile import write_json
-from crashnlp.results.response import Response, read_response, write_response_csv
+from crashnlp.results.response import Response, read_columns, read_response, write_response_csv
 
 if TYPE_CHECKING:
     from crashnlp.results.plots import Job  # not at run time: matplotlib
@@ -111,6 +111,7 @@ class LoadingCurve:
 
 
 RESULT_FILE = "result.json"  # what `Result.save` writes into a fit's folder, and `Result.load` reads
+FORCE_CRUSH_FILE = "force_crush.csv"  # the loading curve's table beside it
 
 
 def result_file(path: str | Path) -> Path:
@@ -210,12 +211,18 @@ class Result:
 
     @classmethod
     def load(cls, folder: str | Path, file: ResultFile | None = None) -> Result:
-        """A Result read back from a folder `save` wrote (responses from response.csv); `file`, its
-        result.json where the caller has read it already, is not read again. The data and the fitted
-        nodes are not in the folder: each channel's fit keeps its RMSE, sigma and ratings, its node
-        arrays are empty."""
+        """A Result read back from a folder `save` wrote, as its files hold it: result.json's values
+        to its 10 significant digits, each test's response from its response.csv (the outputs
+        with a column there, to 9 digits), the loading curve from force_crush.csv (`_read_curve`);
+        `file`, its result.json where the caller has read it already, is not read again. What the
+        folder does not hold, the loaded Result has not: the data and the fitted nodes (each
+        channel's fit keeps its RMSE, sigma and ratings, its node arrays are empty), the outputs
+        response.csv has no column for, and the NLP's solution vector and inequalities (`z`
+        None, `inequalities` empty). Saved again, it writes the same files, to the digits of the
+        tables, less the residual figures, which need the fitted nodes; its figures show no data."""
         folder = Path(folder)
         raw = (file or ResultFile.read(folder / RESULT_FILE)).current
+        identified = IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None
         tests = {}
         for name, t in raw["tests"].items():
             response = read_response(folder / name / "response.csv", t.get("accel_filter"))
@@ -247,13 +254,14 @@ class Result:
             raw["at_bound"],
             tuple(ActiveConstraint(**c) for c in raw["active_constraints"]),
             tests,
+            force_crush=_read_curve(folder / FORCE_CRUSH_FILE, identified),
             profiles=raw.get("profiles", {}),
             covariance=raw.get("covariance", {}),
             regularization=raw.get("regularization", {}),
             output_bounds={name: (lo, hi) for name, (lo, hi) in raw.get("output_bounds", {}).items()},
             resolution=raw.get("resolution", {}),
             notes=tuple(raw.get("notes", ())),
-            identified=IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None,
+            identified=identified,
         )
 
 
@@ -305,6 +313,21 @@ def pull_texts(result: Result) -> dict[str, str]:
 def loading_curve_name(kind: str) -> str:
     """What a result's loading curve is: identified from data, or designed."""
     return "identified loading curve" if kind == "identify" else "designed loading curve"
+
+
+def _read_curve(file: Path, identified: IdentifiedModel | None) -> LoadingCurve | None:
+    """The loading curve of a force_crush.csv (None without one), its force the table's (past the
+    tail's start, the tail's line), its breakpoints the identified model's within the table's
+    crush, their forces read off the table; no reference, measured pulses or band, which the
+    folder does not hold."""
+    if not file.exists():
+        return None
+    columns = read_columns(file)
+    crush, force = columns["crush_m"], columns["spring_force_N"]
+    spring = identified.model.get("spring", {}) if identified is not None else {}
+    breakpoints = np.asarray(spring.get("crush_breakpoints", ()), dtype=float)
+    inside = breakpoints[breakpoints <= crush[-1]]
+    return LoadingCurve(crush, force, inside, np.interp(inside, crush, force))
 
 
 def _number(value: Any) -> float:
@@ -365,7 +388,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
         fc = result.force_crush
         if fc is not None:
             force = along_the_tail(fc, identified_tail(result), fc.crush)
-            write_columns(out / "force_crush.csv", {"crush_m": fc.crush, "spring_force_N": force}, unconverged(result.status))
+            write_columns(out / FORCE_CRUSH_FILE, {"crush_m": fc.crush, "spring_force_N": force}, unconverged(result.status))
         write_json(out / RESULT_FILE, result.to_json())
         if figures:
             write_figures(result, out)

@@ -78,12 +78,11 @@ def cmd_study(args) -> int:
         require_dask()
     elif not check:
         start_early()
-    from crashnlp.studies.run import RESULTS, run_study
+    from crashnlp.studies.run import RESULTS, checked_workers, run_study
     from crashnlp.studies.spec import load_study
     from crashnlp.studies.store import CaseStore
 
-    if args.workers is not None and args.workers < 1:
-        raise InputError("--workers: must be at least 1")
+    checked_workers(args.workers, "--workers")
     if not (math.isfinite(args.timeout) and 0 < args.timeout <= 3600):
         raise InputError(f"--timeout {args.timeout:g}: must be a number of seconds from 0 to 3600")
     if args.address is not None and args.executor != "dask":

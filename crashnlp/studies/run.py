@@ -13,6 +13,7 @@ study again into the same folder resumes it, and solves again what changed.
 from __future__ import annotations
 
 import json
+import numbers
 import sys
 import threading
 from collections.abc import Callable
@@ -58,6 +59,16 @@ def constraint_names(study: Study) -> list[str]:
     return names
 
 
+def checked_workers(workers: Any, option: str = "workers") -> int | None:
+    """A study's number of worker processes: None (the cores available, default_workers) or a
+    whole number from 1; anything else an InputError naming `option` (the command: --workers)."""
+    if workers is None:
+        return None
+    if isinstance(workers, bool) or not isinstance(workers, numbers.Integral) or workers < 1:
+        raise InputError(f"{option} {workers!r}: must be a whole number, at least 1")
+    return int(workers)
+
+
 # --------------------------------------------------------------------------- the study
 def run_study(
     path: str | Path,
@@ -75,8 +86,10 @@ def run_study(
     Every case's problem is validated first, so a bad swept value is an InputError before any
     solve. `check`: stop there (return no rows). A signal stops the workers at once; the cases
     finished so far stay in `out`/cases, and running again resumes. `tell` (the command: the
-    console) is told how many stored cases a run into a folder holding some reuses.
+    console) is told how many stored cases a run into a folder holding some reuses. `workers`:
+    None (the cores available) or at least 1 (`checked_workers`).
     """
+    workers = checked_workers(workers)
     if executor == "local" and not check:
         start_early()  # the workers' fork server preloads crashnlp while the cases are checked
     try:
