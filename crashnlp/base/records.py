@@ -10,8 +10,9 @@ warm command's time beyond numpy and CasADi (docs/design-notes.md, "The problem 
 
 Unknown keys are refused and a validated record is frozen all the way down: a field declared
 `tuple[X, ...]` holds the data's list as a FrozenList, one declared `Mapping[K, V]` its mapping as a
-FrozenDict, and each dumps as the list or dict it was (a field declared `list` or `dict` holds a
-plain one, which a frozen record does not declare).
+FrozenDict, and each dumps as the list or dict it was. The problem's and the study's records declare
+their lists and mappings so; a field declared `list[X]` or `dict[K, V]` would be validated into a
+plain, changeable one.
 """
 
 from __future__ import annotations
