@@ -2,12 +2,15 @@
 
 from __future__ import annotations
 
+import pickle
+
 import pytest
 import yaml
 from builders import ROOT
 
 from crashnlp.base.records import FrozenError, Record
 from crashnlp.problem import ProblemError, load_problem, problem_from_dict
+from crashnlp.problem.schema import with_fields
 
 PICKUP = ROOT / "problems/pickup-56kph.yaml"
 
@@ -68,6 +71,34 @@ def test_a_validated_problem_is_frozen(section):
     }[section]
     with pytest.raises(FrozenError, match="frozen"):
         setattr(target, field, None)
+
+
+CHANGES_IN_PLACE = {
+    "a damper value": lambda p: p.model.damper.values.__setitem__(0, -5e5),
+    "a spring value": lambda p: p.model.spring.values.__setitem__(1, -1e9),
+    "the breakpoints' order": lambda p: p.model.spring.crush_breakpoints.reverse(),
+    "a test more": lambda p: p.tests.append(p.tests[0]),
+    "an estimate entry": lambda p: p.estimate.pop("vehicle.crush_offset"),
+    "a channel": lambda p: p.tests[0].data.channels.__delitem__("accel"),
+    "an IPOPT option": lambda p: p.solver.ipopt.update(max_iter=1),
+    "a list the code filled in": lambda p: with_fields(p.model.spring, values=[1.0] * 7).values.sort(),
+}
+
+
+@pytest.mark.parametrize("change", list(CHANGES_IN_PLACE))
+def test_a_validated_problem_is_frozen_all_the_way_down(change):
+    problem = load_problem(PICKUP)
+    with pytest.raises(FrozenError, match="frozen.*with_values"):
+        CHANGES_IN_PLACE[change](problem)
+    assert problem == load_problem(PICKUP)
+
+
+def test_a_validated_problem_is_hashable_and_dumps_its_lists_as_lists():
+    problem = load_problem(PICKUP)
+    assert hash(problem) == hash(load_problem(PICKUP)) and pickle.loads(pickle.dumps(problem)) == problem
+    spring = problem.model_dump()["model"]["spring"]
+    assert type(spring["values"]) is list and type(spring["crush_breakpoints"]) is list
+    assert type(problem.model_dump()["estimate"]) is dict
 
 
 def test_with_values_makes_a_changed_copy_that_leaves_unset_entries_unset():

@@ -8,16 +8,20 @@ error types and messages, each at the file's key: a file's errors read as they d
 as a class is defined: pydantic's import and the building of its validators were most of a
 warm command's time beyond numpy and CasADi (docs/design-notes.md, "The problem schema's cost").
 
-Unknown keys are refused and a validated record is frozen.
+Unknown keys are refused and a validated record is frozen all the way down: a field declared
+`tuple[X, ...]` holds the data's list as a FrozenList, one declared `Mapping[K, V]` its mapping as a
+FrozenDict, and each dumps as the list or dict it was. The problem's and the study's records declare
+their lists and mappings so; a field declared `list[X]` or `dict[K, V]` would be validated into a
+plain, changeable one.
 """
 
 from __future__ import annotations
 
 import math
 import types
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Self, Union, get_args, get_origin
+from typing import Annotated, Any, ClassVar, Literal, NoReturn, Self, Union, get_args, get_origin
 
 REQUIRED: Any = object()  # a field's default when the file must give it
 INVALID: Any = object()  # what a value that failed validation becomes (its errors are recorded)
@@ -50,8 +54,66 @@ def error(type: str, loc: tuple[int | str, ...], msg: str, value: Any) -> dict[s
     return {"type": type, "loc": loc, "msg": msg, "input": value}
 
 
-class FrozenError(AttributeError):
-    """An attempt to change a validated record."""
+class FrozenError(AttributeError, TypeError):
+    """An attempt to change a validated record, or a list or mapping of one in place."""
+
+
+FROZEN = "a validated record is frozen (a problem's with_values makes a changed copy)"
+LIST_CHANGES = frozenset(("append", "extend", "insert", "pop", "remove", "clear", "sort", "reverse"))
+
+
+class FrozenList(tuple[Any, ...]):
+    """A list of the data's in a validated record (a field declared `tuple[X, ...]`): a tuple, equal
+    to the list of its items, shown and dumped as the list it was; a list's changes in place are
+    refused as the record's are."""
+
+    def __setitem__(self, index: Any, value: Any) -> NoReturn:
+        raise FrozenError(f"{FROZEN}: its lists are tuples")
+
+    def __delitem__(self, index: Any) -> NoReturn:
+        raise FrozenError(f"{FROZEN}: its lists are tuples")
+
+    def __eq__(self, other: object) -> bool:
+        return tuple.__eq__(self, tuple(other) if isinstance(other, list) else other)
+
+    def __ne__(self, other: object) -> bool:
+        return not self == other
+
+    __hash__ = tuple.__hash__
+
+    def __repr__(self) -> str:
+        return repr(list(self))  # as the file gave it, in messages that show it
+
+    def __getattr__(self, name: str) -> NoReturn:
+        if name in LIST_CHANGES:
+            raise FrozenError(f"{FROZEN}: its lists are tuples, with no {name}")
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+
+
+class FrozenDict(dict[Any, Any]):
+    """A mapping of the data's in a validated record (a field declared `Mapping[K, V]`): a dict, so
+    that JSON, IPOPT's options and `isinstance(..., dict)` take it as one, whose changes are refused."""
+
+    def _refuse(self, *args: Any, **kwargs: Any) -> NoReturn:
+        raise FrozenError(f"{FROZEN}: its mappings are read-only")
+
+    __setitem__ = __delitem__ = __ior__ = clear = pop = popitem = setdefault = update = _refuse
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        return type(self), (dict(self),)  # a pickle or a copy filled in as it is made, not key by key
+
+    def __hash__(self) -> int:  # type: ignore[override]  # dict is unhashable, a frozen one is not
+        return hash(frozenset(self.items()))
+
+
+def frozen(value: Any) -> Any:
+    """`value` with its lists as FrozenLists and its dicts as FrozenDicts, all the way down: a record's
+    field as the code replaces it (`Record.replaced`), frozen as a validated one is."""
+    if isinstance(value, list):
+        return FrozenList(frozen(v) for v in value)
+    if isinstance(value, dict) and not isinstance(value, FrozenDict):
+        return FrozenDict({k: frozen(v) for k, v in value.items()})
+    return value
 
 
 class _Errors:
@@ -205,7 +267,8 @@ def _split(annotation: Any) -> tuple[Any, list[Any]]:
 
 
 class Record:
-    """A section of a file: unknown keys refused, no number that is not finite, frozen once validated."""
+    """A section of a file: unknown keys refused, no number that is not finite, frozen once validated
+    (its lists and mappings too, as the code's replacements of them: `replaced`)."""
 
     model_fields: ClassVar[dict[str, FieldInfo]] = {}
     _field_validators: ClassVar[dict[str, list[_Validator]]] = {}
@@ -259,10 +322,10 @@ class Record:
         return record
 
     def replaced(self, update: dict[str, Any], given: set[str]) -> Self:
-        """A copy with the fields of `update` replaced, unvalidated; `given`: the fields that count
-        as given by the data (model_fields_set)."""
+        """A copy with the fields of `update` replaced, unvalidated but frozen (their lists and dicts
+        as a validated record's); `given`: the fields that count as given by the data (model_fields_set)."""
         record = type(self).__new__(type(self))
-        record.__dict__.update({**self.__dict__, **update})
+        record.__dict__.update({**self.__dict__, **{name: frozen(value) for name, value in update.items()}})
         object.__setattr__(record, "__fields_set__", set(given))
         return record
 
@@ -329,7 +392,7 @@ def _dump(value: Any, mode: str, exclude_none: bool, exclude_unset: bool) -> Any
         return {k: _dump(v, mode, exclude_none, exclude_unset) for k, v in value.items()}
     if isinstance(value, list | tuple):
         items = [_dump(v, mode, exclude_none, exclude_unset) for v in value]
-        return items if isinstance(value, list) or mode == "json" else tuple(items)
+        return items if isinstance(value, list | FrozenList) or mode == "json" else tuple(items)
     if isinstance(value, Path) and mode == "json":
         return str(value)
     return value
@@ -372,7 +435,7 @@ def _record(cls: type[Record], data: Any, loc: tuple, errors: _Errors, context: 
         elif info.is_required():
             errors.add((*loc, name), "missing", "Field required", data)
         else:
-            values[name] = info.get_default()
+            values[name] = frozen(info.get_default())
     for key in data:
         if key not in cls.model_fields or cls.model_fields[key].exclude:
             errors.add((*loc, key), "extra_forbidden", "Extra inputs are not permitted", data[key])
@@ -458,7 +521,7 @@ LIMITS = {
 def _within(info: FieldInfo, value: Any, loc: tuple, errors: _Errors) -> bool:
     """A field's limits: its numbers' bounds, its collections' least length."""
     if info.min_length is not None and isinstance(value, list | dict | tuple) and len(value) < info.min_length:
-        kind = "List" if isinstance(value, list) else "Dictionary" if isinstance(value, dict) else "Tuple"
+        kind = "List" if isinstance(value, list | FrozenList) else "Dictionary" if isinstance(value, dict) else "Tuple"
         items = "item" if info.min_length == 1 else "items"
         msg = f"{kind} should have at least {info.min_length} {items} after validation, not {len(value)}"
         errors.add(loc, "too_short", msg, value)
@@ -487,19 +550,25 @@ def _typed(tp: Any, value: Any, loc: tuple, errors: _Errors, context: Any) -> An
         return _union(tp, value, loc, errors, context)
     if origin is Literal:
         return _literal(tp, value, loc, errors)
-    if origin is list:
+    if origin is list or _listed(tp):
         if not isinstance(value, list | tuple):
             return errors.add(loc, "list_type", "Input should be a valid list", value)
-        return _items([get_args(tp)[0]] * len(value), value, loc, errors, context, list)
+        kind = list if origin is list else FrozenList
+        return _items([get_args(tp)[0]] * len(value), value, loc, errors, context, kind)
     if origin is tuple:
         return _tuple(tp, value, loc, errors, context)
-    if origin is dict:
+    if origin in (dict, Mapping):
         return _dict(tp, value, loc, errors, context)
     if tp is type(None):
         return value if value is None else errors.add(loc, "none_required", "Input should be None", value)
     if isinstance(tp, type) and issubclass(tp, Record):
         return _validate_model(tp, value, loc, errors, context)
     return SCALARS[tp](value, loc, errors)
+
+
+def _listed(tp: Any) -> bool:
+    """Whether `tp` is `tuple[X, ...]`: a record's frozen list of the data's (FrozenList)."""
+    return get_origin(tp) is tuple and get_args(tp)[1:] == (Ellipsis,)
 
 
 def _items(types_: list[Any], value: Any, loc: tuple, errors: _Errors, context: Any, kind: type) -> Any:
@@ -531,7 +600,7 @@ def _dict(tp: Any, value: Any, loc: tuple, errors: _Errors, context: Any) -> Any
         item = _typed(value_type, v, (*loc, k), errors, context)
         bad = bad or key is INVALID or item is INVALID
         out[key] = item
-    return INVALID if bad else out
+    return INVALID if bad else out if get_origin(tp) is dict else FrozenDict(out)
 
 
 def _union(tp: Any, value: Any, loc: tuple, errors: _Errors, context: Any) -> Any:
@@ -744,7 +813,7 @@ def _schema(tp: Any, metadata: list[Any], defs: dict[str, Any]) -> dict[str, Any
         kinds = {JSON_TYPES.get(type(v)) for v in values}
         kind = {"type": kinds.pop()} if len(kinds) == 1 else {}
         return {"const": values[0], **kind} if len(values) == 1 else {"enum": values, **kind}
-    if origin is list:
+    if origin is list or _listed(tp):
         return {"items": _schema(get_args(tp)[0], [], defs), "type": "array"}
     if origin is tuple:
         args = get_args(tp)
@@ -754,7 +823,7 @@ def _schema(tp: Any, metadata: list[Any], defs: dict[str, Any]) -> dict[str, Any
             "prefixItems": [_schema(a, [], defs) for a in args],
             "type": "array",
         }
-    if origin is dict:
+    if origin in (dict, Mapping):
         key, value = get_args(tp)
         names = {"propertyNames": {"enum": list(get_args(key))}} if get_origin(key) is Literal else {}
         return {"additionalProperties": True if value is Any else _schema(value, [], defs), **names, "type": "object"}

@@ -155,7 +155,7 @@ class Resolution:
         )
 
 
-def resolution(pulses: list[Pulse], given: list[float] | int | None = None) -> tuple[list[float], Resolution]:
+def resolution(pulses: list[Pulse], given: Sequence[float] | int | None = None) -> tuple[list[float], Resolution]:
     """The breakpoints (`given` as a list, else `given` of them, else as many as the data
     choose) and how they follow the pulses' loading curve. Placed breakpoints run from 0 to
     REACH times the largest crush of all pulses, where their measured loading curve (m |a|
@@ -167,8 +167,8 @@ def resolution(pulses: list[Pulse], given: list[float] | int | None = None) -> t
         chosen = bends(crush, force, top, count)
         if misfit(crush, force, top, chosen) <= LEVEL * mass:
             break
-    placed = given if isinstance(given, list) else bends(crush, force, top, given) if given is not None else chosen
-    how: Literal["data", "count", "list"] = "list" if isinstance(given, list) else "count" if given is not None else "data"
+    placed = bends(crush, force, top, given) if isinstance(given, int) else list(given) if given is not None else chosen
+    how: Literal["data", "count", "list"] = "count" if isinstance(given, int) else "list" if given is not None else "data"
     return placed, Resolution(len(placed), how, misfit(crush, force, top, placed) / mass, LEVEL, len(chosen))
 
 
@@ -179,7 +179,7 @@ def loading_curve(pulses: list[Pulse], damper: Damper | None = None) -> tuple[np
     return crush, force
 
 
-def measured_force(bps: list[float], pulses: list[Pulse], damper: Damper | None = None) -> np.ndarray:
+def measured_force(bps: Sequence[float], pulses: list[Pulse], damper: Damper | None = None) -> np.ndarray:
     """Mean measured spring force while loading over the crush band nearest each breakpoint."""
     crush, force = loading_curve(pulses, damper)
     edges = np.concatenate([[-np.inf], 0.5 * (np.asarray(bps[1:]) + np.asarray(bps[:-1])), [np.inf]])
@@ -200,7 +200,7 @@ def _damper_force(damper: Damper | None, rate: np.ndarray) -> np.ndarray:
     return np.interp(np.abs(rate), damper.rate_breakpoints, damper.values) * np.maximum(rate, 0.0)
 
 
-def spring_values(bps: list[float], pulses: list[Pulse], law: str, damper: Damper | None) -> list[float]:
+def spring_values(bps: Sequence[float], pulses: list[Pulse], law: str, damper: Damper | None) -> list[float]:
     """Initial spring values at the breakpoints from the measured force-crush curve."""
     force = measured_force(bps, pulses, damper)
     if law == "force":
@@ -272,7 +272,7 @@ def complete(problem: Problem, pulses: list[Pulse]) -> tuple[Problem, Resolution
     set_in_model: dict[str, Damper] = {}
     given = spring.crush_breakpoints
     placed: Resolution | None = None
-    if pulses or not isinstance(given, list):
+    if pulses or not isinstance(given, tuple):
         count = given.count if isinstance(given, BreakpointCount) else given
         bps, placed = resolution(_required(pulses, "model.spring.crush_breakpoints"), count)
         spring = spring.model_copy(update={"crush_breakpoints": bps})

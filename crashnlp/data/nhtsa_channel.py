@@ -41,7 +41,7 @@ def test_channel_files(path: Path) -> list[Path]:
 
 def _numbers(path: Path, name: str, ch: ChannelSpec) -> list[int]:
     """The curve numbers a channel reads: its `curves`, else the number of `file`."""
-    if isinstance(ch.curves, list) and ch.curves:
+    if isinstance(ch.curves, tuple) and ch.curves:
         return list(ch.curves)
     named = CHANNEL_FILE.fullmatch(path.name)
     if ch.curves is None and named is not None:

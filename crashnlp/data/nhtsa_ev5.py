@@ -285,7 +285,7 @@ def _read_curves(header: Path, curves: dict[int, Curve], name: str, ch: ChannelS
         left_out += [f"{c.number:03d} ({why}: {c.comment})" for c, why in flat]
         dropped = "; ".join(left_out) or "none"
         return live, f"{name}: {len(live)} barrier Fx load cells summed; dropped as not valid: {dropped}"
-    if not isinstance(ch.curves, list) or not ch.curves:
+    if not isinstance(ch.curves, tuple) or not ch.curves:
         raise DataError(f"{where(header, name)}: no curves given (an EV5 channel needs `curves`)")
     return _read_named(header, curves, list(ch.curves), name), None
 

@@ -24,7 +24,7 @@ def _walk(node: Record, prefix: str):
         if isinstance(value, Record):
             yield from _walk(value, path)
         elif isinstance(node, Strict) and node.unit_of(name) is not None and value is not None:
-            if isinstance(value, list) or isinstance(value, (int, float)) and not isinstance(value, bool):
+            if isinstance(value, tuple) or isinstance(value, (int, float)) and not isinstance(value, bool):
                 yield path, value
 
 

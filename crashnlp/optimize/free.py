@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -27,7 +28,7 @@ class FreeEntry:
 class FreeParameters:
     """Maps theta (the estimated entries) into the full parameter vector."""
 
-    def __init__(self, layout: ParameterLayout, base: np.ndarray, estimate: dict[str, EstimateSpec]):
+    def __init__(self, layout: ParameterLayout, base: np.ndarray, estimate: Mapping[str, EstimateSpec]):
         self.layout, self.base = layout, np.asarray(base, dtype=float)
         self.entries: list[FreeEntry] = []
         i = 0

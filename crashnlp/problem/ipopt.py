@@ -16,6 +16,7 @@ import io
 import json
 import math
 import re
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from functools import cache
 from pathlib import Path
@@ -71,7 +72,7 @@ class IpoptOption:
         return f"{lower}{name}{upper}"
 
 
-def check_ipopt(options: dict[str, Any]) -> dict[str, str]:
+def check_ipopt(options: Mapping[str, Any]) -> dict[str, str]:
     """Each entry of `options` that IPOPT would refuse -> why (a wrong name, with the closest
     valid one; a value of the wrong type, out of range or not among the settings)."""
     if not options:

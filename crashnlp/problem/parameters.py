@@ -27,7 +27,7 @@ def with_parameters(problem: Problem, params: Mapping[str, Any], source: str) ->
             raise InputError(f"{source}: parameters.{path}: not a parameter of {problem.name}") from None
         current = problem.value_at(path)
         size, given = (
-            (len(current) if isinstance(current, list) else 1),
+            (len(current) if isinstance(current, tuple) else 1),
             (len(value) if isinstance(value, (list, tuple, np.ndarray)) else 1),
         )
         if given != size:

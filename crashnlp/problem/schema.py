@@ -229,7 +229,7 @@ def _find_unit(items: list[Any], structural: bool = False) -> str | None:
     return None
 
 
-def _increasing(values: list[float], what: str) -> list[float]:
+def _increasing(values: tuple[float, ...], what: str) -> tuple[float, ...]:
     if len(values) < 2:
         raise ValueError(f"{what} needs at least two breakpoints")
     if any(b <= a for a, b in zip(values, values[1:])):
@@ -326,10 +326,10 @@ class Spring(Strict):
     law: SpringLawName = Field(  # type: ignore[valid-type]
         "force", description="force: F(x) piecewise linear; secant: F = k(x) x, k piecewise linear (paper Eq. 1)"
     )
-    crush_breakpoints: list[Length] | BreakpointCount | None = Field(
+    crush_breakpoints: tuple[Length, ...] | BreakpointCount | None = Field(
         None, description="crush at the breakpoints; omitted or {count: N}: placed over the data's crush range"
     )
-    values: list[Annotated[SIValue, AfterValidator(_not_negative)]] | None = Field(
+    values: tuple[Annotated[SIValue, AfterValidator(_not_negative)], ...] | None = Field(
         None, description="forces (law force) or secant stiffnesses (law secant); omitted: from the measured force-crush curve"
     )
     tail: Annotated[
@@ -357,14 +357,14 @@ class Spring(Strict):
 
     @field_validator("crush_breakpoints")
     @classmethod
-    def _bp(cls, v: list[float] | BreakpointCount | None) -> list[float] | BreakpointCount | None:
-        return _increasing(v, "crush_breakpoints") if isinstance(v, list) else v
+    def _bp(cls, v: tuple[float, ...] | BreakpointCount | None) -> tuple[float, ...] | BreakpointCount | None:
+        return _increasing(v, "crush_breakpoints") if isinstance(v, tuple) else v
 
     @model_validator(mode="after")
     def _values(self) -> Self:
         if self.values is None:
             return self
-        if not isinstance(self.crush_breakpoints, list):
+        if not isinstance(self.crush_breakpoints, tuple):
             raise ValueError("values need crush_breakpoints given as a list")
         if len(self.values) != len(self.crush_breakpoints):
             raise ValueError(f"values has {len(self.values)} entries but crush_breakpoints has {len(self.crush_breakpoints)}")
@@ -374,26 +374,26 @@ class Spring(Strict):
         return SPRING_LAWS[self.law] if field == "values" else super().unit_of(field)
 
     @property
-    def placed_breakpoints(self) -> list[float]:
+    def placed_breakpoints(self) -> tuple[float, ...]:
         """The crush breakpoints, once placed: a Case places them over the data's crush range when the
         file gives none or a count (crashnlp.case.completion)."""
-        if not isinstance(self.crush_breakpoints, list):
+        if not isinstance(self.crush_breakpoints, tuple):
             raise RuntimeError("model.spring.crush_breakpoints: not placed yet (a Case places them from the data)")
         return self.crush_breakpoints
 
     @property
-    def known_values(self) -> list[float]:
+    def known_values(self) -> tuple[float, ...]:
         """The spring values, once known: a Case takes them from the measured force-crush curve when the file leaves them out."""
         return _filled_in(self.values, "model.spring.values")
 
 
 class Damper(Strict):
-    rate_breakpoints: list[Speed]
-    values: list[Annotated[Damping, AfterValidator(_not_negative)]]
+    rate_breakpoints: tuple[Speed, ...]
+    values: tuple[Annotated[Damping, AfterValidator(_not_negative)], ...]
 
     @field_validator("rate_breakpoints")
     @classmethod
-    def _bp(cls, v: list[float]) -> list[float]:
+    def _bp(cls, v: tuple[float, ...]) -> tuple[float, ...]:
         return _increasing(v, "rate_breakpoints")
 
     @model_validator(mode="after")
@@ -474,7 +474,7 @@ class TimeColumn(Strict):
 
 class ChannelSpec(Strict):
     column: str | Index | None = Field(None, description="CSV column: its name in the header, or its number counted from 1")
-    curves: list[Index] | AllBarrierFx | None = Field(
+    curves: tuple[Index, ...] | AllBarrierFx | None = Field(
         None,
         description="NHTSA EV5 curve numbers, or the numbers CCC of NHTSA channel files vNNNNNtsv.CCC, averaged"
         " (barrier_force: summed); all-valid-barrier-fx: every valid barrier Fx load cell of an EV5 test",
@@ -534,7 +534,7 @@ class DataSpec(Strict):
     bias_window: tuple[Time, Time] | None = Field(
         None, description="pre-impact samples (ending at t = 0 or before), their mean removed"
     )
-    channels: dict[ChannelName, ChannelSpec]
+    channels: Mapping[ChannelName, ChannelSpec]
 
     @model_validator(mode="before")
     @classmethod
@@ -621,7 +621,7 @@ OutputName = Literal[BOUNDED]  # type: ignore[valid-type]
 class EstimateSpec(Strict):
     """How an entry is estimated: its start, bounds and scale, in the unit of the entry it names."""
 
-    initial: SIValue | list[SIValue] | None = Field(None, description="default: the value in the problem")
+    initial: SIValue | tuple[SIValue, ...] | None = Field(None, description="default: the value in the problem")
     bounds: Bound | None = None
     prior_scale: SIValue | None = Field(None, description="scale of the decision variable; default from bounds")
 
@@ -637,7 +637,7 @@ def _bound_in_si(bound: Any, unit: str | None) -> Any:
 class Constraints(Strict):
     monotone_crush: bool = Field(False, description="crush does not decrease until its maximum")
     monotone_spring: bool = Field(False, description="spring values non-decreasing")
-    bounds: dict[OutputName, Bound] = Field(default_factory=dict)
+    bounds: Mapping[OutputName, Bound] = Field(default_factory=dict)
 
     @model_validator(mode="before")
     @classmethod
@@ -682,7 +682,7 @@ TranscriptionSpec = Annotated[MultipleShootingSpec | CollocationSpec, Field(disc
 
 
 class Solver(Strict):
-    ipopt: dict[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
+    ipopt: Mapping[str, Any] = Field(default_factory=dict, description="options passed to IPOPT")
     hessian: Literal["auto", "exact", "gauss-newton", "limited-memory"] = Field(
         "auto", description="auto: Gauss-Newton for a least-squares fit (loss l2), exact otherwise"
     )
@@ -695,7 +695,7 @@ class Solver(Strict):
 
     @field_validator("ipopt")
     @classmethod
-    def _ipopt(cls, v: dict[str, Any]) -> dict[str, Any]:
+    def _ipopt(cls, v: Mapping[str, Any]) -> Mapping[str, Any]:
         """Refuse what IPOPT would refuse, each error at its key (solver.ipopt.max_itr)."""
         errors = [error("ipopt_option", (name,), why, v[name]) for name, why in check_ipopt(v).items()]
         if errors:
@@ -709,7 +709,7 @@ Executor = Literal[EXECUTORS]  # type: ignore[valid-type]  # crashnlp.base.choic
 class Uncertainty(Strict):
     """Profile-likelihood intervals, beyond the sandwich standard errors, for chosen parameters."""
 
-    profile: list[str] = Field(
+    profile: tuple[str, ...] = Field(
         default_factory=list,
         description="estimated entries to profile, e.g. vehicle.cg_above_impact or model.spring.values[2]",
     )
@@ -737,8 +737,8 @@ class Design(Strict):
 
 
 class ForceCrush(Strict):
-    crush: list[Length]
-    force: list[Force]
+    crush: tuple[Length, ...]
+    force: tuple[Force, ...]
 
     @model_validator(mode="after")
     def _same_length(self) -> Self:
@@ -761,7 +761,7 @@ class Problem(Strict):
     kind: Literal["identify", "design"] = "identify"
     vehicle: Vehicle
     model: Model
-    tests: list[Test] = Field(min_length=1)
+    tests: tuple[Test, ...] = Field(min_length=1)
     constraints: Constraints = Constraints()
     objective: Objective = Objective()
     transcription: TranscriptionSpec = Field(default_factory=lambda: MultipleShootingSpec(method="multiple-shooting"))
@@ -771,7 +771,7 @@ class Problem(Strict):
     design: Design | None = None
     reference: Reference = Reference()
     base_dir: Path = Field(Path("."), exclude=True)  # where its relative paths start: problem_from_dict's, never a file's
-    estimate: dict[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
+    estimate: Mapping[str, EstimateSpec] = Field(default_factory=dict)  # last: it takes the units of the entries it names
 
     @field_validator("estimate", mode="before")
     @classmethod
@@ -813,7 +813,7 @@ class Problem(Strict):
             raise ValueError(f"estimate.{path}.bounds: lower bound above upper bound")
         given = spec.initial is not None
         value = spec.initial if given else self.value_at(path)
-        values = value if isinstance(value, list) else [value]
+        values = value if isinstance(value, tuple) else [value]
         outside = [v for v in values if isinstance(v, (int, float)) and not lo <= v <= hi]
         if outside:
             where = "initial" if given else f"the problem's value of {path}"
@@ -879,7 +879,7 @@ def _unit_at(sections: Mapping[str, Any], path: str, quantity: bool = False) -> 
         if isinstance(node, type):
             node = _declared(node, key)
             continue
-        if quantity and isinstance(node, list):
+        if quantity and isinstance(node, tuple):
             node = node[int(key)] if key.isdigit() and int(key) < len(node) else None
             continue
         child = getattr(node, key, None) if isinstance(node, Record) else None

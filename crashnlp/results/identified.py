@@ -385,8 +385,8 @@ def _differs(mine: Any, theirs: Any) -> bool:
 
     if isinstance(mine, BreakpointCount):
         return not isinstance(theirs, list) or mine.count != len(theirs)
-    if isinstance(mine, list) or isinstance(theirs, list):
-        return not isinstance(mine, list) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+    if isinstance(mine, tuple) or isinstance(theirs, list):
+        return not isinstance(mine, tuple) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
     return mine != theirs
 
 

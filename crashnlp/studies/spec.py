@@ -8,6 +8,7 @@ every case fail.
 
 import copy
 import types
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Annotated, Any, Literal, Self, Union, get_args, get_origin
@@ -27,11 +28,11 @@ class StudySpec(Record):
 
     name: FolderName
     problem: Path = Field(description="base problem file, relative to the study file")
-    sweep: dict[str, Annotated[list[Any], Field(min_length=1)]] = Field(
+    sweep: Mapping[str, Annotated[tuple[Any, ...], Field(min_length=1)]] = Field(
         min_length=1, description="dotted path into the problem -> the values it takes"
     )
     mode: Literal["grid", "zip"] = Field("grid", description="grid: all combinations; zip: the i-th values together")
-    seeds: list[int] | None = Field(
+    seeds: tuple[int, ...] | None = Field(
         None, description="case numbers (0-based) solved cold; default the corners of the grid (zip: both ends)"
     )
     max_depth: int | None = Field(
@@ -120,7 +121,7 @@ def load_study(path: str | Path) -> Study:
     )
 
 
-def _entry(source: Path, path: str, values: list[Any], base: dict, problem: Problem) -> SweepEntry:
+def _entry(source: Path, path: str, values: tuple[Any, ...], base: dict, problem: Problem) -> SweepEntry:
     keys = resolve_path(path, base)
     if keys is None:
         raise InputError(f"{source}: sweep.{path}: not an entry of the problem schema")
@@ -150,7 +151,7 @@ def _resolve(tp: Any, parts: list[str], node: Any) -> list[Key] | None:
     tp = _unwrap(tp)
     origin = get_origin(tp)
     runs = [1]
-    if origin is dict and get_args(tp)[0] is str:
+    if origin in (dict, Mapping) and get_args(tp)[0] is str:
         present = [n for n in range(len(parts), 0, -1) if isinstance(node, dict) and ".".join(parts[:n]) in node]
         runs = present + [n for n in range(1, len(parts) + 1) if n not in present]
     for n in runs:
@@ -192,7 +193,7 @@ def _child(tp: Any, key: str) -> Any:
     if isinstance(tp, type) and issubclass(tp, Record):
         info = tp.model_fields.get(key)
         return None if info is None or info.exclude else info.annotation
-    if origin is dict:
+    if origin in (dict, Mapping):
         k, v = get_args(tp)
         allowed = get_args(_unwrap(k)) if get_origin(_unwrap(k)) is Literal else None
         return v if allowed is None or key in allowed else None
