@@ -19,6 +19,7 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
 
+from crashnlp.base.errors import InputError
 from crashnlp.problem import Problem, load_problem
 from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
@@ -31,16 +32,23 @@ if TYPE_CHECKING:
 
 def load(path: str | Path) -> Problem:
     """A problem file, validated (units converted to SI, data files checked)."""
-    return load_problem(path)
+    return load_problem(_path(path, "the path of a problem file"))
+
+
+def _path(given: object, expected: str) -> str | Path:
+    """`given`, a path; TypeError naming what was `expected` for anything else (a dict, None)."""
+    if not isinstance(given, (str, Path)):
+        raise TypeError(f"expected {expected} (str or Path), got {type(given).__name__}")
+    return given
 
 
 def _problem(problem: Problem | str | Path) -> Problem:
-    return problem if isinstance(problem, Problem) else load_problem(problem)
+    return problem if isinstance(problem, Problem) else load_problem(_path(problem, "a Problem or the path of a problem file"))
 
 
 def _source(problem: Problem | str | Path) -> str | None:
     """The file a problem was given as, which its input errors name (None: the problem's name)."""
-    return None if isinstance(problem, Problem) else str(problem)
+    return None if isinstance(problem, Problem) else str(_path(problem, "a Problem or the path of a problem file"))
 
 
 def _solve(problem: Problem | str | Path, kind: str, verbose: bool, progress: TextIO | None) -> Result:
@@ -51,7 +59,7 @@ def _solve(problem: Problem | str | Path, kind: str, verbose: bool, progress: Te
     validated = _problem(problem)
     if validated.kind != kind:
         other = "design" if kind == "identify" else "identify"
-        raise ValueError(f"{validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
+        raise InputError(f"{_source(problem) or validated.name}: kind is {validated.kind!r}; use crashnlp.{other}")
     return solve_problem(validated, _source(problem), verbose, progress)
 
 
@@ -102,13 +110,18 @@ def simulate(
     from crashnlp.results.params import given_result, with_params
     from crashnlp.results.source import simulation_source
 
+    if params is not None and not isinstance(params, (Result, str, Path, dict)):
+        raise TypeError(
+            "crashnlp.simulate: params: expected a Result, a result.json or its folder (str or Path), or a dict "
+            f"of dotted paths to values, got {type(params).__name__}"
+        )
     step = output_step(dt)
     new_speed, new_mass = what_if(speed, mass)
     source = None if isinstance(problem, Result) else _source(problem)
     given = given_result(source) if source is not None else None
     if isinstance(problem, Result):
         if params is not None:
-            raise ValueError("simulate: a Result is simulated alone (its own tests), or as params of a problem")
+            raise InputError("crashnlp.simulate: a Result is simulated alone (its own tests), or as params of a problem")
         simulated, identified = own_tests(problem, problem.name), problem.identified
         record = simulation_source(None, problem)
     elif given is not None:

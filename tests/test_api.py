@@ -20,8 +20,8 @@ import crashnlp
 from crashnlp.base.errors import InputError
 from crashnlp.cli import main
 from crashnlp.numerics.nlp import DYNAMICS, NLPBuilder
-from crashnlp.problem import problem_from_dict
-from crashnlp.results.result import VOLATILE
+from crashnlp.problem import ProblemError, problem_from_dict
+from crashnlp.results.result import VOLATILE, Result, SolverStats
 
 
 @pytest.fixture(scope="module")
@@ -136,8 +136,92 @@ def test_with_values_returns_a_new_problem_and_leaves_the_old_one(small_problem)
     problem = crashnlp.load(small_problem)
     faster = problem.with_values({"vehicle.speed": "64 km/h"})
     assert faster.vehicle.speed == pytest.approx(64 / 3.6) and problem.vehicle.speed == pytest.approx(56 / 3.6)
-    with pytest.raises(KeyError):
+    with pytest.raises(InputError, match="^with_values: vehicle.no_such_thing: pickup-56kph has no such entry$"):
         problem.with_values({"vehicle.no_such_thing": 1.0})
+
+
+def test_a_speed_text_without_unit_is_refused_in_a_problem_as_in_a_what_if(small_problem, tmp_path):
+    """A text "64" would be 64 m/s (230 km/h), and a simulation has no data to catch it: refused
+    through with_values and in a problem file as simulate(speed="64") refuses it; a number is SI."""
+    problem = crashnlp.load(small_problem)
+    for path in ("vehicle.speed", "tests.0.speed"):
+        with pytest.raises(InputError, match=f'^with_values: {path}: give its unit, e.g. "64 km/h" or "64 m/s"$'):
+            problem.with_values({path: "64"})
+        assert problem.with_values({path: 17.0}).speed(problem.tests[0]) in (17.0, problem.vehicle.speed)
+    raw = yaml.safe_load(small_problem.read_text())
+    raw["vehicle"]["speed"] = "64"
+    (tmp_path / "p.yaml").write_text(yaml.safe_dump(raw))
+    with pytest.raises(InputError, match=f'^{tmp_path / "p.yaml"}: vehicle.speed: give its unit, e.g. "64 km/h"'):
+        crashnlp.load(tmp_path / "p.yaml")
+
+
+def test_spring_values_alone_for_breakpoints_left_to_the_data_name_why_and_what_to_give(small_problem, tmp_path):
+    """A fit's parameters for a problem that leaves its crush breakpoints to the data: refused
+    saying so and what to give, not as another problem's length; with the breakpoints, taken."""
+    raw = yaml.safe_load(small_problem.read_text())
+    raw["model"]["spring"] = {"law": "force"}
+    raw.pop("estimate")
+    problem = problem_from_dict(raw, tmp_path)
+    values = {"model.spring.values": [0.0, 4e5, 5e5]}
+    with pytest.raises(
+        InputError,
+        match="^crashnlp.simulate: parameters.model.spring.values: pickup-56kph leaves its crush breakpoints to the data.*"
+        "the fit's Result.*model.spring.crush_breakpoints with the values$",
+    ):
+        crashnlp.simulate(problem, params=values)
+    given = {**values, "model.spring.crush_breakpoints": [0, 0.25, 0.6]}
+    (test,) = crashnlp.simulate(problem, params=given, dt=1e-3).values()
+    assert test.metrics == crashnlp.simulate(small_problem, dt=1e-3)["56kph"].metrics
+
+
+BAD_CALLS = {
+    "unknown entry": (
+        lambda p: p.with_values({"vehicle.spede": 1}),
+        InputError,
+        "^with_values: vehicle.spede: pickup-56kph has no such entry$",
+    ),
+    "new key of a mapping": (
+        lambda p: p.with_values({"solver.ipopt.max_iter": 5}),
+        InputError,
+        "^with_values: solver.ipopt.max_iter: pickup-56kph has no such entry; give solver.ipopt whole",
+    ),
+    "pairs for a mapping": (lambda p: p.with_values([("vehicle.mass", 2000)]), TypeError, "expected a mapping .* got list$"),
+    "a path for a mapping": (lambda p: p.with_values("vehicle.mass"), TypeError, "expected a mapping .* got str$"),
+    "params a list": (lambda p: crashnlp.simulate(p, params=[1, 2]), TypeError, "^crashnlp.simulate: params: expected a Result"),
+    "params a number": (lambda p: crashnlp.simulate(p, params=5), TypeError, "dotted paths to values, got int$"),
+    "design of an identify problem": (
+        lambda p: crashnlp.design(p),
+        InputError,
+        "^pickup-56kph: kind is 'identify'; use crashnlp.identify$",
+    ),
+    "a dict for a file": (lambda p: crashnlp.load({"name": "x"}), TypeError, "^expected the path of a problem file .* got dict$"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD_CALLS))
+def test_bad_input_to_the_api_is_one_line_of_the_documented_error(small_problem, name):
+    """Bad input is an InputError (docs/reference/api.md) naming the entry; a value of the wrong
+    type, a TypeError saying what is expected: never a bare KeyError or AttributeError."""
+    call, error, message = BAD_CALLS[name]
+    with pytest.raises(error, match=message) as raised:
+        call(crashnlp.load(small_problem))
+    assert type(raised.value) in (error, ProblemError) and "\n" not in str(raised.value)
+
+
+def test_a_result_s_paths_are_refused_in_one_line_and_its_result_json_loads(tmp_path):
+    """Result.load takes a fit's folder or its result.json, as simulate(params=...) does, and names
+    a path without one; save refuses a file in its folder's place, simulate a Result with params."""
+    result = Result("r", "identify", "ok", SolverStats("Solve_Succeeded", 1, 0.0, 0.0, 0.0), {}, {}, {}, {}, (), {}, (), {})
+    result.save(tmp_path / "fit", figures=False)
+    assert crashnlp.Result.load(tmp_path / "fit" / "result.json") == crashnlp.Result.load(tmp_path / "fit") == result
+    with pytest.raises(InputError, match=f"^{tmp_path / 'none'}: file not found$"):
+        crashnlp.Result.load(tmp_path / "none")
+    (tmp_path / "file").write_text("mine")
+    with pytest.raises(InputError, match=f"^{tmp_path / 'file'}: exists and is not a folder$"):
+        result.save(tmp_path / "file")
+    with pytest.raises(InputError, match="^crashnlp.simulate: a Result is simulated alone"):
+        crashnlp.simulate(result, params=result)
+    assert (tmp_path / "file").read_text() == "mine"
 
 
 def test_the_api_refuses_what_the_command_line_refuses(tmp_path, capsys):

@@ -6,6 +6,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import json
+import re
 from statistics import NormalDist
 
 import numpy as np
@@ -373,8 +374,23 @@ def test_another_model_form_is_refused_in_one_line(fitted, capsys):
     path.write_text(yaml.safe_dump(other))
     code = main(["simulate", str(path), "--params", str(folder / "fit" / "result.json"), "--out", str(folder / "f")])
     err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "model.form is rigid-body" in err and "pendulum" in err
+    assert code == 2 and err.count("\n") == 1 and "model.form: the problem's is rigid-body" in err and "pendulum" in err
     assert not (folder / "f").exists()
+
+
+@pytest.mark.integration
+def test_another_breakpoint_list_names_whose_each_is(fitted):
+    """Breakpoints changed in the problem (in memory) are named as the problem's, the fit's as the
+    identified vehicle's; the line starts with the fit's folder, the result it names."""
+    folder, _, raw, _, _ = fitted
+    mine = [0.0, 0.1, 0.3, 0.5, 0.7]
+    problem = crashnlp.load(_new_speed(folder, raw, 48)).with_values(
+        {"model.spring.crush_breakpoints": mine, "model.spring.values": [0.0, 3e5, 4e5, 5e5, 6e5]}
+    )
+    theirs = crashnlp.Result.load(folder / "fit").identified.model["spring"]["crush_breakpoints"]
+    line = f"{folder / 'fit'}: model.spring.crush_breakpoints: the problem's is {mine}, the identified vehicle's {theirs}: "
+    with pytest.raises(InputError, match=f"^{re.escape(line)}another model"):
+        crashnlp.simulate(problem, params=folder / "fit")
 
 
 @pytest.mark.integration

@@ -116,9 +116,10 @@ def _impact_speed(v: float | None) -> float | None:
 
 
 def stated_speed(value: QuantityIn) -> QuantityIn:
-    """A speed given outside a problem file, refused (UnitError) as text without a unit: a plain
-    "64" would be 64 m/s (230 km/h), and no data stand against a what-if's speed or init's to
-    catch it (a fit's data do, crashnlp.case.testcase). A Python number stays SI."""
+    """An impact speed, refused (UnitError) as text without a unit: a plain "64" would be 64 m/s
+    (230 km/h), and no data stand against it in a simulation (a fit's data do,
+    crashnlp.case.testcase): a what-if's speed, init's, and a problem's own (`ImpactSpeed`: a file's
+    `speed: "64"`, with_values' "64"). A number (a Python one, or a YAML one unquoted) stays SI."""
     if not isinstance(value, str):
         return value
     try:
@@ -168,6 +169,7 @@ class Structural:
 
 Length = Annotated[float, Unit("m")]
 Speed = Annotated[float, Unit("m/s")]
+ImpactSpeed = Annotated[float, BeforeValidator(stated_speed), Unit("m/s")]  # its text needs a unit: stated_speed
 Acceleration = Annotated[float, Unit("m/s^2")]
 Time = Annotated[float, Unit("s")]
 Mass = Annotated[float, Unit("kg")]
@@ -264,7 +266,7 @@ class Engine(Strict):
 
 class Vehicle(Strict):
     mass: Mass | None = Field(None, description="test mass; may come from the data header")
-    speed: Annotated[Speed | None, Structural()] = Field(None, description="impact speed (a test may override)")
+    speed: Annotated[ImpactSpeed | None, Structural()] = Field(None, description="impact speed (a test may override)")
     pitch_inertia: Inertia = Field(0.0, description="about the CG; 0 is the paper's point mass")
     cg_to_impact: Length = Field(description="horizontal distance CG to the impact point")
     cg_above_impact: Length = 0.0
@@ -603,7 +605,7 @@ def _channel_in_si(name: Any, channel: Any) -> Any:
 
 class Test(Strict):
     name: FolderName
-    speed: Speed | None = None
+    speed: ImpactSpeed | None = None
     mass: Mass | None = None
     duration: Time | None = None
     data: DataSpec | None = None
@@ -829,28 +831,44 @@ class Problem(Strict):
     def speed(self, test: Test) -> float | None:
         return test.speed if test.speed is not None else self.vehicle.speed
 
-    def with_values(self, values: dict[str, Any]) -> "Problem":
+    def with_values(self, values: Mapping[str, Any]) -> "Problem":
         """A new validated problem with entries replaced by dotted path ("vehicle.speed": "64 km/h",
         "model.spring.values": [...], "tests.0.speed": ...); this one is left as it is. What the
         problem left out stays left out (`model_fields_set`), so that the new problem is still
-        completed from its data, and a result's identified vehicle still fills it in."""
+        completed from its data, and a result's identified vehicle still fills it in. A path that
+        names no entry of the problem is a ProblemError naming it (TypeError: `values` is no mapping)."""
+        if not isinstance(values, Mapping):
+            raise TypeError(f"with_values: expected a mapping of dotted paths to values, got {type(values).__name__}")
         full = self.model_dump(mode="python", exclude_none=False)
         raw = self.model_dump(mode="python", exclude_unset=True)
         for path, value in values.items():
+            if not isinstance(path, str) or not self._has_entry(full, path):
+                raise self._no_entry(path)
             *parents, leaf = path.split(".")
-            node: Any = full
-            try:
-                for key in parents:
-                    node = node[int(key)] if isinstance(node, list) else node[key]
-                if isinstance(node, list) or leaf not in node:
-                    raise KeyError(path)
-            except (KeyError, IndexError, ValueError, TypeError):
-                raise KeyError(path) from None
-            node = raw
+            node: Any = raw
             for key in parents:
                 node = node[int(key)] if isinstance(node, list) else node.setdefault(key, {})
             node[leaf] = value
         return problem_from_dict(raw, self.base_dir, "with_values")
+
+    @staticmethod
+    def _has_entry(full: dict[str, Any], path: str) -> bool:
+        """Whether the dotted `path` names an entry of a problem's dump with every entry (`full`)."""
+        *parents, leaf = path.split(".")
+        node: Any = full
+        try:
+            for key in parents:
+                node = node[int(key)] if isinstance(node, list) else node[key]
+        except (KeyError, IndexError, ValueError, TypeError):
+            return False
+        return isinstance(node, dict) and leaf in node
+
+    def _no_entry(self, path: object) -> ProblemError:
+        """The one line for a with_values path that names no entry of the problem; a new key of a
+        mapping with free keys (solver.ipopt) is given with the mapping whole."""
+        parent = path.rpartition(".")[0] if isinstance(path, str) else ""
+        whole = f"; give {parent} whole to add a key to it" if isinstance(self.value_at(parent), dict) else ""
+        return ProblemError(f"with_values: {path}: {self.name} has no such entry{whole}")
 
     def unit_at(self, path: str) -> str:
         """SI unit of a numeric entry named by dotted path ("model.spring.values")."""

@@ -52,8 +52,7 @@ def result_alone(path: str, params: object | None, given_as: str) -> tuple[Probl
     (crashnlp.analysis.prediction.own_tests); an InputError where `params` (named `given_as`) is
     given too."""
     from crashnlp.analysis.prediction import own_tests
-    from crashnlp.results.params import read_params
-    from crashnlp.results.result import fit_folder
+    from crashnlp.results.result import fit_folder, read_params
 
     if params is not None:
         raise InputError(

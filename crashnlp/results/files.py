@@ -59,20 +59,21 @@ def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[st
             writer.writerow([f"{v:.9g}" for v in row])
 
 
-def check_writable(out: str | Path, option: str = "--out") -> Path:
+def check_writable(out: str | Path, option: str | None = "--out") -> Path:
     """Refuse, before any work, an output folder that cannot be created or written; create nothing.
+    Its errors name `option` and the folder (the folder alone for None: Result.save's).
 
     The nearest existing ancestor must be a folder in which a file can be made (a probe file,
     removed at once), which also catches read-only file systems and running as root.
     """
     out = Path(out)
     if out.exists() and not out.is_dir():
-        raise InputError(f"{option} {out}: exists and is not a folder")
+        raise InputError(f"{_where(out, option)}: exists and is not a folder")
     probe = out
     while not probe.exists():
         probe = probe.parent
     if not probe.is_dir():
-        raise InputError(f"{option} {out}: {probe} is not a folder")
+        raise InputError(f"{_where(out, option)}: {probe} is not a folder")
     try:
         fd, made = temporary_file(probe, ".crashnlp-probe.")
         try:
@@ -80,7 +81,7 @@ def check_writable(out: str | Path, option: str = "--out") -> Path:
         finally:
             os.unlink(made)
     except OSError as exc:
-        raise InputError(f"{option} {out}: cannot write in {probe} ({exc.strerror or exc})") from None
+        raise InputError(f"{_where(out, option)}: cannot write in {probe} ({exc.strerror or exc})") from None
     return out
 
 
@@ -120,9 +121,10 @@ def check_output(out: str | Path, run: str, option: str = "--out") -> Path:
 @contextmanager
 def claim(out: Path, run: str, option: str | None = "--out") -> Iterator[Path]:
     """The output folder `out`, created if need be, for `run` to write in (see the module's
-    docstring): InputError for a folder another run is writing in at the moment, or that holds
-    the results of another. Leaving the block normally, what the earlier run of the same `run`
-    wrote there and this one did not is removed; leaving it by an exception, nothing is removed,
+    docstring): InputError for a folder another run is writing in at the moment, that holds
+    the results of another, or that cannot be made or written (check_writable: a file in its
+    place). Leaving the block normally, what the earlier run of the same `run` wrote there and
+    this one did not is removed; leaving it by an exception, nothing is removed,
     and the folders this claim made are removed again if nothing was written in them. A claim
     inside one of the same run (the command line's, around Result.save) is the outer one's."""
     key = out.resolve()
@@ -132,6 +134,7 @@ def claim(out: Path, run: str, option: str | None = "--out") -> Iterator[Path]:
         yield out
         return
     made = [p for p in (out, *out.parents) if not p.exists()]
+    check_writable(out, option)
     out.mkdir(parents=True, exist_ok=True)
     fd = _lock(out, option)
     try:

@@ -356,13 +356,13 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
         mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
         if key in given and theirs is not None and not _same(mine, theirs, SAME_GEOMETRY):
             raise InputError(
-                f"{source}: vehicle.{key} is {mine:g} m, but the identified vehicle's is {theirs:g} m: "
+                f"{source}: vehicle.{key}: the problem's is {mine:g} m, the identified vehicle's {theirs:g} m: "
                 "another vehicle (a result predicts the vehicle it was fitted to)"
             )
     theirs_form = identified.model.get("form", DEFAULT_FORM)
     if "form" in problem.model.model_fields_set and problem.model.form != theirs_form:
         raise InputError(
-            f"{source}: model.form is {problem.model.form}, but the identified vehicle's is {theirs_form}: "
+            f"{source}: model.form: the problem's is {problem.model.form}, the identified vehicle's {theirs_form}: "
             "another model (a result predicts the model it was fitted with)"
         )
     for section, key in STRUCTURE:
@@ -373,7 +373,7 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
         mine = getattr(node, key)
         if _differs(mine, theirs):
             raise InputError(
-                f"{source}: model.{section}.{key} is {mine}, but the identified vehicle's is {theirs}: "
+                f"{source}: model.{section}.{key}: the problem's is {mine}, the identified vehicle's {theirs}: "
                 "another model (a result predicts the model it was fitted with)"
             )
 

@@ -9,33 +9,12 @@ import json
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from crashnlp.base.errors import InputError, unreadable
+from crashnlp.base.errors import InputError
 from crashnlp.results.identified import IdentifiedModel, apply, load_applied
-from crashnlp.results.result import RESULT_FILE, ResultFile, result_file
+from crashnlp.results.result import RESULT_FILE, ResultFile, read_params
 
 if TYPE_CHECKING:
     from crashnlp.problem import Problem
-
-
-def read_params(path: str | Path) -> ResultFile:
-    """A result.json (or a fit's folder's) read once, its content (a result written before a rename
-    too: ResultFile.current) a mapping with a 'parameters' mapping; InputError naming the file
-    for one that cannot be read or is not such a mapping."""
-    p = result_file(path)
-    try:
-        file = ResultFile.read(p)
-        params = file.current["parameters"]
-    except FileNotFoundError:
-        raise InputError(f"{p}: file not found") from None
-    except (IsADirectoryError, PermissionError) as exc:
-        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise unreadable(p, exc) from None
-    except (KeyError, TypeError, IndexError):
-        raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
-    if not isinstance(params, dict):
-        raise InputError(f"{p}: 'parameters' is not a mapping")
-    return file
 
 
 def identified_of(source: str, raw: dict[str, Any]) -> IdentifiedModel | None:

@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from crashnlp.base.errors import InputError
+from crashnlp.base.errors import InputError, unreadable
 from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
 from crashnlp.results.identified import EDITED, IdentifiedModel
@@ -139,12 +139,33 @@ class ResultFile:
         return cls(data, document, current_names(document))
 
 
+def read_params(path: str | Path) -> ResultFile:
+    """A result.json (or a fit's folder's) read once, its content (a result written before a rename
+    too: ResultFile.current) a mapping with a 'parameters' mapping; InputError naming the file
+    for one that cannot be read or is not such a mapping."""
+    p = result_file(path)
+    try:
+        file = ResultFile.read(p)
+        params = file.current["parameters"]
+    except FileNotFoundError:
+        raise InputError(f"{p}: file not found") from None
+    except (IsADirectoryError, NotADirectoryError, PermissionError) as exc:
+        raise InputError(f"{p}: cannot read ({exc.strerror})") from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise unreadable(p, exc) from None
+    except (KeyError, TypeError, IndexError):
+        raise InputError(f"{p}: not a result.json with a 'parameters' entry") from None
+    if not isinstance(params, dict):
+        raise InputError(f"{p}: 'parameters' is not a mapping")
+    return file
+
+
 def fit_folder(path: str | Path) -> Path:
     """The folder of the fit a path names (a result.json or its folder), whose whole Result
     `Result.load` reads; InputError for a file of another name, which it would not read."""
     file = result_file(path)
     if file.name != RESULT_FILE:
-        raise InputError(f"{path}: a result is simulated from its folder, as RESULT_DIR/{RESULT_FILE}")
+        raise InputError(f"{path}: a result is read from its folder, as RESULT_DIR/{RESULT_FILE}")
     return file.parent
 
 
@@ -206,22 +227,24 @@ class Result:
     def save(self, folder: str | Path, figures: bool = True) -> None:
         """result.json, responses, force-crush table and figures: what the command line writes,
         into a folder that then holds this result only (crashnlp.results.files.claim: InputError for a
-        folder holding another run's results, or being written by another run)."""
+        folder holding another run's results, being written by another run, or a file in its place)."""
         write_result(self, Path(folder), figures=figures)
 
     @classmethod
     def load(cls, folder: str | Path, file: ResultFile | None = None) -> Result:
-        """A Result read back from a folder `save` wrote, as its files hold it: result.json's values
-        to its 10 significant digits, each test's response from its response.csv (the outputs
-        with a column there, to 9 digits), the loading curve from force_crush.csv (`_read_curve`);
-        `file`, its result.json where the caller has read it already, is not read again. What the
-        folder does not hold, the loaded Result has not: the data and the fitted nodes (each
-        channel's fit keeps its RMSE, sigma and ratings, its node arrays are empty), the outputs
-        response.csv has no column for, and the NLP's solution vector and inequalities (`z`
-        None, `inequalities` empty). Saved again, it writes the same files, to the digits of the
-        tables, less the residual figures, which need the fitted nodes; its figures show no data."""
-        folder = Path(folder)
-        raw = (file or ResultFile.read(folder / RESULT_FILE)).current
+        """A Result read back from a folder `save` wrote, or its result.json, as its files hold it:
+        result.json's values to its 10 significant digits, each test's response from its
+        response.csv (the outputs with a column there, to 9 digits), the loading curve from
+        force_crush.csv (`_read_curve`); `file`, its result.json where the caller has read it
+        already, is not read again. A path that holds no result.json is an InputError naming it
+        (read_params, as `crashnlp.simulate(params=...)` reads one). What the folder does not hold,
+        the loaded Result has not: the data and the fitted nodes (each channel's fit keeps its RMSE,
+        sigma and ratings, its node arrays are empty), the outputs response.csv has no column for,
+        and the NLP's solution vector and inequalities (`z` None, `inequalities` empty). Saved
+        again, it writes the same files, to the digits of the tables, less the residual figures,
+        which need the fitted nodes; its figures show no data."""
+        raw = (file or read_params(folder)).current
+        folder = fit_folder(folder)
         identified = IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None
         tests = {}
         for name, t in raw["tests"].items():
