@@ -77,6 +77,23 @@ def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page
     assert all(label in page and label in console for label in labels)
     assert f"{sim['metrics']['max_displacement_m'] * 1e3:.1f} [" in page  # 64 km/h: value and interval in one cell
     assert "written by crashnlp compare-results:" in page  # the command that wrote it (it said crashnlp report)
+    assert {r["accel_filter"] for r in rows} == {"CFC60"} and "peak decel (g, CFC60)" in page
+
+
+def test_peaks_read_through_different_classes_each_name_their_own(folders):
+    """One class for every curve heads the peak's row; where they differ, each cell names its own."""
+    import dataclasses
+
+    from crashnlp.report.compare import metric_table, read_curves
+
+    (fit,) = read_curves(folders["fit"])
+    raw = dataclasses.replace(fit, response=dataclasses.replace(fit.response, accel_filter=None))
+    (same,) = [row for row in metric_table([fit, fit])[1] if row[0].startswith("peak decel")]
+    assert same[0] == "peak decel (g, CFC60)" and same[1] == same[2] and "(" not in same[1]
+    rows = metric_table([fit, raw])[1]
+    (mixed,) = [row for row in rows if row[0].startswith("peak decel")]
+    assert mixed[0] == "peak decel (g)" and mixed[1].endswith(" (CFC60)") and mixed[2].endswith(" (unfiltered)")
+    assert all(row[1] == row[2] for row in rows if row is not mixed)
 
 
 def test_two_fits_of_one_vehicle_are_told_apart_by_their_folders(folders, tmp_path):

@@ -179,22 +179,51 @@ def damage(path: Path, how: str) -> None:
         path.write_bytes(data[:third] + os.urandom(third) + data[2 * third :])
 
 
-@pytest.mark.parametrize("how", ["truncated", "garbled", "unrecorded"])
+@pytest.mark.parametrize("how", ["truncated", "garbled", "unrecorded and truncated"])
 def test_a_damaged_model_library_is_compiled_again_and_loaded(tmp_path, monkeypatch, how):
-    """A model function's library damaged in the cache, or without the record its compile writes
-    (a cache from before records), is not loaded: the next process that needs it compiles it again
-    and loads that."""
+    """A model function's library damaged in the cache, with or without the record its compile
+    writes (a cache from before records has none), is not loaded: the next process that needs it
+    compiles it again and loads that."""
     log = fake_compiler(tmp_path, monkeypatch, pause=0)
     compiled.compiled(twice())
     (library,) = cache_dir().glob("twice-*.so")
     compiled._loaded.clear()  # the next process: this one's copy unloaded (it is mapped from the file)
-    if how == "unrecorded":
+    if how.startswith("unrecorded"):
         compile_job.record_of(library).unlink()
-    else:
-        damage(library, how)
+    damage(library, how.split()[-1])
     again = compiled.compiled(twice())
     assert again.class_name() == "External" and float(again(3.0)) == 6.0
     assert starts(log) == 2 and compiled.intact(library)
+
+
+def test_a_whole_library_without_a_record_is_loaded_as_it_is(tmp_path, monkeypatch):
+    """A cache from before records (or one that cannot be written, read-only) keeps its libraries:
+    one whose ELF file is whole is loaded, not compiled again (every run had stayed in the VM)."""
+    log = fake_compiler(tmp_path, monkeypatch, pause=0)
+    compiled.compiled(twice())
+    (library,) = cache_dir().glob("twice-*.so")
+    compiled._loaded.clear()
+    compile_job.record_of(library).unlink()
+    again = compiled.compiled(twice())
+    assert again.class_name() == "External" and float(again(3.0)) == 6.0
+    assert starts(log) == 1 and compiled.intact(library) is None and compiled.whole_elf(library)
+
+
+def test_a_library_its_record_vouches_for_that_does_not_load_is_left_and_not_compiled_again(tmp_path, monkeypatch):
+    """A whole library that fails to load (a cache on a noexec mount) was removed and compiled again
+    on every run: it is left, and the process stays in the VM without compiling it again."""
+    log = fake_compiler(tmp_path, monkeypatch, pause=0)
+    compiled.compiled(twice())
+    (library,) = cache_dir().glob("twice-*.so")
+    compiled._loaded.clear()
+
+    def refused(*args):
+        raise RuntimeError("failed to map segment from shared object")
+
+    monkeypatch.setattr(compiled.ca, "external", refused)
+    for _ in range(2):
+        assert compiled.compiled(twice()).class_name() != "External"
+    assert starts(log) == 1 and library.exists() and compiled.intact(library)
 
 
 @pytest.mark.parametrize(("how", "suffix"), [("truncated", ".so"), ("garbled", ".so"), ("truncated", ".names")])

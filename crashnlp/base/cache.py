@@ -11,9 +11,10 @@ stored models, unit conversions, IPOPT's options; crashnlp.numerics.compiled).
 
 from __future__ import annotations
 
+import hashlib
 import importlib.util
 import os
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager, suppress
 from functools import cache
 from pathlib import Path
@@ -100,3 +101,14 @@ def installed_version(package: str, distribution: str) -> str:
     from importlib.metadata import version
 
     return version(distribution)
+
+
+def files_digest(paths: Iterable[Path], root: Path | None = None) -> str:
+    """One sha256 (hex) of files' names and contents, in the order given: what the keys of cached
+    things derived from code take (the models, a study's cases, the NLP libraries), so that other
+    code finds none of them. A name is the path relative to `root`, or the file's name."""
+    digest = hashlib.sha256()
+    for path in paths:
+        name = path.relative_to(root).as_posix() if root is not None else path.name
+        digest.update(name.encode() + b"\0" + path.read_bytes() + b"\0")
+    return digest.hexdigest()

@@ -22,17 +22,13 @@ from pathlib import Path
 import casadi as ca
 
 from crashnlp.base import outputs
-from crashnlp.base.cache import KEPT_MODEL, cache_dir, used, write_atomic
+from crashnlp.base.cache import KEPT_MODEL, cache_dir, files_digest, used, write_atomic
 
 
 @cache
 def _sources() -> str:
     """A digest of the source of the modules a model is derived by (read once per process)."""
-    files = sorted(Path(__file__).parent.glob("*.py")) + [Path(outputs.__file__)]
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    return digest.hexdigest()
+    return files_digest(sorted(Path(__file__).parent.glob("*.py")) + [Path(outputs.__file__)])
 
 
 def path_of(form: str, what: object) -> Path:

@@ -160,17 +160,19 @@ def companions(library: Path) -> list[Path]:
     return [library.with_suffix(suffix) for suffix in COMPANIONS]
 
 
+def sha256_of(path: Path) -> str:
+    """The sha256 of a file's contents (hex). Here, not in crashnlp.base: a compile runs this module
+    as a script (`python -I`), which imports nothing of crashnlp's."""
+    with open(path, "rb") as fh:
+        return hashlib.file_digest(fh, "sha256").hexdigest()
+
+
 def record(library: Path, built: Path) -> str:
     """The record of `library`, whose content is the file `built`: the sha256 of it and of each of its
     companions there now, a line each in sha256sum's format (`sha256sum -c LIBRARY.sha256` in the
     cache folder checks them)."""
     files = [(library.name, built), *((path.name, path) for path in companions(library) if path.exists())]
-    return "".join(f"{_sha256(path)}  {name}\n" for name, path in files)
-
-
-def _sha256(path: Path) -> str:
-    with open(path, "rb") as fh:
-        return hashlib.file_digest(fh, "sha256").hexdigest()
+    return "".join(f"{sha256_of(path)}  {name}\n" for name, path in files)
 
 
 def _put_in_place(built: Path, library: Path) -> None:

@@ -14,8 +14,12 @@ half-written library (it is renamed into place once whole).
 
 A library is loaded only once it is found whole (`load_cached`, every loader's way in): its compile
 writes the sha256 of it and of its companions (the list of its Functions' names) beside it
-(crashnlp.numerics.compile_job.record_of), and a library that does not match them, has no record or
-fails to load is removed with them, and compiled again as a missing one is.
+(crashnlp.numerics.compile_job.record_of); a library without a record (compiled before records
+were kept) is whole where its ELF file holds every part its headers place (`whole_elf`). A library
+that is not whole, or that fails to load with nothing to vouch for it, is removed with its
+companions and compiled again as a missing one is; one its record vouches for that still fails to
+load (a cache on a noexec mount) is left, and the process stays in the VM without compiling it
+again. A cache that cannot be written (read-only) keeps what it holds.
 
 Once per machine, not once per process: each library has a lock file beside it (LIBRARY.lock;
 `locked`, `try_lock`: flock), held exclusively by its compile from before its source is written
@@ -47,6 +51,7 @@ import hashlib
 import math
 import os
 import shutil
+import struct
 import subprocess
 import sys
 import time
@@ -139,25 +144,27 @@ def compiled(fn: ca.Function, jacobian: bool = False) -> ca.Function:
                 external = load_cached(library, load)
         except (OSError, RuntimeError, subprocess.CalledProcessError):  # no usable compiler or cache: stay in the VM
             return fn
-        if external is None:
-            return fn
-        _loaded[key] = external
+        _loaded[key] = fn if external is None else external  # once a process, loaded or not
     return _loaded[key]
 
 
 def load_cached(library: Path, load: Callable[[], T]) -> T | None:
     """What `load` makes of the cached `library` (ca.external, ctypes.CDLL), the library marked `used`;
-    None where the cache holds none. A library that is not `intact` (truncated, garbled, without its
-    record: a truncated library is mapped whole by the dynamic loader, which dies of SIGBUS where it
-    reads past the end) or that `load` fails on is removed with its companions (`_discard`), so that it
-    is compiled again as a missing one is, and None is returned: the caller stays in the VM meanwhile."""
+    None where the cache holds none, or none that loads. A library that is not whole (`intact`: a
+    truncated library is mapped whole by the dynamic loader, which dies of SIGBUS where it reads
+    past the end), or that fails to load with no record to vouch for it, is removed with its
+    companions (`_discard`), so that it is compiled again as a missing one is; one its record vouches
+    for is left where it fails to load (the cache's mount, not the library), so that no run compiles
+    it again. The caller stays in the VM meanwhile."""
     if not library.exists():
         return None
-    if intact(library):
+    vouched = intact(library)
+    if vouched is not False:
         try:
             loaded = load()
         except (OSError, RuntimeError):
-            pass
+            if vouched:
+                return None
         else:
             used(library)
             return loaded
@@ -165,20 +172,52 @@ def load_cached(library: Path, load: Callable[[], T]) -> T | None:
     return None
 
 
-def intact(library: Path) -> bool:
+def intact(library: Path) -> bool | None:
     """Whether `library` and its companions (a library's Functions' names) are what its compile wrote:
-    the record beside them (crashnlp.numerics.compile_job.record_of) gives their sha256 now. Hashing
-    the largest library (some MB) costs milliseconds, once a process."""
+    the record beside them (crashnlp.numerics.compile_job.record_of) gives their sha256 now; None
+    where it has no record and its ELF file is whole (`whole_elf`: nothing vouches for its content,
+    but loading it cannot crash), False where either fails. Hashing the largest library (some MB)
+    costs milliseconds, once a process."""
     try:
-        return compile_job.record_of(library).read_text() == compile_job.record(library, library)
-    except (OSError, ValueError):  # no record, or one that is not text
+        kept = compile_job.record_of(library).read_text()
+    except FileNotFoundError:
+        return None if whole_elf(library) else False
+    except (OSError, ValueError):  # a record that is not text
         return False
+    try:
+        return kept == compile_job.record(library, library)
+    except OSError:
+        return False
+
+
+def whole_elf(path: Path) -> bool:
+    """Whether `path` is a 64-bit ELF file (a Linux shared library) as long as its headers say: its
+    section headers and every segment it loads lie within it. A file cut short fails; a file that
+    is no ELF file fails too (the dynamic loader refuses it, so only a record could vouch for it)."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+            size = os.fstat(fh.fileno()).st_size
+            if len(head) < 64 or head[:4] != b"\x7fELF" or head[4] != 2 or head[5] not in (1, 2):
+                return False
+            order = "<" if head[5] == 1 else ">"
+            phoff, shoff = struct.unpack_from(order + "QQ", head, 0x20)
+            phentsize, phnum, shentsize, shnum = struct.unpack_from(order + "HHHH", head, 0x36)
+            if shoff + shnum * shentsize > size or phoff + phnum * phentsize > size:
+                return False
+            fh.seek(phoff)
+            table = fh.read(phnum * phentsize)
+    except OSError:
+        return False
+    segments = (struct.unpack_from(order + "IIQQQQ", table, i * phentsize) for i in range(phnum))
+    return all(offset + filesz <= size for _, _, offset, _, _, filesz in segments)
 
 
 def _discard(library: Path) -> None:
     """Remove `library`, its companions and its record (`_files`), unless a compile holds its lock
-    (looked at meanwhile, `_looked_at`: that compile writes them afresh)."""
-    with _looked_at(library) as free:
+    (looked at meanwhile, `_looked_at`: that compile writes them afresh), or the cache cannot be
+    written (read-only: what it holds stays, and the caller stays in the VM)."""
+    with suppress(OSError), _looked_at(library) as free:
         if free:
             _remove(_files(library))
 

@@ -46,6 +46,7 @@ from pathlib import Path
 
 import casadi as ca
 
+from crashnlp.base.cache import files_digest
 from crashnlp.numerics import compiled, derivatives
 from crashnlp.numerics.nlp import NLPBuilder
 from crashnlp.problem.schema import Problem
@@ -137,7 +138,7 @@ def _code(modules: tuple[str, ...]) -> str:
 
     The key of a library names the NLP (its serialized f and g) and this code, not the compiled
     functions themselves: serializing those would cost more than building them."""
-    return hashlib.sha256(b"".join(Path(str(sys.modules[m].__file__)).read_bytes() for m in modules)).hexdigest()
+    return files_digest(Path(str(sys.modules[m].__file__)) for m in modules)
 
 
 def _write_names(functions: dict[str, ca.Function], library: Path) -> None:

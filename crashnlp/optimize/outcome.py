@@ -281,8 +281,8 @@ def _force_crush(solution: Solution, identified: IdentifiedModel) -> LoadingCurv
     case, p = solution.case, solution.full_parameters()
     end = max(solution.reach * 1.05, 1e-3)
     x = np.linspace(0.0, end, 201)
-    tail = identified.model["spring"].get("tail")
-    if isinstance(tail, dict) and tail["start"] < end:
+    tail = identified.tail_line
+    if tail is not None and tail["start"] < end:
         x = np.insert(x, np.searchsorted(x, tail["start"]), tail["start"])  # not union1d: it imports numpy.ma
     curve = case.loading_curve(p)
     bps = solution.breakpoints

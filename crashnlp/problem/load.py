@@ -9,7 +9,7 @@ from functools import cache
 from pathlib import Path
 from typing import Any
 
-from crashnlp.base.cache import KEPT_YAML, cache_dir, installed_version, used, write_atomic
+from crashnlp.base.cache import KEPT_YAML, cache_dir, files_digest, installed_version, used, write_atomic
 from crashnlp.problem.errors import ProblemError
 from crashnlp.problem.schema import Problem, problem_from_dict
 
@@ -70,10 +70,10 @@ def _parser() -> tuple[str, ...] | None:
     """What else fixes a text's kept values: the code that parses (crashnlp.problem.parse) and keeps
     them (this module's), and PyYAML's version; None where the code cannot be read."""
     try:
-        code = tuple(Path(__file__).with_name(name).read_text() for name in ("parse.py", "load.py"))
+        code = files_digest(Path(__file__).with_name(name) for name in ("parse.py", "load.py"))
     except OSError:
         return None
-    return (*code, installed_version("yaml", "PyYAML"))
+    return (code, installed_version("yaml", "PyYAML"))
 
 
 def _as_json(values: Any, size: int) -> str | None:

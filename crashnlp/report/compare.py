@@ -162,25 +162,34 @@ def _force_crush(curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
 
 def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     """The crash metrics side by side, as the console prints a prediction's: (head, rows), a cell
-    "value [low, high]" where the curve has a 95 % interval, "-" where it has no value."""
+    "value [low, high]" where the curve has a 95 % interval, "-" where it has no value; the peak's
+    row names the CFC class the curves' accelerations were read through, or where they differ,
+    each cell its own ("unfiltered" for none)."""
     head = ["metric", *(c.label for c in curves)]
+    classes = {c.response.accel_filter for c in curves}
+    shared = next(iter(classes)) if len(classes) == 1 else None  # else each cell of a peak names its own class
     rows = []
     for m in PREDICTED:
-        rows.append([f"{m.short} ({m.unit})", *(m.cell(c.metrics.get(m.key), c.intervals.get(m.key)) for c in curves)])
+        cells = []
+        for c in curves:
+            cell = m.cell(c.metrics.get(m.key), c.intervals.get(m.key))
+            own = m.read_through(c.response.accel_filter or "unfiltered") if shared is None else None
+            cells.append(f"{cell} ({own})" if own else cell)
+        rows.append([m.heading_through(shared, short=True), *cells])
     return head, rows
 
 
 def write_metrics(path: Path, curves: list[Curve]) -> None:
     """metrics.csv: a row per curve, its folder, then each metric in the console's unit with its
     interval's ends (empty where there is none)."""
-    head = ["curve", "folder"]
+    head = ["curve", "folder", "accel_filter"]  # the CFC class the curve's acceleration, and its peak, were read through
     for m in PREDICTED:
         head += [m.column, f"{m.column}_low", f"{m.column}_high"]
     with atomic_open(path) as fh:
         writer = csv.writer(fh)
         writer.writerow(head)
         for c in curves:
-            row = [c.label, str(c.folder)]
+            row = [c.label, str(c.folder), c.response.accel_filter or ""]
             for m in PREDICTED:
                 value, band = c.metrics.get(m.key), c.intervals.get(m.key)
                 row += [_number(value, m.factor), *(_number(end, m.factor) for end in (band or (None, None)))]

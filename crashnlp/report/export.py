@@ -95,7 +95,7 @@ def identified_curves(identified: IdentifiedModel, not_identified: Collection[st
     spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
     bps, values = list(spring["crush_breakpoints"]), list(spring["values"])
     law = SPRING_LAWS[spring["law"]]
-    tail = _tail(identified)
+    tail = identified.tail_line
     bends = bps + ([tail["start"]] if tail else [])
     if tail:
         law = with_tail(law, tail["start"], tail["slope"])
@@ -110,13 +110,6 @@ def identified_curves(identified: IdentifiedModel, not_identified: Collection[st
     notes = (*reach_lines(identified, not_identified), *clipped)
     damper = _damper(model, speed)
     return Curves((crush, force), unloading_curve, damper, unloading["law"], stiffness, notes, identified.designed)
-
-
-def _tail(identified: IdentifiedModel) -> dict[str, float] | None:
-    """The model's tail where it bends its loading curve into a line (`start`, `slope`); None where
-    the law continues its segments (`segment`, or a design's `trend`, which no fit has put in place)."""
-    tail = identified.model["spring"].get("tail")
-    return tail if isinstance(tail, dict) else None
 
 
 def _not_pulling(crush: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -162,7 +155,7 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     ]
     if undetermined:
         lines.append(f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}")
-    tail = _tail(identified)
+    tail = identified.tail_line
     if tail:
         lines.append(
             f"past {tail['start'] * MM:.1f} mm: the {_whose(identified.designed)} model's tail, a straight line at"
@@ -265,20 +258,28 @@ def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, stat
         fh.write(keyword_file(name, source, curves, status))
 
 
+NOTES_FILE = "notes.txt"  # beside the curve CSVs: what the .k file's comments say of them
+
+
 def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> list[Path]:
     """loading.csv, unloading.csv and (with a damper) damper.csv in `folder`, SI, each under the
-    fit's status where it did not converge and a line saying whose curve it is; the loading
-    curve's under what the .k file says of it too (`Curves.loading_notes`). The paths written."""
-    tables = {
-        "loading.csv": ("loading", "crush_m", curves.loading, curves.loading_notes),
-        "unloading.csv": ("unloading", "crush_m", curves.unloading, ()),
-    }
+    fit's status where it did not converge (a plain table otherwise, which any CSV reader
+    takes), and NOTES_FILE beside them: whose curves they are and what the .k file says
+    of the loading curve (`Curves.loading_notes`: where the data end on it), a line each. The
+    paths written."""
+    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
     if curves.damper is not None:
-        tables["damper.csv"] = ("damper", "crush_rate_mps", curves.damper, ())
-    for file, (what, x_name, (x, y), notes) in tables.items():
-        header = f"{_whose_curves(name, source, curves)}'s {what} curve"
-        write_columns(folder / file, {x_name: x, "force_N": y}, (*unconverged(status), header, *notes))
-    return [folder / f for f in tables]
+        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    for file, (x_name, (x, y)) in tables.items():
+        write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
+    said = [
+        *unconverged(status),
+        f"{_whose_curves(name, source, curves)} as curves, SI: {', '.join(tables)}",
+        *(f"loading.csv: {note}" for note in curves.loading_notes),
+    ]
+    with atomic_open(folder / NOTES_FILE) as fh:
+        fh.write("".join(f"{line}\n" for line in said))
+    return [*(folder / f for f in tables), folder / NOTES_FILE]
 
 
 # --------------------------------------------------------------------------- pulse

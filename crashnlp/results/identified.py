@@ -151,18 +151,25 @@ class IdentifiedModel:
             raw.get("designed") is True,
         )
 
+    @property
+    def tail_line(self) -> dict[str, float] | None:
+        """The line its loading curve bends into past the fitted tests' crush (`start`, m, and
+        `slope`, N/m); None where its law continues its segments (`segment`, or a design's `trend`,
+        which no fit has put in place)."""
+        tail = self.model["spring"].get("tail")
+        return tail if isinstance(tail, dict) else None
+
     def tail_notes(self) -> tuple[str, ...]:
         """What a prediction's loading curve does past the crush the fit reached, and which fitted
         values lie past it (none without a tail)."""
-        spring = self.model["spring"]
-        tail = spring.get("tail")
-        if not isinstance(tail, dict):
+        tail = self.tail_line
+        if tail is None:
             return ()
         note = (
             f"past {1e3 * tail['start']:.0f} mm of crush (the model reached {1e3 * self.range.model_crush:.0f} mm in the"
             f" fitted tests) a prediction's loading curve follows its trend, {1e-3 * tail['slope']:.0f} kN/m"
         )
-        shaping = shaping_nothing_short_of(self.labels, spring["crush_breakpoints"], tail["start"])
+        shaping = shaping_nothing_short_of(self.labels, self.model["spring"]["crush_breakpoints"], tail["start"])
         past = [label for label, out in zip(self.labels, shaping) if out]
         if past:
             note += f"; past it, no test determines {', '.join(past)}, and predictions follow the trend instead"

@@ -454,8 +454,7 @@ def _fit_notes(t: TestResult) -> dict[str, str]:
 
 def identified_tail(result: Result) -> dict[str, float] | None:
     """The identified loading curve's tail (its start, m, and slope, N/m), None without one."""
-    tail = (result.identified.model if result.identified is not None else {}).get("spring", {}).get("tail")
-    return tail if isinstance(tail, dict) else None
+    return result.identified.tail_line if result.identified is not None else None
 
 
 def along_the_tail(fc: LoadingCurve, tail: dict[str, float] | None, crush: np.ndarray) -> np.ndarray:

@@ -37,8 +37,9 @@ from typing import Any
 import numpy as np
 
 from crashnlp.base import VERSION
-from crashnlp.base.cache import installed_version
+from crashnlp.base.cache import files_digest, installed_version
 from crashnlp.base.errors import InputError
+from crashnlp.numerics import compile_job
 from crashnlp.studies.spec import Study, set_path
 
 
@@ -191,11 +192,7 @@ def case_key(raw: dict[str, Any], parent: int | None, data: list[tuple[str, str]
 
 def file_digests(paths: Iterable[Path]) -> dict[Path, str]:
     """The sha256 of each distinct file's contents, each read once."""
-    digests = {}
-    for path in dict.fromkeys(paths):
-        with path.open("rb") as fh:
-            digests[path] = hashlib.file_digest(fh, "sha256").hexdigest()
-    return digests
+    return {path: compile_job.sha256_of(path) for path in dict.fromkeys(paths)}
 
 
 @cache
@@ -209,7 +206,4 @@ def code_identity() -> str:
 
 def package_digest(root: Path) -> str:
     """The sha256 of every file under `root` (its path and its contents), compiled bytecode left out."""
-    digest = hashlib.sha256()
-    for path in sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts):
-        digest.update(path.relative_to(root).as_posix().encode() + b"\0" + path.read_bytes() + b"\0")
-    return digest.hexdigest()
+    return files_digest(sorted(p for p in root.rglob("*") if p.is_file() and "__pycache__" not in p.parts), root)
