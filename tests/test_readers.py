@@ -460,6 +460,28 @@ def test_mme_a_channel_the_lab_filtered_is_not_filtered_again_at_its_class(tmp_p
     assert [n for n in data.notes if "ISO filter class" in n] == ([f"accel: code {code}: {note}"] if note else [])
 
 
+def test_a_csv_channel_a_lab_filtered_is_not_filtered_again_at_its_class(tmp_path):
+    """A CSV cannot say its values were filtered, as an ISO-MME code does: `filtered` says it, and
+    the default CFC60 is then not applied twice (the Camry's peak 40.94 g, filtered again 40.69 g).
+    A class the file's own code contradicts is refused at the key."""
+    lab = load_test_data(camry()).channels["accel"]
+    path = tmp_path / "lab60.csv"
+    path.write_text("time_s,accel_mps2\n" + "".join(f"{t:.4f},{a:.9g}\n" for t, a in zip(lab.time, lab.values)))
+    channel = {"column": "accel_mps2", "unit": "m/s^2"}
+    twice, as_written = (
+        load_test_data(pickup(file=path, channels={"accel": {**channel, **given}})).channels["accel"].values
+        for given in ({}, {"filtered": "CFC60"})
+    )
+    np.testing.assert_allclose(as_written, lab.values, rtol=1e-8, atol=1e-6)
+    assert -twice.min() < -as_written.min() - 0.1 * G0  # filtered a second time: the peak falls
+    _mme_set(tmp_path / "T001", accels=("10VEHCCG0000ACXA",))
+    with pytest.raises(DataError, match=r"filtered at CFC1000, not CFC60") as refused:
+        load_test_data(
+            spec(file=tmp_path / "T001", format="iso-mme", channels={"accel": {"code": "10VEHCCG0000ACXA", "filtered": "CFC60"}})
+        )
+    assert refused.value.key.endswith("filtered")
+
+
 def test_mme_missing_code_and_missing_channel_file(tmp_path):
     _mme_set(tmp_path / "T001")
     with pytest.raises(DataError, match=r"T001\.chn: channel accel \(code 10VEHCCG0000ACXB\): code not in"):

@@ -64,6 +64,17 @@ def _filtered(channel: Channel, cfc: str | None, at: str) -> np.ndarray:
         raise DataError(f"{at}: {exc}") from None
 
 
+def _lab_filtered(channel: Channel, lab: str | None, at: str) -> Channel:
+    """`channel` as filtered at `lab` before it was read (a channel's `filtered`, for a file that
+    cannot say so, as a CSV cannot), so that a filter of that class is not applied twice
+    (`_filtered`); a DataError, key `filtered`, where the file says another class (an ISO-MME code)."""
+    if lab is None or channel.filtered == lab:
+        return channel
+    if channel.filtered is not None:
+        raise DataError(f"{at}: the file says its values were filtered at {channel.filtered}, not {lab}", "filtered")
+    return replace(channel, filtered=lab)
+
+
 def _filter_note(name: str, cfc: str | None) -> str:
     """What filter a channel with a default class got, said beside SAE J211's class."""
     j211 = DEFAULT_FILTER[name]
@@ -133,7 +144,7 @@ def load_test_data(spec: DataSpec, speed: float | None = None) -> TestData:
         if ch.derive is not None:
             continue
         with of_key(f"channels.{name}"):
-            c = raw.channels[name]
+            c = _lab_filtered(raw.channels[name], ch.filtered, where(path, name))
             check_sampling(c.time, where(path, name))
             _check_start(spec, name, c)
             if name == "accel":

@@ -485,7 +485,14 @@ class ChannelSpec(Strict):
     unit: str | None = Field(
         None, description="unit of the stored values; EV5 and MME files carry their own, NHTSA channel files none"
     )
-    filter: CFC | None = Field(None, description="SAE J211 filter class; barrier_force: CFC60 unless given (null: none)")
+    filter: CFC | None = Field(
+        None, description="SAE J211 filter class; accel and barrier_force: CFC60 unless given (null: none)"
+    )
+    filtered: CFC | None = Field(
+        None,
+        description="the class the file's values were filtered at before (a lab's): a filter of that class is not applied"
+        " again, and the model is still read through it (an ISO-MME code says its own)",
+    )
     sign: Literal[1, -1] = Field(
         1,
         description="multiplies the stored values into the model frame (x toward the barrier; barrier_force: compression"
