@@ -15,6 +15,7 @@ console and exit codes over that pipeline.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING, Any, TextIO
@@ -36,10 +37,13 @@ def load(path: str | Path) -> Problem:
 
 
 def _path(given: object, expected: str) -> str | Path:
-    """`given`, a path; TypeError naming what was `expected` for anything else (a dict, None)."""
-    if not isinstance(given, (str, Path)):
+    """`given`, a path (a str, or any os.PathLike); TypeError naming what was `expected` for anything
+    else (a dict, None)."""
+    if isinstance(given, str):
+        return given
+    if not isinstance(given, os.PathLike):
         raise TypeError(f"expected {expected} (str or Path), got {type(given).__name__}")
-    return given
+    return Path(given)
 
 
 def _problem(problem: Problem | str | Path) -> Problem:
@@ -110,6 +114,8 @@ def simulate(
     from crashnlp.results.params import given_result, with_params
     from crashnlp.results.source import simulation_source
 
+    if isinstance(params, os.PathLike) and not isinstance(params, Path):
+        params = Path(params)
     if params is not None and not isinstance(params, (Result, str, Path, dict)):
         raise TypeError(
             "crashnlp.simulate: params: expected a Result, a result.json or its folder (str or Path), or a dict "

@@ -198,6 +198,16 @@ BAD_CALLS = {
 }
 
 
+def test_any_path_like_names_a_problem(small_problem):
+    """A path is a str or any os.PathLike (a Path, or a library's own path type), as open() takes it."""
+
+    class Given:
+        def __fspath__(self) -> str:
+            return str(small_problem)
+
+    assert crashnlp.load(Given()).name == crashnlp.load(str(small_problem)).name
+
+
 @pytest.mark.parametrize("name", list(BAD_CALLS))
 def test_bad_input_to_the_api_is_one_line_of_the_documented_error(small_problem, name):
     """Bad input is an InputError (docs/reference/api.md) naming the entry; a value of the wrong

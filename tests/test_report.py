@@ -275,7 +275,7 @@ def test_the_csv_export_writes_every_curve_in_si(fit, tmp_path):
     assert main(["export", str(fit), "--format", "csv", "--out", str(tmp_path / "curves")]) == 0
     loading = csv_table(tmp_path / "curves/loading.csv")
     assert loading.dtype.names == ("crush_m", "force_N") and loading["crush_m"][-1] > 0.8
-    assert {p.name for p in (tmp_path / "curves").iterdir()} == {"loading.csv", "unloading.csv", "damper.csv", "notes.txt"}
+    assert {p.name for p in (tmp_path / "curves").iterdir()} == {"loading.csv", "unloading.csv", "damper.csv", "curves-notes.txt"}
     assert (tmp_path / "curves/loading.csv").read_text().startswith("crush_m,force_N\n")  # a plain table, any reader's
 
 
@@ -295,11 +295,11 @@ def exported_curves(folder: Path, tmp_path: Path) -> tuple[Path, Path]:
 
 def loading_comments(k: Path, csv: Path) -> tuple[list[str], list[str]]:
     """What the .k file says under its loading curve's line (up to how a reader extends it), and
-    what the CSV folder's notes.txt says of loading.csv."""
+    what the CSV folder's curves-notes.txt says of loading.csv."""
     comments = [line[2:] for line in k.read_text().splitlines() if line.startswith("$ ")]
     first = next(i for i, line in enumerate(comments) if line.startswith("curve 1001:")) + 1
     last = next(i for i, line in enumerate(comments) if "past the last point" in line)
-    said_csv = [line.removeprefix("loading.csv: ") for line in (csv / "notes.txt").read_text().splitlines()]
+    said_csv = [line.removeprefix("loading.csv: ") for line in (csv / "curves-notes.txt").read_text().splitlines()]
     return [line.strip() for line in comments[first:last]], said_csv[1:]
 
 
@@ -337,7 +337,7 @@ def test_a_designs_curves_call_it_the_designed_front_end(tmp_path):
     design = tmp_path / "design"
     assert main(["design", str(ROOT / "problems/design-crush-space.yaml"), "--out", str(design), "--no-figures"]) == 0
     k, csv = exported_curves(design, tmp_path)
-    firsts = [k.read_text().splitlines()[1], (csv / "notes.txt").read_text().splitlines()[0]]
+    firsts = [k.read_text().splitlines()[1], (csv / "curves-notes.txt").read_text().splitlines()[0]]
     assert all("the designed front end" in line for line in firsts), firsts
     assert not any("identified" in f.read_text() for f in [k, *csv.iterdir()])
 

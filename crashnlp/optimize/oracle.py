@@ -100,7 +100,7 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
     cc = compiled.compiler(nlp=True) if mode != "never" else None
     library = _library(nlp, "-".join([hessian, *sorted(nlp.extras)]), cc) if cc else None
     with suppress(*COMPILE_ERRORS):
-        if library and (loaded := _load(library)) is not None:
+        if library and (loaded := _load(library, _needed(nlp, hessian))) is not None:
             return loaded, True
     functions = {**_functions(nlp, hessian), **{name: make() for name, make in nlp.extras.items()}}
     if not (cc and library) or compiled.refused(library):
@@ -113,7 +113,7 @@ def _shape_functions(nlp: NLPBuilder, hessian: str, mode: str) -> tuple[dict[str
             if not library.exists():
                 _write_names(functions, library)
                 compiled.build(cc, _source(functions), library, lock, NLP_FLAGS)
-        if (loaded := _load(library)) is not None:
+        if (loaded := _load(library, _needed(nlp, hessian))) is not None:
             return loaded, True
     return functions, False
 
@@ -172,21 +172,30 @@ def _source(functions: dict[str, ca.Function]) -> str:
     return gen.dump()
 
 
-def _load(library: Path) -> dict[str, ca.Function] | None:
+def _load(library: Path, needed: set[str]) -> dict[str, ca.Function] | None:
     """Every Function of a library (once per process), or None where the cache holds no library
-    that is whole and loads (crashnlp.numerics.compiled.load_cached: one that is not is removed)."""
+    that is whole and loads with the Functions `needed` (crashnlp.numerics.compiled.load_cached:
+    one that is not is removed)."""
     if library not in _loaded:
-        functions = compiled.load_cached(library, lambda: _externals(library))
+        functions = compiled.load_cached(library, lambda: _externals(library, needed))
         if functions is None:
             return None
         _loaded[library] = functions
     return dict(_loaded[library])
 
 
-def _externals(library: Path) -> dict[str, ca.Function]:
-    """The Functions of `library`, by the names beside it (`_write_names`)."""
+def _externals(library: Path, needed: set[str]) -> dict[str, ca.Function]:
+    """The Functions of `library`, by the names beside it (`_write_names`); a RuntimeError where
+    they lack one `needed` (a list cut short, in a cache whose library has no record to vouch for it)."""
     names = library.with_suffix(".names").read_text().split()
+    if missing := needed - set(names):
+        raise RuntimeError(f"{library}: {', '.join(sorted(missing))} not in its list of functions")
     return {name: ca.external(name, str(library)) for name in names}
+
+
+def _needed(nlp: NLPBuilder, hessian: str) -> set[str]:
+    """The Functions a solver of `hessian` takes from an NLP's library (`_functions`' and the extras)."""
+    return {"nlp", "grad_f", "jac_g", *(("hess_lag",) if hessian in ("gauss-newton", "exact") else ()), *nlp.extras}
 
 
 def compiles_running(cache: Path) -> list[Path]:

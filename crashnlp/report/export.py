@@ -258,7 +258,7 @@ def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, stat
         fh.write(keyword_file(name, source, curves, status))
 
 
-NOTES_FILE = "notes.txt"  # beside the curve CSVs: what the .k file's comments say of them
+NOTES_FILE = "curves-notes.txt"  # beside the curve CSVs: what the .k file's comments say of them
 
 
 def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> list[Path]:
