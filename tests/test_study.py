@@ -593,6 +593,21 @@ def test_a_case_whose_data_or_code_changed_is_solved_again_and_the_console_says_
     assert said.startswith("0 of 2 cases reused")
 
 
+def test_a_case_warm_started_from_a_changed_parent_is_solved_again():
+    """A case's key holds its parent's key: a study edit that changes only the parent's value (its
+    child warm-starts from another solution) reused the child; its key changes now, a seed's not."""
+    from crashnlp.studies.plan import PlannedCase
+    from crashnlp.studies.run import _Cases
+
+    planned = [PlannedCase(1, (1,), (), 0, 1), PlannedCase(0, (0,), (), None, 0), PlannedCase(2, (2,), (), None, 0)]
+
+    def keys(seed: float) -> dict[int, str]:
+        return _Cases(planned, {0: {"bound": seed}, 1: {"bound": 2.0}, 2: {"bound": 3.0}}, {0: (), 1: (), 2: ()}).keys()
+
+    before, after = keys(1.0), keys(5.0)
+    assert before[0] != after[0] and before[1] != after[1] and before[2] == after[2]
+
+
 def test_the_code_a_case_is_keyed_by_changes_with_any_file_of_the_package(tmp_path):
     """crashnlp's version stays the same while its code changes: the package's files key it too."""
     from crashnlp.studies.plan import package_digest

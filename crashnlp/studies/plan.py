@@ -182,10 +182,12 @@ def case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
     return raw
 
 
-def case_key(raw: dict[str, Any], parent: int | None, data: list[tuple[str, str]], code: str) -> str:
-    """Fingerprint of what a case computes: its problem, its parent, every data file it reads (`data`:
-    name and sha256) and the code that solves it (`code_identity`). A stored case
-    is reused only if it matches: a case of edited data or of other code is solved again."""
+def case_key(raw: dict[str, Any], parent: str | None, data: list[tuple[str, str]], code: str) -> str:
+    """Fingerprint of what a case computes: its problem, its parent's fingerprint (None for a
+    seed: a case warm-started from another solution is another case), every data file it reads
+    (`data`: name and sha256) and the code that solves it (`code_identity`). A stored case is
+    reused only if it matches: a case of edited data, of another parent or of other code is
+    solved again."""
     text = json.dumps({"problem": raw, "parent": parent, "data": data, "code": code}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
 

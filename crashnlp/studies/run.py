@@ -156,14 +156,17 @@ class _Cases:
     files: dict[int, tuple[Path, ...]]
 
     def keys(self) -> dict[int, str]:
-        """Every case's fingerprint (crashnlp.studies.plan.case_key), each data file hashed once. A
-        file counts by its name and contents, not its folder: a study moved with its data resumes."""
+        """Every case's fingerprint (crashnlp.studies.plan.case_key), each data file hashed once, a
+        parent's before its children's (by depth), which hold it: a case warm-started from another
+        solution is another case. A file counts by its name and contents, not its folder: a study
+        moved with its data resumes."""
         digests = file_digests(f for c in self.planned for f in self.files[c.number])
         code = code_identity()
-        return {
-            c.number: case_key(self.raws[c.number], c.parent, [(f.name, digests[f]) for f in self.files[c.number]], code)
-            for c in self.planned
-        }
+        keys: dict[int, str] = {}
+        for c in sorted(self.planned, key=lambda c: c.depth):
+            data = [(f.name, digests[f]) for f in self.files[c.number]]
+            keys[c.number] = case_key(self.raws[c.number], None if c.parent is None else keys[c.parent], data, code)
+        return keys
 
 
 def _run(
