@@ -459,6 +459,28 @@ def _workers_of(pid: int) -> set[int]:
 
 @pytest.mark.integration
 @pytest.mark.slow
+@pytest.mark.parametrize("pidfd", [True, False])
+def test_a_worker_ends_once_the_process_that_started_it_is_killed(pidfd):
+    """A study's main process killed by SIGKILL (or the out-of-memory killer) stops nothing: its
+    workers, children of the fork server, waited on their queues for ever. A worker ends once its
+    main process is gone, watched through a pidfd, or polled where there is none."""
+    main = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    no_pidfd = "" if pidfd else "import os; del os.pidfd_open; "
+    watch = f"{no_pidfd}from crashnlp.engine import executors; executors._worker_init({main.pid}); print('watching', flush=True)"
+    worker = subprocess.Popen([sys.executable, "-c", f"{watch}; import time; time.sleep(120)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert worker.stdout.readline() == "watching\n"
+        time.sleep(0.2)
+        assert worker.poll() is None  # its main process is there: it stays
+        main.kill()
+        main.wait()
+        assert worker.wait(timeout=3 * executors.ORPHAN_POLL + 10) == 1
+    finally:
+        for process in (main, worker):
+            process.kill()
+            process.wait()
+
+
 @pytest.mark.skipif(not Path("/proc").is_dir(), reason="needs /proc")
 def test_a_study_whose_worker_is_killed_mid_case_completes_with_the_same_table(small, calm, tmp_path):
     """SIGKILL to one of the two workers while it solves a case: the command ends 0 and its

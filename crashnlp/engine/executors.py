@@ -19,6 +19,7 @@ import logging
 import multiprocessing
 import multiprocessing.util
 import os
+import select
 import signal
 import sys
 import threading
@@ -41,6 +42,7 @@ LOST_WORKER_POLL = 1.0  # s: how often a Dask study looks for workers that left 
 ABORT_WAIT = 5.0  # s: how long an aborted study's workers have to end after SIGTERM before they are killed
 HELD_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 NO_WORKERS_WAIT = 120.0  # s: how long a Dask study waits on a cluster that has no worker left
+ORPHAN_POLL = 1.0  # s: how often a worker looks whether its main process is there, where no pidfd tells it
 # a LocalCluster's housekeeping, which shares the cores with the cases it runs: no statistical
 # profiler sampling every worker's stacks (it holds the GIL a solve's callbacks need), the
 # event loops' tick and the system monitor at intervals a study of whole solves does not miss,
@@ -103,12 +105,39 @@ def start_early() -> None:
         forkserver.ensure_running()
 
 
-def _worker_init() -> None:
-    """Workers leave Ctrl-C to the main process, which stops them (a terminal sends SIGINT to all),
-    and stop the C compiles they started when they end (a worker ended by a signal stops them
-    too: crashnlp.numerics.compile_job watches its starter)."""
+def _worker_init(main: int) -> None:
+    """Workers leave Ctrl-C to the main process `main`, which stops them (a terminal sends SIGINT
+    to all), stop the C compiles they started when they end (a worker ended by a signal stops them
+    too: crashnlp.numerics.compile_job watches its starter), and end once `main` is gone
+    (`_end_with`)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     multiprocessing.util.Finalize(None, stop_compiles, exitpriority=0)
+    threading.Thread(target=_end_with, args=(main,), name="crashnlp-main-watch", daemon=True).start()
+
+
+def _end_with(main: int) -> None:
+    """End this worker once the process that started it has ended, however it ended: killed by
+    SIGKILL or the kernel's out-of-memory killer, it stops nothing, and its workers, children of
+    the fork server, waited on their queues for ever. Watched through a pidfd where the system has
+    one (Linux), else by polling the process every ORPHAN_POLL seconds."""
+    try:
+        watched = os.pidfd_open(main)
+    except (AttributeError, OSError):  # no pidfd here, or `main` gone already
+        while _alive(main):
+            time.sleep(ORPHAN_POLL)
+    else:
+        select.select([watched], [], [])
+    stop_compiles()
+    os._exit(1)
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` is there (one of another user's, PermissionError: the pid taken again)."""
+    try:
+        os.kill(pid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    return True
 
 
 @contextmanager
@@ -199,7 +228,7 @@ class LocalExecutor:
 
 
 def _new_pool() -> ProcessPoolExecutor:
-    return ProcessPoolExecutor(max_workers=1, mp_context=_context(), initializer=_worker_init)
+    return ProcessPoolExecutor(max_workers=1, mp_context=_context(), initializer=_worker_init, initargs=(os.getpid(),))
 
 
 @contextmanager
