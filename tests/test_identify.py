@@ -487,8 +487,8 @@ def test_a_record_cut_mid_crash_does_not_determine_the_unloading_line_and_its_pr
     capsys.readouterr()
     assert main(["simulate", str(path), "--params", str(tmp_path / "fit"), "--out", str(tmp_path / "sim"), "--no-figures"]) == 0
     out = capsys.readouterr().out
-    for key in ("rebound_velocity_mps", "max_pitch_deg"):
-        assert f"no interval for {key}: the data do not determine model.unloading.stiffness" in out
+    for label in ("rebound velocity", "max pitch"):  # named as the tables name them, not by key
+        assert f"no interval for {label}: the data do not determine model.unloading.stiffness" in out
     simulated = json.loads((tmp_path / "sim/simulation.json").read_text())["tests"]["own"]["intervals"]
     low, high = simulated["max_displacement_m"]
     assert 0.5 < low < high < 0.7 and simulated["rebound_velocity_mps"] is None  # m: the pickup's 0.59 m

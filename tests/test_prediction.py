@@ -212,14 +212,14 @@ def test_a_fit_whose_record_ends_before_the_stop_predicts_the_stop_with_the_cali
         low, high = prediction.intervals[key]
         assert low <= value <= high, (key, value, (low, high))
         assert prediction.parts[key].unit > 0  # the calibrated form term carries it
-        assert any(n.startswith(f"new: {key}: the fitted tests' records end before it") for n in prediction.notes)
+        assert any(n.startswith(f"new: {METRIC[key].label}: the fitted tests' records end before it") for n in prediction.notes)
     assert any(  # nor the peak: the deceleration may still grow after 50 ms
-        n.startswith("new: peak_decel_g: the fitted tests' records end before it") for n in prediction.notes
+        n.startswith("new: peak deceleration: the fitted tests' records end before it") for n in prediction.notes
     )
     own = crashnlp.simulate(_new_speed(tmp_path, raw, 48), params=result)["new"]  # its own speed, past its record
     assert own.parts["max_displacement_m"].unit == pytest.approx(0.0, abs=1e-12)
     assert any(
-        n.startswith("new: max_displacement_m: the fitted tests' records end before it") and "no calibrated form term" in n
+        n.startswith("new: max displacement: the fitted tests' records end before it") and "no calibrated form term" in n
         for n in own.notes
     )
 
@@ -294,7 +294,7 @@ def test_intervals_and_bands_far_from_the_fit_stay_within_what_is_physically_cer
         low_limit, high_limit = METRIC_RANGE[key]
         assert low_limit <= interval[0] <= test.metrics[key] <= interval[1] <= (end if high_limit is None else high_limit), key
         cut = uncut[key] != interval
-        assert cut == any(n.startswith(f"new: {key}'s interval ") for n in test.notes), key
+        assert cut == any(n.startswith(f"new: {METRIC[key].label}'s interval ") for n in test.notes), key
     low, high = test.bands["barrier_force"]
     assert np.all(low >= 0.0) and np.all(low <= test.response["barrier_force"])
     for name in ("barrier_force", "displacement", "crush"):
@@ -336,7 +336,7 @@ def test_an_interval_is_cut_to_its_metric_s_range_and_says_so():
     assert limited_interval("t", "max_displacement_m", inside, 0.15) == (inside, [])
     (low, high), notes = limited_interval("t", "peak_decel_g", (-6.6, 31.2), 0.15)
     assert (low, high) == (0.0, 31.2)
-    assert notes == ["t: peak_decel_g's interval is cut at 0.0 g, the least it can be: the data say nothing below it"]
+    assert notes == ["t: peak deceleration's interval is cut at 0.0 g, the least it can be: the data say nothing below it"]
     assert limited_interval("t", "time_zero_velocity_s", (0.05, 0.2), 0.15)[0] == (0.05, 0.15)
     assert "passes the record's end (150.00 ms)" in limited_interval("t", "time_zero_velocity_s", (0.05, 0.2), 0.15)[1][0]
     whole, (note,) = limited_interval("t", "time_zero_velocity_s", (-0.25, 0.44), 0.15)
@@ -872,7 +872,7 @@ def test_an_extrapolated_interval_names_its_parts_and_the_force_past_the_reach_w
         assert (low, high) == (max(uncut[0], low_limit), min(uncut[1], high_limit))
     assert shares["max_displacement_m"]["past_the_reach"] > 0 and test.extrapolation["displacement_m"] > 0
     for metric, part in shares.items():
-        said = any(f"{metric}'s interval is mostly the force past the crush" in n for n in test.notes)
+        said = any(f"{METRIC[metric].label}'s interval is mostly the force past the crush" in n for n in test.notes)
         assert said == (part["dominant"] == "past_the_reach"), metric
     inside = crashnlp.simulate(prediction_problem(path, 56.0, folder), params=result)["56kph"]
     # at the fitted test's own speed the calibrated form term is zero: the fit's own miss remains

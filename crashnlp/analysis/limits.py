@@ -56,14 +56,16 @@ def limited_interval(name: str, key: str, interval: tuple[float, float], end: fl
     shown = lambda v: f"{metric.shown(v)} {metric.unit}"
     if low < low_limit and high > high_limit:
         notes.append(
-            f"{name}: {key}'s interval spans every value it can take ({shown(low_limit)} to the record's end,"
+            f"{name}: {metric.label}'s interval spans every value it can take ({shown(low_limit)} to the record's end,"
             f" {shown(high_limit)}): the data do not determine it"
         )
     elif low < low_limit:
-        notes.append(f"{name}: {key}'s interval is cut at {shown(low_limit)}, the least it can be: the data say nothing below it")
+        notes.append(
+            f"{name}: {metric.label}'s interval is cut at {shown(low_limit)}, the least it can be: the data say nothing below it"
+        )
     elif high > high_limit:
         notes.append(
-            f"{name}: {key}'s interval passes the record's end ({shown(high_limit)}) and is cut there:"
+            f"{name}: {metric.label}'s interval passes the record's end ({shown(high_limit)}) and is cut there:"
             " the record says nothing of a stop after it"
         )
     return (max(low, low_limit), min(high, high_limit)), notes

@@ -349,13 +349,13 @@ def _uncertainty(
         intervals[key] = None
         if unloading.any() and key in UNSETTLED:
             why = f"the data do not determine {UNLOADING_STIFFNESS}, which it goes through"
-            notes.append(f"{test.name}: no interval for {key}: {why}")
+            notes.append(f"{test.name}: no interval for {METRIC[key].label}: {why}")
             continue
         if miss is None or value is None or not np.isfinite(value):
             if value is None and key in UNFINISHED and goes_on(metrics):
                 continue  # the simulation's still-moving note says so (_moving)
             why = "no fitted test measured it" if miss is None else "the simulated test does not reach it"
-            notes.append(f"{test.name}: no interval for {key}: {why}")
+            notes.append(f"{test.name}: no interval for {METRIC[key].label}: {why}")
             continue
         if unreached:
             notes.append(_unreached(test.name, key, distance))
@@ -367,7 +367,10 @@ def _uncertainty(
             calibration.unit(key, value, test.speed, distance),
         )
         if q is None or not np.isfinite(q):
-            notes.append(f"{test.name}: no interval for {key}: its form term is not calibrated for a prediction of class {klass}")
+            notes.append(
+                f"{test.name}: no interval for {METRIC[key].label}: its form term is not calibrated for a prediction"
+                f" of class {klass}"
+            )
             continue
         qs[key] = q
         intervals[key], cut = limited_interval(test.name, key, parts[key].interval(q), float(response.time[-1]))
@@ -382,7 +385,7 @@ def _unreached(name: str, key: str, distance: float) -> str:
     the fit's own; away from the fitted tests the calibrated form term stands in, and at their
     speed and mass (a distance within SAME_ENERGY) nothing does, since the corpus holds no
     prediction past the end of a fitted record."""
-    ended = f"{name}: {key}: the fitted tests' records end before it; its interval holds the fitted curves' miss"
+    ended = f"{name}: {METRIC[key].label}: the fitted tests' records end before it; its interval holds the fitted curves' miss"
     if distance > SAME_ENERGY:
         return f"{ended} and the calibrated form term, not the fit's own miss of it"
     return (
@@ -450,7 +453,8 @@ def _dominated(name: str, parts: dict[str, IntervalParts], qs: dict[str, float])
         shares = parts[key].shares(q)
         if shares["past_the_reach"] > max(shares["parameters"], shares["form"]):
             notes.append(
-                f"{name}: {key}'s interval is mostly the force past the crush the fitted tests reached (no test measured it)"
+                f"{name}: {METRIC[key].label}'s interval is mostly the force past the crush the fitted tests reached"
+                " (no test measured it)"
             )
     return notes
 
