@@ -600,6 +600,17 @@ def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
     assert "<td>510</td>" in page  # max displacement 0.51 m in mm, as the console shows it
 
 
+def test_a_study_report_gives_ipopts_status_beside_each_cases_own(tmp_path):
+    """A case IPOPT solved that failed a later check keeps IPOPT's status in table.csv: the page shows it too."""
+    store = CaseStore(tmp_path / "study" / "cases")
+    failed = study_row(0, "4 deg", "50 kN/m", ok=False) | {"return_status": "Solve_Succeeded"}
+    store.save("case-000", "key", failed, None)
+    store.save("case-001", "key", study_row(1, "8 deg", "50 kN/m") | {"return_status": "Solve_Succeeded"}, None)
+    assert main(["report", str(tmp_path / "study")]) == 0
+    page = (tmp_path / "study" / "report.html").read_text(encoding="utf-8")
+    assert '<th class="l">return_status</th>' in page and page.count('<td class="l">Solve_Succeeded</td>') == 2
+
+
 def test_a_study_report_is_titled_by_the_studys_name_not_its_folders(tmp_path):
     folder = tmp_path / "studydask"
     with claim(folder, run_name("study", "pitch-bound"), option=None):

@@ -269,19 +269,26 @@ def _extrapolation(test: PredictedTest) -> str:
 
 # --------------------------------------------------------------------------- a study
 def study_page(name: str, rows: list[dict], folder: Path) -> str:
-    """The page of a study: its table (swept values as written, status, objective, iterations,
-    metrics and bound multipliers in the units a person reads), its figures, and for a complete
+    """The page of a study: its table (swept values as written, status, IPOPT's return status,
+    objective, iterations, metrics and bound multipliers in the units a person reads), its figures, and for a complete
     two-entry grid a map of the objective and of each metric it plots over the grid."""
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a failed case's row lacks the metrics
     swept = [k for k in keys if f"{k}_si" in keys]
     metrics = [(k, *shown) for k in keys if (shown := shown_column(k)) is not None]
-    columns = ["case", *swept, "status", "objective", "iterations"]
+    solver = ["return_status"] if "return_status" in keys else []  # IPOPT's, beside a case's own status (older tables have none)
+    columns = ["case", *swept, "status", *solver, "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]
     body = [[_text(r.get(c)) for c in columns] + [significant(number(r.get(k)), f) for k, _, f in metrics] for r in rows]
     figures = embedded_figures(folder / "figures", sorted(p.name for p in (folder / "figures").glob("*.png")), "")
     maps = _maps(name, rows, swept, metrics) if len(swept) == 2 else []
     return TEMPLATES.get_template("study.html.j2").render(
-        title=f"{name}: study", head=head, body=body, figures=maps + figures, cases=len(rows), swept=swept
+        title=f"{name}: study",
+        head=head,
+        body=body,
+        texts=len(columns) - 2,  # the columns of words, left-aligned: all but objective and iterations
+        figures=maps + figures,
+        cases=len(rows),
+        swept=swept,
     )
 
 
