@@ -299,8 +299,9 @@ def loading_comments(k: Path, csv: Path) -> tuple[list[str], list[str]]:
     comments = [line[2:] for line in k.read_text().splitlines() if line.startswith("$ ")]
     first = next(i for i, line in enumerate(comments) if line.startswith("curve 1001:")) + 1
     last = next(i for i, line in enumerate(comments) if "past the last point" in line)
-    said_csv = [line.removeprefix("loading.csv: ") for line in (csv / "curves-notes.txt").read_text().splitlines()]
-    return [line.strip() for line in comments[first:last]], said_csv[1:]
+    said = (csv / "curves-notes.txt").read_text().splitlines()
+    said_csv = [line.removeprefix("loading.csv: ") for line in said if line.startswith("loading.csv: ")]
+    return [line.strip() for line in comments[first:last]], said_csv
 
 
 @pytest.mark.integration
@@ -327,6 +328,25 @@ def test_every_curve_export_says_where_the_data_end_and_what_no_test_determines(
             i = int(label.split("[")[1].rstrip("]"))
             assert re.search(rf"{re.escape(label)} = \d+ kN at {bps[i] * 1e3:.4g} mm", " ".join(said_k)), label
     assert read_result(segment).not_identified  # the values past the reach: the case this is about
+
+
+@pytest.mark.integration
+def test_a_damper_curve_says_what_its_values_rest_on(fit, tmp_path):
+    """The damper curve handed on had said nothing of its values: a fit that did not estimate them
+    hands on the problem's (nominal: one test does not tell a damper from a spring), and one that
+    did names those the data do not determine, as the loading curve's notes do; .k and CSV alike."""
+    from crashnlp.report.export import identified_curves
+
+    k, csv = exported_curves(fit, tmp_path)
+    identified = read_result(fit).identified
+    assert not any(label.startswith("model.damper.values") for label in identified.labels)
+    said = "not estimated: the problem's values, which no test determined"
+    assert any(line.startswith(f"$   {said}") for line in k.read_text().splitlines())
+    assert any(line.startswith(f"damper.csv: {said}") for line in (csv / "curves-notes.txt").read_text().splitlines())
+    estimated = dataclasses.replace(identified, labels=(*identified.labels, "model.damper.values[1]"))
+    (line,) = identified_curves(estimated, not_identified=("model.damper.values[1]",)).damper_notes
+    rate = identified.model["damper"]["rate_breakpoints"][1]
+    assert line.startswith("not identified") and "model.damper.values[1] = " in line and f"at {rate:.4g} m/s" in line
 
 
 @pytest.mark.integration

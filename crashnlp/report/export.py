@@ -40,7 +40,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import atomic_open, write_columns
-from crashnlp.results.identified import SPRING_VALUES, IdentifiedModel
+from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel
 from crashnlp.results.response import OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
@@ -66,7 +66,8 @@ class Curves:
     the unloading stiffness; the loading curve for an elastic front end); `damper`: force
     against crush rate (None without a damper). `loading_notes`: what both formats say of the
     loading curve (where the data end on it, `reach_lines`, and a clip at zero, `_not_pulling`);
-    `designed`: a design's front end (crashnlp design), its values chosen for a goal, fitted to no data."""
+    `designed`: a design's front end (crashnlp design), its values chosen for a goal, fitted to no
+    data; `damper_notes`: what both formats say of the damper curve (`damper_lines`)."""
 
     loading: tuple[np.ndarray, np.ndarray]
     unloading: tuple[np.ndarray, np.ndarray]
@@ -75,6 +76,7 @@ class Curves:
     unloading_stiffness: float
     loading_notes: tuple[str, ...] = ()
     designed: bool = False
+    damper_notes: tuple[str, ...] = ()
 
     @property
     def whose(self) -> str:
@@ -109,7 +111,16 @@ def identified_curves(identified: IdentifiedModel, not_identified: Collection[st
     speed = float(identified.vehicle.get("speed") or 0.0)
     notes = (*reach_lines(identified, not_identified), *clipped)
     damper = _damper(model, speed)
-    return Curves((crush, force), unloading_curve, damper, unloading["law"], stiffness, notes, identified.designed)
+    return Curves(
+        (crush, force),
+        unloading_curve,
+        damper,
+        unloading["law"],
+        stiffness,
+        notes,
+        identified.designed,
+        damper_lines(identified, not_identified) if damper is not None else (),
+    )
 
 
 def _not_pulling(crush: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, tuple[str, ...]]:
@@ -148,13 +159,7 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     past = [f"{b * MM:.4g}" for b in bps if b > reach]
     if past:
         lines.append(f"breakpoints past it: {', '.join(past)} mm")
-    undetermined = [
-        f"{label} = {values[i] * KN:.4g} kN at {bps[i] * MM:.4g} mm"
-        for i, label in enumerate(f"{SPRING_VALUES}[{i}]" for i in range(len(values)))
-        if label in not_identified
-    ]
-    if undetermined:
-        lines.append(f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}")
+    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", not_identified)
     tail = identified.tail_line
     if tail:
         lines.append(
@@ -162,6 +167,32 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
             f" {tail['slope'] * KN_PER_MM:.4g} kN/mm, in place of the law"
         )
     return tuple(lines)
+
+
+def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> tuple[str, ...]:
+    """What the damper curve's values rest on, in the words every format gives: a fit's damper whose
+    values it did not estimate is the problem's (nominal: one test does not tell the damper from the
+    spring), and the values it estimated that the data do not determine (`not_identified`)."""
+    damper = identified.model["damper"]
+    values, rates = damper["values"], [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
+    if identified.designed:
+        return ()
+    if not any(label.startswith(DAMPER_VALUES) for label in identified.labels):
+        return ("not estimated: the problem's values, which no test determined (nominal where the problem left them out)",)
+    return _undetermined(DAMPER_VALUES, values, rates, "kN*s/m", not_identified)
+
+
+def _undetermined(entry: str, values: list[float], at: list[str], unit: str, not_identified: Collection[str]) -> tuple[str, ...]:
+    """The line naming `entry`'s values the data do not determine, each with its value (in kN or
+    kN*s/m: the .k file's unit) and where it stands; none where the data determine them all."""
+    undetermined = [
+        f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
+        for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
+        if label in not_identified
+    ]
+    if not undetermined:
+        return ()
+    return (f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}",)
 
 
 def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -227,6 +258,7 @@ def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
         lines += [
             f"curve {FIRST_ID + 2}: damper, force against crush rate (LCDR of *MAT_DAMPER_NONLINEAR_VISCOUS, MAT_S05),",
             f"  on a discrete damper beside the spring; the {curves.whose} model engages it over its first millimetre of crush",
+            *(f"  {note}" for note in curves.damper_notes),
         ]
     else:
         lines.append(f"no damper: the {curves.whose} model has none")
@@ -276,6 +308,7 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
         *unconverged(status),
         f"{_whose_curves(name, source, curves)} as curves, SI: {', '.join(tables)}",
         *(f"loading.csv: {note}" for note in curves.loading_notes),
+        *(f"damper.csv: {note}" for note in curves.damper_notes),
     ]
     with atomic_open(folder / NOTES_FILE) as fh:
         fh.write("".join(f"{line}\n" for line in said))

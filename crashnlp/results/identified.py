@@ -37,6 +37,7 @@ SAME_GEOMETRY = 1e-4
 STRUCTURE = (("spring", "law"), ("spring", "crush_breakpoints"), ("damper", "rate_breakpoints"), ("unloading", "law"))
 SAME = 1e-9  # relative: values closer than this are the same
 SPRING_VALUES = "model.spring.values"
+DAMPER_VALUES = "model.damper.values"
 UNLOADING_STIFFNESS = "model.unloading.stiffness"
 # what a Case fills in from its own data when a problem leaves it out (crashnlp.case.completion): a
 # fit writes the value it used, so a null here is an edited file, and a prediction would read it from
