@@ -173,13 +173,13 @@ def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = 
     """What the damper curve's values rest on, in the words every format gives: a fit's damper whose
     values it did not estimate is the problem's (nominal: one test does not tell the damper from the
     spring), and the values it estimated that the data do not determine (`not_identified`)."""
-    damper = identified.model["damper"]
-    values, rates = damper["values"], [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
     if identified.designed:
         return ()
     if not any(label.startswith(DAMPER_VALUES) for label in identified.labels):
         return ("not estimated: the problem's values, which no test determined (nominal where the problem left them out)",)
-    return _undetermined(DAMPER_VALUES, values, rates, "kN*s/m", not_identified)
+    damper = identified.model["damper"]
+    rates = [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
+    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", not_identified)
 
 
 def _undetermined(entry: str, values: list[float], at: list[str], unit: str, not_identified: Collection[str]) -> tuple[str, ...]:
