@@ -891,3 +891,24 @@ def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
 def test_the_report_and_a_result_read_back_import_neither_casadi_nor_matplotlib():
     code = "import sys, crashnlp.report, crashnlp.report.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
+
+
+@pytest.mark.skipif(not (shutil.which("chromium") and shutil.which("pdftotext")), reason="headless Chromium and poppler")
+def test_a_studys_wide_table_prints_whole(tmp_path):
+    """A study's table of two swept entries, IPOPT's status, every predicted metric of a test and a
+    multiplier, printed by headless Chromium: its last column is on the page (the print cut the
+    table at the page's right edge after the first metric)."""
+    store = CaseStore(tmp_path / "study" / "cases")
+    multipliers = [-4.953, -2.562, -1.031, -0.517]
+    for case, (pitch, k) in enumerate([("4 deg", "50 kN/m"), ("8 deg", "50 kN/m"), ("4 deg", "90 kN/m"), ("8 deg", "90 kN/m")]):
+        row = study_row(case, pitch, k) | {"return_status": "Solved_To_Acceptable_Level"}
+        row |= {f"56kph.{m.key}": 1.0 + case for m in PREDICTED} | {"multiplier.56kph.bound.pitch.upper": multipliers[case]}
+        store.save(f"case-{case:03d}", "key", row, None)
+    assert main(["report", str(tmp_path / "study")]) == 0
+    pdf = tmp_path / "study.pdf"
+    flags = ("--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking")
+    page = (tmp_path / "study" / "report.html").as_uri()
+    subprocess.run(["chromium", *flags, f"--print-to-pdf={pdf}", page], capture_output=True, timeout=120, check=True)
+    printed = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
+    last = re.findall(r"<td[^>]*>([^<]*)</td></tr>", (tmp_path / "study" / "report.html").read_text(encoding="utf-8"))
+    assert len(last) == len(multipliers) and set(last) <= set(printed.split())
