@@ -82,8 +82,9 @@ def _params_folder(source: dict) -> Path | None:
 
 
 def _print_prediction(test) -> None:
-    """One line of the metrics each simulated test gives (with their 95 % intervals when the
-    identified model gave them; none where it gives none), one line for a test past the
+    """One line of the metrics each simulated test gives, with their 95 % intervals when the
+    identified model gave them (none where it gives none), after the speed and mass it ran at
+    (PredictedTest.conditions: a what-if's are not its name's); one line for a test past the
     identified range, and its notes (which say why a metric is not given)."""
     from crashnlp.results.simulation import extrapolation_line
 
@@ -94,7 +95,8 @@ def _print_prediction(test) -> None:
             continue
         parts.append(prediction_part(m, value, test.intervals.get(m.key), test.response.accel_filter))
     if parts:
-        print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
+        intervals = " (95 % intervals)" if any(test.intervals.values()) else ""
+        print(f"{test.name}, {test.conditions}: " + ", ".join(parts) + intervals)
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
     for note in test.notes:

@@ -141,6 +141,7 @@ NUMBER = r"-?\d+(?:\.\d+)?"
 PART = re.compile(
     rf"(?P<short>{'|'.join(map(re.escape, SHORT))}) (?P<value>{NUMBER})(?: \[(?P<low>{NUMBER}), (?P<high>{NUMBER})\])?"
 )
+PREDICTION_HEAD = r"\S+(?:, [^:]+)?: "  # a prediction line's test, and the speed and mass it ran at
 AFTER_PART = ("", ", ", " (95 % intervals)")  # what follows a part of a prediction's line
 
 
@@ -155,7 +156,7 @@ def labels_unlike_the_consoles(block: str, read_through: str | None) -> list[str
             cells = [*row["cells"].split(), "", ""][:2]
             if line.rstrip() != metric_row(ROWS[row["label"]], read_through, *cells).rstrip():
                 wrong.append(line)
-        elif re.match(rf"\S+: {PART.pattern}", line):
+        elif re.match(rf"{PREDICTION_HEAD}{PART.pattern}", line):
             for part in PART.finditer(line):
                 m = SHORT[part["short"]]
                 band = None if part["low"] is None else (float(part["low"]) / m.factor, float(part["high"]) / m.factor)
@@ -176,7 +177,7 @@ def test_a_quoted_console_block_names_its_metrics_as_the_console_does_now(block)
     console came to name the CFC class): no fit is run, the block's own values are printed again.
     Every block that holds such a line says what its accelerations were read through."""
     text = QUOTED["blocks"][block]
-    labelled = any(TABLE_ROW.fullmatch(line) or re.match(rf"\S+: {PART.pattern}", line) for line in text.splitlines())
+    labelled = any(TABLE_ROW.fullmatch(line) or re.match(rf"{PREDICTION_HEAD}{PART.pattern}", line) for line in text.splitlines())
     assert labelled == (block in QUOTED["read_through"])
     if labelled:
         assert labels_unlike_the_consoles(text, QUOTED["read_through"][block]) == []
@@ -185,7 +186,7 @@ def test_a_quoted_console_block_names_its_metrics_as_the_console_does_now(block)
 def test_a_stale_label_or_column_width_is_caught():
     table = "  test 1                              model      test\n"
     fresh = metric_row(METRIC["peak_decel_g"], "CFC60", "42.1", "40.94")
-    prediction = "40kph: max displacement 382.9 [354.9, 410.9] mm, peak decel 19.6 [15.5, 23.8] g (CFC60), OLC 19.1 g"
+    prediction = "40kph, predicted at 40.0 km/h, 2400 kg: max displacement 382.9 [354.9, 410.9] mm, peak decel 19.6 g (CFC60)"
     assert labels_unlike_the_consoles(table + fresh + "\n" + prediction, "CFC60") == []
     stale = [
         "    peak deceleration (g)              42.1     40.94",

@@ -912,3 +912,15 @@ def test_a_studys_wide_table_prints_whole(tmp_path):
     printed = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
     last = re.findall(r"<td[^>]*>([^<]*)</td></tr>", (tmp_path / "study" / "report.html").read_text(encoding="utf-8"))
     assert len(last) == len(multipliers) and set(last) <= set(printed.split())
+
+
+def test_a_what_ifs_console_line_names_the_speed_and_mass_it_ran_at(fit, tmp_path, capsys):
+    """`crashnlp simulate FIT --speed "64 km/h" --mass ...` of the pickup's 56kph test: its
+    metrics' line names the speed and mass simulation.json records, as its figure's title does
+    (it named the test alone, which says 56 km/h)."""
+    out = tmp_path / "what-if"
+    assert main(["simulate", str(fit), "--speed", "64 km/h", "--mass", "2300 kg", "--out", str(out), "--no-figures"]) == 0
+    ran = json.loads((out / "simulation.json").read_text())["tests"]["56kph"]
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("56kph") and "max displacement" in x)
+    said = line.split(": max displacement")[0]
+    assert f"{ran['speed_mps'] * 3.6:.1f} km/h" in said and f"{ran['mass_kg']:.0f} kg" in said
