@@ -654,5 +654,6 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         at = predicted.conditions + (", 95 % band" if bands else "")
         at += unconverged_mark(status)
         title = f"{named_test(name, predicted.name)}: {at}"
-        jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
+        figure = (out / predicted.name / "response.png", title, model, predicted.data, bands, None, None, r.accel_filter)
+        jobs.append(("response_figure", figure))
     return jobs

@@ -34,16 +34,19 @@ def response_figure(
     bands: dict[str, tuple] | None = None,
     notes: dict[str, str] | None = None,
     limits: dict[str, tuple] | None = None,
+    accel_filter: str | None = None,
 ) -> None:
     """A panel per output of PANELS, two a row: model curves (t, y SI) with the measured ones
     behind them, where given the model's 95 % band (t, low, high SI) shaded, a panel's note (its
-    fit's RMSE and rating) above it, and the problem's bounds on it (low, high SI; None: open)."""
+    fit's RMSE and rating) above it, and the problem's bounds on it (low, high SI; None: open);
+    the acceleration's axis names the CFC class it was read through, as the tables do. One
+    legend names what every panel draws."""
     rows = -(-len(PANELS) // 2)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 3.25 * rows), sharex=True)
     for ax in axes.flat[len(PANELS) :]:
         ax.set_visible(False)
     for ax, name in zip(axes.flat, PANELS):
-        label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
+        label, f = OUTPUT[name].label_through(accel_filter), OUTPUT[name].plot_factor
         if data and name in data:
             t, y = data[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="0.6", lw=1.2, label="data")
@@ -65,7 +68,8 @@ def response_figure(
     for ax in axes.flat[len(PANELS) - 2 :]:
         ax.set_xlabel("time (ms)")
         ax.xaxis.set_tick_params(labelbottom=True)
-    axes[0, 0].legend(loc="lower right")
+    drawn = {label: handle for ax in axes.flat for handle, label in zip(*ax.get_legend_handles_labels())}
+    axes[0, 0].legend(drawn.values(), drawn.keys(), loc="lower right")
     fig.suptitle(title)
     _layout(fig, wspace=0.28)
     _save(fig, path)
