@@ -20,7 +20,7 @@ import yaml
 from builders import BASE, ROOT, merge
 
 from crashnlp.analysis.summary import goes_on
-from crashnlp.base.outputs import OUTPUT, PREDICTED, named_test, shown_unit
+from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
@@ -618,6 +618,19 @@ def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
     assert len(self_contained(page)) == 3  # objective, max displacement, peak deceleration over the grid
     assert page.count("<tr>") == 1 + 4 and "t: peak deceleration (g)" in page and "<td>500</td>" not in page
     assert "<td>510</td>" in page  # max displacement 0.51 m in mm, as the console shows it
+
+
+def test_a_study_report_names_the_peaks_cfc_class_its_rows_record(tmp_path):
+    """The page's table and maps head the peak as the console's table does, "(g, CFC60)", where the
+    rows record the class (table.csv's <test>.accel_filter); rows written before it keep "(g)"."""
+    store = CaseStore(tmp_path / "grid" / "cases")
+    grid = [("8 deg", "90 kN/m"), ("4 deg", "50 kN/m"), ("8 deg", "50 kN/m"), ("4 deg", "90 kN/m")]
+    for case, (pitch, k) in enumerate(grid):
+        store.save(f"case-{case:03d}", "key", study_row(case, pitch, k) | {"t.accel_filter": "CFC60"}, None)
+    assert main(["report", str(tmp_path / "grid")]) == 0
+    page = (tmp_path / "grid" / "report.html").read_text(encoding="utf-8")
+    heading = f"t: {METRIC['peak_decel_g'].heading_through('CFC60')}"
+    assert page.count(heading) >= 2 and "t: peak deceleration (g)" not in page  # the table's head and the map's
 
 
 def test_a_study_report_gives_ipopts_status_beside_each_cases_own(tmp_path):

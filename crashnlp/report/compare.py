@@ -130,8 +130,15 @@ def _outline(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarr
     return np.concatenate([x, x[::-1]]), np.concatenate([low, high[::-1]])
 
 
+def shared_class(curves: list[Curve]) -> str | None:
+    """The CFC class every curve's acceleration was read through; None where they differ or none has one."""
+    classes = {c.response.accel_filter for c in curves}
+    return next(iter(classes)) if len(classes) == 1 else None
+
+
 def _over_time(name: str, curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
-    """One output against time for every curve, in its figure's unit: (title, x label, y label, series)."""
+    """One output against time for every curve, in its figure's unit: (title, x label, y label, series),
+    the acceleration's label naming the CFC class the curves share, as the metric table does."""
     output = OUTPUT[name]
     f = output.plot_factor
     series: list[Series] = []
@@ -142,7 +149,7 @@ def _over_time(name: str, curves: list[Curve]) -> tuple[str, str, str, list[Seri
             series.append((c.label, t, c.response[name] * f, None))
         else:
             series.append((f"{c.label}, 95 % band", t, c.response[name] * f, _outline(t, band[0] * f, band[1] * f)))
-    return f"{output.label.split(' (')[0]} against time", "time (ms)", output.label, series
+    return f"{output.label.split(' (')[0]} against time", "time (ms)", output.label_through(shared_class(curves)), series
 
 
 # what a force-crush figure's band is: each instant's band of a prediction, not the loading curve's
@@ -184,8 +191,7 @@ def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     row names the CFC class the curves' accelerations were read through, or where they differ,
     each cell its own ("unfiltered" for none)."""
     head = ["metric", *(c.label for c in curves)]
-    classes = {c.response.accel_filter for c in curves}
-    shared = next(iter(classes)) if len(classes) == 1 else None  # else each cell of a peak names its own class
+    shared = shared_class(curves)  # else each cell of a peak names its own class
     rows = []
     for m in PREDICTED:
         cells = []
