@@ -28,7 +28,7 @@ import numpy as np
 from crashnlp import __version__
 from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
-from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
+from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED, Metric
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
 from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
 from crashnlp.studies.cli import add_parser as add_study_parser
@@ -82,8 +82,9 @@ def _params_folder(source: dict) -> Path | None:
 
 
 def _print_prediction(test) -> None:
-    """One line of the metrics each simulated test gives (with their 95 % intervals when the
-    identified model gave them; none where it gives none), one line for a test past the
+    """One line of the metrics each simulated test gives, with their 95 % intervals when the
+    identified model gave them (none where it gives none), after the speed and mass it ran at
+    (PredictedTest.conditions: a what-if's are not its name's); one line for a test past the
     identified range, and its notes (which say why a metric is not given)."""
     from crashnlp.results.simulation import extrapolation_line
 
@@ -92,14 +93,21 @@ def _print_prediction(test) -> None:
         value = test.metrics.get(m.key)
         if value is None:
             continue
-        through = f" ({cfc})" if (cfc := m.read_through(test.response.accel_filter)) else ""
-        parts.append(f"{m.short} {m.cell(value, test.intervals.get(m.key))} {m.unit}{through}")
+        parts.append(prediction_part(m, value, test.intervals.get(m.key), test.response.accel_filter))
     if parts:
-        print(f"{test.name}: " + ", ".join(parts) + (" (95 % intervals)" if any(test.intervals.values()) else ""))
+        intervals = " (95 % intervals)" if any(test.intervals.values()) else ""
+        print(f"{test.name}, {test.conditions}: " + ", ".join(parts) + intervals)
     if test.extrapolation:
         print(f"{test.name}: {extrapolation_line(test.extrapolation)}")
     for note in test.notes:
         print(note)
+
+
+def prediction_part(m: Metric, value: float, band: tuple[float, float] | list[float] | None, accel_filter: str | None) -> str:
+    """One metric of a prediction's line, its 95 % interval where it has one, and the CFC class an
+    acceleration's extreme was read through: "peak decel 19.6 [15.5, 23.8] g (CFC60)"."""
+    through = f" ({cfc})" if (cfc := m.read_through(accel_filter)) else ""
+    return f"{m.short} {m.cell(value, band)} {m.unit}{through}"
 
 
 def _simulation(args):
@@ -156,6 +164,12 @@ def _numbers(value, digits: int, missing: float = np.nan) -> str:
 
 
 HEADINGS = max(len(m.heading_through("CFC1000")) for m in TABLED)  # the width of the metric table's first column
+
+
+def metric_row(m: Metric, accel_filter: str | None, model: str, test: str) -> str:
+    """A row of a fit's metric table: the metric's heading (the CFC class its acceleration was read
+    through) and its model's and test's cells."""
+    return f"    {m.heading_through(accel_filter):<{HEADINGS}}{model:>10}{test:>10}"
 
 
 def _unit_suffix(unit: str) -> str:
@@ -218,7 +232,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  test {name:<{HEADINGS - 2}}{'model':>10}{'test' if data else '':>10}")
         for row in TABLED:
             cells = row.tabled(model.get(row.key)), row.tabled(data.get(row.key)) if data else ""
-            print(f"    {row.heading_through(t.response.accel_filter):<{HEADINGS}}{cells[0]:>10}{cells[1]:>10}")
+            print(metric_row(row, t.response.accel_filter, *cells))
         if words := _departs(t.forward_check):
             print(f"    {words}")
         for who, m in (("the model", model), ("the test record", data)):

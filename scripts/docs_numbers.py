@@ -50,6 +50,15 @@ BRIEF = ("nhtsa-10146: ok", "test ", "max displacement", "time of zero velocity"
 BRIEF += ("ISO 18571", "relative energy balance")
 
 
+# the blocks that show metric labels (a fit's metric table, a prediction's line), each with the
+# run's file and test that say which CFC class its accelerations were read through ("read_through")
+LABELLED = {
+    "identify-nhtsa-10146": ("results/nhtsa-10146/result.json", "10146"),
+    "identify-nhtsa-10146-brief": ("results/nhtsa-10146/result.json", "10146"),
+    "simulate-pickup-40kph": ("results/pickup-40kph/simulation/simulation.json", "40kph"),
+}
+
+
 # --------------------------------------------------------------------------- the runs
 def run(*argv: str) -> list[str]:
     """The console lines of one crashnlp command run in the current folder; it must succeed."""
@@ -622,9 +631,10 @@ def code_numbers() -> dict[str, str]:
     return {"z95": f"{Z95:.2f}", "compare.tie_pct": f"{TIE * 100:g}", "compare.bic_tie": f"{BIC_TIE:g}"}
 
 
-def generate() -> dict[str, dict[str, str]]:
+def generate() -> dict[str, dict[str, Any]]:
     """Run the shipped problems in a scratch folder; the blocks and numbers the docs quote, with
-    make bench's (bench_numbers). The runs go in order: a later one reads an earlier one's result."""
+    make bench's (bench_numbers), and the CFC class each labelled block's accelerations were read
+    through (LABELLED). The runs go in order: a later one reads an earlier one's result."""
     blocks, numbers = {}, bench_numbers(json.loads(BENCH.read_text())) | code_numbers()
     with tempfile.TemporaryDirectory(prefix="docs-numbers-") as scratch, chdir(scratch):
         os.symlink(ROOT / "problems", "problems")
@@ -632,9 +642,13 @@ def generate() -> dict[str, dict[str, str]]:
             more_blocks, more_numbers = runs()
             blocks |= more_blocks
             numbers |= more_numbers
+        read_through = {
+            block: json.loads(Path(file).read_text())["tests"][test].get("accel_filter")
+            for block, (file, test) in LABELLED.items()
+        }
     if empty := [name for name, text in blocks.items() if not text]:
         raise SystemExit(f"no console line for block {', '.join(empty)}: the command's words changed; change the excerpt")
-    return {"blocks": blocks, "numbers": numbers}
+    return {"blocks": blocks, "numbers": numbers, "read_through": read_through}
 
 
 def _camry() -> Quoted:

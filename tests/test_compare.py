@@ -248,3 +248,36 @@ def test_the_api_takes_the_params_files_the_command_takes_and_refuses_the_same(f
     assert main(["simulate", str(problem), "--params", str(empty), "--out", str(out)]) == 2
     assert capsys.readouterr().err == f"crashnlp: error: {api.value}\n" and str(empty) in str(api.value)
     assert not out.exists()
+
+
+def test_the_force_crush_band_says_it_is_the_predictions_band_at_each_instant(folders, tmp_path, monkeypatch):
+    """compare-results' force_crush.png of a fit and a prediction: the banded curve's legend and a
+    note under the axes say the band is the barrier force's at each instant, not the loading
+    curve's (a crash engineer read it as the loading curve unknown where it was measured); the
+    fit's curve, without a band, says nothing of one."""
+    from crashnlp.results import plots
+
+    drawn: dict[str, object] = {}
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (drawn.setdefault(path.name, fig), save(fig, path)))
+    assert main(["compare-results", str(folders["fit"]), str(folders["64"]), "--out", str(tmp_path / "cmp")]) == 0
+    fig = drawn[FORCE_CRUSH]
+    fitted, predicted = (t.get_text() for t in fig.axes[0].get_legend().get_texts())
+    assert "band" not in fitted and "barrier force at each instant" in predicted
+    assert any("loading curve" in t.get_text() for t in fig.texts)
+    assert not drawn["accel.png"].texts  # a band over time is the quantity's own: no note
+
+
+def test_the_acceleration_figure_names_the_cfc_class_the_metric_table_names(folders, tmp_path, monkeypatch):
+    """compare-results' accel.png heads its axis as the page's metric table heads the peak: the CFC
+    class the curves' accelerations were read through (it said "acceleration (g)")."""
+    from crashnlp.results import plots
+
+    drawn: dict[str, object] = {}
+    save = plots._save
+    monkeypatch.setattr(plots, "_save", lambda fig, path: (drawn.setdefault(path.name, fig), save(fig, path)))
+    out = tmp_path / "cmp"
+    assert main(["compare-results", str(folders["fit"]), str(folders["64"]), "--out", str(out)]) == 0
+    with (out / METRICS).open() as fh:
+        (cfc,) = {r["accel_filter"] for r in csv.DictReader(fh)}
+    assert cfc and drawn["accel.png"].axes[0].get_ylabel().endswith(f", {cfc})")

@@ -74,7 +74,7 @@ def test_design_meets_every_constraint_at_every_grid_point(fine):
 def test_a_designs_figure_is_its_response_with_its_crush_space(fine, tmp_path):
     _, sol = fine
     result = result_of(sol)
-    ((_, (path, title, model, *_, limits)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    ((_, (path, title, model, *_, limits, _)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
     assert path.name == "response.png" and title == "design, test t: design"
     assert "crush" in model and limits["crush"] == (None, pytest.approx(CRUSH_SPACE))
     result.save(tmp_path, figures=False)

@@ -11,6 +11,8 @@ import pytest
 import yaml
 from builders import ROOT
 
+from crashnlp.base.outputs import METRIC, PREDICTED, TABLED
+from crashnlp.cli import metric_row, prediction_part
 from crashnlp.problem import load_problem, problem_from_dict
 
 spec = importlib.util.spec_from_file_location("docs_numbers", ROOT / "scripts/docs_numbers.py")
@@ -130,3 +132,66 @@ def test_the_docs_build_fails_on_a_drifted_page():
         module.on_page_markdown("stop 1.0<!--n:camry.stop_ms--> ms", Page, None, None)
     with pytest.raises(PluginError, match=r"index.md: typed by hand, not from a build: line 2: 745.7"):
         module.on_page_markdown("The Camry\ncrushes 745.7 mm.", Page, None, None)
+
+
+ROWS = {m.label: m for m in TABLED}
+TABLE_ROW = re.compile(rf"    (?P<label>{'|'.join(map(re.escape, ROWS))}) \([^)]*\)(?P<cells>.*)")
+SHORT = {m.short: m for m in PREDICTED if m.short}
+NUMBER = r"-?\d+(?:\.\d+)?"
+PART = re.compile(
+    rf"(?P<short>{'|'.join(map(re.escape, SHORT))}) (?P<value>{NUMBER})(?: \[(?P<low>{NUMBER}), (?P<high>{NUMBER})\])?"
+)
+PREDICTION_HEAD = r"\S+(?:, [^:]+)?: "  # a prediction line's test, and the speed and mass it ran at
+AFTER_PART = ("", ", ", " (95 % intervals)")  # what follows a part of a prediction's line
+
+
+def labels_unlike_the_consoles(block: str, read_through: str | None) -> list[str]:
+    """The lines of a quoted console block whose metric labels differ from those the console
+    prints now from the metric registry (crashnlp.base.outputs), accelerations read through
+    `read_through`: a fit's metric table's rows (heading and column widths) and each metric of a
+    prediction's line, printed again from the line's own values."""
+    wrong = []
+    for line in block.splitlines():
+        if row := TABLE_ROW.fullmatch(line):
+            cells = [*row["cells"].split(), "", ""][:2]
+            if line.rstrip() != metric_row(ROWS[row["label"]], read_through, *cells).rstrip():
+                wrong.append(line)
+        elif re.match(rf"{PREDICTION_HEAD}{PART.pattern}", line):
+            for part in PART.finditer(line):
+                m = SHORT[part["short"]]
+                band = None if part["low"] is None else (float(part["low"]) / m.factor, float(part["high"]) / m.factor)
+                again = prediction_part(m, float(part["value"]) / m.factor, band, read_through)
+                rest = line[part.start() :]
+                if not (
+                    rest.startswith(again) and any(rest[len(again) :].startswith(a) for a in AFTER_PART[1:]) or rest == again
+                ):
+                    wrong.append(line)
+                    break
+    return wrong
+
+
+@pytest.mark.parametrize("block", sorted(QUOTED["blocks"]))
+def test_a_quoted_console_block_names_its_metrics_as_the_console_does_now(block):
+    """A fit's metric table or a prediction's line quoted by the pages carries the metric labels
+    the registry gives now (results/docs-numbers.json had kept "peak deceleration (g)" after the
+    console came to name the CFC class): no fit is run, the block's own values are printed again.
+    Every block that holds such a line says what its accelerations were read through."""
+    text = QUOTED["blocks"][block]
+    labelled = any(TABLE_ROW.fullmatch(line) or re.match(rf"{PREDICTION_HEAD}{PART.pattern}", line) for line in text.splitlines())
+    assert labelled == (block in QUOTED["read_through"])
+    if labelled:
+        assert labels_unlike_the_consoles(text, QUOTED["read_through"][block]) == []
+
+
+def test_a_stale_label_or_column_width_is_caught():
+    table = "  test 1                              model      test\n"
+    fresh = metric_row(METRIC["peak_decel_g"], "CFC60", "42.1", "40.94")
+    prediction = "40kph, predicted at 40.0 km/h, 2400 kg: max displacement 382.9 [354.9, 410.9] mm, peak decel 19.6 g (CFC60)"
+    assert labels_unlike_the_consoles(table + fresh + "\n" + prediction, "CFC60") == []
+    stale = [
+        "    peak deceleration (g)              42.1     40.94",
+        fresh.replace("  42.1", " 42.1"),
+        prediction.replace(" (CFC60)", ""),
+    ]
+    for line in stale:
+        assert labels_unlike_the_consoles(line, "CFC60") == [line]

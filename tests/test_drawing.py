@@ -9,6 +9,7 @@ import pytest
 from builders import ROOT, small_pickup_problem
 
 from crashnlp import api
+from crashnlp.base.outputs import METRIC
 from crashnlp.results.drawing import FigureProcess
 from crashnlp.results.result import figure_jobs, write_figures
 
@@ -89,10 +90,30 @@ def test_the_force_crush_figure_draws_the_band_the_measured_curve_and_the_unload
 
 @pytest.mark.integration
 def test_the_fit_figure_names_each_channels_rmse_and_rating(result, tmp_path):
-    ((_, (_, title, _, _, _, notes, _)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
+    ((_, (_, title, _, _, _, notes, _, _)),) = [job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"]
     assert title == f"{result.name}: fit to the data"  # pickup-56kph names its test already
     fit = result.tests["56kph"].fit
     assert set(notes) == set(fit)
     for channel, f in fit.items():
         assert notes[channel].endswith(f"ISO 18571 {f.iso18571['overall']:.3f}")
     assert notes["displacement"].startswith(f"RMSE {fit['displacement'].rmse * 1e3:.3g} mm")
+
+
+@pytest.mark.integration
+def test_the_fit_figure_legends_its_bounds_and_names_the_accelerations_class_as_the_table(result, tmp_path, monkeypatch):
+    """fit.png's dashed bound lines are in its one legend (it named the first panel's curves
+    alone, and a bound on the pitch was in none), and its acceleration axis names the CFC class
+    the metric table names the peak's with ("(g, CFC60)")."""
+    from crashnlp.results import plots
+
+    ((_, (path, title, model, data, bands, notes, _, read)),) = [
+        job for job in figure_jobs(result, tmp_path) if job[0] == "response_figure"
+    ]
+    drawn: dict[str, object] = {}
+    monkeypatch.setattr(plots, "_save", lambda fig, path: drawn.setdefault("figure", fig))
+    plots.response_figure(path, title, model, data, bands, notes, {"pitch": (None, 0.1)}, read)
+    axes = drawn["figure"].axes
+    assert "bound" in [t.get_text() for t in axes[0].get_legend().get_texts()]
+    table = METRIC["peak_decel_g"].heading_through(result.tests["56kph"].response.accel_filter)
+    (accel,) = [ax.get_ylabel() for ax in axes if ax.get_ylabel().startswith("acceleration")]
+    assert read == "CFC60" and accel.endswith(table[table.index("(") :])

@@ -289,7 +289,7 @@ def test_a_fit_recovers_its_own_spring_and_gap_and_predicts_with_its_form_s_inte
         assert (high - low) / 2 == pytest.approx(np.sqrt(sum(part[k] ** 2 for k in ("parameters", "form", "past_the_reach"))))
     result.save(tmp_path / "fit", figures=False)
     assert main(["simulate", str(path), "--params", str(tmp_path / "fit" / "result.json"), "--out", str(tmp_path / "o")]) == 0
-    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("t56: max displacement"))
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("t56, predicted at"))
     assert line.endswith("(95 % intervals)")
     monkeypatch.setattr(prediction, "shipped", lambda form: None)  # a form without a table of its own
     test = crashnlp.simulate(path, params=result)["t56"]

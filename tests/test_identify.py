@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import csv
+import io
 import json
+import sys
 
 import numpy as np
 import pytest
@@ -493,3 +495,35 @@ def test_a_record_cut_mid_crash_does_not_determine_the_unloading_line_and_its_pr
     simulated = json.loads((tmp_path / "sim/simulation.json").read_text())["tests"]["own"]["intervals"]
     low, high = simulated["max_displacement_m"]
     assert 0.5 < low < high < 0.7 and simulated["rebound_velocity_mps"] is None  # m: the pickup's 0.59 m
+
+
+class _ReaderLeavesAfterOneLine(io.StringIO):
+    """stdout read by `head -1`: its first line arrives, every write after it finds the reader gone."""
+
+    def __init__(self, fileno: int):
+        super().__init__()
+        self._fileno = fileno
+
+    def fileno(self) -> int:
+        return self._fileno
+
+    def write(self, text: str) -> int:
+        if "\n" in self.getvalue():
+            raise BrokenPipeError(32, "Broken pipe")
+        return super().write(text)
+
+
+@pytest.mark.integration
+def test_a_fit_whose_reader_leaves_mid_solve_ends_there_and_leaves_the_old_fit(tmp_path, monkeypatch):
+    """`crashnlp identify ... | head -1` over a folder holding a fit and its export: the iteration
+    line that finds the reader gone ends the command with 141 (it ended the solve as IPOPT's
+    User_Requested_Stop, wrote that failed result and removed the export); the folder is as it was."""
+    out = tmp_path / "out"
+    pickup = str(ROOT / "problems/pickup-56kph.yaml")
+    assert main(["identify", pickup, "--out", str(out), "--no-figures"]) == 0
+    assert main(["export", str(out), "--format", "ls-dyna"]) == 0
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with (tmp_path / "stdout").open("w") as sink:
+        monkeypatch.setattr(sys, "stdout", _ReaderLeavesAfterOneLine(sink.fileno()))
+        assert main(["identify", pickup, "--out", str(out), "--no-figures"]) == 141  # crashnlp.cli.PIPE_CLOSED
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before

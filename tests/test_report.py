@@ -20,7 +20,7 @@ import yaml
 from builders import BASE, ROOT, merge
 
 from crashnlp.analysis.summary import goes_on
-from crashnlp.base.outputs import OUTPUT, PREDICTED, named_test, shown_unit
+from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, named_test, shown_unit
 from crashnlp.base.units import G0
 from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
@@ -620,6 +620,19 @@ def test_a_two_entry_grid_study_reports_its_table_and_maps(tmp_path):
     assert "<td>510</td>" in page  # max displacement 0.51 m in mm, as the console shows it
 
 
+def test_a_study_report_names_the_peaks_cfc_class_its_rows_record(tmp_path):
+    """The page's table and maps head the peak as the console's table does, "(g, CFC60)", where the
+    rows record the class (table.csv's <test>.accel_filter); rows written before it keep "(g)"."""
+    store = CaseStore(tmp_path / "grid" / "cases")
+    grid = [("8 deg", "90 kN/m"), ("4 deg", "50 kN/m"), ("8 deg", "50 kN/m"), ("4 deg", "90 kN/m")]
+    for case, (pitch, k) in enumerate(grid):
+        store.save(f"case-{case:03d}", "key", study_row(case, pitch, k) | {"t.accel_filter": "CFC60"}, None)
+    assert main(["report", str(tmp_path / "grid")]) == 0
+    page = (tmp_path / "grid" / "report.html").read_text(encoding="utf-8")
+    heading = f"t: {METRIC['peak_decel_g'].heading_through('CFC60')}"
+    assert page.count(heading) >= 2 and "t: peak deceleration (g)" not in page  # the table's head and the map's
+
+
 def test_a_study_report_gives_ipopts_status_beside_each_cases_own(tmp_path):
     """A case IPOPT solved that failed a later check keeps IPOPT's status in table.csv: the page shows it too."""
     store = CaseStore(tmp_path / "study" / "cases")
@@ -891,3 +904,36 @@ def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
 def test_the_report_and_a_result_read_back_import_neither_casadi_nor_matplotlib():
     code = "import sys, crashnlp.report, crashnlp.report.folders; print(sorted({'casadi', 'matplotlib'} & set(sys.modules)))"
     assert subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.strip() == "[]"
+
+
+@pytest.mark.skipif(not (shutil.which("chromium") and shutil.which("pdftotext")), reason="headless Chromium and poppler")
+def test_a_studys_wide_table_prints_whole(tmp_path):
+    """A study's table of two swept entries, IPOPT's status, every predicted metric of a test and a
+    multiplier, printed by headless Chromium: its last column is on the page (the print cut the
+    table at the page's right edge after the first metric)."""
+    store = CaseStore(tmp_path / "study" / "cases")
+    multipliers = [-4.953, -2.562, -1.031, -0.517]
+    for case, (pitch, k) in enumerate([("4 deg", "50 kN/m"), ("8 deg", "50 kN/m"), ("4 deg", "90 kN/m"), ("8 deg", "90 kN/m")]):
+        row = study_row(case, pitch, k) | {"return_status": "Solved_To_Acceptable_Level"}
+        row |= {f"56kph.{m.key}": 1.0 + case for m in PREDICTED} | {"multiplier.56kph.bound.pitch.upper": multipliers[case]}
+        store.save(f"case-{case:03d}", "key", row, None)
+    assert main(["report", str(tmp_path / "study")]) == 0
+    pdf = tmp_path / "study.pdf"
+    flags = ("--headless", "--no-sandbox", "--disable-gpu", "--no-first-run", "--disable-background-networking")
+    page = (tmp_path / "study" / "report.html").as_uri()
+    subprocess.run(["chromium", *flags, f"--print-to-pdf={pdf}", page], capture_output=True, timeout=120, check=True)
+    printed = subprocess.run(["pdftotext", str(pdf), "-"], capture_output=True, text=True, check=True).stdout
+    last = re.findall(r"<td[^>]*>([^<]*)</td></tr>", (tmp_path / "study" / "report.html").read_text(encoding="utf-8"))
+    assert len(last) == len(multipliers) and set(last) <= set(printed.split())
+
+
+def test_a_what_ifs_console_line_names_the_speed_and_mass_it_ran_at(fit, tmp_path, capsys):
+    """`crashnlp simulate FIT --speed "64 km/h" --mass ...` of the pickup's 56kph test: its
+    metrics' line names the speed and mass simulation.json records, as its figure's title does
+    (it named the test alone, which says 56 km/h)."""
+    out = tmp_path / "what-if"
+    assert main(["simulate", str(fit), "--speed", "64 km/h", "--mass", "2300 kg", "--out", str(out), "--no-figures"]) == 0
+    ran = json.loads((out / "simulation.json").read_text())["tests"]["56kph"]
+    line = next(x for x in capsys.readouterr().out.splitlines() if x.startswith("56kph") and "max displacement" in x)
+    said = line.split(": max displacement")[0]
+    assert f"{ran['speed_mps'] * 3.6:.1f} km/h" in said and f"{ran['mass_kg']:.0f} kg" in said

@@ -21,6 +21,7 @@ import yaml
 from builders import BASE, ROOT, command, die_always, die_once, merge, parents, worker_pid, worker_state
 
 from crashnlp.base.errors import InputError, RunError
+from crashnlp.base.outputs import METRIC
 from crashnlp.case.case import Case
 from crashnlp.engine import executors
 from crashnlp.engine.executors import LOCAL_CLUSTER_CONFIG, NO_WORKERS_WAIT, WORKER_DEATHS, DaskExecutor, LocalExecutor
@@ -140,6 +141,10 @@ def test_the_study_figure_reads_in_degrees_under_the_consoles_labels(shipped):
     assert job["series"]["56kph: max displacement (mm)"] == pytest.approx([1e3 * r["56kph.max_displacement_m"] for r in rows])
     per_degree = job["series"]["56kph: d objective / d pitch upper bound (1/deg)"]
     assert per_degree == pytest.approx([np.radians(r["multiplier.56kph.bound.pitch.upper"]) for r in rows])
+    # the peak under the label the console's table gives it: the CFC class each case's row records
+    assert {r["56kph.accel_filter"] for r in rows} == {"CFC60"}
+    peak = job["series"][f"56kph: {METRIC['peak_decel_g'].heading_through('CFC60')}"]
+    assert peak == pytest.approx([r["56kph.peak_decel_g"] for r in rows])
 
 
 @pytest.mark.integration

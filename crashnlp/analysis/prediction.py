@@ -651,8 +651,9 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         model = {k: (r.time, r[k]) for k in PANELS}
         bands = {k: (r.time, *band) for k, band in predicted.bands.items()}
         status = (predicted.source.get("result") or {}).get("status") or "ok"
-        at = f"predicted at {predicted.speed * 3.6:.1f} km/h, {predicted.mass:.0f} kg" + (", 95 % band" if bands else "")
+        at = predicted.conditions + (", 95 % band" if bands else "")
         at += unconverged_mark(status)
         title = f"{named_test(name, predicted.name)}: {at}"
-        jobs.append(("response_figure", (out / predicted.name / "response.png", title, model, predicted.data, bands)))
+        figure = (out / predicted.name / "response.png", title, model, predicted.data, bands, None, None, r.accel_filter)
+        jobs.append(("response_figure", figure))
     return jobs

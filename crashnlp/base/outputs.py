@@ -41,6 +41,12 @@ class Output:
         """The unit of the figure's axis, as its label gives it."""
         return self.label[self.label.rindex("(") + 1 : -1]
 
+    def label_through(self, accel_filter: str | None) -> str:
+        """The axis label, for the acceleration with the CFC class it was read through after its
+        unit, as tables name its peak (Metric.heading_through): "acceleration (g, CFC60)"."""
+        cfc = accel_filter if self.name == "accel" else None
+        return f"{self.label[: self.label.rindex('(')]}({through(self.plot_unit, cfc)})"
+
     def shown(self, value: float) -> str:
         """An SI value of this output as its figures show it: 3 significant digits, the axis's unit."""
         return f"{value * self.plot_factor:.3g} {self.plot_unit}"
@@ -114,8 +120,7 @@ class Metric:
     def heading_through(self, accel_filter: str | None, short: bool = False) -> str:
         """The heading (its short label with `short`), with the CFC class it was read through
         (read_through) after the unit: "peak deceleration (g, CFC60)"."""
-        through = f", {cfc}" if (cfc := self.read_through(accel_filter)) else ""
-        return f"{self.short if short else self.label} ({self.unit}{through})"
+        return f"{self.short if short else self.label} ({through(self.unit, self.read_through(accel_filter))})"
 
     @property
     def column(self) -> str:
@@ -142,6 +147,11 @@ class Metric:
         """A stored value as a fit's metric table prints it (the console's, the report's, the
         docs' numbers of it): in the shown unit, `significant`."""
         return significant(value, self.factor)
+
+
+def through(unit: str, cfc: str | None) -> str:
+    """A unit with the CFC class a value was read through after it, where it was: "g, CFC60"."""
+    return f"{unit}, {cfc}" if cfc else unit
 
 
 def significant(value: float | None, factor: float = 1.0, digits: int = 4) -> str:

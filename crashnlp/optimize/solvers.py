@@ -32,9 +32,12 @@ class BuiltSolver:
         self, args: dict[str, np.ndarray], out: TextIO | None = None, looks: frozenset[Look] = frozenset()
     ) -> tuple[dict, dict]:
         """One IPOPT run: its solution and stats; progress lines to `out`; Gauss-Newton stopped
-        at what it `looks` for (Watch)."""
+        at what it `looks` for (Watch). `out`'s reader gone, the run stops at that line with the
+        BrokenPipeError raised here, where the command ends as at any other write to it."""
         self.watch.start(args["lbg"], args["ubg"], out, looks)
         sol = self.function(**args)
+        if self.watch.broken is not None:
+            raise self.watch.broken
         return sol, self.function.stats()
 
 

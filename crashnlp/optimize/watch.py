@@ -96,6 +96,7 @@ class Watch(ca.Callback):
         self.remaining: float | None = None  # set to hand over to Newton: the distance still to go
         self.start_objective: float | None = None
         self.stopped: Stop | None = None  # set to stop a cycle, a wander or an unsettled cycle (rules above)
+        self.broken: BrokenPipeError | None = None  # set when `out`'s reader left: the run stops there
 
     def get_n_in(self):
         return ca.nlpsol_n_out()
@@ -132,7 +133,11 @@ class Watch(ca.Callback):
 
         if printing:
             f = float(arg[names.index("f")])
-            print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
+            try:
+                print(f"  iter {count:4d}  objective {f:11.5g}  constraint violation {violation():9.2e}", file=self.out)
+            except BrokenPipeError as exc:  # CasADi would turn it into IPOPT's stop and the run would go on
+                self.broken = exc
+                return [1]
         if self.looks:
             self._follow(arg[names.index("x")].full().ravel(), float(arg[names.index("f")]), violation)
         return [int(self.remaining is not None or self.stopped is not None)]

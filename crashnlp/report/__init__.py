@@ -25,7 +25,7 @@ from crashnlp.results.files import atomic_open, check_writable_file, deriving, r
 from crashnlp.results.result import Result, loading_curve_name, pull_texts, unconverged
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
-from crashnlp.studies.table import number, shown_column
+from crashnlp.studies.table import number, read_through, shown_column
 
 if TYPE_CHECKING:
     from crashnlp.results.simulation import PredictedTest
@@ -274,7 +274,8 @@ def study_page(name: str, rows: list[dict], folder: Path) -> str:
     two-entry grid a map of the objective and of each metric it plots over the grid."""
     keys = list(dict.fromkeys(k for r in rows for k in r))  # a failed case's row lacks the metrics
     swept = [k for k in keys if f"{k}_si" in keys]
-    metrics = [(k, *shown) for k in keys if (shown := shown_column(k)) is not None]
+    classes = read_through(rows)
+    metrics = [(k, *shown) for k in keys if (shown := shown_column(k, classes)) is not None]
     solver = ["return_status"] if "return_status" in keys else []  # IPOPT's, beside a case's own status (older tables have none)
     columns = ["case", *swept, "status", *solver, "objective", "iterations"]
     head = columns + [label for _, label, _ in metrics]

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import OUTPUT, PREDICTED, named_test
+from crashnlp.base.outputs import OUTPUT, PREDICTED, Output, named_test
 from crashnlp.report import TEMPLATES, embedded_figures
 from crashnlp.report.folders import folder_kind, read_result, read_simulation
 from crashnlp.results.files import atomic_open, check_writable
@@ -61,7 +61,9 @@ def compare_results(folders: list[Path], out: Path) -> list[Curve]:
 
     for name in QUANTITIES:
         plots.overlay_figure(out / f"{name}.png", *_over_time(name, curves))
-    plots.overlay_figure(out / FORCE_CRUSH, *_force_crush(curves))
+    title, xlabel, ylabel, series = _force_crush(curves)
+    banded = any(band is not None for *_, band in series)
+    plots.overlay_figure(out / FORCE_CRUSH, title, xlabel, ylabel, series, FORCE_CRUSH_NOTE if banded else "")
     write_metrics(out / METRICS, curves)
     with atomic_open(out / PAGE) as fh:
         fh.write(page(curves, out))
@@ -128,16 +130,33 @@ def _outline(x: np.ndarray, low: np.ndarray, high: np.ndarray) -> tuple[np.ndarr
     return np.concatenate([x, x[::-1]]), np.concatenate([low, high[::-1]])
 
 
+def shared_class(curves: list[Curve]) -> str | None:
+    """The CFC class every curve's acceleration was read through; None where they differ or none has one."""
+    classes = {c.response.accel_filter for c in curves}
+    return next(iter(classes)) if len(classes) == 1 else None
+
+
 def _over_time(name: str, curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
-    """One output against time for every curve, in its figure's unit: (title, x label, y label, series)."""
+    """One output against time for every curve, in its figure's unit: (title, x label, y label, series),
+    the acceleration's label naming the CFC class the curves share, as the metric table does."""
     output = OUTPUT[name]
     f = output.plot_factor
     series: list[Series] = []
     for c in curves:
         t = c.response.time * 1e3
         band = c.bands.get(name)
-        series.append((c.label, t, c.response[name] * f, None if band is None else _outline(t, band[0] * f, band[1] * f)))
-    return f"{output.label.split(' (')[0]} against time", "time (ms)", output.label, series
+        if band is None:
+            series.append((c.label, t, c.response[name] * f, None))
+        else:
+            series.append((f"{c.label}, 95 % band", t, c.response[name] * f, _outline(t, band[0] * f, band[1] * f)))
+    return f"{output.label.split(' (')[0]} against time", "time (ms)", output.label_through(shared_class(curves)), series
+
+
+# what a force-crush figure's band is: each instant's band of a prediction, not the loading curve's
+FORCE_CRUSH_NOTE = (
+    "A band is a prediction's 95 % band at each instant of its simulation, its form terms (mostly the peak's) included:\n"
+    "not an uncertainty of the loading curve, which the fit's own force_crush.png shades from its parameters."
+)
 
 
 def _force_crush(curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
@@ -150,14 +169,20 @@ def _force_crush(curves: list[Curve]) -> tuple[str, str, str, list[Series]]:
         crush, force = c.response["crush"] * x.plot_factor, c.response["barrier_force"] * y.plot_factor
         loading = slice(0, int(np.argmax(crush)) + 1)
         band: tuple[np.ndarray, np.ndarray] | None = None
+        label = c.label
         if "barrier_force" in c.bands:
             low, high = (b[loading] * y.plot_factor for b in c.bands["barrier_force"])
-            band = _outline(crush[loading], low, high)
+            band, label = _outline(crush[loading], low, high), f"{label}, {_band_of(y)}"
         elif "crush" in c.bands:
             low, high = (b[loading] * x.plot_factor for b in c.bands["crush"])
-            band = _outline(force[loading], low, high)[::-1]
-        series.append((c.label, crush, force, band))
+            band, label = _outline(force[loading], low, high)[::-1], f"{label}, {_band_of(x)}"
+        series.append((label, crush, force, band))
     return "barrier force against crush", x.label, y.label, series
+
+
+def _band_of(output: Output) -> str:
+    """A force-crush curve's band in its legend: of which output, at each instant (FORCE_CRUSH_NOTE)."""
+    return f"95 % band of the {output.label.split(' (')[0]} at each instant"
 
 
 def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
@@ -166,8 +191,7 @@ def metric_table(curves: list[Curve]) -> tuple[list[str], list[list[str]]]:
     row names the CFC class the curves' accelerations were read through, or where they differ,
     each cell its own ("unfiltered" for none)."""
     head = ["metric", *(c.label for c in curves)]
-    classes = {c.response.accel_filter for c in curves}
-    shared = next(iter(classes)) if len(classes) == 1 else None  # else each cell of a peak names its own class
+    shared = shared_class(curves)  # else each cell of a peak names its own class
     rows = []
     for m in PREDICTED:
         cells = []

@@ -34,16 +34,19 @@ def response_figure(
     bands: dict[str, tuple] | None = None,
     notes: dict[str, str] | None = None,
     limits: dict[str, tuple] | None = None,
+    accel_filter: str | None = None,
 ) -> None:
     """A panel per output of PANELS, two a row: model curves (t, y SI) with the measured ones
     behind them, where given the model's 95 % band (t, low, high SI) shaded, a panel's note (its
-    fit's RMSE and rating) above it, and the problem's bounds on it (low, high SI; None: open)."""
+    fit's RMSE and rating) above it, and the problem's bounds on it (low, high SI; None: open);
+    the acceleration's axis names the CFC class it was read through, as the tables do. One
+    legend names what every panel draws."""
     rows = -(-len(PANELS) // 2)
     fig, axes = plt.subplots(rows, 2, figsize=(10, 3.25 * rows), sharex=True)
     for ax in axes.flat[len(PANELS) :]:
         ax.set_visible(False)
     for ax, name in zip(axes.flat, PANELS):
-        label, f = OUTPUT[name].label, OUTPUT[name].plot_factor
+        label, f = OUTPUT[name].label_through(accel_filter), OUTPUT[name].plot_factor
         if data and name in data:
             t, y = data[name]
             ax.plot(np.asarray(t) * 1e3, np.asarray(y) * f, color="0.6", lw=1.2, label="data")
@@ -65,7 +68,8 @@ def response_figure(
     for ax in axes.flat[len(PANELS) - 2 :]:
         ax.set_xlabel("time (ms)")
         ax.xaxis.set_tick_params(labelbottom=True)
-    axes[0, 0].legend(loc="lower right")
+    drawn = {label: handle for ax in axes.flat for handle, label in zip(*ax.get_legend_handles_labels())}
+    axes[0, 0].legend(drawn.values(), drawn.keys(), loc="lower right")
     fig.suptitle(title)
     _layout(fig, wspace=0.28)
     _save(fig, path)
@@ -119,16 +123,17 @@ def residual_figure(path: Path, title: str, residuals: dict[str, tuple]) -> None
     _save(fig, path)
 
 
-def overlay_figure(path: Path, title: str, xlabel: str, ylabel: str, series: list[tuple]) -> None:
+def overlay_figure(path: Path, title: str, xlabel: str, ylabel: str, series: list[tuple], note: str = "") -> None:
     """Curves of several fits or predictions on one axis (crashnlp compare-results), each in its
-    own colour with its band shaded in it and a legend naming it; every value already in the
-    axes' units. series: (label, x, y, the band's outline as a polygon (x, y) or None)."""
+    own colour with its band shaded in it and a legend naming it (and its band); every value
+    already in the axes' units; `note` under the axes, where it says what the bands are. series:
+    (label, x, y, the band's outline as a polygon (x, y) or None)."""
     fig, ax = plt.subplots(figsize=(8, 4.8))
     for i, (label, x, y, band) in enumerate(series):
         colour = f"C{i % 10}"
         if band is not None:
             ax.fill(*band, color=colour, alpha=0.18, lw=0)
-        ax.plot(x, y, color=colour, lw=1.6, label=label + (", 95 % band" if band is not None else ""))
+        ax.plot(x, y, color=colour, lw=1.6, label=label)
     ax.set_xlabel(xlabel)
     ax.set_ylabel(ylabel)
     ax.ticklabel_format(useOffset=False)
@@ -136,6 +141,9 @@ def overlay_figure(path: Path, title: str, xlabel: str, ylabel: str, series: lis
     ax.legend(fontsize=8)
     ax.set_title(title)
     _layout(fig)
+    if note:  # two lines of small type under the axis' label
+        fig.text(0.01, 0.01, note, fontsize=7, color="0.35", va="bottom", wrap=True)
+        fig.subplots_adjust(bottom=(MARGINS_IN["bottom"] + NOTE_IN) / fig.get_size_inches()[1])
     _save(fig, path)
 
 
@@ -228,6 +236,7 @@ def _png(fig) -> bytes:
     return buffer.getvalue()
 
 
+NOTE_IN = 0.3  # a figure's note below its axes: two lines of 7 pt
 MARGINS_IN = {"left": 0.95, "right": 0.2, "bottom": 0.6, "top": 0.5}  # room for tick and axis labels and a title
 
 

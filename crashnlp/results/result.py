@@ -433,7 +433,8 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
         fit = result.kind == "identify"
         title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model' if fit else 'design'}"
         path = out / name / ("fit.png" if fit else "response.png")
-        jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), result.output_bounds)))
+        bounds, read = result.output_bounds, t.response.accel_filter
+        jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), bounds, read)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
             title = f"{named_test(result.name, name)}: residuals (model - data)"

@@ -113,6 +113,12 @@ class PredictedTest(Mapping[str, np.ndarray]):
     def __len__(self) -> int:
         return len(self._arrays)
 
+    @property
+    def conditions(self) -> str:
+        """The speed and mass it was simulated at, as its figure's title and its console line name
+        them: "predicted at 64.0 km/h, 2400 kg" (a what-if's `--speed` or `--mass` is not its name's)."""
+        return f"predicted at {self.speed * 3.6:.1f} km/h, {self.mass:.0f} kg"
+
     def shares(self) -> dict[str, dict[str, float | str]]:
         """Per metric with an interval: each part's 95 % half-width, and which part dominates."""
         out: dict[str, dict[str, float | str]] = {}

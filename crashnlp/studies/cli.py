@@ -28,7 +28,8 @@ soon as that neighbour is solved. The plan depends only on the case list, so
 every executor and worker count gives the same table.
 
 Writes OUT/table.csv (one row per case: swept values as written and in SI,
-status, IPOPT's return status, objective, iterations, solve time, metrics, estimated parameters,
+status, IPOPT's return status, objective, iterations, solve time, metrics, the CFC class each
+test's accelerations were read through (<test>.accel_filter), estimated parameters,
 multipliers of the swept constraints = d objective / d bound), OUT/figures/, and
 OUT/cases/ (each case as it finishes). Running again into the same OUT resumes:
 a finished case (also a failed one) is not solved again while its problem, the

@@ -19,6 +19,7 @@ from crashnlp.studies.spec import Study, SweepEntry
 if TYPE_CHECKING:
     from crashnlp.engine.executors import Executor
 
+ACCEL_FILTER = "accel_filter"  # a test's column ("56kph.accel_filter"): the CFC class its accelerations were read through
 MULTIPLIER = re.compile(r"multiplier\.(?:(?P<test>[^.]+)\.)?bound\.(?P<output>\w+)\.(?P<side>upper|lower)")  # of an output bound
 
 
@@ -85,14 +86,27 @@ def figure_jobs(study: Study, cases: list[PlannedCase], rows: list[dict]) -> lis
     return jobs
 
 
-def shown_column(name: str) -> tuple[str, float] | None:
+def read_through(rows: list[dict[str, Any]]) -> dict[str, str]:
+    """Each test's CFC class its accelerations were read through, where its cases agree on one
+    (rows written before the table kept it have none)."""
+    classes: dict[str, set] = {}
+    for r in rows:
+        for k, v in r.items():
+            if k.endswith(f".{ACCEL_FILTER}") and v:
+                classes.setdefault(k.removesuffix(f".{ACCEL_FILTER}"), set()).add(v)
+    return {test: cfc.pop() for test, cfc in classes.items() if len(cfc) == 1}
+
+
+def shown_column(name: str, classes: dict[str, str] | None = None) -> tuple[str, float] | None:
     """A table column that is a crash metric ("56kph.peak_decel_g") or the multiplier of an output
     bound ("multiplier.56kph.bound.pitch.upper", per SI unit) as a person reads it: its label
-    ("56kph: peak deceleration (g)", "56kph: d objective / d pitch upper bound (1/deg)") and the
-    factor from the column's value to that unit; None for any other column."""
+    ("56kph: peak deceleration (g, CFC60)", the CFC class from `classes` (read_through) as the
+    console's table names it; "56kph: d objective / d pitch upper bound (1/deg)") and the factor
+    from the column's value to that unit; None for any other column."""
     for m in METRICS:
         if name.endswith(f".{m.key}"):
-            return f"{name.removesuffix('.' + m.key)}: {m.heading}", m.factor
+            test = name.removesuffix("." + m.key)
+            return f"{test}: {m.heading_through((classes or {}).get(test))}", m.factor
     bound = MULTIPLIER.fullmatch(name)
     if bound is not None and bound["output"] in OUTPUT:
         unit, factor = shown_unit(OUTPUT[bound["output"]].unit)
@@ -114,8 +128,9 @@ def _curves(entry: SweepEntry, i: int, members: list, names: list[str]) -> dict[
     ok = np.array([r["status"] == "ok" for _, r in members])
     order = np.argsort(x[ok], kind="stable")
     series = {}
+    classes = read_through([r for _, r in members])
     for n in names:
-        label, scale = shown_column(n) or (n, 1.0)
+        label, scale = shown_column(n, classes) or (n, 1.0)
         series[label] = np.array([number(r.get(n)) * scale for _, r in members if r["status"] == "ok"])[order]
     return {"x": x[ok][order], "series": series, "xlabel": xlabel, "failed": np.sort(x[~ok])}
 

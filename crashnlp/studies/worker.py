@@ -14,6 +14,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import PREDICTED_KEYS
 from crashnlp.numerics.runtime import THREADS_ENV
 from crashnlp.problem import problem_from_dict
+from crashnlp.studies.table import ACCEL_FILTER
 
 if TYPE_CHECKING:
     from crashnlp.results.result import Result
@@ -46,7 +47,8 @@ def one_line(exc: BaseException) -> str:
 
 
 def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
-    """Status, IPOPT's return status and figures, metrics, parameters and the multipliers of the swept constraints."""
+    """Status, IPOPT's return status and figures, metrics (and the CFC class each test's
+    accelerations were read through), parameters and the multipliers of the swept constraints."""
     record: dict[str, Any] = {
         "status": result.status,
         "return_status": result.solver.return_status,  # IPOPT's: a case it solved may still fail a check
@@ -56,6 +58,7 @@ def result_record(result: Result, constraints: list[str]) -> dict[str, Any]:
     }
     for name, test in result.tests.items():
         record.update({f"{name}.{k}": test.metrics[k] for k in PREDICTED_KEYS})
+        record[f"{name}.{ACCEL_FILTER}"] = test.response.accel_filter  # its peak's CFC class, as tables name it
     for path, value in result.parameters.items():
         values = np.ravel(value)
         if np.ndim(value):
