@@ -326,13 +326,22 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 
 def comparison_table(forms: Sequence[FormScore]) -> list[str]:
     """The console's table of a comparison: a column per form (its status ok or not, FORM_ROWS), then
-    each form that is not ok with its whole status (IPOPT's, or the check that failed)."""
+    each form that is not ok with its whole status (IPOPT's, or the check that failed), and each
+    held-out fit of a form that is ok that failed, with its status."""
     lines = [f"  {'':<24}" + "".join(f"{f.form:>14}" for f in forms)]
     lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>14}" for f in forms))
     for label, key, factor, fmt in FORM_ROWS:
         cells = [getattr(f, key) for f in forms]
         lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
-    return lines + [f"  {f.form}: {f.status}" for f in forms if not f.ok]
+    return lines + [line for f in forms for line in _not_ok(f)]
+
+
+def _not_ok(form: FormScore) -> list[str]:
+    """The lines under the comparison table for a form: its status where it is not ok, else each
+    held-out fit that failed with its status (the form has no held-out score then)."""
+    if not form.ok:
+        return [f"  {form.form}: {form.status}"]
+    return [f"  {form.form}: predicting {h.test} from the other tests: {h.status}" for h in form.held_out if h.status != "ok"]
 
 
 def cmd_compare_forms(args) -> int:

@@ -72,6 +72,24 @@ def test_a_failed_fit_is_not_chosen_while_another_form_serves():
     assert choose([_score("pendulum", held=None), _score("rigid-body", held=None)], "held-out")[0] is None
 
 
+def test_a_form_whose_held_out_fit_failed_is_named_in_the_table_and_beside_the_choice():
+    """The full pendulum fit converged, its held-out fits did not (pickup-joint at max_iter 25):
+    the table's lines say which held-out fit failed and why, the choice names the pendulum as
+    left out and its tie as not applied, and with no other form the reason says the fit converged
+    (it had said nothing of the held-out fits, and "no form's fit converged with a score")."""
+    why = "solver failed: Maximum_Iterations_Exceeded"
+    pendulum = FormScore("pendulum", "ok", held_out=(HeldOut("56kph", why), HeldOut("40kph", why)))
+    lines = comparison_table([pendulum, _score("rigid-body", held=0.07)])
+    assert f"  pendulum: predicting 56kph from the other tests: {why}" in lines
+    assert f"  pendulum: predicting 40kph from the other tests: {why}" in lines
+    choice, reason = choose([pendulum, _score("rigid-body", held=0.07)], "held-out")
+    assert choice == "rigid-body" and "left out for want of a held-out relative RMSE: pendulum" in reason
+    assert "tie rule was not applied" in reason
+    choice, reason = choose([pendulum], "held-out")
+    assert choice is None and "the fit of pendulum converged" in reason and "held-out" in reason
+    assert choose([_score("pendulum", status=why)], "held-out")[1] == "no form's fit converged"
+
+
 def test_the_table_says_whether_each_form_is_ok_and_under_it_why_one_is_not():
     """A status that is a failed check names a test first: the table's cell says not ok, not the
     test's name, and the whole status follows under the table."""

@@ -14,6 +14,8 @@ parameters, and a held-out score:
   parameters (the estimated entries less those the fit leaves unidentified). AIC beside it.
 
 The choice is the form with the lowest held-out score (BIC) among the forms whose fit converged.
+A form whose fit converged but that has no score (a held-out fit failed) is named beside the
+choice, left out of it: where it is the default form, its tie did not apply.
 The default form (the paper's pendulum) stays the choice unless another is better by more than a
 tie: TIE relative in the held-out score, BIC_TIE in BIC (a difference below 2 is not worth more
 than a mention: Kass and Raftery, 1995). A fit alone never chooses: a form with more freedom fits
@@ -327,15 +329,16 @@ def choose(scores: list[FormScore], criterion: str, bic_tie: float = BIC_TIE) ->
         v = f.held_out_score if criterion == "held-out" else f.bic
         if f.ok and v is not None:
             value[f.form] = v
-    if not value:
-        return None, "no form's fit converged with a score"
-    best = min(value, key=lambda form: value[form])
     what = "held-out relative RMSE" if criterion == "held-out" else "BIC"
+    if not value:
+        return None, _no_score(scores, criterion)
+    best = min(value, key=lambda form: value[form])
     choice, reason = best, f"{best}: the lowest {what}"
     if DEFAULT_FORM in value and best != DEFAULT_FORM:
         margin = value[DEFAULT_FORM] - value[best]
         if margin <= (TIE * abs(value[best]) if criterion == "held-out" else bic_tie):
             choice, reason = DEFAULT_FORM, f"{DEFAULT_FORM}: the default, within a tie of {best}'s {what}"
+    reason += _unscored(scores, value, what)
     lifted = _of(scores, choice).lift_off_s
     if lifted is not None:
         reason += f"; its held-out prediction lets the front end go at {lifted * 1e3:.1f} ms while the data still push"
@@ -344,6 +347,30 @@ def choose(scores: list[FormScore], criterion: str, bic_tie: float = BIC_TIE) ->
     if choice != DEFAULT_FORM and all(f.pitch_rmse_rad is None for f in scores if f.ok):
         reason += "; no test measures pitch, where the forms differ most: the choice rests on the other channels alone"
     return choice, reason
+
+
+def _no_score(scores: list[FormScore], criterion: str) -> str:
+    """Why no form has a score by `criterion`: no fit converged, or those that did lack the score
+    (a held-out fit that failed: the table's lines under it say which)."""
+    converged = [f.form for f in scores if f.ok]
+    if not converged:
+        return "no form's fit converged"
+    if criterion == "held-out":
+        return (
+            f"no form has a held-out score: the fit of {', '.join(converged)} converged, "
+            "but a held-out prediction of each failed or has no score"
+        )
+    return f"no form has a BIC: the fit of {', '.join(converged)} converged, but with no fitted samples"
+
+
+def _unscored(scores: list[FormScore], value: dict[str, float], what: str) -> str:
+    """The note on the forms whose fit converged but that have no score, left out of the choice,
+    the default form's tie rule not applied where it is one of them; empty without such forms."""
+    unscored = [f.form for f in scores if f.ok and f.form not in value]
+    if not unscored:
+        return ""
+    tie = " (the default: its tie rule was not applied)" if DEFAULT_FORM in unscored else ""
+    return f"; left out for want of a {what}: {', '.join(unscored)}{tie}"
 
 
 def _of(scores: list[FormScore], form: str) -> FormScore:
