@@ -346,13 +346,12 @@ def _not_ok(form: FormScore) -> list[str]:
 
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
-    from crashnlp.optimize.comparison import check_comparable, compare
+    from crashnlp.optimize.comparison import check_comparable, compare, compared
     from crashnlp.problem import load_problem
-    from crashnlp.problem.forms import COMPARED
     from crashnlp.results.jsonfile import write_json
 
-    forms = args.forms or COMPARED
     problem = load_problem(args.problem)
+    forms = args.forms or compared(problem)
     check_comparable(problem, args.problem, forms, "--forms")
     run = run_name("compare", problem.name)
     out = check_output(_out(args, f"{problem.name}-compare"), run)
@@ -564,7 +563,10 @@ def parser() -> argparse.ArgumentParser:
     about = "choose spring and damper values for a design goal by an NLP (no data)"
     _solve_parser(sub, "design", about, "problem YAML file with kind: design", cmd_design)
 
-    about = "fit the model forms (pendulum and rigid body, or those --forms names) and choose one by held-out prediction or BIC"
+    about = (
+        "fit the model forms (pendulum, rigid body and the problem's own model.form, or those --forms names)"
+        " and choose one by held-out prediction or BIC"
+    )
     p = sub.add_parser("compare", help=about)
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
     p.add_argument("--out", help="output folder (default results/<problem name>-compare)")
@@ -572,7 +574,8 @@ def parser() -> argparse.ArgumentParser:
         "--forms",
         nargs="+",
         metavar="FORM",
-        help="the model forms to fit (model.form; default: pendulum rigid-body, the engine-on-mounts form when named)",
+        help="the model forms to fit (model.form; default: pendulum rigid-body and the problem's own model.form,"
+        " so the engine-on-mounts form when the problem names it)",
     )
     p.set_defaults(func=cmd_compare_forms)
 

@@ -271,6 +271,32 @@ def test_the_api_names_its_own_argument_for_a_form_it_does_not_have():
         crashnlp.compare(BASE_DIR / "pickup-joint.yaml", forms=["rigid-body", "wheel"])
 
 
+def test_the_problems_own_form_is_compared_by_default(tmp_path, monkeypatch, capsys):
+    """A problem that names model.form engine-on-mounts (with its engine): compare fits that form
+    beside COMPARED unless --forms says otherwise (it had fitted COMPARED alone, the engine
+    dropped, and chosen among them without a word)."""
+    from crashnlp.optimize import comparison
+
+    engine = {"mass": "350 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}
+    raw = merge(yaml.safe_load((BASE_DIR / "pickup-56kph.yaml").read_text()), {"vehicle": {"engine": engine}})
+    raw["tests"][0]["data"]["file"] = str(BASE_DIR / raw["tests"][0]["data"]["file"])
+    raw["model"]["form"] = "engine-on-mounts"
+    raw["estimate"].pop("vehicle.crush_offset")
+    raw["vehicle"].pop("crush_offset")
+    path = tmp_path / "eom.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    fitted: list[str] = []
+    monkeypatch.setattr(comparison, "score_form", lambda p, form, *rest: (fitted.append(form) or _score(form, bic=1.0), None))
+    assert main(["compare", str(path), "--out", str(tmp_path / "out")]) == 0
+    assert fitted == [*COMPARED, "engine-on-mounts"]
+    assert "engine-on-mounts" in capsys.readouterr().out.splitlines()[0]
+    fitted.clear()
+    assert crashnlp.compare(path).choice == DEFAULT_FORM and fitted == [*COMPARED, "engine-on-mounts"]
+    fitted.clear()
+    assert main(["compare", str(path), "--out", str(tmp_path / "out2"), "--forms", "pendulum"]) == 0
+    assert fitted == ["pendulum"]
+
+
 def test_the_api_takes_forms_as_the_command_takes_them(monkeypatch):
     """A name alone is one form, as `--forms pendulum` is (it had been read letter by letter: "'p'
     is none of ..."), and no form at all is refused in one line naming forms (it had returned an

@@ -1,6 +1,6 @@
 """Which model form the data choose: every form fitted, and scored on what its fit did not see.
 
-`compare(problem)` fits the problem once with every form of crashnlp.problem.forms.COMPARED and
+`compare(problem)` fits the problem once with every form it is given (`compared`, unless told) and
 reports per form the objective, the fitted pitch and max displacement misfit, the number of identified
 parameters, and a held-out score:
 
@@ -25,8 +25,9 @@ decelerated then, is named beside the choice, but does not pass a form over: its
 score already, and passing a form over for it would choose by one symptom against the whole
 held-out error (measured: docs/design-notes.md, "Which form: the score, not the lift-off").
 
-`forms` names the forms to fit (default COMPARED: the pendulum and the rigid body; the
-engine-on-mounts form is fitted when named, since its fits cost many times the others').
+`forms` names the forms to fit (default `compared`: COMPARED, the pendulum and the rigid body,
+and the problem's own `model.form`; the engine-on-mounts form is fitted when named, there or in
+`forms`, since its fits cost many times the others').
 
 An estimate entry that a form's equations do not read (the pendulum's `vehicle.crush_offset` in
 the rigid body) is left out of that form's fit, so that it counts no parameter it does not have.
@@ -136,13 +137,22 @@ def with_form(problem: Problem, form: str, source: str | None = None) -> Problem
     )
 
 
+def compared(problem: Problem) -> tuple[str, ...]:
+    """The forms `compare` fits unless told: COMPARED and the problem's own `model.form`, which
+    a user who names it (with an engine for it) means to be among them."""
+    return tuple(dict.fromkeys((*COMPARED, problem.model.form)))
+
+
 def compare(
-    problem: Problem, source: str | None = None, progress: TextIO | None = None, forms: str | Sequence[str] = COMPARED
+    problem: Problem,
+    source: str | None = None,
+    progress: TextIO | None = None,
+    forms: str | Sequence[str] | None = None,
 ) -> Comparison:
-    """Every one of `forms` (a name alone is one form, as `--forms pendulum` gives it) fitted to
-    the problem's tests and scored (see the module notes); `source` the file its input errors
-    name, `progress` a stream for a line per fit."""
-    forms = (forms,) if isinstance(forms, str) else tuple(forms)
+    """Every one of `forms` (default `compared`; a name alone is one form, as `--forms pendulum`
+    gives it) fitted to the problem's tests and scored (see the module notes); `source` the file
+    its input errors name, `progress` a stream for a line per fit."""
+    forms = compared(problem) if forms is None else (forms,) if isinstance(forms, str) else tuple(forms)
     check_comparable(problem, source, forms)
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     scores = [score_form(problem, form, source, criterion, progress)[0] for form in dict.fromkeys(forms)]
