@@ -128,7 +128,7 @@ def _simulation(args):
     case = case_of(problem, args.problem).at(speed, mass)
     check_steps(case, dt, "--dt", args.problem)
     if identified is None:  # a fit's vehicle is simulated as it was fitted
-        case.refuse_unread_engine(args.problem)
+        case.refuse_unread_given(args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):

@@ -156,6 +156,28 @@ def test_an_engine_the_form_does_not_read_is_refused_and_compare_leaves_it_to_th
     assert with_form(engine, "engine-on-mounts").vehicle.engine == engine.vehicle.engine
 
 
+def test_a_crush_offset_the_form_does_not_read_is_refused_and_compare_leaves_it_to_the_pendulum(tmp_path, capsys):
+    """A crush offset (the pendulum's lever) given to the rigid body or the engine form: identify
+    and simulate refuse it as they refuse an engine the form does not read, naming the file and
+    the key (simulate had run without it, saying nothing); 0 is no offset and stays; compare's
+    problem of each other form leaves it out."""
+    engine = {"engine": {"mass": "400 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}}
+    for form, vehicle in (("rigid-body", {}), ("engine-on-mounts", engine)):
+        raw = merge(BASE, {"model": {"form": form}, "vehicle": vehicle})
+        path = tmp_path / f"{form}.yaml"
+        path.write_text(yaml.safe_dump(raw))
+        for command in ("identify", "simulate"):
+            assert main([command, str(path), "--out", str(tmp_path / "out"), "--check"]) == 2
+            err = capsys.readouterr().err
+            said = f"{path}: vehicle.crush_offset: model.form {form} does not read it (model.form: pendulum does)"
+            assert err.startswith(f"crashnlp: error: {said}") and err.count("\n") == 1, err
+        path.write_text(yaml.safe_dump(merge(raw, {"vehicle": {"crush_offset": 0}})))
+        assert main(["simulate", str(path), "--out", str(tmp_path / "out"), "--check"]) == 0
+    pendulum = problem_from_dict(BASE, BASE_DIR)
+    assert with_form(pendulum, "rigid-body").vehicle.crush_offset == 0.0
+    assert with_form(pendulum, "pendulum").vehicle.crush_offset == pendulum.vehicle.crush_offset > 0
+
+
 WINDOW = 0.09
 TRUTH = {"cg_above_impact": 0.3, "pitch_inertia": 4000.0}
 

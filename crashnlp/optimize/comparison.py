@@ -126,12 +126,14 @@ class Comparison:
 
 def with_form(problem: Problem, form: str, source: str | None = None) -> Problem:
     """The problem with `model.form` set to `form`, less the estimate entries the form's
-    equations do not read (its outputs, right-hand side and initial state) and an engine it does
-    not read (Case.engine_unread); its input errors naming `source`."""
+    equations do not read (its outputs, right-hand side and initial state) and the vehicle
+    entries it does not read (an engine, a crush offset: Case.unread_given), back at their
+    defaults; its input errors naming `source`."""
     changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
     case = case_of(changed, source)  # refuses a problem the form cannot model
     unread = case.model.unread(list(changed.estimate))
-    vehicle = changed.vehicle.model_copy(update={"engine": None}) if case.engine_unread() else changed.vehicle
+    defaults = {key: type(changed.vehicle).model_fields[key].default for key in case.unread_given()}
+    vehicle = changed.vehicle.model_copy(update=defaults)
     return changed.model_copy(
         update={"estimate": {k: v for k, v in changed.estimate.items() if k not in unread}, "vehicle": vehicle}
     )

@@ -19,3 +19,6 @@ DEFAULT_FORM = "pendulum"
 # engine-on-mounts is fitted when named (there or in --forms):
 # its fits cost many times the others' (docs/design-notes.md, "Which form: the score, not the lift-off").
 COMPARED: tuple[str, ...] = ("pendulum", "rigid-body")
+# The vehicle entries only some forms read, each with a form that reads it: a problem of another
+# form that gives one is refused (crashnlp.case.case.Case.refuse_unread_given).
+READ_BY: dict[str, str] = {"engine": "engine-on-mounts", "crush_offset": "pendulum"}
