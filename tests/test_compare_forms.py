@@ -23,6 +23,7 @@ from crashnlp.optimize.comparison import (
     _lift_off,
     check_comparable,
     choose,
+    score_form,
     with_form,
 )
 from crashnlp.optimize.pipeline import prepare_case
@@ -98,6 +99,18 @@ def test_the_table_says_whether_each_form_is_ok_and_under_it_why_one_is_not():
     status = next(line for line in lines if line.strip().startswith("status"))
     assert status.split()[1:] == ["ok", "not", "ok"]
     assert lines[-1] == f"  rigid-body: {why}" and sum(why in line for line in lines) == 1
+
+
+def test_a_refused_form_names_the_file_and_has_no_parameter_count(tmp_path):
+    """A point mass (pitch_inertia 0) that the rigid body cannot model: its status names the
+    problem file, not the problem's name, and the table shows no count of identified parameters
+    (it showed 0, and `pk40: vehicle.pitch_inertia: ...`)."""
+    path = tmp_path / "point.yaml"
+    raw = merge(BASE, {"vehicle": {"pitch_inertia": 0}})
+    score, fit = score_form(problem_from_dict(raw, BASE_DIR), "rigid-body", str(path), "bic")
+    assert fit is None and score.status.startswith(f"refused: {path}: vehicle.pitch_inertia")
+    row = next(line for line in comparison_table([score]) if "identified parameters" in line)
+    assert row.split()[-1] == "-"
 
 
 def test_a_lift_off_is_named_beside_the_choice_but_does_not_pass_over_a_better_score():

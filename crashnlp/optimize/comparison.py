@@ -86,8 +86,8 @@ class FormScore:
     objective: float | None = None
     pitch_rmse_rad: float | None = None  # over the fitted tests' pitch channels
     displacement_error_m: float | None = None  # worst |model - measured| max displacement (the CG's travel)
-    parameters: int = 0  # identified
-    samples: int = 0  # fitted data points
+    parameters: int | None = None  # identified; None without a fit
+    samples: int | None = None  # fitted data points; None without a fit
     aic: float | None = None
     bic: float | None = None
     held_out: tuple[HeldOut, ...] = ()
@@ -191,7 +191,7 @@ def score_form(
     # the profiles the problem asks for are its chosen form's business, not the comparison's
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     try:
-        formed = with_form(problem, form)
+        formed = with_form(problem, form, source)
     except InputError as exc:  # a problem this form cannot model (CrashModel.check)
         return FormScore(form, f"refused: {exc}"), None
     fit, status = _fit(formed, source)
