@@ -328,11 +328,12 @@ def comparison_table(forms: Sequence[FormScore]) -> list[str]:
     """The console's table of a comparison: a column per form (its status ok or not, FORM_ROWS), then
     each form that is not ok with its whole status (IPOPT's, or the check that failed), and each
     held-out fit of a form that is ok that failed, with its status."""
-    lines = [f"  {'':<24}" + "".join(f"{f.form:>14}" for f in forms)]
-    lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>14}" for f in forms))
+    width = max([14, *(len(f.form) + 2 for f in forms)])  # a column's, two spaces at least before each name
+    lines = [f"  {'':<24}" + "".join(f"{f.form:>{width}}" for f in forms)]
+    lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>{width}}" for f in forms))
     for label, key, factor, fmt in FORM_ROWS:
         cells = [getattr(f, key) for f in forms]
-        lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
+        lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>{width}}" for v in cells))
     return lines + [line for f in forms for line in _not_ok(f)]
 
 

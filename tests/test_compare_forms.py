@@ -28,7 +28,7 @@ from crashnlp.optimize.comparison import (
 )
 from crashnlp.optimize.pipeline import prepare_case
 from crashnlp.problem import load_problem, problem_from_dict
-from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
 from crashnlp.results.response import Response
 
 BASE_DIR = ROOT / "problems"
@@ -111,6 +111,14 @@ def test_a_refused_form_names_the_file_and_has_no_parameter_count(tmp_path):
     assert fit is None and score.status.startswith(f"refused: {path}: vehicle.pitch_inertia")
     row = next(line for line in comparison_table([score]) if "identified parameters" in line)
     assert row.split()[-1] == "-"
+
+
+def test_the_table_s_columns_are_as_wide_as_the_longest_form_name():
+    """Three forms: each name stands apart in the header and over its cells (columns of 14 had
+    run "rigid-bodyengine-on-mounts" together)."""
+    lines = comparison_table([_score(form, held=0.1) for form in FORMS])
+    assert lines[0].split() == list(FORMS)
+    assert len({len(line) for line in lines}) == 1
 
 
 def test_a_lift_off_is_named_beside_the_choice_but_does_not_pass_over_a_better_score():
