@@ -22,7 +22,6 @@ from typing import TYPE_CHECKING, Any, TextIO
 
 from crashnlp.base.errors import InputError
 from crashnlp.problem import Problem, load_problem
-from crashnlp.problem.forms import COMPARED
 from crashnlp.results.result import Result
 
 if TYPE_CHECKING:
@@ -163,9 +162,12 @@ def _with_given(problem: Problem | str | Path, params: Result | dict[str, Any] |
     return (with_parameters(_problem(problem), values, "crashnlp.simulate") if values else _problem(problem)), None
 
 
-def compare(problem: Problem | str | Path, progress: TextIO | None = None, forms: str | Sequence[str] = COMPARED) -> Comparison:
-    """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED; a name alone is one
-    form, as `--forms` takes it, and none is refused) to the problem's tests and choose one by
+def compare(
+    problem: Problem | str | Path, progress: TextIO | None = None, forms: str | Sequence[str] | None = None
+) -> Comparison:
+    """Fit model forms (`forms`, default crashnlp.problem.forms.COMPARED and the problem's own
+    `model.form`; a name alone is one form, as `--forms` takes it, and none is refused) to the
+    problem's tests and choose one by
     what the fits did not see: leave-one-test-out prediction with two or more tests, BIC with one
     (crashnlp.optimize.comparison); `progress`: a stream for a line per fit."""
     from crashnlp.optimize.comparison import compare as compare_forms

@@ -136,7 +136,7 @@ def _simulation(args):
     case = case_of(problem, args.problem).at(speed, mass)
     check_steps(case, dt, "--dt", args.problem)
     if identified is None:  # a fit's vehicle is simulated as it was fitted
-        case.refuse_unread_engine(args.problem)
+        case.refuse_unread_given(args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
     check_output(out, run_name("simulate", case.name))
     if getattr(args, "check", False):
@@ -340,24 +340,33 @@ FORM_ROWS = (  # the console's table of a comparison: label, FormScore attribute
 
 def comparison_table(forms: Sequence[FormScore]) -> list[str]:
     """The console's table of a comparison: a column per form (its status ok or not, FORM_ROWS), then
-    each form that is not ok with its whole status (IPOPT's, or the check that failed)."""
-    lines = [f"  {'':<24}" + "".join(f"{f.form:>14}" for f in forms)]
-    lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>14}" for f in forms))
+    each form that is not ok with its whole status (IPOPT's, or the check that failed), and each
+    held-out fit of a form that is ok that failed, with its status."""
+    width = max([14, *(len(f.form) + 2 for f in forms)])  # a column's, two spaces at least before each name
+    lines = [f"  {'':<24}" + "".join(f"{f.form:>{width}}" for f in forms)]
+    lines.append(f"  {'status':<24}" + "".join(f"{'ok' if f.ok else 'not ok':>{width}}" for f in forms))
     for label, key, factor, fmt in FORM_ROWS:
         cells = [getattr(f, key) for f in forms]
-        lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>14}" for v in cells))
-    return lines + [f"  {f.form}: {f.status}" for f in forms if not f.ok]
+        lines.append(f"  {label:<24}" + "".join(f"{'-' if v is None else format(v * factor, fmt):>{width}}" for v in cells))
+    return lines + [line for f in forms for line in _not_ok(f)]
+
+
+def _not_ok(form: FormScore) -> list[str]:
+    """The lines under the comparison table for a form: its status where it is not ok, else each
+    held-out fit that failed with its status (the form has no held-out score then)."""
+    if not form.ok:
+        return [f"  {form.form}: {form.status}"]
+    return [f"  {form.form}: predicting {h.test} from the other tests: {h.status}" for h in form.held_out if h.status != "ok"]
 
 
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
-    from crashnlp.optimize.comparison import check_comparable, compare
+    from crashnlp.optimize.comparison import check_comparable, compare, compared
     from crashnlp.problem import load_problem
-    from crashnlp.problem.forms import COMPARED
     from crashnlp.results.jsonfile import write_json
 
-    forms = args.forms or COMPARED
     problem = load_problem(args.problem)
+    forms = args.forms or compared(problem)
     check_comparable(problem, args.problem, forms, "--forms")
     run = run_name("compare", problem.name)
     out = check_output(_out(args, f"{problem.name}-compare"), run)
@@ -569,7 +578,10 @@ def parser() -> argparse.ArgumentParser:
     about = "choose spring and damper values for a design goal by an NLP (no data)"
     _solve_parser(sub, "design", about, "problem YAML file with kind: design", cmd_design)
 
-    about = "fit the model forms (pendulum and rigid body, or those --forms names) and choose one by held-out prediction or BIC"
+    about = (
+        "fit the model forms (pendulum, rigid body and the problem's own model.form, or those --forms names)"
+        " and choose one by held-out prediction or BIC"
+    )
     p = sub.add_parser("compare", help=about)
     p.add_argument("problem", help="problem YAML file with data (kind: identify)")
     p.add_argument("--out", help="output folder (default results/<problem name>-compare)")
@@ -577,7 +589,8 @@ def parser() -> argparse.ArgumentParser:
         "--forms",
         nargs="+",
         metavar="FORM",
-        help="the model forms to fit (model.form; default: pendulum rigid-body, the engine-on-mounts form when named)",
+        help="the model forms to fit (model.form; default: pendulum rigid-body and the problem's own model.form,"
+        " so the engine-on-mounts form when the problem names it)",
     )
     p.set_defaults(func=cmd_compare_forms)
 

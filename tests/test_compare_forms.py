@@ -23,11 +23,12 @@ from crashnlp.optimize.comparison import (
     _lift_off,
     check_comparable,
     choose,
+    score_form,
     with_form,
 )
 from crashnlp.optimize.pipeline import prepare_case
 from crashnlp.problem import load_problem, problem_from_dict
-from crashnlp.problem.forms import COMPARED, DEFAULT_FORM
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
 from crashnlp.results.response import Response
 
 BASE_DIR = ROOT / "problems"
@@ -72,6 +73,24 @@ def test_a_failed_fit_is_not_chosen_while_another_form_serves():
     assert choose([_score("pendulum", held=None), _score("rigid-body", held=None)], "held-out")[0] is None
 
 
+def test_a_form_whose_held_out_fit_failed_is_named_in_the_table_and_beside_the_choice():
+    """The full pendulum fit converged, its held-out fits did not (pickup-joint at max_iter 25):
+    the table's lines say which held-out fit failed and why, the choice names the pendulum as
+    left out and its tie as not applied, and with no other form the reason says the fit converged
+    (it had said nothing of the held-out fits, and "no form's fit converged with a score")."""
+    why = "solver failed: Maximum_Iterations_Exceeded"
+    pendulum = FormScore("pendulum", "ok", held_out=(HeldOut("56kph", why), HeldOut("40kph", why)))
+    lines = comparison_table([pendulum, _score("rigid-body", held=0.07)])
+    assert f"  pendulum: predicting 56kph from the other tests: {why}" in lines
+    assert f"  pendulum: predicting 40kph from the other tests: {why}" in lines
+    choice, reason = choose([pendulum, _score("rigid-body", held=0.07)], "held-out")
+    assert choice == "rigid-body" and "left out for want of a held-out relative RMSE: pendulum" in reason
+    assert "tie rule was not applied" in reason
+    choice, reason = choose([pendulum], "held-out")
+    assert choice is None and "the fit of pendulum converged" in reason and "held-out" in reason
+    assert choose([_score("pendulum", status=why)], "held-out")[1] == "no form's fit converged"
+
+
 def test_the_table_says_whether_each_form_is_ok_and_under_it_why_one_is_not():
     """A status that is a failed check names a test first: the table's cell says not ok, not the
     test's name, and the whole status follows under the table."""
@@ -80,6 +99,26 @@ def test_the_table_says_whether_each_form_is_ok_and_under_it_why_one_is_not():
     status = next(line for line in lines if line.strip().startswith("status"))
     assert status.split()[1:] == ["ok", "not", "ok"]
     assert lines[-1] == f"  rigid-body: {why}" and sum(why in line for line in lines) == 1
+
+
+def test_a_refused_form_names_the_file_and_has_no_parameter_count(tmp_path):
+    """A point mass (pitch_inertia 0) that the rigid body cannot model: its status names the
+    problem file, not the problem's name, and the table shows no count of identified parameters
+    (it showed 0, and `pk40: vehicle.pitch_inertia: ...`)."""
+    path = tmp_path / "point.yaml"
+    raw = merge(BASE, {"vehicle": {"pitch_inertia": 0}})
+    score, fit = score_form(problem_from_dict(raw, BASE_DIR), "rigid-body", str(path), "bic")
+    assert fit is None and score.status.startswith(f"refused: {path}: vehicle.pitch_inertia")
+    row = next(line for line in comparison_table([score]) if "identified parameters" in line)
+    assert row.split()[-1] == "-"
+
+
+def test_the_table_s_columns_are_as_wide_as_the_longest_form_name():
+    """Three forms: each name stands apart in the header and over its cells (columns of 14 had
+    run "rigid-bodyengine-on-mounts" together)."""
+    lines = comparison_table([_score(form, held=0.1) for form in FORMS])
+    assert lines[0].split() == list(FORMS)
+    assert len({len(line) for line in lines}) == 1
 
 
 def test_a_lift_off_is_named_beside_the_choice_but_does_not_pass_over_a_better_score():
@@ -136,6 +175,28 @@ def test_an_engine_the_form_does_not_read_is_refused_and_compare_leaves_it_to_th
     engine = problem_from_dict(merge(raw, {"model": {"form": "engine-on-mounts"}}), BASE_DIR)
     assert with_form(engine, "pendulum").vehicle.engine is None
     assert with_form(engine, "engine-on-mounts").vehicle.engine == engine.vehicle.engine
+
+
+def test_a_crush_offset_the_form_does_not_read_is_refused_and_compare_leaves_it_to_the_pendulum(tmp_path, capsys):
+    """A crush offset (the pendulum's lever) given to the rigid body or the engine form: identify
+    and simulate refuse it as they refuse an engine the form does not read, naming the file and
+    the key (simulate had run without it, saying nothing); 0 is no offset and stays; compare's
+    problem of each other form leaves it out."""
+    engine = {"engine": {"mass": "400 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}}
+    for form, vehicle in (("rigid-body", {}), ("engine-on-mounts", engine)):
+        raw = merge(BASE, {"model": {"form": form}, "vehicle": vehicle})
+        path = tmp_path / f"{form}.yaml"
+        path.write_text(yaml.safe_dump(raw))
+        for command in ("identify", "simulate"):
+            assert main([command, str(path), "--out", str(tmp_path / "out"), "--check"]) == 2
+            err = capsys.readouterr().err
+            said = f"{path}: vehicle.crush_offset: model.form {form} does not read it (model.form: pendulum does)"
+            assert err.startswith(f"crashnlp: error: {said}") and err.count("\n") == 1, err
+        path.write_text(yaml.safe_dump(merge(raw, {"vehicle": {"crush_offset": 0}})))
+        assert main(["simulate", str(path), "--out", str(tmp_path / "out"), "--check"]) == 0
+    pendulum = problem_from_dict(BASE, BASE_DIR)
+    assert with_form(pendulum, "rigid-body").vehicle.crush_offset == 0.0
+    assert with_form(pendulum, "pendulum").vehicle.crush_offset == pendulum.vehicle.crush_offset > 0
 
 
 WINDOW = 0.09
@@ -251,6 +312,32 @@ def test_compare_refuses_a_form_it_does_not_have_in_one_line(tmp_path, capsys):
 def test_the_api_names_its_own_argument_for_a_form_it_does_not_have():
     with pytest.raises(InputError, match=r"^forms: 'wheel' is none of "):
         crashnlp.compare(BASE_DIR / "pickup-joint.yaml", forms=["rigid-body", "wheel"])
+
+
+def test_the_problems_own_form_is_compared_by_default(tmp_path, monkeypatch, capsys):
+    """A problem that names model.form engine-on-mounts (with its engine): compare fits that form
+    beside COMPARED unless --forms says otherwise (it had fitted COMPARED alone, the engine
+    dropped, and chosen among them without a word)."""
+    from crashnlp.optimize import comparison
+
+    engine = {"mass": "350 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}
+    raw = merge(yaml.safe_load((BASE_DIR / "pickup-56kph.yaml").read_text()), {"vehicle": {"engine": engine}})
+    raw["tests"][0]["data"]["file"] = str(BASE_DIR / raw["tests"][0]["data"]["file"])
+    raw["model"]["form"] = "engine-on-mounts"
+    raw["estimate"].pop("vehicle.crush_offset")
+    raw["vehicle"].pop("crush_offset")
+    path = tmp_path / "eom.yaml"
+    path.write_text(yaml.safe_dump(raw))
+    fitted: list[str] = []
+    monkeypatch.setattr(comparison, "score_form", lambda p, form, *rest: (fitted.append(form) or _score(form, bic=1.0), None))
+    assert main(["compare", str(path), "--out", str(tmp_path / "out")]) == 0
+    assert fitted == [*COMPARED, "engine-on-mounts"]
+    assert "engine-on-mounts" in capsys.readouterr().out.splitlines()[0]
+    fitted.clear()
+    assert crashnlp.compare(path).choice == DEFAULT_FORM and fitted == [*COMPARED, "engine-on-mounts"]
+    fitted.clear()
+    assert main(["compare", str(path), "--out", str(tmp_path / "out2"), "--forms", "pendulum"]) == 0
+    assert fitted == ["pendulum"]
 
 
 def test_the_api_takes_forms_as_the_command_takes_them(monkeypatch):

@@ -246,6 +246,18 @@ def test_breakpoints_past_the_reach_change_neither_the_estimates_nor_their_error
 
 
 @pytest.mark.integration
+def test_a_collocation_too_coarse_for_the_forward_check_says_what_to_change(data_file):
+    """Radau of degree 1 (implicit Euler) on 30 intervals: IPOPT succeeds, the forward simulation
+    departs, and the status says the grid is too coarse and what to give instead (it had said
+    only that the simulation departs)."""
+    coarse = {"method": "collocation", "intervals": 30, "degree": 1, "scheme": "radau"}
+    sol = solve(fit_problem(data_file, coarse))
+    assert sol.result.converged and not sol.ok
+    assert "departs from the NLP" in sol.status and "degree 1 on 30 intervals is too coarse" in sol.status
+    assert "more intervals or a higher degree" in sol.status
+
+
+@pytest.mark.integration
 def test_transcriptions_agree_on_the_objective(data_file):
     a = solve(fit_problem(data_file, MS))
     b = solve(fit_problem(data_file, COLLOCATION))

@@ -78,10 +78,17 @@ def test_the_schema_offers_every_registered_form():
 
 
 def test_the_point_mass_is_refused_in_one_line_naming_the_entry():
-    """The paper's point mass (pitch_inertia 0) gives a body pitching about its CG no inertia to pitch with."""
-    with pytest.raises(InputError, match=r"^vehicle.pitch_inertia: 0 .*rigid-body") as err:
+    """The paper's point mass (pitch_inertia 0) gives a body pitching about its CG no inertia to
+    pitch with; the line names the problem's form (the engine form's had said rigid-body)."""
+    with pytest.raises(InputError, match=r"^vehicle.pitch_inertia: 0 .*model.form rigid-body pitches") as err:
         rigid_case({"vehicle": {"pitch_inertia": 0}})
     assert "\n" not in str(err.value)
+    engine = {
+        "model": {"form": "engine-on-mounts"},
+        "vehicle": {"pitch_inertia": 0, "engine": {"gap": 0.3, "contact_stiffness": 8e6}},
+    }
+    with pytest.raises(InputError, match=r"^vehicle.pitch_inertia: 0 .*model.form engine-on-mounts pitches"):
+        make_case(merge(BASE, engine))
 
 
 def test_equations_match_an_independent_sympy_derivation():

@@ -798,6 +798,7 @@ def test_a_swept_mass_every_test_sets_for_itself_is_refused_unless_more_of_the_c
     (tmp_path / "pendulum.yaml").write_text(yaml.safe_dump(raw))
     raw["model"]["form"] = "engine-on-mounts"
     raw["estimate"].pop("vehicle.crush_offset")
+    raw["vehicle"].pop("crush_offset")
     (tmp_path / "engine.yaml").write_text(yaml.safe_dump(raw))
     sweep = {"vehicle.mass": ["2600 kg", "2700 kg"]}
     expected = r"sweep: case-000 \(vehicle.mass = 2600 kg\): vehicle.mass: every test sets its own mass \(tests.0.mass\)"

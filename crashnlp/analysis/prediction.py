@@ -163,11 +163,11 @@ def predict(
     note says so. A test's data come with it only where it runs at the speed, mass and duration they
     were recorded at (TestCase.other_conditions); otherwise a note says which test and why. A `dt` that is not a
     positive step, or too many steps, is refused (check_steps), as is, in a problem simulated with
-    its own values (no `identified`), an engine the model form does not read
-    (Case.refuse_unread_engine; a fit's vehicle is simulated as it was fitted)."""
+    its own values (no `identified`), an engine or a crush offset the model form does not read
+    (Case.refuse_unread_given; a fit's vehicle is simulated as it was fitted)."""
     check_steps(case, dt)
     if identified is None:
-        case.refuse_unread_engine()
+        case.refuse_unread_given()
     out = {}
     for test in case.tests:
         p = case.test_parameters(test)

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from crashnlp.base.errors import InputError
+from crashnlp.base.records import Record
 from crashnlp.case.checks import named
 from crashnlp.case.completion import complete, measured_pulses
 from crashnlp.case.testcase import TestCase, check_data, check_speed, load_tests
@@ -24,6 +25,7 @@ from crashnlp.models.parameters import ParameterLayout
 from crashnlp.models.simulation import simulate
 from crashnlp.models.tail import Curve
 from crashnlp.problem import Problem, load_problem
+from crashnlp.problem.forms import READ_BY
 from crashnlp.problem.schema import CollocationSpec, MultipleShootingSpec
 from crashnlp.results.response import Response
 
@@ -84,22 +86,33 @@ class Case:
     def name(self) -> str:
         return self.problem.name
 
-    def engine_unread(self) -> bool:
-        """Whether the problem gives an engine (`vehicle.engine`) of which its model form reads nothing."""
-        engine = self.problem.vehicle.engine
-        fields = [key for key in engine.model_fields_set if getattr(engine, key) is not None] if engine is not None else []
-        slices = self.layout.slices()
-        given = [path for key in fields if (path := f"vehicle.engine.{key}") in slices]
-        return bool(given) and len(self.model.unread(given)) == len(given)
+    def unread_given(self) -> list[str]:
+        """The entries of READ_BY (vehicle keys) the problem gives of which its model form reads
+        nothing: an engine with any of its entries set, a crush offset other than 0."""
+        vehicle, slices = self.problem.vehicle, self.layout.slices()
+        unread = []
+        for key in READ_BY:
+            value = getattr(vehicle, key)
+            if key not in vehicle.model_fields_set or not value:
+                continue
+            if isinstance(value, Record):
+                paths = [f"vehicle.{key}.{k}" for k in value.model_fields_set if getattr(value, k) is not None]
+            else:
+                paths = [f"vehicle.{key}"]
+            given = [path for path in paths if path in slices]
+            if given and len(self.model.unread(given)) == len(given):
+                unread.append(key)
+        return unread
 
-    def refuse_unread_engine(self, source: str | None = None) -> None:
-        """Refuse an engine given to a form that reads none of it (`engine_unread`), naming `source`
-        where given: a user who meant the engine form and left out `model.form` would get a fit or a
-        simulation without one, and no word of it."""
-        if self.engine_unread():
+    def refuse_unread_given(self, source: str | None = None) -> None:
+        """Refuse a vehicle entry the problem gives that its form reads nothing of (`unread_given`),
+        naming `source` where given: a user who meant the form that reads it and left out
+        `model.form` would get a fit or a simulation without it, and no word of it."""
+        unread = self.unread_given()
+        if unread:
             raise InputError(
-                f"{f'{source}: ' if source else ''}vehicle.engine: model.form {self.problem.model.form} does not read it "
-                "(model.form: engine-on-mounts does); leave it out, or give that form"
+                f"{f'{source}: ' if source else ''}vehicle.{unread[0]}: model.form {self.problem.model.form} does not read it "
+                f"(model.form: {READ_BY[unread[0]]} does); leave it out, or give that form"
             )
 
     def check_data(self) -> None:

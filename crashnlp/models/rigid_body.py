@@ -62,7 +62,7 @@ class RigidBodyModel(CrashModel):
         (pitch_inertia 0) leaves its pitch without one."""
         if problem.vehicle.pitch_inertia <= 0:
             raise InputError(
-                "vehicle.pitch_inertia: 0 (the paper's point mass); model.form rigid-body pitches about the CG "
+                f"vehicle.pitch_inertia: 0 (the paper's point mass); model.form {problem.model.form} pitches about the CG "
                 "and needs the pitch inertia about it (> 0)"
             )
 

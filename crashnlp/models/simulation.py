@@ -38,8 +38,8 @@ def integrator(model: CrashModel, grid: np.ndarray, options: Simulation) -> ca.F
                 "linear_multistep_method": "adams",
                 "nonlinear_solver_iteration": "functional",
             }
-        else:
-            opts = {"number_of_finite_elements": options.substeps}
+        else:  # CasADi counts the finite elements over the whole grid, not per output step
+            opts = {"number_of_finite_elements": options.substeps * (len(grid) - 1)}
         return ca.integrator("sim", options.integrator, dae, float(grid[0]), list(grid[1:]), opts)
 
     return model.cached(("integrator", _key(grid, options)), build)

@@ -1,6 +1,6 @@
 """Which model form the data choose: every form fitted, and scored on what its fit did not see.
 
-`compare(problem)` fits the problem once with every form of crashnlp.problem.forms.COMPARED and
+`compare(problem)` fits the problem once with every form it is given (`compared`, unless told) and
 reports per form the objective, the fitted pitch and max displacement misfit, the number of identified
 parameters, and a held-out score:
 
@@ -14,6 +14,8 @@ parameters, and a held-out score:
   parameters (the estimated entries less those the fit leaves unidentified). AIC beside it.
 
 The choice is the form with the lowest held-out score (BIC) among the forms whose fit converged.
+A form whose fit converged but that has no score (a held-out fit failed) is named beside the
+choice, left out of it: where it is the default form, its tie did not apply.
 The default form (the paper's pendulum) stays the choice unless another is better by more than a
 tie: TIE relative in the held-out score, BIC_TIE in BIC (a difference below 2 is not worth more
 than a mention: Kass and Raftery, 1995). A fit alone never chooses: a form with more freedom fits
@@ -23,8 +25,9 @@ decelerated then, is named beside the choice, but does not pass a form over: its
 score already, and passing a form over for it would choose by one symptom against the whole
 held-out error (measured: docs/design-notes.md, "Which form: the score, not the lift-off").
 
-`forms` names the forms to fit (default COMPARED: the pendulum and the rigid body; the
-engine-on-mounts form is fitted when named, since its fits cost many times the others').
+`forms` names the forms to fit (default `compared`: COMPARED, the pendulum and the rigid body,
+and the problem's own `model.form`; the engine-on-mounts form is fitted when named, there or in
+`forms`, since its fits cost many times the others').
 
 An estimate entry that a form's equations do not read (the pendulum's `vehicle.crush_offset` in
 the rigid body) is left out of that form's fit, so that it counts no parameter it does not have.
@@ -83,8 +86,8 @@ class FormScore:
     objective: float | None = None
     pitch_rmse_rad: float | None = None  # over the fitted tests' pitch channels
     displacement_error_m: float | None = None  # worst |model - measured| max displacement (the CG's travel)
-    parameters: int = 0  # identified
-    samples: int = 0  # fitted data points
+    parameters: int | None = None  # identified; None without a fit
+    samples: int | None = None  # fitted data points; None without a fit
     aic: float | None = None
     bic: float | None = None
     held_out: tuple[HeldOut, ...] = ()
@@ -123,24 +126,35 @@ class Comparison:
 
 def with_form(problem: Problem, form: str, source: str | None = None) -> Problem:
     """The problem with `model.form` set to `form`, less the estimate entries the form's
-    equations do not read (its outputs, right-hand side and initial state) and an engine it does
-    not read (Case.engine_unread); its input errors naming `source`."""
+    equations do not read (its outputs, right-hand side and initial state) and the vehicle
+    entries it does not read (an engine, a crush offset: Case.unread_given), back at their
+    defaults; its input errors naming `source`."""
     changed = problem.model_copy(update={"model": problem.model.model_copy(update={"form": form})})
     case = case_of(changed, source)  # refuses a problem the form cannot model
     unread = case.model.unread(list(changed.estimate))
-    vehicle = changed.vehicle.model_copy(update={"engine": None}) if case.engine_unread() else changed.vehicle
+    defaults = {key: type(changed.vehicle).model_fields[key].default for key in case.unread_given()}
+    vehicle = changed.vehicle.model_copy(update=defaults)
     return changed.model_copy(
         update={"estimate": {k: v for k, v in changed.estimate.items() if k not in unread}, "vehicle": vehicle}
     )
 
 
+def compared(problem: Problem) -> tuple[str, ...]:
+    """The forms `compare` fits unless told: COMPARED and the problem's own `model.form`, which
+    a user who names it (with an engine for it) means to be among them."""
+    return tuple(dict.fromkeys((*COMPARED, problem.model.form)))
+
+
 def compare(
-    problem: Problem, source: str | None = None, progress: TextIO | None = None, forms: str | Sequence[str] = COMPARED
+    problem: Problem,
+    source: str | None = None,
+    progress: TextIO | None = None,
+    forms: str | Sequence[str] | None = None,
 ) -> Comparison:
-    """Every one of `forms` (a name alone is one form, as `--forms pendulum` gives it) fitted to
-    the problem's tests and scored (see the module notes); `source` the file its input errors
-    name, `progress` a stream for a line per fit."""
-    forms = (forms,) if isinstance(forms, str) else tuple(forms)
+    """Every one of `forms` (default `compared`; a name alone is one form, as `--forms pendulum`
+    gives it) fitted to the problem's tests and scored (see the module notes); `source` the file
+    its input errors name, `progress` a stream for a line per fit."""
+    forms = compared(problem) if forms is None else (forms,) if isinstance(forms, str) else tuple(forms)
     check_comparable(problem, source, forms)
     criterion = "held-out" if len(problem.tests) >= HELD_OUT_TESTS else "bic"
     scores = [score_form(problem, form, source, criterion, progress)[0] for form in dict.fromkeys(forms)]
@@ -177,7 +191,7 @@ def score_form(
     # the profiles the problem asks for are its chosen form's business, not the comparison's
     problem = problem.model_copy(update={"uncertainty": problem.uncertainty.model_copy(update={"profile": []})})
     try:
-        formed = with_form(problem, form)
+        formed = with_form(problem, form, source)
     except InputError as exc:  # a problem this form cannot model (CrashModel.check)
         return FormScore(form, f"refused: {exc}"), None
     fit, status = _fit(formed, source)
@@ -327,15 +341,16 @@ def choose(scores: list[FormScore], criterion: str, bic_tie: float = BIC_TIE) ->
         v = f.held_out_score if criterion == "held-out" else f.bic
         if f.ok and v is not None:
             value[f.form] = v
-    if not value:
-        return None, "no form's fit converged with a score"
-    best = min(value, key=lambda form: value[form])
     what = "held-out relative RMSE" if criterion == "held-out" else "BIC"
+    if not value:
+        return None, _no_score(scores, criterion)
+    best = min(value, key=lambda form: value[form])
     choice, reason = best, f"{best}: the lowest {what}"
     if DEFAULT_FORM in value and best != DEFAULT_FORM:
         margin = value[DEFAULT_FORM] - value[best]
         if margin <= (TIE * abs(value[best]) if criterion == "held-out" else bic_tie):
             choice, reason = DEFAULT_FORM, f"{DEFAULT_FORM}: the default, within a tie of {best}'s {what}"
+    reason += _unscored(scores, value, what)
     lifted = _of(scores, choice).lift_off_s
     if lifted is not None:
         reason += f"; its held-out prediction lets the front end go at {lifted * 1e3:.1f} ms while the data still push"
@@ -344,6 +359,30 @@ def choose(scores: list[FormScore], criterion: str, bic_tie: float = BIC_TIE) ->
     if choice != DEFAULT_FORM and all(f.pitch_rmse_rad is None for f in scores if f.ok):
         reason += "; no test measures pitch, where the forms differ most: the choice rests on the other channels alone"
     return choice, reason
+
+
+def _no_score(scores: list[FormScore], criterion: str) -> str:
+    """Why no form has a score by `criterion`: no fit converged, or those that did lack the score
+    (a held-out fit that failed: the table's lines under it say which)."""
+    converged = [f.form for f in scores if f.ok]
+    if not converged:
+        return "no form's fit converged"
+    if criterion == "held-out":
+        return (
+            f"no form has a held-out score: the fit of {', '.join(converged)} converged, "
+            "but a held-out prediction of each failed or has no score"
+        )
+    return f"no form has a BIC: the fit of {', '.join(converged)} converged, but with no fitted samples"
+
+
+def _unscored(scores: list[FormScore], value: dict[str, float], what: str) -> str:
+    """The note on the forms whose fit converged but that have no score, left out of the choice,
+    the default form's tie rule not applied where it is one of them; empty without such forms."""
+    unscored = [f.form for f in scores if f.ok and f.form not in value]
+    if not unscored:
+        return ""
+    tie = " (the default: its tie rule was not applied)" if DEFAULT_FORM in unscored else ""
+    return f"; left out for want of a {what}: {', '.join(unscored)}{tie}"
 
 
 def _of(scores: list[FormScore], form: str) -> FormScore:

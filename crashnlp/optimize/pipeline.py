@@ -44,14 +44,14 @@ def prepare_case(problem: Problem, source: str | None = None) -> Case:
 def check_read(case: Case) -> None:
     """Refuse an estimate entry that no equation of the problem's model form reads: the data
     would not determine it, and every prediction of the fit would go without intervals; and an
-    engine the form does not read (Case.refuse_unread_engine)."""
+    engine or a crush offset given that the form does not read (Case.refuse_unread_given)."""
     unread = case.model.unread(list(case.problem.estimate))
     if unread:
         raise InputError(
             f"estimate.{unread[0]}: model.form {case.problem.model.form} does not read it (no equation of the form "
             "depends on it); leave it out"
         )
-    case.refuse_unread_engine()
+    case.refuse_unread_given()
 
 
 def check_solvable(case: Case, free: int) -> None:

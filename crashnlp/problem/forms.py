@@ -15,6 +15,10 @@ FORMS: dict[str, str] = {
     "engine-on-mounts": "crashnlp.models.engine_on_mounts:EngineOnMountsModel",
 }
 DEFAULT_FORM = "pendulum"
-# The forms `crashnlp compare` fits unless told (`--forms`). engine-on-mounts is fitted when named:
+# The forms `crashnlp compare` fits unless told (`--forms`), with the problem's own model.form.
+# engine-on-mounts is fitted when named (there or in --forms):
 # its fits cost many times the others' (docs/design-notes.md, "Which form: the score, not the lift-off").
 COMPARED: tuple[str, ...] = ("pendulum", "rigid-body")
+# The vehicle entries only some forms read, each with a form that reads it: a problem of another
+# form that gives one is refused (crashnlp.case.case.Case.refuse_unread_given).
+READ_BY: dict[str, str] = {"engine": "engine-on-mounts", "crush_offset": "pendulum"}

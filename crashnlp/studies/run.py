@@ -32,7 +32,7 @@ from crashnlp.engine import CONNECT_TIMEOUT
 from crashnlp.engine.executors import default_workers, discard_started_clusters, make_executor, start_cluster, start_early
 from crashnlp.engine.schedule import run_tree
 from crashnlp.problem import Problem, problem_from_dict
-from crashnlp.problem.forms import DEFAULT_FORM
+from crashnlp.problem.forms import DEFAULT_FORM, READ_BY
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.jsonfile import clean
 from crashnlp.studies.plan import PlannedCase, case_id, case_key, case_problem, code_identity, file_digests, plan_cases
@@ -112,8 +112,8 @@ def _checked_cases(path: str | Path) -> tuple[Study, list[PlannedCase], dict[int
     """The study, its cases, their raw problems, every one validated, and the data files each reads."""
     study = load_study(path)
     cases = plan_cases(study)
-    reads: dict[str, bool] = {}
-    raws = {c.number: _engine_for_its_form(study, _case_problem(study, c), reads) for c in cases}
+    unread: dict[str, list[str]] = {}
+    raws = {c.number: _vehicle_for_its_form(study, _case_problem(study, c), unread) for c in cases}
     checked: set[str] = set()
     listed: dict[tuple[Path, str], list[Path]] = {}
     files = {c.number: _data_files(_validate(study, c, raws[c.number], checked), listed) for c in cases}
@@ -244,24 +244,26 @@ def _case_problem(study: Study, case: PlannedCase) -> dict[str, Any]:
         raise InputError(f"{study.source}: sweep.{exc}") from None
 
 
-def _engine_for_its_form(study: Study, raw: dict, reads: dict[str, bool]) -> dict:
-    """A case's problem less an engine its model form does not read, where the study sweeps
-    model.form: the base problem's engine is the engine form's, the other forms' cases have none
-    (as compare's problems of each form, crashnlp.optimize.comparison.with_form). `reads`: per
-    form whether it reads the engine, the model built once per form. A problem that does not
-    validate is left as it is, for `_validate` to refuse."""
+def _vehicle_for_its_form(study: Study, raw: dict, unread: dict[str, list[str]]) -> dict:
+    """A case's problem less the vehicle entries of READ_BY its model form does not read (an
+    engine, a crush offset), where the study sweeps model.form: the base problem's engine is the
+    engine form's, its crush offset the pendulum's, the other forms' cases have none (as compare's
+    problems of each form, crashnlp.optimize.comparison.with_form). `unread`: those entries per
+    form and their values, the model built once for each. A problem that does not validate is
+    left as it is, for `_validate` to refuse."""
     vehicle = raw.get("vehicle") or {}
-    if "engine" not in vehicle or "model.form" not in {e.path for e in study.entries}:
+    if not any(key in vehicle for key in READ_BY) or "model.form" not in {e.path for e in study.entries}:
         return raw
     form = (raw.get("model") or {}).get("form", DEFAULT_FORM)
-    if form not in reads:
+    key = json.dumps([form, {k: vehicle.get(k) for k in READ_BY}], sort_keys=True, default=str)
+    if key not in unread:
         from crashnlp.case.case import case_of  # the model: once per form, not per case
 
         try:
-            reads[form] = not case_of(problem_from_dict(raw, study.base_dir, source="problem")).engine_unread()
+            unread[key] = case_of(problem_from_dict(raw, study.base_dir, source="problem")).unread_given()
         except InputError:
             return raw
-    return raw if reads[form] else {**raw, "vehicle": {k: v for k, v in vehicle.items() if k != "engine"}}
+    return {**raw, "vehicle": {k: v for k, v in vehicle.items() if k not in unread[key]}} if unread[key] else raw
 
 
 def _validate(study: Study, case: PlannedCase, raw: dict, checked: set[str]) -> Problem:
