@@ -57,10 +57,8 @@ def truth_problem() -> dict:
     )
 
 
-def write_data(path, noise: dict[str, float] | None = None, seed: int = 0, correlation: float = 0.0) -> None:
-    """The truth simulated at 0.1 ms, optionally with noise per channel (report units): white, or
-    with `correlation` (s) the correlation time of a stationary AR(1) noise, as a model form's
-    miss is correlated."""
+def write_data(path, noise: dict[str, float] | None = None, seed: int = 0) -> None:
+    """The truth simulated at 0.1 ms, optionally with white noise per channel (report units)."""
     r = Case(problem_from_dict(truth_problem(), path.parent)).simulate()["t56"]
     rng = np.random.default_rng(seed)
     si = {
@@ -71,24 +69,11 @@ def write_data(path, noise: dict[str, float] | None = None, seed: int = 0, corre
     }
     columns = {"time_s": r.time}
     for name, (column, _) in CHANNELS.items():
-        columns[column] = si[name] + (noise or {}).get(name, 0.0) * _unit_noise(rng, r.time, correlation)
+        columns[column] = si[name] + (noise or {}).get(name, 0.0) * rng.standard_normal(r.time.size)
     with path.open("w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(columns)
         w.writerows(zip(*columns.values()))
-
-
-def _unit_noise(rng: np.random.Generator, time: np.ndarray, correlation: float) -> np.ndarray:
-    """Unit-variance noise at `time`: white, or AR(1) of correlation time `correlation` (s)."""
-    white = rng.standard_normal(time.size)
-    if correlation <= 0.0:
-        return white
-    rho = np.exp(-float(np.mean(np.diff(time))) / correlation)
-    out = np.empty_like(white)
-    out[0] = white[0]
-    for k in range(1, white.size):
-        out[k] = rho * out[k - 1] + np.sqrt(1.0 - rho**2) * white[k]
-    return out
 
 
 def fit(path, transcription=MS, channels=tuple(CHANNELS), accel_filter: str | None = None, **changes):
@@ -194,19 +179,6 @@ def test_ninety_five_percent_intervals_cover_the_truth(tmp_path):
     coverage = np.mean(np.abs(z) <= Z95)
     assert coverage >= 0.85, (coverage, z)  # 0.90 of 80 when written
     assert 0.6 <= np.sqrt(np.mean(z**2)) <= 1.6, z  # and the intervals are not too wide either
-
-
-@pytest.mark.slow
-def test_errors_of_correlated_residuals_do_not_fall_as_the_grid_is_refined(tmp_path):
-    """Noise correlated over 10 ms, as a model form's miss is: nodes 0.5 ms apart hold no more of
-    its information than nodes 2 ms apart, so the standard errors stay as they are (a bandwidth
-    counted in nodes let them fall with the grid)."""
-    path = tmp_path / "correlated.csv"
-    write_data(path, {"accel": 1.0, "velocity": 0.02, "displacement": 1e-3, "pitch": 0.1}, seed=5, correlation=0.01)
-    coarse, fine = (fit(path, {**MS, "intervals": n}, accel_filter="CFC60") for n in (60, 240))
-    assert coarse.ok and fine.ok, (coarse.status, fine.status)
-    ratio = fine.std_errors / coarse.std_errors
-    assert np.all((ratio > 0.85) & (ratio < 1.15)), ratio
 
 
 @pytest.mark.slow
