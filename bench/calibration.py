@@ -74,7 +74,7 @@ from crashnlp.problem.forms import DEFAULT_FORM  # noqa: E402
 from crashnlp.results.identified import IdentifiedRange, apply  # noqa: E402
 from crashnlp.results.simulation import IntervalParts, PredictedTest  # noqa: E402
 
-VERSION = 14
+VERSION = 13
 # the conformal level: 95 % intervals; the rank counts vehicles, not predictions (one vehicle's two
 # predictions of a class, 56 -> 64 and 40 + 56 -> 64, miss alike): docs/design-notes.md
 LEVEL = 0.95

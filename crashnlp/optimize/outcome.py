@@ -32,7 +32,7 @@ from crashnlp.results.identified import IdentifiedModel, IdentifiedRange, shapin
 from crashnlp.results.response import Response
 from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 
-COVARIANCE_METHOD = "sandwich, the residuals' cross-covariance at every lag of each test"
+COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
 
 def result_of(solution: Solution, ratings: bool = True) -> Result:
@@ -66,7 +66,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         tests=tests,
         force_crush=_force_crush(solution, identified),
         profiles=solution.profiles,
-        covariance={"method": COVARIANCE_METHOD} if cov is not None else {},
+        covariance={"method": COVARIANCE_METHOD, "lags": cov.bandwidth} if cov is not None else {},
         inequalities=tuple(c.name for c in solution.ocp.nlp.constraints if c.kind not in NOT_REPORTED),
         z=res.z if res else None,
         notes=tuple(solution.notes) + _data_notes(case) + _moving_notes(tests) + _pitch_notes(tests) + identified.tail_notes(),

@@ -15,21 +15,15 @@ The covariance is a sandwich, H^-1 M H^-1, built to mean what it says:
   through) are left out first (`Sensitivity.without`): their columns hold only
   the smoothing's faint leak, which the SVD would pair with the values the
   data do reach, inflating their errors many times over.
-- M is the long-run covariance of the score sum_t s_t, s_t the weighted residual
-  times the Jacobian row of all channels at node t, for residuals that are
-  coloured noise: a filtered accelerometer's, an integrated channel's and the
-  model form's miss are correlated over tens of ms, and velocity and
-  displacement integrated from the same accelerometer carry the same noise, so
-  neither a per-channel noise level nor a sample count is right. Per test, M is
-  the sum over t, u of x_t gamma(t - u) x_u^T (an output-error fit whose
-  disturbance is not white: L. Ljung, System Identification, 2nd ed., 1999,
-  ch. 9), x_t the weighted Jacobian rows of the channels at
-  node t and gamma the channels' residual cross-covariance at every lag, the
-  biased (divide-by-n) estimate from the residuals themselves, which keeps M
-  positive semi-definite. Summed over every lag it is computed as R^T R, R(v)
-  the channels' cross-correlation of x with the residual at lag v (`_meat`).
-  It needs no bandwidth, so it does not change as the grid is refined. Tests
-  are independent.
+- M is the long-run covariance of the score, sum_t s_t with s_t the weighted
+  residual times the Jacobian row of all channels at node t: residuals of a
+  filtered accelerometer or an integrated channel are autocorrelated, and
+  velocity and displacement integrated from the same accelerometer carry the
+  same noise, so neither a per-channel noise level nor a sample count is
+  right. M is the Newey-West (Bartlett) estimate over the nodes of each test,
+  with the bandwidth of Andrews (1991) from the score's lag-1
+  autocorrelation; tests are independent. This is the standard HAC estimator
+  of econometrics; it needs no assumption on the noise levels.
 """
 
 from __future__ import annotations
@@ -53,6 +47,7 @@ class Covariance:
     matrix: np.ndarray  # SI, inf on the rows/columns of parameters not identified
     hessian_inverse: np.ndarray  # (J^T W J)^+, SI: the curvature of the objective the profiles see
     identified: np.ndarray  # bool per parameter
+    bandwidth: dict[str, int]  # Newey-West lags used per test
 
     @property
     def std(self) -> np.ndarray:
@@ -64,6 +59,29 @@ class Covariance:
         with np.errstate(invalid="ignore", divide="ignore"):
             corr = self.matrix / np.outer(std, std)
         return np.nan_to_num(corr, nan=0.0, posinf=0.0, neginf=0.0)
+
+
+def bartlett_bandwidth(scores: np.ndarray) -> int:
+    """Andrews' (1991) AR(1) plug-in bandwidth for the Bartlett kernel (nodes x params)."""
+    n = scores.shape[0]
+    a, b = scores[1:], scores[:-1]
+    denom = np.sum(b * b, axis=0)
+    used = denom > 0
+    if n < 4 or not used.any():
+        return 0
+    rho = np.clip(np.sum(a * b, axis=0)[used] / denom[used], -0.97, 0.97)
+    sigma4 = np.sum(b * b, axis=0)[used] ** 2
+    alpha = np.sum(4 * rho**2 * sigma4 / (1 - rho) ** 6 / (1 + rho) ** 2) / np.sum(sigma4 / (1 - rho) ** 4)
+    return int(min(np.ceil(1.1447 * (alpha * n) ** (1 / 3)), n // 2))
+
+
+def long_run_covariance(scores: np.ndarray, lags: int) -> np.ndarray:
+    """Newey-West estimate of the covariance of sum_t s_t (scores: nodes x params)."""
+    M = scores.T @ scores
+    for lag in range(1, lags + 1):
+        gamma = scores[lag:].T @ scores[:-lag]
+        M += (1 - lag / (lags + 1)) * (gamma + gamma.T)
+    return M
 
 
 @dataclass
@@ -105,39 +123,29 @@ class Sensitivity:
         null = Vt[~keep]
         identified = np.ones(n, bool) if not null.size else np.max(np.abs(null), axis=0) < NULL_SHARE
         H_inv = (Vt[keep].T / s[keep] ** 2) @ Vt[keep] / np.outer(d, d)  # pseudo-inverse of J^T W J (+ prior)
-        M = np.zeros((n, n)) if prior is None else prior.copy()
-        for channels in self._channels(weights).values():
-            M += _meat(channels)
+        M, bandwidth = np.zeros((n, n)) if prior is None else prior.copy(), {}
+        for test, scores in self._scores(weights).items():
+            bandwidth[test] = bartlett_bandwidth(scores)
+            M += long_run_covariance(scores, bandwidth[test])
         cov = H_inv @ M @ H_inv
         cov[~identified, :] = np.inf
         cov[:, ~identified] = np.inf
-        return Covariance(cov, H_inv, identified)
+        return Covariance(cov, H_inv, identified, bandwidth)
 
-    def _channels(self, weights: np.ndarray) -> dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]]:
-        """Per test, each channel's fitted nodes, residuals and weighted Jacobian rows (w J)."""
-        out: dict[str, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
-        weighted = self.jacobian * weights[:, None]
+    def _scores(self, weights: np.ndarray) -> dict[str, np.ndarray]:
+        """Per test, the score of every node: sum over channels of w e J_row (nodes x params)."""
+        out: dict[str, np.ndarray] = {}
+        g = self.jacobian * (weights * self.raw)[:, None]
         for rows, res in zip(self.rows, self.residuals):
-            out.setdefault(res.test, []).append((np.asarray(res.columns), self.raw[rows], weighted[rows]))
+            nodes = np.asarray(res.columns)
+            current = out.get(res.test)
+            size = max(nodes.max() + 1, 0 if current is None else current.shape[0])
+            grown = np.zeros((size, g.shape[1]))
+            if current is not None:
+                grown[: current.shape[0]] = current
+            np.add.at(grown, nodes, g[rows])
+            out[res.test] = grown
         return out
-
-
-def _meat(channels: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> np.ndarray:
-    """One test's M (the module's docstring): R^T R, R(v) = sum over channels of
-    sum_t x_t e_(t+v) / sqrt(n) at every lag v, each channel's nodes, residuals e and
-    weighted Jacobian rows x placed on the test's node grid (n: its fitted nodes). With
-    white residuals of variance s^2 its mean is s^2 sum_t x_t x_t^T, the least-squares
-    meat."""
-    size = max(int(nodes.max()) + 1 for nodes, _, _ in channels)
-    length = 1 << int(np.ceil(np.log2(2 * size)))  # zero-padded: the correlation is not circular
-    params = channels[0][2].shape[1]
-    R = np.zeros((length, params))
-    for nodes, e, x in channels:
-        on_grid_e, on_grid_x = np.zeros(size), np.zeros((size, params))
-        on_grid_e[nodes], on_grid_x[nodes] = e, x
-        spectrum = np.conj(np.fft.rfft(on_grid_x, length, axis=0)) * np.fft.rfft(on_grid_e, length)[:, None]
-        R += np.fft.irfft(spectrum, length, axis=0) / np.sqrt(nodes.size)
-    return R.T @ R
 
 
 def _root(information: np.ndarray) -> np.ndarray:
