@@ -318,6 +318,7 @@ def test_a_pitch_still_rising_at_the_window_s_end_is_said_on_the_console_and_in_
     assert all(any(words in n for n in notes) for words in said)
 
 
+@pytest.mark.integration
 def test_a_value_at_its_bound_the_data_never_reach_has_no_pull(capsys):
     """pickup-40kph's values at 0.55 and 0.70 m lie past the crush its test reaches: not
     identified, and the one its fit runs to the bound has no pull past it in standard errors (it
