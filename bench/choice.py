@@ -65,7 +65,7 @@ def judge(v: Vehicle, folder: Path) -> dict:
     row: dict = {"vehicle": v.name, "choice": choose([score for score, _ in scored.values()], "bic")[0], "forms": {}}
     for form, (score, fit) in scored.items():
         entry: dict = {"status": score.status, "bic": score.bic}
-        if fit is not None and fit.ok and fit.identified is not None:
+        if fit is not None and fit.ok and fit.identified is not None and score.parameters is not None:
             held = [held_out_prediction(with_form(whole, form), t.name, fit.identified) for t in whole.tests[1:]]
             scores = [h.score for h in held]
             entry["held_out"] = None if None in scores else float(np.mean(scores))  # type: ignore[arg-type]
