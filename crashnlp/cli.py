@@ -447,7 +447,7 @@ def _export_curves(args, folder: Path) -> int:
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, result.name, folder, curves, result.status)))
         return 0
     own = folder / f"{result.name}.k"
-    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.KEYWORD_FILE)
     _say_unconverged(result.status)
     with deriving(folder, out):
         export.write_keyword_file(out, result.name, folder, curves, result.status)
@@ -479,7 +479,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
     pulse = export.pulse(test.response, test.speed, _rate(args.rate), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
-    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.PULSE_FILE)
     _say_unconverged(status)
     if test.warning:
         print(f"crashnlp: {test.warning}")

@@ -876,6 +876,31 @@ def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, caps
     assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
 
 
+@pytest.mark.parametrize(
+    "options",
+    [["report"], ["export", "--format", "pulse"], ["export", "--format", "ls-dyna"]],
+)
+def test_an_out_that_is_a_file_crashnlp_did_not_write_as_that_output_is_refused(fit, tmp_path, capsys, options):
+    """A problem file, a test's data or another kind of output at --out is refused whole; the
+    command's own earlier output there is written again."""
+    out = tmp_path / "out"
+    argv = [options[0], str(fit), *options[1:], "--out", str(out)]
+    assert main(argv) == 0 and main(argv) == 0
+    other = ["report"] if options[0] == "export" else ["export", "--format", "pulse"]
+    ours = tmp_path / "ours"
+    assert main([other[0], str(fit), *other[1:], "--out", str(ours)]) == 0
+    capsys.readouterr()
+    problem = ROOT / "problems/pickup-56kph.yaml"
+    data = problem.parent / yaml.safe_load(problem.read_text())["tests"][0]["data"]["file"]
+    for source in (problem, data, ours):
+        target = tmp_path / "target"
+        shutil.copyfile(source, target)
+        assert main([*argv[:-1], str(target)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--out {target}: exists" in err, err
+        assert target.read_bytes() == source.read_bytes()
+
+
 @pytest.mark.integration
 def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
     folder = tmp_path / "copy"

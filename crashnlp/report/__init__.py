@@ -21,7 +21,7 @@ import numpy as np
 
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
-from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
+from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
 from crashnlp.results.result import Result, loading_curve_name, pull_texts, unconverged
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -31,6 +31,8 @@ if TYPE_CHECKING:
     from crashnlp.results.simulation import PredictedTest
 
 REPORT = "report.html"
+GENERATOR = "crashnlp report"  # every page's generator; a report's --out may write over a page that names it
+REPORT_FILE = OutputKind("report", f'<meta name="generator" content="{GENERATOR}">')
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
 
 TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp compare-results
@@ -40,13 +42,14 @@ TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp com
     trim_blocks=True,
     lstrip_blocks=True,
 )
+TEMPLATES.globals["generator"] = GENERATOR
 
 
 def write_report(folder: Path, out: Path | None = None) -> Path:
     """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all;
     inside `folder`, listed in its record as derived from its run (crashnlp.results.files.deriving)."""
     kind = folder_kind(folder)
-    out = check_writable_file(out or folder / REPORT, own=folder / REPORT)
+    out = check_writable_file(out or folder / REPORT, own=folder / REPORT, kind=REPORT_FILE)
     if kind == "result":
         page = result_page(read_result(folder), folder)
     elif kind == "simulation":

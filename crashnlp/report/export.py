@@ -39,7 +39,7 @@ from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
-from crashnlp.results.files import atomic_open, write_columns
+from crashnlp.results.files import OutputKind, atomic_open, write_columns
 from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel
 from crashnlp.results.response import OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
@@ -51,6 +51,9 @@ SPACING = 100  # points at a fixed spacing over a curve, beside those at its ben
 BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
 PEAK_MOVED = 0.01  # relative: a filter that moves a pulse's peak deceleration more than this is said to
+EXPORTED = "crashnlp export of"  # the first words of every exported file's header, after any warning
+KEYWORD_FILE = OutputKind("LS-DYNA keyword file", f"$ {EXPORTED} ")  # what --out may write over (check_writable_file)
+PULSE_FILE = OutputKind("pulse", f"# {EXPORTED} ")
 TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
 # relative to the loading curve's largest force: a clip at zero up to this is the smoothing's
 # rounding (the shipped pickup's law gives -2 N at zero crush, where its tail's hinge reaches back), not said
@@ -267,7 +270,7 @@ def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
 
 def _whose_curves(name: str, source: Path, curves: Curves) -> str:
     """The first words of every curve file: the export of which problem, from which folder, of whose front end."""
-    return f"crashnlp export of {name} ({source}): the {curves.whose} front end"
+    return f"{EXPORTED} {name} ({source}): the {curves.whose} front end"
 
 
 def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
@@ -358,7 +361,7 @@ class PulseTest:
             whose = "the designed model's acceleration (crashnlp design) in"
         mass = "mass not recorded (result.json keeps no energy audit of it)" if self.mass is None else f"mass {self.mass:.0f} kg"
         lines = (
-            f"crashnlp export of {name}: {whose} test {self.name}, as a sled-test input",
+            f"{EXPORTED} {name}: {whose} test {self.name}, as a sled-test input",
             f"impact at {self.speed * 3.6:.1f} km/h ({self.speed:.3f} m/s), {mass}",
         )
         return lines if fitted else (*lines, f"source: {self.source}")
