@@ -185,7 +185,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
-    from crashnlp.results.result import pull_texts, unconverged
+    from crashnlp.results.result import pull_texts, unconverged, unsolved_lines
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -204,6 +204,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    for line in unsolved_lines(result):
+        print(f"  {line}")
     if result.at_bound and result.kind == "identify" and result.ok:
         pulls = ", ".join(f"{label} ({pull})" for label, pull in pull_texts(result).items())
         print(f"  at a bound (how far past it the data pull): {pulls}")

@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,6 +27,7 @@ from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
+from crashnlp.optimize import profile as profile_module
 from crashnlp.report import result_page
 from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
@@ -151,6 +153,40 @@ def test_a_profile_open_at_a_bound_runs_to_it_and_one_open_short_of_it_says_so(f
     _, open_, how = rows["model.spring.values[2]"]
     assert interval_ends(open_) == pytest.approx([(values[2] - 2 * stds[2]) / 1e3, (values[2] + steps[-1]) / 1e3], rel=1e-3)
     assert "> " in open_ and "open" in how
+
+
+@pytest.mark.integration
+def test_a_profile_end_resting_on_a_solve_ipopt_did_not_finish_says_so(fit, monkeypatch, capsys):
+    """Each profile point keeps its solve's IPOPT status, and an end resting on a solve IPOPT did
+    not finish (the pickup's cg height with max_iter 15: three of four lower-side solves stopped
+    at the limit) is said to be so by the console and the report, not shown as a plain number."""
+    label, theta, std = "vehicle.cg_above_impact", 0.4, 0.1
+    walks = {  # per side: (value, objective, status); the rise reaches its threshold (3.84) at the second point
+        -1: [(0.325, 1.5, "Maximum_Iterations_Exceeded"), (0.25, 9.0, "Solve_Succeeded")],
+        1: [(0.475, 1.5, "Solve_Succeeded"), (0.55, 9.0, "Solve_Succeeded")],
+    }
+    monkeypatch.setattr(
+        profile_module, "map_all", lambda _, __, chains: enumerate(walks[-1 if c.values[0] < theta else 1] for c in chains)
+    )
+    problem = SimpleNamespace(uncertainty=SimpleNamespace(profile=(label,), points=2), with_values=lambda _: None)
+    solution = SimpleNamespace(
+        case=SimpleNamespace(problem=problem),
+        regularization={},
+        ocp=SimpleNamespace(free=SimpleNamespace(labels=lambda: [label], lower=np.array([0.0]), upper=np.array([0.6]))),
+        covariance=SimpleNamespace(std=np.array([std]), hessian_inverse=np.array([[std**2]])),
+        theta=np.array([theta]),
+        result=SimpleNamespace(z=np.zeros(1), objective=0.0),
+    )
+    profiles = profile_module.profiles(solution, None)
+    assert profiles[label]["statuses"] == [s for _, _, s in sorted(walks[-1] + walks[1])]
+    assert profiles[label]["unsolved"] == {"lower": ["Maximum_Iterations_Exceeded"]}
+    result = dataclasses.replace(read_result(fit), profiles=profiles)
+    _, interval, how = parameter_rows(result_page(result, fit))[label]
+    assert interval.startswith("[") and "unsolved" in interval.split(",")[0] and "unsolved" not in interval.split(",")[1]
+    assert "lower end rests on a solve IPOPT did not finish (Maximum_Iterations_Exceeded)" in how
+    _print_solution(result)
+    said = [line for line in capsys.readouterr().out.splitlines() if label in line and "IPOPT did not finish" in line]
+    assert len(said) == 1 and "lower end" in said[0]
 
 
 @pytest.mark.integration

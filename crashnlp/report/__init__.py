@@ -22,7 +22,7 @@ import numpy as np
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.result import Result, loading_curve_name, pull_texts, unconverged
+from crashnlp.results.result import UNSOLVED, Result, loading_curve_name, pull_texts, unconverged, unsolved_end
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
 from crashnlp.studies.table import number, shown_column
@@ -212,20 +212,24 @@ def _profile_end(profile: dict[str, Any], key: str, bound: float) -> End:
     did not close there (crashnlp.optimize.profile writes null where the objective's rise never
     reached the threshold within the values profiled): the bound where the profile ran to it
     (its next step would have passed it, or it had no room for one: the estimate at the bound),
-    else the furthest value profiled, past which the interval runs on (OPEN)."""
+    else the furthest value profiled, past which the interval runs on (OPEN); an end resting on a
+    solve IPOPT did not finish is that first (`unsolved_end`)."""
+    unsolved = unsolved_end(profile, key)
     if profile.get(key) is not None:
-        return profile[key], ""
+        return profile[key], unsolved or ""
     side, estimate = (-1.0 if key == "lower" else 1.0), profile["estimate"]
     walked = sorted((side * (v - estimate) for v, _ in profile["points"] if side * (v - estimate) > 0))
     if not walked or walked[-1] + walked[0] > side * (bound - estimate):  # steps are equal: the first is one
-        return bound, "at the bound"
-    return estimate + side * walked[-1], OPEN
+        return bound, unsolved or "at the bound"
+    return estimate + side * walked[-1], unsolved or OPEN
 
 
 def _end(key: str, end: End, factor: float) -> str:
-    """An interval's `key` end as shown; one the profile left open says which way it runs on ("< 2.1", "> 3.4")."""
+    """An interval's `key` end as shown; one the profile left open says which way it runs on ("< 2.1",
+    "> 3.4"), one resting on a solve IPOPT did not finish says so ("2.1 (unsolved)")."""
     value, what = end
-    return ("" if what != OPEN else "< " if key == "lower" else "> ") + significant(value, factor)
+    shown = ("" if what != OPEN else "< " if key == "lower" else "> ") + significant(value, factor)
+    return f"{shown} (unsolved)" if what.startswith(UNSOLVED) else shown
 
 
 # --------------------------------------------------------------------------- a simulation

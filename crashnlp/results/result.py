@@ -333,6 +333,27 @@ def pull_texts(result: Result) -> dict[str, str]:
     return {label: "not identified" if pull is None else f"{pull:.2g} std" for label, pull in result.at_bound.items()}
 
 
+UNSOLVED = "rests on a solve IPOPT did not finish"  # a profile interval's end whose objective is not the profile's
+
+
+def unsolved_end(profile: dict[str, Any], key: str) -> str | None:
+    """The words for a profile interval's `key` ("lower", "upper") end that rests on a solve IPOPT
+    did not finish (crashnlp.optimize.profile's `unsolved`: its objective is not the profile's,
+    nor the end a 95 % end), as the console and the report give them; None for one that does not."""
+    statuses = (profile.get("unsolved") or {}).get(key)
+    return f"{UNSOLVED} ({', '.join(statuses)})" if statuses else None
+
+
+def unsolved_lines(result: Result) -> list[str]:
+    """A line for each profile interval end of `result` that rests on a solve IPOPT did not finish."""
+    return [
+        f"profile interval of {label}: its {key} end {words}"
+        for label, profile in result.profiles.items()
+        for key in ("lower", "upper")
+        if (words := unsolved_end(profile, key))
+    ]
+
+
 def loading_curve_name(kind: str) -> str:
     """What a result's loading curve is: identified from data, or designed."""
     return "identified loading curve" if kind == "identify" else "designed loading curve"
