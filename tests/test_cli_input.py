@@ -46,6 +46,18 @@ CASES = {
     ),
     "missing key": ({"vehicle": {"cg_to_impact": None}}, "vehicle.cg_to_impact: missing key"),
     "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
+    "profile typo": (
+        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.cg_above_impakt"]}},
+        "uncertainty.profile: vehicle.cg_above_impakt is not an estimated entry (vehicle.cg_above_impact)",
+    ),
+    "profile not estimated": (
+        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.mass"]}},
+        "uncertainty.profile: vehicle.mass is not an estimated entry",
+    ),
+    "profile of a whole list": (
+        {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}, "uncertainty": {"profile": ["model.spring.values"]}},
+        "uncertainty.profile: model.spring.values is not an estimated entry (model.spring.values[0], ",
+    ),
     "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),
     "bound unit": ({"constraints": {"bounds": {"pitch": [None, "12 kg"]}}}, "constraints:"),
     "ipopt option typo": ({"solver": {"ipopt": {"max_itr": 5}}}, "solver.ipopt.max_itr: no such IPOPT option"),
