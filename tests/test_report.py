@@ -832,6 +832,11 @@ EDITED_ELSEWHERE = {  # result.json edited past the vehicle and the model: (keys
     (("tests", "56kph", "speed_mps"), -15.5): "tests.56kph.speed_mps is -15.5",
     (("tests", "56kph", "energy", "impact_kinetic"), None): "tests.56kph.energy.impact_kinetic is None",
     (("std_errors", "vehicle.crush_offset"), -0.09): "std_errors.vehicle.crush_offset is -0.09",
+    (("parameters", "vehicle.pitch_inertia"), -4800.0): "parameters.vehicle.pitch_inertia is -4800.0, where identified_model",
+    (("parameters", "vehicle.crush_offset"), 0.05): "parameters.vehicle.crush_offset is 0.05, where identified_model has 0.",
+    (("parameters", "vehicle.crush_offset"), float("nan")): "parameters.vehicle.crush_offset is NaN",
+    (("parameters", "model.spring.values", 1), "abc"): 'parameters.model.spring.values is [0.0, "abc", ',
+    (("parameters", "vehicle.foo"), 1.0): "parameters.vehicle.foo is 1.0, where identified_model has no such entry",
 }
 
 

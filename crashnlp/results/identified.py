@@ -362,7 +362,7 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
     given = problem.vehicle.model_fields_set
     for key in GEOMETRY:
         mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
-        if key in given and theirs is not None and not _same(mine, theirs, SAME_GEOMETRY):
+        if key in given and theirs is not None and not same(mine, theirs, SAME_GEOMETRY):
             raise InputError(
                 f"{source}: vehicle.{key}: the problem's is {mine:g} m, the identified vehicle's {theirs:g} m: "
                 "another vehicle (a result predicts the vehicle it was fitted to)"
@@ -394,9 +394,11 @@ def _differs(mine: Any, theirs: Any) -> bool:
     if isinstance(mine, BreakpointCount):
         return not isinstance(theirs, list) or mine.count != len(theirs)
     if isinstance(mine, tuple) or isinstance(theirs, list):
-        return not isinstance(mine, tuple) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+        return not isinstance(mine, tuple) or len(mine) != len(theirs) or not all(map(same, mine, theirs))
     return mine != theirs
 
 
-def _same(a: float, b: float, tolerance: float = SAME) -> bool:
+def same(a: float, b: float, tolerance: float = SAME) -> bool:
+    """Whether two values are the same to a relative `tolerance` (a number written to result.json
+    and read back is the same as itself)."""
     return abs(a - b) <= tolerance * max(abs(a), abs(b), 1e-12)

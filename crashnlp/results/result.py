@@ -21,11 +21,12 @@ import numpy as np
 from crashnlp.base.errors import InputError, unreadable
 from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
-from crashnlp.results.identified import EDITED, IdentifiedModel
+from crashnlp.results.identified import EDITED, IdentifiedModel, same
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_columns, read_response, write_response_csv
 
 if TYPE_CHECKING:
+    from crashnlp.problem.schema import Problem
     from crashnlp.results.plots import Job  # not at run time: matplotlib
 
 # ignored by reproducibility checks: the only entries that change from run to run
@@ -307,9 +308,32 @@ def refuse_edited(result: Result, source: str) -> Result:
             if std is not None and not (_positive(std) or std == 0):
                 where = f"{path}[{i}]" if isinstance(errors, list) else path
                 raise InputError(f"{source}: std_errors.{where} is {std}: must be a number, not negative, or null {EDITED}")
-    if result.identified is not None:
-        result.identified.as_problem(result.name, source)
+    identified = result.identified.as_problem(result.name, source) if result.identified is not None else None
+    for path, given in result.parameters.items():
+        _refuse_another_value(path, given, identified, source)
     return result
+
+
+def _refuse_another_value(path: str, value: Any, identified: Problem | None, source: str) -> None:
+    """An InputError naming `source` and the entry where result.json's `parameters` give `path`
+    another value than the `identified` model has (as a prediction and an export take it; None
+    where the result keeps none, an older result.json), or one it has not: the report shows
+    these values. Without an identified model a value need only be a finite number, or a list
+    of them."""
+    values = value if isinstance(value, list) else [value]
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+    if identified is None:
+        if not numbers:
+            raise InputError(f"{source}: parameters.{path} is {json.dumps(value)}: must be a number, or a list of them {EDITED}")
+        return
+    theirs = identified.value_at(path)
+    listed = list(theirs) if isinstance(theirs, tuple) else [theirs]
+    if theirs is None or not (numbers and len(listed) == len(values) and all(map(same, values, listed))):
+        has = "no such entry" if theirs is None else json.dumps(theirs)
+        raise InputError(
+            f"{source}: parameters.{path} is {json.dumps(value)}, where identified_model has {has}: the report would "
+            f"show the one, predictions and exports take the other {EDITED}"
+        )
 
 
 def refuse_status(status: Any, source: str) -> None:
