@@ -30,7 +30,16 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
+from crashnlp.results.files import (
+    check_entries,
+    check_output,
+    check_writable,
+    check_writable_file,
+    claim,
+    deriving,
+    file_option,
+    run_name,
+)
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
@@ -111,6 +120,7 @@ def _simulation(args):
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
     from crashnlp.results.params import given_result, with_params
+    from crashnlp.results.simulation import simulation_entries
     from crashnlp.results.source import simulation_source
 
     dt = output_step(args.dt, "--dt")
@@ -130,7 +140,7 @@ def _simulation(args):
     if identified is None:  # a fit's vehicle is simulated as it was fitted
         case.refuse_unread_engine(args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
-    check_output(out, run_name("simulate", case.name))
+    check_output(out, run_name("simulate", case.name), entries=simulation_entries(test.name for test in case.tests))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
@@ -294,12 +304,14 @@ def _prepared_case(args, kind: str):
     checks, as crashnlp.identify and crashnlp.design run them, its errors naming the file, and the folder's."""
     from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
+    from crashnlp.results.result import result_entries
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     case = prepare_case(problem, args.problem)  # before any solve
-    out = check_output(_out(args, problem.name), run_name(kind, problem.name))
+    entries = result_entries(test.name for test in case.tests)
+    out = check_output(_out(args, problem.name), run_name(kind, problem.name), entries=entries)
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
@@ -444,6 +456,7 @@ def _export_curves(args, folder: Path) -> int:
         curves = export.identified_curves(result.identified, result.not_identified)
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
+        check_entries(out, export.curve_files(curves))
         _say_unconverged(result.status)
         with deriving(folder, out):
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, result.name, folder, curves, result.status)))

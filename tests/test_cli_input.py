@@ -12,7 +12,7 @@ from typing import Annotated, Literal, Union, get_args, get_origin
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, small_pickup_problem
 
 from crashnlp.base.outputs import UNFINISHED
 from crashnlp.base.records import Record
@@ -365,6 +365,30 @@ def test_an_output_folder_holds_one_run(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"--out {out}: holds the results of another run (simulate a), not of simulate b" in err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # nothing of b written
+
+
+@pytest.mark.parametrize(
+    ("command", "entry", "kind"),
+    [
+        ("identify", "56kph", "file"),
+        ("identify", "force_crush.csv", "folder"),
+        ("identify", "56kph/fit.png", "folder"),
+        ("simulate", "simulation.json", "folder"),
+        ("simulate", "56kph", "file"),
+    ],
+)
+def test_an_entry_in_the_way_of_a_runs_file_is_refused_before_any_solve(tmp_path, capsys, command, entry, kind):
+    """A file where a run writes a folder (a test's), or a folder where it writes a file, was found
+    only as the run wrote, after its solve, leaving it half written: it is refused before (a unit
+    test: no NLP is solved), one line naming the entry, exit 2, nothing written."""
+    problem, out = small_pickup_problem(tmp_path), tmp_path / "out"
+    (out / entry).parent.mkdir(parents=True, exist_ok=True)
+    (out / entry).mkdir() if kind == "folder" else (out / entry).write_text("mine")
+    before = sorted(tmp_path.rglob("*"))
+    assert main([command, str(problem), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / entry} is a {kind} where crashnlp writes" in err, err
+    assert sorted(tmp_path.rglob("*")) == before
 
 
 def test_a_record_naming_files_outside_its_folder_removes_nothing_there(tmp_path, capsys):

@@ -942,6 +942,17 @@ def test_an_out_that_is_a_file_crashnlp_did_not_write_as_that_output_is_refused(
         assert target.read_bytes() == source.read_bytes()
 
 
+def test_a_folder_where_the_csv_export_writes_a_curve_is_refused_before_any_curve(fit, tmp_path, capsys):
+    """A folder named damper.csv in the export's folder had left loading.csv and unloading.csv
+    written before the export failed on it: it is refused first, one line, nothing written."""
+    out = tmp_path / "curves"
+    (out / "damper.csv").mkdir(parents=True)
+    assert main(["export", str(fit), "--format", "csv", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / 'damper.csv'} is a folder where crashnlp writes a file" in err, err
+    assert [p.name for p in out.iterdir()] == ["damper.csv"]
+
+
 @pytest.mark.integration
 def test_a_result_folder_missing_a_response_names_it(fit, tmp_path, capsys):
     folder = tmp_path / "copy"

@@ -302,9 +302,7 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
     takes), and NOTES_FILE beside them: whose curves they are and what the .k file says
     of the loading curve (`Curves.loading_notes`: where the data end on it), a line each. The
     paths written."""
-    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
-    if curves.damper is not None:
-        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    tables = _tables(curves)
     for file, (x_name, (x, y)) in tables.items():
         write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
     said = [
@@ -316,6 +314,19 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
     with atomic_open(folder / NOTES_FILE) as fh:
         fh.write("".join(f"{line}\n" for line in said))
     return [*(folder / f for f in tables), folder / NOTES_FILE]
+
+
+def _tables(curves: Curves) -> dict[str, tuple[str, tuple[np.ndarray, np.ndarray]]]:
+    """The curve CSVs of `curves` by file name: the crush column's name and the curve."""
+    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
+    if curves.damper is not None:
+        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    return tables
+
+
+def curve_files(curves: Curves) -> list[str]:
+    """The files `write_curves_csv` writes for `curves`, by name within its folder."""
+    return [*_tables(curves), NOTES_FILE]
 
 
 # --------------------------------------------------------------------------- pulse

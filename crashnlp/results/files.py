@@ -26,7 +26,7 @@ import hashlib
 import json
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,12 +110,28 @@ def recorded_name(folder: Path, command: str) -> str | None:
     return name if recorded == command and name else None
 
 
-def check_output(out: str | Path, run: str, option: str = "--out") -> Path:
+def check_output(out: str | Path, run: str, option: str = "--out", entries: Iterable[str] = ()) -> Path:
     """check_writable, and refuse a folder that holds another run's results (its record names
-    another `run` than this, e.g. "identify pickup-56kph"); read only, so --check may call it."""
+    another `run` than this, e.g. "identify pickup-56kph") or something in the way of the files
+    the run writes there (`entries`: check_entries); read only, so --check may call it."""
     out = check_writable(out, option)
     _refuse_another(out, _read_record(out / RECORD).get("run"), run, option)
+    check_entries(out, entries, option)
     return out
+
+
+def check_entries(out: Path, entries: Iterable[str], option: str | None = "--out") -> None:
+    """Refuse, before any work, what in `out` stands where a run writes its files (`entries`, by
+    name within it, "56kph/response.csv"): a folder where a file goes, a file where a folder goes.
+    Found only as the run writes, it would end the run after its solve, half written."""
+    for name in entries:
+        path = out / name
+        folders = [f for f in path.parents if f != out and f.is_relative_to(out)]
+        entry = next((f for f in reversed(folders) if f.exists() and not f.is_dir()), None)
+        if entry is not None:
+            raise InputError(f"{_where(out, option)}: {entry} is a file where crashnlp writes a folder; remove or move it")
+        if path.is_dir():
+            raise InputError(f"{_where(out, option)}: {path} is a folder where crashnlp writes a file; remove or move it")
 
 
 @contextmanager

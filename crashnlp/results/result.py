@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -113,6 +114,14 @@ class LoadingCurve:
 
 RESULT_FILE = "result.json"  # what `Result.save` writes into a fit's folder, and `Result.load` reads
 FORCE_CRUSH_FILE = "force_crush.csv"  # the loading curve's table beside it
+FORCE_CRUSH_FIGURE = "force_crush.png"
+TEST_FILES = ("response.csv", "fit.png", "response.png", "residuals.png")  # in each test's folder: its response and figures
+
+
+def result_entries(tests: Iterable[str]) -> list[str]:
+    """The files a fit's or a design's folder gets (`write_result`, its figures), by name within it,
+    for the folder's check before the solve (crashnlp.results.files.check_entries)."""
+    return [RESULT_FILE, FORCE_CRUSH_FILE, FORCE_CRUSH_FIGURE, *(f"{test}/{file}" for test in tests for file in TEST_FILES)]
 
 
 def result_file(path: str | Path) -> Path:
@@ -538,4 +547,4 @@ def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
     measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
     title = f"{result.name}: {loading_curve_name(result.kind)}"
     band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
-    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))
+    return ("force_crush_figure", (out / FORCE_CRUSH_FIGURE, curves, (fc.breakpoints, fc.values), title, measured, band))
