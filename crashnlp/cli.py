@@ -444,6 +444,10 @@ def cmd_export(args) -> int:
     return _export_pulse(args, folder, kind) if args.format == "pulse" else _export_curves(args, folder)
 
 
+PULSE_OPTIONS = ("--rate", "--cfc", "--test")  # export's options of --format pulse alone
+RATE = "10 kHz"  # a pulse's sample rate without --rate
+
+
 def _export_curves(args, folder: Path) -> int:
     """The identified model's curves as LS-DYNA keywords or CSV files."""
     from crashnlp.report import export
@@ -454,6 +458,9 @@ def _export_curves(args, folder: Path) -> int:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
     with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
         curves = export.identified_curves(result.identified, result.not_identified)
+    given = [option for option in PULSE_OPTIONS if getattr(args, option.lstrip("-")) is not None]
+    if given:
+        raise InputError(f"{given[0]}: an option of --format pulse; --format {args.format} writes no pulse")
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
         check_entries(out, export.curve_files(curves))
@@ -492,7 +499,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         name, tests = read_simulation(folder)
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
-    pulse = export.pulse(test.response, test.speed, _rate(args.rate), args.cfc)
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate or RATE), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.PULSE_FILE)
     _say_unconverged(status)
@@ -626,7 +633,7 @@ def parser() -> argparse.ArgumentParser:
         help="ls-dyna: a .k file of *DEFINE_CURVE (mm, ms, kg, kN); csv: the curves in SI; pulse: acceleration against time",
     )
     p.add_argument("--out", help="file to write (csv: a folder; default in FOLDER: NAME.k, curves/, TEST-pulse.csv)")
-    p.add_argument("--rate", default="10 kHz", help="pulse: sample rate, e.g. '10 kHz' (default) or 20000 (Hz)")
+    p.add_argument("--rate", help=f"pulse: sample rate, e.g. '{RATE}' (default) or 20000 (Hz)")
     p.add_argument(
         "--cfc",
         type=int,
@@ -657,10 +664,28 @@ def _add_common(ap: argparse.ArgumentParser, sub) -> None:
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (an InputError, exit 2) instead of usage text."""
+    """argparse, but a usage error is one line (an InputError, exit 2) instead of usage text, and an
+    option of one value given twice is refused (`Once`), where argparse would take the last."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        for name in (None, "store"):  # argparse's default action, and by its name
+            self.register("action", name, Once)
 
     def error(self, message: str):
         raise InputError(message)
+
+
+class Once(argparse._StoreAction):
+    """An option's value, stored; the same option given again on the line is an InputError: which
+    of `--speed "48 km/h" --speed "64 km/h"` was meant is for the user to say."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault("_given", set())
+        if self.dest in given:
+            raise InputError(f"{option_string}: given twice; give it once")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
 
 
 # --------------------------------------------------------------------------- the one error path

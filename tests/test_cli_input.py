@@ -237,6 +237,25 @@ def test_bad_yaml_and_missing_problem(tmp_path, capsys):
     assert "file not found" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("command", "what"),
+    [(["identify"], "a problem file (YAML)"), (["compare"], "a problem file (YAML)"), (["study"], "a study file (YAML)")],
+)
+def test_a_folder_given_for_a_yaml_file_is_called_a_folder(tmp_path, capsys, command, what):
+    """A folder where a problem or a study file goes (a data folder, a fit's folder to compare) was
+    said to be "file not found"."""
+    assert main([*command, str(tmp_path)]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {tmp_path}: a folder; give {what}\n"
+
+
+def test_an_option_of_one_value_given_twice_is_refused(tmp_path, capsys):
+    """argparse took the last of a repeated `--speed` silently; which was meant is the user's to say."""
+    problem = str(ROOT / "problems/pickup-56kph.yaml")
+    assert main(["simulate", problem, "--speed", "48 km/h", "--speed", "64 km/h", "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == "crashnlp: error: --speed: given twice; give it once\n"
+    assert not list(tmp_path.iterdir())
+
+
 def test_bad_params_file(tmp_path, capsys):
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(BASE))

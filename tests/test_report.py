@@ -884,6 +884,32 @@ def test_a_response_with_a_value_that_is_not_a_number_is_refused_by_the_pulse(pr
     assert sorted(tmp_path.rglob("*")) == before
 
 
+@pytest.mark.integration
+@pytest.mark.parametrize("bad", ["abc", "empty"])
+def test_a_response_that_does_not_read_is_refused_alike_by_every_command_that_reads_it(fit, prediction, tmp_path, capsys, bad):
+    """A cell "abc" in a fit's response.csv: the report and compare-results took it silently
+    (as nan) where the export refused it; an empty response.csv was blamed on result.json
+    (IndexError). One reader serves them all: one line naming the response.csv, exit 2."""
+    folder = tmp_path / "fit"
+    shutil.copytree(fit, folder)
+    response = folder / "56kph/response.csv"
+    lines = response.read_text().splitlines()
+    lines[30] = lines[30].replace(lines[30].split(",")[1], "abc", 1)
+    response.write_text("" if bad == "empty" else "\n".join(lines) + "\n")
+    said = "empty" if bad == "empty" else "'abc' in data row 30"
+    out = tmp_path / "out"
+    for command in (
+        ["report", str(folder), "--out", str(out / "report.html")],
+        ["compare-results", str(folder), str(prediction), "--out", str(out / "compare")],
+        ["export", str(folder), "--format", "pulse", "--out", str(out / "pulse.csv")],
+        ["simulate", str(folder), "--out", str(out / "sim"), "--no-figures"],
+    ):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"crashnlp: error: {response}: ") and said in err and err.count("\n") == 1, (command, err)
+        assert not out.exists()
+
+
 def test_a_figure_names_a_test_once():
     assert named_test("v10146", "v10146") == "v10146" and named_test("pickup-56kph", "56kph") == "pickup-56kph"
     assert named_test("pickup-joint", "40kph") == "pickup-joint, test 40kph"
@@ -904,6 +930,9 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
         (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
+        (["export", "--format", "csv", "--rate", "20 kHz"], "--rate: an option of --format pulse; --format csv writes no"),
+        (["export", "--format", "ls-dyna", "--cfc", "180"], "--cfc: an option of --format pulse; --format ls-dyna writes"),
+        (["report", "--out", "{tmp}/a.html", "--out", "{tmp}/b.html"], "--out: given twice; give it once"),
         (["report", "--out", "{fit}/result.json"], "--out {fit}/result.json: is a file of the run identify "),
         (["export", "--format", "pulse", "--out", "{fit}/56kph/response.csv"], "response.csv: is a file of the run identify "),
     ],

@@ -41,7 +41,7 @@ from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import OutputKind, atomic_open, write_columns
 from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel
-from crashnlp.results.response import OWN_ACCEL, Response
+from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -470,7 +470,7 @@ def finite(file: Path, response: Response) -> Response:
     for column, values in columns.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: not a response crashnlp wrote")
+            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: {NOT_WRITTEN}")
     return response
 
 
