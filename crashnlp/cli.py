@@ -195,6 +195,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
+    from crashnlp.results.identified import LOOSE
     from crashnlp.results.result import pull_texts, unconverged, unsolved_lines
 
     s = result.solver
@@ -214,6 +215,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    if result.identified is not None and result.ok and (loose := result.identified.loosely_determined()):
+        print(f"  {LOOSE}: {', '.join(loose)}")
     for line in unsolved_lines(result):
         print(f"  {line}")
     if result.at_bound and result.kind == "identify" and result.ok:

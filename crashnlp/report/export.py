@@ -40,7 +40,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import OutputKind, atomic_open, write_columns
-from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel
+from crashnlp.results.identified import DAMPER_VALUES, LOOSE, SPRING_VALUES, IdentifiedModel
 from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
@@ -155,14 +155,15 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     if identified.designed:
         lines = [f"the design's tests took the model to {reach * MM:.1f} mm of crush: the force past there met none of its goals"]
     else:
+        loosely = any(label.startswith(SPRING_VALUES) for label in identified.loosely_determined())
         lines = [
             f"the fitted tests took the model to {reach * MM:.1f} mm of crush: the data determine the force up to there,"
-            " not past it"
+            " not past it" + (", and only loosely at the values said so below" if loosely else "")
         ]
     past = [f"{b * MM:.4g}" for b in bps if b > reach]
     if past:
         lines.append(f"breakpoints past it: {', '.join(past)} mm")
-    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", not_identified)
+    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", identified, not_identified)
     tail = identified.tail_line
     if tail:
         lines.append(
@@ -182,20 +183,29 @@ def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = 
         return ("not estimated: the problem's values, which no test determined (nominal where the problem left them out)",)
     damper = identified.model["damper"]
     rates = [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
-    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", not_identified)
+    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", identified, not_identified)
 
 
-def _undetermined(entry: str, values: list[float], at: list[str], unit: str, not_identified: Collection[str]) -> tuple[str, ...]:
-    """The line naming `entry`'s values the data do not determine, each with its value (in kN or
+def _undetermined(
+    entry: str, values: list[float], at: list[str], unit: str, identified: IdentifiedModel, not_identified: Collection[str]
+) -> tuple[str, ...]:
+    """The lines naming `entry`'s values the data do not determine (`not_identified`), and those
+    they determine only loosely (IdentifiedModel.loosely_determined), each with its value (in kN or
     kN*s/m: the .k file's unit) and where it stands; none where the data determine them all."""
-    undetermined = [
-        f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
-        for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
-        if label in not_identified
-    ]
-    if not undetermined:
-        return ()
-    return (f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}",)
+    loose = identified.loosely_determined()
+    lines = []
+    for words, labels in (
+        ("not identified (no test determines them; the fit left them where it stopped)", not_identified),
+        (LOOSE, loose),
+    ):
+        named = [
+            f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
+            for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
+            if label in labels
+        ]
+        if named:
+            lines.append(f"{words}: {', '.join(named)}")
+    return tuple(lines)
 
 
 def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:
