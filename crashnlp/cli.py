@@ -30,7 +30,16 @@ from crashnlp.base.choices import DATA_FORMATS
 from crashnlp.base.errors import InputError, Interrupted, RunError
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, TABLED, Metric
 from crashnlp.numerics.compile_job import release_compiles, stop_compiles
-from crashnlp.results.files import check_output, check_writable, check_writable_file, claim, deriving, file_option, run_name
+from crashnlp.results.files import (
+    check_entries,
+    check_output,
+    check_writable,
+    check_writable_file,
+    claim,
+    deriving,
+    file_option,
+    run_name,
+)
 from crashnlp.studies.cli import add_parser as add_study_parser
 
 if TYPE_CHECKING:
@@ -119,6 +128,7 @@ def _simulation(args):
     from crashnlp.problem import load_problem
     from crashnlp.problem.schema import what_if
     from crashnlp.results.params import given_result, with_params
+    from crashnlp.results.simulation import simulation_entries
     from crashnlp.results.source import simulation_source
 
     dt = output_step(args.dt, "--dt")
@@ -138,7 +148,7 @@ def _simulation(args):
     if identified is None:  # a fit's vehicle is simulated as it was fitted
         case.refuse_unread_given(args.problem)
     out = Path(args.out) if args.out else RESULTS / case.name / "simulation"
-    check_output(out, run_name("simulate", case.name))
+    check_output(out, run_name("simulate", case.name), entries=simulation_entries(test.name for test in case.tests))
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
@@ -199,7 +209,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
-    from crashnlp.results.result import pull_texts, unconverged
+    from crashnlp.results.identified import LOOSE
+    from crashnlp.results.result import pull_texts, unconverged, unsolved_lines
 
     s = result.solver
     how = " compiled" if s.compiled else ""
@@ -218,6 +229,10 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
+    if result.identified is not None and result.ok and (loose := result.identified.loosely_determined()):
+        print(f"  {LOOSE}: {', '.join(loose)}")
+    for line in unsolved_lines(result):
+        print(f"  {line}")
     if result.at_bound and result.kind == "identify" and result.ok:
         pulls = ", ".join(f"{label} ({pull})" for label, pull in pull_texts(result).items())
         print(f"  at a bound (how far past it the data pull): {pulls}")
@@ -306,12 +321,14 @@ def _prepared_case(args, kind: str):
     checks, as crashnlp.identify and crashnlp.design run them, its errors naming the file, and the folder's."""
     from crashnlp.optimize.pipeline import prepare_case
     from crashnlp.problem import load_problem
+    from crashnlp.results.result import result_entries
 
     problem = load_problem(args.problem)
     if problem.kind != kind:
         raise InputError(f"{args.problem}: kind is {problem.kind!r}; use 'crashnlp {problem.kind}'")
     case = prepare_case(problem, args.problem)  # before any solve
-    out = check_output(_out(args, problem.name), run_name(kind, problem.name))
+    entries = result_entries(test.name for test in case.tests)
+    out = check_output(_out(args, problem.name), run_name(kind, problem.name), entries=entries)
     if getattr(args, "check", False):
         print(f"{args.problem}: ok ({len(case.tests)} tests; would write {out}/)")
         return None
@@ -453,6 +470,10 @@ def cmd_export(args) -> int:
     return _export_pulse(args, folder, kind) if args.format == "pulse" else _export_curves(args, folder)
 
 
+PULSE_OPTIONS = ("--rate", "--cfc", "--test")  # export's options of --format pulse alone
+RATE = "10 kHz"  # a pulse's sample rate without --rate
+
+
 def _export_curves(args, folder: Path) -> int:
     """The identified model's curves as LS-DYNA keywords or CSV files."""
     from crashnlp.report import export
@@ -463,14 +484,18 @@ def _export_curves(args, folder: Path) -> int:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
     with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
         curves = export.identified_curves(result.identified, result.not_identified)
+    given = [option for option in PULSE_OPTIONS if getattr(args, option.lstrip("-")) is not None]
+    if given:
+        raise InputError(f"{given[0]}: an option of --format pulse; --format {args.format} writes no pulse")
     if args.format == "csv":
         out = check_writable(Path(args.out) if args.out else folder / "curves")
+        check_entries(out, export.curve_files(curves))
         _say_unconverged(result.status)
         with deriving(folder, out):
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, result.name, folder, curves, result.status)))
         return 0
     own = folder / f"{result.name}.k"
-    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.KEYWORD_FILE)
     _say_unconverged(result.status)
     with deriving(folder, out):
         export.write_keyword_file(out, result.name, folder, curves, result.status)
@@ -500,9 +525,9 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         name, tests = read_simulation(folder)
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
-    pulse = export.pulse(test.response, test.speed, _rate(args.rate), args.cfc)
+    pulse = export.pulse(test.response, test.speed, _rate(args.rate or RATE), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
-    out = check_writable_file(file_option(args.out) if args.out else own, own=own)
+    out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.PULSE_FILE)
     _say_unconverged(status)
     if test.warning:
         print(f"crashnlp: {test.warning}")
@@ -638,7 +663,7 @@ def parser() -> argparse.ArgumentParser:
         help="ls-dyna: a .k file of *DEFINE_CURVE (mm, ms, kg, kN); csv: the curves in SI; pulse: acceleration against time",
     )
     p.add_argument("--out", help="file to write (csv: a folder; default in FOLDER: NAME.k, curves/, TEST-pulse.csv)")
-    p.add_argument("--rate", default="10 kHz", help="pulse: sample rate, e.g. '10 kHz' (default) or 20000 (Hz)")
+    p.add_argument("--rate", help=f"pulse: sample rate, e.g. '{RATE}' (default) or 20000 (Hz)")
     p.add_argument(
         "--cfc",
         type=int,
@@ -669,10 +694,28 @@ def _add_common(ap: argparse.ArgumentParser, sub) -> None:
 
 
 class Parser(argparse.ArgumentParser):
-    """argparse, but a usage error is one line (an InputError, exit 2) instead of usage text."""
+    """argparse, but a usage error is one line (an InputError, exit 2) instead of usage text, and an
+    option of one value given twice is refused (`Once`), where argparse would take the last."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        for name in (None, "store"):  # argparse's default action, and by its name
+            self.register("action", name, Once)
 
     def error(self, message: str):
         raise InputError(message)
+
+
+class Once(argparse._StoreAction):
+    """An option's value, stored; the same option given again on the line is an InputError: which
+    of `--speed "48 km/h" --speed "64 km/h"` was meant is for the user to say."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        given = namespace.__dict__.setdefault("_given", set())
+        if self.dest in given:
+            raise InputError(f"{option_string}: given twice; give it once")
+        given.add(self.dest)
+        super().__call__(parser, namespace, values, option_string)
 
 
 # --------------------------------------------------------------------------- the one error path

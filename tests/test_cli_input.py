@@ -12,7 +12,7 @@ from typing import Annotated, Literal, Union, get_args, get_origin
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, small_pickup_problem
 
 from crashnlp.base.outputs import UNFINISHED
 from crashnlp.base.records import Record
@@ -46,6 +46,18 @@ CASES = {
     ),
     "missing key": ({"vehicle": {"cg_to_impact": None}}, "vehicle.cg_to_impact: missing key"),
     "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
+    "profile typo": (
+        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.cg_above_impakt"]}},
+        "uncertainty.profile: vehicle.cg_above_impakt is not an estimated entry (vehicle.cg_above_impact)",
+    ),
+    "profile not estimated": (
+        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.mass"]}},
+        "uncertainty.profile: vehicle.mass is not an estimated entry",
+    ),
+    "profile of a whole list": (
+        {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}, "uncertainty": {"profile": ["model.spring.values"]}},
+        "uncertainty.profile: model.spring.values is not an estimated entry (model.spring.values[0], ",
+    ),
     "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),
     "bound unit": ({"constraints": {"bounds": {"pitch": [None, "12 kg"]}}}, "constraints:"),
     "ipopt option typo": ({"solver": {"ipopt": {"max_itr": 5}}}, "solver.ipopt.max_itr: no such IPOPT option"),
@@ -225,6 +237,25 @@ def test_bad_yaml_and_missing_problem(tmp_path, capsys):
     assert "file not found" in capsys.readouterr().err
 
 
+@pytest.mark.parametrize(
+    ("command", "what"),
+    [(["identify"], "a problem file (YAML)"), (["compare"], "a problem file (YAML)"), (["study"], "a study file (YAML)")],
+)
+def test_a_folder_given_for_a_yaml_file_is_called_a_folder(tmp_path, capsys, command, what):
+    """A folder where a problem or a study file goes (a data folder, a fit's folder to compare) was
+    said to be "file not found"."""
+    assert main([*command, str(tmp_path)]) == 2
+    assert capsys.readouterr().err == f"crashnlp: error: {tmp_path}: a folder; give {what}\n"
+
+
+def test_an_option_of_one_value_given_twice_is_refused(tmp_path, capsys):
+    """argparse took the last of a repeated `--speed` silently; which was meant is the user's to say."""
+    problem = str(ROOT / "problems/pickup-56kph.yaml")
+    assert main(["simulate", problem, "--speed", "48 km/h", "--speed", "64 km/h", "--out", str(tmp_path / "o")]) == 2
+    assert capsys.readouterr().err == "crashnlp: error: --speed: given twice; give it once\n"
+    assert not list(tmp_path.iterdir())
+
+
 def test_bad_params_file(tmp_path, capsys):
     problem = tmp_path / "p.yaml"
     problem.write_text(yaml.safe_dump(BASE))
@@ -353,6 +384,30 @@ def test_an_output_folder_holds_one_run(tmp_path, capsys):
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and f"--out {out}: holds the results of another run (simulate a), not of simulate b" in err
     assert {p: p.stat().st_mtime_ns for p in out.rglob("*")} == before  # nothing of b written
+
+
+@pytest.mark.parametrize(
+    ("command", "entry", "kind"),
+    [
+        ("identify", "56kph", "file"),
+        ("identify", "force_crush.csv", "folder"),
+        ("identify", "56kph/fit.png", "folder"),
+        ("simulate", "simulation.json", "folder"),
+        ("simulate", "56kph", "file"),
+    ],
+)
+def test_an_entry_in_the_way_of_a_runs_file_is_refused_before_any_solve(tmp_path, capsys, command, entry, kind):
+    """A file where a run writes a folder (a test's), or a folder where it writes a file, was found
+    only as the run wrote, after its solve, leaving it half written: it is refused before (a unit
+    test: no NLP is solved), one line naming the entry, exit 2, nothing written."""
+    problem, out = small_pickup_problem(tmp_path), tmp_path / "out"
+    (out / entry).parent.mkdir(parents=True, exist_ok=True)
+    (out / entry).mkdir() if kind == "folder" else (out / entry).write_text("mine")
+    before = sorted(tmp_path.rglob("*"))
+    assert main([command, str(problem), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / entry} is a {kind} where crashnlp writes" in err, err
+    assert sorted(tmp_path.rglob("*")) == before
 
 
 def test_a_record_naming_files_outside_its_folder_removes_nothing_there(tmp_path, capsys):

@@ -15,6 +15,7 @@ from test_report import self_contained
 
 from crashnlp.cli import main
 from crashnlp.report.compare import FORCE_CRUSH, METRICS, PAGE, QUANTITIES
+from crashnlp.results.files import RECORD
 
 pytestmark = pytest.mark.integration
 FIGURES = {f"{name}.png" for name in QUANTITIES} | {FORCE_CRUSH}
@@ -53,7 +54,7 @@ def test_speeds_side_by_side_give_a_figure_per_quantity_the_metrics_and_one_page
     out = tmp_path / "cmp"
     assert main(["compare-results", str(folders["48"]), str(folders["fit"]), str(folders["64"]), "--out", str(out)]) == 0
     console = capsys.readouterr().out
-    assert {p.name for p in out.iterdir()} == FIGURES | {METRICS, PAGE}
+    assert {p.name for p in out.iterdir()} == FIGURES | {METRICS, PAGE, RECORD}
     with (out / METRICS).open() as fh:
         rows = list(csv.DictReader(fh))
     labels = [r["curve"] for r in rows]
@@ -223,6 +224,22 @@ def test_bad_folders_are_one_line_exit_2_and_nothing_written(folders, tmp_path, 
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message in err, err
     assert sorted(tmp_path.rglob("*")) == before
+
+
+def test_a_comparison_into_another_runs_folder_is_refused_and_into_its_own_written_again(folders, tmp_path, capsys):
+    """One run per output folder: a comparison into a fit's folder would write over its figures
+    (force_crush.png); it is refused as every command refuses it, and one into its own folder
+    again replaces it."""
+    fit = tmp_path / "fit"
+    shutil.copytree(folders["fit"], fit)
+    before = {p: p.read_bytes() for p in fit.rglob("*") if p.is_file()}
+    assert main(["compare-results", str(folders["48"]), str(folders["64"]), "--out", str(fit)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"--out {fit}: holds the results of another run (identify pickup-56kph)" in err, err
+    assert {p: p.read_bytes() for p in fit.rglob("*") if p.is_file()} == before
+    out = tmp_path / "cmp"
+    for _ in range(2):
+        assert main(["compare-results", str(folders["48"]), str(folders["64"]), "--out", str(out)]) == 0
 
 
 def test_the_api_takes_the_params_files_the_command_takes_and_refuses_the_same(folders, tmp_path, capsys):

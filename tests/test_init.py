@@ -219,6 +219,17 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+def test_init_of_a_file_that_is_no_text_says_so_not_its_bytes(tmp_path, capsys):
+    """A program given as data (`init /bin/ls`) had its bytes named as the columns it lacked."""
+    data = tmp_path / "program"
+    data.write_bytes(b"\x7fELF\x02\x01\x01\x00\x00\x00\n\x03\x00>\x00\x01\xef\xbf\xbd")
+    out = tmp_path / "p.yaml"
+    assert main(["init", str(data), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err == f"crashnlp: error: {data}: not a text file (it holds NUL bytes): give the test's data as delimited text\n"
+    assert not out.exists()
+
+
 def test_init_refuses_a_record_on_a_shifted_clock_and_writes_nothing(tmp_path, capsys):
     """The pickup with its time starting at 1 s (a data system's clock): init wrote a window
     [0 s, 1.25 s] the fit never finished on. Refused in one line naming the time column."""
@@ -432,7 +443,8 @@ def test_init_refuses_a_careless_out_or_option_before_any_work(tmp_path, capsys,
     data = tmp_path / "pickup.csv"
     shutil.copy(ROOT / "problems/data/synthetic-pickup/pickup-56kph.csv", data)
     before = {p: p.read_bytes() for p in tmp_path.iterdir()}
-    assert main(["init", str(data), "--mass", "2550 kg", *options, "--out", f"{tmp_path}/{out}"]) == 2
+    mass = [] if "--mass" in options else ["--mass", "2550 kg"]  # an option given twice is refused as such
+    assert main(["init", str(data), *mass, *options, "--out", f"{tmp_path}/{out}"]) == 2
     assert capsys.readouterr().err == f"crashnlp: error: {message.format(tmp=tmp_path)}\n"
     assert {p: p.read_bytes() for p in tmp_path.iterdir()} == before
 

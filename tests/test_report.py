@@ -13,6 +13,7 @@ import shutil
 import subprocess
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -26,7 +27,8 @@ from crashnlp.cli import _print_solution, main
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.models.form import build_model
 from crashnlp.models.parameters import ParameterLayout
-from crashnlp.report import result_page
+from crashnlp.optimize import profile as profile_module
+from crashnlp.report import export, result_page
 from crashnlp.report.folders import read_result
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.identified import IdentifiedModel
@@ -151,6 +153,65 @@ def test_a_profile_open_at_a_bound_runs_to_it_and_one_open_short_of_it_says_so(f
     _, open_, how = rows["model.spring.values[2]"]
     assert interval_ends(open_) == pytest.approx([(values[2] - 2 * stds[2]) / 1e3, (values[2] + steps[-1]) / 1e3], rel=1e-3)
     assert "> " in open_ and "open" in how
+
+
+@pytest.mark.integration
+def test_a_profile_end_resting_on_a_solve_ipopt_did_not_finish_says_so(fit, monkeypatch, capsys):
+    """Each profile point keeps its solve's IPOPT status, and an end resting on a solve IPOPT did
+    not finish (the pickup's cg height with max_iter 15: three of four lower-side solves stopped
+    at the limit) is said to be so by the console and the report, not shown as a plain number."""
+    label, theta, std = "vehicle.cg_above_impact", 0.4, 0.1
+    walks = {  # per side: (value, objective, status); the rise reaches its threshold (3.84) at the second point
+        -1: [(0.325, 1.5, "Maximum_Iterations_Exceeded"), (0.25, 9.0, "Solve_Succeeded")],
+        1: [(0.475, 1.5, "Solve_Succeeded"), (0.55, 9.0, "Solve_Succeeded")],
+    }
+    monkeypatch.setattr(
+        profile_module, "map_all", lambda _, __, chains: enumerate(walks[-1 if c.values[0] < theta else 1] for c in chains)
+    )
+    problem = SimpleNamespace(uncertainty=SimpleNamespace(profile=(label,), points=2), with_values=lambda _: None)
+    solution = SimpleNamespace(
+        case=SimpleNamespace(problem=problem),
+        regularization={},
+        ocp=SimpleNamespace(free=SimpleNamespace(labels=lambda: [label], lower=np.array([0.0]), upper=np.array([0.6]))),
+        covariance=SimpleNamespace(std=np.array([std]), hessian_inverse=np.array([[std**2]])),
+        theta=np.array([theta]),
+        result=SimpleNamespace(z=np.zeros(1), objective=0.0),
+    )
+    profiles = profile_module.profiles(solution, None)
+    assert profiles[label]["statuses"] == [s for _, _, s in sorted(walks[-1] + walks[1])]
+    assert profiles[label]["unsolved"] == {"lower": ["Maximum_Iterations_Exceeded"]}
+    result = dataclasses.replace(read_result(fit), profiles=profiles)
+    _, interval, how = parameter_rows(result_page(result, fit))[label]
+    assert interval.startswith("[") and "unsolved" in interval.split(",")[0] and "unsolved" not in interval.split(",")[1]
+    assert "lower end rests on a solve IPOPT did not finish (Maximum_Iterations_Exceeded)" in how
+    _print_solution(result)
+    said = [line for line in capsys.readouterr().out.splitlines() if label in line and "IPOPT did not finish" in line]
+    assert len(said) == 1 and "lower end" in said[0]
+
+
+@pytest.mark.integration
+def test_a_value_the_data_determine_only_loosely_is_said_to_be_so_on_the_console_the_report_and_the_export(fit, capsys):
+    """A value whose 95 % interval is wider than itself (the damper estimated from one test: the
+    spring's standard errors 1.6 to 6 times its values) was listed nowhere, and the LS-DYNA export
+    said the data determine the force up to the reach with no caveat. One rule
+    (IdentifiedModel.loosely_determined) names it on the console, in the report and in the curves'
+    notes; the shipped fit has none."""
+    result = read_result(fit)
+    assert result.identified.loosely_determined() == ()
+    label = "model.spring.values[2]"
+    i = result.identified.labels.index(label)
+    covariance = result.identified.covariance.copy()
+    covariance[i, i] = result.parameters["model.spring.values"][2] ** 2  # a standard error as large as the value
+    loose = dataclasses.replace(result, identified=dataclasses.replace(result.identified, covariance=covariance))
+    assert loose.identified.loosely_determined() == (label,)
+    _print_solution(loose)
+    said = [line for line in capsys.readouterr().out.splitlines() if "loosely determined" in line]
+    assert len(said) == 1 and said[0].endswith(f": {label}")
+    page = html.unescape(result_page(loose, fit))
+    assert re.search(rf"<li>Loosely determined \(.*\): {re.escape(label)}</li>", page)
+    curves = export.identified_curves(loose.identified, loose.not_identified)
+    notes = [line for line in export.keyword_file(loose.name, fit, curves).splitlines() if "loosely" in line]
+    assert len(notes) == 2 and f"{label} = " in notes[1] and "only loosely" in notes[0]
 
 
 @pytest.mark.integration
@@ -809,6 +870,11 @@ EDITED_ELSEWHERE = {  # result.json edited past the vehicle and the model: (keys
     (("tests", "56kph", "speed_mps"), -15.5): "tests.56kph.speed_mps is -15.5",
     (("tests", "56kph", "energy", "impact_kinetic"), None): "tests.56kph.energy.impact_kinetic is None",
     (("std_errors", "vehicle.crush_offset"), -0.09): "std_errors.vehicle.crush_offset is -0.09",
+    (("parameters", "vehicle.pitch_inertia"), -4800.0): "parameters.vehicle.pitch_inertia is -4800.0, where identified_model",
+    (("parameters", "vehicle.crush_offset"), 0.05): "parameters.vehicle.crush_offset is 0.05, where identified_model has 0.",
+    (("parameters", "vehicle.crush_offset"), float("nan")): "parameters.vehicle.crush_offset is NaN",
+    (("parameters", "model.spring.values", 1), "abc"): 'parameters.model.spring.values is [0.0, "abc", ',
+    (("parameters", "vehicle.foo"), 1.0): "parameters.vehicle.foo is 1.0, where identified_model has no such entry",
 }
 
 
@@ -856,6 +922,32 @@ def test_a_response_with_a_value_that_is_not_a_number_is_refused_by_the_pulse(pr
     assert sorted(tmp_path.rglob("*")) == before
 
 
+@pytest.mark.integration
+@pytest.mark.parametrize("bad", ["abc", "empty"])
+def test_a_response_that_does_not_read_is_refused_alike_by_every_command_that_reads_it(fit, prediction, tmp_path, capsys, bad):
+    """A cell "abc" in a fit's response.csv: the report and compare-results took it silently
+    (as nan) where the export refused it; an empty response.csv was blamed on result.json
+    (IndexError). One reader serves them all: one line naming the response.csv, exit 2."""
+    folder = tmp_path / "fit"
+    shutil.copytree(fit, folder)
+    response = folder / "56kph/response.csv"
+    lines = response.read_text().splitlines()
+    lines[30] = lines[30].replace(lines[30].split(",")[1], "abc", 1)
+    response.write_text("" if bad == "empty" else "\n".join(lines) + "\n")
+    said = "empty" if bad == "empty" else "'abc' in data row 30"
+    out = tmp_path / "out"
+    for command in (
+        ["report", str(folder), "--out", str(out / "report.html")],
+        ["compare-results", str(folder), str(prediction), "--out", str(out / "compare")],
+        ["export", str(folder), "--format", "pulse", "--out", str(out / "pulse.csv")],
+        ["simulate", str(folder), "--out", str(out / "sim"), "--no-figures"],
+    ):
+        assert main(command) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"crashnlp: error: {response}: ") and said in err and err.count("\n") == 1, (command, err)
+        assert not out.exists()
+
+
 def test_a_figure_names_a_test_once():
     assert named_test("v10146", "v10146") == "v10146" and named_test("pickup-56kph", "56kph") == "pickup-56kph"
     assert named_test("pickup-joint", "40kph") == "pickup-joint, test 40kph"
@@ -876,6 +968,9 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
         (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
+        (["export", "--format", "csv", "--rate", "20 kHz"], "--rate: an option of --format pulse; --format csv writes no"),
+        (["export", "--format", "ls-dyna", "--cfc", "180"], "--cfc: an option of --format pulse; --format ls-dyna writes"),
+        (["report", "--out", "{tmp}/a.html", "--out", "{tmp}/b.html"], "--out: given twice; give it once"),
         (["report", "--out", "{fit}/result.json"], "--out {fit}/result.json: is a file of the run identify "),
         (["export", "--format", "pulse", "--out", "{fit}/56kph/response.csv"], "response.csv: is a file of the run identify "),
     ],
@@ -887,6 +982,42 @@ def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, caps
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and message.format(fit=fit, tmp=tmp_path) in err, err
     assert sorted(fit.rglob("*")) == before and not list(tmp_path.iterdir())
+
+
+@pytest.mark.parametrize(
+    "options",
+    [["report"], ["export", "--format", "pulse"], ["export", "--format", "ls-dyna"]],
+)
+def test_an_out_that_is_a_file_crashnlp_did_not_write_as_that_output_is_refused(fit, tmp_path, capsys, options):
+    """A problem file, a test's data or another kind of output at --out is refused whole; the
+    command's own earlier output there is written again."""
+    out = tmp_path / "out"
+    argv = [options[0], str(fit), *options[1:], "--out", str(out)]
+    assert main(argv) == 0 and main(argv) == 0
+    other = ["report"] if options[0] == "export" else ["export", "--format", "pulse"]
+    ours = tmp_path / "ours"
+    assert main([other[0], str(fit), *other[1:], "--out", str(ours)]) == 0
+    capsys.readouterr()
+    problem = ROOT / "problems/pickup-56kph.yaml"
+    data = problem.parent / yaml.safe_load(problem.read_text())["tests"][0]["data"]["file"]
+    for source in (problem, data, ours):
+        target = tmp_path / "target"
+        shutil.copyfile(source, target)
+        assert main([*argv[:-1], str(target)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--out {target}: exists" in err, err
+        assert target.read_bytes() == source.read_bytes()
+
+
+def test_a_folder_where_the_csv_export_writes_a_curve_is_refused_before_any_curve(fit, tmp_path, capsys):
+    """A folder named damper.csv in the export's folder had left loading.csv and unloading.csv
+    written before the export failed on it: it is refused first, one line, nothing written."""
+    out = tmp_path / "curves"
+    (out / "damper.csv").mkdir(parents=True)
+    assert main(["export", str(fit), "--format", "csv", "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / 'damper.csv'} is a folder where crashnlp writes a file" in err, err
+    assert [p.name for p in out.iterdir()] == ["damper.csv"]
 
 
 @pytest.mark.integration

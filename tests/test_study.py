@@ -664,14 +664,17 @@ def test_a_failing_case_is_recorded_and_the_others_finish(small, tmp_path):
 @pytest.mark.integration
 def test_a_case_ipopt_solved_that_fails_its_check_keeps_ipopts_status_in_the_table_and_the_console(tmp_path, capsys):
     """The shipped design on 20 intervals: IPOPT solves it, its forward simulation departs from the
-    NLP, and the case fails on that; the table had lost IPOPT's return status."""
+    NLP, and the case fails on that; the table had lost IPOPT's return status. The study exits 1
+    with its one line on stderr (it had said nothing there)."""
     from crashnlp.cli import main
 
     study = write_study(tmp_path, problem=str(ROOT / "problems/design-crush-space.yaml"), sweep={"transcription.intervals": [20]})
     assert main(["study", str(study), "--out", str(tmp_path / "out"), "--workers", "1", "--no-progress"]) == 1
     (row,) = read_table(tmp_path / "out/table.csv")
     assert "the forward simulation departs from the NLP" in row["status"] and row["return_status"] == "Solve_Succeeded"
-    assert f"case-000: {row['status']} (IPOPT Solve_Succeeded)" in capsys.readouterr().out
+    said = capsys.readouterr()
+    assert f"case-000: {row['status']} (IPOPT Solve_Succeeded)" in said.out
+    assert said.err.count("\n") == 1 and said.err.startswith("crashnlp: ") and "1 of 1 cases failed (case-000;" in said.err
 
 
 def test_a_failed_case_is_marked_on_the_sweep_figure_at_its_swept_value(small, monkeypatch):

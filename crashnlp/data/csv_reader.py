@@ -102,11 +102,14 @@ class Table:
 
     @classmethod
     def read(cls, path: Path) -> Table:
-        """The file's cells; a file that cannot be read, or holds no row of data, is refused."""
+        """The file's cells; a file that cannot be read, is no text, or holds no row of data, is refused."""
         try:
-            lines = Path(path).read_text(encoding="utf-8-sig", errors="replace").splitlines()
+            text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
         except OSError as exc:
             raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+        if "\x00" in text:  # a program, an archive, an image: its bytes would be named as its columns
+            raise DataError(f"{path}: not a text file (it holds NUL bytes): give the test's data as delimited text")
+        lines = text.splitlines()
         numbered = [(n, line) for n, line in enumerate(lines, 1) if (text := line.lstrip()) and text[0] != "#"]
         if not numbered:
             raise DataError(f"{path}: empty file")

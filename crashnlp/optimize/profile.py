@@ -13,7 +13,9 @@ as delta^2 / [H^-1]_ii (H = J^T W J). The interval ends where the rise reaches
 quadratic limit the profile interval is the sandwich interval, and away from
 it the profile follows the model's nonlinearity and the bounds (a side that
 never reaches the threshold within the profiled range or a bound is open:
-None).
+None). Each point keeps its solve's IPOPT status, and an end resting on a solve
+IPOPT did not finish (one of the points walked up to it, all of them for an open
+end) names the statuses under `unsolved`: its objective is not the profile's.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from crashnlp.base.outputs import Z95
 from crashnlp.case.case import Case
 from crashnlp.engine.executors import Executor
 from crashnlp.engine.schedule import map_all
+from crashnlp.numerics.nlp import SUCCESS
 from crashnlp.optimize.identify import Solution, fit_ocp
 from crashnlp.optimize.solvers import build_solver
 from crashnlp.problem.schema import Problem
@@ -64,16 +67,22 @@ def walk(chain: Chain) -> list[tuple[float, float, str]]:
     return out
 
 
-def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], threshold: float) -> float | None:
-    """Where the profile's rise first reaches the threshold (linear in the signed root), or None."""
+def _crossing(theta: float, f0: float, points: list[tuple[float, float, str]], threshold: float) -> tuple[float | None, int]:
+    """Where the profile's rise first reaches the threshold (linear in the signed root), or None,
+    and how many of the points it rests on: those walked up to it (all of them for None)."""
     previous_value, previous_root = theta, 0.0
-    for value, f, _ in points:
+    for n, (value, f, _) in enumerate(points, 1):
         root = np.sqrt(max(f - f0, 0.0))
         if root >= np.sqrt(threshold):
             w = (np.sqrt(threshold) - previous_root) / (root - previous_root)
-            return float(previous_value + w * (value - previous_value))
+            return float(previous_value + w * (value - previous_value)), n
         previous_value, previous_root = value, root
-    return None
+    return None, len(points)
+
+
+def _unsolved(points: list[tuple[float, float, str]]) -> list[str]:
+    """The IPOPT statuses, each once, of the points' solves that did not succeed (SUCCESS)."""
+    return sorted({status for _, _, status in points if status not in SUCCESS})
 
 
 def profiles(solution: Solution, executor: Executor) -> dict[str, dict]:
@@ -107,12 +116,23 @@ def profiles(solution: Solution, executor: Executor) -> dict[str, dict]:
         std, h = solution.covariance.std[i], solution.covariance.hessian_inverse[i, i]
         threshold = Z95**2 * std**2 / h if np.isfinite(std) and h > 0 else np.inf
         ends: dict[str, float | None] = {}
-        profile: list[list[float]] = []
+        unsolved: dict[str, list[str]] = {}
+        profile: list[tuple[float, float, str]] = []
         for side, key in ((-1, "lower"), (1, "upper")):
             points = walked.get((label, side), [])
             if isinstance(points, BaseException):
                 raise points
-            ends[key] = _crossing(solution.theta[i], solution.result.objective, points, threshold)
-            profile += [[v, f] for v, f, _ in points]
-        out[label] = {"estimate": float(solution.theta[i]), "threshold": float(threshold), **ends, "points": sorted(profile)}
+            ends[key], rests_on = _crossing(solution.theta[i], solution.result.objective, points, threshold)
+            if failed := _unsolved(points[:rests_on]):
+                unsolved[key] = failed
+            profile += points
+        profile.sort()
+        out[label] = {
+            "estimate": float(solution.theta[i]),
+            "threshold": float(threshold),
+            **ends,
+            "points": [[v, f] for v, f, _ in profile],
+            "statuses": [status for _, _, status in profile],
+            "unsolved": unsolved,
+        }
     return out

@@ -18,8 +18,9 @@ from crashnlp.problem.schema import Problem, problem_from_dict
 EXPANSION, EXPANSION_FLOOR = 4, 1000
 
 
-def read_yaml(path: str | Path) -> Any:
-    """The values of a YAML file, every read, encoding or syntax failure a ProblemError.
+def read_yaml(path: str | Path, what: str = "a problem file (YAML)") -> Any:
+    """The values of a YAML file (`what` it is, which a folder given in its place is told to give),
+    every read, encoding or syntax failure a ProblemError.
 
     A file's values are kept in the crashnlp cache, as JSON, under a hash of its text, PyYAML's
     version and the code that parses and keeps them (`_kept_file`), where JSON gives them back as
@@ -30,6 +31,8 @@ def read_yaml(path: str | Path) -> Any:
     times the size of their text; a read marks its file used, and the cache's limit removes the
     least recently used ones with the compiled libraries (crashnlp.numerics.compiled)."""
     path = Path(path)
+    if path.is_dir():
+        raise ProblemError(f"{path}: a folder; give {what}")
     if not path.is_file():
         raise ProblemError(f"{path}: file not found")
     try:

@@ -21,8 +21,9 @@ import numpy as np
 
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
-from crashnlp.results.files import atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.result import Result, loading_curve_name, pull_texts, unconverged
+from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
+from crashnlp.results.identified import LOOSE
+from crashnlp.results.result import UNSOLVED, Result, loading_curve_name, pull_texts, unconverged, unsolved_end
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
 from crashnlp.studies.table import number, read_through, shown_column
@@ -31,6 +32,8 @@ if TYPE_CHECKING:
     from crashnlp.results.simulation import PredictedTest
 
 REPORT = "report.html"
+GENERATOR = "crashnlp report"  # every page's generator; a report's --out may write over a page that names it
+REPORT_FILE = OutputKind("report", f'<meta name="generator" content="{GENERATOR}">')
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
 
 TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp compare-results
@@ -40,13 +43,14 @@ TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp com
     trim_blocks=True,
     lstrip_blocks=True,
 )
+TEMPLATES.globals["generator"] = GENERATOR
 
 
 def write_report(folder: Path, out: Path | None = None) -> Path:
     """The report of `folder` written to `out` (default `folder`/report.html), whole or not at all;
     inside `folder`, listed in its record as derived from its run (crashnlp.results.files.deriving)."""
     kind = folder_kind(folder)
-    out = check_writable_file(out or folder / REPORT, own=folder / REPORT)
+    out = check_writable_file(out or folder / REPORT, own=folder / REPORT, kind=REPORT_FILE)
     if kind == "result":
         page = result_page(read_result(folder), folder)
     elif kind == "simulation":
@@ -81,6 +85,8 @@ def result_page(result: Result, folder: Path) -> str:
         figures=figures,
         parameters=_parameters(result, folder / "result.json"),
         not_identified=result.not_identified,
+        loose=result.identified.loosely_determined() if result.identified is not None and result.ok else (),
+        loose_words=LOOSE,
         at_bound=pull_texts(result),
         active=result.active_constraints,
         notes=result.notes,
@@ -209,20 +215,24 @@ def _profile_end(profile: dict[str, Any], key: str, bound: float) -> End:
     did not close there (crashnlp.optimize.profile writes null where the objective's rise never
     reached the threshold within the values profiled): the bound where the profile ran to it
     (its next step would have passed it, or it had no room for one: the estimate at the bound),
-    else the furthest value profiled, past which the interval runs on (OPEN)."""
+    else the furthest value profiled, past which the interval runs on (OPEN); an end resting on a
+    solve IPOPT did not finish is that first (`unsolved_end`)."""
+    unsolved = unsolved_end(profile, key)
     if profile.get(key) is not None:
-        return profile[key], ""
+        return profile[key], unsolved or ""
     side, estimate = (-1.0 if key == "lower" else 1.0), profile["estimate"]
     walked = sorted((side * (v - estimate) for v, _ in profile["points"] if side * (v - estimate) > 0))
     if not walked or walked[-1] + walked[0] > side * (bound - estimate):  # steps are equal: the first is one
-        return bound, "at the bound"
-    return estimate + side * walked[-1], OPEN
+        return bound, unsolved or "at the bound"
+    return estimate + side * walked[-1], unsolved or OPEN
 
 
 def _end(key: str, end: End, factor: float) -> str:
-    """An interval's `key` end as shown; one the profile left open says which way it runs on ("< 2.1", "> 3.4")."""
+    """An interval's `key` end as shown; one the profile left open says which way it runs on ("< 2.1",
+    "> 3.4"), one resting on a solve IPOPT did not finish says so ("2.1 (unsolved)")."""
     value, what = end
-    return ("" if what != OPEN else "< " if key == "lower" else "> ") + significant(value, factor)
+    shown = ("" if what != OPEN else "< " if key == "lower" else "> ") + significant(value, factor)
+    return f"{shown} (unsolved)" if what.startswith(UNSOLVED) else shown
 
 
 # --------------------------------------------------------------------------- a simulation

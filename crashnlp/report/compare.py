@@ -24,7 +24,7 @@ from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import OUTPUT, PREDICTED, Output, named_test
 from crashnlp.report import TEMPLATES, embedded_figures
 from crashnlp.report.folders import folder_kind, read_result, read_simulation
-from crashnlp.results.files import atomic_open, check_writable
+from crashnlp.results.files import atomic_open, check_output, claim, run_name
 from crashnlp.results.response import Response
 from crashnlp.results.result import unconverged_mark
 
@@ -32,6 +32,7 @@ PAGE = "compare.html"
 METRICS = "metrics.csv"
 QUANTITIES = ("accel", "velocity", "crush", "pitch")  # against time, one figure each
 FORCE_CRUSH = "force_crush.png"
+RUN = run_name("compare-results", "fits and simulations")  # what its output folder's record names
 
 
 @dataclass(frozen=True)
@@ -51,22 +52,25 @@ class Curve:
 
 
 def compare_results(folders: list[Path], out: Path) -> list[Curve]:
-    """The comparison of `folders` written into `out`; InputError, with nothing written, for fewer
-    than two folders, or one that is not a fit's or a simulation's."""
+    """The comparison of `folders` written into `out`, a folder of its own run (RUN: another
+    run's folder, a fit's say, is refused, as every command refuses one: crashnlp.results.files);
+    InputError, with nothing written, for fewer than two folders, or one that is not a fit's or a
+    simulation's."""
     if len(folders) < 2:
         raise InputError(f"compare-results: {len(folders)} folder given: give two or more (fits or simulations)")
-    out = check_writable(out)
+    out = check_output(out, RUN)
     curves = distinct(labelled([curve for folder in folders for curve in read_curves(folder)]))
     from crashnlp.results import plots  # matplotlib: only once every folder has read
 
-    for name in QUANTITIES:
-        plots.overlay_figure(out / f"{name}.png", *_over_time(name, curves))
-    title, xlabel, ylabel, series = _force_crush(curves)
-    banded = any(band is not None for *_, band in series)
-    plots.overlay_figure(out / FORCE_CRUSH, title, xlabel, ylabel, series, FORCE_CRUSH_NOTE if banded else "")
-    write_metrics(out / METRICS, curves)
-    with atomic_open(out / PAGE) as fh:
-        fh.write(page(curves, out))
+    with claim(out, RUN):
+        for name in QUANTITIES:
+            plots.overlay_figure(out / f"{name}.png", *_over_time(name, curves))
+        title, xlabel, ylabel, series = _force_crush(curves)
+        banded = any(band is not None for *_, band in series)
+        plots.overlay_figure(out / FORCE_CRUSH, title, xlabel, ylabel, series, FORCE_CRUSH_NOTE if banded else "")
+        write_metrics(out / METRICS, curves)
+        with atomic_open(out / PAGE) as fh:
+            fh.write(page(curves, out))
     return curves
 
 

@@ -39,9 +39,9 @@ from crashnlp.data.channels import SAMPLE_INTERVALS
 from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
-from crashnlp.results.files import atomic_open, write_columns
-from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel
-from crashnlp.results.response import OWN_ACCEL, Response
+from crashnlp.results.files import OutputKind, atomic_open, write_columns
+from crashnlp.results.identified import DAMPER_VALUES, LOOSE, SPRING_VALUES, IdentifiedModel
+from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -51,6 +51,9 @@ SPACING = 100  # points at a fixed spacing over a curve, beside those at its ben
 BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  # smoothing widths around a bend
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
 PEAK_MOVED = 0.01  # relative: a filter that moves a pulse's peak deceleration more than this is said to
+EXPORTED = "crashnlp export of"  # the first words of every exported file's header, after any warning
+KEYWORD_FILE = OutputKind("LS-DYNA keyword file", f"$ {EXPORTED} ")  # what --out may write over (check_writable_file)
+PULSE_FILE = OutputKind("pulse", f"# {EXPORTED} ")
 TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
 # relative to the loading curve's largest force: a clip at zero up to this is the smoothing's
 # rounding (the shipped pickup's law gives -2 N at zero crush, where its tail's hinge reaches back), not said
@@ -152,14 +155,15 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     if identified.designed:
         lines = [f"the design's tests took the model to {reach * MM:.1f} mm of crush: the force past there met none of its goals"]
     else:
+        loosely = any(label.startswith(SPRING_VALUES) for label in identified.loosely_determined())
         lines = [
             f"the fitted tests took the model to {reach * MM:.1f} mm of crush: the data determine the force up to there,"
-            " not past it"
+            " not past it" + (", and only loosely at the values said so below" if loosely else "")
         ]
     past = [f"{b * MM:.4g}" for b in bps if b > reach]
     if past:
         lines.append(f"breakpoints past it: {', '.join(past)} mm")
-    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", not_identified)
+    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", identified, not_identified)
     tail = identified.tail_line
     if tail:
         lines.append(
@@ -179,20 +183,29 @@ def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = 
         return ("not estimated: the problem's values, which no test determined (nominal where the problem left them out)",)
     damper = identified.model["damper"]
     rates = [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
-    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", not_identified)
+    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", identified, not_identified)
 
 
-def _undetermined(entry: str, values: list[float], at: list[str], unit: str, not_identified: Collection[str]) -> tuple[str, ...]:
-    """The line naming `entry`'s values the data do not determine, each with its value (in kN or
+def _undetermined(
+    entry: str, values: list[float], at: list[str], unit: str, identified: IdentifiedModel, not_identified: Collection[str]
+) -> tuple[str, ...]:
+    """The lines naming `entry`'s values the data do not determine (`not_identified`), and those
+    they determine only loosely (IdentifiedModel.loosely_determined), each with its value (in kN or
     kN*s/m: the .k file's unit) and where it stands; none where the data determine them all."""
-    undetermined = [
-        f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
-        for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
-        if label in not_identified
-    ]
-    if not undetermined:
-        return ()
-    return (f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}",)
+    loose = identified.loosely_determined()
+    lines = []
+    for words, labels in (
+        ("not identified (no test determines them; the fit left them where it stopped)", not_identified),
+        (LOOSE, loose),
+    ):
+        named = [
+            f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
+            for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
+            if label in labels
+        ]
+        if named:
+            lines.append(f"{words}: {', '.join(named)}")
+    return tuple(lines)
 
 
 def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:
@@ -267,7 +280,7 @@ def _keyword_comments(name: str, source: Path, curves: Curves) -> list[str]:
 
 def _whose_curves(name: str, source: Path, curves: Curves) -> str:
     """The first words of every curve file: the export of which problem, from which folder, of whose front end."""
-    return f"crashnlp export of {name} ({source}): the {curves.whose} front end"
+    return f"{EXPORTED} {name} ({source}): the {curves.whose} front end"
 
 
 def _curve(lcid: int, title: str, x: np.ndarray, y: np.ndarray) -> list[str]:
@@ -299,9 +312,7 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
     takes), and NOTES_FILE beside them: whose curves they are and what the .k file says
     of the loading curve (`Curves.loading_notes`: where the data end on it), a line each. The
     paths written."""
-    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
-    if curves.damper is not None:
-        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    tables = _tables(curves)
     for file, (x_name, (x, y)) in tables.items():
         write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
     said = [
@@ -313,6 +324,19 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
     with atomic_open(folder / NOTES_FILE) as fh:
         fh.write("".join(f"{line}\n" for line in said))
     return [*(folder / f for f in tables), folder / NOTES_FILE]
+
+
+def _tables(curves: Curves) -> dict[str, tuple[str, tuple[np.ndarray, np.ndarray]]]:
+    """The curve CSVs of `curves` by file name: the crush column's name and the curve."""
+    tables = {"loading.csv": ("crush_m", curves.loading), "unloading.csv": ("crush_m", curves.unloading)}
+    if curves.damper is not None:
+        tables["damper.csv"] = ("crush_rate_mps", curves.damper)
+    return tables
+
+
+def curve_files(curves: Curves) -> list[str]:
+    """The files `write_curves_csv` writes for `curves`, by name within its folder."""
+    return [*_tables(curves), NOTES_FILE]
 
 
 # --------------------------------------------------------------------------- pulse
@@ -358,7 +382,7 @@ class PulseTest:
             whose = "the designed model's acceleration (crashnlp design) in"
         mass = "mass not recorded (result.json keeps no energy audit of it)" if self.mass is None else f"mass {self.mass:.0f} kg"
         lines = (
-            f"crashnlp export of {name}: {whose} test {self.name}, as a sled-test input",
+            f"{EXPORTED} {name}: {whose} test {self.name}, as a sled-test input",
             f"impact at {self.speed * 3.6:.1f} km/h ({self.speed:.3f} m/s), {mass}",
         )
         return lines if fitted else (*lines, f"source: {self.source}")
@@ -456,7 +480,7 @@ def finite(file: Path, response: Response) -> Response:
     for column, values in columns.items():
         bad = np.flatnonzero(~np.isfinite(values))
         if bad.size:
-            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: not a response crashnlp wrote")
+            raise InputError(f"{file}: {column} is {values[bad[0]]:g} in data row {bad[0] + 1}: {NOT_WRITTEN}")
     return response
 
 

@@ -26,7 +26,7 @@ import hashlib
 import json
 import os
 import sys
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -110,12 +110,28 @@ def recorded_name(folder: Path, command: str) -> str | None:
     return name if recorded == command and name else None
 
 
-def check_output(out: str | Path, run: str, option: str = "--out") -> Path:
+def check_output(out: str | Path, run: str, option: str = "--out", entries: Iterable[str] = ()) -> Path:
     """check_writable, and refuse a folder that holds another run's results (its record names
-    another `run` than this, e.g. "identify pickup-56kph"); read only, so --check may call it."""
+    another `run` than this, e.g. "identify pickup-56kph") or something in the way of the files
+    the run writes there (`entries`: check_entries); read only, so --check may call it."""
     out = check_writable(out, option)
     _refuse_another(out, _read_record(out / RECORD).get("run"), run, option)
+    check_entries(out, entries, option)
     return out
+
+
+def check_entries(out: Path, entries: Iterable[str], option: str | None = "--out") -> None:
+    """Refuse, before any work, what in `out` stands where a run writes its files (`entries`, by
+    name within it, "56kph/response.csv"): a folder where a file goes, a file where a folder goes.
+    Found only as the run writes, it would end the run after its solve, half written."""
+    for name in entries:
+        path = out / name
+        folders = [f for f in path.parents if f != out and f.is_relative_to(out)]
+        entry = next((f for f in reversed(folders) if f.exists() and not f.is_dir()), None)
+        if entry is not None:
+            raise InputError(f"{_where(out, option)}: {entry} is a file where crashnlp writes a folder; remove or move it")
+        if path.is_dir():
+            raise InputError(f"{_where(out, option)}: {path} is a folder where crashnlp writes a file; remove or move it")
 
 
 @contextmanager
@@ -358,19 +374,45 @@ def file_option(text: str, option: str = "--out") -> Path:
     return Path(text)
 
 
-def check_writable_file(path: str | Path, option: str = "--out", own: Path | None = None) -> Path:
+def check_writable_file(path: str | Path, option: str = "--out", own: Path | None = None, kind: OutputKind | None = None) -> Path:
     """Refuse, before any work, a file to write that is a folder, whose folder cannot be written,
     or that a run's record lists (a fit's result.json, a test's response.csv: written over, that
     run's folder no longer reads); `own`, the file the command writes when not told otherwise,
-    may be written again."""
+    may be written again. Given the `kind` of file the command writes, an existing file other
+    than `own` is written over only where crashnlp wrote it as that kind (`OutputKind.wrote`):
+    anything else there (a test's data, a problem file, a user's own) is refused."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{option} {path}: is a folder; name the file to write")
     check_writable(path.parent, option)
-    listed = None if own is not None and path.resolve() == own.resolve() else _listed_by(path)
+    if own is not None and path.resolve() == own.resolve():
+        return path
+    listed = _listed_by(path)
     if listed is not None:
         raise InputError(f"{option} {path}: is a file of the run {listed[0]} in {listed[1]}; name another file")
+    if kind is not None and path.exists() and not kind.wrote(path):
+        raise InputError(f"{option} {path}: exists, and is no {kind.what} crashnlp wrote; name another file, or remove it first")
     return path
+
+
+_HEAD = 8192  # bytes of a file's head read for an OutputKind's mark: it follows at most a few lines of warnings
+
+
+@dataclass(frozen=True)
+class OutputKind:
+    """A kind of file a command writes to --out (a report, an LS-DYNA export, a pulse): what to
+    call it, and the text its head always holds, whatever the run (`mark`)."""
+
+    what: str
+    mark: str
+
+    def wrote(self, path: Path) -> bool:
+        """Whether the file at `path` holds the mark in its head: crashnlp wrote it as this kind."""
+        try:
+            with open(path, "rb") as fh:
+                return self.mark.encode() in fh.read(_HEAD)
+        except OSError:
+            return False
 
 
 def _listed_by(path: Path) -> tuple[str, Path] | None:

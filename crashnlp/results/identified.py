@@ -23,7 +23,7 @@ import numpy as np
 
 from crashnlp.base.choices import CFC_CLASSES
 from crashnlp.base.errors import InputError
-from crashnlp.base.outputs import OUTPUT, OUTPUTS
+from crashnlp.base.outputs import OUTPUT, OUTPUTS, Z95
 
 if TYPE_CHECKING:
     from crashnlp.problem.schema import Problem
@@ -43,6 +43,7 @@ UNLOADING_STIFFNESS = "model.unloading.stiffness"
 # fit writes the value it used, so a null here is an edited file, and a prediction would read it from
 # the predicted test's data
 FROM_DATA = ("vehicle.mass", SPRING_VALUES, UNLOADING_STIFFNESS)
+LOOSE = "loosely determined (a 95 % interval wider than the value: the data barely determine it)"
 EDITED = "(a result.json edited by hand?)"  # the likeliest cause of a result.json crashnlp would not have written
 
 
@@ -247,6 +248,27 @@ class IdentifiedModel:
             return np.full(len(self.labels), np.inf)
         return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
 
+    def loosely_determined(self) -> tuple[str, ...]:
+        """The labels of the estimated values the data determine only loosely (LOOSE): a finite
+        standard error whose 95 % interval, value ± Z95 std, is wider on either side than the value
+        itself (it takes in zero: the data do not tell the value from none), the value off its
+        bounds (one at a bound is said to be there, with how far past it the data pull). Those the
+        data do not determine at all (an infinite standard error) are not identified instead."""
+        values = self._labelled_values()
+        return tuple(
+            label
+            for label, s, (lo, hi) in zip(self.labels, self.std(), self.bounds)
+            if label in values and np.isfinite(s) and Z95 * s > abs(values[label]) and lo < values[label] < hi
+        )
+
+    def _labelled_values(self) -> dict[str, float]:
+        """The estimated values by label, as `labels` names them (an entry of one value by its path)."""
+        out: dict[str, float] = {}
+        for path, value in self.parameters.items():
+            values = value if isinstance(value, list) else [value]
+            out |= {path: values[0]} if len(values) == 1 else {f"{path}[{k}]": v for k, v in enumerate(values)}
+        return out
+
 
 def shaping_nothing_short_of(labels: tuple[str, ...] | list[str], breakpoints: Any, crush: float) -> np.ndarray:
     """Per labelled estimate, whether it shapes no loading force short of `crush` (m): a spring
@@ -362,7 +384,7 @@ def _refuse_another_vehicle(problem: Problem, identified: IdentifiedModel, sourc
     given = problem.vehicle.model_fields_set
     for key in GEOMETRY:
         mine, theirs = getattr(problem.vehicle, key), identified.vehicle.get(key)
-        if key in given and theirs is not None and not _same(mine, theirs, SAME_GEOMETRY):
+        if key in given and theirs is not None and not same(mine, theirs, SAME_GEOMETRY):
             raise InputError(
                 f"{source}: vehicle.{key}: the problem's is {mine:g} m, the identified vehicle's {theirs:g} m: "
                 "another vehicle (a result predicts the vehicle it was fitted to)"
@@ -394,9 +416,11 @@ def _differs(mine: Any, theirs: Any) -> bool:
     if isinstance(mine, BreakpointCount):
         return not isinstance(theirs, list) or mine.count != len(theirs)
     if isinstance(mine, tuple) or isinstance(theirs, list):
-        return not isinstance(mine, tuple) or len(mine) != len(theirs) or not all(map(_same, mine, theirs))
+        return not isinstance(mine, tuple) or len(mine) != len(theirs) or not all(map(same, mine, theirs))
     return mine != theirs
 
 
-def _same(a: float, b: float, tolerance: float = SAME) -> bool:
+def same(a: float, b: float, tolerance: float = SAME) -> bool:
+    """Whether two values are the same to a relative `tolerance` (a number written to result.json
+    and read back is the same as itself)."""
     return abs(a - b) <= tolerance * max(abs(a), abs(b), 1e-12)

@@ -5,12 +5,14 @@ Light (numpy and the outputs registry): a result read back from its files needs 
 
 from __future__ import annotations
 
+import csv
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import COLUMNS, OUTPUT
 from crashnlp.results.files import write_columns
 
@@ -19,6 +21,7 @@ from crashnlp.results.files import write_columns
 # the crush stays at the permanent set (crashnlp.models.simulation.front_end_crush). The forward
 # check compares it, a function of the states as the NLP's are (crashnlp.optimize.verify).
 APPROACH = "approach"
+NOT_WRITTEN = "not a response crashnlp wrote"  # said of a response.csv that no reader takes
 OWN_ACCEL = "model_accel_g"  # response.csv's column of the model's own acceleration, beside the one read through a CFC class
 
 
@@ -67,11 +70,25 @@ def write_response_csv(path: Path, response: Response, extra: dict[str, np.ndarr
 
 def read_columns(path: Path) -> dict[str, np.ndarray]:
     """The columns of a CSV `write_columns` wrote, by name (a response.csv with any extra columns),
-    its comment lines skipped (a header line would be read from the first of them)."""
+    its comment lines skipped (a header line would be read from the first of them). What no such
+    table holds (no header or no data row, a row of another length than the header, a cell that
+    reads as no number) is an InputError naming the file, and the column and the row: one reader
+    for every command that reads a folder back, which all refuse it alike."""
     with path.open(encoding="utf-8") as fh:
-        lines = [line for line in fh if not line.startswith("#")]
-    table = np.genfromtxt(lines, delimiter=",", names=True, ndmin=1)
-    return {name: np.asarray(table[name], dtype=float) for name in table.dtype.names or ()}
+        rows = [row for row in csv.reader(line for line in fh if not line.startswith("#")) if row]
+    if len(rows) < 2:
+        raise InputError(f"{path}: {'empty' if not rows else 'no data row'}: {NOT_WRITTEN}")
+    head, data = rows[0], rows[1:]
+    for i, row in enumerate(data, 1):
+        if len(row) != len(head):
+            raise InputError(f"{path}: data row {i} has {len(row)} cells for {len(head)} columns: {NOT_WRITTEN}")
+        for column, cell in zip(head, row):
+            try:
+                float(cell)
+            except ValueError:
+                raise InputError(f"{path}: {column} is {cell!r} in data row {i}: {NOT_WRITTEN}") from None
+    table = np.array(data, dtype=float)
+    return {name: table[:, j] for j, name in enumerate(head)}
 
 
 def response_of(columns: dict[str, np.ndarray], accel_filter: str | None = None) -> Response:

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -21,11 +22,12 @@ import numpy as np
 from crashnlp.base.errors import InputError, unreadable
 from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
-from crashnlp.results.identified import EDITED, IdentifiedModel
+from crashnlp.results.identified import EDITED, IdentifiedModel, same
 from crashnlp.results.jsonfile import write_json
 from crashnlp.results.response import Response, read_columns, read_response, write_response_csv
 
 if TYPE_CHECKING:
+    from crashnlp.problem.schema import Problem
     from crashnlp.results.plots import Job  # not at run time: matplotlib
 
 # ignored by reproducibility checks: the only entries that change from run to run
@@ -112,6 +114,14 @@ class LoadingCurve:
 
 RESULT_FILE = "result.json"  # what `Result.save` writes into a fit's folder, and `Result.load` reads
 FORCE_CRUSH_FILE = "force_crush.csv"  # the loading curve's table beside it
+FORCE_CRUSH_FIGURE = "force_crush.png"
+TEST_FILES = ("response.csv", "fit.png", "response.png", "residuals.png")  # in each test's folder: its response and figures
+
+
+def result_entries(tests: Iterable[str]) -> list[str]:
+    """The files a fit's or a design's folder gets (`write_result`, its figures), by name within it,
+    for the folder's check before the solve (crashnlp.results.files.check_entries)."""
+    return [RESULT_FILE, FORCE_CRUSH_FILE, FORCE_CRUSH_FIGURE, *(f"{test}/{file}" for test in tests for file in TEST_FILES)]
 
 
 def result_file(path: str | Path) -> Path:
@@ -307,9 +317,32 @@ def refuse_edited(result: Result, source: str) -> Result:
             if std is not None and not (_positive(std) or std == 0):
                 where = f"{path}[{i}]" if isinstance(errors, list) else path
                 raise InputError(f"{source}: std_errors.{where} is {std}: must be a number, not negative, or null {EDITED}")
-    if result.identified is not None:
-        result.identified.as_problem(result.name, source)
+    identified = result.identified.as_problem(result.name, source) if result.identified is not None else None
+    for path, given in result.parameters.items():
+        _refuse_another_value(path, given, identified, source)
     return result
+
+
+def _refuse_another_value(path: str, value: Any, identified: Problem | None, source: str) -> None:
+    """An InputError naming `source` and the entry where result.json's `parameters` give `path`
+    another value than the `identified` model has (as a prediction and an export take it; None
+    where the result keeps none, an older result.json), or one it has not: the report shows
+    these values. Without an identified model a value need only be a finite number, or a list
+    of them."""
+    values = value if isinstance(value, list) else [value]
+    numbers = all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) for v in values)
+    if identified is None:
+        if not numbers:
+            raise InputError(f"{source}: parameters.{path} is {json.dumps(value)}: must be a number, or a list of them {EDITED}")
+        return
+    theirs = identified.value_at(path)
+    listed = list(theirs) if isinstance(theirs, tuple) else [theirs]
+    if theirs is None or not (numbers and len(listed) == len(values) and all(map(same, values, listed))):
+        has = "no such entry" if theirs is None else json.dumps(theirs)
+        raise InputError(
+            f"{source}: parameters.{path} is {json.dumps(value)}, where identified_model has {has}: the report would "
+            f"show the one, predictions and exports take the other {EDITED}"
+        )
 
 
 def refuse_status(status: Any, source: str) -> None:
@@ -331,6 +364,27 @@ def pull_texts(result: Result) -> dict[str, str]:
     if result.kind != "identify":
         return dict.fromkeys(result.at_bound, "at its bound")
     return {label: "not identified" if pull is None else f"{pull:.2g} std" for label, pull in result.at_bound.items()}
+
+
+UNSOLVED = "rests on a solve IPOPT did not finish"  # a profile interval's end whose objective is not the profile's
+
+
+def unsolved_end(profile: dict[str, Any], key: str) -> str | None:
+    """The words for a profile interval's `key` ("lower", "upper") end that rests on a solve IPOPT
+    did not finish (crashnlp.optimize.profile's `unsolved`: its objective is not the profile's,
+    nor the end a 95 % end), as the console and the report give them; None for one that does not."""
+    statuses = (profile.get("unsolved") or {}).get(key)
+    return f"{UNSOLVED} ({', '.join(statuses)})" if statuses else None
+
+
+def unsolved_lines(result: Result) -> list[str]:
+    """A line for each profile interval end of `result` that rests on a solve IPOPT did not finish."""
+    return [
+        f"profile interval of {label}: its {key} end {words}"
+        for label, profile in result.profiles.items()
+        for key in ("lower", "upper")
+        if (words := unsolved_end(profile, key))
+    ]
 
 
 def loading_curve_name(kind: str) -> str:
@@ -494,4 +548,4 @@ def _force_crush_job(result: Result, fc: LoadingCurve, out: Path) -> Job:
     measured = {"measured m|a| vs CG travel" + (f" ({name})" if several else ""): c for name, c in fc.measured.items()}
     title = f"{result.name}: {loading_curve_name(result.kind)}"
     band = (fc.crush[inside], fc.band[0][inside], fc.band[1][inside]) if fc.band is not None else None
-    return ("force_crush_figure", (out / "force_crush.png", curves, (fc.breakpoints, fc.values), title, measured, band))
+    return ("force_crush_figure", (out / FORCE_CRUSH_FIGURE, curves, (fc.breakpoints, fc.values), title, measured, band))

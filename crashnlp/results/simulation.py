@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Iterator, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
@@ -138,6 +138,16 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
     return out
 
 
+SIMULATION_FILE = "simulation.json"
+TEST_FILES = ("response.csv", "response.png")  # in each test's folder: its response and figure
+
+
+def simulation_entries(tests: Iterable[str]) -> list[str]:
+    """The files a simulation's folder gets (`write_simulation`, its figures), by name within it,
+    for the folder's check before the simulation (crashnlp.results.files.check_entries)."""
+    return [SIMULATION_FILE, *(f"{test}/{file}" for test in tests for file in TEST_FILES)]
+
+
 def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> dict:
     """response.csv (with the bands' columns), metrics, intervals and extrapolation of each
     simulated test, and simulation.json (with the tests' source), into a folder that then holds
@@ -160,14 +170,14 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
             if test.notes:
                 entry["notes"] = list(test.notes)
             summary["tests"][test.name] = entry
-        write_json(out / "simulation.json", summary)
+        write_json(out / SIMULATION_FILE, summary)
     return summary
 
 
 def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
     """The name and the predicted tests `write_simulation` wrote into `folder`, back in SI: the
     responses and bands from each response.csv, the rest from simulation.json."""
-    raw = current_names(json.loads((folder / "simulation.json").read_text(encoding="utf-8")))
+    raw = current_names(json.loads((folder / SIMULATION_FILE).read_text(encoding="utf-8")))
     tests = {}
     for name, entry in raw["tests"].items():
         columns = read_columns(folder / name / "response.csv")

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import math
+import sys
 from pathlib import Path
 
 from crashnlp.base.choices import EXECUTORS
@@ -119,4 +120,7 @@ def cmd_study(args) -> int:
     for r in failed:
         solver = f" (IPOPT {r['return_status']})" if r.get("return_status") else ""
         print(f"  {r['case']}: {r['status']}{solver}")
+    if failed:  # exit status 1 and its one line on stderr, as a fit's solve that is not ok
+        named = ", ".join(r["case"] for r in failed)
+        print(f"crashnlp: {name}: {len(failed)} of {len(rows)} cases failed ({named}; {out}/table.csv says why)", file=sys.stderr)
     return 1 if failed else 0

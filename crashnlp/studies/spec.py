@@ -89,7 +89,7 @@ class Study:
 def load_study(path: str | Path) -> Study:
     """Read and check a study file; every problem with it is an InputError naming the file and key."""
     path = Path(path)
-    raw = read_yaml(path)
+    raw = read_yaml(path, "a study file (YAML)")
     if not isinstance(raw, dict):
         raise InputError(f"{path}: expected a mapping at the top level")
     try:
