@@ -209,7 +209,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
-    from crashnlp.results.identified import LOOSE
+    from crashnlp.results.identified import TAKES_IN_ZERO
     from crashnlp.results.result import pull_texts, unconverged, unsolved_lines
 
     s = result.solver
@@ -229,8 +229,8 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
         print(f"  {path} = {text}")
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
-    if result.identified is not None and result.ok and (loose := result.identified.loosely_determined()):
-        print(f"  {LOOSE}: {', '.join(loose)}")
+    if loose := result.takes_in_zero():
+        print(f"  {TAKES_IN_ZERO}: {', '.join(loose)}")
     for line in unsolved_lines(result):
         print(f"  {line}")
     if result.at_bound and result.kind == "identify" and result.ok:
@@ -483,7 +483,7 @@ def _export_curves(args, folder: Path) -> int:
     if result.identified is None:
         raise InputError(f"{folder / 'result.json'}: no identified_model (a result written before crashnlp kept it)")
     with reading(folder / "result.json"):  # one edited, or cut short, past what the schema reads is one line
-        curves = export.identified_curves(result.identified, result.not_identified)
+        curves = export.identified_curves(result.identified, result.not_identified, result.takes_in_zero())
     given = [option for option in PULSE_OPTIONS if getattr(args, option.lstrip("-")) is not None]
     if given:
         raise InputError(f"{given[0]}: an option of --format pulse; --format {args.format} writes no pulse")

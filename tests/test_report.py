@@ -190,28 +190,32 @@ def test_a_profile_end_resting_on_a_solve_ipopt_did_not_finish_says_so(fit, monk
 
 
 @pytest.mark.integration
-def test_a_value_the_data_determine_only_loosely_is_said_to_be_so_on_the_console_the_report_and_the_export(fit, capsys):
-    """A value whose 95 % interval is wider than itself (the damper estimated from one test: the
-    spring's standard errors 1.6 to 6 times its values) was listed nowhere, and the LS-DYNA export
-    said the data determine the force up to the reach with no caveat. One rule
-    (IdentifiedModel.loosely_determined) names it on the console, in the report and in the curves'
-    notes; the shipped fit has none."""
+def test_a_value_whose_interval_takes_in_zero_is_said_to_be_so_where_zero_means_none(fit, capsys):
+    """A spring value whose 95 % interval takes in zero (the damper estimated from one test: the
+    spring's standard errors 1.6 to 6 times its values) is named on the console, in the report and
+    in the curves' notes (one rule: Result.takes_in_zero). An offset or a height, whose zero means
+    nothing, is not, however wide its interval; nor is a value whose profile interval excludes zero
+    though value ± Z95 std would not. The shipped fit has none."""
     result = read_result(fit)
-    assert result.identified.loosely_determined() == ()
-    label = "model.spring.values[2]"
-    i = result.identified.labels.index(label)
+    assert result.takes_in_zero() == ()
+    label, offset = "model.spring.values[2]", "vehicle.crush_offset"
     covariance = result.identified.covariance.copy()
-    covariance[i, i] = result.parameters["model.spring.values"][2] ** 2  # a standard error as large as the value
+    for entry, value in ((label, result.parameters["model.spring.values"][2]), (offset, 1.0)):
+        i = result.identified.labels.index(entry)
+        covariance[i, i] = value**2  # a standard error as large as the value (the offset's far larger)
     loose = dataclasses.replace(result, identified=dataclasses.replace(result.identified, covariance=covariance))
-    assert loose.identified.loosely_determined() == (label,)
+    assert loose.takes_in_zero() == (label,)
+    value = result.parameters["model.spring.values"][2]
+    profiled = {label: {"points": [[value, 0.0]], "estimate": value, "lower": value / 2, "upper": value * 2}}
+    assert dataclasses.replace(loose, profiles=profiled).takes_in_zero() == ()
     _print_solution(loose)
-    said = [line for line in capsys.readouterr().out.splitlines() if "loosely determined" in line]
+    said = [line for line in capsys.readouterr().out.splitlines() if "takes in zero" in line]
     assert len(said) == 1 and said[0].endswith(f": {label}")
     page = html.unescape(result_page(loose, fit))
-    assert re.search(rf"<li>Loosely determined \(.*\): {re.escape(label)}</li>", page)
-    curves = export.identified_curves(loose.identified, loose.not_identified)
-    notes = [line for line in export.keyword_file(loose.name, fit, curves).splitlines() if "loosely" in line]
-    assert len(notes) == 2 and f"{label} = " in notes[1] and "only loosely" in notes[0]
+    assert re.search(rf"<li>95 % interval takes in zero \(.*\): {re.escape(label)}</li>", page)
+    curves = export.identified_curves(loose.identified, loose.not_identified, loose.takes_in_zero())
+    notes = [line for line in export.keyword_file(loose.name, fit, curves).splitlines() if "takes in zero" in line]
+    assert len(notes) == 2 and f"{label} = " in notes[1]
 
 
 @pytest.mark.integration

@@ -22,7 +22,7 @@ import numpy as np
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.identified import LOOSE
+from crashnlp.results.identified import TAKES_IN_ZERO
 from crashnlp.results.result import UNSOLVED, Result, loading_curve_name, pull_texts, unconverged, unsolved_end
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -85,8 +85,8 @@ def result_page(result: Result, folder: Path) -> str:
         figures=figures,
         parameters=_parameters(result, folder / "result.json"),
         not_identified=result.not_identified,
-        loose=result.identified.loosely_determined() if result.identified is not None and result.ok else (),
-        loose_words=LOOSE,
+        loose=result.takes_in_zero(),
+        loose_words=TAKES_IN_ZERO,
         at_bound=pull_texts(result),
         active=result.active_constraints,
         notes=result.notes,

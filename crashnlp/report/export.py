@@ -40,7 +40,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import OutputKind, atomic_open, write_columns
-from crashnlp.results.identified import DAMPER_VALUES, LOOSE, SPRING_VALUES, IdentifiedModel
+from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, TAKES_IN_ZERO, IdentifiedModel
 from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
@@ -92,9 +92,10 @@ def _whose(designed: bool) -> str:
     return "designed" if designed else "identified"
 
 
-def identified_curves(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> Curves:
+def identified_curves(identified: IdentifiedModel, not_identified: Collection[str] = (), zero: Collection[str] = ()) -> Curves:
     """The curves of an identified model, sampled from its own laws; `not_identified`: the labels
-    of its estimates the data do not determine (Result.not_identified). The model is taken as valid:
+    of its estimates the data do not determine (Result.not_identified), `zero` those whose 95 %
+    interval takes in zero (Result.takes_in_zero). The model is taken as valid:
     one read from a file a user may have edited goes through IdentifiedModel.as_problem first."""
     model = identified.model
     spring, smoothing, unloading = model["spring"], model["smoothing"], model["unloading"]
@@ -112,7 +113,7 @@ def identified_curves(identified: IdentifiedModel, not_identified: Collection[st
         recovered = np.array([0.0, float(np.max(force)) / stiffness])
         unloading_curve = (recovered, stiffness * recovered)
     speed = float(identified.vehicle.get("speed") or 0.0)
-    notes = (*reach_lines(identified, not_identified), *clipped)
+    notes = (*reach_lines(identified, not_identified, zero), *clipped)
     damper = _damper(model, speed)
     return Curves(
         (crush, force),
@@ -122,7 +123,7 @@ def identified_curves(identified: IdentifiedModel, not_identified: Collection[st
         stiffness,
         notes,
         identified.designed,
-        damper_lines(identified, not_identified) if damper is not None else (),
+        damper_lines(identified, not_identified, zero) if damper is not None else (),
     )
 
 
@@ -143,7 +144,7 @@ def _not_pulling(crush: np.ndarray, force: np.ndarray) -> tuple[np.ndarray, tupl
     )
 
 
-def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> tuple[str, ...]:
+def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (), zero: Collection[str] = ()) -> tuple[str, ...]:
     """Where the data end on the loading curve, in the words every format gives: the largest crush
     the model went through in the fitted tests (a design's: in its own, which no data determine),
     the breakpoints past it, the spring values the data do not determine (`not_identified`), each
@@ -155,15 +156,16 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     if identified.designed:
         lines = [f"the design's tests took the model to {reach * MM:.1f} mm of crush: the force past there met none of its goals"]
     else:
-        loosely = any(label.startswith(SPRING_VALUES) for label in identified.loosely_determined())
+        takes_zero = any(label.startswith(SPRING_VALUES) for label in zero)
         lines = [
             f"the fitted tests took the model to {reach * MM:.1f} mm of crush: the data determine the force up to there,"
-            " not past it" + (", and only loosely at the values said so below" if loosely else "")
+            " not past it" + (", and not at the values whose interval takes in zero, said so below" if takes_zero else "")
         ]
     past = [f"{b * MM:.4g}" for b in bps if b > reach]
     if past:
         lines.append(f"breakpoints past it: {', '.join(past)} mm")
-    lines += _undetermined(SPRING_VALUES, values, [f"{b * MM:.4g} mm" for b in bps], "kN", identified, not_identified)
+    at = [f"{b * MM:.4g} mm" for b in bps]
+    lines += _undetermined(SPRING_VALUES, values, at, "kN", not_identified, zero)
     tail = identified.tail_line
     if tail:
         lines.append(
@@ -173,7 +175,9 @@ def reach_lines(identified: IdentifiedModel, not_identified: Collection[str] = (
     return tuple(lines)
 
 
-def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = ()) -> tuple[str, ...]:
+def damper_lines(
+    identified: IdentifiedModel, not_identified: Collection[str] = (), zero: Collection[str] = ()
+) -> tuple[str, ...]:
     """What the damper curve's values rest on, in the words every format gives: a fit's damper whose
     values it did not estimate is the problem's (nominal: one test does not tell the damper from the
     spring), and the values it estimated that the data do not determine (`not_identified`)."""
@@ -183,20 +187,19 @@ def damper_lines(identified: IdentifiedModel, not_identified: Collection[str] = 
         return ("not estimated: the problem's values, which no test determined (nominal where the problem left them out)",)
     damper = identified.model["damper"]
     rates = [f"{r:.4g} m/s" for r in damper["rate_breakpoints"]]
-    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", identified, not_identified)
+    return _undetermined(DAMPER_VALUES, damper["values"], rates, "kN*s/m", not_identified, zero)
 
 
 def _undetermined(
-    entry: str, values: list[float], at: list[str], unit: str, identified: IdentifiedModel, not_identified: Collection[str]
+    entry: str, values: list[float], at: list[str], unit: str, not_identified: Collection[str], zero: Collection[str]
 ) -> tuple[str, ...]:
     """The lines naming `entry`'s values the data do not determine (`not_identified`), and those
-    they determine only loosely (IdentifiedModel.loosely_determined), each with its value (in kN or
+    whose 95 % interval takes in zero (`zero`: Result.takes_in_zero), each with its value (in kN or
     kN*s/m: the .k file's unit) and where it stands; none where the data determine them all."""
-    loose = identified.loosely_determined()
     lines = []
     for words, labels in (
         ("not identified (no test determines them; the fit left them where it stopped)", not_identified),
-        (LOOSE, loose),
+        (TAKES_IN_ZERO, zero),
     ):
         named = [
             f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"

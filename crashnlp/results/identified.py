@@ -15,6 +15,7 @@ that make problems import the problem schema when they are called.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -43,7 +44,9 @@ UNLOADING_STIFFNESS = "model.unloading.stiffness"
 # fit writes the value it used, so a null here is an edited file, and a prediction would read it from
 # the predicted test's data
 FROM_DATA = ("vehicle.mass", SPRING_VALUES, UNLOADING_STIFFNESS)
-LOOSE = "loosely determined (a 95 % interval wider than the value: the data barely determine it)"
+# the estimates whose zero means none (no force): a 95 % interval that takes it in does not tell them from none
+NONE_AT_ZERO = (SPRING_VALUES, DAMPER_VALUES, UNLOADING_STIFFNESS)
+TAKES_IN_ZERO = "95 % interval takes in zero (the data do not tell the value from none)"
 EDITED = "(a result.json edited by hand?)"  # the likeliest cause of a result.json crashnlp would not have written
 
 
@@ -248,17 +251,23 @@ class IdentifiedModel:
             return np.full(len(self.labels), np.inf)
         return np.sqrt(np.maximum(np.diag(self.covariance), 0.0))
 
-    def loosely_determined(self) -> tuple[str, ...]:
-        """The labels of the estimated values the data determine only loosely (LOOSE): a finite
-        standard error whose 95 % interval, value ± Z95 std, is wider on either side than the value
-        itself (it takes in zero: the data do not tell the value from none), the value off its
-        bounds (one at a bound is said to be there, with how far past it the data pull). Those the
-        data do not determine at all (an infinite standard error) are not identified instead."""
+    def takes_in_zero(self, profiles: Mapping[str, Mapping[str, Any]]) -> tuple[str, ...]:
+        """The labels of the estimated values whose zero means none (NONE_AT_ZERO: the spring's and
+        damper's values, the unloading stiffness) and whose 95 % interval takes in zero
+        (TAKES_IN_ZERO): the lower end of the profile's interval where `profiles` (Result.profiles) has one
+        (one the profile left open, or ran to the bound, reaches zero too), else value - Z95 std
+        with a finite standard error. Only values off their bounds count: one at a bound is said
+        to be there, and one the data do not determine at all (an infinite standard error) is not
+        identified instead. An offset or a height, whose zero means nothing (at a bound's lower
+        end or not), never is."""
         values = self._labelled_values()
         return tuple(
             label
             for label, s, (lo, hi) in zip(self.labels, self.std(), self.bounds)
-            if label in values and np.isfinite(s) and Z95 * s > abs(values[label]) and lo < values[label] < hi
+            if label.partition("[")[0] in NONE_AT_ZERO
+            and label in values
+            and lo < values[label] < hi
+            and _lower_end(profiles.get(label), values[label], s) <= 0
         )
 
     def _labelled_values(self) -> dict[str, float]:
@@ -268,6 +277,15 @@ class IdentifiedModel:
             values = value if isinstance(value, list) else [value]
             out |= {path: values[0]} if len(values) == 1 else {f"{path}[{k}]": v for k, v in enumerate(values)}
         return out
+
+
+def _lower_end(profile: Mapping[str, Any] | None, value: float, std: float) -> float:
+    """The lower end of a value's 95 % interval: its profile's where it has one (-inf where the
+    profile did not close below: it runs on past the values profiled, or to the bound), else
+    value - Z95 std (inf without a finite standard error: no interval to speak of)."""
+    if profile and profile.get("points"):
+        return -math.inf if profile.get("lower") is None else float(profile["lower"])
+    return value - Z95 * std if np.isfinite(std) else math.inf
 
 
 def shaping_nothing_short_of(labels: tuple[str, ...] | list[str], breakpoints: Any, crush: float) -> np.ndarray:

@@ -210,6 +210,11 @@ class Result:
     def ok(self) -> bool:
         return self.status == "ok"
 
+    def takes_in_zero(self) -> tuple[str, ...]:
+        """The labels of a converged fit's values whose 95 % interval takes in zero where zero means
+        none (IdentifiedModel.takes_in_zero, with the fit's profiles); none for another result."""
+        return self.identified.takes_in_zero(self.profiles) if self.identified is not None and self.ok else ()
+
     def to_json(self) -> dict[str, Any]:
         """The content of result.json (SI; metrics in the units their names say)."""
         return {
