@@ -46,18 +46,6 @@ CASES = {
     ),
     "missing key": ({"vehicle": {"cg_to_impact": None}}, "vehicle.cg_to_impact: missing key"),
     "bad estimate path": ({"estimate": {"vehicle.colour": {"bounds": [0, 1]}}}, "estimate.vehicle.colour"),
-    "profile typo": (
-        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.cg_above_impakt"]}},
-        "uncertainty.profile: vehicle.cg_above_impakt is not an estimated entry (vehicle.cg_above_impact)",
-    ),
-    "profile not estimated": (
-        {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.mass"]}},
-        "uncertainty.profile: vehicle.mass is not an estimated entry",
-    ),
-    "profile of a whole list": (
-        {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}, "uncertainty": {"profile": ["model.spring.values"]}},
-        "uncertainty.profile: model.spring.values is not an estimated entry (model.spring.values[0], ",
-    ),
     "estimate unit": ({"estimate": {"vehicle.mass": {"bounds": ["1 m", "2 m"]}}}, "does not convert to kg"),
     "bound unit": ({"constraints": {"bounds": {"pitch": [None, "12 kg"]}}}, "constraints:"),
     "ipopt option typo": ({"solver": {"ipopt": {"max_itr": 5}}}, "solver.ipopt.max_itr: no such IPOPT option"),
@@ -113,6 +101,56 @@ def test_bad_problem_file(name, tmp_path, capsys):
 
 
 SPRING = {"model.spring.values": {"bounds": ["0 kN", "2 MN"]}}
+
+
+@pytest.mark.parametrize(
+    ("changes", "expected"),
+    [
+        (
+            {
+                "estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}},
+                "uncertainty": {"profile": ["vehicle.cg_above_impakt"]},
+            },
+            "uncertainty.profile: vehicle.cg_above_impakt is not an estimated entry (vehicle.cg_above_impact)",
+        ),
+        (
+            {"estimate": {"vehicle.cg_above_impact": {"bounds": [0, 0.6]}}, "uncertainty": {"profile": ["vehicle.mass"]}},
+            "uncertainty.profile: vehicle.mass is not an estimated entry (vehicle.cg_above_impact)",
+        ),
+        (
+            {"estimate": {"model.spring.values": {"bounds": [0, "3 MN"]}}, "uncertainty": {"profile": ["model.spring.values"]}},
+            "uncertainty.profile: model.spring.values is not an estimated entry (model.spring.values[0], ",
+        ),
+    ],
+)
+def test_a_profile_of_no_estimated_value_is_refused_by_check_naming_file_and_key(tmp_path, capsys, changes, expected):
+    """A typo in uncertainty.profile, a value not estimated, a whole list: refused before any solve,
+    by --check too, in one line naming the file and the key."""
+    path = tmp_path / "profiled.yaml"
+    path.write_text(yaml.safe_dump(merge(BASE, {"tests": [{"name": "a", "data": DATA}], **changes})))
+    out = tmp_path / "out"
+    assert main(["identify", str(path), "--out", str(out), "--check"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {path}: {expected}") and err.count("\n") == 1, err
+    assert not out.exists()
+
+
+def test_a_profile_past_the_values_completed_from_the_data_is_refused_by_check(tmp_path, capsys):
+    """The Camry's breakpoints are chosen from its data (14 of them): a profile of values[40] was
+    let through at load, --check said ok, and the run solved, then exited 2 naming an internal
+    function (`with_values`). It is refused before any solve, naming the file and the key."""
+    problem = read_yaml(ROOT / "problems/nhtsa-10146.yaml")
+    problem["uncertainty"] = {"profile": ["model.spring.values[40]"]}
+    problem["tests"][0]["data"]["file"] = str(ROOT / "problems" / problem["tests"][0]["data"]["file"])
+    path = tmp_path / "camry.yaml"
+    path.write_text(yaml.safe_dump(problem))
+    out = tmp_path / "out"
+    for check in (["--check"], []):
+        assert main(["identify", str(path), "--out", str(out), *check]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"crashnlp: error: {path}: uncertainty.profile: model.spring.values[40] is not"), err
+        assert "with_values" not in err and err.count("\n") == 1
+    assert not out.exists()
 
 
 @pytest.mark.parametrize(

@@ -31,14 +31,26 @@ def prepare_case(problem: Problem, source: str | None = None) -> Case:
     data against its speed and mass (Case.check_data: a fit to data that contradict the problem is
     refused, not run), the estimate as the solve lays it out (FreeParameters: an initial
     value of another size than its entry is refused here, not once the output folder is held),
-    no entry its model form does not read (check_read), and something to solve for (check_solvable)."""
+    no entry its model form does not read (check_read), profiles of estimated entries alone
+    (check_profiled), and something to solve for (check_solvable)."""
     check_keys(problem, source)
     case = case_of(problem, source)
     with named(source or problem.name):
         case.check_data()
         check_read(case)
-        check_solvable(case, FreeParameters(case.layout, case.base, case.problem.estimate).size)
+        free = FreeParameters(case.layout, case.base, case.problem.estimate)
+        check_profiled(case, free.labels())
+        check_solvable(case, free.size)
     return case
+
+
+def check_profiled(case: Case, labels: list[str]) -> None:
+    """Refuse an `uncertainty.profile` entry that is none of the estimated values' `labels` (as the
+    solve lays them out, the values completed from the data counted): the profiles would refuse it
+    only after the solve."""
+    for label in case.problem.uncertainty.profile:
+        if label not in labels:
+            raise InputError(f"uncertainty.profile: {label} is not an estimated entry ({', '.join(labels)})")
 
 
 def check_read(case: Case) -> None:

@@ -24,7 +24,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from crashnlp.base.errors import InputError
 from crashnlp.base.outputs import Z95
 from crashnlp.case.case import Case
 from crashnlp.engine.executors import Executor
@@ -96,9 +95,7 @@ def profiles(solution: Solution, executor: Executor) -> dict[str, dict]:
     # the profiles re-optimise the objective the fit minimised: the prior at the weight it chose
     problem = solution.case.problem.with_values({"objective.regularization": solution.regularization.get("weight", 0.0)})
     chains, keys = [], []
-    for label in spec.profile:
-        if label not in labels:
-            raise InputError(f"uncertainty.profile: {label} is not an estimated entry ({', '.join(labels)})")
+    for label in spec.profile:  # each an estimated entry: crashnlp.optimize.pipeline.check_profiled
         i = labels.index(label)
         std, h = solution.covariance.std[i], solution.covariance.hessian_inverse[i, i]
         if not np.isfinite(std) or h <= 0:

@@ -810,30 +810,7 @@ class Problem(Strict):
             raise ValueError("tests: names must be unique")
         for path, spec in self.estimate.items():
             self._initial_within_bounds(path, spec)
-        self._profiled_estimated()
         return self
-
-    def estimated_labels(self) -> list[str]:
-        """The estimated entries one by one, as a fit labels them (crashnlp.optimize.free): an
-        entry of one value by its path, each value of a longer one as path[k]; an entry whose
-        values the data complete (None here) by its path and any index."""
-        labels = []
-        for path in self.estimate:
-            value = self.value_at(path)
-            size = len(value) if isinstance(value, tuple) else 1
-            labels += [path] if size == 1 else [f"{path}[{k}]" for k in range(size)]
-        return labels
-
-    def _profiled_estimated(self) -> None:
-        """Refuse an `uncertainty.profile` entry that names no estimated entry: a fit would refuse it
-        only after its solve."""
-        labels = self.estimated_labels()
-        completed = [path for path in self.estimate if self.value_at(path) is None]
-        for label in self.uncertainty.profile:
-            path, _, index = label.partition("[")
-            if label in labels or (path in completed and index[:-1].isdigit() and index.endswith("]")):
-                continue
-            raise ValueError(f"uncertainty.profile: {label} is not an estimated entry ({', '.join(labels)})")
 
     def _initial_within_bounds(self, path: str, spec: EstimateSpec) -> None:
         """Refuse an initial value (given, or the problem's own) outside the entry's estimate bounds."""
