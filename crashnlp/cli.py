@@ -488,8 +488,12 @@ def _export_curves(args, folder: Path) -> int:
     if given:
         raise InputError(f"{given[0]}: an option of --format pulse; --format {args.format} writes no pulse")
     if args.format == "csv":
-        out = check_writable(Path(args.out) if args.out else folder / "curves")
-        check_entries(out, export.curve_files(curves))
+        own = folder / "curves"
+        out = check_writable(Path(args.out) if args.out else own)
+        names = export.curve_files(curves)
+        check_entries(out, names)
+        for name in names:  # a user's own file of the name, or one edited since crashnlp wrote it, is not written over
+            check_writable_file(out / name, own=own / name, kind=export.CURVE_FILE)
         _say_unconverged(result.status)
         with deriving(folder, out):
             print("wrote " + ", ".join(str(p) for p in export.write_curves_csv(out, result.name, folder, curves, result.status)))

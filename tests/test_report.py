@@ -993,8 +993,9 @@ def test_bad_options_are_one_line_exit_2_and_nothing_written(fit, tmp_path, caps
     [["report"], ["export", "--format", "pulse"], ["export", "--format", "ls-dyna"]],
 )
 def test_an_out_that_is_a_file_crashnlp_did_not_write_as_that_output_is_refused(fit, tmp_path, capsys, options):
-    """A problem file, a test's data or another kind of output at --out is refused whole; the
-    command's own earlier output there is written again."""
+    """A problem file, a test's data, another kind of output, the command's own output edited (a
+    deck the curves were pasted into) at --out is refused whole; the command's own earlier output
+    there, untouched, is written again."""
     out = tmp_path / "out"
     argv = [options[0], str(fit), *options[1:], "--out", str(out)]
     assert main(argv) == 0 and main(argv) == 0
@@ -1004,13 +1005,37 @@ def test_an_out_that_is_a_file_crashnlp_did_not_write_as_that_output_is_refused(
     capsys.readouterr()
     problem = ROOT / "problems/pickup-56kph.yaml"
     data = problem.parent / yaml.safe_load(problem.read_text())["tests"][0]["data"]["file"]
-    for source in (problem, data, ours):
+    edited = tmp_path / "edited"
+    edited.write_bytes(b"*KEYWORD\n$ the user's own line\n" + out.read_bytes() + b"*PART\n")
+    for source in (problem, data, ours, edited):
         target = tmp_path / "target"
         shutil.copyfile(source, target)
         assert main([*argv[:-1], str(target)]) == 2
         err = capsys.readouterr().err
         assert err.count("\n") == 1 and f"--out {target}: exists" in err, err
         assert target.read_bytes() == source.read_bytes()
+
+
+def test_the_csv_export_writes_over_none_of_a_users_own_files(fit, tmp_path, capsys):
+    """A folder holding the user's own loading.csv and curves-notes.txt: the CSV export wrote over
+    both. A file crashnlp did not write there, or edited since, is refused, one line naming it,
+    nothing written; the export's own folder is written again."""
+    out = tmp_path / "curves"
+    argv = ["export", str(fit), "--format", "csv", "--out", str(out)]
+    assert main(argv) == 0 and main(argv) == 0
+    capsys.readouterr()
+    for name in ("loading.csv", "curves-notes.txt"):
+        mine = tmp_path / "mine"
+        mine.mkdir()
+        (mine / name).write_text("crush_m,force_N\n0,0\n")
+        assert main([*argv[:-1], str(mine)]) == 2
+        err = capsys.readouterr().err
+        assert err.count("\n") == 1 and f"--out {mine / name}: exists" in err, err
+        assert [p.name for p in mine.iterdir()] == [name] and (mine / name).read_text() == "crush_m,force_N\n0,0\n"
+        shutil.rmtree(mine)
+    with open(out / "loading.csv", "a") as fh:
+        fh.write("1,1\n")
+    assert main(argv) == 2 and f"--out {out / 'loading.csv'}: exists" in capsys.readouterr().err
 
 
 def test_a_folder_where_the_csv_export_writes_a_curve_is_refused_before_any_curve(fit, tmp_path, capsys):

@@ -1,10 +1,12 @@
 """The crashnlp cache folder: compiled functions (with a lock file and a sha256 record each:
 crashnlp.numerics.compiled), derived models (crashnlp.models.stored), remembered unit conversions
 (crashnlp.base.units), the installed IPOPT's options (crashnlp.problem.ipopt) and the values of the
-YAML files (problems, studies) read before (crashnlp.problem.load).
+YAML files (problems, studies) read before (crashnlp.problem.load), and the sha256 of each file a
+report or an export wrote (crashnlp.results.files.OutputKind: what --out may write over again).
 
 CRASHNLP_CACHE, default ~/.cache/crashnlp. Everything in it can be deleted at any
-time: it is rebuilt on demand, and results never depend on it. A compile keeps it within
+time: it is rebuilt on demand, and results never depend on it (with the written files' sha256
+gone, --out refuses crashnlp's earlier reports and exports as a user's own files). A compile keeps it within
 CRASHNLP_CACHE_MB, removing the least recently used libraries and kept files (KEPT: YAML values,
 stored models, unit conversions, IPOPT's options; crashnlp.numerics.compiled).
 """

@@ -32,8 +32,8 @@ if TYPE_CHECKING:
     from crashnlp.results.simulation import PredictedTest
 
 REPORT = "report.html"
-GENERATOR = "crashnlp report"  # every page's generator; a report's --out may write over a page that names it
-REPORT_FILE = OutputKind("report", f'<meta name="generator" content="{GENERATOR}">')
+GENERATOR = "crashnlp report"  # every page's generator (its <meta name="generator">)
+REPORT_FILE = OutputKind("report")
 RATINGS = ("corridor", "phase", "magnitude", "slope", "overall")  # ISO/TS 18571's sub-ratings and its overall rating
 
 TEMPLATES = jinja2.Environment(  # the pages of crashnlp report and crashnlp compare-results
@@ -57,7 +57,7 @@ def write_report(folder: Path, out: Path | None = None) -> Path:
         page = simulation_page(*read_simulation(folder), folder)
     else:
         page = study_page(recorded_name(folder, "study") or folder.name, read_study(folder), folder)
-    with deriving(folder, out), atomic_open(out) as fh:
+    with deriving(folder, out), atomic_open(out, kind=REPORT_FILE) as fh:
         fh.write(page)
     return out
 

@@ -52,8 +52,9 @@ BENDS = np.array([-8.0, -4.0, -2.0, -1.0, -0.5, 0.0, 0.5, 1.0, 2.0, 4.0, 8.0])  
 FIRST_ID = 1001  # the curves' ids (loading, unloading, damper): clear of a deck's low numbers
 PEAK_MOVED = 0.01  # relative: a filter that moves a pulse's peak deceleration more than this is said to
 EXPORTED = "crashnlp export of"  # the first words of every exported file's header, after any warning
-KEYWORD_FILE = OutputKind("LS-DYNA keyword file", f"$ {EXPORTED} ")  # what --out may write over (check_writable_file)
-PULSE_FILE = OutputKind("pulse", f"# {EXPORTED} ")
+KEYWORD_FILE = OutputKind("LS-DYNA keyword file")  # what --out may write over (check_writable_file)
+PULSE_FILE = OutputKind("pulse")
+CURVE_FILE = OutputKind("curve file")  # each file of the CSV export
 TITLE_COLUMNS = 80  # a *DEFINE_CURVE_TITLE title line: LS-DYNA reads 80 columns of it
 # relative to the loading curve's largest force: a clip at zero up to this is the smoothing's
 # rounding (the shipped pickup's law gives -2 N at zero crush, where its tail's hinge reaches back), not said
@@ -302,7 +303,7 @@ def _title(what: str, name: str) -> str:
 
 
 def write_keyword_file(path: Path, name: str, source: Path, curves: Curves, status: str | None = None) -> None:
-    with atomic_open(path) as fh:
+    with atomic_open(path, kind=KEYWORD_FILE) as fh:
         fh.write(keyword_file(name, source, curves, status))
 
 
@@ -317,14 +318,14 @@ def write_curves_csv(folder: Path, name: str, source: Path, curves: Curves, stat
     paths written."""
     tables = _tables(curves)
     for file, (x_name, (x, y)) in tables.items():
-        write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status))
+        write_columns(folder / file, {x_name: x, "force_N": y}, unconverged(status), CURVE_FILE)
     said = [
         *unconverged(status),
         f"{_whose_curves(name, source, curves)} as curves, SI: {', '.join(tables)}",
         *(f"loading.csv: {note}" for note in curves.loading_notes),
         *(f"damper.csv: {note}" for note in curves.damper_notes),
     ]
-    with atomic_open(folder / NOTES_FILE) as fh:
+    with atomic_open(folder / NOTES_FILE, kind=CURVE_FILE) as fh:
         fh.write("".join(f"{line}\n" for line in said))
     return [*(folder / f for f in tables), folder / NOTES_FILE]
 
@@ -533,4 +534,4 @@ def write_pulse(path: Path, name: str, test: PulseTest, p: Pulse, status: str | 
         *(f"note: {note}" for note in test.said()),
     )
     accel = OUTPUT["accel"]
-    write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments)
+    write_columns(path, {"time_s": p.time, str(accel.column): p.accel * accel.factor}, comments, PULSE_FILE)

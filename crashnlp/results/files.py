@@ -27,31 +27,36 @@ import json
 import os
 import sys
 from collections.abc import Iterable, Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, suppress
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
-from crashnlp.base.cache import replaced_atomically, temporary_file
+from crashnlp.base.cache import cache_dir, replaced_atomically, temporary_file
 from crashnlp.base.errors import InputError
 
 
 @contextmanager
-def atomic_open(path: Path, mode: str = "w") -> Iterator[IO[Any]]:
+def atomic_open(path: Path, mode: str = "w", kind: OutputKind | None = None) -> Iterator[IO[Any]]:
     """An output file written in full or not at all (crashnlp.base.cache.replaced_atomically),
-    noted as the run's once written (`note_output`)."""
+    noted as the run's once written (`note_output`), and as a file crashnlp wrote as `kind`
+    (OutputKind.note) where it is one --out may name."""
     with replaced_atomically(path, mode) as fh:
         yield fh
     note_output(path)
+    if kind is not None:
+        kind.note(path)
 
 
-def write_columns(path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = ()) -> None:
+def write_columns(
+    path: Path, columns: dict[str, np.ndarray], comments: tuple[str, ...] = (), kind: OutputKind | None = None
+) -> None:
     """A CSV of numeric columns (header: their names), nine significant digits, a zero as 0 (not
     -0: adding 0.0 makes -0.0 0.0); `comments` go first, each a line starting with "# " (what the
-    columns are, a check of them)."""
-    with atomic_open(path) as fh:
+    columns are, a check of them); `kind`: as atomic_open's."""
+    with atomic_open(path, kind=kind) as fh:
         fh.writelines(f"# {line}\n" for line in comments)
         writer = csv.writer(fh)
         writer.writerow(columns)
@@ -379,8 +384,9 @@ def check_writable_file(path: str | Path, option: str = "--out", own: Path | Non
     or that a run's record lists (a fit's result.json, a test's response.csv: written over, that
     run's folder no longer reads); `own`, the file the command writes when not told otherwise,
     may be written again. Given the `kind` of file the command writes, an existing file other
-    than `own` is written over only where crashnlp wrote it as that kind (`OutputKind.wrote`):
-    anything else there (a test's data, a problem file, a user's own) is refused."""
+    than `own` is written over only where crashnlp wrote it as that kind, unchanged since
+    (`OutputKind.wrote`): anything else there (a test's data, a problem file, a user's own, an
+    edited export) is refused."""
     path = Path(path)
     if path.is_dir():
         raise InputError(f"{option} {path}: is a folder; name the file to write")
@@ -391,28 +397,43 @@ def check_writable_file(path: str | Path, option: str = "--out", own: Path | Non
     if listed is not None:
         raise InputError(f"{option} {path}: is a file of the run {listed[0]} in {listed[1]}; name another file")
     if kind is not None and path.exists() and not kind.wrote(path):
-        raise InputError(f"{option} {path}: exists, and is no {kind.what} crashnlp wrote; name another file, or remove it first")
+        raise InputError(
+            f"{option} {path}: exists, and is no {kind.what} crashnlp wrote (or it was changed since); name another file,"
+            " or remove it first"
+        )
     return path
 
 
-_HEAD = 8192  # bytes of a file's head read for an OutputKind's mark: it follows at most a few lines of warnings
+WRITTEN = "written"  # the cache's folder of the files crashnlp wrote to an --out it may write over again (OutputKind)
 
 
 @dataclass(frozen=True)
 class OutputKind:
-    """A kind of file a command writes to --out (a report, an LS-DYNA export, a pulse): what to
-    call it, and the text its head always holds, whatever the run (`mark`)."""
+    """A kind of file a command writes to --out (a report, an LS-DYNA export, a pulse, a curve CSV):
+    what to call it. Each one written is noted in the crashnlp cache by the sha256 of its bytes
+    (`note`), so that --out writes over a file only where crashnlp wrote it as this kind and it is
+    unchanged since (`wrote`): an edited file, a deck the curves were pasted into, a user's own
+    file of the same name are refused. With the cache deleted, crashnlp's earlier files are too."""
 
     what: str
-    mark: str
 
     def wrote(self, path: Path) -> bool:
-        """Whether the file at `path` holds the mark in its head: crashnlp wrote it as this kind."""
+        """Whether the file at `path` is, byte for byte, one crashnlp wrote as this kind."""
         try:
-            with open(path, "rb") as fh:
-                return self.mark.encode() in fh.read(_HEAD)
+            return self._noted(file_sha256(path)).exists()
         except OSError:
             return False
+
+    def note(self, path: Path) -> None:
+        """Note the file just written at `path` as this kind's (none where the cache cannot be
+        written: the file is then refused as any other)."""
+        with suppress(OSError):
+            noted = self._noted(file_sha256(path))
+            noted.parent.mkdir(parents=True, exist_ok=True)
+            noted.touch()
+
+    def _noted(self, sha256: str) -> Path:
+        return cache_dir() / WRITTEN / f"{self.what.replace(' ', '-')}-{sha256}"
 
 
 def _listed_by(path: Path) -> tuple[str, Path] | None:
