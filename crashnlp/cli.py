@@ -529,7 +529,7 @@ def _export_pulse(args, folder: Path, kind: str) -> int:
         name, tests = read_simulation(folder)
         status = next(((t.source.get("result") or {}).get("status") for t in tests.values()), None)
         test = export.predicted_test(folder, tests[_chosen_test(folder, tests, args.test)])
-    pulse = export.pulse(test.response, test.speed, _rate(args.rate or RATE), args.cfc)
+    pulse = export.pulse(test.response, test.speed, _rate(RATE if args.rate is None else args.rate), args.cfc)
     own = folder / f"{test.name}-pulse.csv"
     out = check_writable_file(file_option(args.out) if args.out else own, own=own, kind=export.PULSE_FILE)
     _say_unconverged(status)

@@ -972,6 +972,7 @@ def test_a_figure_names_a_test_once():
         (["export", "--format", "pulse", "--rate", "10 kg"], "--rate 10 kg:"),
         (["export", "--format", "pulse", "--rate", "1e12"], "--rate 1e+12: faster than any crash record is sampled"),
         (["export", "--format", "xml"], "--format: invalid choice"),
+        (["export", "--format", "pulse", "--rate", ""], "--rate : cannot read '' as a quantity"),
         (["export", "--format", "csv", "--rate", "20 kHz"], "--rate: an option of --format pulse; --format csv writes no"),
         (["export", "--format", "ls-dyna", "--cfc", "180"], "--cfc: an option of --format pulse; --format ls-dyna writes"),
         (["report", "--out", "{tmp}/a.html", "--out", "{tmp}/b.html"], "--out: given twice; give it once"),
