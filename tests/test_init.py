@@ -219,6 +219,19 @@ def test_init_refuses_data_that_identify_would_and_writes_nothing(tmp_path, caps
     assert err.count("\n") == 1 and not (tmp_path / "p.yaml").exists()
 
 
+@pytest.mark.parametrize("encoding", ["utf-16-le", "utf-16-be"])
+def test_init_of_a_utf16_file_says_to_save_it_as_utf8(tmp_path, capsys, encoding):
+    """A CSV saved as Excel's "Unicode Text" (UTF-16, a byte-order mark first) was called no text
+    file (its NUL bytes); it is named as UTF-16, to save as UTF-8."""
+    data = tmp_path / "pulse.csv"
+    data.write_bytes("\ufefftime_s,accel_g\n0,0\n0.001,-1\n".encode(encoding))
+    out = tmp_path / "p.yaml"
+    assert main(["init", str(data), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"crashnlp: error: {data}: UTF-16 text") and "save it as UTF-8" in err and err.count("\n") == 1, err
+    assert not out.exists()
+
+
 def test_init_of_a_file_that_is_no_text_says_so_not_its_bytes(tmp_path, capsys):
     """A program given as data (`init /bin/ls`) had its bytes named as the columns it lacked."""
     data = tmp_path / "program"

@@ -85,6 +85,9 @@ def _plain(lines: list[str], delimiter: str) -> tuple[list[str] | None, np.ndarr
         return None
 
 
+UTF16_MARKS = (b"\xff\xfe", b"\xfe\xff")  # the byte-order marks of UTF-16, little- and big-endian
+
+
 @dataclass(frozen=True)
 class Table:
     """The cells of a delimited text file: its header (None when the first line is all numbers)
@@ -102,11 +105,15 @@ class Table:
 
     @classmethod
     def read(cls, path: Path) -> Table:
-        """The file's cells; a file that cannot be read, is no text, or holds no row of data, is refused."""
+        """The file's cells; a file that cannot be read, is no text, is UTF-16 text, or holds no row of
+        data, is refused."""
         try:
-            text = Path(path).read_text(encoding="utf-8-sig", errors="replace")
+            raw = Path(path).read_bytes()
         except OSError as exc:
             raise DataError(f"{path}: cannot read ({exc.strerror})") from None
+        if raw.startswith(UTF16_MARKS):  # Excel's "Unicode Text": read as UTF-8, a NUL after every character
+            raise DataError(f"{path}: UTF-16 text (its byte-order mark): save it as UTF-8 (Excel: CSV UTF-8)")
+        text = raw.decode("utf-8-sig", errors="replace")
         if "\x00" in text:  # a program, an archive, an image: its bytes would be named as its columns
             raise DataError(f"{path}: not a text file (it holds NUL bytes): give the test's data as delimited text")
         lines = text.splitlines()
