@@ -807,8 +807,11 @@ def test_every_file_a_reader_reads_is_one_files_read_lists(tmp_path, monkeypatch
         spec(file=tmp_path / "T001" / "T001.mme", format="iso-mme", channels=mme_accel),
     ]
     read: list[Path] = []
-    read_text = Path.read_text
-    monkeypatch.setattr(Path, "read_text", lambda self, *a, **kw: read.append(self) or read_text(self, *a, **kw))
+    for method in ("read_text", "read_bytes"):  # a reader reads a file's text or its bytes
+        original = getattr(Path, method)
+        monkeypatch.setattr(
+            Path, method, lambda self, *a, _original=original, **kw: read.append(self) or _original(self, *a, **kw)
+        )
     for s in specs:
         read.clear()
         load_test_data(s, 15.0)
