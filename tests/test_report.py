@@ -208,6 +208,10 @@ def test_a_value_whose_interval_takes_in_zero_is_said_to_be_so_where_zero_means_
     value = result.parameters["model.spring.values"][2]
     profiled = {label: {"points": [[value, 0.0]], "estimate": value, "lower": value / 2, "upper": value * 2}}
     assert dataclasses.replace(loose, profiles=profiled).takes_in_zero() == ()
+    bounds = list(loose.identified.bounds)
+    bounds[loose.identified.labels.index(label)] = (value / 10, bounds[0][1])  # an interval cut above zero
+    above = dataclasses.replace(loose.identified, bounds=tuple(bounds))
+    assert dataclasses.replace(loose, identified=above).takes_in_zero() == ()
     _print_solution(loose)
     said = [line for line in capsys.readouterr().out.splitlines() if "takes in zero" in line]
     assert len(said) == 1 and said[0].endswith(f": {label}")

@@ -254,9 +254,10 @@ class IdentifiedModel:
     def takes_in_zero(self, profiles: Mapping[str, Mapping[str, Any]]) -> tuple[str, ...]:
         """The labels of the estimated values whose zero means none (NONE_AT_ZERO: the spring's and
         damper's values, the unloading stiffness) and whose 95 % interval takes in zero
-        (TAKES_IN_ZERO): the lower end of the profile's interval where `profiles` (Result.profiles) has one
-        (one the profile left open, or ran to the bound, reaches zero too), else value - Z95 std
-        with a finite standard error. Only values off their bounds count: one at a bound is said
+        (TAKES_IN_ZERO): the lower end of the profile's interval where `profiles` (Result.profiles)
+        has one, else value - Z95 std with a finite standard error, cut at the lower bound as the
+        report's interval is (one above zero keeps the interval off it). Only values off their
+        bounds count: one at a bound is said
         to be there, and one the data do not determine at all (an infinite standard error) is not
         identified instead. An offset or a height, whose zero means nothing (at a bound's lower
         end or not), never is."""
@@ -267,7 +268,7 @@ class IdentifiedModel:
             if label.partition("[")[0] in NONE_AT_ZERO
             and label in values
             and lo < values[label] < hi
-            and _lower_end(profiles.get(label), values[label], s) <= 0
+            and max(_lower_end(profiles.get(label), values[label], s), lo) <= 0
         )
 
     def _labelled_values(self) -> dict[str, float]:
@@ -280,9 +281,10 @@ class IdentifiedModel:
 
 
 def _lower_end(profile: Mapping[str, Any] | None, value: float, std: float) -> float:
-    """The lower end of a value's 95 % interval: its profile's where it has one (-inf where the
-    profile did not close below: it runs on past the values profiled, or to the bound), else
-    value - Z95 std (inf without a finite standard error: no interval to speak of)."""
+    """The lower end of a value's 95 % interval, before its bound cuts it: its profile's where it
+    has one (-inf where the profile did not close below: it ran to the bound, or runs on past the
+    values profiled, for all it says to the bound), else value - Z95 std (inf without a finite
+    standard error: no interval to speak of)."""
     if profile and profile.get("points"):
         return -math.inf if profile.get("lower") is None else float(profile["lower"])
     return value - Z95 * std if np.isfinite(std) else math.inf
