@@ -209,7 +209,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     """The console summary of a Result: status, parameters with their SI `units` (by path; none
     where not given) and std, metrics, fit, active constraints."""
     from crashnlp.analysis.summary import goes_on, let_go_words, pitch_words
-    from crashnlp.results.identified import TAKES_IN_ZERO
+    from crashnlp.results.identified import takes_in_zero_note
     from crashnlp.results.result import pull_texts, unconverged, unsolved_lines
 
     s = result.solver
@@ -230,7 +230,7 @@ def _print_solution(result, units: Mapping[str, str] | None = None) -> None:
     if result.not_identified:
         print(f"  not identified (infinite std): {', '.join(result.not_identified)}")
     if loose := result.takes_in_zero():
-        print(f"  {TAKES_IN_ZERO}: {', '.join(loose)}")
+        print(f"  {takes_in_zero_note(loose)}")
     for line in unsolved_lines(result):
         print(f"  {line}")
     if result.at_bound and result.kind == "identify" and result.ok:

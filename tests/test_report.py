@@ -18,7 +18,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import yaml
-from builders import BASE, ROOT, merge
+from builders import BASE, ROOT, merge, small_pickup_problem
 
 from crashnlp.analysis.summary import goes_on
 from crashnlp.base.outputs import METRIC, OUTPUT, PREDICTED, named_test, shown_unit
@@ -220,6 +220,24 @@ def test_a_value_whose_interval_takes_in_zero_is_said_to_be_so_where_zero_means_
     curves = export.identified_curves(loose.identified, loose.not_identified, loose.takes_in_zero())
     notes = [line for line in export.keyword_file(loose.name, fit, curves).splitlines() if "takes in zero" in line]
     assert len(notes) == 2 and f"{label} = " in notes[1]
+
+
+@pytest.mark.integration
+def test_result_json_notes_say_which_values_interval_takes_in_zero_as_the_console_does(tmp_path, capsys):
+    """A fit of 60 ms of the pickup that estimates the damper from one test, whose 95 % intervals
+    take in zero, says so in result.json's notes in the console's line (result.json had said
+    nothing of it); the report, which names them with those at a bound, says it once."""
+    raw = yaml.safe_load(small_pickup_problem(tmp_path).read_text())
+    raw["model"]["damper"] = {"rate_breakpoints": [0, 16], "values": ["5 kN*s/m", "5 kN*s/m"]}
+    raw["estimate"]["model.damper.values"] = {"bounds": [0, "200 kN*s/m"]}
+    raw["solver"] = {"compile": "never"}
+    (problem := tmp_path / "damper.yaml").write_text(yaml.safe_dump(raw))
+    assert main(["identify", str(problem), "--out", str(tmp_path / "fit"), "--no-figures"]) == 0
+    (said,) = [line.strip() for line in capsys.readouterr().out.splitlines() if "takes in zero" in line]
+    result = read_result(tmp_path / "fit")
+    assert result.takes_in_zero() and all(label in said for label in result.takes_in_zero())
+    assert [note for note in result.notes if "takes in zero" in note] == [said]
+    assert html.unescape(result_page(result, tmp_path / "fit")).count(said) == 1
 
 
 @pytest.mark.integration

@@ -6,6 +6,8 @@ layout) is read here, once; nothing downstream touches the optimizer.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from crashnlp.analysis.limits import FORCE_RANGE, within
@@ -28,7 +30,13 @@ from crashnlp.models.tail import trend_tail
 from crashnlp.numerics.nlp import NOT_REPORTED
 from crashnlp.optimize.identify import Solution
 from crashnlp.problem.forms import DEFAULT_FORM
-from crashnlp.results.identified import IdentifiedModel, IdentifiedRange, shaping_nothing_short_of, without_entries
+from crashnlp.results.identified import (
+    IdentifiedModel,
+    IdentifiedRange,
+    shaping_nothing_short_of,
+    takes_in_zero_note,
+    without_entries,
+)
 from crashnlp.results.response import Response
 from crashnlp.results.result import ActiveConstraint, ChannelFit, LoadingCurve, Result, SolverStats, TestResult
 
@@ -37,7 +45,8 @@ COVARIANCE_METHOD = "sandwich, Newey-West over the nodes of each test"
 
 def result_of(solution: Solution, ratings: bool = True) -> Result:
     """The plain result of a solve; `ratings`: rate each channel fit by ISO/TS 18571 (most of the
-    time of a warm-started study case, and no column of a study's table)."""
+    time of a warm-started study case, and no column of a study's table). Its notes name the values
+    whose 95 % interval takes in zero (Result.takes_in_zero), as the console and the report do."""
     case, res = solution.case, solution.result
     solver = SolverStats(
         res.return_status if res else None,
@@ -51,7 +60,7 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
     labels = solution.ocp.free.labels()
     identified = identified_model(solution, tests)
     cov, pull, at_bound = solution.covariance, solution.bound_pull(), solution.at_bound()
-    return Result(
+    result = Result(
         name=case.name,
         kind=case.problem.kind,
         status=solution.status,
@@ -75,6 +84,8 @@ def result_of(solution: Solution, ratings: bool = True) -> Result:
         output_bounds={str(name): ends for name, ends in case.problem.constraints.bounds.items()},
         resolution=case.resolution.to_json() if case.resolution is not None else {},
     )
+    loose = result.takes_in_zero()
+    return replace(result, notes=result.notes + (takes_in_zero_note(loose),)) if loose else result
 
 
 def identified_model(solution: Solution, tests: dict[str, TestResult]) -> IdentifiedModel:

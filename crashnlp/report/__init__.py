@@ -22,7 +22,7 @@ import numpy as np
 from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown_unit, significant
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
-from crashnlp.results.identified import TAKES_IN_ZERO
+from crashnlp.results.identified import takes_in_zero_note
 from crashnlp.results.result import UNSOLVED, Result, loading_curve_name, pull_texts, unconverged, unsolved_end
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -66,8 +66,10 @@ def write_report(folder: Path, out: Path | None = None) -> Path:
 def result_page(result: Result, folder: Path) -> str:
     """The page of a fit or design: the problem in brief, per test its figures, metrics and
     ratings, the estimates with their errors and intervals, their correlations, what sits at a
-    bound or is not identified, and the notes; one that did not converge leads with the line its
-    exports carry first (`unconverged`) and has no errors, intervals or correlations."""
+    bound or is not identified, and the notes (but the one on the values whose interval takes in
+    zero, which the page gives with those at a bound); one that did not converge leads with the line
+    its exports carry first (`unconverged`) and has no errors, intervals or correlations."""
+    loose = takes_in_zero_note(result.takes_in_zero())
     figures = embedded_figures(folder, ["force_crush.png"], f"the {loading_curve_name(result.kind)}")
     correlation = result.correlation
     if correlation.get("labels") and result.ok:
@@ -85,11 +87,10 @@ def result_page(result: Result, folder: Path) -> str:
         figures=figures,
         parameters=_parameters(result, folder / "result.json"),
         not_identified=result.not_identified,
-        loose=result.takes_in_zero(),
-        loose_words=TAKES_IN_ZERO,
+        loose=loose,
         at_bound=pull_texts(result),
         active=result.active_constraints,
-        notes=result.notes,
+        notes=tuple(note for note in result.notes if note != loose),
     )
 
 

@@ -40,7 +40,7 @@ from crashnlp.data.instrument import cfc_recorded
 from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import OutputKind, atomic_open, write_columns
-from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, TAKES_IN_ZERO, IdentifiedModel
+from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel, takes_in_zero_note
 from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
@@ -197,19 +197,25 @@ def _undetermined(
     """The lines naming `entry`'s values the data do not determine (`not_identified`), and those
     whose 95 % interval takes in zero (`zero`: Result.takes_in_zero), each with its value (in kN or
     kN*s/m: the .k file's unit) and where it stands; none where the data determine them all."""
-    lines = []
-    for words, labels in (
-        ("not identified (no test determines them; the fit left them where it stopped)", not_identified),
-        (TAKES_IN_ZERO, zero),
-    ):
-        named = [
-            f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
-            for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
-            if label in labels
-        ]
-        if named:
-            lines.append(f"{words}: {', '.join(named)}")
-    return tuple(lines)
+    undetermined = _named(entry, values, at, unit, not_identified)
+    loose = _named(entry, values, at, unit, zero)
+    return (
+        *(
+            [f"not identified (no test determines them; the fit left them where it stopped): {', '.join(undetermined)}"]
+            if undetermined
+            else []
+        ),
+        *([takes_in_zero_note(loose)] if loose else []),
+    )
+
+
+def _named(entry: str, values: list[float], at: list[str], unit: str, labels: Collection[str]) -> list[str]:
+    """`entry`'s values among `labels`, each with its value (in `unit`) and where it stands."""
+    return [
+        f"{label} = {values[i] * KN:.4g} {unit} at {at[i]}"
+        for i, label in enumerate(f"{entry}[{i}]" for i in range(len(values)))
+        if label in labels
+    ]
 
 
 def _damper(model: dict, speed: float) -> tuple[np.ndarray, np.ndarray] | None:

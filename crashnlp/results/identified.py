@@ -15,7 +15,7 @@ that make problems import the problem schema when they are called.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -278,6 +278,13 @@ class IdentifiedModel:
             values = value if isinstance(value, list) else [value]
             out |= {path: values[0]} if len(values) == 1 else {f"{path}[{k}]": v for k, v in enumerate(values)}
         return out
+
+
+def takes_in_zero_note(values: Collection[str]) -> str:
+    """The line that says which values' 95 % interval takes in zero (TAKES_IN_ZERO), each as
+    `values` gives it (a label, or a label with its value and where it stands), "none" for none:
+    the console, the report, the export's curve notes and result.json's notes word it alike."""
+    return f"{TAKES_IN_ZERO}: {', '.join(values) or 'none'}"
 
 
 def _lower_end(profile: Mapping[str, Any] | None, value: float, std: float) -> float:
