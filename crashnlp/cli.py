@@ -378,7 +378,7 @@ def _not_ok(form: FormScore) -> list[str]:
 
 def cmd_compare_forms(args) -> int:
     """Every model form fitted and scored (crashnlp.optimize.comparison): compare.json and a table."""
-    from crashnlp.optimize.comparison import check_comparable, compare, compared
+    from crashnlp.optimize.comparison import COMPARE_FILE, check_comparable, compare, compared
     from crashnlp.problem import load_problem
     from crashnlp.results.jsonfile import write_json
 
@@ -386,17 +386,17 @@ def cmd_compare_forms(args) -> int:
     forms = args.forms or compared(problem)
     check_comparable(problem, args.problem, forms, "--forms")
     run = run_name("compare", problem.name)
-    out = check_output(_out(args, f"{problem.name}-compare"), run)
+    out = check_output(_out(args, f"{problem.name}-compare"), run, entries=[COMPARE_FILE])
     if args.check:
-        print(f"{args.problem}: ok ({len(problem.tests)} tests; would write {out}/compare.json)")
+        print(f"{args.problem}: ok ({len(problem.tests)} tests; would write {out}/{COMPARE_FILE})")
         return 0
     with claim(out, run):
         with _computing(args):
             comparison = compare(problem, args.problem, progress=sys.stdout, forms=forms)
-        write_json(out / "compare.json", comparison.to_json())
+        write_json(out / COMPARE_FILE, comparison.to_json())
     print("\n".join(comparison_table(comparison.forms)))
     print(f"choice ({comparison.criterion}): {comparison.reason}")
-    print(f"wrote {out}/compare.json")
+    print(f"wrote {out}/{COMPARE_FILE}")
     if comparison.choice is None:
         print(f"crashnlp: {problem.name}: {comparison.reason}", file=sys.stderr)
         return 1

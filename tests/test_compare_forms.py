@@ -309,6 +309,22 @@ def test_compare_refuses_a_form_it_does_not_have_in_one_line(tmp_path, capsys):
     assert not out.exists()
 
 
+def test_a_folder_where_compare_writes_its_file_is_refused_before_any_fit(tmp_path, monkeypatch, capsys):
+    """A folder named compare.json in compare's --out was found only as compare wrote, after its
+    fits (minutes): it is refused before any, one line naming it, exit 2, nothing written."""
+    from crashnlp.optimize import comparison
+
+    out = tmp_path / "out"
+    (out / "compare.json").mkdir(parents=True)
+    fitted: list[str] = []
+    monkeypatch.setattr(comparison, "score_form", lambda p, form, *rest: (fitted.append(form) or _score(form, bic=1.0), None))
+    before = sorted(tmp_path.rglob("*"))
+    assert main(["compare", str(BASE_DIR / "pickup-joint.yaml"), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{out / 'compare.json'} is a folder where crashnlp writes a file" in err, err
+    assert fitted == [] and sorted(tmp_path.rglob("*")) == before
+
+
 def test_the_api_names_its_own_argument_for_a_form_it_does_not_have():
     with pytest.raises(InputError, match=r"^forms: 'wheel' is none of "):
         crashnlp.compare(BASE_DIR / "pickup-joint.yaml", forms=["rigid-body", "wheel"])

@@ -61,6 +61,7 @@ TIE = 0.05  # relative difference of held-out scores within which the default fo
 BIC_TIE = 2.0  # BIC difference within which the default form stays
 PUSHED = G0  # m/s^2: a measured deceleration above this says the front end still pushed on the barrier
 LIFT_WINDOW = 2e-3  # s: the measured deceleration's median over this either side of a predicted lift-off
+COMPARE_FILE = "compare.json"  # what `crashnlp compare` writes in its folder, checked before any fit (check_entries)
 
 
 @dataclass(frozen=True)
