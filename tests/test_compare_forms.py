@@ -28,7 +28,7 @@ from crashnlp.optimize.comparison import (
 )
 from crashnlp.optimize.pipeline import prepare_case
 from crashnlp.problem import load_problem, problem_from_dict
-from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS
+from crashnlp.problem.forms import COMPARED, DEFAULT_FORM, FORMS, READ_BY
 from crashnlp.results.response import Response
 
 BASE_DIR = ROOT / "problems"
@@ -150,9 +150,13 @@ def test_a_form_fits_only_the_estimate_entries_its_equations_read():
     rigid = with_form(problem, "rigid-body")
     assert rigid.model.form == "rigid-body"
     assert set(rigid.estimate) == {"model.spring.values", "vehicle.pitch_inertia"}
-    # the shipped pickup as a rigid body, estimating it: refused by identify, compared as each form reads it
+    # the shipped pickup as a rigid body (no offset given), estimating it: refused by identify, compared as each form reads it
     pickup = load_problem(ROOT / "problems/pickup-56kph.yaml")
-    as_rigid = pickup.model_copy(update={"model": pickup.model.model_copy(update={"form": "rigid-body"})})
+    model, vehicle = (
+        pickup.model.model_copy(update={"form": "rigid-body"}),
+        pickup.vehicle.model_copy(update={"crush_offset": 0.0}),
+    )
+    as_rigid = pickup.model_copy(update={"model": model, "vehicle": vehicle})
     with pytest.raises(InputError, match="estimate.vehicle.crush_offset: model.form rigid-body does not read it"):
         prepare_case(as_rigid)
     check_comparable(as_rigid, None, COMPARED)
@@ -197,6 +201,36 @@ def test_a_crush_offset_the_form_does_not_read_is_refused_and_compare_leaves_it_
     pendulum = problem_from_dict(BASE, BASE_DIR)
     assert with_form(pendulum, "rigid-body").vehicle.crush_offset == 0.0
     assert with_form(pendulum, "pendulum").vehicle.crush_offset == pendulum.vehicle.crush_offset > 0
+
+
+def test_compare_refuses_a_crush_offset_its_files_form_does_not_read_before_any_fit(tmp_path, monkeypatch, capsys):
+    """The pickup as a rigid body or an engine on mounts, its crush offset given (or as the
+    pendulum, an engine given): compare refuses it as identify does, one line naming the file and
+    the key, before any fit, nothing written (it had fitted the rigid body without the offset and
+    the pendulum with it, saying nothing). The pendulum's own file, whose offset is the
+    pendulum's, is compared as every form."""
+    from crashnlp.optimize import comparison
+
+    fitted: list[str] = []
+    monkeypatch.setattr(comparison, "score_form", lambda p, form, *rest: (fitted.append(form) or _score(form, bic=1.0), None))
+    raw = yaml.safe_load((BASE_DIR / "pickup-56kph.yaml").read_text())
+    raw["tests"][0]["data"]["file"] = str(BASE_DIR / raw["tests"][0]["data"]["file"])
+    raw["estimate"].pop("vehicle.crush_offset")
+    engine = {"engine": {"mass": "350 kg", "gap": "0.45 m", "contact_stiffness": "20 MN/m"}}
+    out = tmp_path / "out"
+    unread = (("rigid-body", {}, "crush_offset"), ("engine-on-mounts", engine, "crush_offset"), ("pendulum", engine, "engine"))
+    for form, vehicle, key in unread:
+        path = tmp_path / f"{form}.yaml"
+        path.write_text(yaml.safe_dump(merge(raw, {"model": {"form": form}, "vehicle": vehicle})))
+        for check in ([], ["--check"]):
+            assert main(["compare", str(path), "--out", str(out), *check]) == 2
+            err = capsys.readouterr().err
+            said = f"{path}: vehicle.{key}: model.form {form} does not read it (model.form: {READ_BY[key]} does)"
+            assert err.startswith(f"crashnlp: error: {said}") and err.count("\n") == 1, err
+    assert fitted == [] and not out.exists()
+    (path := tmp_path / "pendulum.yaml").write_text(yaml.safe_dump(raw))
+    assert main(["compare", str(path), "--out", str(out)]) == 0
+    assert fitted == list(COMPARED)
 
 
 WINDOW = 0.09

@@ -166,7 +166,9 @@ def compare(
 def check_comparable(problem: Problem, source: str | None, forms: Sequence[str], where: str = "forms") -> None:
     """What `compare` refuses before it fits anything, as an InputError: a problem that is not an
     identify problem, `forms` (given as `where`) naming none, the first of them that is no model
-    form, and the problem's own errors (`source` the file they name), before any form's."""
+    form, and the problem's own errors (`source` the file they name), before any form's: a vehicle
+    entry its own form does not read (an engine, a crush offset: Case.refuse_unread_given) as
+    identify refuses it; the other forms' problems leave it out (with_form)."""
     if problem.kind != "identify":
         raise InputError(f"{source or problem.name}: kind is {problem.kind!r}; compare fits an identify problem's forms")
     if not forms:
@@ -175,6 +177,7 @@ def check_comparable(problem: Problem, source: str | None, forms: Sequence[str],
     if unknown:
         raise InputError(f"{where}: {unknown[0]!r} is none of {', '.join(FORMS)}")
     check_keys(problem, source)
+    case_of(problem, source).refuse_unread_given(source or problem.name)
     prepare_case(with_form(problem, problem.model.form, source), source)  # as its own form fits it
 
 
