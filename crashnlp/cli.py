@@ -815,6 +815,13 @@ def _quiet_stdout() -> None:
     os.close(devnull)
 
 
+def _refuse_empty_out(args) -> None:
+    """Refuse `--out ""` on any command that takes --out: the commands read an empty one as not
+    given and wrote to their default path, and `init` to the working folder, without a word."""
+    if getattr(args, "out", None) == "":
+        raise InputError('--out "": names nothing; name the folder or file to write')
+
+
 def _command(argv: list[str]) -> int:
     """The command's exit status, any failure turned into its one line."""
     debug = "--debug" in argv
@@ -826,6 +833,7 @@ def _command(argv: list[str]) -> int:
                 warnings.simplefilter("ignore")
             args = parser().parse_args(argv)
             args.debug = debug
+            _refuse_empty_out(args)
             return args.func(args)
     except SystemExit as exc:  # --help and --version
         return exc.code if isinstance(exc.code, int) else 0

@@ -286,6 +286,28 @@ def test_a_folder_given_for_a_yaml_file_is_called_a_folder(tmp_path, capsys, com
     assert capsys.readouterr().err == f"crashnlp: error: {tmp_path}: a folder; give {what}\n"
 
 
+@pytest.mark.parametrize(
+    "command",
+    [
+        ["identify", "p.yaml"],
+        ["design", "p.yaml"],
+        ["simulate", "p.yaml"],
+        ["compare", "p.yaml"],
+        ["init", "data.csv"],
+        ["report", "fit"],
+        ["compare-results", "fit", "sim"],
+        ["export", "fit", "--format", "ls-dyna"],
+    ],
+)
+def test_an_empty_out_is_refused_on_every_command_that_takes_it(tmp_path, monkeypatch, capsys, command):
+    """`--out ""` was read as no --out: report and export wrote to their default path without a
+    word. Every command that takes --out refuses it, one line naming it, exit 2, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    assert main([*command, "--out", ""]) == 2
+    assert capsys.readouterr().err == 'crashnlp: error: --out "": names nothing; name the folder or file to write\n'
+    assert not list(tmp_path.iterdir())
+
+
 def test_an_option_of_one_value_given_twice_is_refused(tmp_path, capsys):
     """argparse took the last of a repeated `--speed` silently; which was meant is the user's to say."""
     problem = str(ROOT / "problems/pickup-56kph.yaml")
