@@ -258,8 +258,8 @@ class IdentifiedModel:
         has one, else value - Z95 std with a finite standard error, cut at the lower bound as the
         report's interval is (one above zero keeps the interval off it). Only values off their
         bounds count: one at a bound is said to be there, and one the data do not determine at all
-        (an infinite standard error) is not identified instead. An offset or a height, whose zero means nothing (at a bound's lower
-        end or not), never is."""
+        (an infinite standard error) is not identified instead. An offset or a height, whose zero
+        means nothing (at a bound's lower end or not), never is."""
         values = self._labelled_values()
         return tuple(
             label
