@@ -62,7 +62,7 @@ report-check: $(STAMP)
 	@command -v chromium >/dev/null || { apt-get update -q && apt-get install -y -q chromium; }
 	$(BIN)/python scripts/report_check.py results/report-check
 
-# the fuzz test of tests/test_fuzz.py with more mutations (make test runs 30 s of it); FUZZ_SEED=n for others
+# the fuzz test of tests/test_fuzz.py with more mutations (make test runs 15 s of it); FUZZ_SEED=n for others
 FUZZ_RUNS ?= 2000
 FUZZ_SEED ?= 14
 fuzz: $(STAMP)

@@ -5,7 +5,7 @@ behind (no output folder). Runs go through `crashnlp.cli.main(argv)` in this pro
 function the console script calls. Most runs add `--check` (everything but the solve); the others
 get a tiny iteration budget so that a mutation that passes validation stops early.
 
-CRASHNLP_FUZZ_SECONDS (default 30) bounds the time, CRASHNLP_FUZZ_RUNS (default unbounded within
+CRASHNLP_FUZZ_SECONDS (default 15: `make test`'s share) bounds the time, CRASHNLP_FUZZ_RUNS (default unbounded within
 the time) the number of runs, CRASHNLP_FUZZ_SEED (default 14) the seed; `make fuzz` runs 2000.
 A failure names the run and its mutation; rerun with the same seed to reproduce it.
 """
@@ -35,7 +35,7 @@ pytestmark = [pytest.mark.integration, pytest.mark.slow]
 
 PROBLEMS = sorted((ROOT / "problems").glob("*.yaml"))
 STUDIES = sorted((ROOT / "problems/studies").glob("*.yaml"))
-SECONDS = float(os.environ.get("CRASHNLP_FUZZ_SECONDS", "30"))
+SECONDS = float(os.environ.get("CRASHNLP_FUZZ_SECONDS", "15"))
 RUNS = int(os.environ.get("CRASHNLP_FUZZ_RUNS", "0")) or None
 SEED = int(os.environ.get("CRASHNLP_FUZZ_SEED", "14"))
 FULL_RUNS = 0.12  # share of problem runs that solve (with a tiny budget) instead of --check
