@@ -77,7 +77,7 @@ from crashnlp.case.case import Case, TestCase
 from crashnlp.models.tail import spacing, tail_start, trend_misses
 from crashnlp.problem import Problem
 from crashnlp.results.identified import UNLOADING_STIFFNESS, IdentifiedModel, applied, shaping_nothing_short_of, without_entries
-from crashnlp.results.response import Response
+from crashnlp.results.response import RESPONSE_FIGURE, Response
 from crashnlp.results.result import Result, unconverged_mark
 from crashnlp.results.simulation import IntervalParts, PredictedTest
 
@@ -654,6 +654,6 @@ def simulation_figure_jobs(name: str, tests: dict[str, PredictedTest], out: Path
         at = predicted.conditions + (", 95 % band" if bands else "")
         at += unconverged_mark(status)
         title = f"{named_test(name, predicted.name)}: {at}"
-        figure = (out / predicted.name / "response.png", title, model, predicted.data, bands, None, None, r.accel_filter)
+        figure = (out / predicted.name / RESPONSE_FIGURE, title, model, predicted.data, bands, None, None, r.accel_filter)
         jobs.append(("response_figure", figure))
     return jobs

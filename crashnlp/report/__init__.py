@@ -23,7 +23,18 @@ from crashnlp.base.outputs import OUTPUT, PLOTTED, PREDICTED, TABLED, Z95, shown
 from crashnlp.report.folders import folder_kind, read_result, read_simulation, read_study
 from crashnlp.results.files import OutputKind, atomic_open, check_writable_file, deriving, recorded_name
 from crashnlp.results.identified import takes_in_zero_note
-from crashnlp.results.result import UNSOLVED, Result, loading_curve_name, pull_texts, unconverged, unsolved_end
+from crashnlp.results.response import RESPONSE_FIGURE
+from crashnlp.results.result import (
+    FIT_FIGURE,
+    FORCE_CRUSH_FIGURE,
+    RESIDUAL_FIGURE,
+    UNSOLVED,
+    Result,
+    loading_curve_name,
+    pull_texts,
+    unconverged,
+    unsolved_end,
+)
 from crashnlp.results.simulation import extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
 from crashnlp.studies.table import number, read_through, shown_column
@@ -70,7 +81,7 @@ def result_page(result: Result, folder: Path) -> str:
     zero, which the page gives with those at a bound); one that did not converge leads with the line
     its exports carry first (`unconverged`) and has no errors, intervals or correlations."""
     loose = takes_in_zero_note(result.takes_in_zero())
-    figures = embedded_figures(folder, ["force_crush.png"], f"the {loading_curve_name(result.kind)}")
+    figures = embedded_figures(folder, [FORCE_CRUSH_FIGURE], f"the {loading_curve_name(result.kind)}")
     correlation = result.correlation
     if correlation.get("labels") and result.ok:
         from crashnlp.results import plots  # matplotlib: only when a page draws
@@ -137,7 +148,7 @@ def _test(result: Result, name: str, folder: Path) -> dict[str, Any]:
     return {
         "name": name,
         "speed": f"{t.speed * 3.6:.1f} km/h",
-        "figures": embedded_figures(folder / name, ["fit.png", "response.png", "residuals.png"], f"test {name}"),
+        "figures": embedded_figures(folder / name, [FIT_FIGURE, RESPONSE_FIGURE, RESIDUAL_FIGURE], f"test {name}"),
         "metrics": metrics,
         "has_data": bool(t.data_metrics),
         "fits": fits,
@@ -260,7 +271,7 @@ def simulation_page(name: str, tests: dict[str, PredictedTest], folder: Path) ->
                 "intervals": bool(test.intervals),
                 "extrapolation": _extrapolation(test),
                 "notes": test.notes,
-                "figures": embedded_figures(folder / test.name, ["response.png"], _figure_caption(test)),
+                "figures": embedded_figures(folder / test.name, [RESPONSE_FIGURE], _figure_caption(test)),
             }
         )
     source = source_line(next((test.source for test in tests.values() if test.source), {}))

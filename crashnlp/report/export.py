@@ -41,7 +41,7 @@ from crashnlp.data.signal import CFC_CLASSES, cfc_coefficients, cumtrapz
 from crashnlp.models.laws import SPRING_LAWS, damper_force, with_tail
 from crashnlp.results.files import OutputKind, atomic_open, write_columns
 from crashnlp.results.identified import DAMPER_VALUES, SPRING_VALUES, IdentifiedModel, takes_in_zero_note
-from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, Response
+from crashnlp.results.response import NOT_WRITTEN, OWN_ACCEL, RESPONSE_FILE, Response
 from crashnlp.results.result import Result, unconverged
 from crashnlp.results.simulation import PredictedTest, extrapolation_line
 from crashnlp.results.source import UNRECORDED, source_line
@@ -403,7 +403,7 @@ def fitted_test(folder: Path, result: Result, name: str) -> PulseTest:
     (TestResult.mass), its notes those of the result that name it."""
     t = result.tests[name]
     notes = tuple(note for note in result.notes if note.startswith(f"test {name}: "))
-    response = finite(folder / name / "response.csv", t.response)
+    response = finite(folder / name / RESPONSE_FILE, t.response)
     return PulseTest(name, response, t.speed, t.mass, None, notes, goes_on(t.metrics), designed=result.kind == "design")
 
 
@@ -411,7 +411,7 @@ def predicted_test(folder: Path, test: PredictedTest) -> PulseTest:
     """A test of the simulation in `folder`, with its source, how far it lies past the identified
     range and its notes, as `crashnlp simulate` printed them."""
     beyond = (f"{test.name}: {extrapolation_line(test.extrapolation)}",) if test.extrapolation else ()
-    response = finite(folder / test.name / "response.csv", test.response)
+    response = finite(folder / test.name / RESPONSE_FILE, test.response)
     source = source_line(test.source) or UNRECORDED
     return PulseTest(test.name, response, test.speed, test.mass, source, beyond + test.notes, goes_on(test.metrics))
 

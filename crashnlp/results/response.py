@@ -21,6 +21,8 @@ from crashnlp.results.files import write_columns
 # the crush stays at the permanent set (crashnlp.models.simulation.front_end_crush). The forward
 # check compares it, a function of the states as the NLP's are (crashnlp.optimize.verify).
 APPROACH = "approach"
+RESPONSE_FILE = "response.csv"  # a test's response in its folder of a fit, a design or a simulation
+RESPONSE_FIGURE = "response.png"  # its figure, where no data are fitted
 NOT_WRITTEN = "not a response crashnlp wrote"  # said of a response.csv that no reader takes
 OWN_ACCEL = "model_accel_g"  # response.csv's column of the model's own acceleration, beside the one read through a CFC class
 

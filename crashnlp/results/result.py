@@ -24,7 +24,14 @@ from crashnlp.base.outputs import OUTPUT, PANELS, current_names, named_test
 from crashnlp.results.files import claim, run_name, write_columns
 from crashnlp.results.identified import EDITED, IdentifiedModel, same
 from crashnlp.results.jsonfile import write_json
-from crashnlp.results.response import Response, read_columns, read_response, write_response_csv
+from crashnlp.results.response import (
+    RESPONSE_FIGURE,
+    RESPONSE_FILE,
+    Response,
+    read_columns,
+    read_response,
+    write_response_csv,
+)
 
 if TYPE_CHECKING:
     from crashnlp.problem.schema import Problem
@@ -115,7 +122,8 @@ class LoadingCurve:
 RESULT_FILE = "result.json"  # what `Result.save` writes into a fit's folder, and `Result.load` reads
 FORCE_CRUSH_FILE = "force_crush.csv"  # the loading curve's table beside it
 FORCE_CRUSH_FIGURE = "force_crush.png"
-TEST_FILES = ("response.csv", "fit.png", "response.png", "residuals.png")  # in each test's folder: its response and figures
+FIT_FIGURE, RESIDUAL_FIGURE = "fit.png", "residuals.png"  # a fitted test's figures in its folder
+TEST_FILES = (RESPONSE_FILE, FIT_FIGURE, RESPONSE_FIGURE, RESIDUAL_FIGURE)  # in each test's folder: its response and figures
 
 
 def result_entries(tests: Iterable[str]) -> list[str]:
@@ -263,7 +271,7 @@ class Result:
         identified = IdentifiedModel.from_json(raw["identified_model"]) if raw.get("identified_model") else None
         tests = {}
         for name, t in raw["tests"].items():
-            response = read_response(folder / name / "response.csv", t.get("accel_filter"))
+            response = read_response(folder / name / RESPONSE_FILE, t.get("accel_filter"))
             tests[name] = TestResult(
                 name,
                 t["speed_mps"],
@@ -466,7 +474,7 @@ def write_result(result: Result, out: Path, figures: bool = True) -> None:
     run's)."""
     with claim(out, run_name(result.kind, result.name), option=None):
         for name, t in result.tests.items():
-            write_response_csv(out / name / "response.csv", t.response)
+            write_response_csv(out / name / RESPONSE_FILE, t.response)
         fc = result.force_crush
         if fc is not None:
             force = along_the_tail(fc, identified_tail(result), fc.crush)
@@ -491,13 +499,13 @@ def figure_jobs(result: Result, out: Path) -> list[Job]:
         model = {k: (t.response.time, t.response[k]) for k in PANELS}
         fit = result.kind == "identify"
         title = f"{named_test(result.name, name)}: {'fit to the data' if t.data else 'model' if fit else 'design'}"
-        path = out / name / ("fit.png" if fit else "response.png")
+        path = out / name / (FIT_FIGURE if fit else RESPONSE_FIGURE)
         bounds, read = result.output_bounds, t.response.accel_filter
         jobs.append(("response_figure", (path, title, model, t.data, None, _fit_notes(t), bounds, read)))
         residuals = {c: (f.times, f.model - f.data) for c, f in t.fit.items() if f.times.size}  # none read back
         if residuals:
             title = f"{named_test(result.name, name)}: residuals (model - data)"
-            jobs.append(("residual_figure", (out / name / "residuals.png", title, residuals)))
+            jobs.append(("residual_figure", (out / name / RESIDUAL_FIGURE, title, residuals)))
     if result.force_crush is not None:
         jobs.append(_force_crush_job(result, result.force_crush, out))
     return jobs

@@ -20,7 +20,7 @@ import numpy as np
 from crashnlp.base.outputs import COLUMNS, OUTPUT, RENAMED_EXTRAPOLATION, current_names
 from crashnlp.results.files import claim, run_name
 from crashnlp.results.jsonfile import write_json
-from crashnlp.results.response import Response, read_columns, response_of, write_response_csv
+from crashnlp.results.response import RESPONSE_FIGURE, RESPONSE_FILE, Response, read_columns, response_of, write_response_csv
 
 
 @dataclass(frozen=True)
@@ -139,7 +139,7 @@ def response_columns(test: PredictedTest) -> dict[str, np.ndarray]:
 
 
 SIMULATION_FILE = "simulation.json"
-TEST_FILES = ("response.csv", "response.png")  # in each test's folder: its response and figure
+TEST_FILES = (RESPONSE_FILE, RESPONSE_FIGURE)  # in each test's folder: its response and figure
 
 
 def simulation_entries(tests: Iterable[str]) -> list[str]:
@@ -158,7 +158,7 @@ def write_simulation(name: str, tests: dict[str, PredictedTest], out: Path) -> d
     with claim(out, run_name("simulate", name), option=None):
         for test in tests.values():
             r = test.response
-            write_response_csv(out / test.name / "response.csv", r, response_columns(test))
+            write_response_csv(out / test.name / RESPONSE_FILE, r, response_columns(test))
             entry: dict[str, Any] = {"speed_mps": test.speed, "mass_kg": test.mass, "metrics": test.metrics}
             entry["accel_filter"] = r.accel_filter
             if test.intervals:
@@ -180,7 +180,7 @@ def read_simulation(folder: Path) -> tuple[str, dict[str, PredictedTest]]:
     raw = current_names(json.loads((folder / SIMULATION_FILE).read_text(encoding="utf-8")))
     tests = {}
     for name, entry in raw["tests"].items():
-        columns = read_columns(folder / name / "response.csv")
+        columns = read_columns(folder / name / RESPONSE_FILE)
         bands = {
             o.name: (columns[f"{o.column}_low"] / o.factor, columns[f"{o.column}_high"] / o.factor)
             for o in COLUMNS
